@@ -1,0 +1,79 @@
+"""The ``eye-in-hand`` command.
+
+Each sub-command lives in its own module under :mod:`eye_in_hand.commands` and provides::
+
+    HELP: str                                        # one line for ``eye-in-hand --help``
+    def add_arguments(parser: argparse.ArgumentParser) -> None
+    def run(args: argparse.Namespace) -> int          # the process exit code
+
+Command modules import heavy dependencies (rclpy, OpenCV, matplotlib) inside ``run`` so that
+``eye-in-hand --help`` stays fast. Errors derived from :class:`eye_in_hand.errors.EyeInHandError`
+are printed as one line on stderr (``eye-in-hand: error: ...``) with exit code 1, never a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from typing import Sequence
+
+from eye_in_hand import __version__
+from eye_in_hand.errors import EyeInHandError
+
+# (words, module). Words with a space form a command group, e.g. ``calibrate camera``.
+COMMANDS: list[tuple[str, str]] = [
+    ("bag info", "eye_in_hand.commands.bag_info"),
+    ("play", "eye_in_hand.commands.play"),
+    ("record", "eye_in_hand.commands.record"),
+    ("echo", "eye_in_hand.commands.echo"),
+    # -- further commands are registered below this line --
+]
+
+GROUP_HELP = {
+    "bag": "inspect rosbag2 bags",
+    "calibrate": "camera, stereo and hand-eye calibration",
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Build the full argument parser, importing every command module."""
+    parser = argparse.ArgumentParser(
+        prog="eye-in-hand",
+        description="Eye-in-hand stereo target localization, calibration and bag tools.",
+    )
+    parser.add_argument("--version", action="version", version=f"eye-in-hand {__version__}")
+    top = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    groups: dict[str, argparse._SubParsersAction] = {}
+    for words, module_name in COMMANDS:
+        module = importlib.import_module(module_name)
+        parts = words.split()
+        sub = top
+        if len(parts) == 2:
+            group = parts[0]
+            if group not in groups:
+                gparser = top.add_parser(group, help=GROUP_HELP.get(group, group))
+                groups[group] = gparser.add_subparsers(
+                    dest=f"{group}_command", metavar="SUBCOMMAND", required=True)
+            sub = groups[group]
+        cmd = sub.add_parser(parts[-1], help=module.HELP, description=module.HELP)
+        module.add_arguments(cmd)
+        cmd.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``eye-in-hand`` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except EyeInHandError as exc:
+        print(f"eye-in-hand: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("eye-in-hand: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""eye_in_hand.core."""

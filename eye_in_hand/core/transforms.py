@@ -1,0 +1,312 @@
+"""SE(3) helpers on 4x4 homogeneous matrices.
+
+Conventions (DESIGN.md): a transform ``a_T_b`` is a float64 array of shape (4, 4) that maps
+points expressed in frame ``b`` into frame ``a``; quaternions are in ROS order
+``quat_xyzw``; translations in metres; stamps in int nanoseconds.
+
+Inputs are validated at the boundary (shape, finiteness, orthonormality of the rotation within
+a tolerance) and raise :class:`eye_in_hand.errors.InputError` (a ``ValueError``) naming the
+argument; internal helpers trust their inputs.
+"""
+from __future__ import annotations
+
+from typing import Iterable, Sequence
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from eye_in_hand.errors import InputError
+
+__all__ = [
+    "ORTHONORMAL_ATOL",
+    "as_points",
+    "as_rotation",
+    "as_transform",
+    "make_transform",
+    "compose",
+    "invert",
+    "apply",
+    "from_xyz_quat",
+    "to_xyz_quat",
+    "quat_xyzw_to_matrix",
+    "matrix_to_quat_xyzw",
+    "from_rotvec",
+    "to_rotvec",
+    "project_to_so3",
+    "rotation_angle",
+    "transform_distance",
+    "interpolate",
+    "average_rotations",
+    "average_transforms",
+]
+
+#: Largest accepted deviation of R^T R from identity (max abs element) and of det(R) from 1.
+ORTHONORMAL_ATOL = 1e-6
+
+
+def _finite_array(value, name: str, shape: tuple[int, ...]) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name}: expected a numeric array of shape {shape}") from exc
+    if arr.shape != shape:
+        raise InputError(f"{name}: expected shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{name}: contains NaN or infinite values")
+    return arr
+
+
+def as_rotation(R, name: str = "R", *, atol: float = ORTHONORMAL_ATOL) -> np.ndarray:
+    """Validate a rotation matrix.
+
+    Args:
+        R: array-like, shape (3, 3).
+        name: used in error messages.
+        atol: tolerance on ``|R^T R - I|`` (max element) and ``|det R - 1|``.
+
+    Returns:
+        The rotation as a float64 array of shape (3, 3).
+
+    Raises:
+        InputError: wrong shape, non-finite values, not orthonormal or a reflection.
+    """
+    arr = _finite_array(R, name, (3, 3))
+    err = np.max(np.abs(arr.T @ arr - np.eye(3)))
+    det = np.linalg.det(arr)
+    if err > atol or abs(det - 1.0) > max(atol, 3 * err):
+        raise InputError(
+            f"{name}: rotation is not orthonormal (|R^T R - I| = {err:.2e}, det = {det:.6f}, "
+            f"tolerance {atol:.0e})")
+    return arr
+
+
+def as_transform(T, name: str = "T", *, atol: float = ORTHONORMAL_ATOL) -> np.ndarray:
+    """Validate a homogeneous transform.
+
+    Args:
+        T: array-like, shape (4, 4); last row must be ``[0, 0, 0, 1]``.
+        name: used in error messages.
+        atol: orthonormality tolerance of the rotation block.
+
+    Returns:
+        float64 array of shape (4, 4).
+
+    Raises:
+        InputError: wrong shape, non-finite values, bad last row or rotation block.
+    """
+    arr = _finite_array(T, name, (4, 4))
+    if np.max(np.abs(arr[3] - (0.0, 0.0, 0.0, 1.0))) > 1e-9:
+        raise InputError(f"{name}: last row must be [0, 0, 0, 1], got {arr[3].tolist()}")
+    as_rotation(arr[:3, :3], f"{name} rotation block", atol=atol)
+    return arr
+
+
+def as_points(points, name: str = "points") -> np.ndarray:
+    """Validate points: array-like shape (3,) or (N, 3), finite. Returns shape (N, 3)."""
+    try:
+        arr = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name}: expected a numeric array of shape (N, 3)") from exc
+    if arr.ndim == 1:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise InputError(f"{name}: expected shape (3,) or (N, 3), got {np.shape(points)}")
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{name}: contains NaN or infinite values")
+    return arr
+
+
+def make_transform(R, t) -> np.ndarray:
+    """Build ``a_T_b`` from rotation (3, 3) and translation (3,)."""
+    Rm = as_rotation(R, "R")
+    tv = _finite_array(np.ravel(t), "t", (3,))
+    T = np.eye(4)
+    T[:3, :3] = Rm
+    T[:3, 3] = tv
+    return T
+
+
+def compose(*transforms) -> np.ndarray:
+    """Chain transforms left to right: ``compose(a_T_b, b_T_c) == a_T_c``."""
+    if not transforms:
+        return np.eye(4)
+    out = as_transform(transforms[0], "transforms[0]")
+    for i, T in enumerate(transforms[1:], start=1):
+        out = out @ as_transform(T, f"transforms[{i}]")
+    return out
+
+
+def invert(T) -> np.ndarray:
+    """Inverse of a rigid transform: ``invert(a_T_b) == b_T_a`` (exact, via R^T)."""
+    arr = as_transform(T, "T")
+    R = arr[:3, :3]
+    out = np.eye(4)
+    out[:3, :3] = R.T
+    out[:3, 3] = -R.T @ arr[:3, 3]
+    return out
+
+
+def apply(T, points) -> np.ndarray:
+    """Map points from frame b to frame a with ``a_T_b``.
+
+    Args:
+        T: shape (4, 4).
+        points: shape (3,) or (N, 3).
+
+    Returns:
+        shape (3,) for a single point, else (N, 3).
+    """
+    arr = as_transform(T, "T")
+    single = np.ndim(points) == 1
+    pts = as_points(points)
+    out = pts @ arr[:3, :3].T + arr[:3, 3]
+    return out[0] if single else out
+
+
+def quat_xyzw_to_matrix(quat_xyzw, name: str = "quat_xyzw") -> np.ndarray:
+    """Rotation matrix from a quaternion (x, y, z, w); normalised, must not be near zero."""
+    q = _finite_array(np.ravel(quat_xyzw), name, (4,))
+    n = np.linalg.norm(q)
+    if n < 1e-9:
+        raise InputError(f"{name}: quaternion has zero norm")
+    if abs(n - 1.0) > 1e-3:
+        raise InputError(f"{name}: quaternion norm is {n:.6f}, expected 1 (check xyzw order/units)")
+    return Rotation.from_quat(q / n).as_matrix()
+
+
+def matrix_to_quat_xyzw(R) -> np.ndarray:
+    """Quaternion (x, y, z, w) of a rotation matrix, canonical with w >= 0."""
+    q = Rotation.from_matrix(as_rotation(R, "R")).as_quat()
+    return -q if q[3] < 0 else q
+
+
+def from_xyz_quat(xyz, quat_xyzw) -> np.ndarray:
+    """4x4 transform from a translation (3,) and a quaternion (x, y, z, w)."""
+    T = np.eye(4)
+    T[:3, :3] = quat_xyzw_to_matrix(quat_xyzw)
+    T[:3, 3] = _finite_array(np.ravel(xyz), "xyz", (3,))
+    return T
+
+
+def to_xyz_quat(T) -> tuple[np.ndarray, np.ndarray]:
+    """Split a transform into (xyz (3,), quat_xyzw (4,)), with w >= 0."""
+    arr = as_transform(T, "T")
+    return arr[:3, 3].copy(), matrix_to_quat_xyzw(arr[:3, :3])
+
+
+def from_rotvec(rotvec, t=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """4x4 transform from a rotation vector (axis * angle, radians) and a translation."""
+    rv = _finite_array(np.ravel(rotvec), "rotvec", (3,))
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(rv).as_matrix()
+    T[:3, 3] = _finite_array(np.ravel(t), "t", (3,))
+    return T
+
+
+def to_rotvec(T_or_R) -> np.ndarray:
+    """Rotation vector (3,) of a 4x4 transform or 3x3 rotation."""
+    arr = np.asarray(T_or_R, dtype=np.float64)
+    R = as_transform(arr)[:3, :3] if arr.shape == (4, 4) else as_rotation(arr)
+    return Rotation.from_matrix(R).as_rotvec()
+
+
+def project_to_so3(M) -> np.ndarray:
+    """Nearest rotation (Frobenius norm) to a 3x3 matrix, via SVD with det = +1."""
+    arr = _finite_array(M, "M", (3, 3))
+    U, _, Vt = np.linalg.svd(arr)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    return U @ D @ Vt
+
+
+def rotation_angle(R) -> float:
+    """Angle (radians, in [0, pi]) of a rotation matrix or of the rotation block of a 4x4."""
+    arr = np.asarray(R, dtype=np.float64)
+    if arr.shape == (4, 4):
+        arr = arr[:3, :3]
+    c = np.clip((np.trace(arr) - 1.0) / 2.0, -1.0, 1.0)
+    # arccos is inaccurate near 0; use the rotation vector norm there.
+    if c > 0.99:
+        return float(np.linalg.norm(Rotation.from_matrix(arr).as_rotvec()))
+    return float(np.arccos(c))
+
+
+def transform_distance(a_T_b, a_T_c) -> tuple[float, float]:
+    """Difference between two transforms: (translation distance in m, rotation angle in rad)."""
+    A = as_transform(a_T_b, "a_T_b")
+    B = as_transform(a_T_c, "a_T_c")
+    dt = float(np.linalg.norm(A[:3, 3] - B[:3, 3]))
+    return dt, rotation_angle(A[:3, :3].T @ B[:3, :3])
+
+
+def interpolate(stamp_ns: int, stamp0_ns: int, T0, stamp1_ns: int, T1) -> np.ndarray:
+    """Pose at ``stamp_ns`` between two stamped poses: slerp on rotation, lerp on translation.
+
+    Args:
+        stamp_ns: the query stamp (int ns), with ``stamp0_ns <= stamp_ns <= stamp1_ns``.
+        stamp0_ns, T0: the earlier stamped pose.
+        stamp1_ns, T1: the later stamped pose.
+
+    Raises:
+        InputError: the stamps are out of order or the query lies outside them.
+    """
+    A = as_transform(T0, "T0")
+    B = as_transform(T1, "T1")
+    if stamp1_ns < stamp0_ns:
+        raise InputError(f"interpolate: stamps out of order ({stamp0_ns} > {stamp1_ns})")
+    if not stamp0_ns <= stamp_ns <= stamp1_ns:
+        raise InputError(
+            f"interpolate: stamp {stamp_ns} outside [{stamp0_ns}, {stamp1_ns}] (no extrapolation)")
+    if stamp1_ns == stamp0_ns:
+        return A.copy()
+    # Integer arithmetic first: ns stamps near 1.7e18 lose precision as float64.
+    s = float(stamp_ns - stamp0_ns) / float(stamp1_ns - stamp0_ns)
+    rots = Rotation.from_matrix(np.stack([A[:3, :3], B[:3, :3]]))
+    out = np.eye(4)
+    out[:3, :3] = Slerp([0.0, 1.0], rots)([s]).as_matrix()[0]
+    out[:3, 3] = (1.0 - s) * A[:3, 3] + s * B[:3, 3]
+    return out
+
+
+def average_rotations(rotations: Sequence | np.ndarray,
+                      weights: Iterable[float] | None = None) -> np.ndarray:
+    """Mean rotation (chordal L2 mean via the quaternion eigenvector, Markley et al. 2007).
+
+    Args:
+        rotations: array-like, shape (N, 3, 3), N >= 1.
+        weights: optional non-negative weights, shape (N,).
+
+    Returns:
+        shape (3, 3).
+    """
+    arr = np.asarray(rotations, dtype=np.float64)
+    if arr.ndim != 3 or arr.shape[1:] != (3, 3) or arr.shape[0] == 0:
+        raise InputError(f"rotations: expected shape (N, 3, 3) with N >= 1, got {arr.shape}")
+    for i, R in enumerate(arr):
+        as_rotation(R, f"rotations[{i}]")
+    w = None
+    if weights is not None:
+        w = np.asarray(list(weights), dtype=np.float64)
+        if w.shape != (arr.shape[0],) or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
+            raise InputError("weights: expected N finite non-negative values with a positive sum")
+    return Rotation.from_matrix(arr).mean(weights=w).as_matrix()
+
+
+def average_transforms(transforms: Sequence | np.ndarray,
+                       weights: Iterable[float] | None = None) -> np.ndarray:
+    """Mean pose: rotation by :func:`average_rotations`, translation by weighted mean.
+
+    Args:
+        transforms: array-like, shape (N, 4, 4).
+        weights: optional, shape (N,).
+    """
+    arr = np.asarray(transforms, dtype=np.float64)
+    if arr.ndim != 3 or arr.shape[1:] != (4, 4) or arr.shape[0] == 0:
+        raise InputError(f"transforms: expected shape (N, 4, 4) with N >= 1, got {arr.shape}")
+    for i, T in enumerate(arr):
+        as_transform(T, f"transforms[{i}]")
+    w = None if weights is None else list(weights)
+    out = np.eye(4)
+    out[:3, :3] = average_rotations(arr[:, :3, :3], w)
+    ww = np.ones(arr.shape[0]) if w is None else np.asarray(w, dtype=np.float64)
+    out[:3, 3] = (ww[:, None] * arr[:, :3, 3]).sum(axis=0) / ww.sum()
+    return out

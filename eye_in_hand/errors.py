@@ -1,0 +1,65 @@
+"""Exception classes shared across the package.
+
+Every error the package raises on bad input derives from :class:`EyeInHandError`, so the
+command line can print one clear line (``eye-in-hand: error: ...``) instead of a traceback.
+Messages say what was wrong and where (file, topic, sample index, parameter name).
+"""
+from __future__ import annotations
+
+__all__ = [
+    "EyeInHandError",
+    "InputError",
+    "ConfigError",
+    "ConversionError",
+    "BagError",
+    "CalibrationError",
+    "DetectionError",
+    "TriangulationError",
+    "HandEyeError",
+    "KinematicsError",
+    "LocalizationError",
+]
+
+
+class EyeInHandError(Exception):
+    """Base class for every error the package reports to its users."""
+
+
+class InputError(EyeInHandError, ValueError):
+    """An argument or file content is malformed (shape, range, finiteness, format)."""
+
+
+class ConfigError(EyeInHandError):
+    """A configuration or calibration file is missing or malformed."""
+
+
+class ConversionError(EyeInHandError, ValueError):
+    """A ROS message cannot be converted (bad encoding, data length, field values)."""
+
+
+class BagError(EyeInHandError):
+    """A bag cannot be opened, read or written, or lacks a required topic."""
+
+
+class CalibrationError(EyeInHandError):
+    """Camera or stereo calibration cannot proceed (too few views, mismatched inputs)."""
+
+
+class DetectionError(EyeInHandError):
+    """Target detection was configured or called wrongly (not: 'no target found')."""
+
+
+class TriangulationError(EyeInHandError):
+    """A stereo point was rejected (behind a camera, bad disparity, residual gate)."""
+
+
+class HandEyeError(EyeInHandError):
+    """Hand-eye calibration cannot proceed (too few samples, degenerate motion, bad poses)."""
+
+
+class KinematicsError(EyeInHandError):
+    """Forward/inverse kinematics failed (bad model, unreachable pose, joint limits)."""
+
+
+class LocalizationError(EyeInHandError):
+    """A target pose cannot be formed (no robot pose at the image stamp, stale input)."""

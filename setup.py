@@ -1,0 +1,60 @@
+"""ament_python package setup for eye_in_hand.
+
+The ROS 2 Python wheels are the ``ros`` extra, not an install requirement, so that a
+``colcon build`` against a system ROS 2 install does not pull them from PyPI.
+"""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "eye_in_hand"
+
+# One console script per node, so that ``ros2 run eye_in_hand <node>`` works on a ROS install.
+NODE_SCRIPTS = [
+    "bag_player = eye_in_hand.nodes.bag_player:main",
+    "bag_recorder = eye_in_hand.nodes.bag_recorder:main",
+]
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*", "benchmarks"]),
+    package_data={PACKAGE: ["py.typed"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
+    ],
+    python_requires=">=3.10",
+    install_requires=[
+        "numpy>=1.26",
+        "scipy>=1.11",
+        "opencv-python-headless>=4.8",
+        "rosbags>=0.10",
+        "pyyaml>=6.0",
+        "matplotlib>=3.8",
+        "tqdm>=4.66",
+    ],
+    extras_require={
+        "ros": [
+            "ros-jazzy-rclpy[fastrtps]==7.1.6",
+            "ros-jazzy-common-interfaces==5.3.6",
+        ],
+        "test": [
+            "pytest>=8",
+            "colcon-common-extensions>=0.3",
+        ],
+    },
+    zip_safe=True,
+    maintainer="eye_in_hand maintainers",
+    maintainer_email="maintainers@eye-in-hand.dev",
+    description="Eye-in-hand stereo target localization, calibration and bag tools for ROS 2.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "eye-in-hand = eye_in_hand.cli:main",
+            *NODE_SCRIPTS,
+        ],
+    },
+)
