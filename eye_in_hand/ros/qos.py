@@ -1,0 +1,55 @@
+"""Named QoS profiles used by every node, so publishers and subscribers always match.
+
+=============== ============ ================= ===== ==================================
+profile          reliability  durability        depth use
+=============== ============ ================= ===== ==================================
+``SENSOR_QOS``   best effort  volatile          5     images, camera_info, robot poses:
+                                                      drop old frames, never lag behind
+``RESULT_QOS``   reliable     volatile          10    target points/poses, diagnostics
+``LATCHED_QOS``  reliable     transient local   1     calibration results (a late
+                                                      subscriber still gets the last one)
+=============== ============ ================= ===== ==================================
+
+A best-effort subscriber matches both reliable and best-effort publishers, so subscribing to
+sensor topics with :data:`SENSOR_QOS` works with any camera driver. A transient-local
+subscriber only matches transient-local publishers: subscribe to latched topics with
+:data:`LATCHED_QOS` and publish them with it too.
+
+This module imports rclpy; it is the only part of :mod:`eye_in_hand.ros` besides the nodes'
+helpers that needs it.
+"""
+from __future__ import annotations
+
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
+
+__all__ = ["SENSOR_QOS", "RESULT_QOS", "LATCHED_QOS"]
+
+#: Sensor streams (``qos_profile_sensor_data``): best effort, volatile, keep last 5.
+SENSOR_QOS: QoSProfile = QoSProfile(
+    history=qos_profile_sensor_data.history,
+    depth=qos_profile_sensor_data.depth,
+    reliability=qos_profile_sensor_data.reliability,
+    durability=qos_profile_sensor_data.durability,
+)
+
+#: Results that must not be lost: reliable, volatile, keep last 10.
+RESULT_QOS: QoSProfile = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+#: Latched results (calibrations, static transforms): reliable, transient local, depth 1.
+LATCHED_QOS: QoSProfile = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
