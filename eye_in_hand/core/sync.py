@@ -1,0 +1,351 @@
+"""Time alignment: approximate-time stereo pairing and a stamped pose buffer.
+
+Two independent tools, both pure Python/numpy (no rclpy), stamps as int nanoseconds:
+
+* :class:`ApproximateStereoSync` pairs left and right frames whose stamps agree within a
+  ``slop``. Frames with equal stamps (a hardware-triggered rig, or our own capture node) pair
+  at once. Otherwise a pair is emitted only when it is final: each frame is the other's nearest
+  neighbour and no later frame can be nearer (the same decision rule as ``message_filters``'
+  ApproximateTime policy for two topics). Frames that can no longer be paired are dropped and
+  counted per side and per cause.
+* :class:`PoseBuffer` keeps a bounded, time-ordered history of stamped poses ``(stamp_ns,
+  a_T_b)`` and returns the pose at an image stamp, interpolated with
+  :func:`eye_in_hand.core.transforms.interpolate` (slerp + lerp), never extrapolated.
+"""
+from __future__ import annotations
+
+import bisect
+from collections import deque
+from dataclasses import dataclass
+from typing import Generic, TypeVar
+
+import numpy as np
+
+from eye_in_hand.core.transforms import as_transform, interpolate
+from eye_in_hand.errors import InputError, LocalizationError
+
+__all__ = [
+    "StereoPair",
+    "SyncStats",
+    "ApproximateStereoSync",
+    "PoseBuffer",
+]
+
+T = TypeVar("T")
+
+
+def _as_stamp(stamp_ns, name: str = "stamp_ns") -> int:
+    """Validate an int nanosecond stamp (Python or numpy integer, not bool, not float)."""
+    if isinstance(stamp_ns, (bool, np.bool_)) or not isinstance(stamp_ns, (int, np.integer)):
+        raise InputError(f"{name}: expected an int nanosecond stamp, got {type(stamp_ns).__name__}")
+    return int(stamp_ns)
+
+
+@dataclass(frozen=True)
+class StereoPair(Generic[T]):
+    """A left and a right frame paired by :class:`ApproximateStereoSync`.
+
+    Attributes:
+        left_stamp_ns: stamp of the left frame (int ns).
+        right_stamp_ns: stamp of the right frame (int ns).
+        left: the left payload (whatever was pushed, e.g. an Image message or an array).
+        right: the right payload.
+    """
+
+    left_stamp_ns: int
+    right_stamp_ns: int
+    left: T
+    right: T
+
+    @property
+    def stamp_ns(self) -> int:
+        """The pair's stamp: the left frame's stamp (results are in the left optical frame)."""
+        return self.left_stamp_ns
+
+    @property
+    def skew_ns(self) -> int:
+        """``right_stamp_ns - left_stamp_ns`` (0 for an exactly synchronised pair)."""
+        return self.right_stamp_ns - self.left_stamp_ns
+
+
+@dataclass
+class SyncStats:
+    """Counters of :class:`ApproximateStereoSync` (cumulative since construction or reset).
+
+    Attributes:
+        pairs: pairs emitted.
+        exact_pairs: pairs whose stamps were equal.
+        dropped_left / dropped_right: frames dropped per side, all causes.
+        dropped_unmatched: frames dropped because no frame of the other side lies within the slop
+            (or a nearer frame took their partner).
+        dropped_overflow: frames dropped because their side's queue was full.
+        dropped_stale: frames that arrived with a stamp not after the last frame of their side
+            (out of order or repeated).
+        max_abs_skew_ns: the largest ``|skew|`` of an emitted pair.
+    """
+
+    pairs: int = 0
+    exact_pairs: int = 0
+    dropped_left: int = 0
+    dropped_right: int = 0
+    dropped_unmatched: int = 0
+    dropped_overflow: int = 0
+    dropped_stale: int = 0
+    max_abs_skew_ns: int = 0
+
+    @property
+    def dropped(self) -> int:
+        """Total frames dropped on both sides."""
+        return self.dropped_left + self.dropped_right
+
+
+class ApproximateStereoSync(Generic[T]):
+    """Pair left and right frames by stamp, within a slop.
+
+    Decision rule, applied whenever a frame arrives (``a`` is the older of the two queue heads,
+    ``b`` the head of the other side, stamps increase within a side):
+
+    1. equal stamps: emit the pair at once;
+    2. ``b - a > slop``: no frame of the other side can ever come nearer to ``a``: drop ``a``;
+    3. else ``b`` is ``a``'s nearest partner for good; if the next frame ``a2`` on ``a``'s side
+       is known, emit ``(a, b)`` when ``|b - a| <= |a2 - b|``, else drop ``a`` (``a2`` is the
+       better partner); if ``a2`` is not known yet, wait for it (one frame of latency, only for
+       unequal stamps).
+
+    Queues are bounded by ``queue_size`` per side (oldest dropped when full), so a dead camera
+    cannot grow memory. Stamps that do not increase on their side are dropped as stale.
+
+    Args:
+        slop_ns: largest accepted ``|right_stamp - left_stamp|`` in ns (0: exact pairing only).
+        queue_size: frames kept per side while waiting for a partner (>= 1).
+
+    Raises:
+        InputError: negative slop or queue size below 1.
+    """
+
+    def __init__(self, slop_ns: int, queue_size: int = 5) -> None:
+        slop = _as_stamp(slop_ns, "slop_ns")
+        if slop < 0:
+            raise InputError(f"slop_ns: must be >= 0, got {slop}")
+        if isinstance(queue_size, bool) or not isinstance(queue_size, (int, np.integer)) \
+                or queue_size < 1:
+            raise InputError(f"queue_size: must be an int >= 1, got {queue_size!r}")
+        self._slop = slop
+        self._queue_size = int(queue_size)
+        self._queues: tuple[deque[tuple[int, T]], deque[tuple[int, T]]] = (deque(), deque())
+        self._last_in: list[int | None] = [None, None]
+        self.stats = SyncStats()
+
+    @property
+    def slop_ns(self) -> int:
+        """The slop in ns."""
+        return self._slop
+
+    @property
+    def queue_size(self) -> int:
+        """Frames kept per side."""
+        return self._queue_size
+
+    @property
+    def pending(self) -> tuple[int, int]:
+        """Frames waiting for a partner: (left, right)."""
+        return len(self._queues[0]), len(self._queues[1])
+
+    def reset(self) -> None:
+        """Forget queued frames and the stamp history (e.g. after a clock jump); keep counters."""
+        for q in self._queues:
+            q.clear()
+        self._last_in = [None, None]
+
+    def push_left(self, stamp_ns: int, item: T) -> list[StereoPair[T]]:
+        """Add a left frame.
+
+        Args:
+            stamp_ns: the frame's stamp (int ns).
+            item: the payload, returned unchanged in the pair.
+
+        Returns:
+            The pairs that became final, oldest first (usually zero or one).
+        """
+        return self._push(0, stamp_ns, item)
+
+    def push_right(self, stamp_ns: int, item: T) -> list[StereoPair[T]]:
+        """Add a right frame. See :meth:`push_left`."""
+        return self._push(1, stamp_ns, item)
+
+    # -- internals -------------------------------------------------------------------------
+
+    def _drop(self, side: int, cause: str) -> None:
+        self._queues[side].popleft()
+        self._count_drop(side, cause)
+
+    def _count_drop(self, side: int, cause: str) -> None:
+        if side == 0:
+            self.stats.dropped_left += 1
+        else:
+            self.stats.dropped_right += 1
+        if cause == "unmatched":
+            self.stats.dropped_unmatched += 1
+        elif cause == "overflow":
+            self.stats.dropped_overflow += 1
+        else:
+            self.stats.dropped_stale += 1
+
+    def _push(self, side: int, stamp_ns: int, item: T) -> list[StereoPair[T]]:
+        stamp = _as_stamp(stamp_ns)
+        last_side = self._last_in[side]
+        if last_side is not None and stamp <= last_side:
+            self._count_drop(side, "stale")
+            return []
+        self._last_in[side] = stamp
+        queue = self._queues[side]
+        if len(queue) >= self._queue_size:
+            self._drop(side, "overflow")
+        queue.append((stamp, item))
+        return self._match()
+
+    def _emit(self, out: list[StereoPair[T]]) -> None:
+        (ls, li), (rs, ri) = self._queues[0].popleft(), self._queues[1].popleft()
+        pair = StereoPair(ls, rs, li, ri)
+        self.stats.pairs += 1
+        if ls == rs:
+            self.stats.exact_pairs += 1
+        self.stats.max_abs_skew_ns = max(self.stats.max_abs_skew_ns, abs(rs - ls))
+        out.append(pair)
+
+    def _match(self) -> list[StereoPair[T]]:
+        out: list[StereoPair[T]] = []
+        left, right = self._queues
+        while left and right:
+            ls, rs = left[0][0], right[0][0]
+            if ls == rs:
+                self._emit(out)
+                continue
+            a_side = 0 if ls < rs else 1
+            a_q = self._queues[a_side]
+            a, b = (ls, rs) if a_side == 0 else (rs, ls)
+            gap = b - a
+            if gap > self._slop:
+                self._drop(a_side, "unmatched")
+                continue
+            if len(a_q) < 2:
+                break  # wait for the next frame on a's side: it might be nearer to b
+            a2 = a_q[1][0]
+            if gap <= abs(a2 - b):
+                self._emit(out)
+            else:
+                self._drop(a_side, "unmatched")
+        return out
+
+
+class PoseBuffer:
+    """Bounded, time-ordered buffer of stamped poses with interpolated lookup.
+
+    Poses may arrive slightly out of order (they are inserted in stamp order); a pose with a
+    stamp already present replaces the old one. When full, the oldest pose is evicted.
+
+    Args:
+        capacity: the most poses kept (>= 2).
+        name: what the poses are (e.g. ``"base_T_ee"``), used in error messages.
+
+    Raises:
+        InputError: capacity below 2.
+    """
+
+    def __init__(self, capacity: int = 1000, *, name: str = "pose") -> None:
+        if isinstance(capacity, bool) or not isinstance(capacity, (int, np.integer)) or capacity < 2:
+            raise InputError(f"capacity: must be an int >= 2, got {capacity!r}")
+        self._capacity = int(capacity)
+        self._name = name
+        self._stamps: list[int] = []
+        self._poses: list[np.ndarray] = []
+
+    def __len__(self) -> int:
+        return len(self._stamps)
+
+    @property
+    def capacity(self) -> int:
+        """The most poses kept."""
+        return self._capacity
+
+    @property
+    def oldest_ns(self) -> int | None:
+        """Stamp of the oldest pose, or None when empty."""
+        return self._stamps[0] if self._stamps else None
+
+    @property
+    def newest_ns(self) -> int | None:
+        """Stamp of the newest pose, or None when empty."""
+        return self._stamps[-1] if self._stamps else None
+
+    def clear(self) -> None:
+        """Remove every pose (e.g. after a clock jump back in simulation time)."""
+        self._stamps.clear()
+        self._poses.clear()
+
+    def add(self, stamp_ns: int, pose) -> None:
+        """Insert a stamped pose.
+
+        Args:
+            stamp_ns: int ns.
+            pose: array-like, shape (4, 4), a rigid transform.
+
+        Raises:
+            InputError: bad stamp or not a rigid transform.
+        """
+        stamp = _as_stamp(stamp_ns)
+        T = as_transform(pose, f"{self._name} at {stamp} ns").copy()
+        T.setflags(write=False)
+        i = bisect.bisect_left(self._stamps, stamp)
+        if i < len(self._stamps) and self._stamps[i] == stamp:
+            self._poses[i] = T
+            return
+        if len(self._stamps) >= self._capacity:
+            if i == 0:
+                return  # older than everything in a full buffer: it would be evicted at once
+            del self._stamps[0]
+            del self._poses[0]
+            i -= 1
+        self._stamps.insert(i, stamp)
+        self._poses.insert(i, T)
+
+    def lookup(self, stamp_ns: int, max_gap_ns: int) -> np.ndarray:
+        """The pose at ``stamp_ns``, interpolated between the two poses that bracket it.
+
+        Args:
+            stamp_ns: the query stamp (int ns), typically an image stamp.
+            max_gap_ns: the largest accepted time between the two bracketing poses (>= 0). A
+                stamp equal to a buffered pose's stamp needs no bracket and is always accepted.
+
+        Returns:
+            A new float64 array, shape (4, 4).
+
+        Raises:
+            InputError: bad stamp or negative ``max_gap_ns``.
+            LocalizationError: the buffer is empty, the stamp is before the oldest or after the
+                newest pose (no extrapolation), or the bracketing gap exceeds ``max_gap_ns``.
+        """
+        stamp = _as_stamp(stamp_ns)
+        gap_limit = _as_stamp(max_gap_ns, "max_gap_ns")
+        if gap_limit < 0:
+            raise InputError(f"max_gap_ns: must be >= 0, got {gap_limit}")
+        if not self._stamps:
+            raise LocalizationError(f"no {self._name} received yet (lookup at {stamp} ns)")
+        i = bisect.bisect_left(self._stamps, stamp)
+        if i < len(self._stamps) and self._stamps[i] == stamp:
+            return np.array(self._poses[i])
+        if i == 0:
+            raise LocalizationError(
+                f"{self._name} at {stamp} ns is older than the buffer (oldest "
+                f"{self._stamps[0]} ns, {(self._stamps[0] - stamp) / 1e6:.3f} ms later)")
+        if i == len(self._stamps):
+            raise LocalizationError(
+                f"{self._name} at {stamp} ns is newer than the newest pose "
+                f"({self._stamps[-1]} ns, {(stamp - self._stamps[-1]) / 1e6:.3f} ms earlier): "
+                f"no extrapolation")
+        s0, s1 = self._stamps[i - 1], self._stamps[i]
+        if s1 - s0 > gap_limit:
+            raise LocalizationError(
+                f"{self._name} at {stamp} ns: the bracketing poses are {(s1 - s0) / 1e6:.3f} ms "
+                f"apart, over the limit of {gap_limit / 1e6:.3f} ms")
+        return interpolate(stamp, s0, self._poses[i - 1], s1, self._poses[i])
