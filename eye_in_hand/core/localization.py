@@ -1,0 +1,179 @@
+"""Camera point + robot pose + hand-eye -> target in the robot base frame, with covariance.
+
+``p_base = base_T_ee(t_image) @ ee_T_cam @ p_cam``, with ``base_T_ee`` interpolated at the image
+stamp from a :class:`~eye_in_hand.core.sync.PoseBuffer` (never extrapolated, never across a gap
+over a limit), and a 3x3 covariance propagated to first order from three independent sources:
+
+* the triangulated point, ``cov_cam`` (3x3, left optical frame);
+* the hand-eye calibration, ``cov_hand_eye`` (6x6, order ``[tx, ty, tz, rx, ry, rz]``: translation
+  in metres and a rotation vector in radians, the rotation perturbation applied on the left,
+  ``R' = exp([dr]x) R``, i.e. expressed in the parent frame ``ee``: the convention of
+  :mod:`eye_in_hand.io.config`'s ``hand_eye.yaml``);
+* the robot's reported pose, an isotropic position sigma (m) and rotation sigma (rad), the rotation
+  perturbation taken about the flange (``R_b' = R_b exp([dr]x)``), which is how joint-encoder
+  errors show up at the tool.
+
+Pure numpy: no rclpy, no messages.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from eye_in_hand.core.sync import PoseBuffer
+from eye_in_hand.core.transforms import as_points, as_transform
+from eye_in_hand.errors import InputError
+
+__all__ = ["LocalizerConfig", "TargetInBase", "target_in_base", "Localizer"]
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _as_cov(value, name: str, n: int) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.shape != (n, n):
+        raise InputError(f"{name}: expected shape ({n}, {n}), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{name}: contains NaN or infinite values")
+    if np.max(np.abs(arr - arr.T)) > 1e-9 * max(1.0, float(np.max(np.abs(arr)))):
+        raise InputError(f"{name}: covariance is not symmetric")
+    if np.min(np.linalg.eigvalsh(arr)) < -1e-12 * max(1.0, float(np.max(np.abs(arr)))):
+        raise InputError(f"{name}: covariance is not positive semi-definite")
+    return arr
+
+
+@dataclass(frozen=True)
+class TargetInBase:
+    """A target located in the robot base frame.
+
+    Attributes:
+        stamp_ns: the image stamp (int ns).
+        point_base: shape (3,), metres, base frame.
+        covariance: shape (3, 3), m^2, base frame.
+        base_T_ee: the robot pose used (interpolated at ``stamp_ns``), shape (4, 4).
+    """
+
+    stamp_ns: int
+    point_base: np.ndarray
+    covariance: np.ndarray
+    base_T_ee: np.ndarray
+
+
+def target_in_base(base_T_ee, ee_T_cam, point_cam, *, cov_cam=None, cov_hand_eye=None,
+                   robot_sigma_pos_m: float = 0.0,
+                   robot_sigma_rot_rad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Map a camera-frame point into the base frame and propagate its covariance.
+
+    Args:
+        base_T_ee: shape (4, 4), the robot pose at the image stamp.
+        ee_T_cam: shape (4, 4), the hand-eye calibration.
+        point_cam: shape (3,), the target in the camera (left optical) frame, metres.
+        cov_cam: optional (3, 3) covariance of ``point_cam``.
+        cov_hand_eye: optional (6, 6) covariance of ``ee_T_cam`` (see module docstring).
+        robot_sigma_pos_m: isotropic position noise of the robot pose (1 sigma).
+        robot_sigma_rot_rad: isotropic rotation noise of the robot pose about the flange.
+
+    Returns:
+        ``(point_base (3,), covariance (3, 3))``.
+    """
+    b_T_e = as_transform(base_T_ee, "base_T_ee")
+    e_T_c = as_transform(ee_T_cam, "ee_T_cam")
+    p_c = as_points(point_cam, "point_cam")
+    if p_c.shape[0] != 1:
+        raise InputError(f"point_cam: expected one point, got {p_c.shape[0]}")
+    p_c = p_c[0]
+    if not (np.isfinite(robot_sigma_pos_m) and robot_sigma_pos_m >= 0
+            and np.isfinite(robot_sigma_rot_rad) and robot_sigma_rot_rad >= 0):
+        raise InputError("robot pose sigmas must be finite and non-negative")
+    Rb, tb = b_T_e[:3, :3], b_T_e[:3, 3]
+    Rx, tx = e_T_c[:3, :3], e_T_c[:3, 3]
+    q = Rx @ p_c                      # camera point rotated into ee axes
+    p_ee = q + tx
+    p_base = Rb @ p_ee + tb
+
+    cov = np.zeros((3, 3))
+    if cov_cam is not None:
+        J = Rb @ Rx
+        cov += J @ _as_cov(cov_cam, "cov_cam", 3) @ J.T
+    if cov_hand_eye is not None:
+        # d p_ee = dt - [q]x dr  (left rotation perturbation in the ee frame)
+        J = Rb @ np.hstack([np.eye(3), -_skew(q)])
+        cov += J @ _as_cov(cov_hand_eye, "cov_hand_eye", 6) @ J.T
+    if robot_sigma_pos_m > 0:
+        cov += robot_sigma_pos_m ** 2 * np.eye(3)
+    if robot_sigma_rot_rad > 0:
+        J = -Rb @ _skew(p_ee)         # d p_base = -R_b [p_ee]x dr (flange-frame perturbation)
+        cov += robot_sigma_rot_rad ** 2 * (J @ J.T)
+    return p_base, 0.5 * (cov + cov.T)
+
+
+@dataclass(frozen=True)
+class LocalizerConfig:
+    """Settings of :class:`Localizer`.
+
+    Attributes:
+        max_gap_ns: largest accepted time between the two robot poses that bracket an image stamp.
+        buffer_size: robot poses kept (at 500 Hz, 1000 poses are 2 s).
+        robot_sigma_pos_m: robot pose position noise (1 sigma, metres).
+        robot_sigma_rot_rad: robot pose rotation noise (1 sigma, radians).
+    """
+
+    max_gap_ns: int = 50_000_000
+    buffer_size: int = 2000
+    robot_sigma_pos_m: float = 0.0
+    robot_sigma_rot_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        if int(self.max_gap_ns) <= 0:
+            raise InputError(f"max_gap_ns: must be positive, got {self.max_gap_ns}")
+        if int(self.buffer_size) < 2:
+            raise InputError(f"buffer_size: must be >= 2, got {self.buffer_size}")
+        for name in ("robot_sigma_pos_m", "robot_sigma_rot_rad"):
+            v = float(getattr(self, name))
+            if not np.isfinite(v) or v < 0:
+                raise InputError(f"{name}: must be finite and >= 0, got {v}")
+
+
+class Localizer:
+    """Stateful localization: a robot pose buffer plus the hand-eye calibration.
+
+    The live ``hand_eye`` node and the offline ``process`` command both use this class, so the
+    two paths give the same numbers on the same inputs.
+
+    Args:
+        ee_T_cam: shape (4, 4), the hand-eye calibration (tool frame <- left optical frame).
+        cov_hand_eye: optional (6, 6) covariance of ``ee_T_cam``.
+        config: :class:`LocalizerConfig`.
+    """
+
+    def __init__(self, ee_T_cam, cov_hand_eye=None,
+                 config: LocalizerConfig | None = None) -> None:
+        self.config = config or LocalizerConfig()
+        self.ee_T_cam = as_transform(ee_T_cam, "ee_T_cam").copy()
+        self.cov_hand_eye = (None if cov_hand_eye is None
+                             else _as_cov(cov_hand_eye, "cov_hand_eye", 6).copy())
+        self.poses = PoseBuffer(self.config.buffer_size, name="base_T_ee")
+
+    def add_robot_pose(self, stamp_ns: int, base_T_ee) -> None:
+        """Buffer a robot pose (int ns stamp, (4, 4)); raises InputError on a bad pose."""
+        self.poses.add(stamp_ns, base_T_ee)
+
+    def locate(self, stamp_ns: int, point_cam, cov_cam=None) -> TargetInBase:
+        """The target in the base frame at an image stamp.
+
+        Raises:
+            eye_in_hand.errors.LocalizationError: no robot pose brackets ``stamp_ns`` within ``max_gap_ns``
+                (stale or missing robot poses): never a pose from a stale transform.
+            InputError: a malformed point or covariance.
+        """
+        base_T_ee = self.poses.lookup(stamp_ns, int(self.config.max_gap_ns))
+        p, cov = target_in_base(base_T_ee, self.ee_T_cam, point_cam, cov_cam=cov_cam,
+                                cov_hand_eye=self.cov_hand_eye,
+                                robot_sigma_pos_m=self.config.robot_sigma_pos_m,
+                                robot_sigma_rot_rad=self.config.robot_sigma_rot_rad)
+        return TargetInBase(stamp_ns=int(stamp_ns), point_base=p, covariance=cov,
+                            base_T_ee=base_T_ee)
+
