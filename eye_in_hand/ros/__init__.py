@@ -1,1 +1,17 @@
-"""eye_in_hand.ros."""
+"""rclpy glue: message conversions, QoS profiles, parameter and diagnostics helpers.
+
+Submodules (import them directly; this package imports none of them, so that the rclpy-free
+:mod:`eye_in_hand.ros.conversions` works in offline processing without ROS installed):
+
+* :mod:`eye_in_hand.ros.conversions` - numpy <-> ``sensor_msgs`` / ``geometry_msgs`` messages and
+  ``CameraInfo`` <-> :class:`~eye_in_hand.core.camera.CameraModel` (no rclpy needed to decode).
+* :mod:`eye_in_hand.ros.qos` - ``SENSOR_QOS``, ``RESULT_QOS``, ``LATCHED_QOS``.
+* :mod:`eye_in_hand.ros.params` - declare parameters with descriptors and load them into a
+  frozen config dataclass.
+* :mod:`eye_in_hand.ros.diagnostics` - counters, gauges and level rules published on
+  ``diagnostics``; log-once-per-cause reporting of bad input.
+* :mod:`eye_in_hand.ros.spin` - ``spin_until(executor, condition, timeout_s)``.
+"""
+from __future__ import annotations
+
+__all__: list[str] = []
