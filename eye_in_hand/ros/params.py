@@ -1,0 +1,379 @@
+"""Parameter helpers: declare every parameter with a descriptor, validate once, freeze.
+
+A node describes its parameters as a frozen dataclass whose fields are made with :func:`param`,
+and loads it once in ``__init__``::
+
+    @dataclass(frozen=True)
+    class DetectorConfig:
+        rate_hz: float = param(30.0, "processing rate limit", range=(0.1, 1000.0))
+        method: str = param("hsv", "threshold colour space", choices=("hsv", "hsi"))
+        frame_id: str = param("camera_left_optical_frame", "frame of the published point")
+        hsv_low: tuple[int, ...] = param((0, 120, 70), "lower HSV bound", range=(0, 255))
+
+    class Detector(Node):
+        def __init__(self, **kwargs):
+            super().__init__("detect_triangulate", **kwargs)
+            self.config = load_config(self, DetectorConfig)   # raises ConfigError on bad input
+
+Each field becomes a ROS parameter (the field name, or ``name=`` for dotted names) declared with
+a ``ParameterDescriptor`` carrying its description, an ``IntegerRange``/``FloatingPointRange``,
+the allowed choices (in ``additional_constraints``) and ``read_only`` (default ``True``: the
+config is frozen at start-up, so a later change would silently not apply). rclpy itself rejects
+out-of-range and wrongly typed values at declaration; those rejections, a value outside
+``choices``, a missing required parameter and a failing ``validate`` hook all become one
+:class:`eye_in_hand.errors.ConfigError` naming the parameter. The dataclass's own
+``__post_init__`` can check combinations of parameters; a ``ValueError`` raised there becomes a
+``ConfigError`` as well.
+
+:func:`declare_params` does the same for a plain list of :class:`Param` and returns a dict.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable
+
+from eye_in_hand.errors import ConfigError
+
+__all__ = [
+    "PARAM_TYPES",
+    "Param",
+    "param",
+    "params_of",
+    "declare_params",
+    "load_config",
+    "params_markdown",
+]
+
+#: Parameter type names accepted by :class:`Param` (``type=``).
+PARAM_TYPES: tuple[str, ...] = (
+    "bool", "int", "float", "str", "bool[]", "int[]", "float[]", "str[]")
+
+_SCALARS: dict[type, str] = {bool: "bool", int: "int", float: "float", str: "str"}
+_NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*(\.[A-Za-z][A-Za-z0-9_]*)*$")
+_META_KEY = "eye_in_hand.param"
+
+
+def _infer_type(default: Any) -> str | None:
+    if isinstance(default, (list, tuple)):
+        if not default:
+            return None
+        kinds = {_infer_type(v) for v in default}
+        if len(kinds) == 1 and next(iter(kinds)) in _SCALARS.values():
+            return f"{next(iter(kinds))}[]"
+        if kinds == {"int", "float"}:
+            return "float[]"
+        raise ValueError(f"list default {default!r} mixes types {sorted(map(str, kinds))}")
+    for py, name in _SCALARS.items():
+        if type(default) is py:
+            return name
+    return None
+
+
+def _coerce(value: Any, type_name: str) -> Any:
+    """Normalise a value read from rclpy (lists/array.array -> tuple of Python scalars)."""
+    if type_name.endswith("[]"):
+        elem = type_name[:-2]
+        return tuple(_coerce(v, elem) for v in value)
+    if type_name == "float":
+        return float(value)
+    if type_name == "int":
+        return int(value)
+    if type_name == "bool":
+        return bool(value)
+    return str(value)
+
+
+def _conforms(value: Any, type_name: str) -> bool:
+    if type_name.endswith("[]"):
+        return isinstance(value, (list, tuple)) and all(
+            _conforms(v, type_name[:-2]) for v in value)
+    if type_name == "float":
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if type_name == "int":
+        return isinstance(value, int) and not isinstance(value, bool)
+    if type_name == "bool":
+        return isinstance(value, bool)
+    return isinstance(value, str)
+
+
+@dataclass(frozen=True)
+class Param:
+    """One ROS parameter: name, default, description and constraints.
+
+    Attributes:
+        name: parameter name (``a.b_c`` style; dots make ROS parameter groups).
+        default: default value: bool, int, float, str, or a tuple/list of one of them.
+            Write floats as floats (``1.0``): the type is inferred from the default.
+        description: one line shown by ``ros2 param describe`` and in the README tables.
+        range: inclusive ``(low, high)`` for int/float parameters and for each element of
+            int[]/float[] parameters.
+        choices: the allowed values (str, int or float parameters).
+        read_only: declare read-only (default): the value is read once at start-up.
+        type: one of :data:`PARAM_TYPES`; needed only when the default is an empty tuple.
+        required: no usable default: the parameter must be set (an empty default then means
+            "not given").
+        validate: optional hook ``value -> error text or None`` for further checks.
+    """
+
+    name: str
+    default: Any
+    description: str
+    range: tuple[float, float] | None = None
+    choices: tuple[Any, ...] | None = None
+    read_only: bool = True
+    type: str | None = None
+    required: bool = False
+    validate: Callable[[Any], str | None] | None = None
+
+    def __post_init__(self) -> None:
+        if not _NAME_RE.match(self.name):
+            raise ValueError(f"Param: invalid parameter name {self.name!r}")
+        if not self.description.strip():
+            raise ValueError(f"Param {self.name!r}: a description is required")
+        type_name = self.type or _infer_type(self.default)
+        if type_name is None:
+            raise ValueError(
+                f"Param {self.name!r}: cannot infer a type from default {self.default!r}; "
+                f"pass type= (one of {', '.join(PARAM_TYPES)})")
+        if type_name not in PARAM_TYPES:
+            raise ValueError(f"Param {self.name!r}: type {type_name!r} not in {PARAM_TYPES}")
+        object.__setattr__(self, "type", type_name)
+        default = self.default
+        if type_name.endswith("[]"):
+            if not isinstance(default, (list, tuple)):
+                raise ValueError(f"Param {self.name!r}: default must be a tuple for {type_name}")
+            default = tuple(default)
+        if not _conforms(default, type_name):
+            raise ValueError(f"Param {self.name!r}: default {default!r} is not a {type_name}")
+        object.__setattr__(self, "default", _coerce(default, type_name))
+        if self.range is not None:
+            if type_name.rstrip("[]") not in ("int", "float"):
+                raise ValueError(f"Param {self.name!r}: range needs an int or float type")
+            lo, hi = self.range
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+                raise ValueError(f"Param {self.name!r}: bad range {self.range!r}")
+            if type_name.startswith("int") and (int(lo) != lo or int(hi) != hi):
+                raise ValueError(f"Param {self.name!r}: an int range needs int bounds")
+            object.__setattr__(self, "range", (lo, hi))
+        if self.choices is not None:
+            if type_name.endswith("[]") or type_name == "bool" or not self.choices:
+                raise ValueError(f"Param {self.name!r}: choices need a str, int or float type")
+            object.__setattr__(self, "choices", tuple(self.choices))
+        if not self.required:
+            problem = self.check(self.default)
+            if problem:
+                raise ValueError(f"Param {self.name!r}: default {self.default!r}: {problem}")
+
+    @property
+    def is_array(self) -> bool:
+        """True for the ``[]`` types."""
+        return str(self.type).endswith("[]")
+
+    def check(self, value: Any) -> str | None:
+        """The reason ``value`` is not acceptable (range, choices, hook), or None."""
+        if self.range is not None:
+            lo, hi = self.range
+            values = value if self.is_array else (value,)
+            bad = [v for v in values if not (lo <= v <= hi)]
+            if bad:
+                return f"{bad[0]!r} is outside the range [{lo}, {hi}]"
+        if self.choices is not None and value not in self.choices:
+            return f"{value!r} is not one of {', '.join(map(repr, self.choices))}"
+        if self.validate is not None:
+            return self.validate(value)
+        return None
+
+    def descriptor(self) -> Any:
+        """The ``rcl_interfaces.msg.ParameterDescriptor`` declared for this parameter."""
+        from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
+        desc = ParameterDescriptor(description=self.description, read_only=self.read_only)
+        constraints = []
+        if self.range is not None:
+            lo, hi = self.range
+            if self.type == "int":
+                desc.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
+            elif self.type == "float":
+                desc.floating_point_range = [
+                    FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)]
+            else:
+                constraints.append(f"each element in [{lo}, {hi}]")
+        if self.choices is not None:
+            constraints.append("one of " + ", ".join(map(str, self.choices)))
+        if self.required:
+            constraints.append("required")
+        desc.additional_constraints = "; ".join(constraints)
+        return desc
+
+    def ros_type(self) -> Any:
+        """The ``rclpy.parameter.Parameter.Type`` of this parameter."""
+        from rclpy.parameter import Parameter
+
+        return {
+            "bool": Parameter.Type.BOOL, "int": Parameter.Type.INTEGER,
+            "float": Parameter.Type.DOUBLE, "str": Parameter.Type.STRING,
+            "bool[]": Parameter.Type.BOOL_ARRAY, "int[]": Parameter.Type.INTEGER_ARRAY,
+            "float[]": Parameter.Type.DOUBLE_ARRAY, "str[]": Parameter.Type.STRING_ARRAY,
+        }[str(self.type)]
+
+
+def param(default: Any, description: str, *, range: tuple[float, float] | None = None,
+          choices: Iterable[Any] | None = None, read_only: bool = True,
+          type: str | None = None, required: bool = False,
+          validate: Callable[[Any], str | None] | None = None,
+          name: str | None = None) -> Any:
+    """A dataclass field that is also a ROS parameter (see :class:`Param` for the options).
+
+    Args:
+        name: the ROS parameter name when it differs from the field name (e.g. ``"hsv.low"``).
+
+    Returns:
+        A ``dataclasses.field`` with the default and the parameter metadata.
+    """
+    spec = {"default": default, "description": description, "range": range,
+            "choices": None if choices is None else tuple(choices), "read_only": read_only,
+            "type": type, "required": required, "validate": validate, "name": name}
+    stored = tuple(default) if isinstance(default, list) else default
+    return dataclasses.field(default=stored, metadata={_META_KEY: spec})
+
+
+def params_of(config_cls: type) -> list[Param]:
+    """The :class:`Param` list of a config dataclass made with :func:`param` fields.
+
+    Raises:
+        TypeError: not a dataclass, or an init field not made with :func:`param`.
+        ValueError: an invalid parameter definition.
+    """
+    if not dataclasses.is_dataclass(config_cls):
+        raise TypeError(f"{config_cls!r} is not a dataclass")
+    out = []
+    for f in dataclasses.fields(config_cls):
+        if not f.init:
+            continue
+        spec = f.metadata.get(_META_KEY)
+        if spec is None:
+            raise TypeError(f"{config_cls.__name__}.{f.name}: not declared with param()")
+        spec = dict(spec)
+        name = spec.pop("name") or f.name
+        out.append(Param(name=name, **spec))
+    return out
+
+
+def _declare_one(node: Any, p: Param, full: str) -> Any:
+    from rclpy.exceptions import (
+        InvalidParameterTypeException,
+        InvalidParameterValueException,
+        ParameterAlreadyDeclaredException,
+        ParameterUninitializedException,
+    )
+
+    typed_only = p.required or (p.is_array and not p.default)
+    initial = p.ros_type() if typed_only else (list(p.default) if p.is_array else p.default)
+    try:
+        node.declare_parameter(full, initial, p.descriptor())
+    except InvalidParameterValueException as exc:
+        text = str(exc.args[0]) if exc.args else str(exc)
+        match = re.search(r"Invalid parameter value \((.*?)\) for parameter", text)
+        if match and p.range is not None:
+            problem = f"{match.group(1)} is outside the range [{p.range[0]}, {p.range[1]}]"
+        else:
+            problem = f"rejected by rclpy: {text}"
+        raise ConfigError(f"parameter '{full}': {problem}: {p.description}") from exc
+    except InvalidParameterTypeException as exc:
+        text = str(exc.args[0]) if exc.args else str(exc)
+        match = re.search(r"to '(.*)' of type '(\w+)'", text, re.S)
+        got = f"{match.group(2).lower()} {match.group(1)}" if match else text
+        hint = " (write floats with a decimal point, e.g. 2.0)" if "float" in str(p.type) else ""
+        raise ConfigError(
+            f"parameter '{full}': expected type {p.type}, got {got}{hint}: {p.description}"
+        ) from exc
+    except ParameterAlreadyDeclaredException as exc:
+        raise ConfigError(f"parameter '{full}' is declared twice") from exc
+    try:
+        value = node.get_parameter(full).value
+    except ParameterUninitializedException as exc:
+        if p.required:
+            raise ConfigError(
+                f"parameter '{full}' is required but was not set: {p.description}") from exc
+        return p.default  # an empty-array parameter left unset: its default, ()
+    value = _coerce(value, str(p.type))
+    if p.required and value in ("", ()):
+        raise ConfigError(f"parameter '{full}' is required but is empty: {p.description}")
+    return value
+
+
+def declare_params(node: Any, params: Iterable[Param], *, prefix: str = "") -> dict[str, Any]:
+    """Declare parameters on ``node`` and return their validated values.
+
+    Args:
+        node: an ``rclpy.node.Node``.
+        params: the parameters to declare.
+        prefix: prepended to every name (e.g. ``"left."``).
+
+    Returns:
+        ``{param.name: value}`` (without prefix); arrays as tuples.
+
+    Raises:
+        ConfigError: a value out of range, of the wrong type, not among the choices, rejected by
+            the hook, or a required parameter not set; the message names the parameter.
+    """
+    values: dict[str, Any] = {}
+    for p in params:
+        full = f"{prefix}{p.name}"
+        value = _declare_one(node, p, full)
+        problem = p.check(value)
+        if problem:
+            raise ConfigError(f"parameter '{full}': {problem}: {p.description}")
+        values[p.name] = value
+    return values
+
+
+def load_config(node: Any, config_cls: type, *, prefix: str = "") -> Any:
+    """Declare the parameters of a config dataclass and build a frozen instance from them.
+
+    Args:
+        node: an ``rclpy.node.Node``.
+        config_cls: a dataclass whose init fields are made with :func:`param`.
+        prefix: prepended to every parameter name.
+
+    Returns:
+        An instance of ``config_cls``.
+
+    Raises:
+        ConfigError: any parameter is invalid (see :func:`declare_params`), or the dataclass's
+            ``__post_init__`` rejected the combination (its ``ValueError`` is wrapped).
+    """
+    params = params_of(config_cls)
+    values = declare_params(node, params, prefix=prefix)
+    fields = [f.name for f in dataclasses.fields(config_cls) if f.init]
+    kwargs = {field_name: values[p.name] for field_name, p in zip(fields, params)}
+    try:
+        return config_cls(**kwargs)
+    except ConfigError:
+        raise
+    except ValueError as exc:
+        raise ConfigError(f"{config_cls.__name__}: {exc}") from exc
+
+
+def params_markdown(params: Iterable[Param] | type) -> str:
+    """A Markdown table (name, type, default, constraints, description) for the README."""
+    plist = params_of(params) if isinstance(params, type) else list(params)
+    lines = ["| parameter | type | default | constraints | description |",
+             "|---|---|---|---|---|"]
+    for p in plist:
+        constraints = []
+        if p.range is not None:
+            constraints.append(f"[{p.range[0]}, {p.range[1]}]")
+        if p.choices is not None:
+            constraints.append(" / ".join(map(str, p.choices)))
+        if p.required:
+            constraints.append("required")
+        if not p.read_only:
+            constraints.append("dynamic")
+        default = "" if p.required else repr(p.default)
+        lines.append(f"| `{p.name}` | {p.type} | `{default}` | {', '.join(constraints)} | "
+                     f"{p.description} |")
+    return "\n".join(lines)
