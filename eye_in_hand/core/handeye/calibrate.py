@@ -1,0 +1,518 @@
+"""The hand-eye calibration pipeline: diagnose, reject outliers, solve, refine, assess.
+
+:func:`calibrate_hand_eye` runs, on a list of :class:`HandEyeSample`:
+
+1. validation (NaN, non-orthonormal rotations, duplicates: errors or warnings naming samples);
+2. motion diagnostics (too few samples or rotations about one axis only is an error);
+3. outlier rejection by leave-one-out prediction: each sample's board pose in the fixed frame,
+   predicted from X solved without it, is compared with the other samples' board poses; the
+   worst sample beyond ``outlier_threshold`` times the median deviation (and beyond absolute
+   floors) is rejected and the test repeated;
+4. every closed form (:data:`CLOSED_FORM_METHODS`) on the kept samples;
+5. the joint refinement from the best closed form (reprojection when corners are available,
+   pose space otherwise), with the covariance of X from its Jacobian;
+6. quality figures for every method: AX = XB residuals per sample, reprojection RMS per sample,
+   the spread of the board pose in the fixed frame, leave-one-out changes and a jackknife
+   standard deviation, and warnings when methods disagree beyond their uncertainty.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from eye_in_hand.core.transforms import average_transforms, to_xyz_quat
+from eye_in_hand.errors import HandEyeError
+
+from .refine import RefinementResult, refine_pose_space, refine_reprojection, \
+    reprojection_errors
+from .samples import MIN_SAMPLES, CameraView, HandEyeSample, MotionDiagnostics, \
+    motion_diagnostics, validate_samples
+from .solvers import CLOSED_FORM_METHODS, SETUPS, board_in_fixed_frame, gripper_poses, \
+    motion_pairs
+
+__all__ = [
+    "METHODS",
+    "FRAMES",
+    "MethodResult",
+    "RejectedSample",
+    "HandEyeResult",
+    "calibrate_hand_eye",
+    "axxb_residuals",
+    "board_spread",
+    "bootstrap_covariance",
+]
+
+#: Every method name accepted by ``--method`` (besides ``all``).
+METHODS = (*CLOSED_FORM_METHODS, "refined")
+
+#: Default (parent, child) frame ids of X per setup.
+FRAMES = {"eye_in_hand": ("tool0", "camera_left_optical_frame"),
+          "eye_to_hand": ("base_link", "camera_left_optical_frame")}
+
+
+@dataclass(frozen=True)
+class RejectedSample:
+    """A sample left out of the solution, and why."""
+
+    name: str
+    reason: str
+
+
+@dataclass
+class MethodResult:
+    """One method's X and its quality figures (per-sample arrays are in sample order).
+
+    Attributes:
+        name: method name.
+        X: hand-eye transform, shape (4, 4).
+        Y: board pose in its fixed frame (mean over samples, or refined), shape (4, 4).
+        axxb_rot_deg, axxb_trans_mm: RMS AX = XB residual over the motions each sample is
+            part of, shape (N,).
+        board_dev_mm, board_dev_deg: each sample's board pose in the fixed frame minus ``Y``,
+            shape (N,).
+        reproj_rms_px: corner reprojection RMS per sample with this X and Y, shape (N,), or
+            None without corners.
+        loo_mm, loo_deg: change of X when the sample is left out, shape (N,), or None.
+        std_mm, std_deg: one-sigma uncertainty of X (translation norm, rotation angle): from
+            the covariance for ``refined``, the jackknife of the leave-one-out solutions for
+            the closed forms; NaN when not computed.
+        covariance: (6, 6) covariance of X (``refined`` only), order ``x y z rx ry rz``.
+    """
+
+    name: str
+    X: np.ndarray
+    Y: np.ndarray
+    axxb_rot_deg: np.ndarray
+    axxb_trans_mm: np.ndarray
+    board_dev_mm: np.ndarray
+    board_dev_deg: np.ndarray
+    reproj_rms_px: np.ndarray | None = None
+    loo_mm: np.ndarray | None = None
+    loo_deg: np.ndarray | None = None
+    std_mm: float = float("nan")
+    std_deg: float = float("nan")
+    covariance: np.ndarray | None = None
+
+    def summary(self) -> dict[str, Any]:
+        """Plain-data summary for report.json (X as translation + quat_xyzw, RMS figures)."""
+        t, q = to_xyz_quat(self.X)
+
+        def rms(a: np.ndarray | None) -> float | None:
+            return None if a is None or a.size == 0 else float(np.sqrt(np.mean(a ** 2)))
+
+        out: dict[str, Any] = {
+            "translation": t.tolist(),
+            "quat_xyzw": q.tolist(),
+            "residuals": {
+                "axxb_rot_deg_rms": rms(self.axxb_rot_deg),
+                "axxb_trans_mm_rms": rms(self.axxb_trans_mm),
+                "board_spread_mm_rms": rms(self.board_dev_mm),
+                "board_spread_deg_rms": rms(self.board_dev_deg),
+                "reproj_px_rms": rms(self.reproj_rms_px),
+                "loo_max_mm": None if self.loo_mm is None else float(np.max(self.loo_mm)),
+                "loo_max_deg": None if self.loo_deg is None else float(np.max(self.loo_deg)),
+            },
+            "std_mm": None if not np.isfinite(self.std_mm) else float(self.std_mm),
+            "std_deg": None if not np.isfinite(self.std_deg) else float(self.std_deg),
+        }
+        if self.covariance is not None:
+            out["covariance"] = self.covariance.tolist()
+        return out
+
+
+@dataclass
+class HandEyeResult:
+    """Everything a hand-eye calibration produced.
+
+    Attributes:
+        setup: ``"eye_in_hand"`` or ``"eye_to_hand"``.
+        sample_names: names of the samples used, in order (per-sample arrays follow it).
+        rejected: samples rejected as outliers, with the reason.
+        diagnostics: motion diagnostics of the samples used.
+        methods: results by method name (closed forms, and ``refined`` when run).
+        selected: the method whose X is the result.
+        warnings: every warning (duplicates, weak motion, disagreement, ...).
+        refinement: the refinement details, or None.
+    """
+
+    setup: str
+    sample_names: list[str]
+    rejected: list[RejectedSample]
+    diagnostics: MotionDiagnostics
+    methods: dict[str, MethodResult]
+    selected: str
+    warnings: list[str] = field(default_factory=list)
+    refinement: RefinementResult | None = None
+
+    @property
+    def X(self) -> np.ndarray:
+        """The selected hand-eye transform, shape (4, 4)."""
+        return self.methods[self.selected].X
+
+    @property
+    def covariance(self) -> np.ndarray | None:
+        """Covariance of the selected X, shape (6, 6), when available."""
+        return self.methods[self.selected].covariance
+
+    def sample_table(self) -> list[dict[str, Any]]:
+        """Per-sample rows for the selected method (report.json ``samples``)."""
+        m = self.methods[self.selected]
+        rows = []
+        for k, name in enumerate(self.sample_names):
+            row: dict[str, Any] = {
+                "name": name, "used": True,
+                "axxb_rot_deg": float(m.axxb_rot_deg[k]),
+                "axxb_trans_mm": float(m.axxb_trans_mm[k]),
+                "board_dev_mm": float(m.board_dev_mm[k]),
+                "board_dev_deg": float(m.board_dev_deg[k]),
+                "reproj_rms_px": None if m.reproj_rms_px is None else float(m.reproj_rms_px[k]),
+                "loo_mm": None if m.loo_mm is None else float(m.loo_mm[k]),
+                "loo_deg": None if m.loo_deg is None else float(m.loo_deg[k]),
+            }
+            rows.append(row)
+        for r in self.rejected:
+            rows.append({"name": r.name, "used": False, "reason": r.reason})
+        return rows
+
+    def to_report(self) -> dict[str, Any]:
+        """The report.json content (without the input description, added by the caller)."""
+        return {
+            "setup": self.setup,
+            "selected": self.selected,
+            "methods": {k: v.summary() for k, v in self.methods.items()},
+            "samples": self.sample_table(),
+            "rejected": [{"name": r.name, "reason": r.reason} for r in self.rejected],
+            "diagnostics": self.diagnostics.to_dict(),
+            "warnings": list(self.warnings),
+            "refinement": None if self.refinement is None else {
+                "space": self.refinement.space, "sigma": self.refinement.sigma,
+                "nfev": self.refinement.nfev},
+        }
+
+
+def _inv_stack(T: np.ndarray) -> np.ndarray:
+    out = np.zeros_like(T)
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    out[..., :3, :3] = Rt
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def axxb_residuals(X: np.ndarray, base_T_ee: np.ndarray, cam_T_board: np.ndarray,
+                   setup: str) -> tuple[np.ndarray, np.ndarray]:
+    """Per-sample AX = XB residuals: RMS over the motions (all pairs) each sample is part of.
+
+    The residual of a motion is ``E = inv(A X) X B``: its rotation angle (deg) and the norm of
+    its translation (mm).
+
+    Args:
+        X: shape (4, 4).
+        base_T_ee: shape (N, 4, 4).
+        cam_T_board: shape (N, 4, 4).
+        setup: ``"eye_in_hand"`` or ``"eye_to_hand"``.
+
+    Returns:
+        ``(rot_deg (N,), trans_mm (N,))``.
+    """
+    n = base_T_ee.shape[0]
+    m = motion_pairs(gripper_poses(base_T_ee, setup), cam_T_board)
+    E = _inv_stack(m.A @ X) @ X @ m.B
+    ang = np.degrees(np.linalg.norm(Rotation.from_matrix(E[:, :3, :3]).as_rotvec(), axis=1))
+    tr = 1000.0 * np.linalg.norm(E[:, :3, 3], axis=1)
+    rot = np.zeros(n)
+    trans = np.zeros(n)
+    count = np.zeros(n)
+    for col in (0, 1):
+        np.add.at(rot, m.index[:, col], ang ** 2)
+        np.add.at(trans, m.index[:, col], tr ** 2)
+        np.add.at(count, m.index[:, col], 1.0)
+    count = np.maximum(count, 1.0)
+    return np.sqrt(rot / count), np.sqrt(trans / count)
+
+
+def board_spread(X: np.ndarray, base_T_ee: np.ndarray, cam_T_board: np.ndarray, setup: str,
+                 Y: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The board pose in its fixed frame as each sample sees it, against their mean (or ``Y``).
+
+    Args:
+        X: shape (4, 4).
+        base_T_ee: shape (N, 4, 4).
+        cam_T_board: shape (N, 4, 4).
+        setup: ``"eye_in_hand"`` or ``"eye_to_hand"``.
+        Y: reference board pose, shape (4, 4); the mean of the samples' when None.
+
+    Returns:
+        ``(Y (4, 4), dev_mm (N,), dev_deg (N,))``.
+    """
+    Yi = board_in_fixed_frame(X, base_T_ee, cam_T_board, setup)
+    if Y is None:
+        Y = average_transforms(Yi)
+    dmm = 1000.0 * np.linalg.norm(Yi[:, :3, 3] - Y[:3, 3], axis=1)
+    dR = np.einsum("ji,kjl->kil", Y[:3, :3], Yi[:, :3, :3])
+    ddeg = np.degrees(np.linalg.norm(Rotation.from_matrix(dR).as_rotvec(), axis=1))
+    return Y, dmm, ddeg
+
+
+def _solve(method: str, base_T_ee: np.ndarray, cam_T_board: np.ndarray, setup: str) -> np.ndarray:
+    m = motion_pairs(gripper_poses(base_T_ee, setup), cam_T_board)
+    X = CLOSED_FORM_METHODS[method](m)
+    if not np.all(np.isfinite(X)):
+        raise HandEyeError(f"{method}: solution is not finite (degenerate motions)")
+    return X
+
+
+def _x_delta(Xa: np.ndarray, Xb: np.ndarray) -> tuple[float, float]:
+    """(mm, deg) between two transforms."""
+    dt = 1000.0 * float(np.linalg.norm(Xa[:3, 3] - Xb[:3, 3]))
+    dr = float(np.degrees(np.linalg.norm(
+        Rotation.from_matrix(Xa[:3, :3].T @ Xb[:3, :3]).as_rotvec())))
+    return dt, dr
+
+
+def _loo_prediction(method: str, base_T_ee: np.ndarray, cam_T_board: np.ndarray,
+                    setup: str) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """For every sample: its board-pose deviation (mm, deg) from the others, predicted by X
+    solved without it; and the leave-one-out X's."""
+    n = base_T_ee.shape[0]
+    dmm = np.zeros(n)
+    ddeg = np.zeros(n)
+    xs: list[np.ndarray] = []
+    for i in range(n):
+        keep = np.arange(n) != i
+        Xi = _solve(method, base_T_ee[keep], cam_T_board[keep], setup)
+        xs.append(Xi)
+        Yo = average_transforms(board_in_fixed_frame(Xi, base_T_ee[keep], cam_T_board[keep],
+                                                     setup))
+        Ys = board_in_fixed_frame(Xi, base_T_ee[i:i + 1], cam_T_board[i:i + 1], setup)[0]
+        dmm[i], ddeg[i] = _x_delta(Yo, Ys)
+    return dmm, ddeg, xs
+
+
+def _reject_outliers(samples: list[HandEyeSample], setup: str, threshold: float,
+                     floor_mm: float, floor_deg: float,
+                     min_keep: int) -> tuple[list[HandEyeSample], list[RejectedSample]]:
+    rejected: list[RejectedSample] = []
+    kept = list(samples)
+    while len(kept) > min_keep:
+        bte = np.stack([s.base_T_ee for s in kept])
+        ctb = np.stack([s.cam_T_board for s in kept])
+        dmm, ddeg, _ = _loo_prediction("park", bte, ctb, setup)
+        med_mm = max(float(np.median(dmm)), 1e-12)
+        med_deg = max(float(np.median(ddeg)), 1e-12)
+        score = np.maximum(dmm / med_mm, ddeg / med_deg)
+        bad = (score > threshold) & ((dmm > floor_mm) | (ddeg > floor_deg))
+        if not np.any(bad):
+            break
+        worst = int(np.argmax(np.where(bad, score, -np.inf)))
+        rejected.append(RejectedSample(
+            kept[worst].name,
+            f"outlier: its board pose in the fixed frame is {dmm[worst]:.2f} mm / "
+            f"{ddeg[worst]:.3f} deg off the other samples' (median {med_mm:.2f} mm / "
+            f"{med_deg:.3f} deg; limit {threshold:g}x the median)"))
+        del kept[worst]
+    return kept, rejected
+
+
+def _jackknife(xs: Sequence[np.ndarray], X: np.ndarray) -> tuple[float, float, np.ndarray,
+                                                                   np.ndarray]:
+    n = len(xs)
+    loo_mm = np.zeros(n)
+    loo_deg = np.zeros(n)
+    t = np.stack([x[:3, 3] for x in xs])
+    rv = np.stack([Rotation.from_matrix(x[:3, :3] @ X[:3, :3].T).as_rotvec() for x in xs])
+    for i, x in enumerate(xs):
+        loo_mm[i], loo_deg[i] = _x_delta(x, X)
+    f = (n - 1) / n
+    std_mm = 1000.0 * float(np.sqrt(f * np.sum((t - t.mean(axis=0)) ** 2)))
+    std_deg = float(np.degrees(np.sqrt(f * np.sum((rv - rv.mean(axis=0)) ** 2))))
+    return std_mm, std_deg, loo_mm, loo_deg
+
+
+def _reproj_rms(X: np.ndarray, Y: np.ndarray, samples: Sequence[HandEyeSample],
+                cameras: Sequence[CameraView], setup: str) -> np.ndarray:
+    errs = reprojection_errors(X, Y, samples, cameras, setup)
+    return np.array([float(np.sqrt(np.mean(np.sum(e ** 2, axis=1)))) if e.size else np.nan
+                     for e in errs])
+
+
+def _refine(X0: np.ndarray, Y0: np.ndarray, samples: Sequence[HandEyeSample],
+            cameras: Sequence[CameraView] | None, setup: str,
+            use_corners: bool) -> RefinementResult:
+    if use_corners:
+        assert cameras is not None
+        return refine_reprojection(X0, Y0, samples, cameras, setup)
+    bte = np.stack([s.base_T_ee for s in samples])
+    ctb = np.stack([s.cam_T_board for s in samples])
+    return refine_pose_space(X0, Y0, bte, ctb, setup)
+
+
+def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_hand", *,
+                       cameras: Sequence[CameraView] | None = None,
+                       method: str = "all",
+                       refine: bool = True,
+                       reject_outliers: bool = True,
+                       outlier_threshold: float = 5.0,
+                       outlier_floor_mm: float = 1.0,
+                       outlier_floor_deg: float = 0.2,
+                       leave_one_out: bool = True,
+                       leave_one_out_refined: bool = True) -> HandEyeResult:
+    """Solve AX = XB with every method, refine, and assess the result.
+
+    Args:
+        samples: the samples (robot pose, board pose, optional corners), at least 3.
+        setup: ``"eye_in_hand"`` (X = ``ee_T_cam``) or ``"eye_to_hand"`` (X = ``base_T_cam``).
+        cameras: the rig's cameras, needed for the reprojection refinement and reprojection
+            figures; without them (or without corners) the refinement is done in pose space.
+        method: the method whose X is the result: ``"all"`` (= ``refined`` when ``refine``,
+            else the best closed form), a closed-form name, or ``"refined"``.
+        refine: run the joint refinement.
+        reject_outliers: reject samples by leave-one-out prediction (see module docstring).
+        outlier_threshold: rejection limit in multiples of the median deviation.
+        outlier_floor_mm, outlier_floor_deg: deviations below both floors are never rejected.
+        leave_one_out: compute leave-one-out changes and jackknife uncertainties.
+        leave_one_out_refined: also for the refinement (one refinement per sample).
+
+    Returns:
+        The result; ``result.X`` is the selected method's transform.
+
+    Raises:
+        HandEyeError: bad poses (naming the sample), too few samples, degenerate motion,
+            unknown setup or method, or a solver failure.
+    """
+    if setup not in SETUPS:
+        raise HandEyeError(f"setup: expected one of {', '.join(SETUPS)}, got {setup!r}")
+    if method != "all" and method not in METHODS:
+        raise HandEyeError(f"method: expected 'all' or one of {', '.join(METHODS)}, "
+                           f"got {method!r}")
+    if method == "refined" and not refine:
+        raise HandEyeError("method 'refined' requested with refinement disabled")
+    kept, warnings = validate_samples(samples)
+    if len(kept) < MIN_SAMPLES:
+        raise HandEyeError(f"hand-eye calibration needs at least {MIN_SAMPLES} samples, got "
+                           f"{len(kept)} usable: add samples")
+    motion_diagnostics(np.stack([s.base_T_ee for s in kept]), setup)  # fail early
+    rejected: list[RejectedSample] = []
+    if reject_outliers and len(kept) >= 6:
+        min_keep = max(MIN_SAMPLES + 2, (len(kept) + 1) // 2)
+        kept, rejected = _reject_outliers(kept, setup, outlier_threshold, outlier_floor_mm,
+                                          outlier_floor_deg, min_keep)
+        for r in rejected:
+            warnings.append(f"sample {r.name!r} rejected: {r.reason}")
+    bte = np.stack([s.base_T_ee for s in kept])
+    ctb = np.stack([s.cam_T_board for s in kept])
+    diag = motion_diagnostics(bte, setup)
+    warnings.extend(diag.warnings)
+    use_corners = bool(cameras) and all(len(s.observations) > 0 for s in kept)
+    if bool(cameras) and not use_corners and any(len(s.observations) for s in kept):
+        warnings.append("some samples have no corner observations: refinement in pose space")
+
+    results: dict[str, MethodResult] = {}
+    for name in CLOSED_FORM_METHODS:
+        X = _solve(name, bte, ctb, setup)
+        rot, trans = axxb_residuals(X, bte, ctb, setup)
+        Y, dmm, ddeg = board_spread(X, bte, ctb, setup)
+        mr = MethodResult(name, X, Y, rot, trans, dmm, ddeg)
+        if use_corners:
+            assert cameras is not None
+            mr.reproj_rms_px = _reproj_rms(X, Y, kept, cameras, setup)
+        if leave_one_out:
+            xs = [_solve(name, bte[np.arange(len(kept)) != i], ctb[np.arange(len(kept)) != i],
+                         setup) for i in range(len(kept))]
+            mr.std_mm, mr.std_deg, mr.loo_mm, mr.loo_deg = _jackknife(xs, X)
+        results[name] = mr
+
+    # Best closed form: lowest reprojection RMS, else lowest normalised board spread.
+    def score(mr: MethodResult) -> float:
+        if mr.reproj_rms_px is not None:
+            return float(np.sqrt(np.mean(mr.reproj_rms_px ** 2)))
+        ref_mm = np.median([np.sqrt(np.mean(r.board_dev_mm ** 2)) for r in results.values()])
+        ref_deg = np.median([np.sqrt(np.mean(r.board_dev_deg ** 2)) for r in results.values()])
+        return float(np.sqrt(np.mean(mr.board_dev_mm ** 2)) / max(ref_mm, 1e-12)
+                     + np.sqrt(np.mean(mr.board_dev_deg ** 2)) / max(ref_deg, 1e-12))
+
+    best = min(results, key=lambda k: score(results[k]))
+    refinement: RefinementResult | None = None
+    if refine:
+        start = results[best]
+        refinement = _refine(start.X, start.Y, kept, cameras, setup, use_corners)
+        X, Y = refinement.X, refinement.Y
+        rot, trans = axxb_residuals(X, bte, ctb, setup)
+        _, dmm, ddeg = board_spread(X, bte, ctb, setup, Y)
+        mr = MethodResult("refined", X, Y, rot, trans, dmm, ddeg, covariance=refinement.covariance)
+        cov = refinement.covariance
+        mr.std_mm = 1000.0 * float(np.sqrt(np.trace(cov[:3, :3])))
+        mr.std_deg = float(np.degrees(np.sqrt(np.trace(cov[3:, 3:]))))
+        if use_corners:
+            assert cameras is not None
+            mr.reproj_rms_px = _reproj_rms(X, Y, kept, cameras, setup)
+        if leave_one_out and leave_one_out_refined:
+            loo_mm = np.zeros(len(kept))
+            loo_deg = np.zeros(len(kept))
+            for i in range(len(kept)):
+                sub = [s for k, s in enumerate(kept) if k != i]
+                r_i = _refine(X, Y, sub, cameras, setup, use_corners)
+                loo_mm[i], loo_deg[i] = _x_delta(r_i.X, X)
+            mr.loo_mm, mr.loo_deg = loo_mm, loo_deg
+        results["refined"] = mr
+    selected = method if method != "all" else ("refined" if refine else best)
+
+    # Disagreement beyond the combined uncertainty (3 sigma).
+    sel = results[selected]
+    for name, mr in results.items():
+        if name == selected or not (np.isfinite(mr.std_mm) and np.isfinite(sel.std_mm)):
+            continue
+        dmm, ddeg = _x_delta(mr.X, sel.X)
+        lim_mm = 3.0 * float(np.hypot(mr.std_mm, sel.std_mm)) + 1e-6
+        lim_deg = 3.0 * float(np.hypot(mr.std_deg, sel.std_deg)) + 1e-7
+        if dmm > lim_mm or ddeg > lim_deg:
+            warnings.append(
+                f"methods disagree: {name} differs from {selected} by {dmm:.2f} mm / "
+                f"{ddeg:.3f} deg, beyond 3 sigma of their uncertainties ({lim_mm:.2f} mm / "
+                f"{lim_deg:.3f} deg): check for bad samples or unmodelled errors")
+    return HandEyeResult(setup=setup, sample_names=[s.name for s in kept], rejected=rejected,
+                         diagnostics=diag, methods=results, selected=selected,
+                         warnings=warnings, refinement=refinement)
+
+
+def bootstrap_covariance(samples: Sequence[HandEyeSample], setup: str, *,
+                         cameras: Sequence[CameraView] | None = None, n_boot: int = 50,
+                         seed: int = 0, start: str = "park") -> np.ndarray:
+    """Bootstrap covariance of the refined X (resampling samples with replacement).
+
+    Used to check the Jacobian covariance. Each draw solves ``start`` and refines from it.
+
+    Args:
+        samples: validated samples.
+        setup: ``"eye_in_hand"`` or ``"eye_to_hand"``.
+        cameras: rig cameras (reprojection refinement when given and corners exist).
+        n_boot: number of bootstrap draws.
+        seed: random seed.
+        start: the closed form to start each refinement from.
+
+    Returns:
+        shape (6, 6), order ``x y z rx ry rz`` (rotation as a left perturbation of the mean).
+    """
+    rng = np.random.default_rng(seed)
+    samples = list(samples)
+    n = len(samples)
+    use_corners = bool(cameras) and all(len(s.observations) > 0 for s in samples)
+    xs = []
+    for _ in range(n_boot):
+        idx = rng.integers(0, n, n)
+        if len(set(idx.tolist())) < MIN_SAMPLES + 1:
+            continue
+        sub = [samples[i] for i in idx]
+        bte = np.stack([s.base_T_ee for s in sub])
+        ctb = np.stack([s.cam_T_board for s in sub])
+        X0 = _solve(start, bte, ctb, setup)
+        Y0, _, _ = board_spread(X0, bte, ctb, setup)
+        xs.append(_refine(X0, Y0, sub, cameras, setup, use_corners).X)
+    X_mean = average_transforms(np.stack(xs))
+    par = np.stack([np.concatenate([x[:3, 3], Rotation.from_matrix(
+        x[:3, :3] @ X_mean[:3, :3].T).as_rotvec()]) for x in xs])
+    return np.cov(par.T)
+
