@@ -1,0 +1,73 @@
+"""``eye-in-hand bag info BAG``: storage, time range and topics of a bag, like ``ros2 bag info``."""
+from __future__ import annotations
+
+import argparse
+import json
+from datetime import datetime, timezone
+
+HELP = "print a bag's storage, duration, start/end and per-topic type and count"
+
+__all__ = ["HELP", "add_arguments", "run", "format_info"]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``eye-in-hand bag info``."""
+    parser.add_argument("bag", help="bag directory (metadata.yaml) or a single .mcap/.db3 file")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON object instead of the human-readable table")
+
+
+def _stamp(ns: int) -> str:
+    sec = ns / 1e9
+    text = datetime.fromtimestamp(sec, tz=timezone.utc).strftime("%b %d %Y %H:%M:%S.%f")
+    return f"{text[:-3]} UTC ({sec:.9f})"
+
+
+def _size(n: int) -> str:
+    value = float(n)
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if value < 1024 or unit == "GiB":
+            return f"{value:.1f} {unit}" if unit != "B" else f"{n} B"
+        value /= 1024
+    return f"{n} B"  # pragma: no cover
+
+
+def format_info(info) -> str:  # noqa: ANN001 - BagInfo, imported lazily
+    """The ``ros2 bag info``-like text for a :class:`eye_in_hand.io.bags.BagInfo`."""
+    lines = [
+        f"Files:             {', '.join(f.name for f in info.files)}",
+        f"Bag size:          {_size(info.size_bytes)}",
+        f"Storage id:        {info.storage}",
+        f"Metadata version:  {info.version if info.version is not None else 'none (bare file)'}",
+        f"ROS distro:        {info.ros_distro or 'unknown'}",
+        f"Duration:          {info.duration_ns / 1e9:.9f}s",
+        f"Start:             {_stamp(info.start_ns)}",
+        f"End:               {_stamp(info.end_ns)}",
+        f"Messages:          {info.message_count}",
+        f"Compression:       {info.compression_format or 'none'}"
+        + (f" ({info.compression_mode} mode)" if info.compression_mode else ""),
+    ]
+    width = max((len(t.name) for t in info.topics.values()), default=0)
+    tw = max((len(t.msgtype) for t in info.topics.values()), default=0)
+    first = True
+    for topic in info.topics.values():
+        head = "Topic information: " if first else " " * 19
+        first = False
+        lines.append(f"{head}Topic: {topic.name:<{width}} | Type: {topic.msgtype:<{tw}} | "
+                     f"Count: {topic.count} | Serialization Format: "
+                     f"{topic.serialization_format}")
+    if first:
+        lines.append("Topic information: (none)")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Print the bag summary."""
+    from eye_in_hand.io.bags import bag_info
+
+    info = bag_info(args.bag)
+    if args.json:
+        print(json.dumps(info.to_dict(), indent=None))
+    else:
+        print(format_info(info))
+    return 0

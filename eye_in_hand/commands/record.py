@@ -1,0 +1,72 @@
+"""``eye-in-hand record -o BAG TOPIC...``: record topics into a rosbag2 bag."""
+from __future__ import annotations
+
+import argparse
+
+HELP = "record topics into a rosbag2 bag (mcap or sqlite3), like ros2 bag record"
+
+__all__ = ["HELP", "add_arguments", "run"]
+
+
+def _non_negative(text: str) -> float:
+    value = float(text)
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``eye-in-hand record``."""
+    parser.add_argument("topics", nargs="*", metavar="TOPIC",
+                        help="topics to record (waits for topics that do not exist yet)")
+    parser.add_argument("-o", "--output", required=True, metavar="BAG",
+                        help="bag directory to create (must not exist)")
+    parser.add_argument("-a", "--all", action="store_true",
+                        help="record every topic, including ones that appear later")
+    parser.add_argument("-s", "--storage", choices=("mcap", "sqlite3"), default="mcap",
+                        help="storage plugin (default mcap, as ros2 bag record on Jazzy)")
+    parser.add_argument("--compression", choices=("none", "zstd"), default="none",
+                        help="zstd: compressed MCAP chunks (mcap) or per-message zstd "
+                             "(sqlite3); default none")
+    parser.add_argument("-d", "--duration", type=_non_negative, default=0.0, metavar="S",
+                        help="stop after S seconds (default 0: until Ctrl-C / SIGTERM)")
+    parser.add_argument("--discovery-period", type=float, default=0.2, metavar="S",
+                        help="seconds between polls for new topics (default 0.2)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Record until ``--duration`` passes or Ctrl-C/SIGTERM; the bag is always left valid."""
+    from eye_in_hand.errors import InputError
+
+    if not args.topics and not args.all:
+        raise InputError("give the topics to record, or --all")
+    if not 0.01 <= args.discovery_period <= 60:
+        raise InputError(f"--discovery-period must be in [0.01, 60] s, got "
+                         f"{args.discovery_period}")
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.parameter import Parameter
+
+    from eye_in_hand.nodes.bag_recorder import BagRecorder, spin_recorder
+
+    overrides = [
+        Parameter("output", value=str(args.output)),
+        Parameter("all", value=bool(args.all)),
+        Parameter("storage", value=args.storage),
+        Parameter("compression", value="" if args.compression == "none" else args.compression),
+        Parameter("discovery_period", value=float(args.discovery_period)),
+        Parameter("duration", value=float(args.duration)),
+    ]
+    if args.topics:  # an empty list would be typed as a byte array
+        overrides.append(Parameter("topics", Parameter.Type.STRING_ARRAY, list(args.topics)))
+    rclpy.init(args=[])
+    node: BagRecorder | None = None
+    try:
+        node = BagRecorder(parameter_overrides=overrides)
+        return spin_recorder(node, float(args.duration))
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()

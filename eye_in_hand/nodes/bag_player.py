@@ -1,0 +1,401 @@
+"""``bag_player``: publish a rosbag2 bag's messages over DDS at the recorded pace.
+
+Every message goes out as the CDR bytes stored in the bag (no decode/re-encode), on its
+recorded topic with its recorded type. Types whose Python message package is not installed are
+skipped with one warning each. Timing follows the bag's log times, scaled by ``rate``: each
+message is due at ``start + (t - t_first) / rate`` on the monotonic clock, so timing does not
+drift and a slow publish only delays that one message (the next ones are still due on time).
+A reader thread decodes the bag ahead of the publisher (bounded queue), so storage I/O and
+decompression do not delay publishing either.
+
+Like ``ros2 bag play``, the player does not wait for subscribers by default: messages published
+before DDS discovery completes are lost. ``wait_for_subscribers`` (seconds) waits until every
+topic has at least one subscriber, or the time is up, before the first message.
+
+Parameters (all read-only): ``bag`` (path), ``rate`` (> 0), ``loop``, ``clock`` (publish
+``/clock``), ``clock_hz``, ``topics`` (empty: all), ``start_offset`` (s), ``wait_for_subscribers``
+(s, 0: do not wait).
+
+Run: ``ros2 run eye_in_hand bag_player --ros-args -p bag:=/path/to/bag -p rate:=2.0``
+or ``eye-in-hand play /path/to/bag --rate 2``.
+"""
+from __future__ import annotations
+
+import importlib
+import queue
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from eye_in_hand.errors import BagError, ConfigError, EyeInHandError
+from eye_in_hand.io.bags import BagInfo, OfferedQos, bag_info, iter_messages
+
+__all__ = [
+    "PlayerConfig",
+    "BagPlayer",
+    "import_message_type",
+    "playback_qos",
+    "spin_player",
+    "main",
+]
+
+_END = object()
+
+
+def import_message_type(msgtype: str) -> type | None:
+    """The Python message class for ``pkg/msg/Type``, or None when it is not installed.
+
+    Args:
+        msgtype: e.g. ``sensor_msgs/msg/Image`` (``pkg/Type`` is read as ``pkg/msg/Type``).
+
+    Returns:
+        The class (e.g. ``sensor_msgs.msg.Image``), or None when the package or the type does not
+        exist in this Python environment.
+    """
+    parts = msgtype.split("/")
+    if len(parts) == 2:
+        parts = [parts[0], "msg", parts[1]]
+    if len(parts) != 3 or not all(p.isidentifier() for p in parts):
+        return None
+    try:
+        module = importlib.import_module(f"{parts[0]}.{parts[1]}")
+    except ImportError:
+        return None
+    cls = getattr(module, parts[2], None)
+    if cls is None or not hasattr(cls, "_TYPE_SUPPORT") and not hasattr(
+            type(cls), "_TYPE_SUPPORT"):
+        return None
+    return cls
+
+
+def playback_qos(offered: Sequence[OfferedQos]) -> QoSProfile:
+    """The QoS to offer when replaying a topic, from what its recorded publishers offered.
+
+    Like ``ros2 bag play``: when every recorded publisher offered the same reliability and
+    durability, offer that (so a transient-local topic such as a calibration stays latched, and
+    a best-effort camera stays best effort); otherwise, or when the bag has no QoS metadata,
+    offer reliable, volatile, keep-last 10. A reliable offer is received by reliable and by
+    best-effort (sensor-data) subscribers alike.
+
+    Args:
+        offered: the recorded profiles (:attr:`TopicInfo.offered_qos`).
+
+    Returns:
+        An rclpy ``QoSProfile`` (keep-last; depth from the recording, at least 10).
+    """
+    depth = 10
+    reliability = ReliabilityPolicy.RELIABLE
+    durability = DurabilityPolicy.VOLATILE
+    rel = {q.reliability for q in offered}
+    dur = {q.durability for q in offered}
+    if offered and len(rel) == 1 and len(dur) == 1:
+        if rel == {"best_effort"}:
+            reliability = ReliabilityPolicy.BEST_EFFORT
+        if dur == {"transient_local"}:
+            durability = DurabilityPolicy.TRANSIENT_LOCAL
+        depth = max([depth] + [q.depth for q in offered if q.history == "keep_last"])
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=reliability,
+                      durability=durability)
+
+
+@dataclass(frozen=True)
+class PlayerConfig:
+    """Validated ``bag_player`` parameters."""
+
+    bag: str
+    rate: float
+    loop: bool
+    clock: bool
+    clock_hz: float
+    topics: tuple[str, ...]
+    start_offset: float
+    wait_for_subscribers: float
+
+
+class BagPlayer(Node):
+    """Publishes a bag's messages; call :meth:`start`, then spin until :attr:`finished`.
+
+    Args:
+        node_name: default ``bag_player``.
+        **kwargs: passed to ``rclpy.node.Node`` (``context``, ``namespace``,
+            ``parameter_overrides``, ...).
+
+    Raises:
+        ConfigError: a parameter is missing or out of range (names it).
+        BagError: the bag cannot be read, or a requested topic is not in it.
+    """
+
+    def __init__(self, node_name: str = "bag_player", **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        try:
+            self.config = self._declare_parameters()
+        except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
+            raise ConfigError(f"{self.get_name()}: bad parameter: {exc}") from exc
+        self.info: BagInfo = bag_info(self.config.bag)
+        self._stop = threading.Event()
+        self._done = threading.Event()
+        self._lock = threading.Lock()
+        self._threads: list[threading.Thread] = []
+        self._error: BaseException | None = None
+        self.published: dict[str, int] = {}
+        self.skipped_types: dict[str, str] = {}
+        self.loops_done = 0
+        # playback time: (monotonic start, bag time at that instant); None before the start
+        self._timebase: tuple[float, int] | None = None
+
+        wanted = self.config.topics or tuple(self.info.topics)
+        unknown = [t for t in wanted if t not in self.info.topics]
+        if unknown:
+            raise BagError(f"bag {self.info.path} has no topic {', '.join(unknown)}; it has: "
+                           f"{', '.join(self.info.topics) or 'no topics'}")
+        self._topic_pubs: dict[str, Any] = {}
+        for name in wanted:
+            topic = self.info.topics[name]
+            cls = import_message_type(topic.msgtype)
+            if cls is None:
+                self.skipped_types[name] = topic.msgtype
+                self.get_logger().warning(
+                    f"skipping topic {name}: message type {topic.msgtype} is not installed")
+                continue
+            self._topic_pubs[name] = self.create_publisher(
+                cls, name, playback_qos(topic.offered_qos))
+            self.published[name] = 0
+        self._clock_pub = None
+        self._clock_timer = None
+        if self.config.clock:
+            from rosgraph_msgs.msg import Clock
+
+            self._clock_msg = Clock
+            self._clock_pub = self.create_publisher(
+                Clock, "/clock", QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+            self._clock_timer = self.create_timer(1.0 / self.config.clock_hz, self._publish_clock)
+        first = self.info.start_ns + int(round(self.config.start_offset * 1e9))
+        self._first_ns = first
+        self.get_logger().info(
+            f"playing {self.info.path}: {len(self._topic_pubs)} topic(s), "
+            f"{sum(self.info.topics[t].count for t in self._topic_pubs)} message(s), "
+            f"{self.info.duration_ns / 1e9:.3f} s at rate {self.config.rate:g}"
+            f"{', looping' if self.config.loop else ''}")
+
+    # -- parameters ---------------------------------------------------------------------------
+
+    def _declare_parameters(self) -> PlayerConfig:
+        def desc(text: str, lo: float | None = None, hi: float | None = None
+                 ) -> ParameterDescriptor:
+            d = ParameterDescriptor(description=text, read_only=True)
+            if lo is not None and hi is not None:
+                d.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi)]
+            return d
+
+        bag = self.declare_parameter("bag", "", desc("bag directory or .mcap/.db3 file")).value
+        rate = self.declare_parameter("rate", 1.0, desc(
+            "playback speed factor (2.0: twice as fast)", 0.001, 1000.0)).value
+        loop = self.declare_parameter("loop", False, desc("restart at the end")).value
+        clock = self.declare_parameter("clock", False, desc(
+            "publish rosgraph_msgs/Clock on /clock (for use_sim_time)")).value
+        clock_hz = self.declare_parameter("clock_hz", 40.0, desc(
+            "/clock publishing frequency", 0.1, 1000.0)).value
+        topics = self.declare_parameter("topics", Parameter.Type.STRING_ARRAY, desc(
+            "topics to play (empty: all)")).value or []
+        offset = self.declare_parameter("start_offset", 0.0, desc(
+            "seconds into the bag to start from", 0.0, 1e9)).value
+        wait = self.declare_parameter("wait_for_subscribers", 0.0, desc(
+            "wait up to this many seconds for a subscriber on every topic (0: do not wait)",
+            0.0, 3600.0)).value
+        if not bag:
+            raise ConfigError("parameter 'bag' is required (a bag directory or .mcap file)")
+        return PlayerConfig(bag=str(bag), rate=float(rate), loop=bool(loop), clock=bool(clock),
+                            clock_hz=float(clock_hz), topics=tuple(str(t) for t in topics),
+                            start_offset=float(offset), wait_for_subscribers=float(wait))
+
+    # -- control ------------------------------------------------------------------------------
+
+    @property
+    def finished(self) -> bool:
+        """True when playback has ended (end of bag without loop, stop, or error)."""
+        return self._done.is_set()
+
+    @property
+    def error(self) -> BaseException | None:
+        """The error that ended playback early, if any."""
+        return self._error
+
+    def start(self) -> None:
+        """Start playback in a background thread (returns at once)."""
+        if self._threads:
+            return
+        thread = threading.Thread(target=self._run, name="bag_player", daemon=True)
+        self._threads.append(thread)
+        thread.start()
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Stop playback and join the threads."""
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(timeout_s)
+        self._done.set()
+
+    def destroy_node(self) -> None:
+        self.stop()
+        super().destroy_node()
+
+    # -- playback -----------------------------------------------------------------------------
+
+    def _now_bag_ns(self) -> int | None:
+        with self._lock:
+            base = self._timebase
+        if base is None:
+            return None
+        mono0, bag0 = base
+        return bag0 + int((time.monotonic() - mono0) * self.config.rate * 1e9)
+
+    def _publish_clock(self) -> None:
+        if self._done.is_set():
+            return
+        now = self._now_bag_ns()
+        if now is None:
+            now = self._first_ns
+        msg = self._clock_msg()
+        msg.clock.sec, msg.clock.nanosec = divmod(now, 1_000_000_000)
+        self._clock_pub.publish(msg)
+
+    def _wait_for_subscribers(self) -> None:
+        deadline = time.monotonic() + self.config.wait_for_subscribers
+        while not self._stop.is_set():
+            waiting = [t for t, p in self._topic_pubs.items() if p.get_subscription_count() == 0]
+            if not waiting:
+                return
+            if time.monotonic() >= deadline:
+                self.get_logger().warning(
+                    f"no subscriber after {self.config.wait_for_subscribers:g} s on "
+                    f"{', '.join(waiting)}; playing anyway")
+                return
+            self._stop.wait(0.02)
+
+    def _reader(self, out: queue.Queue) -> None:
+        try:
+            for item in iter_messages(self.info.path, topics=list(self._topic_pubs),
+                                      start_ns=self._first_ns):
+                while not self._stop.is_set():
+                    try:
+                        out.put(item, timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if self._stop.is_set():
+                    return
+            out.put(_END)
+        except BaseException as exc:  # handed to the publishing thread, which re-raises it
+            out.put(exc)
+
+    def _run(self) -> None:
+        try:
+            if self.config.wait_for_subscribers > 0:
+                self._wait_for_subscribers()
+            while not self._stop.is_set():
+                self._play_once()
+                self.loops_done += 1
+                if not self.config.loop or not self._topic_pubs:
+                    break
+        except BaseException as exc:
+            self._error = exc
+            self.get_logger().error(f"playback stopped: {exc}")
+        finally:
+            total = sum(self.published.values())
+            self.get_logger().info(f"published {total} message(s)")
+            self._done.set()
+
+    def _play_once(self) -> None:
+        buffer: queue.Queue = queue.Queue(maxsize=256)
+        reader = threading.Thread(target=self._reader, args=(buffer,), daemon=True,
+                                  name="bag_reader")
+        reader.start()
+        try:
+            rate = self.config.rate
+            mono0 = time.monotonic()
+            with self._lock:
+                self._timebase = (mono0, self._first_ns)
+            while not self._stop.is_set():
+                item = buffer.get()
+                if item is _END:
+                    return
+                if isinstance(item, BaseException):
+                    raise item
+                topic, _msgtype, stamp, raw = item
+                due = mono0 + (stamp - self._first_ns) / 1e9 / rate
+                delay = due - time.monotonic()
+                if delay > 0 and self._stop.wait(delay):
+                    return
+                self._topic_pubs[topic].publish(raw)
+                self.published[topic] += 1
+        finally:
+            self._stop_reader(reader, buffer)
+
+    def _stop_reader(self, reader: threading.Thread, buffer: queue.Queue) -> None:
+        if not reader.is_alive():
+            return
+        stop_was_set = self._stop.is_set()
+        self._stop.set()
+        while reader.is_alive():
+            try:
+                buffer.get_nowait()
+            except queue.Empty:
+                reader.join(0.05)
+        if not stop_was_set:
+            self._stop.clear()
+
+
+def spin_player(node: BagPlayer, executor: Any | None = None) -> int:
+    """Start ``node`` and spin it until playback ends; the exit code (0, or 1 on error).
+
+    Raises:
+        EyeInHandError: the error that ended playback (bag read failure).
+    """
+    ex = executor or SingleThreadedExecutor(context=node.context)
+    ex.add_node(node)
+    node.start()
+    try:
+        while not node.finished and node.context.ok():
+            ex.spin_once(timeout_sec=0.1)
+    finally:
+        ex.remove_node(node)
+        node.stop()
+    if node.error is not None:
+        if isinstance(node.error, EyeInHandError):
+            raise node.error
+        raise BagError(f"playback of {node.config.bag} failed: {node.error}") from node.error
+    return 0
+
+
+def main(args: list[str] | None = None) -> None:
+    """Console-script entry point (``ros2 run eye_in_hand bag_player --ros-args -p bag:=...``)."""
+    rclpy.init(args=args)
+    node: BagPlayer | None = None
+    code = 0
+    try:
+        node = BagPlayer()
+        code = spin_player(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except EyeInHandError as exc:
+        print(f"bag_player: error: {exc}", file=sys.stderr)
+        code = 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    sys.exit(code)
+
+
+if __name__ == "__main__":
+    main()

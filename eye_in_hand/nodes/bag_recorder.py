@@ -1,0 +1,330 @@
+"""``bag_recorder``: record topics into a rosbag2 bag (MCAP or sqlite3) with ``rosbags``.
+
+Each topic is subscribed with its advertised type as a raw (serialized) subscription, so the
+stored bytes are exactly what the publisher sent. Log time = receive time from the node clock
+(int ns; simulated time when ``use_sim_time`` is set, as ``ros2 bag record --use-sim-time``).
+Topics that do not exist yet are picked up as soon as a publisher appears (discovery is polled
+every ``discovery_period`` seconds). With ``all`` every topic seen is recorded.
+
+The QoS of each subscription adapts to the publishers, like ``ros2 bag record``: reliable when
+every publisher offers reliable (else best effort, which matches any publisher), transient local
+when every publisher offers it. The publishers' offered QoS is stored in the bag, so ``play``
+offers the same again. Message definitions are stored too (MCAP schemas / the sqlite3
+definitions table): from the ROS 2 Jazzy type store, or, for other types, generated from the
+installed Python message class.
+
+The bag is always left valid: :meth:`BagRecorder.close` writes ``metadata.yaml``; ``main`` and
+``eye-in-hand record`` call it on Ctrl-C, SIGTERM (rclpy turns it into a shutdown) and at the end
+of ``--duration``.
+
+Parameters (read-only): ``output`` (bag directory to create), ``topics`` (string array),
+``all`` (bool), ``storage`` (``mcap``/``sqlite3``), ``compression`` (``""``/``zstd``),
+``discovery_period`` (s), ``duration`` (s, 0: until stopped; used by ``main``).
+
+Run: ``ros2 run eye_in_hand bag_recorder --ros-args -p output:=run1 -p "topics:=[/a, /b]"``
+or ``eye-in-hand record -o run1 /a /b``.
+"""
+from __future__ import annotations
+
+import re
+import sys
+import threading
+import time
+from functools import partial
+from typing import Any, Sequence
+
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from eye_in_hand.errors import BagError, ConfigError, EyeInHandError
+from eye_in_hand.io.bags import STORAGES, BagWriter, OfferedQos, default_typestore
+from eye_in_hand.nodes.bag_player import import_message_type
+
+__all__ = [
+    "BagRecorder",
+    "subscription_qos",
+    "offered_qos",
+    "message_definition",
+    "spin_recorder",
+    "main",
+]
+
+_BASE_TYPES = {
+    "boolean": "bool", "octet": "byte", "float": "float32", "double": "float64",
+    "long double": "float64",
+}
+_SEQ = re.compile(r"^sequence<(.+?)(?:,\s*(\d+))?>$")
+_ARR = re.compile(r"^(.+)\[(\d+)\]$")
+
+
+def _msg_field_type(idl: str, deps: list[str]) -> str:
+    """Translate one ``get_fields_and_field_types`` entry into ``.msg`` syntax."""
+    if m := _SEQ.match(idl):
+        inner = _msg_field_type(m.group(1), deps)
+        return f"{inner}[<={m.group(2)}]" if m.group(2) else f"{inner}[]"
+    if m := _ARR.match(idl):
+        return f"{_msg_field_type(m.group(1), deps)}[{m.group(2)}]"
+    if "/" in idl:
+        pkg, name = idl.split("/")[0], idl.split("/")[-1]
+        full = f"{pkg}/msg/{name}"
+        if full not in deps:
+            deps.append(full)
+        return f"{pkg}/{name}"
+    return _BASE_TYPES.get(idl, idl)
+
+
+def message_definition(msgtype: str) -> str:
+    """The ``.msg`` definition of an installed message type, dependencies appended.
+
+    Built from the Python class (``get_fields_and_field_types``), in the concatenated form
+    rosbag2 stores (``====`` line, ``MSG: pkg/msg/Dep``, definition). Constants and default values
+    are not included (they do not change the wire format).
+
+    Args:
+        msgtype: ``pkg/msg/Type``.
+
+    Returns:
+        The definition text.
+
+    Raises:
+        BagError: the type (or one of its field types) is not installed.
+    """
+    deps: list[str] = [msgtype]
+    parts: list[str] = []
+    i = 0
+    while i < len(deps):
+        name = deps[i]
+        cls = import_message_type(name)
+        if cls is None:
+            raise BagError(f"message type {name} (used by {msgtype}) is not installed")
+        lines = [f"{_msg_field_type(t, deps)} {field}"
+                 for field, t in cls.get_fields_and_field_types().items()]
+        text = "\n".join(lines) + "\n"
+        parts.append(text if i == 0 else f"{'=' * 80}\nMSG: {name}\n{text}")
+        i += 1
+    return "".join(parts)
+
+
+def _policy_name(policy: Any) -> str:
+    return str(getattr(policy, "name", policy)).lower()
+
+
+def offered_qos(endpoints: Sequence[Any]) -> list[OfferedQos]:
+    """The offered QoS of publishers (rclpy ``TopicEndpointInfo``) as :class:`OfferedQos`."""
+    out = []
+    for ep in endpoints:
+        q = ep.qos_profile
+        out.append(OfferedQos(reliability=_policy_name(q.reliability),
+                              durability=_policy_name(q.durability),
+                              history=_policy_name(q.history), depth=int(q.depth)))
+    return out
+
+
+def subscription_qos(endpoints: Sequence[Any], depth: int = 100) -> QoSProfile:
+    """A subscription QoS that matches every given publisher and loses as little as possible.
+
+    Reliable when all publishers offer reliable, else best effort (compatible with both);
+    transient local when all publishers offer it (so latched data is received), else volatile.
+
+    Args:
+        endpoints: ``node.get_publishers_info_by_topic(topic)``.
+        depth: keep-last depth.
+
+    Returns:
+        The rclpy ``QoSProfile``.
+    """
+    offers = offered_qos(endpoints)
+    reliable = bool(offers) and all(q.reliability == "reliable" for q in offers)
+    latched = bool(offers) and all(q.durability == "transient_local" for q in offers)
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
+
+class BagRecorder(Node):
+    """Records topics into a bag; call :meth:`close` (or destroy the node) to finish it.
+
+    Args:
+        node_name: default ``bag_recorder``.
+        **kwargs: passed to ``rclpy.node.Node``.
+
+    Raises:
+        ConfigError: a parameter is missing or invalid (names it).
+        BagError: the output bag cannot be created (exists already, not writable).
+    """
+
+    def __init__(self, node_name: str = "bag_recorder", **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        try:
+            self._declare_parameters()
+        except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
+            raise ConfigError(f"{self.get_name()}: bad parameter: {exc}") from exc
+        self._lock = threading.Lock()
+        self._topic_subs: dict[str, Any] = {}
+        self._warned: set[str] = set()
+        self.received: dict[str, int] = {}
+        self.write_errors = 0
+        self.writer = BagWriter(self.output, storage=self.storage,  # type: ignore[arg-type]
+                                compression=self.compression or None)  # type: ignore[arg-type]
+        self._timer = self.create_timer(self.discovery_period, self.discover)
+        self.discover()
+        what = "all topics" if self.record_all else ", ".join(self.wanted)
+        self.get_logger().info(f"recording {what} into {self.output} ({self.storage})")
+
+    def _declare_parameters(self) -> None:
+        def desc(text: str, lo: float | None = None, hi: float | None = None
+                 ) -> ParameterDescriptor:
+            d = ParameterDescriptor(description=text, read_only=True)
+            if lo is not None and hi is not None:
+                d.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi)]
+            return d
+
+        self.output = str(self.declare_parameter(
+            "output", "", desc("bag directory to create")).value)
+        topics = self.declare_parameter("topics", Parameter.Type.STRING_ARRAY, desc(
+            "topics to record")).value or []
+        self.record_all = bool(self.declare_parameter(
+            "all", False, desc("record every topic")).value)
+        self.storage = str(self.declare_parameter(
+            "storage", "mcap", desc("storage plugin: mcap or sqlite3")).value)
+        self.compression = str(self.declare_parameter(
+            "compression", "", desc("'' (none) or zstd")).value)
+        self.discovery_period = float(self.declare_parameter(
+            "discovery_period", 0.2, desc("seconds between topic discovery polls",
+                                          0.01, 60.0)).value)
+        self.duration = float(self.declare_parameter(
+            "duration", 0.0, desc("stop after this many seconds (0: until stopped)",
+                                  0.0, 1e9)).value)
+        if not self.output:
+            raise ConfigError("parameter 'output' is required (the bag directory to create)")
+        if self.storage not in STORAGES:
+            raise ConfigError(f"parameter 'storage' must be one of {', '.join(STORAGES)}, "
+                              f"got {self.storage!r}")
+        if self.compression not in ("", "zstd"):
+            raise ConfigError(f"parameter 'compression' must be '' or 'zstd', "
+                              f"got {self.compression!r}")
+        if not topics and not self.record_all:
+            raise ConfigError("give parameter 'topics' (a list of topic names) or set 'all'")
+        self.wanted = [self.resolve_topic_name(t) for t in topics]
+
+    @property
+    def missing_topics(self) -> list[str]:
+        """Requested topics not subscribed yet (no publisher seen)."""
+        return [t for t in self.wanted if t not in self._topic_subs]
+
+    def discover(self) -> None:
+        """Subscribe to requested topics that have appeared since the last call."""
+        if self.writer.closed:
+            return
+        for name, types in self.get_topic_names_and_types():
+            if name in self._topic_subs or not (self.record_all or name in self.wanted):
+                continue
+            self._try_subscribe(name, types)
+
+    def _warn_once(self, key: str, text: str) -> None:
+        if key not in self._warned:
+            self._warned.add(key)
+            self.get_logger().warning(text)
+
+    def _try_subscribe(self, name: str, types: list[str]) -> None:
+        publishers = self.get_publishers_info_by_topic(name)
+        if not publishers:
+            return  # only subscribers so far: wait for a publisher and its QoS
+        msgtype = types[0]
+        if len(types) > 1:
+            self._warn_once(f"types:{name}", f"topic {name} has several types {types}; "
+                            f"recording {msgtype}")
+        cls = import_message_type(msgtype)
+        if cls is None:
+            self._warn_once(f"import:{name}", f"cannot record {name}: message type {msgtype} "
+                            "is not installed")
+            return
+        msgdef = None if msgtype in default_typestore().types else message_definition(msgtype)
+        self.writer.add_topic(name, msgtype, msgdef=msgdef, qos=offered_qos(publishers))
+        with self._lock:
+            self.received[name] = 0
+        self._topic_subs[name] = self.create_subscription(
+            cls, name, partial(self._on_message, name), subscription_qos(publishers), raw=True)
+        self.get_logger().info(f"subscribed to {name} ({msgtype})")
+
+    def _on_message(self, topic: str, raw: bytes) -> None:
+        stamp = self.get_clock().now().nanoseconds
+        try:
+            self.writer.write(topic, stamp, raw)
+        except BagError as exc:
+            self.write_errors += 1
+            if self.writer.closed:
+                return  # a message that arrived while closing: the bag is complete
+            self.get_logger().error(f"cannot write a message of {topic}: {exc}")
+            return
+        with self._lock:
+            self.received[topic] += 1
+
+    def close(self) -> None:
+        """Stop recording and finish the bag (writes metadata.yaml). Idempotent."""
+        if self.writer.closed:
+            return
+        self._timer.cancel()
+        for sub in self._topic_subs.values():
+            self.destroy_subscription(sub)
+        self._topic_subs.clear()
+        self.writer.close()
+        total = sum(self.received.values())
+        self.get_logger().info(f"wrote {total} message(s) to {self.output}")
+
+    def destroy_node(self) -> None:
+        self.close()
+        super().destroy_node()
+
+
+def spin_recorder(node: BagRecorder, duration_s: float = 0.0, executor: Any | None = None) -> int:
+    """Spin ``node`` until ``duration_s`` passes (0: until shutdown), then close the bag.
+
+    The bag is closed (valid) whatever ends the spin: the duration, Ctrl-C, SIGTERM.
+    """
+    ex = executor or SingleThreadedExecutor(context=node.context)
+    ex.add_node(node)
+    deadline = time.monotonic() + duration_s if duration_s > 0 else None
+    try:
+        while node.context.ok():
+            if deadline is not None:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    break
+                ex.spin_once(timeout_sec=min(0.1, remaining))
+            else:
+                ex.spin_once(timeout_sec=0.1)
+    finally:
+        ex.remove_node(node)
+        node.close()
+    return 0
+
+
+def main(args: list[str] | None = None) -> None:
+    """Console-script entry point (``ros2 run eye_in_hand bag_recorder --ros-args ...``)."""
+    rclpy.init(args=args)
+    node: BagRecorder | None = None
+    code = 0
+    try:
+        node = BagRecorder()
+        spin_recorder(node, node.duration)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except EyeInHandError as exc:
+        print(f"bag_recorder: error: {exc}", file=sys.stderr)
+        code = 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    sys.exit(code)
+
+
+if __name__ == "__main__":
+    main()
