@@ -26,11 +26,12 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, Sequence
 
 import numpy as np
 
-from eye_in_hand.errors import InputError
+from eye_in_hand.core.camera import CameraModel, StereoRig
+from eye_in_hand.errors import CalibrationError, InputError
 
 __all__ = [
     "BoardSpec",
@@ -38,6 +39,17 @@ __all__ = [
     "DETECTORS",
     "detect_board",
     "render_board",
+    "CalibrationOptions",
+    "ViewResult",
+    "CameraCalibration",
+    "StereoViewResult",
+    "StereoCalibration",
+    "STEREO_METHODS",
+    "calibrate_camera",
+    "calibrate_stereo",
+    "stereo_quality",
+    "outlier_threshold",
+    "coverage",
 ]
 
 #: Accepted values of the ``detector`` argument of :func:`detect_board`.
@@ -504,3 +516,995 @@ def render_board(board: BoardSpec, K: np.ndarray, dist: np.ndarray, cam_T_board:
     rvec, _ = cv2.Rodrigues(R)
     corners, _ = cv2.projectPoints(board.object_points(), rvec, t, K, dist)
     return img, corners.reshape(-1, 2)
+
+
+# ================================================================================================
+# Camera and stereo calibration
+# ================================================================================================
+
+#: Default floor of the outlier threshold, as a multiple of the median per-view RMS.
+OUTLIER_MEDIAN_FACTOR = 2.0
+#: Robust spread term of the outlier threshold: median + this many scaled MADs.
+OUTLIER_MAD_FACTOR = 4.0
+#: Fewest corners a view needs to take part in a calibration.
+MIN_POINTS_PER_VIEW = 6
+
+_INTRINSIC_NAMES = ("fx", "fy", "cx", "cy")
+_DIST_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
+
+
+@dataclass(frozen=True)
+class CalibrationOptions:
+    """Which camera parameters are estimated.
+
+    Attributes:
+        rational: use the 8-coefficient ``rational_polynomial`` model (k1..k6, p1, p2) instead
+            of ``plumb_bob`` (k1, k2, p1, p2, k3).
+        fix_k3: keep k3 at 0.
+        zero_tangent: keep p1 = p2 = 0.
+        fix_aspect: keep fx / fy at its initial value (1 for a fresh calibration).
+        fix_principal_point: keep cx, cy at the image centre.
+    """
+
+    rational: bool = False
+    fix_k3: bool = False
+    zero_tangent: bool = False
+    fix_aspect: bool = False
+    fix_principal_point: bool = False
+
+    @property
+    def distortion_model(self) -> str:
+        """ROS name of the distortion model."""
+        return "rational_polynomial" if self.rational else "plumb_bob"
+
+    @property
+    def n_dist(self) -> int:
+        """Number of distortion coefficients."""
+        return 8 if self.rational else 5
+
+    def cv_flags(self) -> int:
+        """The matching ``cv2.CALIB_*`` flags."""
+        import cv2
+
+        flags = 0
+        if self.rational:
+            flags |= cv2.CALIB_RATIONAL_MODEL
+        if self.fix_k3:
+            flags |= cv2.CALIB_FIX_K3
+        if self.zero_tangent:
+            flags |= cv2.CALIB_ZERO_TANGENT_DIST
+        if self.fix_aspect:
+            flags |= cv2.CALIB_FIX_ASPECT_RATIO
+        if self.fix_principal_point:
+            flags |= cv2.CALIB_FIX_PRINCIPAL_POINT
+        return flags
+
+    def free_intrinsics(self) -> np.ndarray:
+        """Mask over ``fx, fy, cx, cy, dist...``: True where the parameter is estimated.
+
+        With ``fix_aspect`` fy is marked fixed; it follows fx at the initial ratio.
+        """
+        free = np.ones(4 + self.n_dist, dtype=bool)
+        if self.fix_aspect:
+            free[1] = False
+        if self.fix_principal_point:
+            free[2:4] = False
+        if self.zero_tangent:
+            free[4 + 2:4 + 4] = False
+        if self.fix_k3:
+            free[4 + 4] = False
+        return free
+
+    def to_dict(self) -> dict:
+        """The options as a JSON-able dict."""
+        return {"distortion_model": self.distortion_model, "fix_k3": self.fix_k3,
+                "zero_tangent": self.zero_tangent, "fix_aspect": self.fix_aspect,
+                "fix_principal_point": self.fix_principal_point}
+
+
+@dataclass(frozen=True)
+class ViewResult:
+    """One board view in a calibration.
+
+    Attributes:
+        name: the image (file name, or ``topic@stamp`` for bag frames).
+        n_points: corners observed.
+        rms_px: RMS reprojection error of this view, pixels (NaN when not used).
+        used: the view took part in the final solution.
+        outlier: the view's RMS is above the outlier threshold.
+        cam_T_board: array, shape (4, 4): board pose in the camera frame (None when not used).
+        corners: array, shape (N, 2): observed corners, pixels.
+        residuals: array, shape (N, 2): observed minus reprojected corners, pixels.
+    """
+
+    name: str
+    n_points: int
+    rms_px: float
+    used: bool
+    outlier: bool
+    cam_T_board: np.ndarray | None
+    corners: np.ndarray
+    residuals: np.ndarray
+
+    def to_dict(self) -> dict:
+        """JSON-able summary (without the arrays)."""
+        return {"file": self.name, "rms_px": _f(self.rms_px), "used": self.used,
+                "outlier": self.outlier, "n_points": self.n_points}
+
+
+def _f(value: float) -> float | None:
+    value = float(value)
+    return value if np.isfinite(value) else None
+
+
+def _as_pose(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
+    import cv2
+
+    T = np.eye(4)
+    T[:3, :3] = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3))[0]
+    T[:3, 3] = np.asarray(tvec, dtype=np.float64).reshape(3)
+    return T
+
+
+def _rvec(R: np.ndarray) -> np.ndarray:
+    import cv2
+
+    return cv2.Rodrigues(np.asarray(R, dtype=np.float64))[0].reshape(3)
+
+
+def outlier_threshold(view_rms: np.ndarray, absolute_px: float | None = None) -> float:
+    """The per-view RMS above which a view is flagged as an outlier.
+
+    ``max(2 * median, median + 4 * 1.4826 * MAD)`` of the per-view RMS values, or
+    ``absolute_px`` when given.
+
+    Args:
+        view_rms: array, shape (V,): per-view RMS, pixels.
+        absolute_px: fixed threshold in pixels, overriding the robust rule.
+
+    Returns:
+        The threshold in pixels (inf when there are fewer than 3 views).
+    """
+    if absolute_px is not None:
+        return float(absolute_px)
+    vals = np.asarray(view_rms, dtype=np.float64)
+    vals = vals[np.isfinite(vals)]
+    if vals.size < 3:
+        return float("inf")
+    med = float(np.median(vals))
+    mad = 1.4826 * float(np.median(np.abs(vals - med)))
+    return max(OUTLIER_MEDIAN_FACTOR * med, med + OUTLIER_MAD_FACTOR * mad)
+
+
+def coverage(corner_sets: Sequence[np.ndarray], image_size: tuple[int, int],
+             scale: float = 0.25) -> tuple[float, np.ndarray]:
+    """Fraction of the image area covered by at least one board (convex hull of its corners).
+
+    Args:
+        corner_sets: per view, array, shape (N, 2) of corner pixels.
+        image_size: ``(width, height)``.
+        scale: resolution of the coverage map relative to the image.
+
+    Returns:
+        ``(fraction, counts)``: fraction in [0, 1]; counts, array, shape
+        (round(H*scale), round(W*scale)), int32: how many boards cover each cell.
+    """
+    import cv2
+
+    w = max(1, int(round(image_size[0] * scale)))
+    h = max(1, int(round(image_size[1] * scale)))
+    counts = np.zeros((h, w), dtype=np.int32)
+    for corners in corner_sets:
+        pts = np.asarray(corners, dtype=np.float64).reshape(-1, 2)
+        if pts.shape[0] < 3:
+            continue
+        hull = cv2.convexHull(np.round(pts * scale).astype(np.int32))
+        mask = np.zeros((h, w), dtype=np.uint8)
+        cv2.fillConvexPoly(mask, hull, 1)
+        counts += mask
+    return float(np.count_nonzero(counts)) / float(h * w), counts
+
+
+@dataclass(frozen=True)
+class CameraCalibration:
+    """Result of :func:`calibrate_camera`.
+
+    Attributes:
+        camera: the calibrated camera (R identity, P = [K | 0]).
+        rms_px: overall RMS reprojection error over all corners of the used views, pixels.
+        views: one entry per view given (used or rejected).
+        std: standard deviations of the estimated parameters (``fx``, ``fy``, ``cx``, ``cy``,
+            ``k1``...), from the Jacobian at the solution (``cv2.calibrateCameraExtended``);
+            0 for fixed parameters.
+        coverage: fraction of the image covered by the used boards.
+        coverage_map: array, shape (h, w): boards per cell (see :func:`coverage`).
+        outlier_threshold_px: the per-view RMS threshold used to flag outliers.
+        rejected: names of views dropped by ``reject_outliers``.
+        options: the options used.
+    """
+
+    camera: CameraModel
+    rms_px: float
+    views: tuple[ViewResult, ...]
+    std: dict
+    coverage: float
+    coverage_map: np.ndarray
+    outlier_threshold_px: float
+    rejected: tuple[str, ...]
+    options: CalibrationOptions
+
+    @property
+    def used_views(self) -> list[ViewResult]:
+        """The views in the final solution."""
+        return [v for v in self.views if v.used]
+
+    def to_dict(self) -> dict:
+        """JSON-able report content (``camera`` block + ``views`` list)."""
+        cam = self.camera
+        return {
+            "camera": {
+                "name": cam.name,
+                "image_size": [cam.width, cam.height],
+                "rms_px": _f(self.rms_px),
+                "K": cam.K.tolist(),
+                "dist": cam.dist.tolist(),
+                "distortion_model": cam.distortion_model,
+                "std": {k: _f(v) for k, v in self.std.items()},
+                "coverage": _f(self.coverage),
+                "n_views_used": len(self.used_views),
+                "outlier_threshold_px": _f(self.outlier_threshold_px),
+                "outliers": [v.name for v in self.views if v.outlier],
+                "rejected": list(self.rejected),
+                "options": self.options.to_dict(),
+            },
+            "views": [v.to_dict() for v in self.views],
+        }
+
+
+def _usable(det: BoardDetection) -> bool:
+    return bool(det.found) and det.n_corners >= MIN_POINTS_PER_VIEW
+
+
+def _check_sizes(dets: Sequence[BoardDetection], names: Sequence[str], what: str
+                 ) -> tuple[int, int]:
+    sizes = {tuple(d.image_size) for d in dets}
+    if len(sizes) > 1:
+        first = tuple(dets[0].image_size)
+        bad = next(i for i, d in enumerate(dets) if tuple(d.image_size) != first)
+        raise CalibrationError(
+            f"{what}: images differ in size: {names[0]} is {first[0]}x{first[1]}, "
+            f"{names[bad]} is {dets[bad].image_size[0]}x{dets[bad].image_size[1]}")
+    return tuple(dets[0].image_size)  # type: ignore[return-value]
+
+
+def _names(dets: Sequence[BoardDetection], names: Sequence[str] | None, what: str) -> list[str]:
+    if names is None:
+        return [f"{what}[{i}]" for i in range(len(dets))]
+    if len(names) != len(dets):
+        raise InputError(f"{what}: {len(names)} names for {len(dets)} detections")
+    return [str(n) for n in names]
+
+
+def _std_dict(std_intr: np.ndarray, options: CalibrationOptions) -> dict:
+    std = np.asarray(std_intr, dtype=np.float64).ravel()
+    out = {n: float(std[i]) for i, n in enumerate(_INTRINSIC_NAMES)}
+    for i, n in enumerate(_DIST_NAMES[:options.n_dist]):
+        out[n] = float(std[4 + i]) if 4 + i < std.size else 0.0
+    return out
+
+
+def _mono_once(obj: list[np.ndarray], img: list[np.ndarray], size: tuple[int, int],
+               options: CalibrationOptions):
+    import cv2
+
+    criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+    try:
+        rms, K, dist, rvecs, tvecs, std_intr, _std_extr, per_view = cv2.calibrateCameraExtended(
+            [o.astype(np.float32) for o in obj], [p.astype(np.float32).reshape(-1, 1, 2) for p in img],
+            size, None, None, flags=options.cv_flags(), criteria=criteria)
+    except cv2.error as exc:
+        raise CalibrationError(f"cv2.calibrateCamera failed: {str(exc).strip()}") from exc
+    dist = np.asarray(dist, dtype=np.float64).ravel()[:options.n_dist]
+    if dist.size < options.n_dist:
+        dist = np.concatenate([dist, np.zeros(options.n_dist - dist.size)])
+    return float(rms), K, dist, rvecs, tvecs, std_intr, per_view
+
+
+def calibrate_camera(detections: Sequence[BoardDetection], names: Sequence[str] | None = None, *,
+                     options: CalibrationOptions = CalibrationOptions(),
+                     reject_outliers: bool = False, outlier_threshold_px: float | None = None,
+                     min_views: int = 3, camera_name: str = "camera",
+                     max_rejection_rounds: int = 3) -> CameraCalibration:
+    """Calibrate one camera from board detections (Zhang's method, ``cv2.calibrateCamera``).
+
+    Views without a board (``found`` False) or with fewer than ``MIN_POINTS_PER_VIEW`` corners
+    are ignored (callers list them with their reason). Views whose RMS is above the outlier
+    threshold (:func:`outlier_threshold`) are flagged; with ``reject_outliers`` they are dropped
+    and the calibration recomputed (up to ``max_rejection_rounds`` times, never going below
+    ``min_views``).
+
+    Args:
+        detections: one per image, all of the same image size.
+        names: the images' names for the report (default ``camera[i]``).
+        options: which parameters to estimate.
+        reject_outliers: drop flagged views and recompute.
+        outlier_threshold_px: fixed per-view RMS threshold instead of the robust rule.
+        min_views: fewest usable views accepted.
+        camera_name: name written into the camera model.
+        max_rejection_rounds: rejection rounds at most.
+
+    Returns:
+        The :class:`CameraCalibration`.
+
+    Raises:
+        CalibrationError: fewer than ``min_views`` usable views, image sizes differ, or OpenCV
+            fails.
+    """
+    names = _names(detections, names, camera_name)
+    usable = [i for i, d in enumerate(detections) if _usable(d)]
+    if len(usable) < max(1, int(min_views)):
+        raise CalibrationError(
+            f"{camera_name}: only {len(usable)} usable board view(s) of {len(detections)} "
+            f"image(s), need at least {min_views}")
+    size = _check_sizes([detections[i] for i in usable], [names[i] for i in usable], camera_name)
+    active = list(usable)
+    rejected: list[int] = []
+    for _round in range(max(0, int(max_rejection_rounds)) + 1):
+        obj = [detections[i].object_points for i in active]
+        img = [detections[i].corners for i in active]
+        rms, K, dist, rvecs, tvecs, std_intr, per_view = _mono_once(obj, img, size, options)
+        per_view = np.asarray(per_view, dtype=np.float64).ravel()
+        thr = outlier_threshold(per_view, outlier_threshold_px)
+        flagged = [active[k] for k in range(len(active)) if per_view[k] > thr]
+        if not (reject_outliers and flagged) or _round == max_rejection_rounds:
+            break
+        if len(active) - len(flagged) < min_views:
+            break
+        rejected.extend(flagged)
+        active = [i for i in active if i not in flagged]
+
+    camera = CameraModel(K=K, dist=dist, width=size[0], height=size[1],
+                         distortion_model=options.distortion_model, name=camera_name)
+    pose_of = {i: _as_pose(rvecs[k], tvecs[k]) for k, i in enumerate(active)}
+    views = []
+    for i, det in enumerate(detections):
+        if not det.found:
+            continue
+        if i in pose_of:
+            T = pose_of[i]
+            proj = _project(det.object_points, T, K, dist)
+            res = det.corners - proj
+            view_rms = float(np.sqrt(np.mean(np.sum(res ** 2, axis=1))))
+            views.append(ViewResult(names[i], det.n_corners, view_rms, True, view_rms > thr, T,
+                                    det.corners, res))
+        else:
+            # rejected (or too few corners): report its error under the final intrinsics
+            res, view_rms, T = _residuals_free_pose(det, K, dist)
+            views.append(ViewResult(names[i], det.n_corners, view_rms, False,
+                                    i in rejected or view_rms > thr, T, det.corners, res))
+    frac, cmap = coverage([detections[i].corners for i in active], size)
+    return CameraCalibration(camera=camera, rms_px=rms, views=tuple(views),
+                             std=_std_dict(std_intr, options), coverage=frac, coverage_map=cmap,
+                             outlier_threshold_px=thr,
+                             rejected=tuple(names[i] for i in rejected), options=options)
+
+
+def _project(obj: np.ndarray, cam_T_board: np.ndarray, K: np.ndarray, dist: np.ndarray
+             ) -> np.ndarray:
+    import cv2
+
+    proj, _ = cv2.projectPoints(obj.reshape(-1, 1, 3), _rvec(cam_T_board[:3, :3]),
+                                cam_T_board[:3, 3].copy(), K, dist)
+    return proj.reshape(-1, 2)
+
+
+def _residuals_free_pose(det: BoardDetection, K: np.ndarray, dist: np.ndarray
+                         ) -> tuple[np.ndarray, float, np.ndarray | None]:
+    import cv2
+
+    if det.n_corners < 4:
+        return np.full((det.n_corners, 2), np.nan), float("nan"), None
+    ok, rvec, tvec = cv2.solvePnP(det.object_points, det.corners.reshape(-1, 1, 2), K, dist,
+                                  flags=cv2.SOLVEPNP_ITERATIVE)
+    if not ok:
+        return np.full((det.n_corners, 2), np.nan), float("nan"), None
+    T = _as_pose(rvec, tvec)
+    res = det.corners - _project(det.object_points, T, K, dist)
+    return res, float(np.sqrt(np.mean(np.sum(res ** 2, axis=1)))), T
+
+
+# -- stereo -------------------------------------------------------------------------------------
+
+#: Accepted values of the ``method`` argument of :func:`calibrate_stereo`.
+STEREO_METHODS: tuple[str, ...] = ("bundle", "opencv")
+
+
+@dataclass(frozen=True)
+class StereoViewResult:
+    """One stereo pair in a stereo calibration.
+
+    Attributes:
+        name: the left image's name.
+        right_name: the right image's name.
+        left_found, right_found: the board was found in that image.
+        n_points: corners used in the joint fit (left + right).
+        rms_px: RMS reprojection error of this pair in the joint fit (NaN when not used).
+        used: the pair took part in the final joint solution (both or one side).
+        paired: the board was seen in both images (the pair counts for the extrinsic).
+        outlier: the RMS is above the outlier threshold.
+        left_residuals, right_residuals: arrays, shape (N, 2), observed minus reprojected
+            (None when that side was not used).
+    """
+
+    name: str
+    right_name: str
+    left_found: bool
+    right_found: bool
+    n_points: int
+    rms_px: float
+    used: bool
+    paired: bool
+    outlier: bool
+    left_residuals: np.ndarray | None = None
+    right_residuals: np.ndarray | None = None
+
+    def to_dict(self) -> dict:
+        """JSON-able summary (without the arrays)."""
+        return {"file": self.name, "right_file": self.right_name, "rms_px": _f(self.rms_px),
+                "used": self.used, "paired": self.paired, "outlier": self.outlier,
+                "left_found": self.left_found, "right_found": self.right_found,
+                "n_points": self.n_points}
+
+
+@dataclass(frozen=True)
+class StereoQuality:
+    """Geometric checks of a stereo calibration on the paired views.
+
+    Attributes:
+        epipolar_error_px: mean symmetric distance of a corner to the epipolar line of its
+            partner, in undistorted pixels.
+        epipolar_error_max_px: its maximum.
+        rectified_dy_mean_px: mean |y_left - y_right| of corners after rectification.
+        rectified_dy_max_px: its maximum.
+        square_measured_mean: mean distance between adjacent corners triangulated in 3-D, in
+            board units (should equal the board's square).
+        square_measured_std: standard deviation of those distances.
+        n_points: corners compared.
+    """
+
+    epipolar_error_px: float
+    epipolar_error_max_px: float
+    rectified_dy_mean_px: float
+    rectified_dy_max_px: float
+    square_measured_mean: float
+    square_measured_std: float
+    n_points: int
+
+
+@dataclass(frozen=True)
+class StereoCalibration:
+    """Result of :func:`calibrate_stereo`.
+
+    Attributes:
+        rig: the calibrated, rectified rig (``X_right = R X_left + T``, board units).
+        left, right: the per-camera (mono) calibrations the joint fit started from.
+        rms_px: RMS reprojection error of the joint fit over all corners of both cameras.
+        views: one entry per image pair.
+        std: standard deviations from the joint fit's Jacobian: ``left.fx`` ...,
+            ``right.k1`` ..., ``T.x``, ``T.y``, ``T.z``, ``baseline``, ``R.rx/ry/rz`` (rad).
+        quality: the geometric checks.
+        method: ``bundle`` or ``opencv``.
+        alpha: the rectification's free-scaling parameter.
+        outlier_threshold_px: the per-pair RMS threshold used to flag outliers.
+        rejected: names of pairs dropped by ``reject_outliers``.
+        options: the options used.
+        fix_intrinsics: the intrinsics were kept at the mono results.
+    """
+
+    rig: StereoRig
+    left: CameraCalibration
+    right: CameraCalibration
+    rms_px: float
+    views: tuple[StereoViewResult, ...]
+    std: dict
+    quality: StereoQuality
+    method: str
+    alpha: float
+    outlier_threshold_px: float
+    rejected: tuple[str, ...]
+    options: CalibrationOptions
+    fix_intrinsics: bool
+
+    def to_dict(self) -> dict:
+        """JSON-able report content (``left``, ``right``, ``stereo`` blocks + ``views``)."""
+        rig = self.rig
+
+        def cam_block(cam: CameraModel, mono: CameraCalibration, side: str) -> dict:
+            return {
+                "name": cam.name,
+                "image_size": [cam.width, cam.height],
+                "rms_px": _f(self.side_rms(side)),
+                "mono_rms_px": _f(mono.rms_px),
+                "K": cam.K.tolist(),
+                "dist": cam.dist.tolist(),
+                "distortion_model": cam.distortion_model,
+                "R_rect": cam.R.tolist(),
+                "P_rect": cam.P.tolist(),
+                "std": {k.split(".", 1)[1]: _f(v) for k, v in self.std.items()
+                        if k.startswith(side + ".")},
+                "coverage": _f(mono.coverage),
+                "n_views": len(mono.used_views),
+            }
+
+        q = self.quality
+        return {
+            "left": cam_block(rig.left, self.left, "left"),
+            "right": cam_block(rig.right, self.right, "right"),
+            "stereo": {
+                "rms_px": _f(self.rms_px),
+                "R": rig.R.tolist(),
+                "T": rig.T.tolist(),
+                "baseline": _f(rig.baseline),
+                "rotation_deg": _f(np.degrees(np.linalg.norm(_rvec(rig.R)))),
+                "std": {k: _f(v) for k, v in self.std.items()
+                        if not k.startswith(("left.", "right."))},
+                "epipolar_error_px": _f(q.epipolar_error_px),
+                "epipolar_error_max_px": _f(q.epipolar_error_max_px),
+                "rectified_dy_mean_px": _f(q.rectified_dy_mean_px),
+                "rectified_dy_max_px": _f(q.rectified_dy_max_px),
+                "square_measured": {"mean": _f(q.square_measured_mean),
+                                    "std": _f(q.square_measured_std), "n": q.n_points},
+                "Q": None if rig.Q is None else rig.Q.tolist(),
+                "alpha": self.alpha,
+                "method": self.method,
+                "fix_intrinsics": self.fix_intrinsics,
+                "n_pairs_used": sum(1 for v in self.views if v.used and v.paired),
+                "outlier_threshold_px": _f(self.outlier_threshold_px),
+                "outliers": [v.name for v in self.views if v.outlier],
+                "rejected": list(self.rejected),
+                "options": self.options.to_dict(),
+            },
+            "views": [v.to_dict() for v in self.views],
+        }
+
+    def side_rms(self, side: str) -> float:
+        """RMS of one camera's residuals in the joint fit, pixels."""
+        key = "left_residuals" if side == "left" else "right_residuals"
+        res = [getattr(v, key) for v in self.views if v.used and getattr(v, key) is not None]
+        if not res:
+            return float("nan")
+        allres = np.concatenate(res)
+        return float(np.sqrt(np.mean(np.sum(allres ** 2, axis=1))))
+
+
+class _Bundle:
+    """Joint least squares over both cameras' intrinsics, distortion, the extrinsic and the
+    per-view board poses (in the left camera frame), with analytic Jacobians from
+    ``cv2.projectPoints`` and ``cv2.composeRT``."""
+
+    def __init__(self, K: list[np.ndarray], dist: list[np.ndarray], ext_rvec: np.ndarray,
+                 ext_tvec: np.ndarray, poses: list[tuple[np.ndarray, np.ndarray]],
+                 obs: list[list[tuple[np.ndarray, np.ndarray] | None]],
+                 options: CalibrationOptions, fix_intrinsics: bool) -> None:
+        self.nd = options.n_dist
+        self.nc = 4 + self.nd
+        self.nv = len(poses)
+        self.obs = obs  # obs[v][c] = (object (N,3), image (N,2)) or None
+        self.aspect = [float(k[0, 0] / k[1, 1]) for k in K]
+        self.fix_aspect = options.fix_aspect
+        x = []
+        for c in range(2):
+            x.extend([K[c][0, 0], K[c][1, 1], K[c][0, 2], K[c][1, 2]])
+            x.extend(np.asarray(dist[c], dtype=np.float64).ravel()[:self.nd])
+        x.extend(ext_rvec)
+        x.extend(ext_tvec)
+        for r, t in poses:
+            x.extend(r)
+            x.extend(t)
+        self.x0 = np.asarray(x, dtype=np.float64)
+        free = np.ones(self.x0.size, dtype=bool)
+        cam_free = (np.zeros(self.nc, dtype=bool) if fix_intrinsics
+                    else options.free_intrinsics())
+        free[:self.nc] = cam_free
+        free[self.nc:2 * self.nc] = cam_free
+        self.free = free
+        self.ext0 = 2 * self.nc
+        self.pose0 = self.ext0 + 6
+        self.m = 2 * sum(o[0].shape[0] for view in obs for o in view if o is not None)
+
+    def camera(self, x: np.ndarray, c: int) -> tuple[np.ndarray, np.ndarray]:
+        p = x[c * self.nc:(c + 1) * self.nc]
+        fy = p[0] / self.aspect[c] if self.fix_aspect else p[1]
+        K = np.array([[p[0], 0.0, p[2]], [0.0, fy, p[3]], [0.0, 0.0, 1.0]])
+        return K, p[4:].copy()
+
+    def evaluate(self, x: np.ndarray, jac: bool = True
+                 ) -> tuple[np.ndarray, np.ndarray | None, list[list[np.ndarray | None]]]:
+        import cv2
+
+        r = np.empty(self.m)
+        J = np.zeros((self.m, x.size)) if jac else None
+        per_view: list[list[np.ndarray | None]] = []
+        row = 0
+        er, et = x[self.ext0:self.ext0 + 3], x[self.ext0 + 3:self.ext0 + 6]
+        cams = [self.camera(x, 0), self.camera(x, 1)]
+        for v in range(self.nv):
+            pv = self.pose0 + 6 * v
+            vr, vt = x[pv:pv + 3], x[pv + 3:pv + 6]
+            out: list[np.ndarray | None] = [None, None]
+            for c in range(2):
+                o = self.obs[v][c]
+                if o is None:
+                    continue
+                obj, img = o
+                n = obj.shape[0]
+                if c == 0:
+                    rr, tt = vr, vt
+                else:
+                    comp = cv2.composeRT(vr, vt, er, et)
+                    rr, tt = comp[0].ravel(), comp[1].ravel()
+                K, d = cams[c]
+                proj, jp = cv2.projectPoints(obj.reshape(-1, 1, 3), rr, tt, K, d)
+                res = proj.reshape(-1, 2) - img
+                out[c] = -res
+                r[row:row + 2 * n] = res.ravel()
+                if J is not None:
+                    Jr, Jt = jp[:, 0:3], jp[:, 3:6]
+                    Jf, Jc, Jd = jp[:, 6:8], jp[:, 8:10], jp[:, 10:10 + self.nd]
+                    base = c * self.nc
+                    if self.fix_aspect:
+                        J[row:row + 2 * n, base] = Jf[:, 0] + Jf[:, 1] / self.aspect[c]
+                    else:
+                        J[row:row + 2 * n, base:base + 2] = Jf
+                    J[row:row + 2 * n, base + 2:base + 4] = Jc
+                    J[row:row + 2 * n, base + 4:base + 4 + self.nd] = Jd
+                    if c == 0:
+                        J[row:row + 2 * n, pv:pv + 3] = Jr
+                        J[row:row + 2 * n, pv + 3:pv + 6] = Jt
+                    else:
+                        _, _, dr3dr1, dr3dt1, dr3dr2, dr3dt2, dt3dr1, dt3dt1, dt3dr2, dt3dt2 = comp
+                        J[row:row + 2 * n, pv:pv + 3] = Jr @ dr3dr1 + Jt @ dt3dr1
+                        J[row:row + 2 * n, pv + 3:pv + 6] = Jr @ dr3dt1 + Jt @ dt3dt1
+                        J[row:row + 2 * n, self.ext0:self.ext0 + 3] = Jr @ dr3dr2 + Jt @ dt3dr2
+                        J[row:row + 2 * n, self.ext0 + 3:self.ext0 + 6] = Jr @ dr3dt2 + Jt @ dt3dt2
+                row += 2 * n
+            per_view.append(out)
+        return r, J, per_view
+
+    def solve(self, max_nfev: int = 200) -> tuple[np.ndarray, np.ndarray]:
+        """Run Levenberg-Marquardt; returns ``(x, covariance of the free parameters)``."""
+        from scipy.optimize import least_squares
+
+        x_full = self.x0.copy()
+        free = self.free
+
+        def fun(xf: np.ndarray) -> np.ndarray:
+            x_full[free] = xf
+            return self.evaluate(x_full, jac=False)[0]
+
+        def jac(xf: np.ndarray) -> np.ndarray:
+            x_full[free] = xf
+            J = self.evaluate(x_full, jac=True)[1]
+            assert J is not None
+            return J[:, free]
+
+        sol = least_squares(fun, self.x0[free], jac=jac, method="lm", x_scale="jac",
+                            xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=max_nfev)
+        x = self.x0.copy()
+        x[free] = sol.x
+        return x, self.covariance(x)
+
+    def covariance(self, x: np.ndarray) -> np.ndarray:
+        r, J, _ = self.evaluate(x, jac=True)
+        assert J is not None
+        Jf = J[:, self.free]
+        dof = max(1, r.size - Jf.shape[1])
+        sigma2 = float(r @ r) / dof
+        try:
+            cov = np.linalg.inv(Jf.T @ Jf) * sigma2
+        except np.linalg.LinAlgError:
+            cov = np.linalg.pinv(Jf.T @ Jf) * sigma2
+        full = np.zeros((x.size, x.size))
+        idx = np.flatnonzero(self.free)
+        full[np.ix_(idx, idx)] = cov
+        return full
+
+
+def _pair_points(ld: BoardDetection, rd: BoardDetection
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Corners seen in both images: (ids, object (N,3), left (N,2), right (N,2))."""
+    common, li, ri = np.intersect1d(ld.ids, rd.ids, return_indices=True)
+    return common, ld.object_points[li], ld.corners[li], rd.corners[ri]
+
+
+def _align_symmetric(board: BoardSpec | None, ld: BoardDetection, rd: BoardDetection
+                     ) -> BoardDetection:
+    """Flip the right detection of a symmetric chessboard when its order opposes the left's."""
+    if board is None or board.kind != "chessboard" or (board.cols + board.rows) % 2 == 1:
+        return rd
+    if ld.n_corners != rd.n_corners or ld.n_corners < 2:
+        return rd
+    dl = ld.corners[-1] - ld.corners[0]
+    dr = rd.corners[-1] - rd.corners[0]
+    return rd.reversed() if float(dl @ dr) < 0 else rd
+
+
+def stereo_quality(rig: StereoRig, pairs: Sequence[tuple[BoardDetection, BoardDetection]],
+                   board: BoardSpec | None = None) -> StereoQuality:
+    """Epipolar error, rectified row difference and triangulated square length.
+
+    Args:
+        rig: a rectified rig (:meth:`StereoRig.rectified`).
+        pairs: ``(left, right)`` detections of the same board.
+        board: the board (its ``cols`` give the corner grid for the square-length check;
+            default: taken as the detections' grid, adjacent ids along rows).
+
+    Returns:
+        The :class:`StereoQuality`.
+
+    Raises:
+        CalibrationError: no pair has common corners, or the rig is not rectified.
+    """
+    import cv2
+
+    if not rig.is_rectified:
+        raise CalibrationError("stereo_quality: the rig must be rectified")
+    K1, K2 = rig.left.K, rig.right.K
+    Tx = np.array([[0, -rig.T[2], rig.T[1]], [rig.T[2], 0, -rig.T[0]], [-rig.T[1], rig.T[0], 0]])
+    F = np.linalg.inv(K2).T @ Tx @ rig.R @ np.linalg.inv(K1)
+    epi, dy, lengths = [], [], []
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
+    for ld, rd in pairs:
+        ids, _obj, pl, pr = _pair_points(ld, rd)
+        if ids.size == 0:
+            continue
+        ul = cv2.undistortPoints(pl.reshape(-1, 1, 2), K1, rig.left.dist, None, None, K1,
+                                 crit).reshape(-1, 2)
+        ur = cv2.undistortPoints(pr.reshape(-1, 1, 2), K2, rig.right.dist, None, None, K2,
+                                 crit).reshape(-1, 2)
+        hl = np.hstack([ul, np.ones((ul.shape[0], 1))])
+        hr = np.hstack([ur, np.ones((ur.shape[0], 1))])
+        lr = hl @ F.T  # epipolar lines in the right image
+        ll = hr @ F    # epipolar lines in the left image
+        d_r = np.abs(np.sum(lr * hr, axis=1)) / np.hypot(lr[:, 0], lr[:, 1])
+        d_l = np.abs(np.sum(ll * hl, axis=1)) / np.hypot(ll[:, 0], ll[:, 1])
+        epi.append(0.5 * (d_r + d_l))
+        rl = rig.left.rectify_points(pl)
+        rr = rig.right.rectify_points(pr)
+        dy.append(np.abs(rl[:, 1] - rr[:, 1]))
+        X = cv2.triangulatePoints(rig.P1, rig.P2, rl.T, rr.T)
+        X = (X[:3] / X[3]).T
+        cols = board.cols if board is not None else None
+        if cols is None:
+            continue
+        pos = {int(i): k for k, i in enumerate(ids)}
+        for i, k in pos.items():
+            if (i % cols) < cols - 1 and (i + 1) in pos:
+                lengths.append(np.linalg.norm(X[pos[i + 1]] - X[k]))
+            if (i + cols) in pos:
+                lengths.append(np.linalg.norm(X[pos[i + cols]] - X[k]))
+    if not epi:
+        raise CalibrationError("stereo_quality: no stereo pair with common board corners")
+    e = np.concatenate(epi)
+    d = np.concatenate(dy)
+    sq = np.asarray(lengths, dtype=np.float64)
+    return StereoQuality(
+        epipolar_error_px=float(e.mean()), epipolar_error_max_px=float(e.max()),
+        rectified_dy_mean_px=float(d.mean()), rectified_dy_max_px=float(d.max()),
+        square_measured_mean=float(sq.mean()) if sq.size else float("nan"),
+        square_measured_std=float(sq.std(ddof=1)) if sq.size > 1 else float("nan"),
+        n_points=int(e.size))
+
+
+def calibrate_stereo(left: Sequence[BoardDetection], right: Sequence[BoardDetection],
+                     left_names: Sequence[str] | None = None,
+                     right_names: Sequence[str] | None = None, *,
+                     board: BoardSpec | None = None,
+                     options: CalibrationOptions = CalibrationOptions(),
+                     method: str = "bundle", fix_intrinsics: bool = False, alpha: float = 0.0,
+                     reject_outliers: bool = False, outlier_threshold_px: float | None = None,
+                     min_views: int = 3, max_rejection_rounds: int = 3) -> StereoCalibration:
+    """Calibrate a stereo rig: each camera alone, then everything jointly, then rectify.
+
+    1. Each camera is calibrated alone (:func:`calibrate_camera`) on every image where it saw
+       the board.
+    2. The extrinsic is initialised as the average of the per-pair ``right_T_left``.
+    3. Joint refinement. ``method="bundle"`` (default): Levenberg-Marquardt over both cameras'
+       intrinsics and distortion, the extrinsic and every board pose, using all views (pairs
+       where only one camera saw the board still constrain that camera), analytic Jacobians.
+       ``method="opencv"``: ``cv2.stereoCalibrate`` with ``CALIB_USE_INTRINSIC_GUESS`` on the
+       paired views only. Intrinsics are free unless ``fix_intrinsics``.
+    4. Rectification (``cv2.stereoRectify`` with ``alpha``), then the quality checks
+       (:func:`stereo_quality`) and per-pair errors; pairs above the outlier threshold are
+       flagged and, with ``reject_outliers``, dropped and everything recomputed.
+
+    Args:
+        left: detections in the left images.
+        right: detections in the right images, pair i being ``(left[i], right[i])``.
+        left_names, right_names: image names for the report.
+        board: the board (used for the square-length check and symmetric-board ordering).
+        options: which intrinsic parameters to estimate.
+        method: ``"bundle"`` or ``"opencv"``.
+        fix_intrinsics: keep the mono intrinsics and distortion in the joint step.
+        alpha: rectification free scaling in [0, 1] (0: only valid pixels, 1: all pixels).
+        reject_outliers: drop flagged pairs and recompute.
+        outlier_threshold_px: fixed per-pair RMS threshold instead of the robust rule.
+        min_views: fewest usable pairs (board in both images) accepted.
+        max_rejection_rounds: rejection rounds at most.
+
+    Returns:
+        The :class:`StereoCalibration`.
+
+    Raises:
+        CalibrationError: different numbers of left and right images, image sizes that differ,
+            fewer than ``min_views`` usable pairs, or a solver failure.
+        InputError: unknown method, alpha out of range.
+    """
+    if method not in STEREO_METHODS:
+        raise InputError(f"method: expected one of {', '.join(STEREO_METHODS)}, got {method!r}")
+    if not (0.0 <= float(alpha) <= 1.0):
+        raise InputError(f"alpha: expected a value in [0, 1], got {alpha}")
+    if len(left) != len(right):
+        raise CalibrationError(f"stereo: {len(left)} left image(s) but {len(right)} right "
+                               "image(s); they must pair up one to one")
+    lnames = _names(left, left_names, "left")
+    rnames = _names(right, right_names, "right")
+    right = [_align_symmetric(board, ld, rd) if ld.found and rd.found else rd
+             for ld, rd in zip(left, right)]
+    found_l = [d for d in left if d.found]
+    found_r = [d for d in right if d.found]
+    if found_l and found_r and tuple(found_l[0].image_size) != tuple(found_r[0].image_size):
+        raise CalibrationError(
+            f"stereo: left images are {found_l[0].image_size[0]}x{found_l[0].image_size[1]} but "
+            f"right images are {found_r[0].image_size[0]}x{found_r[0].image_size[1]}")
+    active = [i for i in range(len(left)) if _usable(left[i]) or _usable(right[i])]
+    rejected: list[int] = []
+    for _round in range(max(0, int(max_rejection_rounds)) + 1):
+        result = _stereo_once(left, right, lnames, rnames, active, board, options, method,
+                              fix_intrinsics, float(alpha), outlier_threshold_px, min_views,
+                              rejected)
+        flagged = [i for i, v in zip(range(len(left)), result.views) if v.used and v.outlier]
+        paired_left = sum(1 for i, v in enumerate(result.views)
+                          if v.used and v.paired and i not in flagged)
+        if not (reject_outliers and flagged) or _round == max_rejection_rounds \
+                or paired_left < min_views:
+            return result
+        rejected.extend(flagged)
+        active = [i for i in active if i not in flagged]
+    return result  # pragma: no cover - the loop always returns
+
+
+def _stereo_once(left: Sequence[BoardDetection], right: Sequence[BoardDetection],
+                 lnames: list[str], rnames: list[str], active: list[int],
+                 board: BoardSpec | None, options: CalibrationOptions, method: str,
+                 fix_intrinsics: bool, alpha: float, thr_abs: float | None, min_views: int,
+                 rejected: list[int]) -> StereoCalibration:
+    import cv2
+
+    from eye_in_hand.core.transforms import average_transforms
+
+    n = len(left)
+    missing = BoardDetection.missing((0, 0), "", "not used")
+    ldets = [left[i] if i in active else missing for i in range(n)]
+    rdets = [right[i] if i in active else missing for i in range(n)]
+    paired = [i for i in active if _usable(left[i]) and _usable(right[i])
+              and _pair_points(left[i], right[i])[0].size >= MIN_POINTS_PER_VIEW]
+    if len(paired) < max(1, int(min_views)):
+        raise CalibrationError(
+            f"stereo: only {len(paired)} pair(s) with the board in both images of {n}, "
+            f"need at least {min_views}")
+    mono_l = calibrate_camera(ldets, lnames, options=options, min_views=min_views,
+                              camera_name="left", max_rejection_rounds=0)
+    mono_r = calibrate_camera(rdets, rnames, options=options, min_views=min_views,
+                              camera_name="right", max_rejection_rounds=0)
+    pose_l = {lnames.index(v.name): v.cam_T_board for v in mono_l.views if v.used}
+    pose_r = {rnames.index(v.name): v.cam_T_board for v in mono_r.views if v.used}
+    rels = [pose_r[i] @ np.linalg.inv(pose_l[i]) for i in paired if i in pose_l and i in pose_r]
+    if not rels:
+        raise CalibrationError("stereo: no pair has a board pose in both cameras")
+    r_T_l = average_transforms(rels)
+    size = mono_l.camera.size
+    K = [np.array(mono_l.camera.K), np.array(mono_r.camera.K)]
+    dist = [np.array(mono_l.camera.dist), np.array(mono_r.camera.dist)]
+    ext_r, ext_t = _rvec(r_T_l[:3, :3]), r_T_l[:3, 3].copy()
+
+    if method == "opencv":
+        obj, pl, pr = [], [], []
+        for i in paired:
+            _, o, a, b = _pair_points(left[i], right[i])
+            obj.append(o.astype(np.float32))
+            pl.append(a.astype(np.float32).reshape(-1, 1, 2))
+            pr.append(b.astype(np.float32).reshape(-1, 1, 2))
+        flags = options.cv_flags() | (cv2.CALIB_FIX_INTRINSIC if fix_intrinsics
+                                      else cv2.CALIB_USE_INTRINSIC_GUESS)
+        criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+        try:
+            out = cv2.stereoCalibrateExtended(
+                obj, pl, pr, K[0], dist[0], K[1], dist[1], size, _as_pose(ext_r, ext_t)[:3, :3],
+                ext_t.reshape(3, 1), flags=flags | cv2.CALIB_USE_EXTRINSIC_GUESS,
+                criteria=criteria)
+        except cv2.error as exc:
+            raise CalibrationError(f"cv2.stereoCalibrate failed: {str(exc).strip()}") from exc
+        _, K0, d0, K1, d1, Rx, Tx = out[:7]
+        rvecs, tvecs = out[9], out[10]
+        K = [np.asarray(K0), np.asarray(K1)]
+        dist = [np.asarray(d0).ravel()[:options.n_dist], np.asarray(d1).ravel()[:options.n_dist]]
+        ext_r, ext_t = _rvec(Rx), np.asarray(Tx, dtype=np.float64).ravel()
+        views_in = list(paired)
+        poses = [(np.asarray(rvecs[k]).ravel(), np.asarray(tvecs[k]).ravel())
+                 for k in range(len(paired))]
+        obs = [[(o, a), (o, b)] for o, a, b in
+               ((_pair_points(left[i], right[i])[1], _pair_points(left[i], right[i])[2],
+                 _pair_points(left[i], right[i])[3]) for i in paired)]
+    else:
+        views_in, poses, obs = [], [], []
+        r_T_l_now = _as_pose(ext_r, ext_t)
+        for i in active:
+            has_l, has_r = i in pose_l, i in pose_r
+            if not (has_l or has_r):
+                continue
+            T = pose_l[i] if has_l else np.linalg.inv(r_T_l_now) @ pose_r[i]
+            views_in.append(i)
+            poses.append((_rvec(T[:3, :3]), T[:3, 3].copy()))
+            obs.append([(left[i].object_points, left[i].corners) if has_l else None,
+                        (right[i].object_points, right[i].corners) if has_r else None])
+    bundle = _Bundle(K, dist, ext_r, ext_t, poses, obs, options, fix_intrinsics)
+    if method == "bundle":
+        x, cov = bundle.solve()
+    else:
+        x = bundle.x0
+        cov = bundle.covariance(x)
+    res_all, _, per_view = bundle.evaluate(x, jac=False)
+    rms = float(np.sqrt(np.sum(res_all ** 2) / (res_all.size / 2)))
+    cams = []
+    for c, mono in enumerate((mono_l, mono_r)):
+        Kc, dc = bundle.camera(x, c)
+        cams.append(CameraModel(K=Kc, dist=dc, width=size[0], height=size[1],
+                                distortion_model=options.distortion_model, name=mono.camera.name))
+    Rx = _as_pose(x[bundle.ext0:bundle.ext0 + 3], np.zeros(3))[:3, :3]
+    Tx = x[bundle.ext0 + 3:bundle.ext0 + 6].copy()
+    rig = StereoRig(left=cams[0], right=cams[1], R=Rx, T=Tx).rectified(alpha)
+
+    # per-view results and outliers
+    view_rms = {}
+    res_of: dict[int, list[np.ndarray | None]] = {}
+    for k, i in enumerate(views_in):
+        parts = [p for p in per_view[k] if p is not None]
+        allres = np.concatenate(parts)
+        view_rms[i] = float(np.sqrt(np.mean(np.sum(allres ** 2, axis=1))))
+        res_of[i] = per_view[k]
+    thr = outlier_threshold(np.array(list(view_rms.values())), thr_abs)
+    views = []
+    for i in range(n):
+        used = i in view_rms
+        vr = view_rms.get(i, float("nan"))
+        lr, rr = res_of.get(i, [None, None])
+        npts = sum(p.shape[0] for p in (lr, rr) if p is not None)
+        views.append(StereoViewResult(
+            name=lnames[i], right_name=rnames[i], left_found=bool(left[i].found),
+            right_found=bool(right[i].found), n_points=npts, rms_px=vr, used=used,
+            paired=i in paired, outlier=(used and vr > thr) or i in rejected,
+            left_residuals=lr, right_residuals=rr))
+
+    # standard deviations
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    names_c = list(_INTRINSIC_NAMES) + list(_DIST_NAMES[:options.n_dist])
+    std: dict[str, float] = {}
+    for c, side in enumerate(("left", "right")):
+        for k, nm in enumerate(names_c):
+            std[f"{side}.{nm}"] = float(sd[c * bundle.nc + k])
+        if options.fix_aspect and not fix_intrinsics:
+            std[f"{side}.fy"] = std[f"{side}.fx"] / bundle.aspect[c]
+    e0 = bundle.ext0
+    for k, nm in enumerate(("R.rx", "R.ry", "R.rz", "T.x", "T.y", "T.z")):
+        std[nm] = float(sd[e0 + k])
+    covT = cov[e0 + 3:e0 + 6, e0 + 3:e0 + 6]
+    g = Tx / np.linalg.norm(Tx)
+    std["baseline"] = float(np.sqrt(max(0.0, g @ covT @ g)))
+
+    quality = stereo_quality(rig, [(left[i], right[i]) for i in paired], board)
+    return StereoCalibration(rig=rig, left=mono_l, right=mono_r, rms_px=rms, views=tuple(views),
+                             std=std, quality=quality, method=method, alpha=alpha,
+                             outlier_threshold_px=thr,
+                             rejected=tuple(lnames[i] for i in rejected), options=options,
+                             fix_intrinsics=fix_intrinsics)
