@@ -1,0 +1,500 @@
+"""Tests of eye_in_hand.ros.conversions on rclpy messages, rosbags messages and CDR bytes."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from eye_in_hand.core.camera import CameraModel
+from eye_in_hand.core.transforms import from_rotvec
+from eye_in_hand.errors import ConversionError
+from eye_in_hand.ros import conversions as conv
+
+pytest.importorskip("rclpy")
+
+ENCODINGS = {
+    "mono8": (np.uint8, 1), "mono16": (np.uint16, 1), "bgr8": (np.uint8, 3),
+    "rgb8": (np.uint8, 3), "bgra8": (np.uint8, 4), "rgba8": (np.uint8, 4),
+    "8UC1": (np.uint8, 1), "8UC3": (np.uint8, 3), "16UC1": (np.uint16, 1),
+    "32FC1": (np.float32, 1), "bayer_rggb8": (np.uint8, 1), "bayer_grbg8": (np.uint8, 1),
+    "bgr16": (np.uint16, 3),
+}
+
+
+def random_image(rng: np.random.Generator, encoding: str, h: int = 7, w: int = 5) -> np.ndarray:
+    dtype, ch = ENCODINGS[encoding]
+    shape = (h, w) if ch == 1 else (h, w, ch)
+    if dtype == np.float32:
+        return rng.normal(size=shape).astype(np.float32)
+    return rng.integers(0, np.iinfo(dtype).max, size=shape, endpoint=True).astype(dtype)
+
+
+def rosbags_image(typestore, arr_bytes: np.ndarray, *, height: int, width: int, step: int,
+                  encoding: str, bigendian: int = 0, stamp=(12, 345)):
+    Image = typestore.types["sensor_msgs/msg/Image"]
+    Header = typestore.types["std_msgs/msg/Header"]
+    Time = typestore.types["builtin_interfaces/msg/Time"]
+    return Image(header=Header(stamp=Time(sec=stamp[0], nanosec=stamp[1]), frame_id="cam"),
+                 height=height, width=width, encoding=encoding, is_bigendian=bigendian,
+                 step=step, data=arr_bytes)
+
+
+# -- images -----------------------------------------------------------------------------------
+@pytest.mark.parametrize("encoding", sorted(ENCODINGS))
+def test_image_round_trip_rclpy_is_zero_copy(encoding):
+    rng = np.random.default_rng(1)
+    img = random_image(rng, encoding)
+    msg = conv.numpy_to_image(img, encoding, stamp_ns=5_000_000_123, frame_id="cam")
+    assert msg.encoding == encoding
+    assert msg.step == img.shape[1] * img.itemsize * (img.shape[2] if img.ndim == 3 else 1)
+    assert conv.header_stamp_ns(msg) == 5_000_000_123 and msg.header.frame_id == "cam"
+    out = conv.image_to_numpy(msg)
+    assert out.dtype == img.dtype and out.shape == img.shape
+    np.testing.assert_array_equal(out, img)
+    assert np.shares_memory(out, np.frombuffer(msg.data, dtype=np.uint8))
+    copied = conv.image_to_numpy(msg, copy=True)
+    assert not np.shares_memory(copied, np.frombuffer(msg.data, dtype=np.uint8))
+
+
+@pytest.mark.parametrize("encoding,pad", [("mono8", 3), ("bgr8", 1), ("mono16", 6),
+                                          ("rgba8", 4), ("32FC1", 4)])
+def test_padded_rows_rosbags_message_decode_as_view(typestore, encoding, pad):
+    rng = np.random.default_rng(2)
+    img = random_image(rng, encoding, h=6, w=9)
+    row = img.shape[1] * img.itemsize * (img.shape[2] if img.ndim == 3 else 1)
+    step = row + pad
+    raw = rng.integers(0, 255, size=(img.shape[0], step), endpoint=True).astype(np.uint8)
+    raw[:, :row] = np.frombuffer(np.ascontiguousarray(img).astype(img.dtype.newbyteorder("<"))
+                                 .tobytes(), np.uint8).reshape(img.shape[0], row)
+    data = raw.reshape(-1)
+    msg = rosbags_image(typestore, data, height=img.shape[0], width=img.shape[1], step=step,
+                        encoding=encoding)
+    out = conv.image_to_numpy(msg)
+    np.testing.assert_array_equal(out, img)
+    assert np.shares_memory(out, data)  # padding is skipped by strides, not copied
+    assert conv.header_stamp_ns(msg) == 12 * 10**9 + 345
+
+
+@pytest.mark.parametrize("encoding", ["mono16", "16UC1", "bgr16"])
+def test_big_endian_16_bit_is_byte_swapped(typestore, encoding):
+    rng = np.random.default_rng(3)
+    img = random_image(rng, encoding, h=4, w=6)
+    ch = img.shape[2] if img.ndim == 3 else 1
+    pad = 2
+    step = img.shape[1] * 2 * ch + pad
+    raw = np.zeros((img.shape[0], step), np.uint8)
+    raw[:, :step - pad] = np.frombuffer(img.astype(">u2").tobytes(), np.uint8).reshape(
+        img.shape[0], -1)
+    msg = rosbags_image(typestore, raw.reshape(-1), height=img.shape[0], width=img.shape[1],
+                        step=step, encoding=encoding, bigendian=1)
+    out = conv.image_to_numpy(msg)
+    assert out.dtype == np.dtype("=u2")
+    np.testing.assert_array_equal(out, img)
+    # The same bytes read as little endian would be wrong: the flag is honoured.
+    msg.is_bigendian = 0
+    assert not np.array_equal(conv.image_to_numpy(msg), img)
+
+
+def test_bytes_data_decodes_read_only_view():
+    rng = np.random.default_rng(4)
+    img = random_image(rng, "bgr8")
+
+    class Msg:  # duck-typed: any object with the Image fields
+        height, width, encoding, is_bigendian, step = 7, 5, "bgr8", 0, 15
+        data = img.tobytes()
+
+    out = conv.image_to_numpy(Msg())
+    np.testing.assert_array_equal(out, img)
+    assert not out.flags.writeable
+
+
+def test_rclpy_serialize_round_trip_and_rosbags_deserialize(typestore):
+    from rclpy.serialization import deserialize_message, serialize_message
+    from sensor_msgs.msg import Image
+
+    rng = np.random.default_rng(5)
+    img = random_image(rng, "rgb8", h=33, w=17)
+    msg = conv.numpy_to_image(img, "rgb8", stamp_ns=1_700_000_000_123_456_789, frame_id="left")
+    raw = serialize_message(msg)
+    back = deserialize_message(raw, Image)
+    np.testing.assert_array_equal(conv.image_to_numpy(back), img)
+    assert conv.header_stamp_ns(back) == 1_700_000_000_123_456_789
+    # rosbags reads the same CDR bytes (as it does from a bag): data is a numpy uint8 array.
+    rb = typestore.deserialize_cdr(raw, "sensor_msgs/msg/Image")
+    assert isinstance(rb.data, np.ndarray)
+    out = conv.image_to_numpy(rb)
+    np.testing.assert_array_equal(out, img)
+    assert np.shares_memory(out, rb.data)
+    assert conv.header_stamp_ns(rb) == 1_700_000_000_123_456_789
+    # and rosbags-serialized bytes deserialize in rclpy.
+    again = deserialize_message(bytes(typestore.serialize_cdr(rb, "sensor_msgs/msg/Image")),
+                                Image)
+    np.testing.assert_array_equal(conv.image_to_numpy(again), img)
+
+
+def test_colour_conversions():
+    rng = np.random.default_rng(6)
+    bgr = random_image(rng, "bgr8")
+    msg = conv.numpy_to_image(bgr, "bgr8")
+    np.testing.assert_array_equal(conv.image_to_numpy(msg, desired_encoding="rgb8"),
+                                  bgr[:, :, ::-1])
+    rgba = conv.image_to_numpy(msg, desired_encoding="rgba8")
+    np.testing.assert_array_equal(rgba[:, :, :3], bgr[:, :, ::-1])
+    assert np.all(rgba[:, :, 3] == 255)
+    grey = conv.image_to_numpy(msg, desired_encoding="mono8")
+    expected = np.rint(bgr @ np.array([0.114, 0.587, 0.299]))
+    assert grey.shape == bgr.shape[:2] and np.max(np.abs(grey - expected)) <= 1
+    mono = conv.numpy_to_image(grey, "mono8")
+    assert np.all(conv.image_to_numpy(mono, desired_encoding="bgr8") == grey[:, :, None])
+    # A generic alias relabels without copying.
+    generic = conv.numpy_to_image(bgr, "8UC3")
+    out = conv.image_to_numpy(generic, desired_encoding="bgr8")
+    assert np.shares_memory(out, np.frombuffer(generic.data, np.uint8))
+    with pytest.raises(ConversionError, match="desired_encoding.*mono16 to mono8"):
+        conv.image_to_numpy(conv.numpy_to_image(np.zeros((2, 2), np.uint16)),
+                            desired_encoding="mono8")
+    with pytest.raises(ConversionError, match="desired_encoding: unsupported.*yuv422"):
+        conv.image_to_numpy(msg, desired_encoding="yuv422")
+
+
+@pytest.mark.parametrize("pattern", ["rggb", "bggr", "gbrg", "grbg"])
+def test_bayer_demosaic_recovers_a_flat_colour(pattern):
+    h, w = 16, 20
+    bgr = {"b": 40, "g": 120, "r": 200}
+    mosaic = np.zeros((h, w), np.uint8)
+    for k, (dy, dx) in enumerate([(0, 0), (0, 1), (1, 0), (1, 1)]):
+        mosaic[dy::2, dx::2] = bgr[pattern[k]]
+    msg = conv.numpy_to_image(mosaic, f"bayer_{pattern}8")
+    np.testing.assert_array_equal(conv.image_to_numpy(msg), mosaic)
+    out = conv.image_to_numpy(msg, desired_encoding="bgr8")
+    np.testing.assert_array_equal(out[4:-4, 4:-4].reshape(-1, 3).min(axis=0), (40, 120, 200))
+    np.testing.assert_array_equal(out[4:-4, 4:-4].reshape(-1, 3).max(axis=0), (40, 120, 200))
+    rgb = conv.image_to_numpy(msg, desired_encoding="rgb8")
+    np.testing.assert_array_equal(rgb[8, 8], (200, 120, 40))
+
+
+def _image_msg(**fields):
+    class Msg:
+        height, width, encoding, is_bigendian, step = 4, 3, "mono8", 0, 3
+        data = np.zeros(12, np.uint8)
+
+    msg = Msg()
+    for k, v in fields.items():
+        setattr(msg, k, v)
+    return msg
+
+
+@pytest.mark.parametrize("fields,match", [
+    ({"data": np.zeros(11, np.uint8)}, r"^data: length 11 does not match height \* step"),
+    ({"step": 2}, r"^step: 2 is shorter than a row"),
+    ({"encoding": "yuv422"}, r"^encoding: unsupported image encoding 'yuv422'"),
+    ({"height": 0, "data": np.zeros(0, np.uint8)}, r"^height/width: empty"),
+    ({"encoding": "mono16"}, r"^step: 3 is shorter"),
+    ({"data": np.zeros(12, np.float32)}, r"^data: expected uint8 data"),
+    ({"height": 4.5}, r"^height: expected an integer"),
+    ({"encoding": None}, r"^encoding: expected a string"),
+])
+def test_malformed_image_messages_name_the_field(fields, match):
+    with pytest.raises(ConversionError, match=match):
+        conv.image_to_numpy(_image_msg(**fields))
+
+
+def test_missing_field_is_named():
+    class NotAnImage:
+        height, width, step, is_bigendian, encoding = 1, 1, 1, 0, "mono8"
+
+    with pytest.raises(ConversionError, match=r"^data: missing field"):
+        conv.image_to_numpy(NotAnImage())
+
+
+def test_numpy_to_image_validation_and_inference():
+    assert conv.numpy_to_image(np.zeros((2, 3), np.uint8)).encoding == "mono8"
+    assert conv.numpy_to_image(np.zeros((2, 3, 3), np.uint8)).encoding == "bgr8"
+    assert conv.numpy_to_image(np.zeros((2, 3, 4), np.uint8)).encoding == "bgra8"
+    assert conv.numpy_to_image(np.zeros((2, 3), np.uint16)).encoding == "mono16"
+    assert conv.numpy_to_image(np.zeros((2, 3, 1), np.uint8), "mono8").width == 3
+    big = np.arange(6, dtype=">u2").reshape(2, 3)
+    np.testing.assert_array_equal(conv.image_to_numpy(conv.numpy_to_image(big)), big)
+    with pytest.raises(ConversionError, match="dtype uint16 does not match encoding bgr8"):
+        conv.numpy_to_image(np.zeros((2, 3, 3), np.uint16), "bgr8")
+    with pytest.raises(ConversionError, match=r"shape \(2, 3\) does not match encoding rgb8"):
+        conv.numpy_to_image(np.zeros((2, 3), np.uint8), "rgb8")
+    with pytest.raises(ConversionError, match="cannot infer an encoding"):
+        conv.numpy_to_image(np.zeros((2, 3), np.float64))
+    with pytest.raises(ConversionError, match="^encoding: unsupported"):
+        conv.numpy_to_image(np.zeros((2, 3), np.uint8), "jpeg")
+    with pytest.raises(ConversionError, match="stamp_ns"):
+        conv.numpy_to_image(np.zeros((2, 3), np.uint8), stamp_ns=1.5)
+
+
+# -- compressed images ------------------------------------------------------------------------
+def smooth_bgr(h: int = 48, w: int = 64) -> np.ndarray:
+    y, x = np.mgrid[0:h, 0:w]
+    return np.stack([x * 255 // w, y * 255 // h, (x + y) * 255 // (w + h)], -1).astype(np.uint8)
+
+
+@pytest.mark.parametrize("encoding", ["mono8", "bgr8", "rgb8", "bgra8", "rgba8", "mono16",
+                                      "bgr16", "bayer_grbg8"])
+def test_png_round_trip_is_lossless(encoding):
+    rng = np.random.default_rng(7)
+    img = random_image(rng, encoding, h=12, w=10)
+    msg = conv.numpy_to_compressed(img, "png", encoding=encoding, stamp_ns=42, frame_id="f")
+    assert msg.format.startswith(f"{encoding}; png compressed ")
+    assert conv.header_stamp_ns(msg) == 42
+    out = conv.compressed_to_numpy(msg)
+    assert out.dtype == img.dtype
+    np.testing.assert_array_equal(out, img)
+
+
+@pytest.mark.parametrize("encoding", ["bgr8", "rgb8", "mono8"])
+def test_jpeg_round_trip_is_close(encoding):
+    bgr = smooth_bgr()
+    img = {"bgr8": bgr, "rgb8": bgr[:, :, ::-1].copy(), "mono8": bgr[:, :, 1].copy()}[encoding]
+    msg = conv.numpy_to_compressed(img, "jpeg", encoding=encoding, jpeg_quality=95)
+    assert msg.format == f"{encoding}; jpeg compressed {'mono8' if encoding == 'mono8' else 'bgr8'}"
+    out = conv.compressed_to_numpy(msg)
+    assert out.shape == img.shape
+    assert np.mean(np.abs(out.astype(int) - img)) < 2.0  # channel order restored, not swapped
+    bgr_out = conv.compressed_to_numpy(msg, desired_encoding="bgr8")
+    if encoding == "rgb8":
+        assert np.mean(np.abs(bgr_out.astype(int) - bgr)) < 2.0
+
+
+def test_compressed_plain_formats_and_rosbags_message(typestore):
+    img = smooth_bgr()
+    png = conv.numpy_to_compressed(img, "png")
+    CompressedImage = typestore.types["sensor_msgs/msg/CompressedImage"]
+    Header = typestore.types["std_msgs/msg/Header"]
+    Time = typestore.types["builtin_interfaces/msg/Time"]
+    data = np.frombuffer(png.data, np.uint8).copy()
+    for fmt in ("png", "PNG", ""):
+        rb = CompressedImage(header=Header(stamp=Time(sec=1, nanosec=2), frame_id=""),
+                             format=fmt, data=data)
+        np.testing.assert_array_equal(conv.compressed_to_numpy(rb), img)
+    with pytest.raises(ConversionError, match="^format: unsupported compressed image format"):
+        conv.compressed_to_numpy(CompressedImage(header=rb.header, format="tiff", data=data))
+    with pytest.raises(ConversionError, match="^data: 10 bytes could not be decoded as png"):
+        conv.compressed_to_numpy(CompressedImage(header=rb.header, format="png",
+                                                 data=data[:10]))
+    with pytest.raises(ConversionError, match="^data: empty"):
+        conv.compressed_to_numpy(CompressedImage(header=rb.header, format="png",
+                                                 data=np.zeros(0, np.uint8)))
+
+
+def test_numpy_to_compressed_refusals():
+    with pytest.raises(ConversionError, match="^format: unsupported"):
+        conv.numpy_to_compressed(smooth_bgr(), "webp")
+    with pytest.raises(ConversionError, match="JPEG takes 8-bit"):
+        conv.numpy_to_compressed(np.zeros((4, 4), np.uint16), "jpeg")
+    with pytest.raises(ConversionError, match="JPEG takes 8-bit"):
+        conv.numpy_to_compressed(np.zeros((4, 4, 4), np.uint8), "jpeg")
+    with pytest.raises(ConversionError, match="jpeg_quality"):
+        conv.numpy_to_compressed(smooth_bgr(), "jpeg", jpeg_quality=101)
+
+
+# -- camera info ------------------------------------------------------------------------------
+def make_model(model: str = "plumb_bob") -> CameraModel:
+    K = np.array([[612.5, 0.0, 318.2], [0.0, 611.9, 243.7], [0.0, 0.0, 1.0]])
+    n = 5 if model == "plumb_bob" else 8
+    dist = np.linspace(-0.2, 0.1, n)
+    rv = np.array([0.01, -0.02, 0.005])
+    R = from_rotvec(rv)[:3, :3]
+    P = np.array([[600.0, 0.0, 320.0, -36.0], [0.0, 600.0, 240.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
+    return CameraModel(K=K, dist=dist, width=640, height=480, distortion_model=model, R=R, P=P)
+
+
+@pytest.mark.parametrize("model", ["plumb_bob", "rational_polynomial"])
+def test_camera_info_round_trip_rclpy_and_rosbags(typestore, model):
+    from rclpy.serialization import serialize_message
+
+    cam = make_model(model)
+    msg = conv.model_to_camera_info(cam, stamp_ns=77, frame_id="camera_left_optical_frame")
+    assert msg.distortion_model == model and len(msg.d) == len(cam.dist)
+    for source in (msg, typestore.deserialize_cdr(serialize_message(msg),
+                                                  "sensor_msgs/msg/CameraInfo")):
+        back = conv.camera_info_to_model(source, name="left")
+        assert back.name == "left" and back.distortion_model == model
+        assert (back.width, back.height) == (640, 480)
+        for attr in ("K", "dist", "R", "P"):
+            np.testing.assert_array_equal(getattr(back, attr), getattr(cam, attr))
+
+
+def _info(**fields):
+    msg = conv.model_to_camera_info(make_model())
+    for k, v in fields.items():
+        setattr(msg, k, v)
+    return msg
+
+
+def test_camera_info_defaults_for_unset_r_and_p():
+    back = conv.camera_info_to_model(_info(r=np.zeros(9), p=np.zeros(12)))
+    np.testing.assert_array_equal(back.R, np.eye(3))
+    np.testing.assert_array_equal(back.P, np.hstack([back.K, np.zeros((3, 1))]))
+    four = conv.camera_info_to_model(_info(d=[0.1, 0.2, 0.0, 0.0]))  # 4-coefficient plumb_bob
+    np.testing.assert_array_equal(four.dist, [0.1, 0.2, 0.0, 0.0, 0.0])
+
+
+@pytest.mark.parametrize("fields,match", [
+    ({"k": np.zeros(9)}, r"^k: the camera is uncalibrated"),
+    ({"d": [0.1, 0.2, 0.3]}, r"^d: plumb_bob takes 5 coefficients, got 3"),
+    ({"distortion_model": "equidistant"}, r"^distortion_model: 'equidistant' is not supported"),
+    ({"width": 0}, r"^width/height"),
+    ({"binning_x": 2}, r"^binning_x: binned"),
+    ({"d": [0.1, float("nan"), 0.0, 0.0, 0.0]}, r"^d: contains NaN"),
+    ({"r": np.diag([1.0, 1.0, -1.0])}, r"^camera_info: R: rectification matrix"),
+])
+def test_camera_info_errors_name_the_field(fields, match):
+    with pytest.raises(ConversionError, match=match):
+        conv.camera_info_to_model(_info(**fields))
+
+
+def test_camera_info_roi_is_refused():
+    msg = _info()
+    msg.roi.x_offset, msg.roi.width, msg.roi.height = 10, 100, 100
+    with pytest.raises(ConversionError, match="^roi: a region of interest"):
+        conv.camera_info_to_model(msg)
+    msg.roi.x_offset, msg.roi.width, msg.roi.height = 0, 640, 480
+    assert conv.camera_info_to_model(msg).width == 640
+
+
+# -- poses, transforms, points, time ----------------------------------------------------------
+def random_transforms(rng: np.random.Generator, n: int) -> list[np.ndarray]:
+    out = []
+    for _ in range(n):
+        axis = rng.normal(size=3)
+        angle = rng.uniform(0.0, np.pi)
+        out.append(from_rotvec(axis / np.linalg.norm(axis) * angle, rng.uniform(-2, 2, 3)))
+    return out
+
+
+def test_pose_transform_point_round_trips():
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+
+    rng = np.random.default_rng(8)
+    for T in random_transforms(rng, 20):
+        ps = conv.matrix_to_pose_stamped(T, stamp_ns=9, frame_id="base_link")
+        assert ps.header.frame_id == "base_link" and ps.pose.orientation.w >= 0
+        np.testing.assert_allclose(conv.pose_to_matrix(ps), T, atol=1e-12)
+        np.testing.assert_allclose(conv.pose_to_matrix(ps.pose), T, atol=1e-12)
+        cov = PoseWithCovarianceStamped()
+        cov.pose.pose = ps.pose
+        np.testing.assert_allclose(conv.pose_to_matrix(cov), T, atol=1e-12)
+        ts = conv.matrix_to_transform_stamped(T, stamp_ns=9, frame_id="tool0",
+                                              child_frame_id="camera_left_optical_frame")
+        assert ts.child_frame_id == "camera_left_optical_frame"
+        np.testing.assert_allclose(conv.transform_to_matrix(ts), T, atol=1e-12)
+        np.testing.assert_allclose(conv.transform_to_matrix(ts.transform), T, atol=1e-12)
+        p = conv.xyz_to_point_stamped(T[:3, 3], stamp_ns=3, frame_id="cam")
+        np.testing.assert_array_equal(conv.point_to_xyz(p), T[:3, 3])
+        np.testing.assert_array_equal(conv.point_to_xyz(p.point), T[:3, 3])
+        np.testing.assert_array_equal(conv.point_to_xyz(ts.transform.translation), T[:3, 3])
+
+
+def test_rosbags_pose_and_transform_messages(typestore):
+    from rclpy.serialization import serialize_message
+
+    rng = np.random.default_rng(9)
+    T = random_transforms(rng, 1)[0]
+    ps = conv.matrix_to_pose_stamped(T, stamp_ns=1_234_000_000_005, frame_id="base_link")
+    rb = typestore.deserialize_cdr(serialize_message(ps), "geometry_msgs/msg/PoseStamped")
+    np.testing.assert_allclose(conv.pose_to_matrix(rb), T, atol=1e-12)
+    assert conv.header_stamp_ns(rb) == 1_234_000_000_005
+    ts = conv.matrix_to_transform_stamped(T, frame_id="a", child_frame_id="b")
+    rb = typestore.deserialize_cdr(serialize_message(ts), "geometry_msgs/msg/TransformStamped")
+    np.testing.assert_allclose(conv.transform_to_matrix(rb), T, atol=1e-12)
+    pt = conv.xyz_to_point_stamped([1.0, -2.0, 3.5])
+    rb = typestore.deserialize_cdr(serialize_message(pt), "geometry_msgs/msg/PointStamped")
+    np.testing.assert_array_equal(conv.point_to_xyz(rb), [1.0, -2.0, 3.5])
+
+
+def test_bad_poses_name_the_field():
+    ps = conv.matrix_to_pose_stamped(np.eye(4))
+    ps.pose.position.y = float("nan")
+    with pytest.raises(ConversionError, match=r"^pose\.position\.y: is nan"):
+        conv.pose_to_matrix(ps)
+    ps = conv.matrix_to_pose_stamped(np.eye(4))
+    ps.pose.orientation.w = 0.0
+    with pytest.raises(ConversionError, match=r"^pose\.orientation: quaternion has zero norm"):
+        conv.pose_to_matrix(ps)
+    ps.pose.orientation.w = 2.0
+    with pytest.raises(ConversionError, match=r"^pose\.orientation: quaternion norm is 2"):
+        conv.pose_to_matrix(ps)
+    ts = conv.matrix_to_transform_stamped(np.eye(4))
+    ts.transform.translation.z = float("inf")
+    with pytest.raises(ConversionError, match=r"^transform\.translation\.z: is inf"):
+        conv.transform_to_matrix(ts)
+    bad = np.eye(4)
+    bad[0, 3] = np.nan
+    with pytest.raises(ConversionError, match="NaN"):
+        conv.matrix_to_pose(bad)
+    with pytest.raises(ConversionError, match="not orthonormal"):
+        conv.matrix_to_pose(np.diag([1.0, 2.0, 1.0, 1.0]))
+    with pytest.raises(ConversionError, match=r"^xyz: contains NaN"):
+        conv.xyz_to_point([0.0, np.nan, 1.0])
+    with pytest.raises(ConversionError, match=r"^xyz: expected 3 values"):
+        conv.xyz_to_point([0.0, 1.0])
+
+
+def test_time_conversions():
+    for ns in (0, 1, 999_999_999, 1_000_000_000, 1_700_000_000_123_456_789, -1, -1_500_000_000):
+        stamp = conv.ns_to_stamp(ns)
+        assert 0 <= stamp.nanosec < 10**9
+        assert conv.stamp_to_ns(stamp) == ns
+    assert conv.ns_to_stamp(np.int64(5)).nanosec == 5
+    with pytest.raises(ConversionError, match="stamp_ns: expected int nanoseconds"):
+        conv.ns_to_stamp(1.0)
+    with pytest.raises(ConversionError, match="does not fit"):
+        conv.ns_to_stamp(2**31 * 10**9)
+
+    class Stamp:
+        sec, nanosec = 1, 10**9
+
+    with pytest.raises(ConversionError, match=r"^stamp\.nanosec: 1000000000 is outside"):
+        conv.stamp_to_ns(Stamp())
+    header = conv.make_header(1_000_000_007, "base_link")
+    assert (header.stamp.sec, header.stamp.nanosec, header.frame_id) == (1, 7, "base_link")
+
+
+def test_module_imports_and_decodes_without_rclpy_or_messages(tmp_path):
+    """The msg -> numpy direction runs where rclpy and *_msgs are not installed."""
+    script = r"""
+import sys
+import importlib.abc
+
+BLOCKED = ("rclpy", "sensor_msgs", "geometry_msgs", "std_msgs", "builtin_interfaces",
+           "diagnostic_msgs", "rcl_interfaces")
+
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name.split(".")[0] in BLOCKED:
+            raise ImportError(f"blocked: {name}")
+        return None
+
+sys.meta_path.insert(0, Block())
+import numpy as np
+from rosbags.typesys import Stores, get_typestore
+from eye_in_hand.ros import conversions as conv
+
+ts = get_typestore(Stores.ROS2_JAZZY)
+T = ts.types
+img = np.arange(24, dtype=np.uint8).reshape(2, 4, 3)
+hdr = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=3, nanosec=4),
+                               frame_id="c")
+msg = T["sensor_msgs/msg/Image"](header=hdr, height=2, width=4, encoding="rgb8",
+                                 is_bigendian=0, step=12, data=img.reshape(-1))
+out = conv.image_to_numpy(msg, desired_encoding="bgr8")
+assert (out == img[:, :, ::-1]).all()
+pose = T["geometry_msgs/msg/Pose"](
+    position=T["geometry_msgs/msg/Point"](x=1.0, y=2.0, z=3.0),
+    orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+assert conv.pose_to_matrix(pose)[0, 3] == 1.0
+assert conv.header_stamp_ns(msg) == 3_000_000_004
+assert not any(m.split(".")[0] in BLOCKED for m in sys.modules)
+print("ok")
+"""
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "ok"
