@@ -1,0 +1,578 @@
+"""Colour-target detection: HSV/HSI threshold, morphology, blob selection, sub-pixel centre.
+
+Pipeline per image (the hot path; a 1280x720 pair costs well under the cvtColor + inRange
+floor on the full images):
+
+1. A coarse pass on a ``downscale``-times smaller copy (nearest-neighbour, no float images):
+   colour conversion, threshold, connected components. Blobs big enough to be a target become
+   candidates.
+2. A full-resolution pass inside a region of interest around each candidate: threshold,
+   morphological open/close, the largest connected component, its area and circularity gates,
+   and its image moments (sub-pixel centroid).
+3. With a camera model, the sphere-centre correction: the silhouette of a sphere is the conic of
+   its tangent cone. In undistorted normalised coordinates it is an ellipse whose centre lies
+   farther from the principal point than the image of the sphere's centre. With ``m`` the
+   radial distance of the ellipse centre, ``theta`` the field angle of the sphere's centre and
+   ``alpha`` its angular radius, ``m = sin(2 theta) / (cos(2 theta) + cos(2 alpha))``, solved
+   in closed form for ``theta`` (:func:`sphere_center_direction`). ``alpha`` comes from the
+   ellipse's minor axis (:func:`angular_radius_from_minor_axis`) or, better, from the known
+   radius and the triangulated range (done by :class:`eye_in_hand.core.locator.StereoLocator`).
+   The ellipse centre is measured as the area centroid of the undistorted contour, so lens
+   distortion does not bias it either.
+
+Colour ranges use OpenCV's 8-bit conventions: hue 0..179 (degrees / 2), saturation and value
+0..255. A range whose lower hue exceeds its upper hue wraps around 0 (red: ``170..10``). HSI
+(hue, saturation ``1 - min/mean``, intensity ``mean``) uses the same scales.
+
+A detector returns detections or nothing, never a guess: blobs that fail a gate or touch the
+image border (a truncated silhouette has a biased centre) are not reported.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import cv2
+import numpy as np
+
+from eye_in_hand.core.camera import CameraModel
+from eye_in_hand.errors import DetectionError, InputError
+
+__all__ = [
+    "COLOR_SPACES",
+    "SELECTIONS",
+    "ColorRange",
+    "TargetSpec",
+    "DetectorConfig",
+    "Detection",
+    "ColorDetector",
+    "bgr_to_hsi",
+    "convert_color",
+    "sphere_center_direction",
+    "sphere_silhouette_center",
+    "angular_radius_from_minor_axis",
+]
+
+#: Supported colour spaces for thresholds.
+COLOR_SPACES = ("hsv", "hsi")
+#: Blob selection rules: biggest area, most circular, or nearest the previous detection.
+SELECTIONS = ("largest", "circular", "nearest")
+
+_MAX = (179, 255, 255)
+
+
+def bgr_to_hsi(image: np.ndarray) -> np.ndarray:
+    """Convert a BGR uint8 image to HSI on OpenCV's 8-bit scales.
+
+    H is the geometric HSI hue ``atan2(sqrt(3) (G - B), 2R - G - B)`` in degrees / 2 (0..179),
+    S = ``1 - min(R, G, B) / I`` scaled to 0..255, I = ``(R + G + B) / 3`` (0..255).
+
+    Args:
+        image: shape (H, W, 3), uint8, BGR.
+
+    Returns:
+        shape (H, W, 3), uint8.
+    """
+    f = image.astype(np.float32)
+    b, g, r = f[..., 0], f[..., 1], f[..., 2]
+    total = b + g + r
+    intensity = total / 3.0
+    mn = np.minimum(np.minimum(b, g), r)
+    sat = np.where(total > 0, 1.0 - 3.0 * mn / np.maximum(total, 1e-6), 0.0)
+    hue = np.degrees(np.arctan2(math.sqrt(3.0) * (g - b), 2.0 * r - g - b))
+    hue = np.mod(hue, 360.0) / 2.0
+    out = np.empty(image.shape, dtype=np.uint8)
+    out[..., 0] = np.minimum(np.rint(hue), 179.0).astype(np.uint8) % 180
+    out[..., 1] = np.clip(np.rint(sat * 255.0), 0, 255).astype(np.uint8)
+    out[..., 2] = np.clip(np.rint(intensity), 0, 255).astype(np.uint8)
+    return out
+
+
+def convert_color(image: np.ndarray, space: str) -> np.ndarray:
+    """BGR uint8 (H, W, 3) to ``space`` ("hsv" with OpenCV's BGR2HSV, or "hsi"), uint8."""
+    if space == "hsv":
+        return cv2.cvtColor(image, cv2.COLOR_BGR2HSV)
+    if space == "hsi":
+        return bgr_to_hsi(image)
+    raise DetectionError(f"color space '{space}' is not supported ({', '.join(COLOR_SPACES)})")
+
+
+def _triple(value: Any, name: str) -> tuple[int, int, int]:
+    try:
+        vals = [float(v) for v in value]
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name}: expected three numbers, got {value!r}") from exc
+    if len(vals) != 3 or not all(math.isfinite(v) and v == int(v) for v in vals):
+        raise InputError(f"{name}: expected three integers, got {value!r}")
+    out = tuple(int(v) for v in vals)
+    for i, (v, hi) in enumerate(zip(out, _MAX)):
+        if not 0 <= v <= hi:
+            raise InputError(f"{name}[{i}]: {v} is outside 0..{hi}")
+    return out  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class ColorRange:
+    """A box in HSV or HSI (OpenCV 8-bit scales), hue wrapping when ``lower[0] > upper[0]``.
+
+    Attributes:
+        lower: (h, s, v) lower bounds, inclusive; h in 0..179, s and v in 0..255.
+        upper: (h, s, v) upper bounds, inclusive.
+        space: "hsv" or "hsi".
+    """
+
+    lower: tuple[int, int, int]
+    upper: tuple[int, int, int]
+    space: str = "hsv"
+
+    def __post_init__(self) -> None:
+        if self.space not in COLOR_SPACES:
+            raise InputError(f"space: '{self.space}' is not one of {', '.join(COLOR_SPACES)}")
+        lo, hi = _triple(self.lower, "lower"), _triple(self.upper, "upper")
+        for i in (1, 2):
+            if lo[i] > hi[i]:
+                raise InputError(f"lower[{i}] = {lo[i]} exceeds upper[{i}] = {hi[i]}")
+        object.__setattr__(self, "lower", lo)
+        object.__setattr__(self, "upper", hi)
+
+    @property
+    def wraps(self) -> bool:
+        """True when the hue range wraps around 0 (e.g. red, 170..10)."""
+        return self.lower[0] > self.upper[0]
+
+    def threshold(self, converted: np.ndarray) -> np.ndarray:
+        """Binary mask (uint8 0/255, shape (H, W)) of the pixels inside the range.
+
+        Args:
+            converted: an image already in this range's colour space, uint8 (H, W, 3).
+        """
+        if not self.wraps:
+            return cv2.inRange(converted, self.lower, self.upper)
+        lo, hi = self.lower, self.upper
+        a = cv2.inRange(converted, (lo[0], lo[1], lo[2]), (179, hi[1], hi[2]))
+        b = cv2.inRange(converted, (0, lo[1], lo[2]), (hi[0], hi[1], hi[2]))
+        return cv2.bitwise_or(a, b, dst=a)
+
+    def contains(self, hsv: Sequence[float]) -> bool:
+        """Whether one (h, s, v) triple lies inside the range."""
+        h, s, v = hsv
+        in_h = (self.lower[0] <= h or h <= self.upper[0]) if self.wraps else \
+            self.lower[0] <= h <= self.upper[0]
+        return bool(in_h and self.lower[1] <= s <= self.upper[1]
+                    and self.lower[2] <= v <= self.upper[2])
+
+
+@dataclass(frozen=True)
+class TargetSpec:
+    """One target to find.
+
+    Attributes:
+        name: identifies the target in results and topics (``[A-Za-z0-9_]``).
+        color: its colour range.
+        radius_m: sphere radius in metres, or None for a flat or unknown target (then the
+            sphere-centre correction estimates the angular radius from the silhouette).
+        min_area_px: smallest accepted blob area at full resolution (pixels).
+        max_area_px: largest accepted blob area (pixels), or None for no limit.
+        min_circularity: smallest accepted ``4 pi area / perimeter^2`` (1 for a disc; a
+            pixelated disc measures about 0.85-0.9).
+        is_sphere: apply the sphere-centre correction (False for a flat disc facing the camera).
+    """
+
+    name: str
+    color: ColorRange
+    radius_m: float | None = None
+    min_area_px: float = 30.0
+    max_area_px: float | None = None
+    min_circularity: float = 0.6
+    is_sphere: bool = True
+
+    def __post_init__(self) -> None:
+        if not self.name or not all(c.isalnum() or c == "_" for c in self.name):
+            raise InputError(f"target name '{self.name}': use letters, digits and underscores")
+        if not isinstance(self.color, ColorRange):
+            raise InputError(f"target '{self.name}': color must be a ColorRange")
+        if self.radius_m is not None and not (math.isfinite(self.radius_m) and self.radius_m > 0):
+            raise InputError(f"target '{self.name}': radius_m must be > 0, got {self.radius_m}")
+        if not (math.isfinite(self.min_area_px) and self.min_area_px >= 1):
+            raise InputError(f"target '{self.name}': min_area_px must be >= 1, "
+                             f"got {self.min_area_px}")
+        if self.max_area_px is not None and not self.max_area_px > self.min_area_px:
+            raise InputError(f"target '{self.name}': max_area_px must exceed min_area_px")
+        if not 0.0 <= self.min_circularity <= 1.0:
+            raise InputError(f"target '{self.name}': min_circularity must be in [0, 1], "
+                             f"got {self.min_circularity}")
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Detector settings shared by every target.
+
+    Attributes:
+        targets: the targets, in priority order (the first is "the" target), at least one.
+        downscale: factor of the coarse pass (1 = threshold the whole image at full size).
+        open_px: kernel size (pixels, full resolution) of the morphological opening that
+            removes speckle; 0 disables it.
+        close_px: kernel size of the closing that fills holes (specular highlights); 0 disables.
+        selection: "largest", "circular" or "nearest" (nearest the previous detection; largest
+            when there is none).
+        max_candidates: blobs per target examined at full resolution (>= 1).
+        roi_margin_px: margin around a coarse blob for the full-resolution pass.
+        sphere_correction: correct sphere centroids for the perspective offset (needs a camera).
+        reject_border: drop blobs that touch the image border (truncated silhouettes).
+    """
+
+    targets: tuple[TargetSpec, ...]
+    downscale: int = 4
+    open_px: int = 3
+    close_px: int = 5
+    selection: str = "largest"
+    max_candidates: int = 3
+    roi_margin_px: int = 8
+    sphere_correction: bool = True
+    reject_border: bool = True
+
+    def __post_init__(self) -> None:
+        targets = tuple(self.targets)
+        if not targets:
+            raise InputError("targets: at least one target is needed")
+        names = [t.name for t in targets]
+        if len(set(names)) != len(names):
+            raise InputError(f"targets: names must be unique, got {names}")
+        object.__setattr__(self, "targets", targets)
+        for key, lo, hi in (("downscale", 1, 16), ("open_px", 0, 51), ("close_px", 0, 51),
+                            ("max_candidates", 1, 20), ("roi_margin_px", 0, 200)):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
+                raise InputError(f"{key}: expected an integer in [{lo}, {hi}], got {v!r}")
+        if self.selection not in SELECTIONS:
+            raise InputError(f"selection: '{self.selection}' is not one of {', '.join(SELECTIONS)}")
+
+    def target(self, name: str) -> TargetSpec:
+        """The target called ``name``."""
+        for t in self.targets:
+            if t.name == name:
+                return t
+        raise InputError(f"no target named '{name}' (have {[t.name for t in self.targets]})")
+
+
+@dataclass(frozen=True, eq=False)
+class Detection:
+    """One detected blob.
+
+    Attributes:
+        name: the target's name.
+        centroid_px: area centroid of the blob in the (distorted) image, shape (2,).
+        center_px: the image of the target's centre in the distorted image, shape (2,): the
+            sphere-corrected centre when a camera was given and correction is on, else the
+            centroid.
+        center_norm: ``center_px`` in undistorted normalised coordinates (x/z, y/z), shape (2,);
+            NaN without a camera model.
+        area_px: blob area in pixels.
+        circularity: ``4 pi area / perimeter^2`` of its outer contour.
+        bbox: (x, y, w, h) in pixels.
+        angular_radius: the sphere's angular radius (radians) estimated from the silhouette,
+            NaN without a camera model.
+        ellipse_norm: centre of the silhouette ellipse in normalised coordinates, shape (2,)
+            (the uncorrected centre; NaN unless the sphere correction ran), from which
+            :func:`sphere_center_direction` recomputes the centre for a better ``alpha``.
+    """
+
+    name: str
+    centroid_px: np.ndarray
+    center_px: np.ndarray
+    center_norm: np.ndarray
+    area_px: float
+    circularity: float
+    bbox: tuple[int, int, int, int]
+    angular_radius: float = float("nan")
+    ellipse_norm: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+
+
+# -- sphere geometry -----------------------------------------------------------------------
+
+def sphere_silhouette_center(direction_angle: float, angular_radius: float) -> float:
+    """Radial distance (normalised plane) of the silhouette ellipse centre of a sphere.
+
+    Args:
+        direction_angle: field angle theta of the sphere centre (radians, from the optical axis).
+        angular_radius: alpha = asin(radius / distance) (radians).
+
+    Returns:
+        ``sin(2 theta) / (cos(2 theta) + cos(2 alpha))``; compare ``tan(theta)``.
+    """
+    return math.sin(2 * direction_angle) / (math.cos(2 * direction_angle)
+                                            + math.cos(2 * angular_radius))
+
+
+def sphere_center_direction(ellipse_center_norm: np.ndarray, angular_radius: float) -> np.ndarray:
+    """Normalised image of a sphere's centre from its silhouette ellipse centre (closed form).
+
+    Inverts :func:`sphere_silhouette_center`: with ``m = |c|`` and ``phi = atan(m)``,
+    ``2 theta = phi + asin(m cos(2 alpha) / sqrt(1 + m^2))``; the centre keeps the direction of
+    ``c`` with radial distance ``tan(theta)``.
+
+    Args:
+        ellipse_center_norm: ellipse (silhouette) centre in normalised coordinates, shape (2,).
+        angular_radius: alpha in radians, 0 <= alpha < pi/2.
+
+    Returns:
+        shape (2,), normalised coordinates of the sphere centre's image.
+    """
+    c = np.asarray(ellipse_center_norm, dtype=np.float64)
+    m = float(math.hypot(c[0], c[1]))
+    if m < 1e-12 or not angular_radius > 0:
+        return c.copy()
+    phi = math.atan(m)
+    s = m * math.cos(2 * angular_radius) / math.sqrt(1.0 + m * m)
+    theta = 0.5 * (phi + math.asin(max(-1.0, min(1.0, s))))
+    return c * (math.tan(theta) / m)
+
+
+def angular_radius_from_minor_axis(minor_semi_axis: float, direction_angle: float) -> float:
+    """Angular radius alpha of a sphere from its silhouette's minor semi-axis b (normalised).
+
+    ``b = sin(alpha) / sqrt(cos^2(theta) - sin^2(alpha))``, so
+    ``sin^2(alpha) = b^2 cos^2(theta) / (1 + b^2)``.
+    """
+    b2 = minor_semi_axis * minor_semi_axis
+    c2 = math.cos(direction_angle) ** 2
+    return math.asin(math.sqrt(min(1.0, b2 * c2 / (1.0 + b2))))
+
+
+# -- the detector --------------------------------------------------------------------------
+
+@dataclass
+class _Blob:
+    mask: np.ndarray          # uint8 0/1 component mask inside the ROI
+    x0: int
+    y0: int
+    area: float
+    circularity: float
+    centroid: np.ndarray
+    contour: np.ndarray       # (K, 2) float64 full-image pixel coordinates
+    bbox: tuple[int, int, int, int]
+
+
+class ColorDetector:
+    """Find coloured targets in BGR images. Stateless: safe to share between threads.
+
+    Args:
+        config: the detector settings.
+
+    Raises:
+        InputError: ``config`` is not a :class:`DetectorConfig`.
+    """
+
+    def __init__(self, config: DetectorConfig) -> None:
+        if not isinstance(config, DetectorConfig):
+            raise InputError("config: expected a DetectorConfig")
+        self.config = config
+        self._spaces = sorted({t.color.space for t in config.targets})
+        self._open = (cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (config.open_px,) * 2)
+                      if config.open_px > 1 else None)
+        self._close = (cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (config.close_px,) * 2)
+                       if config.close_px > 1 else None)
+
+    # -- public ----------------------------------------------------------------------------
+    def detect(self, image: np.ndarray, camera: CameraModel | None = None,
+               previous: Mapping[str, np.ndarray] | None = None) -> list[Detection]:
+        """The best detection of each target (targets not found are absent), in config order.
+
+        Args:
+            image: BGR uint8, shape (H, W, 3).
+            camera: the image's camera model, for the sphere-centre correction and
+                ``center_norm``; None to skip both.
+            previous: target name -> previous ``center_px`` (2,), for ``selection="nearest"``.
+
+        Returns:
+            Detections, at most one per target.
+
+        Raises:
+            InputError: the image is not (H, W, 3) uint8, or disagrees with the camera's size.
+        """
+        cands = self.candidates(image, camera, previous)
+        return [c[0] for c in (cands[t.name] for t in self.config.targets) if c]
+
+    def candidates(self, image: np.ndarray, camera: CameraModel | None = None,
+                   previous: Mapping[str, np.ndarray] | None = None) -> dict[str, list[Detection]]:
+        """Up to ``max_candidates`` detections per target, best first by the selection rule.
+
+        Arguments and errors as :meth:`detect`. Returns a dict over every target name (empty
+        lists for targets not found).
+        """
+        self._check_image(image, camera)
+        cfg = self.config
+        s = cfg.downscale
+        h, w = image.shape[:2]
+        if s > 1:
+            small = cv2.resize(image, (max(1, w // s), max(1, h // s)),
+                               interpolation=cv2.INTER_NEAREST)
+        else:
+            small = image
+        converted = {space: convert_color(small, space) for space in self._spaces}
+        sx, sy = w / small.shape[1], h / small.shape[0]
+        out: dict[str, list[Detection]] = {}
+        for target in cfg.targets:
+            mask = target.color.threshold(converted[target.color.space])
+            blobs = self._coarse_blobs(mask, target, sx * sy)
+            dets: list[Detection] = []
+            seen: list[tuple[int, int, int, int]] = []
+            for (bx, by, bw, bh) in blobs:
+                x0 = int(bx * sx) - cfg.roi_margin_px
+                y0 = int(by * sy) - cfg.roi_margin_px
+                x1 = int(math.ceil((bx + bw) * sx)) + cfg.roi_margin_px
+                y1 = int(math.ceil((by + bh) * sy)) + cfg.roi_margin_px
+                blob = self._fine_blob(image, target, x0, y0, x1, y1)
+                if blob is None or blob.bbox in seen:
+                    continue
+                seen.append(blob.bbox)
+                det = self._make_detection(target, blob, camera)
+                if det is not None:
+                    dets.append(det)
+            out[target.name] = self._rank(dets, previous.get(target.name) if previous else None)
+        return out
+
+    def mask(self, image: np.ndarray, target: str | None = None) -> np.ndarray:
+        """Full-resolution binary mask (0/255) of one target's colour range, after morphology.
+
+        For debugging and tuning (it thresholds the whole image, unlike :meth:`detect`).
+        """
+        self._check_image(image, None)
+        spec = self.config.targets[0] if target is None else self.config.target(target)
+        m = spec.color.threshold(convert_color(image, spec.color.space))
+        return self._morph(m)
+
+    # -- internals -------------------------------------------------------------------------
+    @staticmethod
+    def _check_image(image: Any, camera: CameraModel | None) -> None:
+        if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.ndim != 3 \
+                or image.shape[2] != 3:
+            shape = getattr(image, "shape", None)
+            dtype = getattr(image, "dtype", type(image).__name__)
+            raise InputError(f"image: expected a BGR uint8 array of shape (H, W, 3), got "
+                             f"shape {shape} dtype {dtype}")
+        if image.shape[0] < 8 or image.shape[1] < 8:
+            raise InputError(f"image: {image.shape[1]}x{image.shape[0]} is too small")
+        if camera is not None and (image.shape[1], image.shape[0]) != camera.size:
+            raise InputError(f"image: size {image.shape[1]}x{image.shape[0]} disagrees with the "
+                             f"camera model's {camera.width}x{camera.height}")
+
+    def _morph(self, mask: np.ndarray) -> np.ndarray:
+        if self._open is not None:
+            mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, self._open)
+        if self._close is not None:
+            mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, self._close)
+        return mask
+
+    def _coarse_blobs(self, mask: np.ndarray, target: TargetSpec,
+                      pixel_area: float) -> list[tuple[int, int, int, int]]:
+        n, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        if n <= 1:
+            return []
+        areas = stats[1:, cv2.CC_STAT_AREA]
+        # a coarse blob is kept when it could be a target (nearest sampling keeps the area
+        # within a few coarse pixels of area / pixel_area)
+        min_area = max(1.0, 0.5 * target.min_area_px / pixel_area)
+        order = np.argsort(-areas)
+        keep = [int(i) + 1 for i in order if areas[i] >= min_area][: 2 * self.config.max_candidates]
+        return [tuple(int(v) for v in stats[i, :4]) for i in keep]  # type: ignore[misc]
+
+    def _fine_blob(self, image: np.ndarray, target: TargetSpec, x0: int, y0: int,
+                   x1: int, y1: int) -> _Blob | None:
+        h, w = image.shape[:2]
+        for _ in range(3):  # grow the ROI when the blob reaches its edge
+            x0, y0, x1, y1 = max(0, x0), max(0, y0), min(w, x1), min(h, y1)
+            roi = image[y0:y1, x0:x1]
+            mask = self._morph(target.color.threshold(convert_color(roi, target.color.space)))
+            n, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
+            if n <= 1:
+                return None
+            k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+            bx, by, bw, bh, area = (int(v) for v in stats[k])
+            touches_roi = (bx == 0 and x0 > 0) or (by == 0 and y0 > 0) or \
+                (bx + bw == x1 - x0 and x1 < w) or (by + bh == y1 - y0 and y1 < h)
+            if not touches_roi:
+                break
+            grow = max(bw, bh) // 2 + self.config.roi_margin_px + 1
+            x0, y0, x1, y1 = x0 - grow, y0 - grow, x1 + grow, y1 + grow
+        else:
+            return None
+        bbox = (x0 + bx, y0 + by, bw, bh)
+        if self.config.reject_border and (bbox[0] == 0 or bbox[1] == 0 or
+                                          bbox[0] + bw == w or bbox[1] + bh == h):
+            return None
+        if area < target.min_area_px or (target.max_area_px is not None
+                                         and area > target.max_area_px):
+            return None
+        comp = (labels[by:by + bh, bx:bx + bw] == k).astype(np.uint8)
+        contours, _ = cv2.findContours(comp, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        contour = max(contours, key=cv2.contourArea)
+        perimeter = cv2.arcLength(contour, True)
+        circ = 4.0 * math.pi * area / (perimeter * perimeter) if perimeter > 0 else 0.0
+        if circ < target.min_circularity:
+            return None
+        mom = cv2.moments(comp, binaryImage=True)
+        centroid = np.array([x0 + bx + mom["m10"] / mom["m00"], y0 + by + mom["m01"] / mom["m00"]])
+        pts = contour.reshape(-1, 2).astype(np.float64) + (x0 + bx, y0 + by)
+        return _Blob(comp, x0, y0, float(area), float(min(circ, 1.0)), centroid, pts, bbox)
+
+    def _make_detection(self, target: TargetSpec, blob: _Blob,
+                        camera: CameraModel | None) -> Detection | None:
+        if camera is None:
+            nan2 = np.full(2, np.nan)
+            return Detection(target.name, blob.centroid, blob.centroid.copy(), nan2, blob.area,
+                             blob.circularity, blob.bbox)
+        if not (self.config.sphere_correction and target.is_sphere) or len(blob.contour) < 5:
+            norm = camera.undistort_points(blob.centroid)[0]
+            return Detection(target.name, blob.centroid, blob.centroid.copy(), norm, blob.area,
+                             blob.circularity, blob.bbox)
+        contour_norm = camera.undistort_points(blob.contour)
+        ellipse_c, minor = _polygon_center_and_minor_axis(contour_norm, camera.fx)
+        if ellipse_c is None:
+            return None
+        theta = math.atan(float(np.hypot(*ellipse_c)))
+        alpha = angular_radius_from_minor_axis(minor, theta)
+        center_norm = sphere_center_direction(ellipse_c, alpha)
+        center_px = camera.project(np.array([[center_norm[0], center_norm[1], 1.0]]))[0]
+        return Detection(target.name, blob.centroid, center_px, center_norm, blob.area,
+                         blob.circularity, blob.bbox, alpha, ellipse_c)
+
+    def _rank(self, dets: list[Detection], previous: np.ndarray | None) -> list[Detection]:
+        sel = self.config.selection
+        if sel == "circular":
+            dets.sort(key=lambda d: (-d.circularity, -d.area_px))
+        elif sel == "nearest" and previous is not None:
+            p = np.asarray(previous, dtype=np.float64).reshape(2)
+            dets.sort(key=lambda d: float(np.hypot(*(d.center_px - p))))
+        else:
+            dets.sort(key=lambda d: -d.area_px)
+        return dets[: self.config.max_candidates]
+
+
+def _polygon_center_and_minor_axis(contour_norm: np.ndarray,
+                                   scale: float) -> tuple[np.ndarray | None, float]:
+    """Area centroid and minor semi-axis of a closed polygon (normalised coordinates).
+
+    The contour runs through boundary pixel centres, half a pixel inside the true edge: the
+    minor semi-axis is grown by half a pixel (``0.5 / scale`` in normalised units).
+
+    Returns:
+        (centre (2,), minor semi-axis), or (None, nan) for a degenerate polygon.
+    """
+    c0 = contour_norm.mean(axis=0)
+    p = (contour_norm - c0) * scale  # well-conditioned units (about pixels)
+    x, y = p[:, 0], p[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cross = x * yn - xn * y
+    a = cross.sum() / 2.0
+    if abs(a) < 1e-9:
+        return None, float("nan")
+    cx = ((x + xn) * cross).sum() / (6.0 * a)
+    cy = ((y + yn) * cross).sum() / (6.0 * a)
+    sxx = ((x * x + x * xn + xn * xn) * cross).sum() / (12.0 * a) - cx * cx
+    syy = ((y * y + y * yn + yn * yn) * cross).sum() / (12.0 * a) - cy * cy
+    sxy = ((x * yn + 2 * x * y + 2 * xn * yn + xn * y) * cross).sum() / (24.0 * a) - cx * cy
+    lam_min = 0.5 * (sxx + syy) - math.sqrt(max(0.0, 0.25 * (sxx - syy) ** 2 + sxy * sxy))
+    minor = 2.0 * math.sqrt(max(lam_min, 0.0)) + 0.5
+    return c0 + np.array([cx, cy]) / scale, minor / scale

@@ -1,0 +1,335 @@
+"""Stereo triangulation of one point: DLT, parallax and optimal (reprojection) refinement.
+
+All three take the point's pixel coordinates in both images and a :class:`StereoRig` that is
+rectified (``rig.rectified()``, or loaded from ROS calibration files), and return a
+:class:`StereoPoint` in the **left optical frame** (the unrectified left camera, the frame of
+``camera_left_optical_frame``), with:
+
+* ``residual_px``: the RMS reprojection error over the four image coordinates (pixels);
+* ``covariance``: 3x3, propagated to first order from an isotropic pixel noise ``sigma_px`` on
+  each image coordinate (``J J^T sigma^2`` for the closed forms, ``(J^T J)^-1 sigma^2`` for the
+  least-squares refinement).
+
+Methods:
+
+(a) :func:`triangulate_dlt`: homogeneous linear least squares, four equations in the three
+    unknowns, from the rectified (undistorted) pixels and ``P1, P2`` (SVD of a 4x4 system).
+(b) :func:`triangulate_parallax`: ``Z = f B / d`` on rectified coordinates with
+    ``d = x_l - x_r - (c_x1 - c_x2)``, then ``X, Y`` (horizontal rigs).
+(c) :func:`triangulate_optimal`: Gauss-Newton on the reprojection error in both *distorted*
+    images through the full camera models (the maximum-likelihood point for Gaussian pixel
+    noise), started from the DLT point; Jacobians from ``cv2.projectPoints``.
+
+Rejections raise :class:`Rejected` (a :class:`~eye_in_hand.errors.TriangulationError`) whose
+``reason`` is one of :data:`REJECT_REASONS`, so callers can count them.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from eye_in_hand.core.camera import StereoRig
+from eye_in_hand.errors import InputError, TriangulationError
+
+__all__ = [
+    "METHODS",
+    "REJECT_REASONS",
+    "Rejected",
+    "StereoPoint",
+    "rectify_pair",
+    "triangulate_dlt",
+    "triangulate_parallax",
+    "triangulate_optimal",
+    "triangulate",
+]
+
+#: Triangulation methods by name (the node's ``method`` parameter).
+METHODS = ("dlt", "disparity", "optimal")
+#: Why a point may be rejected.
+REJECT_REASONS = ("behind_camera", "non_positive_disparity", "residual_gate", "not_converged")
+
+
+class Rejected(TriangulationError):
+    """A stereo point was rejected. ``reason`` is one of :data:`REJECT_REASONS`."""
+
+    def __init__(self, reason: str, message: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+@dataclass(frozen=True, eq=False)
+class StereoPoint:
+    """A triangulated point.
+
+    Attributes:
+        point: shape (3,), metres, in the left optical frame.
+        covariance: shape (3, 3), m^2, in the left optical frame.
+        residual_px: RMS reprojection error over the four image coordinates.
+        method: "dlt", "disparity" or "optimal".
+        disparity_px: rectified disparity ``x_l - x_r`` (NaN for a vertical rig).
+    """
+
+    point: np.ndarray
+    covariance: np.ndarray
+    residual_px: float
+    method: str
+    disparity_px: float = float("nan")
+
+
+def _check_rig(rig: StereoRig) -> None:
+    if not isinstance(rig, StereoRig):
+        raise InputError("rig: expected a StereoRig")
+    if not rig.is_rectified:
+        raise InputError("rig: not rectified; use rig.rectified() or StereoRig.load(dir)")
+
+
+def _px(value, name: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    if arr.shape != (2,) or not np.all(np.isfinite(arr)):
+        raise InputError(f"{name}: expected two finite pixel coordinates, got {value!r}")
+    return arr
+
+
+def rectify_pair(rig: StereoRig, left_px, right_px) -> tuple[np.ndarray, np.ndarray]:
+    """Rectified pixel coordinates of one point seen in both distorted images.
+
+    Args:
+        rig: rectified stereo rig.
+        left_px, right_px: distorted pixel coordinates, shape (2,).
+
+    Returns:
+        (left, right) rectified pixels, each shape (2,).
+    """
+    _check_rig(rig)
+    return (rig.left.rectify_points(_px(left_px, "left_px"))[0],
+            rig.right.rectify_points(_px(right_px, "right_px"))[0])
+
+
+def _dlt_rect(P1: np.ndarray, P2: np.ndarray, xl: np.ndarray, xr: np.ndarray) -> np.ndarray:
+    A = np.stack([xl[0] * P1[2] - P1[0], xl[1] * P1[2] - P1[1],
+                  xr[0] * P2[2] - P2[0], xr[1] * P2[2] - P2[1]])
+    # scale rows: equilibrates the system (pixel-sized entries vs unit entries)
+    A /= np.linalg.norm(A, axis=1, keepdims=True)
+    _, _, vt = np.linalg.svd(A)
+    X = vt[-1]
+    if abs(X[3]) < 1e-15:
+        return np.full(3, np.inf)
+    return X[:3] / X[3]
+
+
+def _reproj_rms(P1: np.ndarray, P2: np.ndarray, X: np.ndarray, xl: np.ndarray,
+                xr: np.ndarray) -> float:
+    h = np.append(X, 1.0)
+    a, b = P1 @ h, P2 @ h
+    e = np.concatenate([a[:2] / a[2] - xl, b[:2] / b[2] - xr])
+    return float(math.sqrt(np.mean(e * e)))
+
+
+def _finish(rig: StereoRig, X_rect: np.ndarray, cov_rect: np.ndarray, residual: float,
+            method: str, disparity: float, max_residual_px: float | None) -> StereoPoint:
+    R1 = rig.R1
+    X = R1.T @ X_rect  # rectified-left -> left optical frame
+    X_right = rig.R @ X + rig.T
+    if not (np.all(np.isfinite(X)) and X[2] > 0 and X_right[2] > 0):
+        raise Rejected("behind_camera",
+                       f"triangulated point {np.round(X, 4).tolist()} m is behind a camera "
+                       f"(z_left = {X[2]:.4f}, z_right = {X_right[2]:.4f})")
+    if max_residual_px is not None and residual > max_residual_px:
+        raise Rejected("residual_gate", f"reprojection residual {residual:.3f} px exceeds the "
+                                        f"gate of {max_residual_px:.3f} px")
+    cov = R1.T @ cov_rect @ R1
+    return StereoPoint(X, 0.5 * (cov + cov.T), residual, method, disparity)
+
+
+def _check_sigma(sigma_px: float) -> float:
+    s = float(sigma_px)
+    if not (math.isfinite(s) and s > 0):
+        raise InputError(f"sigma_px: must be > 0, got {sigma_px}")
+    return s
+
+
+def _disparity(rig: StereoRig, xl: np.ndarray, xr: np.ndarray) -> float:
+    P1, P2 = rig.P1, rig.P2
+    if abs(P2[0, 3]) >= abs(P2[1, 3]):
+        return float((xl[0] - P1[0, 2]) - (xr[0] - P2[0, 2]))
+    return float((xl[1] - P1[1, 2]) - (xr[1] - P2[1, 2]))
+
+
+def _check_disparity(rig: StereoRig, d: float) -> None:
+    # P2[0, 3] = -f B: for a rig with the right camera on the +x side, disparity must be > 0.
+    sign = -math.copysign(1.0, rig.P2[0, 3] if abs(rig.P2[0, 3]) >= abs(rig.P2[1, 3])
+                          else rig.P2[1, 3])
+    if not d * sign > 0:
+        raise Rejected("non_positive_disparity",
+                       f"disparity {d:.3f} px is not positive: the point is at or beyond infinity "
+                       f"or the left/right association is wrong")
+
+
+def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float = 0.5,
+                    max_residual_px: float | None = None,
+                    rectified: bool = False) -> StereoPoint:
+    """(a) Linear (DLT) triangulation from rectified pixels with ``P1, P2``.
+
+    Args:
+        rig: rectified stereo rig.
+        left_px, right_px: pixel coordinates, shape (2,): distorted image pixels, or rectified
+            pixels when ``rectified`` is True.
+        sigma_px: pixel noise (1 sigma) per coordinate for the covariance.
+        max_residual_px: reject above this RMS reprojection residual (None: no gate).
+        rectified: the inputs are already rectified pixel coordinates.
+
+    Returns:
+        The point in the left optical frame.
+
+    Raises:
+        InputError: bad arguments. Rejected: behind a camera, non-positive disparity, residual.
+    """
+    _check_rig(rig)
+    s = _check_sigma(sigma_px)
+    xl, xr = ((_px(left_px, "left_px"), _px(right_px, "right_px")) if rectified
+              else rectify_pair(rig, left_px, right_px))
+    d = _disparity(rig, xl, xr)
+    _check_disparity(rig, d)
+    P1, P2 = rig.P1, rig.P2
+    X = _dlt_rect(P1, P2, xl, xr)
+    # Jacobian d X / d (xl, yl, xr, yr) by central differences (8 tiny SVDs)
+    J = np.empty((3, 4))
+    h = 1e-3
+    for k in range(4):
+        dp = np.zeros(4)
+        dp[k] = h
+        Xp = _dlt_rect(P1, P2, xl + dp[:2], xr + dp[2:])
+        Xm = _dlt_rect(P1, P2, xl - dp[:2], xr - dp[2:])
+        J[:, k] = (Xp - Xm) / (2 * h)
+    cov = (J @ J.T) * s * s
+    return _finish(rig, X, cov, _reproj_rms(P1, P2, X, xl, xr), "dlt", d, max_residual_px)
+
+
+def triangulate_parallax(rig: StereoRig, left_px, right_px, *, sigma_px: float = 0.5,
+                         max_residual_px: float | None = None,
+                         rectified: bool = False) -> StereoPoint:
+    """(b) Parallax triangulation on rectified coordinates: ``Z = f B / d``, then X, Y.
+
+    ``Y`` uses the mean of the two rectified rows (they agree up to noise). Horizontal rigs only.
+
+    Arguments, returns and errors as :func:`triangulate_dlt`; also raises InputError for a
+    vertically rectified rig.
+    """
+    _check_rig(rig)
+    s = _check_sigma(sigma_px)
+    P1, P2 = rig.P1, rig.P2
+    if abs(P2[1, 3]) > abs(P2[0, 3]):
+        raise InputError("parallax method: the rig is rectified vertically; use 'dlt' or "
+                         "'optimal'")
+    xl, xr = ((_px(left_px, "left_px"), _px(right_px, "right_px")) if rectified
+              else rectify_pair(rig, left_px, right_px))
+    d = _disparity(rig, xl, xr)
+    _check_disparity(rig, d)
+    f, fy = P1[0, 0], P1[1, 1]
+    cx, cy = P1[0, 2], P1[1, 2]
+    fb = -P2[0, 3]  # = f * B
+    Z = fb / d
+    u = xl[0] - cx
+    v = 0.5 * (xl[1] + xr[1]) - cy
+    X_rect = np.array([u * Z / f, v * Z / fy, Z])
+    # d Z / d(xl, yl, xr, yr) = (-Z/d, 0, Z/d, 0)
+    dZ = np.array([-Z / d, 0.0, Z / d, 0.0])
+    J = np.empty((3, 4))
+    J[0] = (u / f) * dZ + np.array([Z / f, 0.0, 0.0, 0.0])
+    J[1] = (v / fy) * dZ + np.array([0.0, 0.5 * Z / fy, 0.0, 0.5 * Z / fy])
+    J[2] = dZ
+    cov = (J @ J.T) * s * s
+    return _finish(rig, X_rect, cov, _reproj_rms(P1, P2, X_rect, xl, xr), "disparity", d,
+                   max_residual_px)
+
+
+def _project_with_jacobian(K: np.ndarray, dist: np.ndarray, R: np.ndarray, t: np.ndarray,
+                           X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel of ``R X + t`` and its Jacobian d px / d X, shape (2,), (2, 3)."""
+    rvec = cv2.Rodrigues(R)[0]
+    img, jac = cv2.projectPoints(X.reshape(1, 1, 3), rvec, t.reshape(3, 1), K, dist)
+    # columns 3:6 are d px / d tvec = d px / d (R X + t); chain with d(RX+t)/dX = R
+    return img.reshape(2), jac[:, 3:6] @ R
+
+
+def triangulate_optimal(rig: StereoRig, left_px, right_px, *, sigma_px: float = 0.5,
+                        max_residual_px: float | None = None, max_iterations: int = 10,
+                        initial: StereoPoint | None = None) -> StereoPoint:
+    """(c) Optimal triangulation: minimise the reprojection error in both distorted images.
+
+    Gauss-Newton over the point in the left optical frame through the full camera models
+    (distortion included), from the DLT point (or ``initial``), until the step is below 1e-9 m.
+
+    Args:
+        rig: rectified stereo rig (only ``R, T`` and the cameras' ``K, dist`` are used here,
+            plus ``P1, P2`` for the DLT start).
+        left_px, right_px: distorted pixel coordinates, shape (2,).
+        sigma_px: pixel noise for the covariance ``sigma^2 (J^T J)^-1``.
+        max_residual_px: residual gate (RMS over the four coordinates), None for no gate.
+        max_iterations: Gauss-Newton iterations (>= 1).
+        initial: a start point (e.g. from :func:`triangulate_dlt`); computed when None.
+
+    Returns:
+        The point in the left optical frame.
+
+    Raises:
+        InputError: bad arguments. Rejected: behind a camera, non-positive disparity, residual
+            over the gate, or no convergence.
+    """
+    _check_rig(rig)
+    s = _check_sigma(sigma_px)
+    ul, ur = _px(left_px, "left_px"), _px(right_px, "right_px")
+    start = initial if initial is not None else triangulate_dlt(rig, ul, ur, sigma_px=s)
+    X = np.array(start.point, dtype=np.float64)
+    I3, z3 = np.eye(3), np.zeros(3)
+    Kl, dl, Kr, dr = rig.left.K, rig.left.dist, rig.right.K, rig.right.dist
+    R, T = rig.R, rig.T
+    converged = False
+    for _ in range(max(1, int(max_iterations))):
+        pl, Jl = _project_with_jacobian(Kl, dl, I3, z3, X)
+        pr, Jr = _project_with_jacobian(Kr, dr, R, T, X)
+        e = np.concatenate([pl - ul, pr - ur])
+        J = np.vstack([Jl, Jr])
+        step, *_ = np.linalg.lstsq(J, -e, rcond=None)
+        X = X + step
+        if not np.all(np.isfinite(X)):
+            break
+        if np.linalg.norm(step) < 1e-9:
+            converged = True
+            break
+    if not converged and np.all(np.isfinite(X)):
+        converged = bool(np.linalg.norm(step) < 1e-6)
+    if not converged:
+        raise Rejected("not_converged", "optimal triangulation did not converge "
+                                        f"(last step {np.linalg.norm(step):.2e} m)")
+    pl, Jl = _project_with_jacobian(Kl, dl, I3, z3, X)
+    pr, Jr = _project_with_jacobian(Kr, dr, R, T, X)
+    e = np.concatenate([pl - ul, pr - ur])
+    J = np.vstack([Jl, Jr])
+    residual = float(math.sqrt(np.mean(e * e)))
+    cov_left = np.linalg.inv(J.T @ J) * s * s
+    # _finish works in the rectified frame: hand it X and cov rotated there
+    R1 = rig.R1
+    return _finish(rig, R1 @ X, R1 @ cov_left @ R1.T, residual, "optimal",
+                   start.disparity_px, max_residual_px)
+
+
+def triangulate(rig: StereoRig, left_px, right_px, *, method: str = "dlt",
+                sigma_px: float = 0.5, max_residual_px: float | None = None) -> StereoPoint:
+    """Triangulate with the named method ("dlt", "disparity" or "optimal").
+
+    Arguments, returns and errors as the individual methods; InputError for an unknown method.
+    """
+    if method == "dlt":
+        return triangulate_dlt(rig, left_px, right_px, sigma_px=sigma_px,
+                               max_residual_px=max_residual_px)
+    if method == "disparity":
+        return triangulate_parallax(rig, left_px, right_px, sigma_px=sigma_px,
+                                    max_residual_px=max_residual_px)
+    if method == "optimal":
+        return triangulate_optimal(rig, left_px, right_px, sigma_px=sigma_px,
+                                   max_residual_px=max_residual_px)
+    raise InputError(f"method: '{method}' is not one of {', '.join(METHODS)}")

@@ -1,0 +1,181 @@
+"""Tests of eye_in_hand.core.detection on ray-cast sphere images with known ground truth."""
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from eye_in_hand.core.camera import CameraModel
+from eye_in_hand.core.detection import (
+    ColorDetector,
+    ColorRange,
+    DetectorConfig,
+    TargetSpec,
+    angular_radius_from_minor_axis,
+    bgr_to_hsi,
+    sphere_center_direction,
+    sphere_silhouette_center,
+)
+from eye_in_hand.errors import InputError
+
+K = np.array([[900.0, 0.0, 640.0], [0.0, 905.0, 360.0], [0.0, 0.0, 1.0]])
+RED = ColorRange((170, 120, 70), (10, 255, 255))
+GREEN = ColorRange((45, 120, 70), (75, 255, 255))
+BG = (90, 110, 100)
+
+
+def render_sphere(image, cam, center, radius, color_bgr, ss=4):
+    """Ray-cast a sphere (centre in the camera frame) into ``image`` with ss x ss supersampling."""
+    c = np.asarray(center, float)
+    d = np.linalg.norm(c)
+    axis = c / d
+    u = np.cross(axis, [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(axis, u)
+    a = math.asin(radius / d)
+    ang = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    rim = math.cos(a) * axis + math.sin(a) * (np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * v)
+    px = cam.project(rim)
+    x0, y0 = np.maximum(np.floor(px.min(0)).astype(int) - 2, 0)
+    x1, y1 = np.minimum(np.ceil(px.max(0)).astype(int) + 3, [cam.width, cam.height])
+    offs = (np.arange(ss) + 0.5) / ss - 0.5
+    xs = (np.arange(x0, x1)[:, None] + offs).ravel()
+    ys = (np.arange(y0, y1)[:, None] + offs).ravel()
+    X, Y = np.meshgrid(xs, ys)
+    n = cam.undistort_points(np.c_[X.ravel(), Y.ravel()])
+    rays = np.c_[n, np.ones(len(n))]
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    dc = rays @ c
+    hit = (dc > 0) & (d * d - dc * dc <= radius * radius)
+    cov = hit.reshape(y1 - y0, ss, x1 - x0, ss).mean(axis=(1, 3))[..., None]
+    roi = image[y0:y1, x0:x1].astype(np.float64)
+    roi = roi * (1 - cov) + np.asarray(color_bgr, float) * cov
+    image[y0:y1, x0:x1] = np.clip(np.rint(roi), 0, 255).astype(np.uint8)
+
+
+def background(seed=0, sigma=2.0):
+    rng = np.random.default_rng(seed)
+    img = np.full((720, 1280, 3), BG, np.float64) + rng.normal(0, sigma, (720, 1280, 3))
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def config(*targets, **kw):
+    return DetectorConfig(targets=tuple(targets), **kw)
+
+
+def test_color_range_validation_and_wrap():
+    assert RED.wraps and not GREEN.wraps
+    assert RED.contains((175, 200, 200)) and RED.contains((5, 200, 200))
+    assert not RED.contains((90, 200, 200)) and not RED.contains((0, 50, 200))
+    with pytest.raises(InputError, match=r"lower\[0\]"):
+        ColorRange((180, 0, 0), (10, 255, 255))
+    with pytest.raises(InputError, match=r"exceeds upper\[1\]"):
+        ColorRange((0, 200, 0), (10, 100, 255))
+    with pytest.raises(InputError, match="space"):
+        ColorRange((0, 0, 0), (10, 255, 255), "lab")
+
+
+def test_wrapped_red_threshold_takes_both_ends_of_the_hue_circle():
+    hsv = np.array([[[178, 200, 200], [2, 200, 200], [90, 200, 200], [5, 50, 200]]], np.uint8)
+    assert RED.threshold(hsv).ravel().tolist() == [255, 255, 0, 0]
+
+
+def test_hsi_conversion_of_primaries_and_grey():
+    img = np.array([[[0, 0, 255], [0, 255, 0], [255, 0, 0], [128, 128, 128]]], np.uint8)
+    hsi = bgr_to_hsi(img)
+    assert hsi[0, :, 0].tolist()[:3] == [0, 60, 120]  # red 0, green 120, blue 240 degrees / 2
+    assert hsi[0, :3, 1].tolist() == [255, 255, 255] and hsi[0, 3, 1] == 0
+    assert hsi[0, :, 2].tolist() == [85, 85, 85, 128]
+
+
+def test_sphere_center_formula_inverts_the_silhouette_centre():
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        theta, alpha = rng.uniform(0, 0.7), rng.uniform(0.005, 0.15)
+        phi = rng.uniform(0, 2 * np.pi)
+        m = sphere_silhouette_center(theta, alpha)
+        c = sphere_center_direction(m * np.array([np.cos(phi), np.sin(phi)]), alpha)
+        assert np.allclose(c, math.tan(theta) * np.array([np.cos(phi), np.sin(phi)]), atol=1e-12)
+    # the minor semi-axis formula agrees with the cone: b = sin(a) / sqrt(cos^2 t - sin^2 a)
+    b = math.sin(0.1) / math.sqrt(math.cos(0.5) ** 2 - math.sin(0.1) ** 2)
+    assert angular_radius_from_minor_axis(b, 0.5) == pytest.approx(0.1, abs=1e-12)
+
+
+@pytest.mark.parametrize("dist", [[0, 0, 0, 0, 0], [-0.3, 0.15, 0.001, -0.0005, -0.05]])
+def test_sphere_correction_recovers_the_projected_centre(dist):
+    cam = CameraModel(K, dist, 1280, 720)
+    det = ColorDetector(config(TargetSpec("red", RED, radius_m=0.02)))
+    raw_err, corr_err = [], []
+    for i, c in enumerate([(0.15, 0.1, 0.35), (0.1, -0.05, 0.3), (-0.25, 0.12, 0.4)]):
+        img = background(i)
+        render_sphere(img, cam, c, 0.02, (30, 30, 200))
+        (d,) = det.detect(img, cam)
+        truth = cam.project(np.array([c]))[0]
+        raw_err.append(np.linalg.norm(d.centroid_px - truth))
+        corr_err.append(np.linalg.norm(d.center_px - truth))
+        assert np.allclose(cam.project(np.r_[d.center_norm, 1.0][None])[0], d.center_px)
+        assert d.angular_radius == pytest.approx(math.asin(0.02 / np.linalg.norm(c)), rel=0.02)
+        assert d.circularity > 0.85
+        assert d.area_px == pytest.approx(d.bbox[2] * d.bbox[3] * math.pi / 4, rel=0.1)
+    assert max(corr_err) < 0.1, corr_err
+    if dist[0] == 0:  # without distortion the perspective offset is well over a pixel
+        assert min(raw_err) > 0.8, raw_err
+
+
+def test_no_target_and_gates_return_nothing():
+    cam = CameraModel(K, [0] * 5, 1280, 720)
+    det = ColorDetector(config(TargetSpec("red", RED, min_area_px=200, min_circularity=0.7)))
+    img = background()
+    assert det.detect(img, cam) == []
+    cv2.rectangle(img, (100, 100), (400, 110), (30, 30, 200), -1)   # a thin bar: not circular
+    cv2.circle(img, (700, 400), 5, (30, 30, 200), -1)               # too small
+    cv2.circle(img, (1275, 300), 30, (30, 30, 200), -1)             # cut by the border
+    assert det.detect(img, cam) == []
+    cv2.circle(img, (600, 300), 20, (30, 30, 200), -1)
+    (d,) = det.detect(img, cam)
+    assert np.allclose(d.centroid_px, (600, 300), atol=0.05)
+
+
+def test_multiple_targets_candidates_and_selection():
+    cam = CameraModel(K, [0] * 5, 1280, 720)
+    specs = (TargetSpec("red", RED), TargetSpec("green", GREEN, is_sphere=False))
+    img = background()
+    cv2.circle(img, (300, 300), 30, (30, 30, 200), -1)
+    cv2.circle(img, (900, 500), 15, (30, 30, 200), -1)
+    cv2.circle(img, (640, 200), 20, (40, 200, 40), -1)
+    det = ColorDetector(config(*specs))
+    found = det.detect(img, cam)
+    assert [d.name for d in found] == ["red", "green"]
+    assert np.allclose(found[0].centroid_px, (300, 300), atol=0.05)
+    assert np.allclose(found[1].center_px, (640, 200), atol=0.05)  # flat target: no correction
+    cands = det.candidates(img, cam)
+    assert [len(cands["red"]), len(cands["green"])] == [2, 1]
+    nearest = ColorDetector(config(*specs, selection="nearest"))
+    (red, _) = nearest.detect(img, cam, previous={"red": np.array([880.0, 490.0])})
+    assert np.allclose(red.centroid_px, (900, 500), atol=0.05)
+
+
+def test_full_resolution_path_matches_downscaled_path():
+    img = background()
+    cv2.circle(img, (333, 222), 25, (30, 30, 200), -1)
+    a = ColorDetector(config(TargetSpec("red", RED), downscale=1)).detect(img)
+    b = ColorDetector(config(TargetSpec("red", RED), downscale=4)).detect(img)
+    assert np.allclose(a[0].centroid_px, b[0].centroid_px) and a[0].area_px == b[0].area_px
+    assert np.all(np.isnan(a[0].center_norm))  # no camera model: no normalised coordinates
+
+
+def test_bad_inputs_raise():
+    det = ColorDetector(config(TargetSpec("red", RED)))
+    cam = CameraModel(K, [0] * 5, 1280, 720)
+    with pytest.raises(InputError, match="BGR uint8"):
+        det.detect(np.zeros((720, 1280), np.uint8))
+    with pytest.raises(InputError, match="disagrees"):
+        det.detect(np.zeros((480, 640, 3), np.uint8), cam)
+    with pytest.raises(InputError, match="unique"):
+        config(TargetSpec("a", RED), TargetSpec("a", GREEN))
+    with pytest.raises(InputError, match="selection"):
+        config(TargetSpec("a", RED), selection="best")
+    with pytest.raises(InputError, match="radius_m"):
+        TargetSpec("a", RED, radius_m=-1.0)

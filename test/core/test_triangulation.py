@@ -1,0 +1,98 @@
+"""Tests of eye_in_hand.core.triangulation: exactness, covariance, rejections."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from eye_in_hand.core.camera import CameraModel, StereoRig
+from eye_in_hand.core.triangulation import (
+    Rejected,
+    triangulate,
+    triangulate_dlt,
+    triangulate_optimal,
+    triangulate_parallax,
+)
+from eye_in_hand.errors import InputError
+
+K = np.array([[900.0, 0.0, 640.0], [0.0, 905.0, 360.0], [0.0, 0.0, 1.0]])
+METHODS = [triangulate_dlt, triangulate_parallax, triangulate_optimal]
+
+
+def make_rig(rectify=True):
+    left = CameraModel(K, [-0.3, 0.15, 0.001, -0.0005, -0.05], 1280, 720)
+    right = CameraModel(K + np.diag([3.0, 2.0, 0.0]), [-0.28, 0.1, 0.0, 0.0, 0.0], 1280, 720)
+    R = cv2.Rodrigues(np.array([0.01, -0.02, 0.005]))[0]
+    rig = StereoRig(left, right, R, [-0.06, 0.001, 0.0005])
+    return rig.rectified() if rectify else rig
+
+
+RIG = make_rig()
+
+
+def observe(rig, X):
+    return rig.left.project(X[None])[0], rig.right.project((rig.R @ X + rig.T)[None])[0]
+
+
+@pytest.mark.parametrize("fn", METHODS)
+def test_noise_free_points_are_recovered_exactly(fn):
+    rng = np.random.default_rng(11)
+    for X in rng.uniform([-0.2, -0.1, 0.25], [0.2, 0.1, 1.5], (20, 3)):
+        p = fn(RIG, *observe(RIG, X), sigma_px=0.3)
+        assert np.allclose(p.point, X, atol=1e-9)
+        assert p.residual_px < 1e-6
+        assert p.disparity_px > 0
+        assert np.all(np.linalg.eigvalsh(p.covariance) > 0)
+
+
+@pytest.mark.parametrize("fn", METHODS)
+def test_covariance_matches_monte_carlo(fn):
+    rng = np.random.default_rng(12)
+    X = np.array([0.08, -0.04, 0.5])
+    pl, pr = observe(RIG, X)
+    sigma = 0.3
+    pts = np.array([fn(RIG, pl + rng.normal(0, sigma, 2), pr + rng.normal(0, sigma, 2)).point
+                    for _ in range(300)])
+    pred = fn(RIG, pl, pr, sigma_px=sigma).covariance
+    mc = np.cov(pts.T)
+    # standard deviations along x, y, z within 20 % (300 samples: ~4 % sampling error)
+    assert np.allclose(np.sqrt(np.diag(mc)), np.sqrt(np.diag(pred)), rtol=0.2)
+    # depth sigma follows the stereo limit Z^2 sigma_d / (f B), sigma_d = sqrt(2) sigma
+    limit = X[2] ** 2 * np.sqrt(2) * sigma / (RIG.P1[0, 0] * RIG.baseline)
+    assert np.sqrt(pred[2, 2]) == pytest.approx(limit, rel=0.1)
+
+
+def test_methods_agree_under_noise():
+    rng = np.random.default_rng(13)
+    X = np.array([-0.1, 0.05, 0.45])
+    pl, pr = observe(RIG, X)
+    for _ in range(20):
+        nl, nr = pl + rng.normal(0, 0.3, 2), pr + rng.normal(0, 0.3, 2)
+        a = triangulate(RIG, nl, nr, method="dlt").point
+        b = triangulate(RIG, nl, nr, method="disparity").point
+        c = triangulate(RIG, nl, nr, method="optimal").point
+        assert np.linalg.norm(a - b) < 1e-4 and np.linalg.norm(a - c) < 5e-4
+
+
+@pytest.mark.parametrize("fn", METHODS)
+def test_rejections_carry_reasons(fn):
+    X = np.array([0.05, 0.0, 0.6])
+    pl, pr = observe(RIG, X)
+    with pytest.raises(Rejected) as exc:  # swapped images: negative disparity
+        fn(RIG, pr, pl)
+    assert exc.value.reason == "non_positive_disparity"
+    with pytest.raises(Rejected) as exc:  # 20 px off the epipolar line
+        fn(RIG, pl, pr + (0.0, 20.0), max_residual_px=2.0)
+    assert exc.value.reason == "residual_gate" and "gate" in str(exc.value)
+    fn(RIG, pl, pr + (0.0, 2.0), max_residual_px=2.0)  # within the gate
+
+
+def test_bad_arguments():
+    with pytest.raises(InputError, match="not rectified"):
+        triangulate_dlt(make_rig(rectify=False), (1, 2), (3, 4))
+    with pytest.raises(InputError, match="method"):
+        triangulate(RIG, (1, 2), (3, 4), method="magic")
+    with pytest.raises(InputError, match="left_px"):
+        triangulate_dlt(RIG, (1, np.nan), (3, 4))
+    with pytest.raises(InputError, match="sigma_px"):
+        triangulate_dlt(RIG, (700, 300), (600, 300), sigma_px=0)
