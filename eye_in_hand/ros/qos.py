@@ -15,8 +15,7 @@ sensor topics with :data:`SENSOR_QOS` works with any camera driver. A transient-
 subscriber only matches transient-local publishers: subscribe to latched topics with
 :data:`LATCHED_QOS` and publish them with it too.
 
-This module imports rclpy; it is the only part of :mod:`eye_in_hand.ros` besides the nodes'
-helpers that needs it.
+This module imports rclpy.
 """
 from __future__ import annotations
 
