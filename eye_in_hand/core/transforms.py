@@ -219,10 +219,16 @@ def project_to_so3(M) -> np.ndarray:
 
 
 def rotation_angle(R) -> float:
-    """Angle (radians, in [0, pi]) of a rotation matrix or of the rotation block of a 4x4."""
+    """Angle (radians, in [0, pi]) of a rotation matrix or of the rotation block of a 4x4.
+
+    Raises:
+        InputError: not shape (3, 3) or (4, 4), non-finite, or not a rotation. The tolerance is
+            10 * ORTHONORMAL_ATOL so that products like ``A.T @ B`` of validated rotations pass.
+    """
     arr = np.asarray(R, dtype=np.float64)
     if arr.shape == (4, 4):
         arr = arr[:3, :3]
+    arr = as_rotation(arr, "R", atol=10 * ORTHONORMAL_ATOL)
     c = np.clip((np.trace(arr) - 1.0) / 2.0, -1.0, 1.0)
     # arccos is inaccurate near 0; use the rotation vector norm there.
     if c > 0.99:
