@@ -27,6 +27,8 @@ COMMANDS: list[tuple[str, str]] = [
     ("record", "eye_in_hand.commands.record"),
     ("echo", "eye_in_hand.commands.echo"),
     # -- further commands are registered below this line --
+    ("locate", "eye_in_hand.commands.locate"),
+    ("tune-color", "eye_in_hand.commands.tune_color"),
 ]
 
 GROUP_HELP = {

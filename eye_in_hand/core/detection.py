@@ -52,6 +52,7 @@ __all__ = [
     "sphere_center_direction",
     "sphere_silhouette_center",
     "angular_radius_from_minor_axis",
+    "range_from_samples",
 ]
 
 #: Supported colour spaces for thresholds.
@@ -287,6 +288,53 @@ class Detection:
     bbox: tuple[int, int, int, int]
     angular_radius: float = float("nan")
     ellipse_norm: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+
+
+def range_from_samples(samples: np.ndarray, space: str = "hsv", *, percentile: float = 5.0,
+                       margin: Sequence[int] = (4, 20, 20)) -> ColorRange:
+    """A colour range capturing pixel samples, from robust percentiles.
+
+    Hue is circular: percentiles are taken of the offsets from the circular mean hue, so a red
+    region straddling 0 gives a wrapping range (lower hue > upper hue). Saturation and value
+    (or intensity) use plain percentiles. The margins widen each side.
+
+    Args:
+        samples: pixels already converted to ``space``, uint8, shape (N, 3), N >= 1.
+        space: "hsv" or "hsi".
+        percentile: lower percentile p (the range spans p .. 100 - p), 0 <= p < 50.
+        margin: (h, s, v) widening on each side, in the 8-bit units.
+
+    Returns:
+        The range (hue covers 0..179 when the samples' hue spread is 180 or more).
+
+    Raises:
+        InputError: empty or malformed samples, bad percentile or margin.
+    """
+    arr = np.asarray(samples)
+    if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] == 0:
+        raise InputError(f"samples: expected shape (N, 3) with N >= 1, got {arr.shape}")
+    if not 0.0 <= percentile < 50.0:
+        raise InputError(f"percentile: expected 0 <= p < 50, got {percentile}")
+    m = [int(v) for v in margin]
+    if len(m) != 3 or min(m) < 0:
+        raise InputError(f"margin: expected three non-negative integers, got {margin!r}")
+    a = arr.astype(np.float64)
+    ang = a[:, 0] * (np.pi / 90.0)  # hue units (0..180) -> radians
+    mean_h = (math.degrees(math.atan2(np.sin(ang).mean(), np.cos(ang).mean())) / 2.0) % 180.0
+    off = (a[:, 0] - mean_h + 90.0) % 180.0 - 90.0  # offsets in [-90, 90)
+    lo_off, hi_off = np.percentile(off, [percentile, 100.0 - percentile])
+    lo_off, hi_off = lo_off - m[0], hi_off + m[0]
+    if hi_off - lo_off >= 179.0:
+        h_lo, h_hi = 0, 179
+    else:
+        h_lo = int(math.floor(mean_h + lo_off)) % 180
+        h_hi = int(math.ceil(mean_h + hi_off)) % 180
+    lower, upper = [h_lo], [h_hi]
+    for ch in (1, 2):
+        plo, phi = np.percentile(a[:, ch], [percentile, 100.0 - percentile])
+        lower.append(int(max(0, math.floor(plo) - m[ch])))
+        upper.append(int(min(255, math.ceil(phi) + m[ch])))
+    return ColorRange(tuple(lower), tuple(upper), space)  # type: ignore[arg-type]
 
 
 # -- sphere geometry -----------------------------------------------------------------------

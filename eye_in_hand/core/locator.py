@@ -357,16 +357,14 @@ class TargetLocation:
     right: Detection = field(repr=False)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict: ``point_m``, ``covariance``, ``residual_px``, ``left_px``,
-        ``right_px`` (plus ``name`` and ``method``)."""
+        """JSON-ready dict with exactly ``point_m``, ``covariance``, ``residual_px``,
+        ``left_px`` and ``right_px`` (the output of ``eye-in-hand locate --json``)."""
         return {
             "point_m": [float(v) for v in self.point_m],
             "covariance": [[float(v) for v in row] for row in self.covariance],
             "residual_px": float(self.residual_px),
             "left_px": [float(v) for v in self.left_px],
             "right_px": [float(v) for v in self.right_px],
-            "name": self.name,
-            "method": self.method,
         }
 
 

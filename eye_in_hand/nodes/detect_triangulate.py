@@ -1,0 +1,419 @@
+"""The ``detect_triangulate`` node: coloured targets in stereo pairs -> 3-D points.
+
+Subscribes (relative names, :data:`~eye_in_hand.ros.qos.SENSOR_QOS`):
+    ``left/image_raw``, ``right/image_raw`` (sensor_msgs/Image: bgr8, rgb8, bgra8, rgba8 or an
+    8-bit Bayer mosaic), ``left/camera_info``, ``right/camera_info`` (sensor_msgs/CameraInfo,
+    ignored when ``calibration_dir`` is set).
+
+Publishes:
+    ``target/point`` (geometry_msgs/PointStamped, RESULT_QOS): the first configured target, in
+    the left optical frame, stamped with the left image's stamp; nothing when it is not found.
+    ``targets/<name>/point`` (PointStamped, RESULT_QOS): every target, only when more than one
+    target is configured.
+    ``target/debug_image`` (sensor_msgs/Image bgr8, half size, left|right side by side with the
+    detections drawn): only while someone subscribes, at most ``debug_image.max_rate_hz``.
+    ``diagnostics`` (diagnostic_msgs/DiagnosticArray): pairs, detections, detection rate,
+    residual, covariance, dropped pairs, sync drops, processing time, bad-input causes.
+
+Processing runs on a worker thread, never on the executor thread: the image callbacks only
+pair frames (:class:`~eye_in_hand.core.sync.ApproximateStereoSync`) and hand the newest pair to
+the worker; a pair still waiting when a newer one arrives is dropped (drop-oldest) and counted,
+so the node never lags behind the cameras.
+
+Bad input (wrong encoding, size disagreeing with camera_info, empty or truncated data,
+unsynchronised frames, missing camera_info) is logged once per cause, counted on
+``diagnostics``, publishes nothing for that pair, and the node keeps running.
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+import traceback
+from typing import Any
+
+import cv2
+import numpy as np
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Image
+
+from eye_in_hand.core.camera import StereoRig
+from eye_in_hand.core.locator import (
+    LOCATOR_PARAMETERS,
+    TARGET_PARAMETERS,
+    LocateResult,
+    LocatorConfig,
+    ParamSpec,
+    StereoLocator,
+    locator_config_from_params,
+)
+from eye_in_hand.core.sync import ApproximateStereoSync, StereoPair
+from eye_in_hand.errors import ConfigError, ConversionError, EyeInHandError, InputError
+from eye_in_hand.ros.conversions import (
+    camera_info_to_model,
+    header_stamp_ns,
+    image_to_numpy,
+    numpy_to_image,
+    xyz_to_point_stamped,
+)
+from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
+from eye_in_hand.ros.params import Param, declare_params
+from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS
+
+__all__ = ["NODE_PARAMETERS", "DetectTriangulateNode", "main"]
+
+NODE_NAME = "detect_triangulate"
+DEFAULT_FRAME = "camera_left_optical_frame"
+#: Encodings the detector accepts (converted to bgr8); anything else is "bad_encoding".
+COLOR_ENCODINGS = ("bgr8", "rgb8", "bgra8", "rgba8", "bayer_rggb8", "bayer_bggr8",
+                   "bayer_gbrg8", "bayer_grbg8", "8UC3")
+
+#: Node-only parameters (the locator's are in :data:`eye_in_hand.core.locator`).
+NODE_PARAMETERS: tuple[Param, ...] = (
+    Param("calibration_dir", "", "directory with left.yaml + right.yaml (ROS camera_calibration "
+          "files; stereo.yaml optional); empty = use the camera_info topics"),
+    Param("frame_id", "", "frame of the published points; empty = the left image's frame_id "
+          f"(or {DEFAULT_FRAME} when that is empty)"),
+    Param("sync.slop_s", 0.005, "largest left/right stamp difference of a stereo pair (s); "
+          "0 = exact stamps only", range=(0.0, 1.0)),
+    Param("sync.queue_size", 5, "frames per side waiting for a partner", range=(1, 100)),
+    Param("debug_image.max_rate_hz", 5.0, "rate limit of target/debug_image (Hz); 0 = never "
+          "publish it", range=(0.0, 100.0)),
+    Param("diagnostics_period_s", 1.0, "diagnostics publication period (s)",
+          range=(0.05, 60.0)),
+)
+
+
+def _to_param(spec: ParamSpec, name: str | None = None) -> Param:
+    default = tuple(spec.default) if isinstance(spec.default, list) else spec.default
+    rng = None
+    if spec.min is not None or spec.max is not None:
+        lo = spec.min if spec.min is not None else -1e300
+        hi = spec.max if spec.max is not None else 1e300
+        rng = (int(lo), int(hi)) if isinstance(spec.default, int) and not isinstance(
+            spec.default, bool) else (float(lo), float(hi))
+    return Param(name or spec.name, default, spec.description, range=rng,
+                 choices=spec.choices or None)
+
+
+class _LatestPair:
+    """One-slot, drop-oldest hand-over from the executor thread to the worker."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._pair: StereoPair[Image] | None = None
+        self._stop = False
+        self.dropped = 0
+
+    def put(self, pair: StereoPair[Image]) -> bool:
+        """Store the pair; returns True when an unprocessed older pair was dropped."""
+        with self._cond:
+            dropped = self._pair is not None
+            if dropped:
+                self.dropped += 1
+            self._pair = pair
+            self._cond.notify()
+        return dropped
+
+    def take(self, timeout_s: float) -> StereoPair[Image] | None:
+        with self._cond:
+            if self._pair is None and not self._stop:
+                self._cond.wait(timeout_s)
+            pair, self._pair = self._pair, None
+            return pair
+
+    def stop(self) -> None:
+        with self._cond:
+            self._stop = True
+            self._cond.notify_all()
+
+    @property
+    def stopped(self) -> bool:
+        return self._stop
+
+
+class DetectTriangulateNode(Node):
+    """Detect the configured coloured targets and publish their 3-D points.
+
+    Args:
+        **kwargs: passed to ``rclpy.node.Node`` (``context``, ``namespace``,
+            ``parameter_overrides``, ...).
+
+    Raises:
+        ConfigError: a parameter is invalid (the message names it) or ``calibration_dir``
+            cannot be loaded.
+    """
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        node_values = declare_params(self, NODE_PARAMETERS)
+        loc_values = declare_params(self, [_to_param(p) for p in LOCATOR_PARAMETERS])
+        flat: dict[str, Any] = dict(loc_values)
+        for tname in loc_values["target_names"]:
+            if not tname or not all(c.isalnum() or c == "_" for c in tname) \
+                    or not tname[0].isalpha():
+                raise ConfigError(f"parameter 'target_names': '{tname}' must start with a "
+                                  "letter and contain only letters, digits and underscores")
+            vals = declare_params(self, [_to_param(p) for p in TARGET_PARAMETERS],
+                                  prefix=f"targets.{tname}.")
+            flat.update({f"targets.{tname}.{k}": v for k, v in vals.items()})
+        self.config: LocatorConfig = locator_config_from_params(flat)
+        self._frame_id = str(node_values["frame_id"])
+        self._debug_period = (1.0 / node_values["debug_image.max_rate_hz"]
+                              if node_values["debug_image.max_rate_hz"] > 0 else math.inf)
+        self._last_debug = -math.inf
+
+        self._locator: StereoLocator | None = None
+        self._from_files = bool(node_values["calibration_dir"])
+        if self._from_files:
+            rig = StereoRig.load(node_values["calibration_dir"])
+            try:
+                self._locator = StereoLocator(rig, self.config)
+            except InputError as exc:
+                raise ConfigError(f"calibration_dir '{node_values['calibration_dir']}': "
+                                  f"{exc}") from exc
+        self._info: dict[str, Any] = {"left": None, "right": None}
+        self._info_key: tuple[Any, ...] | None = None
+        self._lock = threading.Lock()
+
+        slop_ns = int(round(node_values["sync.slop_s"] * 1e9))
+        self._sync: ApproximateStereoSync[Image] = ApproximateStereoSync(
+            slop_ns, node_values["sync.queue_size"])
+        self._sync_seen = (0, 0)
+        self._slot = _LatestPair()
+
+        names = [t.name for t in self.config.detector.targets]
+        self._pub_point = self.create_publisher(_point_type(), "target/point", RESULT_QOS)
+        self._pub_targets = ({n: self.create_publisher(_point_type(), f"targets/{n}/point",
+                                                       RESULT_QOS) for n in names}
+                             if len(names) > 1 else {})
+        self._pub_debug = self.create_publisher(Image, "target/debug_image", SENSOR_QOS)
+        self.diag = NodeDiagnostics(self, period_s=node_values["diagnostics_period_s"])
+        self.diag.declare_counter("pairs", "detections", "dropped_pairs", "sync_dropped")
+        self.diag.warn_above("processing_ms", 50.0)
+
+        self.create_subscription(Image, "left/image_raw", self._on_left, SENSOR_QOS)
+        self.create_subscription(Image, "right/image_raw", self._on_right, SENSOR_QOS)
+        if not self._from_files:
+            self.create_subscription(CameraInfo, "left/camera_info",
+                                     lambda m: self._on_info("left", m), SENSOR_QOS)
+            self.create_subscription(CameraInfo, "right/camera_info",
+                                     lambda m: self._on_info("right", m), SENSOR_QOS)
+
+        self._worker = threading.Thread(target=self._work, name=f"{NODE_NAME}_worker",
+                                         daemon=True)
+        self._worker.start()
+        self.get_logger().info(
+            f"detecting {names} with method '{self.config.method}', calibration from "
+            f"{node_values['calibration_dir'] or 'camera_info topics'}")
+
+    # -- executor-thread callbacks (cheap) -------------------------------------------------
+    def _on_left(self, msg: Image) -> None:
+        self._on_image(0, msg)
+
+    def _on_right(self, msg: Image) -> None:
+        self._on_image(1, msg)
+
+    def _on_image(self, side: int, msg: Image) -> None:
+        topic = ("left", "right")[side] + "/image_raw"
+        try:
+            stamp = header_stamp_ns(msg)
+        except ConversionError as exc:
+            self.diag.report("bad_image", f"{topic}: {exc}")
+            return
+        pairs = (self._sync.push_left if side == 0 else self._sync.push_right)(stamp, msg)
+        stats = self._sync.stats
+        seen = (stats.dropped, stats.dropped_stale)
+        if seen != self._sync_seen:
+            self.diag.count("sync_dropped", seen[0] - self._sync_seen[0])
+            if seen[1] > self._sync_seen[1]:
+                self.diag.report("stale_stamp", f"{topic}: stamp {stamp} ns is not after the "
+                                 "previous frame's on the same side (out of order or repeated)")
+            if seen[0] - seen[1] > self._sync_seen[0] - self._sync_seen[1]:
+                self.diag.report(
+                    "unsynchronised", f"left/right frames without a partner within "
+                    f"{self._sync.slop_ns / 1e6:.3f} ms were dropped (last stamp {stamp} ns on "
+                    f"{topic})")
+            self._sync_seen = seen
+        for pair in pairs:
+            if self._slot.put(pair):
+                self.diag.count("dropped_pairs")
+
+    def _on_info(self, side: str, msg: CameraInfo) -> None:
+        with self._lock:
+            self._info[side] = msg
+
+    # -- worker thread ---------------------------------------------------------------------
+    def _work(self) -> None:
+        while not self._slot.stopped:
+            pair = self._slot.take(0.1)
+            if pair is None:
+                continue
+            t0 = time.perf_counter()
+            try:
+                self._process(pair)
+            except EyeInHandError as exc:  # per-pair input problems: counted, node keeps going
+                self.diag.report(type(exc).__name__, str(exc))
+            except Exception as exc:  # noqa: BLE001 - a bug must not stop the stream silently:
+                # logged with its traceback (first occurrence) and counted at ERROR level
+                self.diag.report("internal_error", f"{type(exc).__name__}: {exc}\n"
+                                 f"{traceback.format_exc()}", level=ERROR)
+            self.diag.gauge("processing_ms", (time.perf_counter() - t0) * 1e3)
+
+    def _current_locator(self) -> StereoLocator | None:
+        if self._from_files:
+            return self._locator
+        with self._lock:
+            left, right = self._info["left"], self._info["right"]
+        if left is None or right is None:
+            missing = [s for s, m in (("left", left), ("right", right)) if m is None]
+            self.diag.report("no_camera_info", f"no camera_info received on "
+                             f"{', '.join(f'{s}/camera_info' for s in missing)} yet: "
+                             "pairs are skipped until it arrives")
+            return None
+        key = tuple((m.width, m.height, m.distortion_model, tuple(m.d), tuple(m.k), tuple(m.r),
+                     tuple(m.p)) for m in (left, right))
+        if key != self._info_key:
+            try:
+                lm = camera_info_to_model(left, name="left")
+                rm = camera_info_to_model(right, name="right")
+                rig = StereoRig.from_ros_pair(lm, rm, source="left/right camera_info")
+                self._locator = StereoLocator(rig, self.config)
+            except (ConversionError, ConfigError, InputError) as exc:
+                self._locator = None
+                self.diag.report("bad_camera_info", f"camera_info: {exc}")
+            self._info_key = key
+        if self._locator is None:
+            self.diag.report("bad_camera_info", "camera_info does not describe a usable "
+                             "calibrated stereo pair: pairs are skipped")
+        return self._locator
+
+    def _image(self, msg: Image, topic: str, size: tuple[int, int]) -> np.ndarray | None:
+        if msg.encoding not in COLOR_ENCODINGS:
+            self.diag.report("bad_encoding", f"{topic}: encoding '{msg.encoding}' is not a "
+                             f"colour image (accepted: {', '.join(COLOR_ENCODINGS)})")
+            return None
+        if (msg.width, msg.height) != size:
+            self.diag.report("size_mismatch", f"{topic}: image is {msg.width}x{msg.height} but "
+                             f"the calibration is {size[0]}x{size[1]}")
+            return None
+        try:
+            enc = "bgr8" if msg.encoding != "8UC3" else None
+            img = image_to_numpy(msg, desired_encoding=enc)
+        except ConversionError as exc:
+            self.diag.report("bad_image", f"{topic}: {exc}")
+            return None
+        return np.ascontiguousarray(img)
+
+    def _process(self, pair: StereoPair[Image]) -> None:
+        self.diag.count("pairs")
+        locator = self._current_locator()
+        if locator is None:
+            return
+        rig = locator.rig
+        left = self._image(pair.left, "left/image_raw", rig.left.size)
+        right = self._image(pair.right, "right/image_raw", rig.right.size)
+        if left is None or right is None:
+            return
+        result = locator.locate(left, right)
+        stamp = pair.stamp_ns
+        frame = self._frame_id or pair.left.header.frame_id or DEFAULT_FRAME
+        first = result.first
+        if first is not None:
+            self._pub_point.publish(xyz_to_point_stamped(first.point_m, stamp_ns=stamp,
+                                                         frame_id=frame))
+            self.diag.count("detections")
+            self.diag.gauge("residual_px", float(first.residual_px))
+            self.diag.gauge("sigma_z_mm", float(math.sqrt(first.covariance[2, 2]) * 1e3))
+            self.diag.gauge("range_m", float(np.linalg.norm(first.point_m)))
+        else:
+            self.diag.gauge("last_miss", result.rejected.get(result.first_name, ""))
+        for t in result.targets:
+            pub = self._pub_targets.get(t.name)
+            if pub is not None:
+                pub.publish(xyz_to_point_stamped(t.point_m, stamp_ns=stamp, frame_id=frame))
+        n_pairs = self.diag.counter("pairs")
+        self.diag.gauge("detection_rate", self.diag.counter("detections") / max(1, n_pairs))
+        self._maybe_debug(left, right, result, pair)
+
+    def _maybe_debug(self, left: np.ndarray, right: np.ndarray, result: LocateResult,
+                     pair: StereoPair[Image]) -> None:
+        now = time.monotonic()
+        if now - self._last_debug < self._debug_period or \
+                self._pub_debug.get_subscription_count() == 0:
+            return
+        self._last_debug = now
+        canvas = draw_debug(left, right, result)
+        self._pub_debug.publish(numpy_to_image(canvas, "bgr8", stamp_ns=pair.stamp_ns,
+                                               frame_id=pair.left.header.frame_id))
+
+    # -- teardown --------------------------------------------------------------------------
+    def destroy_node(self) -> None:
+        """Stop the worker thread, then destroy the node."""
+        self._slot.stop()
+        if self._worker.is_alive():
+            self._worker.join(timeout=5.0)
+        self.diag.destroy()
+        super().destroy_node()
+
+
+def _point_type() -> Any:
+    from geometry_msgs.msg import PointStamped
+
+    return PointStamped
+
+
+def draw_debug(left: np.ndarray, right: np.ndarray, result: LocateResult) -> np.ndarray:
+    """Left|right side by side at half size, detections drawn (bbox, centre, 3-D point).
+
+    Args:
+        left, right: BGR uint8 images, shape (H, W, 3).
+        result: the locator's result for the pair.
+
+    Returns:
+        BGR uint8, shape (H // 2, W, 3) (two half-size images side by side).
+    """
+    h, w = left.shape[:2]
+    hw, hh = w // 2, h // 2
+    canvas = np.hstack([cv2.resize(left, (hw, hh), interpolation=cv2.INTER_AREA),
+                        cv2.resize(right, (hw, hh), interpolation=cv2.INTER_AREA)])
+    for t in result.targets:
+        for det, px, dx in ((t.left, t.left_px, 0), (t.right, t.right_px, hw)):
+            x, y, bw, bh = det.bbox
+            cv2.rectangle(canvas, (dx + x // 2, y // 2), (dx + (x + bw) // 2, (y + bh) // 2),
+                          (0, 255, 0), 1)
+            c = (int(round(dx + px[0] / 2)), int(round(px[1] / 2)))
+            cv2.drawMarker(canvas, c, (255, 255, 0), cv2.MARKER_CROSS, 10, 1)
+        x, y, _, _ = t.left.bbox
+        label = (f"{t.name} [{t.point_m[0]:+.3f} {t.point_m[1]:+.3f} {t.point_m[2]:.3f}] m "
+                 f"r={t.residual_px:.2f}px")
+        cv2.putText(canvas, label, (max(0, x // 2), max(12, y // 2 - 4)),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
+    for name, reason in result.rejected.items():
+        cv2.putText(canvas, f"{name}: {reason}", (5, hh - 8 - 14 * list(result.rejected).index(
+            name)), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 255), 1, cv2.LINE_AA)
+    return canvas
+
+
+def main(args: list[str] | None = None) -> None:
+    """Console entry point: ``ros2 run eye_in_hand detect_triangulate``."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = DetectTriangulateNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ConfigError as exc:
+        print(f"detect_triangulate: error: {exc}", flush=True)
+        raise SystemExit(1) from exc
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,229 @@
+"""In-process tests of the detect_triangulate node: points, bad input, parameters."""
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+
+from geometry_msgs.msg import PointStamped  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
+
+from eye_in_hand.core.camera import CameraModel, StereoRig  # noqa: E402
+from eye_in_hand.nodes.detect_triangulate import DetectTriangulateNode, _LatestPair  # noqa: E402
+from eye_in_hand.errors import ConfigError  # noqa: E402
+from eye_in_hand.ros.conversions import (  # noqa: E402
+    model_to_camera_info,
+    numpy_to_image,
+)
+from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS  # noqa: E402
+
+W, H = 640, 360
+K = np.array([[450.0, 0.0, 320.0], [0.0, 452.0, 180.0], [0.0, 0.0, 1.0]])
+X_TRUE = np.array([0.04, -0.02, 0.4])
+STAMP0 = 1_700_000_000_000_000_000
+
+
+def make_rig():
+    left = CameraModel(K, [-0.2, 0.08, 0.0, 0.0, 0.0], W, H, name="left")
+    right = CameraModel(K, [-0.19, 0.07, 0.0, 0.0, 0.0], W, H, name="right")
+    R = cv2.Rodrigues(np.array([0.005, -0.01, 0.0]))[0]
+    return StereoRig(left, right, R, [-0.06, 0.0, 0.0]).rectified()
+
+
+RIG = make_rig()
+
+
+def render_sphere(image, cam, center, radius, color_bgr, ss=4):
+    """Ray-cast a sphere (centre in the camera frame) into ``image`` with ss x ss supersampling."""
+    c = np.asarray(center, float)
+    d = np.linalg.norm(c)
+    axis = c / d
+    u = np.cross(axis, [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(axis, u)
+    a = math.asin(radius / d)
+    ang = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    rim = math.cos(a) * axis + math.sin(a) * (np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * v)
+    px = cam.project(rim)
+    x0, y0 = np.maximum(np.floor(px.min(0)).astype(int) - 2, 0)
+    x1, y1 = np.minimum(np.ceil(px.max(0)).astype(int) + 3, [cam.width, cam.height])
+    offs = (np.arange(ss) + 0.5) / ss - 0.5
+    xs = (np.arange(x0, x1)[:, None] + offs).ravel()
+    ys = (np.arange(y0, y1)[:, None] + offs).ravel()
+    X, Y = np.meshgrid(xs, ys)
+    n = cam.undistort_points(np.c_[X.ravel(), Y.ravel()])
+    rays = np.c_[n, np.ones(len(n))]
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    dc = rays @ c
+    hit = (dc > 0) & (d * d - dc * dc <= radius * radius)
+    cov = hit.reshape(y1 - y0, ss, x1 - x0, ss).mean(axis=(1, 3))[..., None]
+    roi = image[y0:y1, x0:x1].astype(np.float64)
+    roi = roi * (1 - cov) + np.asarray(color_bgr, float) * cov
+    image[y0:y1, x0:x1] = np.clip(np.rint(roi), 0, 255).astype(np.uint8)
+
+
+def render_pair():
+    out = []
+    for cam, T in ((RIG.left, np.eye(4)), (RIG.right, RIG.right_T_left)):
+        img = np.full((H, W, 3), (90, 110, 100), np.uint8)
+        render_sphere(img, cam, T[:3, :3] @ X_TRUE + T[:3, 3], 0.02, (30, 30, 200))
+        out.append(img)
+    return out
+
+
+LEFT, RIGHT = render_pair()
+
+
+class Feeder:
+    """Publishes stereo pairs (and camera_info) from its own node, one per call."""
+
+    def __init__(self, context, namespace):
+        self.node = Node("feeder", context=context, namespace=namespace)
+        self.pubs = {n: self.node.create_publisher(t, n, SENSOR_QOS) for n, t in (
+            ("left/image_raw", Image), ("right/image_raw", Image),
+            ("left/camera_info", CameraInfo), ("right/camera_info", CameraInfo))}
+        self.points: list[PointStamped] = []
+        self.debug: list[Image] = []
+        self.diags: list[DiagnosticArray] = []
+        self.node.create_subscription(PointStamped, "target/point", self.points.append,
+                                      RESULT_QOS)
+        self.node.create_subscription(DiagnosticArray, "diagnostics", self.diags.append,
+                                      RESULT_QOS)
+        self.k = 0
+
+    def publish(self, left=LEFT, right=RIGHT, *, info=True, skew_ns=0, left_msg=None,
+                right_msg=None, frame="cam_left"):
+        stamp = STAMP0 + self.k * 50_000_000
+        self.k += 1
+        lm = left_msg or numpy_to_image(left, "bgr8", stamp_ns=stamp, frame_id=frame)
+        rm = right_msg or numpy_to_image(right, "bgr8", stamp_ns=stamp + skew_ns)
+        lm.header.stamp.sec, lm.header.stamp.nanosec = divmod(stamp, 10**9)
+        rm.header.stamp.sec, rm.header.stamp.nanosec = divmod(stamp + skew_ns, 10**9)
+        if info:
+            self.pubs["left/camera_info"].publish(model_to_camera_info(RIG.left, stamp_ns=stamp))
+            self.pubs["right/camera_info"].publish(model_to_camera_info(RIG.right,
+                                                                        stamp_ns=stamp))
+        self.pubs["left/image_raw"].publish(lm)
+        self.pubs["right/image_raw"].publish(rm)
+        return stamp
+
+
+def start(executor, ros_context, namespace, **params):
+    overrides = [Parameter(k, value=v) for k, v in params.items()]
+    node = DetectTriangulateNode(context=ros_context, namespace=namespace,
+                                 parameter_overrides=overrides)
+    feeder = Feeder(ros_context, namespace)
+    executor.add_node(node)
+    executor.add_node(feeder.node)
+    return node, feeder
+
+
+def pump(executor, spin_until, feeder, cond, timeout_s=15.0, **kw):
+    """Publish a pair every 0.1 s until cond() holds."""
+    last = [-1.0]
+    import time
+
+    def step():
+        if cond():
+            return True
+        now = time.monotonic()
+        if now - last[0] > 0.1:
+            last[0] = now
+            feeder.publish(**kw)
+        return False
+
+    return spin_until(executor, step, timeout_s)
+
+
+def test_publishes_the_target_point_at_the_image_stamp(executor, ros_context, namespace,
+                                                       spin_until):
+    node, feeder = start(executor, ros_context, namespace, **{"sync.slop_s": 0.0})
+    assert pump(executor, spin_until, feeder, lambda: len(feeder.points) >= 2)
+    for p in feeder.points:
+        stamp = p.header.stamp.sec * 10**9 + p.header.stamp.nanosec
+        assert (stamp - STAMP0) % 50_000_000 == 0
+        assert p.header.frame_id == "cam_left"
+        xyz = np.array([p.point.x, p.point.y, p.point.z])
+        assert np.linalg.norm(xyz - X_TRUE) < 1e-3, xyz - X_TRUE
+    assert node.diag.counter("detections") >= 2 and node.diag.causes == {}
+
+
+def test_bad_input_is_counted_and_the_node_keeps_running(executor, ros_context, namespace,
+                                                         spin_until):
+    node, feeder = start(executor, ros_context, namespace, frame_id="optical")
+    # 1. no camera_info yet
+    assert pump(executor, spin_until, feeder, lambda: "no_camera_info" in node.diag.causes,
+                info=False)
+    # 2. wrong encoding
+    mono = numpy_to_image(cv2.cvtColor(LEFT, cv2.COLOR_BGR2GRAY), "mono8")
+    assert pump(executor, spin_until, feeder, lambda: "bad_encoding" in node.diag.causes,
+                left_msg=mono)
+    # 3. size disagreeing with camera_info
+    small = np.ascontiguousarray(RIGHT[:200, :300])
+    assert pump(executor, spin_until, feeder, lambda: "size_mismatch" in node.diag.causes,
+                right=small)
+    # 4. truncated data
+    def truncated():
+        m = numpy_to_image(LEFT, "bgr8")
+        m.data = m.data[: len(m.data) // 2]
+        return m
+    assert pump(executor, spin_until, feeder, lambda: "bad_image" in node.diag.causes,
+                left_msg=truncated())
+    # 5. unsynchronised pairs (right 20 ms late, slop 5 ms)
+    assert pump(executor, spin_until, feeder, lambda: "unsynchronised" in node.diag.causes,
+                skew_ns=20_000_000)
+    assert feeder.points == []
+    # still alive: a good pair gives a point, in the frame set by the parameter
+    assert pump(executor, spin_until, feeder, lambda: len(feeder.points) >= 1)
+    assert feeder.points[0].header.frame_id == "optical"
+    # and diagnostics report the causes
+    assert spin_until(executor, lambda: any(
+        kv.key == "problem: bad_encoding" for d in feeder.diags for s in d.status
+        for kv in s.values), 5.0)
+
+
+def test_calibration_files_and_debug_image(executor, ros_context, namespace, spin_until,
+                                           tmp_path):
+    RIG.save(tmp_path)
+    (tmp_path / "stereo.yaml").unlink()  # ROS's two files alone
+    node, feeder = start(executor, ros_context, namespace, calibration_dir=str(tmp_path),
+                         **{"debug_image.max_rate_hz": 100.0})
+    debug: list[Image] = []
+    feeder.node.create_subscription(Image, "target/debug_image", debug.append, SENSOR_QOS)
+    assert pump(executor, spin_until, feeder,
+                lambda: len(feeder.points) >= 1 and len(debug) >= 1, info=False)
+    p = feeder.points[0]
+    assert np.linalg.norm(np.array([p.point.x, p.point.y, p.point.z]) - X_TRUE) < 1e-3
+    assert (debug[0].width, debug[0].height, debug[0].encoding) == (W, H // 2, "bgr8")
+
+
+def test_no_debug_image_without_subscribers(executor, ros_context, namespace, spin_until):
+    node, feeder = start(executor, ros_context, namespace)
+    assert pump(executor, spin_until, feeder, lambda: len(feeder.points) >= 2)
+    assert node._last_debug == -math.inf
+
+
+@pytest.mark.parametrize("params, match", [
+    ({"method": "magic"}, "method"),
+    ({"pixel_sigma": -1.0}, "pixel_sigma"),
+    ({"target_names": ["a b"]}, "target_names"),
+    ({"targets.red.lower": [200, 0, 0]}, "targets.red"),
+])
+def test_bad_parameters_stop_the_node_with_the_name(ros_context, namespace, params, match):
+    with pytest.raises(ConfigError, match=match):
+        DetectTriangulateNode(context=ros_context, namespace=namespace,
+                              parameter_overrides=[Parameter(k, value=v)
+                                                   for k, v in params.items()])
+
+
+def test_latest_pair_slot_drops_the_oldest():
+    slot = _LatestPair()
+    assert slot.put("a") is False and slot.put("b") is True
+    assert slot.take(0.0) == "b" and slot.dropped == 1 and slot.take(0.0) is None
