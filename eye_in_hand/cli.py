@@ -29,6 +29,7 @@ COMMANDS: list[tuple[str, str]] = [
     # -- further commands are registered below this line --
     ("locate", "eye_in_hand.commands.locate"),
     ("tune-color", "eye_in_hand.commands.tune_color"),
+    ("calibrate handeye", "eye_in_hand.commands.calibrate_handeye"),
 ]
 
 GROUP_HELP = {

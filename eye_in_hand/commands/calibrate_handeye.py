@@ -1,0 +1,288 @@
+"""``eye-in-hand calibrate handeye``: hand-eye calibration (AX = XB) from a dataset, pose pairs
+or a bag, with every solver, a joint refinement and a report of its own error.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HELP = "hand-eye calibration (AX = XB) from a dataset, pose pairs or a bag"
+
+_METHOD_CHOICES = ("all", "tsai", "park", "horaud", "daniilidis", "andreff", "kronecker",
+                   "refined")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Register the command's options."""
+    src = parser.add_argument_group("input (exactly one)")
+    src.add_argument("dataset", nargs="?", metavar="DATASET_DIR",
+                     help="dataset folder with dataset.yaml (images + robot poses)")
+    src.add_argument("--pairs", metavar="FILE",
+                     help="JSON list of [base_T_ee, cam_T_board] 4x4 row-major pairs (metres)")
+    src.add_argument("--bag", metavar="BAG", help="rosbag2 bag with images and robot poses")
+    bag = parser.add_argument_group("bag input")
+    bag.add_argument("--board", metavar="SPEC",
+                     help="board spec for --bag, e.g. chessboard:9x6:0.025")
+    bag.add_argument("--calibration", metavar="PATH",
+                     help="camera calibration for --bag: a camera YAML (mono) or a folder "
+                          "with left.yaml, right.yaml [, stereo.yaml] (stereo)")
+    bag.add_argument("--image-topic", default="left/image_raw",
+                     help="image topic (left camera for stereo) (default: %(default)s)")
+    bag.add_argument("--right-image-topic", default=None,
+                     help="right image topic for a stereo rig (default: left topic with "
+                          "'left' replaced by 'right' when --calibration is a folder)")
+    bag.add_argument("--pose-topic", default=None,
+                     help="geometry_msgs/PoseStamped robot pose topic (e.g. /ee_pose)")
+    bag.add_argument("--joint-topic", default=None,
+                     help="sensor_msgs/JointState topic, with --kinematics")
+    bag.add_argument("--kinematics", default=None,
+                     help="kinematic chain for --joint-topic: 'ur5e' or a DH YAML file")
+    bag.add_argument("--tf", action="store_true",
+                     help="take the robot pose from /tf (--base-frame to --ee-frame)")
+    bag.add_argument("--base-frame", default="base_link", help="(default: %(default)s)")
+    bag.add_argument("--ee-frame", default="tool0", help="(default: %(default)s)")
+    bag.add_argument("--still-window", type=float, default=0.5, metavar="S",
+                     help="the robot must be still this long (s) around an image "
+                          "(default: %(default)s)")
+    bag.add_argument("--still-translation", type=float, default=0.0005, metavar="M",
+                     help="largest robot translation within the window, m (default: "
+                          "%(default)s)")
+    bag.add_argument("--still-rotation", type=float, default=0.05, metavar="DEG",
+                     help="largest robot rotation within the window, deg (default: "
+                          "%(default)s)")
+    opt = parser.add_argument_group("calibration")
+    opt.add_argument("--setup", choices=("eye_in_hand", "eye_to_hand"), default=None,
+                     help="camera on the flange (X = ee_T_cam) or fixed (X = base_T_cam); "
+                          "default: the dataset's, else eye_in_hand")
+    opt.add_argument("--method", choices=_METHOD_CHOICES, default="all",
+                     help="the method whose X is written to hand_eye.yaml; 'all' = refined "
+                          "(default: %(default)s); every method is always in report.json")
+    opt.add_argument("--no-refine", action="store_true",
+                     help="skip the joint refinement (the best closed form is selected)")
+    opt.add_argument("--no-outlier-rejection", action="store_true",
+                     help="keep every sample")
+    opt.add_argument("--outlier-threshold", type=float, default=5.0, metavar="K",
+                     help="reject a sample whose leave-one-out board pose deviation exceeds K "
+                          "times the median (default: %(default)s)")
+    opt.add_argument("--parent-frame", default=None,
+                     help="parent frame id of X (default: tool0 eye-in-hand, base_link "
+                          "eye-to-hand)")
+    opt.add_argument("--child-frame", default="camera_left_optical_frame",
+                     help="camera frame id (default: %(default)s)")
+    opt.add_argument("--no-html", action="store_true", help="do not write report.html")
+    parser.add_argument("-o", "--output", required=True, metavar="OUT_DIR",
+                        help="output folder: hand_eye.yaml, report.json, report.html")
+
+
+def _load_inputs(args: argparse.Namespace) -> dict[str, Any]:
+    """Return samples, views, setup, skipped list and an input description."""
+    from eye_in_hand.core.calibration import BoardSpec
+    from eye_in_hand.core.handeye import HandEyeSample
+    from eye_in_hand.core.handeye.observe import observe_sample, rig_views
+    from eye_in_hand.errors import InputError
+    from eye_in_hand.io.datasets import load_dataset, load_pose_pairs
+
+    given = [x for x in (args.dataset, args.pairs, args.bag) if x]
+    if len(given) != 1:
+        raise InputError("give exactly one input: DATASET_DIR, --pairs FILE or --bag BAG")
+    if args.pairs:
+        pairs = load_pose_pairs(args.pairs)
+        samples = [HandEyeSample(f"pair{i:03d}", a, b) for i, (a, b) in enumerate(pairs)]
+        return {"samples": samples, "views": None, "setup": args.setup or "eye_in_hand",
+                "skipped": [], "notes": [], "input": {"type": "pairs", "path": args.pairs,
+                                                      "count": len(samples)}}
+    if args.bag:
+        from eye_in_hand.commands._handeye_bag import load_bag_samples
+
+        return load_bag_samples(args)
+    import cv2
+
+    ds = load_dataset(args.dataset)
+    board = BoardSpec.parse(ds.board)
+    views = rig_views(ds.camera, ds.rig)
+    samples, skipped, notes = [], [], []
+    for s in ds.samples:
+        images = {}
+        for key, path in s.images.items():
+            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            if img is None:
+                raise InputError(f"sample {s.name!r}: cannot read image {path}")
+            images["image" if key == "image" else key] = img
+        obs = observe_sample(s.name, images, s.base_T_ee, board, views)
+        notes.extend(obs.notes)
+        if obs.sample is None:
+            skipped.append({"name": s.name, "reason": obs.reason})
+        else:
+            samples.append(obs.sample)
+    return {"samples": samples, "views": views, "setup": args.setup or ds.setup,
+            "skipped": skipped, "notes": notes, "ground_truth": dict(ds.ground_truth),
+            "input": {"type": "dataset", "path": str(ds.root), "board": ds.board,
+                      "stereo": ds.is_stereo, "count": len(ds.samples)}}
+
+
+def _html(result: Any, report: dict[str, Any], path: Path) -> None:
+    from eye_in_hand.report.html import HtmlReport, new_figure
+
+    rep = HtmlReport("Hand-eye calibration", f"setup {result.setup}, selected method "
+                                            f"{result.selected}")
+    rep.add_section("Result")
+    sel = report["methods"][result.selected]
+    rep.add_table([["translation (m)", " ".join(f"{v:.6f}" for v in sel["translation"])],
+                   ["quat_xyzw", " ".join(f"{v:.6f}" for v in sel["quat_xyzw"])],
+                   ["1-sigma (mm / deg)", f"{sel['std_mm']} / {sel['std_deg']}"],
+                   ["samples used", len(result.sample_names)],
+                   ["samples rejected", ", ".join(r.name for r in result.rejected) or "none"],
+                   ["samples skipped", ", ".join(s["name"] for s in report["skipped"]) or
+                    "none"]], header=["quantity", "value"])
+    for w in report["warnings"]:
+        rep.add_status("warning", False, w)
+    rep.add_section("Method comparison")
+    rows, names = [], list(result.methods)
+    for name in names:
+        s = report["methods"][name]
+        r = s["residuals"]
+        rows.append([name, r["axxb_rot_deg_rms"], r["axxb_trans_mm_rms"],
+                     r["board_spread_mm_rms"], r["board_spread_deg_rms"], r["reproj_px_rms"],
+                     s["std_mm"], s["std_deg"]])
+    rep.add_table(rows, header=["method", "AX=XB rot deg", "AX=XB trans mm", "board spread mm",
+                                "board spread deg", "reproj px", "sigma mm", "sigma deg"])
+    sel_X = result.X
+    fig = new_figure(7.0, 3.2)
+    ax1, ax2 = fig.subplots(1, 2)
+    for i, name in enumerate(names):
+        X = result.methods[name].X
+        dmm = 1000.0 * np.linalg.norm(X[:3, 3] - sel_X[:3, 3])
+        c = np.clip((np.trace(sel_X[:3, :3].T @ X[:3, :3]) - 1) / 2, -1, 1)
+        ax1.bar(i, dmm)
+        ax2.bar(i, np.degrees(np.arccos(c)))
+    for ax, lab in ((ax1, "mm from selected"), (ax2, "deg from selected")):
+        ax.set_xticks(range(len(names)), names, rotation=45, ha="right", fontsize=8)
+        ax.set_ylabel(lab)
+    rep.add_figure(fig, "difference of each method's X from the selected one")
+    rep.add_section("Per-sample residuals")
+    m = result.methods[result.selected]
+    fig = new_figure(7.0, 3.2)
+    ax1, ax2 = fig.subplots(1, 2)
+    x = np.arange(len(result.sample_names))
+    ax1.bar(x, m.axxb_trans_mm, label="AX=XB trans (mm)")
+    ax1.plot(x, m.board_dev_mm, "k.", label="board dev (mm)")
+    ax1.legend(fontsize=7)
+    ax2.bar(x, m.axxb_rot_deg, label="AX=XB rot (deg)")
+    ax2.plot(x, m.board_dev_deg, "k.", label="board dev (deg)")
+    ax2.legend(fontsize=7)
+    for ax in (ax1, ax2):
+        ax.set_xticks(x, result.sample_names, rotation=90, fontsize=6)
+    rep.add_figure(fig, f"per-sample residuals ({result.selected})")
+    header = ["sample", "used", "AX=XB deg", "AX=XB mm", "board mm", "board deg",
+              "reproj px", "LOO mm", "LOO deg"]
+    rows, classes = [], []
+    for row in report["samples"]:
+        if row["used"]:
+            rows.append([row["name"], "yes", row["axxb_rot_deg"], row["axxb_trans_mm"],
+                         row["board_dev_mm"], row["board_dev_deg"], row["reproj_rms_px"],
+                         row["loo_mm"], row["loo_deg"]])
+            classes.append("")
+        else:
+            rows.append([row["name"], "rejected: " + row["reason"]] + [""] * 7)
+            classes.append("bad")
+    for s in report["skipped"]:
+        rows.append([s["name"], "skipped: " + s["reason"]] + [""] * 7)
+        classes.append("warn")
+    rep.add_table(rows, header=header, row_classes=classes)
+    rep.add_section("Board in the fixed frame")
+    from eye_in_hand.core.handeye import board_in_fixed_frame
+
+    names_used = result.sample_names
+    fig = new_figure(7.0, 3.2)
+    ax1, ax2 = fig.subplots(1, 2)
+    for name in names:
+        mr = result.methods[name]
+        bte = report["_bte"]
+        ctb = report["_ctb"]
+        Yi = board_in_fixed_frame(mr.X, bte, ctb, result.setup)
+        d = 1000.0 * (Yi[:, :3, 3] - mr.Y[:3, 3])
+        ax1.plot(d[:, 0], d[:, 1], ".", label=name)
+        ax2.plot(d[:, 0], d[:, 2], ".", label=name)
+    ax1.set_xlabel("x (mm)")
+    ax1.set_ylabel("y (mm)")
+    ax2.set_xlabel("x (mm)")
+    ax2.set_ylabel("z (mm)")
+    ax1.legend(fontsize=6)
+    rep.add_figure(fig, f"board origin in the fixed frame per sample minus its mean "
+                        f"({len(names_used)} samples)")
+    rep.add_section("Motion diagnostics")
+    rep.add_preformatted(json.dumps(report["diagnostics"], indent=2))
+    rep.save(path)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the calibration and write hand_eye.yaml, report.json and report.html."""
+    from eye_in_hand.core.handeye import FRAMES, calibrate_hand_eye
+    from eye_in_hand.core.transforms import transform_distance
+    from eye_in_hand.errors import HandEyeError
+    from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye
+
+    inputs = _load_inputs(args)
+    samples = inputs["samples"]
+    setup = inputs["setup"]
+    for note in inputs["notes"]:
+        print(f"warning: {note}", file=sys.stderr)
+    for s in inputs["skipped"]:
+        print(f"warning: sample {s['name']!r} skipped: {s['reason']}", file=sys.stderr)
+    if len(samples) < 3:
+        raise HandEyeError(f"only {len(samples)} usable samples (of {inputs['input']['count']};"
+                           f" {len(inputs['skipped'])} skipped): need at least 3")
+    result = calibrate_hand_eye(
+        samples, setup, cameras=inputs["views"], method=args.method,
+        refine=not args.no_refine, reject_outliers=not args.no_outlier_rejection,
+        outlier_threshold=args.outlier_threshold)
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    parent = args.parent_frame or FRAMES[setup][0]
+    sel = result.methods[result.selected]
+    residuals = {k: v for k, v in sel.summary()["residuals"].items()}
+    calib = HandEyeCalibration(setup=setup, parent_frame=parent, child_frame=args.child_frame,
+                               transform=result.X, method=result.selected,
+                               covariance=result.covariance,
+                               sample_count=len(result.sample_names), residuals=residuals)
+    save_hand_eye(out / "hand_eye.yaml", calib)
+    report = result.to_report()
+    report["input"] = inputs["input"]
+    report["skipped"] = inputs["skipped"]
+    report["warnings"] = list(inputs["notes"]) + report["warnings"]
+    report["frames"] = {"parent": parent, "child": args.child_frame}
+    report["covariance_order"] = ["x", "y", "z", "rx", "ry", "rz"]
+    truth = inputs.get("ground_truth") or {}
+    key = "ee_T_cam" if setup == "eye_in_hand" else "base_T_cam"
+    if key in truth:
+        report["ground_truth_error"] = {}
+        for name, mr in result.methods.items():
+            dt, dr = transform_distance(truth[key], mr.X)
+            report["ground_truth_error"][name] = {"mm": 1000.0 * dt,
+                                                  "deg": float(np.degrees(dr))}
+    (out / "report.json").write_text(json.dumps(report, indent=2))
+    if not args.no_html:
+        report["_bte"] = np.stack([s.base_T_ee for s in samples
+                                   if s.name in set(result.sample_names)])
+        report["_ctb"] = np.stack([s.cam_T_board for s in samples
+                                   if s.name in set(result.sample_names)])
+        _html(result, report, out / "report.html")
+    t = sel.X[:3, 3]
+    print(f"hand-eye ({setup}, {result.selected}, {len(result.sample_names)} samples): "
+          f"{parent} -> {args.child_frame} translation [{t[0]:.5f}, {t[1]:.5f}, {t[2]:.5f}] m, "
+          f"quat_xyzw {[round(v, 6) for v in calib.quat_xyzw.tolist()]}")
+    if np.isfinite(sel.std_mm):
+        print(f"1-sigma uncertainty: {sel.std_mm:.3f} mm, {sel.std_deg:.4f} deg")
+    for r in result.rejected:
+        print(f"rejected sample {r.name!r}: {r.reason}")
+    for w in result.warnings:
+        if not w.startswith("sample "):
+            print(f"warning: {w}", file=sys.stderr)
+    print(f"wrote {out / 'hand_eye.yaml'}, {out / 'report.json'}"
+          + ("" if args.no_html else f", {out / 'report.html'}"))
+    return 0
