@@ -48,6 +48,8 @@ def run(args: argparse.Namespace) -> int:
     from rclpy.executors import ExternalShutdownException
     from rclpy.parameter import Parameter
 
+    from eye_in_hand.nodes.bag_recorder import sigterm_as_interrupt
+
     from eye_in_hand.io.bags import bag_info
     from eye_in_hand.nodes.bag_player import BagPlayer, spin_player
 
@@ -63,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
     ]
     if args.topics:  # an empty list would be typed as a byte array
         overrides.append(Parameter("topics", Parameter.Type.STRING_ARRAY, list(args.topics)))
+    sigterm_as_interrupt()
     rclpy.init(args=[])
     node: BagPlayer | None = None
     try:

@@ -47,6 +47,8 @@ def run(args: argparse.Namespace) -> int:
     from rclpy.executors import ExternalShutdownException
     from rclpy.parameter import Parameter
 
+    from eye_in_hand.nodes.bag_recorder import sigterm_as_interrupt
+
     from eye_in_hand.nodes.bag_recorder import BagRecorder, spin_recorder
 
     overrides = [
@@ -59,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
     ]
     if args.topics:  # an empty list would be typed as a byte array
         overrides.append(Parameter("topics", Parameter.Type.STRING_ARRAY, list(args.topics)))
+    sigterm_as_interrupt()
     rclpy.init(args=[])
     node: BagRecorder | None = None
     try:

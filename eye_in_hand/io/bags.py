@@ -366,9 +366,17 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
     with _OpenBag(path) as bag:
         streams = []
         for reader in bag.readers:
-            conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
-            if conns:
-                streams.append(_reader_stream(reader, conns, start_ns, stop))
+            inner = reader.storage
+            if hasattr(inner, "storages"):  # a directory: read its storage files directly
+                parts = list(inner.storages)
+                per_message_zstd = inner.metadata.compression_mode == "message"
+            else:
+                parts, per_message_zstd = [inner], False
+            for part in parts:
+                conns = [c for c in part.connections if wanted is None or c.topic in wanted]
+                if conns:
+                    streams.append(_storage_stream(part, conns, start_ns, stop,
+                                                   per_message_zstd))
         if not streams:
             return
         merged = streams[0] if len(streams) == 1 else heapq.merge(*streams)
@@ -384,10 +392,24 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
                            f"{str(exc) or type(exc).__name__}") from exc
 
 
-def _reader_stream(reader: Any, conns: list[Any], start: int | None, stop: int | None,
-                   ) -> Iterator[tuple[int, int, str, str, bytes]]:
-    for order, (conn, stamp, raw) in enumerate(reader.messages(conns, start=start, stop=stop)):
-        yield int(stamp), order, conn.topic, conn.msgtype, bytes(raw)
+def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int | None,
+                    per_message_zstd: bool) -> Iterator[tuple[int, int, str, str, bytes]]:
+    """Messages of one storage file, with its own connections.
+
+    ``rosbags``' directory reader matches the connections of ``metadata.yaml`` to those of the
+    storage file by topic, type *and* QoS; a bag whose two QoS copies differ in form (durations
+    written as 2147483647/4294967295 in one and 9223372036/854775807 in the other, or QoS only
+    in one of them) then yields nothing. Reading each storage file with its own connections
+    avoids that.
+    """
+    if per_message_zstd:
+        try:
+            from compression import zstd  # type: ignore[import-not-found]  # Python >= 3.14
+        except ImportError:
+            from backports import zstd  # type: ignore[import-not-found,no-redef]
+    for order, (conn, stamp, raw) in enumerate(storage.messages(conns, start, stop)):
+        data = zstd.decompress(raw) if per_message_zstd else bytes(raw)
+        yield int(stamp), order, conn.topic, conn.msgtype, data
 
 
 # --------------------------------------------------------------------------------------------

@@ -312,7 +312,8 @@ class BagPlayer(Node):
             self.get_logger().error(f"playback stopped: {exc}")
         finally:
             total = sum(self.published.values())
-            self.get_logger().info(f"published {total} message(s)")
+            if self.context.ok():
+                self.get_logger().info(f"published {total} message(s)")
             self._done.set()
 
     def _play_once(self) -> None:
@@ -379,6 +380,9 @@ def spin_player(node: BagPlayer, executor: Any | None = None) -> int:
 
 def main(args: list[str] | None = None) -> None:
     """Console-script entry point (``ros2 run eye_in_hand bag_player --ros-args -p bag:=...``)."""
+    from eye_in_hand.nodes.bag_recorder import sigterm_as_interrupt
+
+    sigterm_as_interrupt()
     rclpy.init(args=args)
     node: BagPlayer | None = None
     code = 0

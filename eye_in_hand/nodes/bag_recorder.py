@@ -27,6 +27,7 @@ or ``eye-in-hand record -o run1 /a /b``.
 from __future__ import annotations
 
 import re
+import signal
 import sys
 import threading
 import time
@@ -51,6 +52,7 @@ __all__ = [
     "offered_qos",
     "message_definition",
     "spin_recorder",
+    "sigterm_as_interrupt",
     "main",
 ]
 
@@ -276,11 +278,27 @@ class BagRecorder(Node):
         self._topic_subs.clear()
         self.writer.close()
         total = sum(self.received.values())
-        self.get_logger().info(f"wrote {total} message(s) to {self.output}")
+        text = f"wrote {total} message(s) to {self.output}"
+        if self.context.ok():
+            self.get_logger().info(text)
+        else:  # after Ctrl-C the context is gone and /rosout with it
+            print(f"[bag_recorder] {text}", file=sys.stderr)
 
     def destroy_node(self) -> None:
         self.close()
         super().destroy_node()
+
+
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+def sigterm_as_interrupt() -> None:
+    """Make SIGTERM stop the process like Ctrl-C (a ``KeyboardInterrupt``), so that ``finally``
+    blocks run and the bag is closed. Call before ``rclpy.init`` (rclpy chains to this handler;
+    without it, rclpy passes SIGTERM on to the default action, which kills the process)."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _interrupt)
 
 
 def spin_recorder(node: BagRecorder, duration_s: float = 0.0, executor: Any | None = None) -> int:
@@ -308,6 +326,7 @@ def spin_recorder(node: BagRecorder, duration_s: float = 0.0, executor: Any | No
 
 def main(args: list[str] | None = None) -> None:
     """Console-script entry point (``ros2 run eye_in_hand bag_recorder --ros-args ...``)."""
+    sigterm_as_interrupt()
     rclpy.init(args=args)
     node: BagRecorder | None = None
     code = 0
