@@ -1,0 +1,379 @@
+"""Write simulated recordings: rosbag2 bags (as a real robot would record them) and on-disk
+calibration datasets.
+
+Bag topics (absolute names; message types in parentheses):
+
+=============================== ============================================================
+``/stereo/left/image_raw``      (sensor_msgs/Image, bgr8, frame ``camera_left_optical_frame``)
+``/stereo/right/image_raw``     (sensor_msgs/Image, bgr8, frame ``camera_right_optical_frame``)
+``/stereo/left/camera_info``    (sensor_msgs/CameraInfo, the true rig, rectified R and P)
+``/stereo/right/camera_info``   (sensor_msgs/CameraInfo; right P carries -fx * baseline)
+``/joint_states``               (sensor_msgs/JointState, robot rate, own stamps)
+``/ee_pose``                    (geometry_msgs/PoseStamped, ``base_link`` -> ``tool0``)
+``/tf``                         (tf2_msgs/TFMessage: the arm's DH link chain base_link ->
+                                shoulder_link -> ... -> wrist_2_link -> tool0, robot rate)
+``/tf_static``                  (tf2_msgs/TFMessage, once: camera_left_optical_frame ->
+                                camera_right_optical_frame, the stereo extrinsic)
+``/ground_truth/target``        (geometry_msgs/PointStamped in ``base_link``, one per target
+                                per image, in ``world.targets`` order, at the image stamp)
+``/ground_truth/hand_eye``      (geometry_msgs/TransformStamped tool0 ->
+                                camera_left_optical_frame, once at the start)
+``/ground_truth/board``         (geometry_msgs/PoseStamped of the board frame in base_link,
+                                once at the start)
+=============================== ============================================================
+
+Images at ``image_rate_hz`` (30 Hz) with one shared stamp per pair; robot topics at
+``robot_rate_hz`` (125 Hz) on their own clock, offset from the image clock, as on a real robot.
+The joint vector at an image stamp is the linear interpolation of the robot samples around it.
+The tool pose never needs ``/tf_static``: ``/tf`` ends at ``tool0``.
+"""
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import cv2
+import numpy as np
+import yaml
+
+from eye_in_hand.core.transforms import to_xyz_quat
+from eye_in_hand.errors import InputError
+from eye_in_hand.sim.scenarios import (
+    calibration_poses,
+    calibration_timeline,
+    localization_trajectory,
+)
+from eye_in_hand.sim.world import World, pose_to_dict
+
+__all__ = [
+    "TOPICS",
+    "FRAMES",
+    "RenderOptions",
+    "BagSummary",
+    "write_bag",
+    "write_dataset",
+    "joint_samples",
+]
+
+#: Topic names written to simulated bags.
+TOPICS: dict[str, str] = {
+    "left_image": "/stereo/left/image_raw",
+    "right_image": "/stereo/right/image_raw",
+    "left_info": "/stereo/left/camera_info",
+    "right_info": "/stereo/right/camera_info",
+    "joint_states": "/joint_states",
+    "ee_pose": "/ee_pose",
+    "tf": "/tf",
+    "tf_static": "/tf_static",
+    "gt_target": "/ground_truth/target",
+    "gt_hand_eye": "/ground_truth/hand_eye",
+    "gt_board": "/ground_truth/board",
+}
+
+#: Frame ids used in simulated bags.
+FRAMES: dict[str, str] = {
+    "base": "base_link",
+    "tool": "tool0",
+    "left": "camera_left_optical_frame",
+    "right": "camera_right_optical_frame",
+}
+
+_IMAGE_CLOCK_OFFSET_NS = 3_100_000  # the camera clock is not aligned with the robot clock
+
+
+@dataclass(frozen=True)
+class RenderOptions:
+    """Image formation options passed to :meth:`World.render`."""
+
+    noise_sigma: float = 1.0
+    supersample: int = 3
+    blur_sigma: float = 0.0
+    exposure: float = 1.0
+
+
+@dataclass(frozen=True)
+class BagSummary:
+    """What :func:`write_bag` wrote."""
+
+    path: Path
+    n_images: int
+    n_robot: int
+    duration_s: float
+    counts: dict[str, int]
+
+
+# -- rosbags message builders --------------------------------------------------------------------
+class _Msgs:
+    def __init__(self, store: Any) -> None:
+        self.t = store.types
+
+    def time(self, ns: int) -> Any:
+        return self.t["builtin_interfaces/msg/Time"](sec=int(ns // 1_000_000_000),
+                                                     nanosec=int(ns % 1_000_000_000))
+
+    def header(self, ns: int, frame: str) -> Any:
+        return self.t["std_msgs/msg/Header"](stamp=self.time(ns), frame_id=frame)
+
+    def image(self, img: np.ndarray, ns: int, frame: str) -> Any:
+        h, w = img.shape[:2]
+        return self.t["sensor_msgs/msg/Image"](
+            header=self.header(ns, frame), height=h, width=w, encoding="bgr8",
+            is_bigendian=0, step=w * 3, data=np.ascontiguousarray(img).reshape(-1))
+
+    def camera_info(self, cam: Any, ns: int, frame: str) -> Any:
+        roi = self.t["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0,
+                                                         width=0, do_rectify=False)
+        return self.t["sensor_msgs/msg/CameraInfo"](
+            header=self.header(ns, frame), height=cam.height, width=cam.width,
+            distortion_model=cam.distortion_model, d=np.asarray(cam.dist, float).copy(),
+            k=np.asarray(cam.K, float).reshape(9).copy(),
+            r=np.asarray(cam.R, float).reshape(9).copy(),
+            p=np.asarray(cam.P, float).reshape(12).copy(), binning_x=0, binning_y=0, roi=roi)
+
+    def pose(self, T: np.ndarray) -> Any:
+        xyz, q = to_xyz_quat(T)
+        return self.t["geometry_msgs/msg/Pose"](
+            position=self.t["geometry_msgs/msg/Point"](x=xyz[0], y=xyz[1], z=xyz[2]),
+            orientation=self.t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]))
+
+    def pose_stamped(self, T: np.ndarray, ns: int, frame: str) -> Any:
+        return self.t["geometry_msgs/msg/PoseStamped"](header=self.header(ns, frame),
+                                                       pose=self.pose(T))
+
+    def transform_stamped(self, T: np.ndarray, ns: int, parent: str, child: str) -> Any:
+        xyz, q = to_xyz_quat(T)
+        tr = self.t["geometry_msgs/msg/Transform"](
+            translation=self.t["geometry_msgs/msg/Vector3"](x=xyz[0], y=xyz[1], z=xyz[2]),
+            rotation=self.t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]))
+        return self.t["geometry_msgs/msg/TransformStamped"](
+            header=self.header(ns, parent), child_frame_id=child, transform=tr)
+
+    def tf(self, transforms: list[Any]) -> Any:
+        return self.t["tf2_msgs/msg/TFMessage"](transforms=transforms)
+
+    def joint_state(self, names: Sequence[str], q: np.ndarray, dq: np.ndarray, ns: int) -> Any:
+        return self.t["sensor_msgs/msg/JointState"](
+            header=self.header(ns, ""), name=list(names), position=np.asarray(q, float).copy(),
+            velocity=np.asarray(dq, float).copy(), effort=np.zeros(0))
+
+    def point_stamped(self, xyz: np.ndarray, ns: int, frame: str) -> Any:
+        return self.t["geometry_msgs/msg/PointStamped"](
+            header=self.header(ns, frame),
+            point=self.t["geometry_msgs/msg/Point"](x=float(xyz[0]), y=float(xyz[1]),
+                                                    z=float(xyz[2])))
+
+
+# -- trajectories --------------------------------------------------------------------------------
+def joint_samples(world: World, scenario: str, *, frames: int, seed: int,
+                  robot_rate_hz: float = 125.0, hold_frames: int = 3,
+                  image_rate_hz: float = 30.0, move_s: float = 1.2,
+                  duration_s: float | None = None) -> tuple[list[int], np.ndarray, np.ndarray]:
+    """Robot samples of a scenario.
+
+    Args:
+        scenario: ``"calibration"`` (``frames`` still poses, ``hold_frames`` image periods
+            still at each, ``move_s`` between) or ``"localization"`` (``frames`` images worth
+            of continuous motion, or ``duration_s`` seconds).
+
+    Returns:
+        ``(stamps_ns, q (K, 6), still (K,) bool)``.
+    """
+    if scenario == "calibration":
+        poses = calibration_poses(world, frames, seed)
+        hold_s = (hold_frames + 0.5) / image_rate_hz
+        tl = calibration_timeline(poses, hold_s=hold_s, move_s=move_s, rate_hz=robot_rate_hz)
+        return ([t for t, _, _ in tl], np.array([q for _, q, _ in tl]),
+                np.array([s for _, _, s in tl], dtype=bool))
+    if scenario == "localization":
+        dur = duration_s if duration_s is not None else frames / image_rate_hz
+        traj = localization_trajectory(world, dur, robot_rate_hz, seed)
+        return ([t for t, _ in traj], np.array([q for _, q in traj]),
+                np.zeros(len(traj), dtype=bool))
+    raise InputError(f"unknown scenario {scenario!r} (use calibration or localization)")
+
+
+def _interp_q(stamps: np.ndarray, qs: np.ndarray, t_ns: int) -> tuple[np.ndarray, bool]:
+    i = int(np.searchsorted(stamps, t_ns, side="right")) - 1
+    if i < 0 or i >= len(stamps) - 1:
+        return qs[min(max(i, 0), len(stamps) - 1)].copy(), False
+    s = (t_ns - stamps[i]) / (stamps[i + 1] - stamps[i])
+    return qs[i] + (qs[i + 1] - qs[i]) * s, True
+
+
+def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed: int = 0,
+              storage: str = "mcap", render: RenderOptions = RenderOptions(),
+              image_rate_hz: float = 30.0, robot_rate_hz: float = 125.0,
+              hold_frames: int = 3, move_s: float = 1.2, still_images_only: bool = False,
+              start_ns: int = 1_700_000_000_000_000_000,
+              progress: Callable[[int, int], None] | None = None) -> BagSummary:
+    """Simulate a scenario and record it as a rosbag2 bag (zstd-compressed chunks).
+
+    Args:
+        world: the world.
+        out: bag directory to create (must not exist).
+        scenario: ``"calibration"`` or ``"localization"``.
+        frames: calibration: number of still poses; localization: number of image pairs.
+        seed: seed of poses/trajectory and of the sensor noise.
+        storage: ``"mcap"`` or ``"sqlite3"``.
+        render: image formation options.
+        image_rate_hz, robot_rate_hz: stream rates.
+        hold_frames: calibration: image periods the arm stays still at each pose.
+        move_s: calibration: seconds per move between poses.
+        still_images_only: calibration: record no images while the arm moves (smaller bag).
+        start_ns: stamp of the first robot sample.
+        progress: called with (images done, images total) after each image pair.
+
+    Returns:
+        A :class:`BagSummary`.
+
+    Raises:
+        InputError: bad arguments. KinematicsError: no reachable scenario for this seed.
+        BagError: the bag cannot be written.
+    """
+    from eye_in_hand.io.bags import BagWriter, OfferedQos
+
+    if frames < 1:
+        raise InputError(f"frames must be >= 1, got {frames}")
+    if image_rate_hz <= 0 or robot_rate_hz <= 0:
+        raise InputError("image_rate_hz and robot_rate_hz must be positive")
+    stamps_l, qs, still = joint_samples(world, scenario, frames=frames, seed=seed,
+                                        robot_rate_hz=robot_rate_hz, hold_frames=hold_frames,
+                                        image_rate_hz=image_rate_hz, move_s=move_s)
+    stamps = np.array(stamps_l, dtype=np.int64) + start_ns
+    img_period = int(round(1e9 / image_rate_hz))
+    img_stamps = []
+    t = int(stamps[0]) + _IMAGE_CLOCK_OFFSET_NS
+    while t <= stamps[-1]:
+        i = int(np.searchsorted(stamps, t, side="right")) - 1
+        is_still = bool(still[i] and (i + 1 >= len(still) or still[i + 1]))
+        if not still_images_only or scenario != "calibration" or is_still:
+            img_stamps.append(t)
+        t += img_period
+    if scenario == "localization":
+        img_stamps = img_stamps[:frames]
+
+    rig = world.rig.rectified()
+    arm = world.arm
+    sensor_qos = (OfferedQos("best_effort", "volatile", "keep_last", 5),)
+    latched = (OfferedQos("reliable", "transient_local", "keep_last", 1),)
+    reliable = (OfferedQos("reliable", "volatile", "keep_last", 100),)
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    writer = BagWriter(out, storage=storage, compression="zstd",  # type: ignore[arg-type]
+                       typestore=store)
+    with writer:
+        m = _Msgs(store)
+        for key, typ, qos in (
+                ("left_image", "sensor_msgs/msg/Image", sensor_qos),
+                ("right_image", "sensor_msgs/msg/Image", sensor_qos),
+                ("left_info", "sensor_msgs/msg/CameraInfo", sensor_qos),
+                ("right_info", "sensor_msgs/msg/CameraInfo", sensor_qos),
+                ("joint_states", "sensor_msgs/msg/JointState", reliable),
+                ("ee_pose", "geometry_msgs/msg/PoseStamped", reliable),
+                ("tf", "tf2_msgs/msg/TFMessage", reliable),
+                ("tf_static", "tf2_msgs/msg/TFMessage", latched),
+                ("gt_target", "geometry_msgs/msg/PointStamped", reliable),
+                ("gt_hand_eye", "geometry_msgs/msg/TransformStamped", latched),
+                ("gt_board", "geometry_msgs/msg/PoseStamped", latched)):
+            writer.add_topic(TOPICS[key], typ, qos=qos)
+        t0 = int(stamps[0])
+        writer.write(TOPICS["tf_static"], t0, m.tf([m.transform_stamped(
+            world.left_T_right, t0, FRAMES["left"], FRAMES["right"])]))
+        writer.write(TOPICS["gt_hand_eye"], t0, m.transform_stamped(
+            world.ee_T_cam, t0, FRAMES["tool"], FRAMES["left"]))
+        writer.write(TOPICS["gt_board"], t0, m.pose_stamped(world.base_T_board, t0,
+                                                            FRAMES["base"]))
+        # robot streams
+        dt = 1.0 / robot_rate_hz
+        frames_names = (arm.base_frame, *arm.link_names)
+        for k, (ns, q) in enumerate(zip(stamps, qs)):
+            ns = int(ns)
+            k0, k1 = max(k - 1, 0), min(k + 1, len(qs) - 1)
+            dq = (qs[k1] - qs[k0]) / (max(k1 - k0, 1) * dt)
+            writer.write(TOPICS["joint_states"], ns, m.joint_state(arm.joint_names, q, dq, ns))
+            link_T = arm.joint_transforms(q)
+            writer.write(TOPICS["tf"], ns, m.tf([
+                m.transform_stamped(A, ns, frames_names[i], frames_names[i + 1])
+                for i, A in enumerate(link_T)]))
+            writer.write(TOPICS["ee_pose"], ns, m.pose_stamped(arm.fk(q), ns, FRAMES["base"]))
+        # images
+        for n_img, ns in enumerate(img_stamps):
+            q, _ = _interp_q(stamps, qs, ns)
+            frame = world.render(q, seed=seed * 1_000_003 + n_img,
+                                 noise_sigma=render.noise_sigma,
+                                 supersample=render.supersample, blur_sigma=render.blur_sigma,
+                                 exposure=render.exposure)
+            writer.write(TOPICS["left_image"], ns, m.image(frame.left, ns, FRAMES["left"]))
+            writer.write(TOPICS["right_image"], ns, m.image(frame.right, ns, FRAMES["right"]))
+            writer.write(TOPICS["left_info"], ns, m.camera_info(rig.left, ns, FRAMES["left"]))
+            writer.write(TOPICS["right_info"], ns, m.camera_info(rig.right, ns,
+                                                                 FRAMES["right"]))
+            for c in frame.truth.targets_base:
+                writer.write(TOPICS["gt_target"], ns, m.point_stamped(c, ns, FRAMES["base"]))
+            if progress is not None:
+                progress(n_img + 1, len(img_stamps))
+        counts = writer.counts
+    return BagSummary(path=Path(out), n_images=len(img_stamps), n_robot=len(stamps),
+                      duration_s=(int(stamps[-1]) - int(stamps[0])) / 1e9, counts=counts)
+
+
+def write_dataset(world: World, out: str | Path, *, frames: int, seed: int = 0,
+                  render: RenderOptions = RenderOptions(), overwrite: bool = False,
+                  progress: Callable[[int, int], None] | None = None) -> Path:
+    """Write an on-disk stereo calibration dataset of ``frames`` still poses.
+
+    Layout (paths relative to ``out``)::
+
+        dataset.yaml        setup, board spec, camera files, samples, ground_truth
+        left.yaml right.yaml stereo.yaml   the true rig (camera_calibration_parsers YAML)
+        left/0000.png ...   right/0000.png ...
+
+    Returns:
+        The path of ``dataset.yaml``.
+
+    Raises:
+        InputError: ``out`` exists and is not empty (unless ``overwrite``), or frames < 1.
+        KinematicsError: fewer reachable poses than asked.
+    """
+    root = Path(out)
+    if frames < 1:
+        raise InputError(f"frames must be >= 1, got {frames}")
+    if root.exists() and any(root.iterdir()):
+        if not overwrite:
+            raise InputError(f"dataset folder {root} exists and is not empty")
+        shutil.rmtree(root)
+    poses = calibration_poses(world, frames, seed)
+    (root / "left").mkdir(parents=True, exist_ok=True)
+    (root / "right").mkdir(parents=True, exist_ok=True)
+    world.rig.save(root)
+    samples = []
+    for i, q in enumerate(poses):
+        frame = world.render(q, seed=seed * 1_000_003 + i, noise_sigma=render.noise_sigma,
+                             supersample=render.supersample, blur_sigma=render.blur_sigma,
+                             exposure=render.exposure)
+        for side, img in (("left", frame.left), ("right", frame.right)):
+            path = root / side / f"{i:04d}.png"
+            if not cv2.imwrite(str(path), img):
+                raise InputError(f"cannot write image {path}")
+        samples.append({"left": f"left/{i:04d}.png", "right": f"right/{i:04d}.png",
+                        "base_T_ee": pose_to_dict(frame.truth.base_T_ee),
+                        "joint_positions": [float(v) for v in q]})
+        if progress is not None:
+            progress(i + 1, len(poses))
+    data = {
+        "setup": "eye_in_hand",
+        "board": str(world.board),
+        "left": "left.yaml",
+        "right": "right.yaml",
+        "stereo": "stereo.yaml",
+        "samples": samples,
+        "ground_truth": {"ee_T_cam": pose_to_dict(world.ee_T_cam),
+                         "base_T_board": pose_to_dict(world.base_T_board)},
+    }
+    path = root / "dataset.yaml"
+    path.write_text("# eye_in_hand calibration dataset (simulated); paths relative to this "
+                    "folder\n" + yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+    return path
