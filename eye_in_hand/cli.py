@@ -27,6 +27,9 @@ COMMANDS: list[tuple[str, str]] = [
     ("record", "eye_in_hand.commands.record"),
     ("echo", "eye_in_hand.commands.echo"),
     # -- further commands are registered below this line --
+    ("simulate", "eye_in_hand.commands.simulate"),
+    ("calibrate camera", "eye_in_hand.commands.calibrate_camera"),
+    ("calibrate stereo", "eye_in_hand.commands.calibrate_stereo"),
     ("locate", "eye_in_hand.commands.locate"),
     ("tune-color", "eye_in_hand.commands.tune_color"),
     ("calibrate handeye", "eye_in_hand.commands.calibrate_handeye"),
