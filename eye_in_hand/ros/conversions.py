@@ -339,12 +339,13 @@ def image_to_numpy(msg: Any, *, desired_encoding: str | None = None,
     arr = rows.view(dtype)  # the last axis is contiguous, so this is a view even with padding
     arr = arr.reshape((height, width) if spec.channels == 1 else (height, width, spec.channels))
     if not arr.dtype.isnative:
-        arr = arr.astype(arr.dtype.newbyteorder("="))
-    elif copy:
-        arr = arr.copy()
+        arr = arr.astype(arr.dtype.newbyteorder("="))  # a copy already
+        copy = False
     if desired_encoding not in (None, "passthrough", encoding):
-        arr = convert_encoding(arr, encoding, desired_encoding)
-    return arr
+        converted = convert_encoding(arr, encoding, desired_encoding)
+        copy = copy and np.shares_memory(converted, arr)  # relabelled aliases share memory
+        arr = converted
+    return arr.copy() if copy else arr
 
 
 def _infer_encoding(arr: np.ndarray) -> str:
