@@ -80,5 +80,5 @@ def run(args: argparse.Namespace) -> int:
         print(f"{prefix}  upper: [{rng.upper[0]}, {rng.upper[1]}, {rng.upper[2]}]"
               f"{'   # hue wraps around 0' if rng.wraps else ''}")
         print(f"#   {space}: captures {captured * 100:.1f} % of the region and "
-              f"{elsewhere * 100:.2f} % of the rest of the image")
+              f"{elsewhere * 100:.2f} % of the pixels outside it")
     return 0

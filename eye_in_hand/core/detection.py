@@ -107,7 +107,7 @@ def _triple(value: Any, name: str) -> tuple[int, int, int]:
     if len(vals) != 3 or not all(math.isfinite(v) and v == int(v) for v in vals):
         raise InputError(f"{name}: expected three integers, got {value!r}")
     out = tuple(int(v) for v in vals)
-    for i, (v, hi) in enumerate(zip(out, _MAX)):
+    for i, (v, hi) in enumerate(zip(out, _MAX, strict=True)):
         if not 0 <= v <= hi:
             raise InputError(f"{name}[{i}]: {v} is outside 0..{hi}")
     return out  # type: ignore[return-value]

@@ -253,7 +253,8 @@ class PoseBuffer:
     """
 
     def __init__(self, capacity: int = 1000, *, name: str = "pose") -> None:
-        if isinstance(capacity, bool) or not isinstance(capacity, (int, np.integer)) or capacity < 2:
+        if isinstance(capacity, bool) or not isinstance(capacity, (int, np.integer)) \
+                or capacity < 2:
             raise InputError(f"capacity: must be an int >= 2, got {capacity!r}")
         self._capacity = int(capacity)
         self._name = name

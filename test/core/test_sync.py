@@ -84,7 +84,8 @@ def test_random_jittered_streams_pair_one_to_one():
     period = 33 * MS
     stamps = np.arange(200) * period
     jitter = rng.integers(-2 * MS, 2 * MS, size=200)
-    events = [("L", int(s)) for s in stamps] + [("R", int(s + j)) for s, j in zip(stamps, jitter)]
+    events = [("L", int(s)) for s in stamps]
+    events += [("R", int(s + j)) for s, j in zip(stamps, jitter, strict=True)]
     # deliver in arrival order (by stamp, right delayed by a random transport latency)
     arrival = [s + (int(rng.integers(0, 5 * MS)) if side == "R" else 0) for side, s in events]
     order = np.argsort(arrival, kind="stable")
@@ -130,7 +131,7 @@ def test_pose_buffer_out_of_order_insert_replace_and_capacity():
     rng = np.random.default_rng(8)
     poses = [_pose(rng) for _ in range(5)]
     buf = PoseBuffer(capacity=3)
-    for stamp, T in zip([30, 10, 20, 40], poses):
+    for stamp, T in zip([30, 10, 20, 40], poses[:4], strict=True):
         buf.add(stamp, T)
     assert len(buf) == 3 and buf.oldest_ns == 20 and buf.newest_ns == 40
     buf.add(30, poses[4])  # replaces

@@ -9,15 +9,15 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from geometry_msgs.msg import PointStamped  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from geometry_msgs.msg import PointStamped  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 
 from eye_in_hand.core.camera import CameraModel, StereoRig  # noqa: E402
-from eye_in_hand.nodes.detect_triangulate import DetectTriangulateNode, _LatestPair  # noqa: E402
 from eye_in_hand.errors import ConfigError  # noqa: E402
+from eye_in_hand.nodes.detect_triangulate import DetectTriangulateNode, _LatestPair  # noqa: E402
 from eye_in_hand.ros.conversions import (  # noqa: E402
     model_to_camera_info,
     numpy_to_image,

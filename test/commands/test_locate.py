@@ -1,0 +1,117 @@
+"""Tests of `eye-in-hand locate` on rendered stereo pairs and ROS calibration files."""
+from __future__ import annotations
+
+import json
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from eye_in_hand.cli import main
+from eye_in_hand.core.camera import CameraModel, StereoRig
+
+K = np.array([[600.0, 0.0, 400.0], [0.0, 600.0, 300.0], [0.0, 0.0, 1.0]])
+X_TRUE = np.array([0.03, 0.02, 0.45])
+
+
+def make_rig():
+    left = CameraModel(K, [-0.1, 0.02, 0.0, 0.0, 0.0], 800, 600, name="left")
+    right = CameraModel(K, [-0.1, 0.02, 0.0, 0.0, 0.0], 800, 600, name="right")
+    R = cv2.Rodrigues(np.array([0.0, -0.01, 0.0]))[0]
+    return StereoRig(left, right, R, [-0.07, 0.0, 0.0]).rectified()
+
+
+def render_sphere(image, cam, center, radius, color_bgr, ss=4):
+    """Ray-cast a sphere (centre in the camera frame) into ``image`` with ss x ss supersampling."""
+    c = np.asarray(center, float)
+    d = np.linalg.norm(c)
+    axis = c / d
+    u = np.cross(axis, [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(axis, u)
+    a = math.asin(radius / d)
+    ang = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    rim = math.cos(a) * axis + math.sin(a) * (np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * v)
+    px = cam.project(rim)
+    x0, y0 = np.maximum(np.floor(px.min(0)).astype(int) - 2, 0)
+    x1, y1 = np.minimum(np.ceil(px.max(0)).astype(int) + 3, [cam.width, cam.height])
+    offs = (np.arange(ss) + 0.5) / ss - 0.5
+    xs = (np.arange(x0, x1)[:, None] + offs).ravel()
+    ys = (np.arange(y0, y1)[:, None] + offs).ravel()
+    X, Y = np.meshgrid(xs, ys)
+    n = cam.undistort_points(np.c_[X.ravel(), Y.ravel()])
+    rays = np.c_[n, np.ones(len(n))]
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    dc = rays @ c
+    hit = (dc > 0) & (d * d - dc * dc <= radius * radius)
+    cov = hit.reshape(y1 - y0, ss, x1 - x0, ss).mean(axis=(1, 3))[..., None]
+    roi = image[y0:y1, x0:x1].astype(np.float64)
+    roi = roi * (1 - cov) + np.asarray(color_bgr, float) * cov
+    image[y0:y1, x0:x1] = np.clip(np.rint(roi), 0, 255).astype(np.uint8)
+
+
+@pytest.fixture
+def scene(tmp_path):
+    rig = make_rig()
+    rig.save(tmp_path / "calib")
+    (tmp_path / "calib" / "stereo.yaml").unlink()  # as ROS's camera_calibration writes it
+    paths = []
+    for side, cam, T in (("left", rig.left, np.eye(4)), ("right", rig.right, rig.right_T_left)):
+        img = np.full((600, 800, 3), (90, 110, 100), np.uint8)
+        render_sphere(img, cam, T[:3, :3] @ X_TRUE + T[:3, 3], 0.025, (30, 30, 200))
+        path = tmp_path / f"{side}.png"
+        cv2.imwrite(str(path), img)
+        paths.append(str(path))
+    return tmp_path, paths
+
+
+def test_locate_json_has_exactly_the_documented_keys(scene, capsys):
+    root, (left, right) = scene
+    code = main(["locate", "--left", left, "--right", right, "--calibration",
+                 str(root / "calib"), "--radius", "0.025", "--json"])
+    out = capsys.readouterr().out
+    assert code == 0
+    obj = json.loads(out)
+    assert list(obj) == ["point_m", "covariance", "residual_px", "left_px", "right_px"]
+    assert np.linalg.norm(np.array(obj["point_m"]) - X_TRUE) < 5e-4
+    assert np.array(obj["covariance"]).shape == (3, 3) and obj["residual_px"] < 0.3
+    rig = make_rig()
+    assert np.allclose(obj["left_px"], rig.left.project(X_TRUE[None])[0], atol=0.1)
+
+
+def test_locate_text_output_with_params_file_and_method(scene, capsys, tmp_path):
+    root, (left, right) = scene
+    params = tmp_path / "p.yaml"
+    params.write_text("detect_triangulate:\n  ros__parameters:\n    method: disparity\n")
+    code = main(["locate", "--left", left, "--right", right, "--calibration",
+                 str(root / "calib"), "--params", str(params), "--method", "optimal"])
+    out = capsys.readouterr().out
+    assert code == 0 and "(optimal)" in out and "point_m" in out
+
+
+def test_no_target_exits_2_with_a_reason(scene, capsys, tmp_path):
+    root, (left, right) = scene
+    blank = tmp_path / "blank.png"
+    cv2.imwrite(str(blank), np.full((600, 800, 3), 100, np.uint8))
+    code = main(["locate", "--left", left, "--right", str(blank), "--calibration",
+                 str(root / "calib"), "--json"])
+    cap = capsys.readouterr()
+    assert code == 2 and cap.out == "" and "not detected right" in cap.err
+
+
+def test_errors_are_one_line(scene, capsys, tmp_path):
+    root, (left, right) = scene
+    assert main(["locate", "--left", str(tmp_path / "none.png"), "--right", right,
+                 "--calibration", str(root / "calib")]) == 1
+    assert "cannot read the image" in capsys.readouterr().err
+    assert main(["locate", "--left", left, "--right", right, "--calibration",
+                 str(tmp_path / "nowhere")]) == 1
+    assert "calibration directory not found" in capsys.readouterr().err
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), np.zeros((100, 100, 3), np.uint8))
+    assert main(["locate", "--left", str(small), "--right", right, "--calibration",
+                 str(root / "calib")]) == 1
+    assert "calibration is 800x600" in capsys.readouterr().err
+    assert main(["locate", "--left", left, "--right", right, "--calibration",
+                 str(root / "calib"), "--radius", "-1"]) == 1
