@@ -206,6 +206,9 @@ class HtmlReport:
         try:
             with os.fdopen(fd, "w", encoding="utf-8") as fh:
                 fh.write(self.to_html())
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private
             os.replace(tmp, path)
         except BaseException:
             if os.path.exists(tmp):

@@ -1,0 +1,153 @@
+"""``eye-in-hand calibrate camera``: outputs, bag input, bad input leaves nothing behind."""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eye_in_hand.cli import main
+from eye_in_hand.core.camera import CameraModel
+
+BOARD = "chessboard:9x6:1.0"
+
+
+def _images(data_dir: Path) -> Path:
+    return data_dir / "opencv_stereo_chessboard"
+
+
+def _leftovers(parent: Path) -> list[str]:
+    return [p.name for p in parent.iterdir() if ".partial-" in p.name]
+
+
+def write_image_bag(path: Path, topics: dict[str, list[tuple[int, np.ndarray]]]) -> None:
+    """A bag of mono8 sensor_msgs/Image messages: {topic: [(header stamp ns, image)]}."""
+    from eye_in_hand.io.bags import BagWriter, default_typestore
+
+    store = default_typestore()
+    Image = store.types["sensor_msgs/msg/Image"]
+    Header = store.types["std_msgs/msg/Header"]
+    Time = store.types["builtin_interfaces/msg/Time"]
+    msgs = []
+    for topic, frames in topics.items():
+        for stamp, img in frames:
+            msg = Image(header=Header(stamp=Time(sec=stamp // 10**9, nanosec=stamp % 10**9),
+                                      frame_id="cam"),
+                        height=img.shape[0], width=img.shape[1], encoding="mono8",
+                        is_bigendian=0, step=img.shape[1], data=img.ravel().copy())
+            msgs.append((stamp, topic, msg))
+    with BagWriter(path) as bag:
+        for topic in topics:
+            bag.add_topic(topic, "sensor_msgs/msg/Image")
+        for stamp, topic, msg in sorted(msgs, key=lambda m: (m[0], m[1])):
+            bag.write(topic, stamp, msg)
+
+
+def test_camera_from_files(data_dir: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "out"
+    images = tmp_path / "imgs"
+    images.mkdir()
+    for f in sorted(_images(data_dir).glob("left*.jpg")):
+        shutil.copy(f, images / f.name)
+    # an image without a board: listed with its reason and skipped
+    blank = np.full((480, 640), 128, np.uint8)
+    import cv2
+
+    cv2.imwrite(str(images / "left99.png"), blank)
+    code = main(["calibrate", "camera", "--images", str(images / "left*"), "--board", BOARD,
+                 "-o", str(out), "--detector", "classic"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "skipped left99.png: no 9x6 chessboard found" in captured.err
+    assert sorted(p.name for p in out.iterdir()) == ["camera.yaml", "report.html", "report.json"]
+    report = json.loads((out / "report.json").read_text())
+    cam = report["camera"]
+    assert abs(cam["rms_px"] - 0.196334638034) < 0.01
+    assert np.array(cam["K"]).shape == (3, 3) and len(cam["dist"]) == 5
+    views = report["views"]
+    assert len(views) == 14 and sum(v["used"] for v in views) == 13
+    missing = [v for v in views if not v["found"]]
+    assert [v["file"] for v in missing] == ["left99.png"] and "chessboard" in missing[0]["reason"]
+    assert report["input"]["skipped"][0]["file"] == "left99.png"
+    model = CameraModel.load_yaml(out / "camera.yaml")
+    np.testing.assert_allclose(model.K, cam["K"])
+    html = (out / "report.html").read_text()
+    assert html.count("data:image/png;base64,") >= 4 and "<script" not in html
+    assert "left99.png" in html
+    assert _leftovers(tmp_path) == []
+
+
+def test_camera_from_bag_every_second_frame(data_dir: Path, tmp_path: Path, capsys) -> None:
+    import cv2
+
+    files = sorted(_images(data_dir).glob("left*.jpg"))
+    frames = [(10**9 + k * 10**8, cv2.imread(str(f), cv2.IMREAD_GRAYSCALE))
+              for k, f in enumerate(files)]
+    write_image_bag(tmp_path / "bag", {"/left/image_raw": frames})
+    out = tmp_path / "out"
+    code = main(["calibrate", "camera", "--bag", str(tmp_path / "bag"), "--left-topic",
+                 "/left/image_raw", "--every", "2", "--board", BOARD, "-o", str(out)])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    report = json.loads((out / "report.json").read_text())
+    assert [v["file"] for v in report["views"]] == [
+        f"/left/image_raw@{s}" for s, _ in frames[::2]]
+    assert report["camera"]["rms_px"] < 0.3
+
+
+@pytest.mark.parametrize("case", ["board", "unreadable", "few", "size", "nomatch", "topic"])
+def test_camera_bad_input_writes_nothing(case: str, data_dir: Path, tmp_path: Path,
+                                         capsys) -> None:
+    import cv2
+
+    images = tmp_path / "imgs"
+    images.mkdir()
+    files = sorted(_images(data_dir).glob("left*.jpg"))[:6]
+    for f in files:
+        shutil.copy(f, images / f.name)
+    board = BOARD
+    extra: list[str] = []
+    expect = ""
+    if case == "board":
+        board, expect = "chessboard:9x6", "board spec 'chessboard:9x6'"
+    elif case == "unreadable":
+        (images / "left50.jpg").write_text("not an image")
+        expect = "left50.jpg: not a readable image file"
+    elif case == "few":
+        extra, expect = ["--min-views", "8"], "only 6 usable board view(s) of 6 image(s)"
+    elif case == "size":
+        img = cv2.imread(str(files[0]))
+        cv2.imwrite(str(images / "left50.jpg"), cv2.resize(img, (320, 240)))
+        expect = "images differ in size"
+    elif case == "nomatch":
+        images = tmp_path / "nothing"
+        expect = "no image files match"
+    elif case == "topic":
+        write_image_bag(tmp_path / "bag", {"/cam/image": [(1, np.zeros((4, 4), np.uint8))]})
+        expect = "lacks topic /left/image_raw"
+    out = tmp_path / "out"
+    argv = ["calibrate", "camera", "--board", board, "-o", str(out)] + extra
+    argv += (["--bag", str(tmp_path / "bag"), "--left-topic", "/left/image_raw"]
+             if case == "topic" else ["--images", str(images / "*.jpg")])
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert code == 1
+    assert expect in err, err
+    lines = [line for line in err.splitlines() if line.startswith("eye-in-hand: error:")]
+    assert len(lines) == 1 and "Traceback" not in err
+    assert not out.exists() and _leftovers(tmp_path) == []
+
+
+def test_existing_output_folder_keeps_other_files(data_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    (out / "camera.yaml").write_text("old")
+    code = main(["calibrate", "camera", "--images", str(_images(data_dir) / "left0*.jpg"),
+                 "--board", BOARD, "-o", str(out), "--no-html", "--reject-outliers"])
+    assert code == 0
+    assert (out / "notes.txt").read_text() == "mine"
+    assert "camera_matrix" in (out / "camera.yaml").read_text()
+    assert sorted(p.name for p in out.iterdir()) == ["camera.yaml", "notes.txt", "report.json"]
