@@ -1,0 +1,483 @@
+"""The ``stereo_capture`` node: stereo pairs from the simulator, image files, videos or cameras.
+
+Publishes (relative names):
+    ``left/image_raw``, ``right/image_raw`` (sensor_msgs/Image, bgr8) and ``left/camera_info``,
+    ``right/camera_info`` (sensor_msgs/CameraInfo), all four with one shared stamp per pair
+    (the node clock when the pair is published). Reliable, keep last 5: matches both
+    sensor-data (best effort) and reliable subscribers.
+    ``joint_states`` (sensor_msgs/JointState) and ``ee_pose`` (geometry_msgs/PoseStamped,
+    ``base_frame`` -> ``tool_frame``): ``sim`` source only, when ``sim.publish_robot_state``;
+    stamped with the image stamp, i.e. the robot pose at which the pair was rendered.
+    ``diagnostics``: pairs published, read failures, frames not ready in time, source state.
+
+Sources (parameter ``source``):
+    ``sim``: the synthetic world (``sim.world`` YAML or the built-in one) along its
+    localization trajectory (``sim.duration_s`` long, looping), rendered live.
+    ``images``: ``images.left`` / ``images.right`` folders or glob patterns, in sorted order,
+    optionally looping (``images.loop``).
+    ``video``: ``video.left`` and ``video.right`` files, or one side-by-side file in
+    ``video.left`` with ``side_by_side`` true (split in halves).
+    ``v4l2``: ``v4l2.left`` / ``v4l2.right`` device indices or paths (or one side-by-side
+    device), through ``cv2.VideoCapture``.
+
+Frames are produced on a worker thread into a bounded drop-oldest queue (rendering a
+1280x720 pair takes ~0.4 s); the timer at ``rate_hz`` only publishes the newest ready pair, so
+the executor is never blocked. A source that cannot be opened stops the node at start-up with a
+message naming it; a frame that cannot be read is counted and reported on ``diagnostics`` and
+the node keeps going.
+"""
+from __future__ import annotations
+
+import glob
+import os
+import queue
+import threading
+from pathlib import Path
+from typing import Any, Iterator
+
+import cv2
+import numpy as np
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from eye_in_hand.core.camera import CameraModel, StereoRig
+from eye_in_hand.errors import ConfigError, EyeInHandError
+from eye_in_hand.ros.conversions import (
+    make_header,
+    matrix_to_pose_stamped,
+    model_to_camera_info,
+    numpy_to_image,
+)
+from eye_in_hand.ros.diagnostics import ERROR, WARN, NodeDiagnostics
+from eye_in_hand.ros.params import Param, declare_params
+
+__all__ = ["NODE_PARAMETERS", "SOURCES", "StereoCaptureNode", "FrameSource", "main"]
+
+NODE_NAME = "stereo_capture"
+SOURCES = ("sim", "images", "video", "v4l2")
+_IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
+
+#: Publisher QoS of the image and camera_info topics.
+IMAGE_PUB_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5,
+                           reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.VOLATILE)
+
+NODE_PARAMETERS: tuple[Param, ...] = (
+    Param("source", "sim", "frame source", choices=SOURCES),
+    Param("rate_hz", 30.0, "publication rate of stereo pairs (Hz)", range=(0.1, 240.0)),
+    Param("left_frame_id", "camera_left_optical_frame", "frame_id of the left image"),
+    Param("right_frame_id", "camera_right_optical_frame", "frame_id of the right image"),
+    Param("calibration_dir", "", "folder with left.yaml + right.yaml (+ stereo.yaml) for "
+          "camera_info; sim: default the world's true rig"),
+    Param("left_camera_info", "", "left camera_calibration_parsers YAML (overrides "
+          "calibration_dir for the left camera)"),
+    Param("right_camera_info", "", "right camera_calibration_parsers YAML"),
+    Param("side_by_side", False, "video/v4l2: one source holding left|right side by side"),
+    Param("queue_depth", 2, "frames buffered ahead of publication (drop-oldest)",
+          range=(1, 30)),
+    Param("images.left", "", "images source: left folder or glob pattern"),
+    Param("images.right", "", "images source: right folder or glob pattern"),
+    Param("images.loop", False, "images source: start again after the last pair"),
+    Param("video.left", "", "video source: left file (or the side-by-side file)"),
+    Param("video.right", "", "video source: right file (empty when side_by_side)"),
+    Param("video.loop", False, "video source: rewind at the end"),
+    Param("v4l2.left", "0", "v4l2 source: left device index or path (or side-by-side device)"),
+    Param("v4l2.right", "1", "v4l2 source: right device index or path (unused when "
+          "side_by_side)"),
+    Param("v4l2.width", 0, "v4l2 source: requested frame width per device (0 = driver "
+          "default)", range=(0, 10000)),
+    Param("v4l2.height", 0, "v4l2 source: requested frame height (0 = driver default)",
+          range=(0, 10000)),
+    Param("sim.world", "", "sim source: world YAML (empty = built-in default world)"),
+    Param("sim.width", 0, "sim source: image width (0 = the world's)", range=(0, 8192)),
+    Param("sim.height", 0, "sim source: image height (0 = the world's)", range=(0, 8192)),
+    Param("sim.seed", 0, "sim source: seed of the trajectory and the noise",
+          range=(0, 2**31 - 1)),
+    Param("sim.duration_s", 10.0, "sim source: length of the looping trajectory (s)",
+          range=(0.1, 3600.0)),
+    Param("sim.noise_sigma", 1.0, "sim source: sensor noise (grey levels)", range=(0.0, 50.0)),
+    Param("sim.supersample", 2, "sim source: sub-pixel rays per axis on edges", range=(1, 8)),
+    Param("sim.publish_robot_state", True, "sim source: also publish joint_states and "
+          "ee_pose at each pair's stamp"),
+    Param("base_frame", "base_link", "sim source: frame of ee_pose"),
+    Param("diagnostics_period_s", 1.0, "diagnostics publication period (s)",
+          range=(0.05, 60.0)),
+)
+
+
+class _Pair:
+    __slots__ = ("left", "right", "q", "index")
+
+    def __init__(self, left: np.ndarray, right: np.ndarray, q: np.ndarray | None = None,
+                 index: int = 0) -> None:
+        self.left, self.right, self.q, self.index = left, right, q, index
+
+
+class _ReadFailure(Exception):
+    """One frame could not be read (the source stays usable)."""
+
+
+class FrameSource:
+    """A producer of stereo pairs. ``read()`` returns a pair, raises :class:`_ReadFailure`
+    for one bad frame, or returns None at the end of a non-looping source."""
+
+    name = "source"
+
+    def read(self) -> _Pair | None:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Release devices and files."""
+
+
+def _list_images(spec: str, what: str) -> list[str]:
+    if not spec:
+        raise ConfigError(f"parameter '{what}': images source needs a folder or glob pattern")
+    if os.path.isdir(spec):
+        files = [str(p) for p in Path(spec).iterdir() if p.suffix.lower() in _IMAGE_EXTS]
+    else:
+        files = [f for f in glob.glob(spec) if os.path.isfile(f)]
+    if not files:
+        raise ConfigError(f"parameter '{what}': no images found at {spec!r}")
+    return sorted(files)
+
+
+class ImageFilesSource(FrameSource):
+    """Pairs of image files, in sorted order (left i with right i)."""
+
+    def __init__(self, left: str, right: str, loop: bool) -> None:
+        self.left = _list_images(left, "images.left")
+        self.right = _list_images(right, "images.right")
+        if len(self.left) != len(self.right):
+            raise ConfigError(f"images source: {len(self.left)} left images ({left!r}) but "
+                              f"{len(self.right)} right images ({right!r})")
+        self.loop = loop
+        self.i = 0
+        self.name = f"images {left} | {right}"
+
+    def read(self) -> _Pair | None:
+        if self.i >= len(self.left):
+            if not self.loop:
+                return None
+            self.i = 0
+        i = self.i
+        self.i += 1
+        imgs = []
+        for path in (self.left[i], self.right[i]):
+            img = cv2.imread(path, cv2.IMREAD_COLOR)
+            if img is None:
+                raise _ReadFailure(f"cannot read image {path}")
+            imgs.append(img)
+        return _Pair(imgs[0], imgs[1], index=i)
+
+
+def _open_capture(spec: str, what: str, width: int = 0, height: int = 0) -> cv2.VideoCapture:
+    target: int | str = int(spec) if spec.strip().isdigit() else spec
+    cap = cv2.VideoCapture(target)
+    if not cap.isOpened():
+        raise ConfigError(f"parameter '{what}': cannot open {spec!r}")
+    if width > 0:
+        cap.set(cv2.CAP_PROP_FRAME_WIDTH, width)
+    if height > 0:
+        cap.set(cv2.CAP_PROP_FRAME_HEIGHT, height)
+    return cap
+
+
+class CaptureSource(FrameSource):
+    """Two ``cv2.VideoCapture`` streams, or one side-by-side stream split in halves."""
+
+    def __init__(self, left: str, right: str, side_by_side: bool, *, prefix: str,
+                 loop: bool = False, width: int = 0, height: int = 0) -> None:
+        self.prefix = prefix
+        self.loop = loop
+        self.side_by_side = side_by_side
+        self.caps = [_open_capture(left, f"{prefix}.left",
+                                   width * (2 if side_by_side else 1), height)]
+        if not side_by_side:
+            if not right:
+                raise ConfigError(f"parameter '{prefix}.right': needed unless side_by_side")
+            try:
+                self.caps.append(_open_capture(right, f"{prefix}.right", width, height))
+            except ConfigError:
+                self.caps[0].release()
+                raise
+        self.name = f"{prefix} {left}" + ("" if side_by_side else f" | {right}")
+        self.index = 0
+
+    def _grab(self) -> list[np.ndarray] | None:
+        frames = []
+        for cap in self.caps:  # grab both first, then retrieve: closest capture times
+            if not cap.grab():
+                return None
+        for k, cap in enumerate(self.caps):
+            ok, img = cap.retrieve()
+            if not ok or img is None:
+                raise _ReadFailure(f"{self.prefix}: cannot decode frame {self.index} "
+                                   f"of stream {k}")
+            frames.append(img)
+        return frames
+
+    def read(self) -> _Pair | None:
+        frames = self._grab()
+        if frames is None:
+            if self.prefix == "video" and self.loop:
+                for cap in self.caps:
+                    cap.set(cv2.CAP_PROP_POS_FRAMES, 0)
+                frames = self._grab()
+            if frames is None:
+                if self.prefix == "v4l2":
+                    raise _ReadFailure(f"v4l2: frame {self.index} could not be grabbed")
+                return None
+        self.index += 1
+        if self.side_by_side:
+            img = frames[0]
+            w = img.shape[1]
+            if w % 2:
+                raise _ReadFailure(f"{self.prefix}: side-by-side frame width {w} is odd")
+            left, right = img[:, :w // 2], img[:, w // 2:]
+        else:
+            left, right = frames
+        if left.ndim == 2:
+            left = cv2.cvtColor(left, cv2.COLOR_GRAY2BGR)
+            right = cv2.cvtColor(right, cv2.COLOR_GRAY2BGR)
+        return _Pair(np.ascontiguousarray(left), np.ascontiguousarray(right),
+                     index=self.index - 1)
+
+    def close(self) -> None:
+        for cap in self.caps:
+            cap.release()
+
+
+class SimSource(FrameSource):
+    """The synthetic world rendered along its localization trajectory (looping)."""
+
+    def __init__(self, world: Any, rate_hz: float, duration_s: float, seed: int,
+                 noise_sigma: float, supersample: int) -> None:
+        from eye_in_hand.sim.scenarios import localization_trajectory
+
+        self.world = world
+        try:
+            traj = localization_trajectory(world, duration_s, rate_hz, seed)
+        except EyeInHandError as exc:
+            raise ConfigError(f"sim source: no trajectory ({exc})") from exc
+        # ping-pong so that the loop is continuous
+        qs = [q for _, q in traj]
+        self.qs = qs + qs[-2:0:-1] if len(qs) > 2 else qs
+        self.seed = seed
+        self.noise_sigma = noise_sigma
+        self.supersample = supersample
+        self.i = 0
+        self.name = "sim"
+
+    def read(self) -> _Pair:
+        k = self.i
+        self.i += 1
+        q = self.qs[k % len(self.qs)]
+        frame = self.world.render(q, seed=self.seed * 1_000_003 + k,
+                                  noise_sigma=self.noise_sigma, supersample=self.supersample)
+        return _Pair(frame.left, frame.right, q=q, index=k)
+
+
+class StereoCaptureNode(Node):
+    """Publishes stereo pairs from one source (see the module docstring)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        self.cfg = declare_params(self, NODE_PARAMETERS)
+        self.diag = NodeDiagnostics(self, period_s=self.cfg["diagnostics_period_s"],
+                                    hardware_id=self.cfg["source"])
+        self.diag.declare_counter("pairs", "read_failures", "not_ready")
+        self.diag.expect_rate("pairs", min_hz=min(1.0, self.cfg["rate_hz"] / 4))
+        self._world = None
+        try:
+            self.source = self._open_source()
+        except BaseException:
+            self.diag.destroy()
+            Node.destroy_node(self)
+            raise
+        try:
+            self.rig_models = self._load_models()
+        except BaseException:
+            self.source.close()
+            self.diag.destroy()
+            Node.destroy_node(self)
+            raise
+        self.pub_left = self.create_publisher(_image_type(), "left/image_raw", IMAGE_PUB_QOS)
+        self.pub_right = self.create_publisher(_image_type(), "right/image_raw", IMAGE_PUB_QOS)
+        from sensor_msgs.msg import CameraInfo
+
+        self.pub_info_left = self.create_publisher(CameraInfo, "left/camera_info",
+                                                   IMAGE_PUB_QOS)
+        self.pub_info_right = self.create_publisher(CameraInfo, "right/camera_info",
+                                                    IMAGE_PUB_QOS)
+        self.pub_joints = self.pub_pose = None
+        if self._world is not None and self.cfg["sim.publish_robot_state"]:
+            from geometry_msgs.msg import PoseStamped
+            from sensor_msgs.msg import JointState
+
+            self.pub_joints = self.create_publisher(JointState, "joint_states", 10)
+            self.pub_pose = self.create_publisher(PoseStamped, "ee_pose", 10)
+        self._queue: queue.Queue[_Pair] = queue.Queue(maxsize=self.cfg["queue_depth"])
+        self._stop = threading.Event()
+        self._ended = threading.Event()
+        self._worker = threading.Thread(target=self._produce, name="stereo_capture_source",
+                                        daemon=True)
+        self._worker.start()
+        self.timer = self.create_timer(1.0 / self.cfg["rate_hz"], self._on_timer)
+        self.get_logger().info(f"publishing {self.source.name} at {self.cfg['rate_hz']} Hz")
+
+    # -- set-up ---------------------------------------------------------------------------
+    def _open_source(self) -> FrameSource:
+        c = self.cfg
+        kind = c["source"]
+        if kind == "images":
+            return ImageFilesSource(c["images.left"], c["images.right"], c["images.loop"])
+        if kind == "video":
+            return CaptureSource(c["video.left"], c["video.right"], c["side_by_side"],
+                                 prefix="video", loop=c["video.loop"])
+        if kind == "v4l2":
+            return CaptureSource(c["v4l2.left"], c["v4l2.right"], c["side_by_side"],
+                                 prefix="v4l2", width=c["v4l2.width"], height=c["v4l2.height"])
+        from eye_in_hand.sim.world import World
+
+        world = World.from_yaml(c["sim.world"]) if c["sim.world"] else World.default()
+        if c["sim.width"] or c["sim.height"]:
+            w0, h0 = world.image_size
+            world = world.with_image_size(c["sim.width"] or w0, c["sim.height"] or h0)
+        self._world = world
+        return SimSource(world, c["rate_hz"], c["sim.duration_s"], c["sim.seed"],
+                         c["sim.noise_sigma"], c["sim.supersample"])
+
+    def _load_models(self) -> tuple[CameraModel | None, CameraModel | None]:
+        c = self.cfg
+        left = right = None
+        if c["calibration_dir"]:
+            rig = StereoRig.load(c["calibration_dir"])
+            rig = rig if rig.is_rectified else rig.rectified()
+            left, right = rig.left, rig.right
+        elif self._world is not None:
+            rig = self._world.rig.rectified()
+            left, right = rig.left, rig.right
+        if c["left_camera_info"]:
+            left = CameraModel.load_yaml(c["left_camera_info"])
+        if c["right_camera_info"]:
+            right = CameraModel.load_yaml(c["right_camera_info"])
+        return left, right
+
+    # -- worker ---------------------------------------------------------------------------
+    def _produce(self) -> None:
+        while not self._stop.is_set():
+            try:
+                pair = self.source.read()
+            except _ReadFailure as exc:
+                self.diag.count("read_failures")
+                self.diag.report("read_failure", str(exc))
+                self._stop.wait(0.5 / self.cfg["rate_hz"])
+                continue
+            except Exception as exc:  # keep the node alive; say what happened
+                self.diag.count("read_failures")
+                self.diag.report("source_error", f"{self.source.name}: {exc!r}", level=ERROR)
+                self._stop.wait(1.0 / self.cfg["rate_hz"])
+                continue
+            if pair is None:
+                self._ended.set()
+                self.diag.report("end_of_source", f"{self.source.name}: end of input",
+                                 level=WARN)
+                return
+            while not self._stop.is_set():
+                try:
+                    self._queue.put(pair, timeout=0.1)
+                    break
+                except queue.Full:
+                    continue
+
+    # -- publication ----------------------------------------------------------------------
+    def _on_timer(self) -> None:
+        try:
+            pair = self._queue.get_nowait()
+        except queue.Empty:
+            if not self._ended.is_set():
+                self.diag.count("not_ready")
+            return
+        stamp_ns = self.get_clock().now().nanoseconds
+        c = self.cfg
+        try:
+            for img, frame_id, pub, info_pub, model in (
+                    (pair.left, c["left_frame_id"], self.pub_left, self.pub_info_left,
+                     self.rig_models[0]),
+                    (pair.right, c["right_frame_id"], self.pub_right, self.pub_info_right,
+                     self.rig_models[1])):
+                header = make_header(stamp_ns, frame_id)
+                msg = numpy_to_image(img, "bgr8", header=header)
+                info = _camera_info(model, img, header)
+                pub.publish(msg)
+                info_pub.publish(info)
+        except EyeInHandError as exc:
+            self.diag.count("read_failures")
+            self.diag.report("bad_frame", f"frame {pair.index}: {exc}")
+            return
+        if self.pub_joints is not None and pair.q is not None and self._world is not None:
+            from sensor_msgs.msg import JointState
+
+            js = JointState()
+            js.header = make_header(stamp_ns, "")
+            js.name = list(self._world.arm.joint_names)
+            js.position = [float(v) for v in pair.q]
+            self.pub_joints.publish(js)
+            self.pub_pose.publish(matrix_to_pose_stamped(  # type: ignore[union-attr]
+                self._world.arm.fk(pair.q), stamp_ns=stamp_ns, frame_id=c["base_frame"]))
+        self.diag.count("pairs")
+        self.diag.gauge("source_index", int(pair.index))
+
+    def destroy_node(self) -> None:
+        """Stop the worker and release the source before destroying the node."""
+        self._stop.set()
+        if self._worker.is_alive():
+            self._worker.join(timeout=5.0)
+        self.source.close()
+        super().destroy_node()
+
+
+def _image_type() -> Any:
+    from sensor_msgs.msg import Image
+
+    return Image
+
+
+def _camera_info(model: CameraModel | None, img: np.ndarray, header: Any) -> Any:
+    from sensor_msgs.msg import CameraInfo
+
+    h, w = img.shape[:2]
+    if model is None:  # uncalibrated: size only, as camera drivers publish it
+        info = CameraInfo()
+        info.header = header
+        info.width, info.height = w, h
+        return info
+    if (model.width, model.height) != (w, h):
+        raise ConfigError(f"camera_info is {model.width}x{model.height} but the image is "
+                          f"{w}x{h}")
+    return model_to_camera_info(model, header=header)
+
+
+def main(args: list[str] | None = None) -> None:
+    """Console entry point: ``ros2 run eye_in_hand stereo_capture``."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = StereoCaptureNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except EyeInHandError as exc:
+        print(f"{NODE_NAME}: error: {exc}", flush=True)
+        raise SystemExit(1) from exc
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()
