@@ -169,7 +169,8 @@ def test_colcon_installed_cli_runs_from_the_install_tree(colcon_install):
     assert (site / PACKAGE / "cli.py").is_file()
     env = dict(os.environ, PYTHONPATH=str(site))
     # cwd outside the source tree: ``python -c`` puts the cwd first on sys.path.
-    probe = subprocess.run([sys.executable, "-c", "import eye_in_hand; print(eye_in_hand.__file__)"],
+    code = "import eye_in_hand; print(eye_in_hand.__file__)"
+    probe = subprocess.run([sys.executable, "-c", code],
                            env=env, cwd=colcon_install, capture_output=True, text=True,
                            timeout=60)
     assert probe.returncode == 0, probe.stderr
@@ -218,7 +219,7 @@ def test_command_modules_follow_the_contract():
     from eye_in_hand.cli import COMMANDS
 
     assert len({w for w, _ in COMMANDS}) == len(COMMANDS), "a command is registered twice"
-    for words, module_name in COMMANDS:
+    for _words, module_name in COMMANDS:
         module = importlib.import_module(module_name)
         assert isinstance(module.HELP, str) and module.HELP.strip(), f"{module_name}: HELP"
         assert callable(module.add_arguments) and callable(module.run), module_name

@@ -140,7 +140,7 @@ def _byte_view(data: Any, field: str) -> np.ndarray:
 def _to_byte_array(arr: np.ndarray) -> array.array:
     """Copy a C-contiguous array's bytes into the ``array.array('B')`` rclpy stores (one copy)."""
     out = array.array("B")
-    out.frombytes(memoryview(np.ascontiguousarray(arr)).cast("B"))
+    out.frombytes(np.ascontiguousarray(arr).data.cast("B"))
     return out
 
 
@@ -474,7 +474,7 @@ def compressed_to_numpy(msg: Any, *, desired_encoding: str | None = None) -> np.
     if desired_encoding not in (None, "passthrough"):
         return convert_encoding(image, decoded, desired_encoding)
     spec = IMAGE_ENCODINGS.get(original or "")
-    if spec is None or original == decoded or spec.dtype != image.dtype:
+    if original is None or spec is None or original == decoded or spec.dtype != image.dtype:
         return image  # no (usable) original encoding recorded: keep OpenCV's layout
     if spec.family in ("bayer", "generic") and spec.channels == IMAGE_ENCODINGS[decoded].channels:
         return image  # a raw mosaic or a generic layout, stored as decoded

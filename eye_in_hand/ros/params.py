@@ -32,8 +32,9 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable
+from typing import Any
 
 from eye_in_hand.errors import ConfigError
 
@@ -188,7 +189,11 @@ class Param:
 
     def descriptor(self) -> Any:
         """The ``rcl_interfaces.msg.ParameterDescriptor`` declared for this parameter."""
-        from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+        from rcl_interfaces.msg import (
+            FloatingPointRange,
+            IntegerRange,
+            ParameterDescriptor,
+        )
 
         desc = ParameterDescriptor(description=self.description, read_only=self.read_only)
         constraints = []
@@ -349,7 +354,7 @@ def load_config(node: Any, config_cls: type, *, prefix: str = "") -> Any:
     params = params_of(config_cls)
     values = declare_params(node, params, prefix=prefix)
     fields = [f.name for f in dataclasses.fields(config_cls) if f.init]
-    kwargs = {field_name: values[p.name] for field_name, p in zip(fields, params)}
+    kwargs = {field_name: values[p.name] for field_name, p in zip(fields, params, strict=True)}
     try:
         return config_cls(**kwargs)
     except ConfigError:

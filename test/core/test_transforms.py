@@ -80,7 +80,7 @@ def test_as_transform_and_as_points():
 def test_compose_invert_identities():
     rng = np.random.default_rng(1)
     Ts = random_transforms(rng, N + 2)
-    for A, B, C in zip(Ts, Ts[1:], Ts[2:]):
+    for A, B, C in zip(Ts, Ts[1:], Ts[2:], strict=False):
         inv = tf.invert(A)
         assert_rigid(inv)
         np.testing.assert_allclose(tf.compose(A, inv), np.eye(4), atol=1e-12)
