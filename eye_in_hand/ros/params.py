@@ -26,6 +26,10 @@ out-of-range and wrongly typed values at declaration; those rejections, a value 
 ``ConfigError`` as well.
 
 :func:`declare_params` does the same for a plain list of :class:`Param` and returns a dict.
+Parameters declared ``read_only=False`` stay changeable at run time; a set-parameters callback
+then applies the same choices, element ranges and hook to every later change (rclpy checks
+type and scalar range itself), so ``ros2 param set`` with a bad value is refused with a reason.
+Such a node re-reads the value with ``node.get_parameter(name)`` where it uses it.
 """
 from __future__ import annotations
 
@@ -326,6 +330,7 @@ def declare_params(node: Any, params: Iterable[Param], *, prefix: str = "") -> d
             the hook, or a required parameter not set; the message names the parameter.
     """
     values: dict[str, Any] = {}
+    dynamic: dict[str, Param] = {}
     for p in params:
         full = f"{prefix}{p.name}"
         value = _declare_one(node, p, full)
@@ -333,7 +338,38 @@ def declare_params(node: Any, params: Iterable[Param], *, prefix: str = "") -> d
         if problem:
             raise ConfigError(f"parameter '{full}': {problem}: {p.description}")
         values[p.name] = value
+        if not p.read_only:
+            dynamic[full] = p
+    if dynamic:
+        node.add_on_set_parameters_callback(_run_time_check(dynamic))
     return values
+
+
+def _run_time_check(dynamic: dict[str, Param]) -> Callable[[list[Any]], Any]:
+    """A set-parameters callback applying choices, element ranges and hooks at run time.
+
+    rclpy itself enforces type and scalar range of a later ``ros2 param set``; this adds the
+    checks it does not know about, so a dynamic parameter never takes a value that start-up
+    validation would have refused.
+    """
+    from rcl_interfaces.msg import SetParametersResult
+
+    def callback(parameters: list[Any]) -> Any:
+        for parameter in parameters:
+            p = dynamic.get(parameter.name)
+            if p is None or parameter.value is None:
+                continue
+            try:
+                value = _coerce(parameter.value, str(p.type))
+            except (TypeError, ValueError):
+                continue  # a type mismatch: rclpy rejects it with its own reason
+            problem = p.check(value)
+            if problem:
+                return SetParametersResult(
+                    successful=False, reason=f"parameter '{parameter.name}': {problem}")
+        return SetParametersResult(successful=True)
+
+    return callback
 
 
 def load_config(node: Any, config_cls: type, *, prefix: str = "") -> Any:

@@ -162,3 +162,25 @@ def test_param_type_inference_and_markdown():
     assert "| `hsv.low` | int[] | `(0, 120, 70)` | [0, 255] | lower HSV bound |" in table
     assert "| `debug` | bool | `False` | dynamic | publish debug images |" in table
     assert len(table.splitlines()) == 2 + 9
+
+
+def test_dynamic_parameters_are_checked_at_run_time(ros_context, namespace):
+    from rclpy.parameter import Parameter
+
+    params = [Param("mode", "fast", "mode", choices=("fast", "exact"), read_only=False),
+              Param("gains", (1.0, 2.0), "gains", range=(0.0, 10.0), read_only=False),
+              Param("fixed", 3, "fixed", choices=(3, 5))]
+    node = make_node(ros_context, namespace)
+    try:
+        declare_params(node, params)
+        ok = node.set_parameters([Parameter("mode", value="exact")])[0]
+        assert ok.successful and node.get_parameter("mode").value == "exact"
+        bad = node.set_parameters([Parameter("mode", value="slow")])[0]
+        assert not bad.successful and "'slow' is not one of 'fast', 'exact'" in bad.reason
+        assert node.get_parameter("mode").value == "exact"
+        bad = node.set_parameters([Parameter("gains", value=[1.0, 11.0])])[0]
+        assert not bad.successful and "11.0 is outside the range [0.0, 10.0]" in bad.reason
+        assert not node.set_parameters([Parameter("mode", value=4)])[0].successful  # type
+        assert not node.set_parameters([Parameter("fixed", value=5)])[0].successful  # read-only
+    finally:
+        node.destroy_node()
