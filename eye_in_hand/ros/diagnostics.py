@@ -151,8 +151,8 @@ class NodeDiagnostics:
         node: the ``rclpy.node.Node`` to attach to (publisher and timer are created on it).
         name: status name (default: the node's name).
         hardware_id: ``hardware_id`` of the status (e.g. the camera's serial).
-        period_s: publication period in seconds; ``0`` disables the timer (call
-            :meth:`publish` yourself).
+        period_s: publication period in seconds of steady (wall) time, also under
+            ``use_sim_time``; ``0`` disables the timer (call :meth:`publish` yourself).
         topic: relative topic name, default ``diagnostics``.
         qos: publisher QoS (default: reliable, keep last 10).
         clock: monotonic seconds source for rates and ages (tests may inject one).
@@ -184,7 +184,14 @@ class NodeDiagnostics:
         self._start = clock()
         self._last_publish = self._start
         self._pub = node.create_publisher(DiagnosticArray, topic, qos or RESULT_QOS)
-        self._timer = node.create_timer(period_s, self.publish) if period_s > 0 else None
+        self._timer = None
+        if period_s > 0:
+            from rclpy.clock import Clock, ClockType
+
+            # Steady time: diagnostics keep coming while simulated time (use_sim_time) stands
+            # still, which is exactly when "no frames" must be reported.
+            self._timer = node.create_timer(period_s, self.publish,
+                                            clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.published = 0
 
     # -- updates ---------------------------------------------------------------------------

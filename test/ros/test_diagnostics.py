@@ -168,3 +168,25 @@ def test_published_on_relative_topic_by_timer(ros_context, executor, namespace, 
     diag.destroy()
     with pytest.raises(RuntimeError, match="after destroy"):
         diag.publish()
+
+
+def test_published_while_simulated_time_stands_still(ros_context, executor, namespace,
+                                                     spin_until):
+    """Under use_sim_time with no /clock, ROS time is frozen; diagnostics keep coming."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    from eye_in_hand.ros.qos import RESULT_QOS
+
+    worker = Node("sim_worker", context=ros_context, namespace=namespace,
+                  parameter_overrides=[Parameter("use_sim_time", value=True)])
+    assert worker.get_clock().now().nanoseconds == 0
+    executor.add_node(worker)
+    got: list[DiagnosticArray] = []
+    worker.create_subscription(DiagnosticArray, "diagnostics", got.append, RESULT_QOS)
+    diag = NodeDiagnostics(worker, period_s=0.05)
+    diag.expect_rate("frames", 1.0)
+    assert spin_until(executor, lambda: len(got) >= 2, 10.0)
+    assert got[-1].status[0].level == bytes([WARN])
+    assert "frames at 0.00 Hz" in got[-1].status[0].message
