@@ -108,16 +108,32 @@ def rectify_pair(rig: StereoRig, left_px, right_px) -> tuple[np.ndarray, np.ndar
             rig.right.rectify_points(_px(right_px, "right_px"))[0])
 
 
-def _dlt_rect(P1: np.ndarray, P2: np.ndarray, xl: np.ndarray, xr: np.ndarray) -> np.ndarray:
+def _dlt_rect(P1: np.ndarray, P2: np.ndarray, xl: np.ndarray, xr: np.ndarray,
+              with_jacobian: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+    """DLT point (3,) in the rectified-left frame and, optionally, d X / d (xl, yl, xr, yr).
+
+    Each row ``a_i = u_i P[2] - P[k]`` of the system ``A [X; 1] = 0`` depends on one image
+    coordinate ``u_i`` with ``d(a_i . [X; 1]) / d u_i = P[2] . [X; 1] = w_i``. Rows are scaled to
+    unit norm. To first order the homogeneous solution moves like the least-squares solution
+    of ``M X = -b`` (``M = A[:, :3]``, ``b = A[:, 3]``), so ``J = -(M^T M)^-1 M^T diag(s w)``
+    with the row scales ``s``.
+    """
     A = np.stack([xl[0] * P1[2] - P1[0], xl[1] * P1[2] - P1[1],
                   xr[0] * P2[2] - P2[0], xr[1] * P2[2] - P2[1]])
-    # scale rows: equilibrates the system (pixel-sized entries vs unit entries)
-    A /= np.linalg.norm(A, axis=1, keepdims=True)
+    scale = 1.0 / np.linalg.norm(A, axis=1)
+    A *= scale[:, None]
     _, _, vt = np.linalg.svd(A)
-    X = vt[-1]
-    if abs(X[3]) < 1e-15:
-        return np.full(3, np.inf)
-    return X[:3] / X[3]
+    Xh = vt[-1]
+    if abs(Xh[3]) < 1e-15:
+        return np.full(3, np.inf), None
+    X = Xh[:3] / Xh[3]
+    if not with_jacobian:
+        return X, None
+    h = np.append(X, 1.0)
+    w = np.array([P1[2] @ h, P1[2] @ h, P2[2] @ h, P2[2] @ h]) * scale
+    M = A[:, :3]
+    J = -np.linalg.solve(M.T @ M, M.T * w[None, :])
+    return X, J
 
 
 def _reproj_rms(P1: np.ndarray, P2: np.ndarray, X: np.ndarray, xl: np.ndarray,
@@ -194,16 +210,9 @@ def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float = 0.5,
     d = _disparity(rig, xl, xr)
     _check_disparity(rig, d)
     P1, P2 = rig.P1, rig.P2
-    X = _dlt_rect(P1, P2, xl, xr)
-    # Jacobian d X / d (xl, yl, xr, yr) by central differences (8 tiny SVDs)
-    J = np.empty((3, 4))
-    h = 1e-3
-    for k in range(4):
-        dp = np.zeros(4)
-        dp[k] = h
-        Xp = _dlt_rect(P1, P2, xl + dp[:2], xr + dp[2:])
-        Xm = _dlt_rect(P1, P2, xl - dp[:2], xr - dp[2:])
-        J[:, k] = (Xp - Xm) / (2 * h)
+    X, J = _dlt_rect(P1, P2, xl, xr, with_jacobian=True)
+    if J is None:
+        raise Rejected("behind_camera", "the DLT solution is at infinity")
     cov = (J @ J.T) * s * s
     return _finish(rig, X, cov, _reproj_rms(P1, P2, X, xl, xr), "dlt", d, max_residual_px)
 
