@@ -77,6 +77,19 @@ def test_padded_rows_rosbags_message_decode_as_view(typestore, encoding, pad):
     assert conv.header_stamp_ns(msg) == 12 * 10**9 + 345
 
 
+def test_padded_rows_with_colour_conversion(typestore):
+    rng = np.random.default_rng(12)
+    img = random_image(rng, "bgr8", h=5, w=7)
+    raw = np.zeros((5, 7 * 3 + 3), np.uint8)
+    raw[:, :21] = img.reshape(5, 21)
+    msg = rosbags_image(typestore, raw.reshape(-1), height=5, width=7, step=24, encoding="bgr8")
+    np.testing.assert_array_equal(conv.image_to_numpy(msg, desired_encoding="rgb8"),
+                                  img[:, :, ::-1])
+    mosaic = rosbags_image(typestore, rng.integers(0, 255, 4 * 13, dtype=np.uint8), height=4,
+                           width=10, step=13, encoding="bayer_rggb8")
+    assert conv.image_to_numpy(mosaic, desired_encoding="bgr8").shape == (4, 10, 3)
+
+
 @pytest.mark.parametrize("encoding", ["mono16", "16UC1", "bgr16"])
 def test_big_endian_16_bit_is_byte_swapped(typestore, encoding):
     rng = np.random.default_rng(3)
