@@ -112,7 +112,8 @@ def accuracy(world: World, frames) -> None:
     }
     errs: dict[str, list[np.ndarray]] = {k: [] for k in variants}
     px_corr, px_raw, limits, ranges, angles = [], [], [], [], []
-    dlt_vs_par = []
+    dlt_vs_par: list[float] = []
+    disp_err: list[float] = []
     misses = {k: 0 for k in variants}
     for fr in frames:
         X = fr.truth.targets_cam[0]
@@ -127,7 +128,11 @@ def accuracy(world: World, frames) -> None:
         if "dlt" not in res or "disparity" not in res:
             continue
         t = res["dlt"]
-        px_corr += [t.left_px - fr.truth.center_px_left[0], t.right_px - fr.truth.center_px_right[0]]
+        tl, tr = fr.truth.center_px_left[0], fr.truth.center_px_right[0]
+        px_corr += [t.left_px - tl, t.right_px - tr]
+        rect = [rig.left.rectify_points(t.left_px)[0] - rig.left.rectify_points(tl)[0],
+                rig.right.rectify_points(t.right_px)[0] - rig.right.rectify_points(tr)[0]]
+        disp_err.append(float(rect[0][0] - rect[1][0]))
         px_raw += [t.left_centroid_px - fr.truth.center_px_left[0],
                    t.right_centroid_px - fr.truth.center_px_right[0]]
         ranges.append(float(np.linalg.norm(X)))
@@ -147,6 +152,11 @@ def accuracy(world: World, frames) -> None:
           f"{float(np.max(np.linalg.norm(pc, axis=1))):.2f} px)")
     print(f"  stereo limit Z^2 sqrt(2) sigma_c / (f B), RMS over frames: {rms_limit * 1e3:.3f} mm "
           f"(f = {f_rect:.1f} px, B = {B * 1e3:.2f} mm)")
+    sigma_d = float(np.sqrt(np.mean(np.square(disp_err))))
+    limit_d = float(np.sqrt(np.mean((Z ** 2 * sigma_d / (f_rect * B)) ** 2)))
+    print(f"  measured disparity error (RMS) {sigma_d:.3f} px (left/right centre errors are "
+          f"correlated, so below sqrt(2) sigma_c = {math.sqrt(2) * sigma_c:.3f} px): limit "
+          f"Z^2 sigma_d / (f B) = {limit_d * 1e3:.3f} mm")
     for name, e in errs.items():
         if not e:
             print(f"  {name:30s} no detections")

@@ -179,3 +179,16 @@ def test_bad_inputs_raise():
         config(TargetSpec("a", RED), selection="best")
     with pytest.raises(InputError, match="radius_m"):
         TargetSpec("a", RED, radius_m=-1.0)
+
+
+def test_hsi_range_detects_the_same_sphere_as_hsv():
+    cam = CameraModel(K, [0] * 5, 1280, 720)
+    img = background(3)
+    c = (0.05, 0.03, 0.4)
+    render_sphere(img, cam, c, 0.02, (30, 30, 200))
+    hsi = ColorRange((170, 100, 30), (10, 255, 255), "hsi")
+    (a,) = ColorDetector(config(TargetSpec("red", hsi, radius_m=0.02))).detect(img, cam)
+    (b,) = ColorDetector(config(TargetSpec("red", RED, radius_m=0.02))).detect(img, cam)
+    # edge pixels (partly covered) fall either side of two different thresholds
+    assert a.area_px == pytest.approx(b.area_px, rel=0.02)
+    assert np.allclose(a.center_px, cam.project(np.array([c]))[0], atol=0.1)

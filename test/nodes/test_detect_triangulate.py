@@ -210,6 +210,20 @@ def test_no_debug_image_without_subscribers(executor, ros_context, namespace, sp
     assert node._last_debug == -math.inf
 
 
+def test_every_target_gets_its_own_topic_when_several_are_configured(
+        executor, ros_context, namespace, spin_until):
+    node, feeder = start(executor, ros_context, namespace, target_names=["green", "red"],
+                         **{"targets.green.lower": [45, 120, 70],
+                            "targets.green.upper": [75, 255, 255]})
+    red: list[PointStamped] = []
+    feeder.node.create_subscription(PointStamped, "targets/red/point", red.append, RESULT_QOS)
+    assert pump(executor, spin_until, feeder, lambda: len(red) >= 1)
+    assert feeder.points == []  # target/point carries the first target (green): not in view
+    assert np.linalg.norm(np.array([red[0].point.x, red[0].point.y, red[0].point.z])
+                          - X_TRUE) < 1e-3
+    assert node.diag.counter("detections") == 0
+
+
 @pytest.mark.parametrize("params, match", [
     ({"method": "magic"}, "method"),
     ({"pixel_sigma": -1.0}, "pixel_sigma"),
