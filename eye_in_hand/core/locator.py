@@ -505,13 +505,16 @@ class StereoLocator:
     def _point(self, left_px: np.ndarray, right_px: np.ndarray, xl: np.ndarray,
                xr: np.ndarray) -> StereoPoint:
         cfg = self.config
-        kw = dict(sigma_px=cfg.pixel_sigma, max_residual_px=cfg.max_residual_px)
+        sigma, gate = cfg.pixel_sigma, cfg.max_residual_px
         if cfg.method == "dlt":
-            return triangulate_dlt(self.rig, xl, xr, rectified=True, **kw)
+            return triangulate_dlt(self.rig, xl, xr, rectified=True, sigma_px=sigma,
+                                   max_residual_px=gate)
         if cfg.method == "disparity":
-            return triangulate_parallax(self.rig, xl, xr, rectified=True, **kw)
-        start = triangulate_dlt(self.rig, xl, xr, rectified=True, sigma_px=cfg.pixel_sigma)
-        return triangulate_optimal(self.rig, left_px, right_px, initial=start, **kw)
+            return triangulate_parallax(self.rig, xl, xr, rectified=True, sigma_px=sigma,
+                                        max_residual_px=gate)
+        start = triangulate_dlt(self.rig, xl, xr, rectified=True, sigma_px=sigma)
+        return triangulate_optimal(self.rig, left_px, right_px, initial=start, sigma_px=sigma,
+                                   max_residual_px=gate)
 
     def _triangulate(self, spec: TargetSpec, dl: Detection, dr: Detection, xl: np.ndarray,
                      xr: np.ndarray) -> TargetLocation:
