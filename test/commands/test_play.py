@@ -196,3 +196,33 @@ def test_import_message_type() -> None:
     assert import_message_type("my_robot_msgs/msg/Flag") is None
     assert import_message_type("sensor_msgs/msg/NoSuchType") is None
     assert import_message_type("bad type") is None
+
+
+def test_play_process_stops_cleanly_on_ctrl_c(tmp_path, ros_env, namespace) -> None:
+    import selectors
+    import signal
+    import subprocess
+    import sys
+
+    _make_bag(tmp_path / "bag", namespace, n=10, spacing_ms=50)
+    proc = subprocess.Popen([sys.executable, "-m", "eye_in_hand.cli", "play",
+                             str(tmp_path / "bag"), "--loop", "--clock"],
+                            env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        sel = selectors.DefaultSelector()
+        sel.register(proc.stderr, selectors.EVENT_READ)
+        deadline = time.monotonic() + 30
+        seen = ""
+        while "playing" not in seen and time.monotonic() < deadline:
+            if sel.select(timeout=deadline - time.monotonic()):
+                seen += proc.stderr.readline()
+        assert "playing" in seen, seen
+        proc.send_signal(signal.SIGINT)
+        _out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err and "error" not in err.lower(), err
