@@ -18,7 +18,8 @@ import numpy as np
 from eye_in_hand.commands.calibrate_camera import (Frame, add_common_arguments, atomic_output_dir,
                                                    bag_count, check_common_arguments,
                                                    detect_files, expand_glob, iter_bag_pairs,
-                                                   options_from_args, progress, write_json)
+                                                   options_from_args, progress, read_image,
+                                                   report_skipped, view_entries, write_json)
 from eye_in_hand.errors import BagError, CalibrationError, InputError
 
 __all__ = ["HELP", "add_arguments", "run"]
@@ -106,10 +107,6 @@ def _gather(args: argparse.Namespace, board) -> tuple[list[Frame], list[Frame], 
 def _pair_image(args: argparse.Namespace, left: list[Frame], right: list[Frame], cal
                 ) -> tuple[tuple[np.ndarray, np.ndarray] | None, tuple | None, str]:
     """One used pair's raw images and corners for the rectified-pair figure."""
-    from eye_in_hand.commands.calibrate_camera import expand_glob as _glob
-    from eye_in_hand.commands.calibrate_camera import iter_bag_pairs as _pairs
-    from eye_in_hand.commands.calibrate_camera import read_image
-
     idx = next((i for i, v in enumerate(cal.views) if v.used and v.paired and not v.outlier),
                None)
     if idx is None:
@@ -117,11 +114,11 @@ def _pair_image(args: argparse.Namespace, left: list[Frame], right: list[Frame],
     corners = (left[idx].detection.corners, right[idx].detection.corners)
     name = f"{left[idx].name} / {right[idx].name}"
     if args.left:
-        lf = _glob(args.left, "--left")[idx]
-        rf = _glob(args.right, "--right")[idx]
+        lf = expand_glob(args.left, "--left")[idx]
+        rf = expand_glob(args.right, "--right")[idx]
         return (read_image(lf), read_image(rf)), corners, name
-    for k, (_stamp, (_ln, li), (_rn, ri)) in enumerate(_pairs(args.bag, args.left_topic,
-                                                             args.right_topic, args.every)):
+    for k, (_stamp, (_ln, li), (_rn, ri)) in enumerate(
+            iter_bag_pairs(args.bag, args.left_topic, args.right_topic, args.every)):
         if k == idx:
             return (li, ri), corners, name
     return None, None, ""
@@ -129,7 +126,6 @@ def _pair_image(args: argparse.Namespace, left: list[Frame], right: list[Frame],
 
 def run(args: argparse.Namespace) -> int:
     """Run ``calibrate stereo``; returns the exit code."""
-    from eye_in_hand.commands.calibrate_camera import report_skipped, view_entries
     from eye_in_hand.core.calibration import BoardSpec, calibrate_stereo
 
     check_common_arguments(args)

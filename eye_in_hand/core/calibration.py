@@ -615,6 +615,7 @@ class ViewResult:
         cam_T_board: array, shape (4, 4): board pose in the camera frame (None when not used).
         corners: array, shape (N, 2): observed corners, pixels.
         residuals: array, shape (N, 2): observed minus reprojected corners, pixels.
+        index: position of the view in the detections given to the calibration.
     """
 
     name: str
@@ -625,6 +626,7 @@ class ViewResult:
     cam_T_board: np.ndarray | None
     corners: np.ndarray
     residuals: np.ndarray
+    index: int = -1
 
     def to_dict(self) -> dict:
         """JSON-able summary (without the arrays)."""
@@ -876,12 +878,12 @@ def calibrate_camera(detections: Sequence[BoardDetection], names: Sequence[str] 
             res = det.corners - proj
             view_rms = float(np.sqrt(np.mean(np.sum(res ** 2, axis=1))))
             views.append(ViewResult(names[i], det.n_corners, view_rms, True, view_rms > thr, T,
-                                    det.corners, res))
+                                    det.corners, res, i))
         else:
             # rejected (or too few corners): report its error under the final intrinsics
             res, view_rms, T = _residuals_free_pose(det, K, dist)
             views.append(ViewResult(names[i], det.n_corners, view_rms, False,
-                                    i in rejected or view_rms > thr, T, det.corners, res))
+                                    i in rejected or view_rms > thr, T, det.corners, res, i))
     frac, cmap = coverage([detections[i].corners for i in active], size)
     return CameraCalibration(camera=camera, rms_px=rms, views=tuple(views),
                              std=_std_dict(std_intr, options), coverage=frac, coverage_map=cmap,
@@ -1397,8 +1399,8 @@ def _stereo_once(left: Sequence[BoardDetection], right: Sequence[BoardDetection]
                               camera_name="left", max_rejection_rounds=0)
     mono_r = calibrate_camera(rdets, rnames, options=options, min_views=min_views,
                               camera_name="right", max_rejection_rounds=0)
-    pose_l = {lnames.index(v.name): v.cam_T_board for v in mono_l.views if v.used}
-    pose_r = {rnames.index(v.name): v.cam_T_board for v in mono_r.views if v.used}
+    pose_l = {v.index: v.cam_T_board for v in mono_l.views if v.used}
+    pose_r = {v.index: v.cam_T_board for v in mono_r.views if v.used}
     rels = [pose_r[i] @ np.linalg.inv(pose_l[i]) for i in paired if i in pose_l and i in pose_r]
     if not rels:
         raise CalibrationError("stereo: no pair has a board pose in both cameras")
