@@ -480,7 +480,9 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
 
 def bootstrap_covariance(samples: Sequence[HandEyeSample], setup: str, *,
                          cameras: Sequence[CameraView] | None = None, n_boot: int = 50,
-                         seed: int = 0, start: str = "park") -> np.ndarray:
+                         seed: int = 0, start: str = "park",
+                         X0: np.ndarray | None = None,
+                         Y0: np.ndarray | None = None) -> np.ndarray:
     """Bootstrap covariance of the refined X (resampling samples with replacement).
 
     Used to check the Jacobian covariance. Each draw solves ``start`` and refines from it.
@@ -491,7 +493,8 @@ def bootstrap_covariance(samples: Sequence[HandEyeSample], setup: str, *,
         cameras: rig cameras (reprojection refinement when given and corners exist).
         n_boot: number of bootstrap draws.
         seed: random seed.
-        start: the closed form to start each refinement from.
+        start: the closed form to start each refinement from, unless ``X0``, ``Y0`` are given.
+        X0, Y0: start every refinement from these (e.g. the full-data solution; faster).
 
     Returns:
         shape (6, 6), order ``x y z rx ry rz`` (rotation as a left perturbation of the mean).
@@ -508,9 +511,12 @@ def bootstrap_covariance(samples: Sequence[HandEyeSample], setup: str, *,
         sub = [samples[i] for i in idx]
         bte = np.stack([s.base_T_ee for s in sub])
         ctb = np.stack([s.cam_T_board for s in sub])
-        X0 = _solve(start, bte, ctb, setup)
-        Y0, _, _ = board_spread(X0, bte, ctb, setup)
-        xs.append(_refine(X0, Y0, sub, cameras, setup, use_corners).X)
+        if X0 is not None and Y0 is not None:
+            Xs, Ys = X0, Y0
+        else:
+            Xs = _solve(start, bte, ctb, setup)
+            Ys, _, _ = board_spread(Xs, bte, ctb, setup)
+        xs.append(_refine(Xs, Ys, sub, cameras, setup, use_corners).X)
     X_mean = average_transforms(np.stack(xs))
     par = np.stack([np.concatenate([x[:3, 3], Rotation.from_matrix(
         x[:3, :3] @ X_mean[:3, :3].T).as_rotvec()]) for x in xs])

@@ -10,7 +10,8 @@ The covariance of X is reported in that order (``x y z rx ry rz``), the conventi
 ``hand_eye.yaml`` and of :mod:`eye_in_hand.core.localization`.
 
 Two cost functions, both minimised with ``scipy.optimize.least_squares`` (trust region
-reflective, robust ``soft_l1`` loss):
+reflective with the LSMR sub-problem solver, which avoids a dense SVD per iteration; robust
+``soft_l1`` loss):
 
 * **reprojection** (images available): the pixel error of every board corner in every sample,
   in every camera of the rig (left and right for a stereo rig, through ``view_T_cam``);
@@ -41,6 +42,7 @@ __all__ = [
     "refine_pose_space",
     "reprojection_errors",
     "perturb",
+    "project_points",
 ]
 
 
@@ -102,6 +104,36 @@ def _covariance(res, m: int) -> tuple[np.ndarray, float]:
     return 0.5 * (cov + cov.T), float(np.sqrt(s2))
 
 
+def project_points(points_cam: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """OpenCV's pinhole + distortion model, vectorised (as ``cv2.projectPoints``).
+
+    Args:
+        points_cam: shape (N, 3), camera frame.
+        K: shape (3, 3).
+        dist: OpenCV coefficients ``k1 k2 p1 p2 [k3 [k4 k5 k6]]`` (4, 5 or 8 values).
+
+    Returns:
+        Distorted pixels, shape (N, 2).
+    """
+    d = np.zeros(8)
+    dist = np.asarray(dist, dtype=np.float64).ravel()
+    if dist.size > 8:
+        if np.any(dist[8:] != 0):
+            raise HandEyeError("thin-prism / tilted distortion terms are not supported")
+        dist = dist[:8]
+    d[:dist.size] = dist
+    k1, k2, p1, p2, k3, k4, k5, k6 = d
+    x = points_cam[:, 0] / points_cam[:, 2]
+    y = points_cam[:, 1] / points_cam[:, 2]
+    r2 = x * x + y * y
+    radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    K = np.asarray(K, dtype=np.float64)
+    # Like cv2.projectPoints, the skew K[0, 1] is ignored.
+    return np.stack([K[0, 0] * xd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=1)
+
+
 def _project(view: CameraView, cam_T_board: np.ndarray, obj: np.ndarray) -> np.ndarray:
     import cv2
 
@@ -149,7 +181,7 @@ def reprojection_errors(X: np.ndarray, Y: np.ndarray, samples: Sequence[HandEyeS
 
 def refine_reprojection(X0: np.ndarray, Y0: np.ndarray, samples: Sequence[HandEyeSample],
                         cameras: Sequence[CameraView], setup: str, *,
-                        f_scale_px: float = 1.0, max_nfev: int = 200) -> RefinementResult:
+                        f_scale_px: float = 3.0, max_nfev: int = 200) -> RefinementResult:
     """Refine X and Y by minimising the corner reprojection error over all samples and cameras.
 
     Args:
@@ -179,27 +211,32 @@ def refine_reprojection(X0: np.ndarray, Y0: np.ndarray, samples: Sequence[HandEy
                 raise HandEyeError(f"sample {s.name!r}: corners from camera {ob.camera!r}, "
                                    f"but the rig has {sorted(views)}")
     Ginv = _inv_stack(gripper_poses(np.stack([s.base_T_ee for s in samples]), setup))
-    K = {c.name: np.asarray(c.model.K, dtype=np.float64) for c in cameras}
-    D = {c.name: np.asarray(c.model.dist, dtype=np.float64) for c in cameras}
-    import cv2
+    # Per camera: every corner of every sample, with its sample index (vectorised model).
+    blocks = []
+    for cam in cameras:
+        obs = [(k, ob) for k, s in enumerate(samples) for ob in s.observations
+               if ob.camera == cam.name]
+        if not obs:
+            continue
+        idx = np.concatenate([np.full(ob.object_points.shape[0], k) for k, ob in obs])
+        obj = np.concatenate([ob.object_points for _, ob in obs])
+        img = np.concatenate([ob.image_points for _, ob in obs])
+        blocks.append((cam, idx, obj, img))
 
     def residuals(p: np.ndarray) -> np.ndarray:
         Xi = _inv(perturb(X0, p[:6]))
         Y = perturb(Y0, p[6:])
+        C = Xi @ Ginv @ Y                                   # (N, 4, 4) cam_T_board
         out = []
-        for s, gi in zip(samples, Ginv):
-            C = Xi @ gi @ Y
-            for ob in s.observations:
-                T = views[ob.camera].view_T_cam @ C
-                rvec = Rotation.from_matrix(T[:3, :3]).as_rotvec()
-                px, _ = cv2.projectPoints(ob.object_points, rvec, T[:3, 3].copy(),
-                                          K[ob.camera], D[ob.camera])
-                out.append((px.reshape(-1, 2) - ob.image_points).ravel())
+        for cam, idx, obj, img in blocks:
+            T = cam.view_T_cam @ C
+            pts = np.einsum("kij,kj->ki", T[idx, :3, :3], obj) + T[idx, :3, 3]
+            out.append((project_points(pts, cam.model.K, cam.model.dist) - img).ravel())
         return np.concatenate(out)
 
     p0 = np.concatenate([_start(X0), _start(Y0)])
     res = least_squares(residuals, p0, loss="soft_l1", f_scale=float(f_scale_px),
-                        x_scale="jac", max_nfev=max_nfev, method="trf")
+                        x_scale="jac", max_nfev=max_nfev, method="trf", tr_solver="lsmr")
     cov, sigma = _covariance(res, res.fun.size)
     return RefinementResult(perturb(X0, res.x[:6]), perturb(Y0, res.x[6:]), cov[:6, :6], cov,
                             sigma, float(res.cost), int(res.nfev), "reprojection")
@@ -262,7 +299,7 @@ def refine_pose_space(X0: np.ndarray, Y0: np.ndarray, base_T_ee: np.ndarray,
 
     p0 = np.concatenate([_start(X0), _start(Y0)])
     res = least_squares(residuals, p0, loss="soft_l1", f_scale=float(f_scale), x_scale="jac",
-                        max_nfev=max_nfev, method="trf")
+                        max_nfev=max_nfev, method="trf", tr_solver="lsmr")
     cov, sigma = _covariance(res, res.fun.size)
     return RefinementResult(perturb(X0, res.x[:6]), perturb(Y0, res.x[6:]), cov[:6, :6], cov,
                             sigma, float(res.cost), int(res.nfev), "pose")
