@@ -28,10 +28,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-r", "--rate", type=_positive, default=1.0,
                         help="playback speed factor (default 1.0; 2.0 plays twice as fast)")
     parser.add_argument("-l", "--loop", action="store_true", help="restart at the end, forever")
-    parser.add_argument("--clock", nargs="?", const=40.0, default=None, type=_positive,
-                        metavar="HZ",
-                        help="publish /clock (rosgraph_msgs/Clock) at HZ (default 40) for "
-                             "nodes with use_sim_time")
+    parser.add_argument("--clock", action="store_true",
+                        help="publish /clock (rosgraph_msgs/Clock) with the bag time, for nodes "
+                             "with use_sim_time")
+    parser.add_argument("--clock-hz", type=_positive, default=40.0, metavar="HZ",
+                        help="/clock publishing frequency (default 40, as ros2 bag play)")
     parser.add_argument("--topics", nargs="+", default=[], metavar="TOPIC",
                         help="play only these topics (default: all)")
     parser.add_argument("--start-offset", type=_non_negative, default=0.0, metavar="S",
@@ -58,8 +59,8 @@ def run(args: argparse.Namespace) -> int:
         Parameter("bag", value=str(args.bag)),
         Parameter("rate", value=float(args.rate)),
         Parameter("loop", value=bool(args.loop)),
-        Parameter("clock", value=args.clock is not None),
-        Parameter("clock_hz", value=float(args.clock or 40.0)),
+        Parameter("clock", value=bool(args.clock)),
+        Parameter("clock_hz", value=float(args.clock_hz)),
         Parameter("start_offset", value=float(args.start_offset)),
         Parameter("wait_for_subscribers", value=float(args.wait_for_subscribers)),
     ]
