@@ -52,7 +52,7 @@ __all__ = [
 _END = object()
 
 
-def import_message_type(msgtype: str) -> type | None:
+def import_message_type(msgtype: str) -> Any:
     """The Python message class for ``pkg/msg/Type``, or None when it is not installed.
 
     Args:
@@ -260,7 +260,7 @@ class BagPlayer(Node):
         return bag0 + int((time.monotonic() - mono0) * self.config.rate * 1e9)
 
     def _publish_clock(self) -> None:
-        if self._done.is_set():
+        if self._done.is_set() or self._clock_pub is None:
             return
         now = self._now_bag_ns()
         if now is None:
