@@ -13,6 +13,7 @@ PACKAGE = "eye_in_hand"
 NODE_SCRIPTS = [
     "bag_player = eye_in_hand.nodes.bag_player:main",
     "bag_recorder = eye_in_hand.nodes.bag_recorder:main",
+    "hand_eye = eye_in_hand.nodes.hand_eye:main",
     "stereo_capture = eye_in_hand.nodes.stereo_capture:main",
     "detect_triangulate = eye_in_hand.nodes.detect_triangulate:main",
 ]

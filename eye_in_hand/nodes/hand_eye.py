@@ -1,0 +1,550 @@
+"""The ``hand_eye`` node: target in the robot base frame, and hand-eye calibration on the robot.
+
+Localization mode (``mode: localization``)
+    Subscribes ``target/point`` (geometry_msgs/PointStamped, left optical frame, from
+    ``detect_triangulate``) and the robot pose: ``ee_pose`` (geometry_msgs/PoseStamped,
+    base_link -> tool0) or ``joint_states`` (sensor_msgs/JointState, through a DH YAML or URDF
+    kinematics file). Loads ``hand_eye.yaml``. For every point it interpolates the robot pose at
+    the point's (image) stamp and publishes ``target/pose`` (PoseStamped in the base frame, stamp
+    = image stamp, orientation identity: the target is a point) and ``target/pose_cov``
+    (PoseWithCovarianceStamped; position block propagated from the triangulation covariance,
+    the hand-eye covariance and the robot pose noise; orientation variances set to 1e6 rad^2,
+    i.e. unknown). A point whose stamp is newer than the newest robot pose waits up to
+    ``max_pose_wait_s`` for it; the pose is never extrapolated and never taken across a gap
+    over ``max_pose_gap_s``, so when robot poses stop arriving no ``target/pose`` is published
+    and ``diagnostics`` says why. ``hand_eye/transform`` (TransformStamped tool0 -> camera,
+    transient local) is published once at start-up.
+
+Calibration mode (``mode: calibration``)
+    Subscribes ``left/image_raw`` (and ``right/image_raw`` for a stereo rig) and the robot pose.
+    Services (std_srvs/Trigger): ``hand_eye/capture`` takes the newest image, detects the board,
+    pairs it with the robot pose interpolated at the image stamp, and refuses while the robot
+    moves; ``hand_eye/compute`` solves AX = XB with every method and refines; ``hand_eye/save``
+    writes ``hand_eye.yaml``, ``report.json`` and ``report.html`` to ``output_dir`` (the same files
+    as ``eye-in-hand calibrate handeye``); ``hand_eye/reset`` forgets the samples.
+    ``diagnostics`` shows the sample count and the motion diversity.
+"""
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rclpy
+import yaml
+from geometry_msgs.msg import PointStamped, PoseStamped, PoseWithCovarianceStamped, TransformStamped
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image, JointState
+from std_srvs.srv import Trigger
+
+from eye_in_hand.core.localization import Localizer, LocalizerConfig
+from eye_in_hand.core.transforms import rotation_angle
+from eye_in_hand.errors import (ConfigError, ConversionError, EyeInHandError, InputError,
+                                LocalizationError)
+from eye_in_hand.ros.conversions import (header_stamp_ns, image_to_numpy, matrix_to_pose,
+                                         matrix_to_transform_stamped, ns_to_stamp, point_to_xyz,
+                                         pose_to_matrix)
+from eye_in_hand.ros.diagnostics import NodeDiagnostics
+from eye_in_hand.ros.params import load_config, param
+from eye_in_hand.ros.qos import LATCHED_QOS, RESULT_QOS, SENSOR_QOS
+
+#: Robot poses: best effort (matches reliable and best-effort publishers) but a deep queue, so
+#: a burst of high-rate poses is not lost while the executor is busy.
+ROBOT_POSE_QOS = QoSProfile(depth=500, reliability=ReliabilityPolicy.BEST_EFFORT,
+                            history=HistoryPolicy.KEEP_LAST)
+
+__all__ = ["HandEyeNodeConfig", "HandEyeNode", "load_kinematics", "main"]
+
+NODE_NAME = "hand_eye"
+#: Orientation variance written to target/pose_cov (the target is a point: orientation unknown).
+UNKNOWN_ROTATION_VARIANCE = 1e6
+
+
+def _existing_file(value: str) -> str | None:
+    return None if not value or Path(value).is_file() else f"file not found: {value}"
+
+
+@dataclass(frozen=True)
+class HandEyeNodeConfig:
+    """Parameters of the ``hand_eye`` node (validated once at start-up)."""
+
+    mode: str = param("localization", "localization: publish target/pose; calibration: "
+                      "collect samples through the hand_eye/* services",
+                      choices=("localization", "calibration"))
+    hand_eye_file: str = param("", "hand_eye.yaml to load (required in localization mode)",
+                               validate=_existing_file)
+    robot_pose_source: str = param("ee_pose", "where the robot pose comes from: the ee_pose "
+                                   "topic (PoseStamped) or joint_states + kinematics_file",
+                                   choices=("ee_pose", "joint_states"))
+    kinematics_file: str = param("", "DH YAML (the 'arm' mapping of world.yaml: d, a, alpha, "
+                                 "...) or URDF file, for robot_pose_source joint_states",
+                                 validate=_existing_file)
+    urdf_base_link: str = param("base_link", "URDF chain root link (URDF kinematics only)")
+    urdf_tip_link: str = param("tool0", "URDF chain tip link (URDF kinematics only)")
+    base_frame: str = param("base_link", "robot base frame id (frame of target/pose)")
+    ee_frame: str = param("tool0", "end-effector frame id (parent of the camera)")
+    camera_frame: str = param("camera_left_optical_frame", "left optical frame id; points in "
+                              "another non-empty frame are rejected")
+    max_pose_gap_s: float = param(0.05, "largest gap between the two robot poses that bracket "
+                                  "an image stamp (s)", range=(1e-4, 10.0))
+    max_pose_wait_s: float = param(0.2, "how long a point waits for a robot pose newer than "
+                                   "its stamp before it is dropped as stale (s)",
+                                   range=(0.0, 10.0))
+    pose_buffer_size: int = param(4000, "robot poses kept for interpolation",
+                                  range=(2, 1_000_000))
+    robot_sigma_pos_m: float = param(0.0001, "robot pose position noise, 1 sigma (m)",
+                                     range=(0.0, 1.0))
+    robot_sigma_rot_rad: float = param(0.0001, "robot pose rotation noise about the flange, "
+                                       "1 sigma (rad)", range=(0.0, 1.0))
+    stale_after_s: float = param(1.0, "diagnostics WARN when no robot pose or point arrived "
+                                 "for this long (s)", range=(0.01, 3600.0))
+    # -- calibration mode ---------------------------------------------------------------
+    board: str = param("chessboard:9x6:0.025", "calibration board spec (calibration mode)")
+    calibration_dir: str = param("", "directory with left.yaml + right.yaml (stereo) or "
+                                 "camera.yaml (mono) for calibration mode")
+    output_dir: str = param("hand_eye_calibration", "where hand_eye/save writes its files")
+    still_window_s: float = param(0.2, "capture: the robot must be still over +- this window "
+                                  "around the image stamp (s)", range=(0.0, 5.0))
+    still_max_speed_m_s: float = param(0.002, "capture: largest tool speed counted as still "
+                                       "(m/s)", range=(0.0, 10.0))
+    still_max_rot_speed_rad_s: float = param(0.01, "capture: largest tool angular speed "
+                                             "counted as still (rad/s)", range=(0.0, 10.0))
+
+    def __post_init__(self) -> None:
+        if self.mode == "localization" and not self.hand_eye_file:
+            raise ValueError("hand_eye_file: required in localization mode")
+        if self.robot_pose_source == "joint_states" and not self.kinematics_file:
+            raise ValueError("kinematics_file: required when robot_pose_source is joint_states")
+        if self.mode == "calibration" and not self.calibration_dir:
+            raise ValueError("calibration_dir: required in calibration mode")
+
+
+def load_kinematics(path: str, base_link: str = "base_link", tip_link: str = "tool0") -> Any:
+    """A kinematic chain from a URDF file (``*.urdf``, ``*.xml``) or a DH YAML file.
+
+    The DH YAML is the ``arm`` mapping of ``world.yaml`` (or a file with an ``arm`` key).
+
+    Raises:
+        ConfigError: the file is missing or malformed (names it).
+    """
+    from eye_in_hand.core.kinematics import DHChain, UrdfChain
+
+    p = Path(path)
+    try:
+        if p.suffix.lower() in (".urdf", ".xml"):
+            return UrdfChain.from_file(p, base_link, tip_link)
+        data = yaml.safe_load(p.read_text())
+        if isinstance(data, dict) and "arm" in data:
+            data = data["arm"]
+        if not isinstance(data, dict):
+            raise ConfigError(f"{p}: expected a DH mapping (d, a, alpha, ...)")
+        return DHChain.from_dict(data)
+    except ConfigError:
+        raise
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read kinematics file ({exc})") from exc
+    except (EyeInHandError, ValueError, KeyError, TypeError, yaml.YAMLError) as exc:
+        raise ConfigError(f"{p}: invalid kinematics file ({exc})") from exc
+
+
+@dataclass
+class _Pending:
+    stamp_ns: int
+    point: np.ndarray
+    cov: np.ndarray | None
+    arrived: float
+
+
+class HandEyeNode(Node):
+    """See the module docstring. ``kwargs`` go to ``Node`` (context, namespace, overrides)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        self.config: HandEyeNodeConfig = load_config(self, HandEyeNodeConfig)
+        cfg = self.config
+        self.diag = NodeDiagnostics(self, hardware_id=NODE_NAME)
+        self._chain = None
+        self._joint_index: np.ndarray | None = None
+        if cfg.robot_pose_source == "joint_states":
+            self._chain = load_kinematics(cfg.kinematics_file, cfg.urdf_base_link,
+                                          cfg.urdf_tip_link)
+        self.calibration = None
+        ee_T_cam = np.eye(4)
+        cov = None
+        if cfg.mode == "localization":
+            from eye_in_hand.io.config import load_hand_eye
+
+            self.calibration = load_hand_eye(cfg.hand_eye_file)
+            if self.calibration.setup != "eye_in_hand":
+                raise ConfigError(f"{cfg.hand_eye_file}: setup is {self.calibration.setup!r}; "
+                                  "this node localizes with an eye_in_hand calibration")
+            ee_T_cam, cov = self.calibration.transform, self.calibration.covariance
+        self.localizer = Localizer(ee_T_cam, cov, LocalizerConfig(
+            max_gap_ns=int(cfg.max_pose_gap_s * 1e9), buffer_size=cfg.pose_buffer_size,
+            robot_sigma_pos_m=cfg.robot_sigma_pos_m,
+            robot_sigma_rot_rad=cfg.robot_sigma_rot_rad))
+
+        if cfg.robot_pose_source == "ee_pose":
+            self.create_subscription(PoseStamped, "ee_pose", self._on_ee_pose, ROBOT_POSE_QOS)
+        else:
+            self.create_subscription(JointState, "joint_states", self._on_joint_state,
+                                     ROBOT_POSE_QOS)
+        self.diag.declare_counter("robot_poses")
+        self.diag.stale_after("robot_poses", cfg.stale_after_s)
+
+        if cfg.mode == "localization":
+            self._setup_localization()
+        else:
+            self._setup_calibration()
+        self.get_logger().info(f"{NODE_NAME} started in {cfg.mode} mode, robot pose from "
+                               f"{cfg.robot_pose_source}")
+
+    # -- robot pose -----------------------------------------------------------------------
+    def _on_ee_pose(self, msg: PoseStamped) -> None:
+        try:
+            stamp = header_stamp_ns(msg)
+            frame = msg.header.frame_id
+            if frame and frame.lstrip("/") != self.config.base_frame:
+                self.diag.report("ee_pose_frame", f"ee_pose in frame {frame!r}, expected "
+                                 f"{self.config.base_frame!r}: ignored")
+                return
+            self.localizer.add_robot_pose(stamp, pose_to_matrix(msg.pose))
+        except (ConversionError, InputError) as exc:
+            self.diag.report("bad_ee_pose", f"ee_pose: {exc}")
+            return
+        self._after_pose()
+
+    def _on_joint_state(self, msg: JointState) -> None:
+        assert self._chain is not None
+        try:
+            stamp = header_stamp_ns(msg)
+            names = list(msg.name)
+            if self._joint_index is None or len(names) != len(self._joint_index_names):
+                self._index_joints(names)
+            q = np.asarray(msg.position, dtype=np.float64)[self._joint_index]
+            if not np.all(np.isfinite(q)):
+                raise InputError("joint_states: position contains NaN")
+            self.localizer.add_robot_pose(stamp, self._chain.fk(q))
+        except (ConversionError, InputError, IndexError, EyeInHandError) as exc:
+            self._joint_index = None
+            self.diag.report("bad_joint_states", f"joint_states: {exc}")
+            return
+        self._after_pose()
+
+    _joint_index_names: tuple[str, ...] = ()
+
+    def _index_joints(self, names: list[str]) -> None:
+        want = list(self._chain.joint_names)
+        missing = [n for n in want if n not in names]
+        if missing:
+            raise InputError(f"joint_states lacks joint(s) {', '.join(missing)} "
+                             f"(has {', '.join(names)})")
+        self._joint_index = np.array([names.index(n) for n in want])
+        self._joint_index_names = tuple(names)
+
+    def _after_pose(self) -> None:
+        self.diag.count("robot_poses")
+        if self.config.mode == "localization":
+            self._drain_pending()
+
+    # -- localization -----------------------------------------------------------------------
+    def _setup_localization(self) -> None:
+        cfg = self.config
+        self._pending: deque[_Pending] = deque(maxlen=1000)
+        self._covs: dict[int, np.ndarray] = {}
+        self.create_subscription(PointStamped, "target/point", self._on_point, RESULT_QOS)
+        self.create_subscription(PoseWithCovarianceStamped, "target/point_cov",
+                                 self._on_point_cov, RESULT_QOS)
+        self.pub_pose = self.create_publisher(PoseStamped, "target/pose", RESULT_QOS)
+        self.pub_pose_cov = self.create_publisher(PoseWithCovarianceStamped, "target/pose_cov",
+                                                  RESULT_QOS)
+        self.pub_transform = self.create_publisher(TransformStamped, "hand_eye/transform",
+                                                   LATCHED_QOS)
+        assert self.calibration is not None
+        self.pub_transform.publish(matrix_to_transform_stamped(
+            self.calibration.transform, stamp_ns=self.get_clock().now().nanoseconds,
+            frame_id=cfg.ee_frame, child_frame_id=cfg.camera_frame))
+        self.diag.declare_counter("points", "poses_published", "rejected")
+        self.diag.stale_after("points", cfg.stale_after_s)
+        self.create_timer(0.02, self._expire_pending)
+
+    def _on_point(self, msg: PointStamped) -> None:
+        self.diag.count("points")
+        try:
+            stamp = header_stamp_ns(msg)
+            frame = msg.header.frame_id
+            if frame and frame.lstrip("/") != self.config.camera_frame:
+                self.diag.report("point_frame", f"target/point in frame {frame!r}, expected "
+                                 f"{self.config.camera_frame!r}: ignored")
+                self.diag.count("rejected")
+                return
+            p = point_to_xyz(msg.point)
+        except (ConversionError, InputError) as exc:
+            self.diag.report("bad_point", f"target/point: {exc}")
+            self.diag.count("rejected")
+            return
+        self._pending.append(_Pending(stamp, p, self._covs.pop(stamp, None), time.monotonic()))
+        self._drain_pending()
+
+    def _on_point_cov(self, msg: PoseWithCovarianceStamped) -> None:
+        """Triangulation covariance for the point with the same stamp (position block)."""
+        try:
+            stamp = header_stamp_ns(msg)
+            cov = np.asarray(msg.pose.covariance, dtype=np.float64).reshape(6, 6)[:3, :3]
+            if not np.all(np.isfinite(cov)):
+                raise InputError("covariance contains NaN")
+        except (ConversionError, InputError, ValueError) as exc:
+            self.diag.report("bad_point_cov", f"target/point_cov: {exc}")
+            return
+        for item in self._pending:
+            if item.stamp_ns == stamp:
+                item.cov = cov
+                break
+        else:
+            self._covs[stamp] = cov
+            while len(self._covs) > 200:
+                self._covs.pop(next(iter(self._covs)))
+        self._drain_pending()
+
+    def _ready(self, item: _Pending, newest: int | None, now: float) -> bool:
+        """Whether a pending point can be processed now (or must be, its wait being over)."""
+        if now - item.arrived > self.config.max_pose_wait_s:
+            return True
+        if newest is None or item.stamp_ns > newest:
+            return False  # wait for a robot pose at or after the image stamp
+        # Wait for the triangulation covariance when a detector publishes one.
+        return item.cov is not None or self.count_publishers("target/point_cov") == 0
+
+    def _drain_pending(self) -> None:
+        newest = self.localizer.poses.newest_ns
+        now = time.monotonic()
+        while self._pending and self._ready(self._pending[0], newest, now):
+            # FIFO: output stays in stamp order.
+            self._locate(self._pending.popleft())
+
+    def _expire_pending(self) -> None:
+        if self._pending:
+            self._drain_pending()
+
+    def _locate(self, item: _Pending) -> None:
+        try:
+            res = self.localizer.locate(item.stamp_ns, item.point, item.cov)
+        except LocalizationError as exc:
+            self.diag.count("rejected")
+            self.diag.report("no_robot_pose", f"no target/pose for the point at "
+                             f"{item.stamp_ns} ns: {exc}")
+            return
+        self._publish(res.stamp_ns, res.point_base, res.covariance)
+
+    def _publish(self, stamp_ns: int, p: np.ndarray, cov: np.ndarray) -> None:
+        T = np.eye(4)
+        T[:3, 3] = p
+        msg = PoseStamped()
+        msg.header.stamp = ns_to_stamp(stamp_ns)
+        msg.header.frame_id = self.config.base_frame
+        msg.pose = matrix_to_pose(T)
+        self.pub_pose.publish(msg)
+        cmsg = PoseWithCovarianceStamped()
+        cmsg.header = msg.header
+        cmsg.pose.pose = msg.pose
+        full = np.zeros((6, 6))
+        full[:3, :3] = cov
+        full[3:, 3:] = np.eye(3) * UNKNOWN_ROTATION_VARIANCE
+        cmsg.pose.covariance = [float(v) for v in full.ravel()]
+        self.pub_pose_cov.publish(cmsg)
+        self.diag.count("poses_published")
+        self.diag.gauge("latency_ms", round((self.get_clock().now().nanoseconds - stamp_ns) / 1e6,
+                                            3))
+        self.diag.gauge("sigma_mm", round(1000.0 * float(np.sqrt(max(np.trace(cov), 0.0))), 4))
+
+    # -- calibration ---------------------------------------------------------------------
+    def _setup_calibration(self) -> None:
+        from eye_in_hand.core.calibration import BoardSpec
+        from eye_in_hand.core.camera import CameraModel, StereoRig
+        from eye_in_hand.core.handeye.observe import rig_views
+
+        cfg = self.config
+        try:
+            self.board = BoardSpec.parse(cfg.board)
+        except EyeInHandError as exc:
+            raise ConfigError(f"board: {exc}") from exc
+        cdir = Path(cfg.calibration_dir)
+        if (cdir / "left.yaml").exists():
+            self.views = rig_views(rig=StereoRig.load(cdir))
+        elif (cdir / "camera.yaml").exists():
+            self.views = rig_views(camera=CameraModel.load_yaml(cdir / "camera.yaml"))
+        else:
+            raise ConfigError(f"calibration_dir: {cdir} has neither left.yaml + right.yaml "
+                              "nor camera.yaml")
+        self._images: dict[str, deque[tuple[int, Image]]] = {}
+        for view in self.views:
+            self._images[view.name] = deque(maxlen=10)
+            topic = "image_raw" if view.name == "image" else f"{view.name}/image_raw"
+            self.create_subscription(Image, topic,
+                                     lambda m, name=view.name: self._on_image(name, m),
+                                     SENSOR_QOS)
+        self.samples: list[Any] = []
+        self.skipped: list[dict[str, str]] = []
+        self.result = None
+        for name, cb in (("capture", self._srv_capture), ("compute", self._srv_compute),
+                         ("save", self._srv_save), ("reset", self._srv_reset)):
+            self.create_service(Trigger, f"hand_eye/{name}", cb)
+        self.diag.gauge("samples", 0)
+
+    def _on_image(self, name: str, msg: Image) -> None:
+        try:
+            stamp = header_stamp_ns(msg)
+        except ConversionError as exc:
+            self.diag.report("bad_image", f"{name}/image_raw: {exc}")
+            return
+        self._images[name].append((stamp, msg))
+        self.diag.count(f"{name}_images")
+
+    def _latest_images(self) -> tuple[int, dict[str, np.ndarray]]:
+        ref = self.views[0].name
+        if not self._images[ref]:
+            raise InputError(f"no {ref} image received yet")
+        for stamp, msg in reversed(self._images[ref]):
+            images = {ref: msg}
+            for view in self.views[1:]:
+                match = [m for s, m in self._images[view.name] if s == stamp]
+                if match:
+                    images[view.name] = match[-1]
+            if len(images) == len(self.views):
+                break
+        else:
+            raise InputError("no left/right image pair with equal stamps received yet")
+        decoded = {k: image_to_numpy(m, desired_encoding="bgr8" if m.encoding not in
+                                     ("mono8", "mono16") else None) for k, m in images.items()}
+        return stamp, decoded
+
+    def _robot_still(self, stamp: int) -> tuple[np.ndarray, str]:
+        """Robot pose at ``stamp`` and '' if still, else a reason."""
+        cfg = self.config
+        gap = int(cfg.max_pose_gap_s * 1e9)
+        T = self.localizer.poses.lookup(stamp, gap)
+        w = int(cfg.still_window_s * 1e9)
+        if w > 0:
+            for s in (stamp - w, stamp + w):
+                try:
+                    Ts = self.localizer.poses.lookup(s, gap)
+                except LocalizationError as exc:
+                    return T, f"cannot check that the robot is still: {exc}"
+                dt = abs(s - stamp) / 1e9
+                v = np.linalg.norm(Ts[:3, 3] - T[:3, 3]) / dt
+                wv = rotation_angle(Ts[:3, :3].T @ T[:3, :3]) / dt
+                if v > cfg.still_max_speed_m_s or wv > cfg.still_max_rot_speed_rad_s:
+                    return T, (f"the robot is moving ({1000 * v:.1f} mm/s, "
+                               f"{np.degrees(wv):.2f} deg/s): wait until it is still")
+        return T, ""
+
+    def _srv_capture(self, request: Trigger.Request, response: Trigger.Response):
+        from eye_in_hand.core.handeye.observe import observe_sample
+
+        try:
+            stamp, images = self._latest_images()
+            base_T_ee, moving = self._robot_still(stamp)
+            if moving:
+                response.success, response.message = False, f"refused: {moving}"
+                return response
+            name = f"sample_{len(self.samples) + len(self.skipped):03d}"
+            obs = observe_sample(name, images, base_T_ee, self.board, self.views)
+        except (EyeInHandError, LocalizationError) as exc:
+            response.success, response.message = False, f"capture failed: {exc}"
+            return response
+        if obs.sample is None:
+            self.skipped.append({"name": name, "reason": obs.reason})
+            response.success, response.message = False, f"{name} not taken: {obs.reason}"
+            return response
+        self.samples.append(obs.sample)
+        self._update_motion_diag()
+        notes = f" ({'; '.join(obs.notes)})" if obs.notes else ""
+        response.success = True
+        response.message = f"captured {name} at {stamp} ns: {len(self.samples)} samples{notes}"
+        return response
+
+    def _update_motion_diag(self) -> None:
+        from eye_in_hand.core.handeye import motion_diagnostics
+
+        self.diag.gauge("samples", len(self.samples))
+        if len(self.samples) >= 2:
+            try:
+                md = motion_diagnostics(np.stack([s.base_T_ee for s in self.samples]),
+                                        "eye_in_hand")
+                for k, v in md.to_dict().items():
+                    if isinstance(v, (int, float)) and not isinstance(v, bool):
+                        self.diag.gauge(f"motion.{k}", round(float(v), 4))
+            except EyeInHandError as exc:
+                self.diag.gauge("motion.problem", str(exc))
+
+    def _srv_compute(self, request: Trigger.Request, response: Trigger.Response):
+        from eye_in_hand.core.handeye import calibrate_hand_eye
+
+        try:
+            self.result = calibrate_hand_eye(self.samples, "eye_in_hand", cameras=self.views)
+        except EyeInHandError as exc:
+            response.success, response.message = False, f"compute failed: {exc}"
+            return response
+        sel = self.result.methods[self.result.selected]
+        t = self.result.X[:3, 3]
+        response.success = True
+        response.message = (f"{self.result.selected} from {len(self.result.sample_names)} "
+                            f"samples: translation [{t[0]:.5f}, {t[1]:.5f}, {t[2]:.5f}] m, "
+                            f"1-sigma {sel.std_mm:.3f} mm / {sel.std_deg:.4f} deg, "
+                            f"{len(self.result.rejected)} rejected")
+        return response
+
+    def _srv_save(self, request: Trigger.Request, response: Trigger.Response):
+        from eye_in_hand.commands.calibrate_handeye import write_outputs
+
+        if self.result is None:
+            response.success, response.message = False, "nothing to save: call hand_eye/compute"
+            return response
+        try:
+            paths = write_outputs(
+                Path(self.config.output_dir), self.result, self.samples, setup="eye_in_hand",
+                parent_frame=self.config.ee_frame, child_frame=self.config.camera_frame,
+                input_meta={"source": "hand_eye node", "count": len(self.samples)
+                            + len(self.skipped)}, skipped=self.skipped)
+        except (EyeInHandError, OSError) as exc:
+            response.success, response.message = False, f"save failed: {exc}"
+            return response
+        response.success = True
+        response.message = "wrote " + ", ".join(str(p) for p in paths)
+        return response
+
+    def _srv_reset(self, request: Trigger.Request, response: Trigger.Response):
+        n = len(self.samples)
+        self.samples.clear()
+        self.skipped.clear()
+        self.result = None
+        self.diag.gauge("samples", 0)
+        response.success, response.message = True, f"forgot {n} samples"
+        return response
+
+
+def main(args: list[str] | None = None) -> None:
+    """Console entry point: ``ros2 run eye_in_hand hand_eye``."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = HandEyeNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ConfigError as exc:
+        print(f"{NODE_NAME}: error: {exc}", flush=True)
+        raise SystemExit(1) from exc
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

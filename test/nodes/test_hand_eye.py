@@ -1,0 +1,204 @@
+"""hand_eye node, localization mode, in-process: pose at the image stamp, covariance, faults."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from eye_in_hand.core.kinematics import DHChain
+from eye_in_hand.core.localization import target_in_base
+from eye_in_hand.core.transforms import from_rotvec, interpolate
+from eye_in_hand.errors import ConfigError
+from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye
+from eye_in_hand.nodes.hand_eye import HandEyeNode
+from eye_in_hand.ros.conversions import (header_stamp_ns, make_header, matrix_to_pose_stamped,
+                                         xyz_to_point_stamped)
+from eye_in_hand.ros.qos import LATCHED_QOS, RESULT_QOS, SENSOR_QOS
+
+EE_T_CAM = from_rotvec([0.1, -0.2, 0.05], [0.03, -0.05, 0.08])
+T0 = 1_700_000_000_000_000_000
+
+
+def _hand_eye_file(tmp_path, cov=None):
+    path = tmp_path / "hand_eye.yaml"
+    save_hand_eye(path, HandEyeCalibration(
+        setup="eye_in_hand", parent_frame="tool0", child_frame="camera_left_optical_frame",
+        transform=EE_T_CAM, method="refined", covariance=cov, sample_count=15))
+    return path
+
+
+def _robot_pose(t_s: float) -> np.ndarray:
+    return from_rotvec([0.0, 0.3 * np.sin(t_s), 0.2 * t_s], [0.4 + 0.1 * t_s, 0.1, 0.5])
+
+
+class _Rig:
+    """Publishers/subscribers around a HandEyeNode in the test's namespace."""
+
+    def __init__(self, ros_context, executor, namespace, overrides, robot="ee_pose"):
+        from geometry_msgs.msg import (PointStamped, PoseStamped, PoseWithCovarianceStamped,
+                                       TransformStamped)
+        from sensor_msgs.msg import JointState
+
+        self.node = HandEyeNode(context=ros_context, namespace=namespace,
+                                parameter_overrides=overrides)
+        self.io = Node("he_io", context=ros_context, namespace=namespace)
+        executor.add_node(self.node)
+        executor.add_node(self.io)
+        self.pub_pose = self.io.create_publisher(PoseStamped, "ee_pose", SENSOR_QOS)
+        self.pub_js = self.io.create_publisher(JointState, "joint_states", SENSOR_QOS)
+        self.pub_point = self.io.create_publisher(PointStamped, "target/point", RESULT_QOS)
+        self.pub_cov = self.io.create_publisher(PoseWithCovarianceStamped, "target/point_cov",
+                                                RESULT_QOS)
+        self.poses, self.covs, self.transforms, self.diags = [], [], [], []
+        self.io.create_subscription(PoseStamped, "target/pose", self.poses.append, RESULT_QOS)
+        self.io.create_subscription(PoseWithCovarianceStamped, "target/pose_cov",
+                                    self.covs.append, RESULT_QOS)
+        self.io.create_subscription(TransformStamped, "hand_eye/transform",
+                                    self.transforms.append, LATCHED_QOS)
+        from diagnostic_msgs.msg import DiagnosticArray
+        self.io.create_subscription(DiagnosticArray, "diagnostics", self.diags.append, 10)
+
+    def connected(self):
+        return (self.pub_point.get_subscription_count() > 0
+                and self.pub_pose.get_subscription_count() + self.pub_js.get_subscription_count() > 0
+                and self.io.count_publishers("target/pose") > 0)
+
+    def send_pose(self, t_s):
+        self.pub_pose.publish(matrix_to_pose_stamped(
+            _robot_pose(t_s), stamp_ns=T0 + int(t_s * 1e9), frame_id="base_link"))
+
+    def send_point(self, t_s, p, cov=None):
+        stamp = T0 + int(t_s * 1e9)
+        if cov is not None:
+            from geometry_msgs.msg import PoseWithCovarianceStamped
+            m = PoseWithCovarianceStamped()
+            m.header = make_header(stamp, "camera_left_optical_frame")
+            m.pose.pose.position.x, m.pose.pose.position.y, m.pose.pose.position.z = map(float, p)
+            full = np.zeros((6, 6))
+            full[:3, :3] = cov
+            m.pose.covariance = [float(v) for v in full.ravel()]
+            self.pub_cov.publish(m)
+        self.pub_point.publish(xyz_to_point_stamped(p, stamp_ns=stamp,
+                                                    frame_id="camera_left_optical_frame"))
+
+
+def _overrides(path, **extra):
+    base = {"hand_eye_file": str(path), "robot_sigma_pos_m": 0.0, "robot_sigma_rot_rad": 0.0}
+    base.update(extra)
+    return [Parameter(k, value=v) for k, v in base.items()]
+
+
+def test_pose_at_image_stamp_with_covariance(tmp_path, ros_context, executor, namespace,
+                                             spin_until):
+    cov_x = np.diag([1e-6, 1e-6, 1e-6, 1e-5, 1e-5, 1e-5])
+    rig = _Rig(ros_context, executor, namespace, _overrides(_hand_eye_file(tmp_path, cov_x)))
+    assert spin_until(executor, rig.connected, 10.0)
+    assert spin_until(executor, lambda: len(rig.transforms) == 1, 5.0)
+    assert rig.transforms[0].header.frame_id == "tool0"
+    for k in range(11):                 # robot poses every 10 ms over [0, 0.1] s
+        rig.send_pose(0.01 * k)
+    p_cam = np.array([0.02, -0.01, 0.45])
+    cov_cam = np.diag([1e-8, 1e-8, 4e-7])
+    rig.send_point(0.055, p_cam, cov_cam)   # between two robot poses
+    assert spin_until(executor, lambda: len(rig.poses) == 1 and len(rig.covs) == 1, 10.0)
+    out = rig.poses[0]
+    assert header_stamp_ns(out) == T0 + 55_000_000 and out.header.frame_id == "base_link"
+    base_T_ee = interpolate(T0 + 55_000_000, T0 + 50_000_000, _robot_pose(0.05),
+                            T0 + 60_000_000, _robot_pose(0.06))
+    want, want_cov = target_in_base(base_T_ee, EE_T_CAM, p_cam, cov_cam=cov_cam,
+                                    cov_hand_eye=cov_x)
+    got = np.array([out.pose.position.x, out.pose.position.y, out.pose.position.z])
+    assert np.allclose(got, want, atol=1e-12)
+    got_cov = np.asarray(rig.covs[0].pose.covariance).reshape(6, 6)
+    assert np.allclose(got_cov[:3, :3], want_cov, rtol=1e-9, atol=1e-18)
+
+
+def test_stale_robot_pose_publishes_nothing_then_resumes(tmp_path, ros_context, executor,
+                                                         namespace, spin_until):
+    rig = _Rig(ros_context, executor, namespace,
+               _overrides(_hand_eye_file(tmp_path), max_pose_wait_s=0.05))
+    assert spin_until(executor, rig.connected, 10.0)
+    for k in range(5):
+        rig.send_pose(0.01 * k)
+    rig.send_point(0.02, [0.0, 0.0, 0.5])
+    assert spin_until(executor, lambda: len(rig.poses) == 1, 10.0)
+    # Robot poses stop: points newer than the last pose must not produce a pose.
+    for k in range(3):
+        rig.send_point(0.1 + 0.03 * k, [0.0, 0.0, 0.5])
+    assert spin_until(executor, lambda: rig.node.diag.causes.get("no_robot_pose", 0) >= 3, 10.0)
+    assert len(rig.poses) == 1
+    assert spin_until(executor, lambda: any(
+        "no_robot_pose" in "".join(f"{v.key}{v.value}" for s in d.status for v in s.values)
+        or "robot" in " ".join(s.message for s in d.status) for d in rig.diags), 5.0)
+    # Poses return: output resumes.
+    for k in range(30, 41):
+        rig.send_pose(0.01 * k)
+    rig.send_point(0.35, [0.0, 0.0, 0.5])
+    assert spin_until(executor, lambda: len(rig.poses) == 2, 10.0)
+    assert header_stamp_ns(rig.poses[1]) == T0 + 350_000_000
+
+
+def test_joint_states_with_dh_kinematics(tmp_path, ros_context, executor, namespace, spin_until):
+    from sensor_msgs.msg import JointState
+
+    chain = DHChain.ur5e()
+    kin = tmp_path / "arm.yaml"
+    kin.write_text(yaml.safe_dump({"arm": chain.to_dict()}))
+    rig = _Rig(ros_context, executor, namespace, _overrides(
+        _hand_eye_file(tmp_path), robot_pose_source="joint_states", kinematics_file=str(kin)))
+    assert spin_until(executor, rig.connected, 10.0)
+    q = np.array([0.1, -1.2, 1.3, -1.6, -1.5, 0.2])
+    names = list(chain.joint_names)
+    for k in range(3):
+        m = JointState()
+        m.header = make_header(T0 + k * 10_000_000)
+        m.name = names[::-1]                      # order differs from the chain's: mapped by name
+        m.position = [float(v) for v in q[::-1]]
+        rig.pub_js.publish(m)
+    rig.send_point(0.01, [0.0, 0.0, 0.5])
+    assert spin_until(executor, lambda: len(rig.poses) == 1, 10.0)
+    want, _ = target_in_base(chain.fk(q), EE_T_CAM, [0.0, 0.0, 0.5])
+    p = rig.poses[0].pose.position
+    assert np.allclose([p.x, p.y, p.z], want, atol=1e-12)
+
+
+def test_bad_points_are_counted_and_node_keeps_running(tmp_path, ros_context, executor,
+                                                       namespace, spin_until):
+    rig = _Rig(ros_context, executor, namespace, _overrides(_hand_eye_file(tmp_path)))
+    assert spin_until(executor, rig.connected, 10.0)
+    for k in range(5):
+        rig.send_pose(0.01 * k)
+    from geometry_msgs.msg import PointStamped
+    nan_point = PointStamped()
+    nan_point.header = make_header(T0 + 10_000_000, "camera_left_optical_frame")
+    nan_point.point.x, nan_point.point.z = float("nan"), 0.5
+    rig.pub_point.publish(nan_point)
+    wrong = PointStamped()
+    wrong.header = make_header(T0 + 20_000_000, "some_other_frame")
+    wrong.point.z = 0.5
+    rig.pub_point.publish(wrong)
+    rig.send_point(0.03, [0.0, 0.0, 0.5])
+    assert spin_until(executor, lambda: len(rig.poses) == 1, 10.0)
+    causes = rig.node.diag.causes
+    assert causes.get("bad_point") == 1 and causes.get("point_frame") == 1
+
+
+@pytest.mark.parametrize("content, message", [
+    (None, "not found"),
+    ("setup: eye_in_hand\nparent_frame: tool0\nchild_frame: cam\ntranslation: [0, 0]\n"
+     "quat_xyzw: [0, 0, 0, 1]\n", "translation"),
+    ("setup: eye_in_hand\n", "missing"),
+    ("setup: eye_in_hand\nparent_frame: tool0\nchild_frame: cam\ntranslation: [0, 0, .nan]\n"
+     "quat_xyzw: [0, 0, 0, 1]\n", "translation"),
+])
+def test_missing_or_malformed_hand_eye_file_refuses_to_start(tmp_path, ros_context, namespace,
+                                                             content, message):
+    path = tmp_path / "hand_eye.yaml"
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(ConfigError, match=message) as info:
+        HandEyeNode(context=ros_context, namespace=namespace,
+                    parameter_overrides=[Parameter("hand_eye_file", value=str(path))])
+    assert "hand_eye.yaml" in str(info.value)
