@@ -107,8 +107,25 @@ def _quat_to_matrix(q_wxyz: np.ndarray) -> np.ndarray:
 
 
 def _lstsq(A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
-    return sol
+    """Least squares through the (small) normal equations, formed without threaded BLAS.
+
+    The systems here are tall and thin (3-12 unknowns, well conditioned when the motion
+    diagnostics pass); a LAPACK SVD of the tall matrix is far slower on a loaded machine.
+    """
+    N = np.einsum("ki,kj->ij", A, A)
+    r = np.einsum("ki,k->i", A, b)
+    try:
+        return np.linalg.solve(N, r)
+    except np.linalg.LinAlgError:
+        sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+        return sol
+
+
+def _null_vectors(M: np.ndarray, k: int) -> np.ndarray:
+    """The ``k`` right singular vectors of smallest singular value of a tall matrix ``M``,
+    as rows (smallest last), from the eigenvectors of ``M^T M``."""
+    _, vecs = np.linalg.eigh(np.einsum("ki,kj->ij", M, M))
+    return vecs[:, :k][:, ::-1].T
 
 
 @dataclass(frozen=True)
@@ -257,7 +274,7 @@ def solve_horaud(m: MotionPairs) -> np.ndarray:
     W = np.stack([np.stack([bw, -bx, -by, -bz], -1), np.stack([bx, bw, bz, -by], -1),
                   np.stack([by, -bz, bw, bx], -1), np.stack([bz, by, -bx, bw], -1)], axis=1)
     D = Q - W
-    S = np.einsum("kji,kjl->il", D, D)
+    S = np.einsum("kji,kjl->il", D, D)  # sum D^T D
     _, vecs = np.linalg.eigh(S)
     R = _quat_to_matrix(vecs[:, 0])
     return _assemble(R, _translation_lstsq(m, R))
@@ -299,8 +316,7 @@ def solve_daniilidis(m: MotionPairs) -> np.ndarray:
     T[:, 3:, 1:4] = _skew(ad + bd)
     T[:, 3:, 4] = a - b
     T[:, 3:, 5:8] = _skew(a + b)
-    _, _, Vt = np.linalg.svd(T.reshape(6 * K, 8), full_matrices=False)
-    v7, v8 = Vt[-2], Vt[-1]
+    v7, v8 = _null_vectors(T.reshape(6 * K, 8), 2)
     u1, w1 = v7[:4], v7[4:]
     u2, w2 = v8[:4], v8[4:]
     qa_ = u1 @ w1
@@ -391,8 +407,8 @@ def solve_kronecker(m: MotionPairs) -> np.ndarray:
     Stacks, for every motion, the rotation equations ``(I9 - kron(R_A, R_B)) vec R = 0`` and
     the translation equations ``kron(I3, t_B^T) vec R + (I3 - R_A) t - t_A = 0`` as one
     homogeneous system ``M [vec R; t; 1] = 0`` (13 unknowns) and takes the solution vector as the
-    right singular vector of smallest singular value (the eigenvector of ``M^T M`` of smallest
-    eigenvalue, the null space for exact data). The scale of the vector is fixed from its
+    eigenvector of ``M^T M`` of smallest eigenvalue (the right singular vector of smallest
+    singular value; the null space for exact data). The scale of the vector is fixed from its
     rotation block (``det = 1``, which also fixes the sign); the block is then orthogonalised
     by SVD projection onto SO(3) and the translation is the equally scaled ``t`` part.
 
@@ -408,8 +424,7 @@ def solve_kronecker(m: MotionPairs) -> np.ndarray:
     M[:, 9:, :9] = _kron_translation_rows(m)
     M[:, 9:, 9:12] = np.eye(3) - m.A[:, :3, :3]
     M[:, 9:, 12] = -m.A[:, :3, 3]
-    _, _, Vt = np.linalg.svd(M.reshape(12 * K, 13), full_matrices=False)
-    v = Vt[-1]
+    v = _null_vectors(M.reshape(12 * K, 13), 1)[0]
     R, scale = _normalize_rotation_block(v[:9].reshape(3, 3))
     return _assemble(R, scale * v[9:12])
 

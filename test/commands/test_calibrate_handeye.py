@@ -1,0 +1,124 @@
+"""``eye-in-hand calibrate handeye`` end to end: rendered stereo dataset, pose pairs, errors."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from eye_in_hand.cli import main
+from eye_in_hand.core.camera import CameraModel, StereoRig
+from eye_in_hand.core.handeye.synthetic import make_problem
+from eye_in_hand.core.transforms import transform_distance
+from eye_in_hand.io.config import load_hand_eye
+from eye_in_hand.io.datasets import write_dataset
+
+
+def _render(cam: CameraModel, T: np.ndarray, cols: int = 9, rows: int = 6, sq: float = 0.025,
+            scale: int = 4) -> np.ndarray:
+    """Fast anti-aliased chessboard image: distorted square outlines filled at 4x, then area
+    downsampling (corner error about 0.2 px, enough for an end-to-end test)."""
+    img = np.full((cam.height * scale, cam.width * scale), 110, np.uint8)
+    t = np.linspace(0.0, 1.0, 9)
+
+    def poly(x0: float, y0: float, x1: float, y1: float) -> np.ndarray:
+        pts = np.concatenate([np.stack([x0 + (x1 - x0) * t, np.full(9, y0)], 1),
+                              np.stack([np.full(9, x1), y0 + (y1 - y0) * t], 1),
+                              np.stack([x1 - (x1 - x0) * t, np.full(9, y1)], 1),
+                              np.stack([np.full(9, x0), y1 - (y1 - y0) * t], 1)])
+        P = np.hstack([pts, np.zeros((len(pts), 1))]) @ T[:3, :3].T + T[:3, 3]
+        px = cam.project(P) * scale + (scale - 1) / 2.0
+        return np.round(px * 16).astype(np.int32)
+
+    cv2.fillPoly(img, [poly(-2 * sq, -2 * sq, (cols + 1) * sq, (rows + 1) * sq)], 230,
+                 cv2.LINE_8, 4)
+    for i in range(-1, cols):
+        for j in range(-1, rows):
+            if (i + j) % 2 == 0:
+                cv2.fillPoly(img, [poly(i * sq, j * sq, (i + 1) * sq, (j + 1) * sq)], 25,
+                             cv2.LINE_8, 4)
+    return cv2.resize(img, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
+
+
+@pytest.fixture(scope="module")
+def stereo_dataset(tmp_path_factory) -> tuple[Path, np.ndarray]:
+    cam = CameraModel(K=np.array([[560.0, 0, 320], [0, 560.0, 200], [0, 0, 1]]),
+                      dist=np.array([-0.1, 0.05, 0, 0, 0]), width=640, height=400, name="left")
+    P = make_problem(10, seed=3, stereo=True, noise_px=0.0, camera=cam)
+    right = P.views[1]
+    rig = StereoRig(left=cam, right=right.model, R=right.view_T_cam[:3, :3],
+                    T=right.view_T_cam[:3, 3])
+    images = [{v.name: _render(v.model, v.view_T_cam @ C) for v in P.views}
+              for C in P.true_cam_T_board]
+    poses = list(P.true_base_T_ee)
+    # One sample where the board is out of view: skipped and listed, never used.
+    images.append({"left": np.full((400, 640), 110, np.uint8),
+                   "right": np.full((400, 640), 110, np.uint8)})
+    poses.append(poses[0])
+    root = tmp_path_factory.mktemp("handeye_ds")
+    write_dataset(root, setup="eye_in_hand", board="chessboard:9x6:0.025", images=images,
+                  base_T_ee=poses, rig=rig, ground_truth={"ee_T_cam": P.X, "base_T_board": P.Y})
+    return root, P.X
+
+
+def test_dataset_end_to_end(stereo_dataset, tmp_path: Path, capsys) -> None:
+    root, X_true = stereo_dataset
+    out = tmp_path / "out"
+    assert main(["calibrate", "handeye", str(root), "-o", str(out)]) == 0
+    printed = capsys.readouterr()
+    assert "sample '0010' skipped: board not found in the left image" in printed.err
+    calib = load_hand_eye(out / "hand_eye.yaml")
+    assert calib.setup == "eye_in_hand" and calib.parent_frame == "tool0"
+    assert calib.child_frame == "camera_left_optical_frame" and calib.method == "refined"
+    assert calib.sample_count == 10 and calib.covariance is not None
+    dt, dr = transform_distance(X_true, calib.transform)
+    assert dt < 0.0005 and np.degrees(dr) < 0.05, (dt, np.degrees(dr))
+    report = json.loads((out / "report.json").read_text())
+    assert report["selected"] == "refined"
+    assert set(report["methods"]) == {"tsai", "park", "horaud", "daniilidis", "andreff",
+                                      "kronecker", "refined"}
+    for m in report["methods"].values():
+        assert len(m["translation"]) == 3 and len(m["quat_xyzw"]) == 4
+        assert m["residuals"]["reproj_px_rms"] < 1.0
+    assert report["skipped"] == [{"name": "0010", "reason": report["skipped"][0]["reason"]}]
+    assert report["input"]["stereo"] is True
+    assert len([s for s in report["samples"] if s["used"]]) == 10
+    assert report["ground_truth_error"]["refined"]["mm"] < 0.5
+    html = (out / "report.html").read_text()
+    assert html.count("<img") >= 3 and "Method comparison" in html and "0010" in html
+
+
+def test_pairs_eye_to_hand_with_method(data_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "o"
+    pairs = data_dir / "moveit_eye_to_hand" / "pose_samples.json"
+    rc = main(["calibrate", "handeye", "--pairs", str(pairs), "--setup", "eye_to_hand",
+               "--method", "park", "--no-html", "--no-outlier-rejection", "-o", str(out)])
+    assert rc == 0
+    calib = load_hand_eye(out / "hand_eye.yaml")
+    assert calib.method == "park" and calib.parent_frame == "base_link"
+    ref = np.eye(4)
+    ref[:3, :3] = Rotation.from_euler("XYZ", [0.230, -2.540, 1.950]).as_matrix()
+    ref[:3, 3] = [0.659, -0.249, 0.830]
+    dt, dr = transform_distance(ref, calib.transform)
+    assert dt < 0.002 and np.degrees(dr) < 0.35
+    report = json.loads((out / "report.json").read_text())
+    assert report["refinement"]["space"] == "pose" and "refined" in report["methods"]
+    assert not (out / "report.html").exists()
+
+
+def test_errors_are_one_line(tmp_path: Path, data_dir: Path, capsys) -> None:
+    pairs = data_dir / "moveit_eye_to_hand" / "pose_samples.json"
+    assert main(["calibrate", "handeye", str(tmp_path), "--pairs", str(pairs),
+                 "-o", str(tmp_path / "o")]) == 1
+    assert "give exactly one input" in capsys.readouterr().err
+    two = tmp_path / "two.json"
+    two.write_text(json.dumps(json.loads(pairs.read_text())[:2]))
+    assert main(["calibrate", "handeye", "--pairs", str(two), "-o", str(tmp_path / "o")]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("eye-in-hand: error:") and "at least 3" in err
+    assert err.count("\n") == 1
+    assert main(["calibrate", "handeye", str(tmp_path / "none"), "-o", str(tmp_path / "o")]) == 1
+    assert "dataset file not found" in capsys.readouterr().err
