@@ -58,6 +58,8 @@ def format_info(info) -> str:  # noqa: ANN001 - BagInfo, imported lazily
                      f"{topic.serialization_format}")
     if first:
         lines.append("Topic information: (none)")
+    for note in info.notes:
+        lines.append(f"Note:              {note}")
     return "\n".join(lines)
 
 

@@ -142,6 +142,8 @@ class BagInfo:
             transparent and not shown here).
         ros_distro: the distribution that wrote the bag when recorded (metadata >= 8).
         size_bytes: total size of the storage files.
+        notes: problems worked around while reading (e.g. an MCAP file without summary, from
+            an interrupted recording, read by scanning).
     """
 
     path: Path
@@ -156,6 +158,7 @@ class BagInfo:
     compression_mode: str = ""
     ros_distro: str = ""
     size_bytes: int = 0
+    notes: tuple[str, ...] = ()
 
     @property
     def duration_ns(self) -> int:
@@ -171,7 +174,7 @@ class BagInfo:
             "message_count": self.message_count,
             "compression_format": self.compression_format,
             "compression_mode": self.compression_mode, "ros_distro": self.ros_distro,
-            "size_bytes": self.size_bytes,
+            "size_bytes": self.size_bytes, "notes": list(self.notes),
             "topics": [t.to_dict() for t in self.topics.values()],
         }
 
@@ -203,6 +206,152 @@ def _storage_paths(path: Path) -> list[Path]:
     return [path]
 
 
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+class _ScannedMcap:
+    """An MCAP file whose summary/footer is missing (recording killed), read by a linear scan.
+
+    ``rosbags`` needs the footer; ``ros2 bag`` (the mcap library) falls back to scanning. This
+    does the same: records are read in file order up to the first incomplete or invalid one;
+    messages of each chunk are sorted by log time (rosbag2 writes chunks in time order).
+    It offers the subset of the ``rosbags`` reader interface this module uses.
+    """
+
+    compression_format = None
+    compression_mode = None
+
+    def __init__(self, path: Path) -> None:
+        from rosbags.interfaces import Connection, ConnectionExtRosbag2
+        from rosbags.rosbag2.storage_mcap import Schema, get_msgdef, get_qos
+
+        self.path = path
+        self.storage = self
+        self.stopped_at: int | None = None
+        self.stop_reason = ""
+        schemas: dict[int, Any] = {}
+        counts: dict[int, int] = {}
+        conns: dict[int, Any] = {}
+        start, end, count = 2**63 - 1, 0, 0
+        for kind, rec in self._records():
+            if kind == 0x03:
+                schemas[rec[0]] = Schema(*rec)
+            elif kind == 0x04:
+                cid, schema_id, topic, encoding, meta = rec
+                schema = schemas.get(schema_id)
+                conns[cid] = Connection(
+                    cid, topic, schema.name if schema else "", get_msgdef(schema), "", 0,
+                    ConnectionExtRosbag2(encoding, get_qos(meta)), self)
+            elif kind == 0x05:
+                cid, stamp, _data = rec
+                counts[cid] = counts.get(cid, 0) + 1
+                start, end, count = min(start, stamp), max(end, stamp), count + 1
+        self.connections = [c._replace(msgcount=counts.get(c.id, 0)) for c in conns.values()]
+        self.message_count = count
+        self.start_time = start if count else 2**63 - 1
+        self.end_time = end + 1 if count else 0
+
+    @property
+    def tail_note(self) -> str:
+        if self.stopped_at is None:
+            return ""
+        return f"; stopped at byte {self.stopped_at}: {self.stop_reason}"
+
+    @classmethod
+    def try_open(cls, path: Path) -> _ScannedMcap | None:
+        """A scanned reader when ``path`` starts like a ros2 MCAP file, else None."""
+        if path.suffix != ".mcap":
+            return None
+        with open(path, "rb") as fh:
+            head = fh.read(64)
+        if not head.startswith(_MCAP_MAGIC) or len(head) < 18 or head[8] != 0x01:
+            return None
+        scanned = cls(path)
+        return scanned if scanned.connections else None
+
+    def close(self) -> None:
+        """Nothing to release (each scan opens and closes the file)."""
+
+    def _records(self) -> Iterator[tuple[int, Any]]:
+        """(opcode, parsed) for schemas, channels and messages, chunks expanded."""
+        import struct
+
+        from rosbags.rosbag2.storage_mcap import decompress
+
+        def string(buf: bytes, pos: int) -> tuple[str, int]:
+            (n,) = struct.unpack_from("<I", buf, pos)
+            return buf[pos + 4:pos + 4 + n].decode(), pos + 4 + n
+
+        def parse(op: int, body: bytes) -> tuple[int, Any] | None:
+            if op == 0x03:
+                (sid,) = struct.unpack_from("<H", body, 0)
+                name, pos = string(body, 2)
+                enc, pos = string(body, pos)
+                (n,) = struct.unpack_from("<I", body, pos)
+                return op, (sid, name, enc, body[pos + 4:pos + 4 + n].decode())
+            if op == 0x04:
+                cid, schema_id = struct.unpack_from("<HH", body, 0)
+                topic, pos = string(body, 4)
+                enc, pos = string(body, pos)
+                (n,) = struct.unpack_from("<I", body, pos)
+                return op, (cid, schema_id, topic, enc, body[pos + 4:pos + 4 + n])
+            if op == 0x05:
+                cid, _seq, log_time, _pub = struct.unpack_from("<HIQQ", body, 0)
+                return op, (cid, log_time, body[22:])
+            return None
+
+        with open(self.path, "rb") as fh:
+            data = fh.read()
+        pos = 8
+        while pos < len(data):
+            if pos + 9 > len(data):
+                self.stopped_at, self.stop_reason = pos, "incomplete record header"
+                return
+            op, length = data[pos], struct.unpack_from("<Q", data, pos + 1)[0]
+            if op == 0 or op > 0x0F:
+                self.stopped_at, self.stop_reason = pos, f"invalid record opcode {op}"
+                return
+            if pos + 9 + length > len(data):
+                self.stopped_at, self.stop_reason = pos, "incomplete record"
+                return
+            body = data[pos + 9:pos + 9 + length]
+            pos += 9 + length
+            if op in (0x02, 0x0F):  # footer / data end: the data section is complete
+                return
+            if op != 0x06:
+                if (rec := parse(op, body)) is not None:
+                    yield rec
+                continue
+            try:  # chunk: expand its records, messages sorted by log time
+                _s, _e, size, crc = struct.unpack_from("<QQQI", body, 0)
+                compression, cpos = string(body, 28)
+                (n,) = struct.unpack_from("<Q", body, cpos)
+                inner = decompress(body[cpos + 8:cpos + 8 + n], compression, size, crc)
+            except Exception as exc:
+                self.stopped_at, self.stop_reason = pos - 9 - length, f"bad chunk: {exc}"
+                return
+            ipos, msgs = 0, []
+            while ipos + 9 <= len(inner):
+                iop, ilen = inner[ipos], struct.unpack_from("<Q", inner, ipos + 1)[0]
+                rec = parse(iop, inner[ipos + 9:ipos + 9 + ilen])
+                ipos += 9 + ilen
+                if rec is not None and iop == 0x05:
+                    msgs.append(rec)
+                elif rec is not None:
+                    yield rec
+            msgs.sort(key=lambda r: r[1][1])
+            yield from msgs
+
+    def messages(self, connections: Sequence[Any], start: int | None = None,
+                 stop: int | None = None) -> Iterator[tuple[Any, int, bytes]]:
+        by_id = {c.id: c for c in connections}
+        lo = start if start is not None else 0
+        hi = stop if stop is not None else 2**63
+        for kind, rec in self._records():
+            if kind == 0x05 and rec[0] in by_id and lo <= rec[1] < hi:
+                yield by_id[rec[0]], rec[1], rec[2]
+
+
 class _OpenBag:
     """The rosbags readers of one bag, opened; a context manager."""
 
@@ -212,10 +361,20 @@ class _OpenBag:
         targets = _storage_paths(self.path)
         from rosbags.rosbag2 import Reader
 
+        self.notes: list[str] = []
         try:
             for target in targets:
-                reader = Reader(target)
-                reader.open()
+                try:
+                    reader = Reader(target)
+                    reader.open()
+                except Exception as exc:
+                    scanned = _ScannedMcap.try_open(target) if target.is_file() else None
+                    if scanned is None:
+                        raise
+                    reader = scanned
+                    self.notes.append(
+                        f"{target.name}: {exc} (no MCAP summary: the recording was interrupted); "
+                        f"read by scanning the file{scanned.tail_note}")
                 self.readers.append(reader)
         except Exception as exc:
             self.close()
@@ -319,7 +478,8 @@ def bag_info(path: str | Path) -> BagInfo:
         path=bag.path, storage="+".join(sorted(storages)), files=tuple(storage_files),
         version=version, start_ns=start, end_ns=end, message_count=count,
         topics=dict(sorted(topics.items())), compression_format=compression_format or "",
-        compression_mode=compression_mode or "", ros_distro=distro, size_bytes=size)
+        compression_mode=compression_mode or "", ros_distro=distro, size_bytes=size,
+        notes=tuple(bag.notes))
 
 
 def _read_metadata(bag_dir: Path) -> dict[str, Any]:
