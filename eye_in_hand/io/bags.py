@@ -365,7 +365,7 @@ class _OpenBag:
         try:
             for target in targets:
                 try:
-                    reader = Reader(target)
+                    reader: Any = Reader(target)
                     reader.open()
                 except Exception as exc:
                     scanned = _ScannedMcap.try_open(target) if target.is_file() else None
