@@ -441,8 +441,9 @@ def _gather(args: argparse.Namespace, board) -> ImageSource:
             if size is None:
                 size = (name, shape)
             elif shape != size[1]:
-                raise CalibrationError(f"{args.left_topic}: image size changes from "
-                                       f"{size[1][0]}x{size[1][1]} to {shape[0]}x{shape[1]} at {name}")
+                raise CalibrationError(
+                    f"{args.left_topic}: image size changes from {size[1][0]}x{size[1][1]} to "
+                    f"{shape[0]}x{shape[1]} at {name}")
             det = detect_board(image, board, args.detector, subpix_window=args.subpix_window,
                                fallback=not args.no_fallback)
             frames.append(Frame(name, det, image if not frames else None, stamp))

@@ -802,7 +802,8 @@ def _mono_once(obj: list[np.ndarray], img: list[np.ndarray], size: tuple[int, in
     criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12)
     try:
         rms, K, dist, rvecs, tvecs, std_intr, _std_extr, per_view = cv2.calibrateCameraExtended(
-            [o.astype(np.float32) for o in obj], [p.astype(np.float32).reshape(-1, 1, 2) for p in img],
+            [o.astype(np.float32) for o in obj],
+            [p.astype(np.float32).reshape(-1, 1, 2) for p in img],
             size, None, None, flags=options.cv_flags(), criteria=criteria)
     except cv2.error as exc:
         raise CalibrationError(f"cv2.calibrateCamera failed: {str(exc).strip()}") from exc

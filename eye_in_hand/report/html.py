@@ -28,8 +28,8 @@ from typing import Any, Iterable, Sequence
 __all__ = ["HtmlReport", "new_figure", "format_cell"]
 
 _STYLE = """
-body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;max-width:1100px;
-color:#222;line-height:1.4;padding:0 1em}
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;
+max-width:1100px;color:#222;line-height:1.4;padding:0 1em}
 h1{border-bottom:2px solid #444;padding-bottom:.2em}
 h2{border-bottom:1px solid #bbb;padding-bottom:.1em;margin-top:1.8em}
 table{border-collapse:collapse;margin:.6em 0 1.2em 0;font-size:.92em}
