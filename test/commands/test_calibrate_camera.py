@@ -151,3 +151,36 @@ def test_existing_output_folder_keeps_other_files(data_dir: Path, tmp_path: Path
     assert (out / "notes.txt").read_text() == "mine"
     assert "camera_matrix" in (out / "camera.yaml").read_text()
     assert sorted(p.name for p in out.iterdir()) == ["camera.yaml", "notes.txt", "report.json"]
+
+
+def test_camera_from_compressed_bag_and_wrong_topic_type(data_dir: Path, tmp_path: Path,
+                                                         capsys) -> None:
+    from eye_in_hand.io.bags import BagWriter, default_typestore
+
+    store = default_typestore()
+    Compressed = store.types["sensor_msgs/msg/CompressedImage"]
+    Header = store.types["std_msgs/msg/Header"]
+    Time = store.types["builtin_interfaces/msg/Time"]
+    String = store.types["std_msgs/msg/String"]
+    with BagWriter(tmp_path / "bag") as bag:
+        bag.add_topic("/cam/image/compressed", "sensor_msgs/msg/CompressedImage")
+        bag.add_topic("/chatter", "std_msgs/msg/String")
+        for k, f in enumerate(sorted(_images(data_dir).glob("left*.jpg"))[:7]):
+            data = np.frombuffer(f.read_bytes(), np.uint8)
+            stamp = 10**9 + k * 10**8
+            bag.write("/cam/image/compressed", stamp, Compressed(
+                header=Header(stamp=Time(sec=1, nanosec=k * 10**8), frame_id="cam"),
+                format="mono8; jpeg compressed mono8", data=data))
+        bag.write("/chatter", 5 * 10**9, String(data="hi"))
+    out = tmp_path / "out"
+    code = main(["calibrate", "camera", "--bag", str(tmp_path / "bag"), "--topic",
+                 "/cam/image/compressed", "--board", BOARD, "-o", str(out), "--no-html"])
+    assert code == 0, capsys.readouterr().err
+    report = json.loads((out / "report.json").read_text())
+    assert sum(v["used"] for v in report["views"]) == 7
+    assert report["views"][0]["file"] == "/cam/image/compressed@1000000000"
+    code = main(["calibrate", "camera", "--bag", str(tmp_path / "bag"), "--topic", "/chatter",
+                 "--board", BOARD, "-o", str(tmp_path / "out2")])
+    err = capsys.readouterr().err
+    assert code == 1 and "topic /chatter has type std_msgs/msg/String" in err
+    assert not (tmp_path / "out2").exists()

@@ -7,7 +7,7 @@ import pytest
 
 from eye_in_hand.core.calibration import (BoardDetection, BoardSpec, CalibrationOptions,
                                           calibrate_camera, calibrate_stereo, coverage,
-                                          outlier_threshold)
+                                          detect_board, outlier_threshold)
 from eye_in_hand.errors import CalibrationError, InputError
 
 BOARD = BoardSpec.parse("chessboard:9x6:0.025")
@@ -195,3 +195,55 @@ def test_coverage_map() -> None:
     frac, _ = coverage([np.array([[0, 0], [320, 0], [320, 240], [0, 240]], float)] * 2,
                        (640, 480))
     assert frac == pytest.approx(0.25, abs=0.02)
+
+
+def _charuco_views(board: BoardSpec, K: np.ndarray, n: int, seed: int,
+                   size: tuple[int, int] = (800, 600)) -> list[np.ndarray]:
+    """Pinhole (no distortion) renders of a ChArUco board by homography warping."""
+    ppm = 2000.0  # board image pixels per metre
+    w_px = int(round((board.cols + 1) * board.square * ppm))
+    h_px = int(round((board.rows + 1) * board.square * ppm))
+    art = board.charuco_board().generateImage((w_px, h_px), marginSize=0)
+    art = cv2.copyMakeBorder(art, 40, 40, 40, 40, cv2.BORDER_CONSTANT, value=255)
+    # board-art pixel -> board frame (origin at the first inner corner)
+    A = np.array([[1 / ppm, 0, -board.square - 40 / ppm], [0, 1 / ppm, -board.square - 40 / ppm],
+                  [0, 0, 1]])
+    rng = np.random.default_rng(seed)
+    center = np.array([(board.cols - 1) * board.square / 2, (board.rows - 1) * board.square / 2, 0])
+    images = []
+    for k in range(n):
+        R = cv2.Rodrigues(np.array([rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6),
+                                    rng.uniform(-0.4, 0.4)]))[0]
+        shift = np.array([rng.uniform(-0.08, 0.08), rng.uniform(-0.06, 0.06), 0.0])
+        if k == n - 1:
+            shift[0] = 0.22  # board partly out of the image: a subset of the corners
+        t = np.array([0.0, 0.0, rng.uniform(0.45, 0.6)]) + shift - R @ center
+        H = K @ np.column_stack([R[:, 0], R[:, 1], t]) @ A
+        images.append(cv2.warpPerspective(art, H, size, flags=cv2.INTER_AREA,
+                                          borderValue=100))
+    return images
+
+
+def test_charuco_calibration_with_partial_views() -> None:
+    board = BoardSpec.parse("charuco:8x6:0.03:0.022:DICT_4X4_50")
+    K = np.array([[700.0, 0, 401.0], [0, 700.0, 298.0], [0, 0, 1]])
+    images = _charuco_views(board, K, 12, seed=21)
+    dets = [detect_board(img, board) for img in images]
+    assert all(d.found for d in dets)
+    assert dets[-1].n_corners < board.n_corners  # the partial view
+    cal = calibrate_camera(dets, options=CalibrationOptions(fix_k3=True))
+    assert abs(cal.camera.fx / 700.0 - 1) < 0.005 and abs(cal.camera.cx - 401.0) < 2.0
+    assert cal.rms_px < 0.3 and len(cal.used_views) == 12
+
+
+def test_stereo_rejects_outlier_pair() -> None:
+    left, right = _views(seed=10, n=12)
+    rng = np.random.default_rng(100)
+    right[5] = _det(right[5].corners + rng.normal(0, 2.0, right[5].corners.shape))
+    names = [f"l{i}" for i in range(12)]
+    flagged = calibrate_stereo(left, right, names, board=BOARD)
+    assert [v.name for v in flagged.views if v.outlier] == ["l5"]
+    cleaned = calibrate_stereo(left, right, names, board=BOARD, reject_outliers=True)
+    assert cleaned.rejected == ("l5",) and not cleaned.views[5].used
+    assert cleaned.rms_px < 0.29 < flagged.rms_px
+    assert abs(cleaned.rig.baseline - np.linalg.norm(_right_T_left()[:3, 3])) < 0.0003
