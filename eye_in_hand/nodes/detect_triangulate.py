@@ -251,12 +251,16 @@ class DetectTriangulateNode(Node):
             pair = self._slot.take(0.1)
             if pair is None:
                 continue
+            if not self.context.ok():
+                break  # shutting down (e.g. Ctrl-C shut the context down under us)
             t0 = time.perf_counter()
             try:
                 self._process(pair)
             except EyeInHandError as exc:  # per-pair input problems: counted, node keeps going
                 self.diag.report(type(exc).__name__, str(exc))
             except Exception as exc:  # noqa: BLE001 - a bug must not stop the stream silently:
+                if not self.context.ok():
+                    break  # publishing raced with the context's shutdown: nothing to report
                 # logged with its traceback (first occurrence) and counted at ERROR level
                 self.diag.report("internal_error", f"{type(exc).__name__}: {exc}\n"
                                  f"{traceback.format_exc()}", level=ERROR)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -24,6 +25,7 @@ from eye_in_hand.ros.conversions import (  # noqa: E402
 )
 from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS  # noqa: E402
 
+PARAM_FILE = Path(__file__).resolve().parents[2] / "config" / "detect_triangulate.yaml"
 W, H = 640, 360
 K = np.array([[450.0, 0.0, 320.0], [0.0, 452.0, 180.0], [0.0, 0.0, 1.0]])
 X_TRUE = np.array([0.04, -0.02, 0.4])
@@ -241,3 +243,37 @@ def test_latest_pair_slot_drops_the_oldest():
     slot = _LatestPair()
     assert slot.put("a") is False and slot.put("b") is True
     assert slot.take(0.0) == "b" and slot.dropped == 1 and slot.take(0.0) is None
+
+
+def test_node_process_publishes_across_dds(ros_context, executor, namespace, spin_until,
+                                           ros_env, tmp_path):
+    """The real node process (python -m ...) with calibration files, fed from this process."""
+    import subprocess
+    import sys
+
+    RIG.save(tmp_path)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "eye_in_hand.nodes.detect_triangulate", "--ros-args",
+         "-r", f"__ns:={namespace}", "--params-file", str(PARAM_FILE),
+         "-p", f"calibration_dir:={tmp_path}"],
+        env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        feeder = Feeder(ros_context, namespace)
+        executor.add_node(feeder.node)
+        ok = pump(executor, spin_until, feeder, lambda: len(feeder.points) >= 1,
+                  timeout_s=30.0, info=False)
+        if not ok:
+            proc.send_signal(2)
+            pytest.fail(f"no point from the node process; its output:\n{proc.communicate()[0]}")
+        p = feeder.points[0]
+        assert np.linalg.norm(np.array([p.point.x, p.point.y, p.point.z]) - X_TRUE) < 1e-3
+        assert proc.poll() is None
+    finally:
+        proc.send_signal(2)  # SIGINT: the node shuts down cleanly
+        try:
+            out, _ = proc.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, _ = proc.communicate()
+    assert proc.returncode == 0, out
+    assert "Traceback" not in out, out
