@@ -193,6 +193,7 @@ class DetectTriangulateNode(Node):
         self.diag = NodeDiagnostics(self, period_s=node_values["diagnostics_period_s"])
         self.diag.declare_counter("pairs", "detections", "dropped_pairs", "sync_dropped")
         self.diag.warn_above("processing_ms", 50.0)
+        self.diag.stale_after("pairs", 5.0)  # WARN when no stereo pair arrived for 5 s
 
         self.create_subscription(Image, "left/image_raw", self._on_left, SENSOR_QOS)
         self.create_subscription(Image, "right/image_raw", self._on_right, SENSOR_QOS)

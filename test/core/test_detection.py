@@ -152,6 +152,12 @@ def test_multiple_targets_candidates_and_selection():
     assert np.allclose(found[1].center_px, (640, 200), atol=0.05)  # flat target: no correction
     cands = det.candidates(img, cam)
     assert [len(cands["red"]), len(cands["green"])] == [2, 1]
+    assert [round(c.centroid_px[0]) for c in cands["red"]] == [300, 900]  # largest first
+    cv2.ellipse(img, (150, 600), (60, 25), 0, 0, 360, (30, 30, 200), -1)  # largest, elongated
+    (big,) = ColorDetector(config(specs[0])).detect(img, cam)
+    (round_,) = ColorDetector(config(specs[0], selection="circular")).detect(img, cam)
+    assert np.allclose(big.centroid_px, (150, 600), atol=0.05)
+    assert round_.circularity > big.circularity and round_.centroid_px[0] != 150
     nearest = ColorDetector(config(*specs, selection="nearest"))
     (red, _) = nearest.detect(img, cam, previous={"red": np.array([880.0, 490.0])})
     assert np.allclose(red.centroid_px, (900, 500), atol=0.05)
