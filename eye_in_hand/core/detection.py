@@ -169,7 +169,7 @@ class TargetSpec:
     """One target to find.
 
     Attributes:
-        name: identifies the target in results and topics (``[A-Za-z0-9_]``).
+        name: identifies the target in results and topics (a letter, then ``[A-Za-z0-9_]``).
         color: its colour range.
         radius_m: sphere radius in metres, or None for a flat or unknown target (then the
             sphere-centre correction estimates the angular radius from the silhouette).
@@ -189,8 +189,10 @@ class TargetSpec:
     is_sphere: bool = True
 
     def __post_init__(self) -> None:
-        if not self.name or not all(c.isalnum() or c == "_" for c in self.name):
-            raise InputError(f"target name '{self.name}': use letters, digits and underscores")
+        if not self.name or not self.name[0].isalpha() or not all(
+                c.isalnum() or c == "_" for c in self.name):
+            raise InputError(f"target name '{self.name}': start with a letter, then use "
+                             "letters, digits and underscores (it becomes a topic name)")
         if not isinstance(self.color, ColorRange):
             raise InputError(f"target '{self.name}': color must be a ColorRange")
         if self.radius_m is not None and not (math.isfinite(self.radius_m) and self.radius_m > 0):
