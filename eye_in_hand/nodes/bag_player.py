@@ -8,6 +8,10 @@ drift and a slow publish only delays that one message (the next ones are still d
 A reader thread decodes the bag ahead of the publisher (bounded queue), so storage I/O and
 decompression do not delay publishing either.
 
+Diagnostics (``diagnostics``, 1 Hz): ``published`` counter, ``late_ms`` (how late the last
+message went out), ``state``, ``loops``, and ``skipped_topics`` (WARN while > 0; each skipped
+topic is also logged once). A bag read error is reported at ERROR and ends playback.
+
 Like ``ros2 bag play``, the player does not wait for subscribers by default: messages published
 before DDS discovery completes are lost. ``wait_for_subscribers`` (seconds) waits until every
 topic has at least one subscriber, or the time is up, before the first message.
@@ -39,6 +43,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from eye_in_hand.errors import BagError, ConfigError, EyeInHandError
 from eye_in_hand.io.bags import BagInfo, OfferedQos, bag_info, iter_messages
+from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
 
 __all__ = [
     "PlayerConfig",
@@ -158,14 +163,17 @@ class BagPlayer(Node):
         if unknown:
             raise BagError(f"bag {self.info.path} has no topic {', '.join(unknown)}; it has: "
                            f"{', '.join(self.info.topics) or 'no topics'}")
+        self.diag = NodeDiagnostics(self, hardware_id=str(self.info.path))
+        self.diag.declare_counter("published")
         self._topic_pubs: dict[str, Any] = {}
         for name in wanted:
             topic = self.info.topics[name]
             cls = import_message_type(topic.msgtype)
             if cls is None:
                 self.skipped_types[name] = topic.msgtype
-                self.get_logger().warning(
-                    f"skipping topic {name}: message type {topic.msgtype} is not installed")
+                self.diag.report(f"type_not_installed:{name}",
+                                 f"skipping topic {name}: message type {topic.msgtype} is not "
+                                 "installed")
                 continue
             self._topic_pubs[name] = self.create_publisher(
                 cls, name, playback_qos(topic.offered_qos))
@@ -179,6 +187,9 @@ class BagPlayer(Node):
             self._clock_pub = self.create_publisher(
                 Clock, "/clock", QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
             self._clock_timer = self.create_timer(1.0 / self.config.clock_hz, self._publish_clock)
+        self.diag.gauge("skipped_topics", len(self.skipped_types))
+        self.diag.warn_above("skipped_topics", 0)
+        self.diag.gauge("state", "waiting")
         first = self.info.start_ns + int(round(self.config.start_offset * 1e9))
         self._first_ns = first
         self.get_logger().info(
@@ -302,15 +313,22 @@ class BagPlayer(Node):
         try:
             if self.config.wait_for_subscribers > 0:
                 self._wait_for_subscribers()
+            self.diag.gauge("state", "playing")
             while not self._stop.is_set():
                 self._play_once()
                 self.loops_done += 1
+                self.diag.gauge("loops", self.loops_done)
                 if not self.config.loop or not self._topic_pubs:
                     break
         except BaseException as exc:
+            if self._stop.is_set() or not self.context.ok():
+                return  # stopped (Ctrl-C shuts the context down under a publish): not an error
             self._error = exc
-            self.get_logger().error(f"playback stopped: {exc}")
+            self.diag.gauge("state", "error")
+            self.diag.report("playback_error", f"playback stopped: {exc}", level=ERROR)
         finally:
+            if self._error is None:
+                self.diag.gauge("state", "finished")
             total = sum(self.published.values())
             if self.context.ok():
                 self.get_logger().info(f"published {total} message(s)")
@@ -339,6 +357,8 @@ class BagPlayer(Node):
                     return
                 self._topic_pubs[topic].publish(raw)
                 self.published[topic] += 1
+                self.diag.count("published")
+                self.diag.gauge("late_ms", round(max(0.0, time.monotonic() - due) * 1e3, 3))
         finally:
             self._stop_reader(reader, buffer)
 

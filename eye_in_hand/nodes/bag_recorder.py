@@ -13,6 +13,10 @@ offers the same again. Message definitions are stored too (MCAP schemas / the sq
 definitions table): from the ROS 2 Jazzy type store, or, for other types, generated from the
 installed Python message class.
 
+Diagnostics (``diagnostics``, 1 Hz): ``messages`` and ``write_errors`` counters (a write error
+is logged once per topic and reported at ERROR), ``topics`` recorded, and ``missing_topics``
+(WARN while a requested topic has no publisher yet).
+
 The bag is always left valid: :meth:`BagRecorder.close` writes ``metadata.yaml``; ``main`` and
 ``eye-in-hand record`` call it on Ctrl-C, SIGTERM (rclpy turns it into a shutdown) and at the end
 of ``--duration``.
@@ -45,6 +49,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from eye_in_hand.errors import BagError, ConfigError, EyeInHandError
 from eye_in_hand.io.bags import STORAGES, BagWriter, OfferedQos, default_typestore
 from eye_in_hand.nodes.bag_player import import_message_type
+from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
 
 __all__ = [
     "BagRecorder",
@@ -169,11 +174,14 @@ class BagRecorder(Node):
             raise ConfigError(f"{self.get_name()}: bad parameter: {exc}") from exc
         self._lock = threading.Lock()
         self._topic_subs: dict[str, Any] = {}
-        self._warned: set[str] = set()
         self.received: dict[str, int] = {}
         self.write_errors = 0
         self.writer = BagWriter(self.output, storage=self.storage,  # type: ignore[arg-type]
                                 compression=self.compression or None)  # type: ignore[arg-type]
+        self.diag = NodeDiagnostics(self, hardware_id=self.output)
+        self.diag.declare_counter("messages", "write_errors")
+        self.diag.gauge("missing_topics", len(self.wanted))
+        self.diag.warn_above("missing_topics", 0)
         self._timer = self.create_timer(self.discovery_period, self.discover)
         self.discover()
         what = "all topics" if self.record_all else ", ".join(self.wanted)
@@ -228,11 +236,11 @@ class BagRecorder(Node):
             if name in self._topic_subs or not (self.record_all or name in self.wanted):
                 continue
             self._try_subscribe(name, types)
+        self.diag.gauge("missing_topics", len(self.missing_topics))
+        self.diag.gauge("topics", len(self._topic_subs))
 
     def _warn_once(self, key: str, text: str) -> None:
-        if key not in self._warned:
-            self._warned.add(key)
-            self.get_logger().warning(text)
+        self.diag.report(key, text)
 
     def _try_subscribe(self, name: str, types: list[str]) -> None:
         publishers = self.get_publishers_info_by_topic(name)
@@ -260,13 +268,16 @@ class BagRecorder(Node):
         try:
             self.writer.write(topic, stamp, raw)
         except BagError as exc:
-            self.write_errors += 1
             if self.writer.closed:
                 return  # a message that arrived while closing: the bag is complete
-            self.get_logger().error(f"cannot write a message of {topic}: {exc}")
+            self.write_errors += 1
+            self.diag.count("write_errors")
+            self.diag.report(f"write_error:{topic}",
+                             f"cannot write a message of {topic}: {exc}", level=ERROR)
             return
         with self._lock:
             self.received[topic] += 1
+        self.diag.count("messages")
 
     def close(self) -> None:
         """Stop recording and finish the bag (writes metadata.yaml). Idempotent."""

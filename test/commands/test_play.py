@@ -65,13 +65,16 @@ def _make_bag(path: Path, ns: str, n: int = 20, spacing_ms: int = 10, *,
     return out
 
 
-def _player(ros_context, bag: Path, **params) -> BagPlayer:
+def _player(ros_context, bag: Path, namespace: str | None = None, **params) -> BagPlayer:
     overrides = [Parameter("bag", value=str(bag))]
     for key, value in params.items():
         if isinstance(value, list):
             overrides.append(Parameter(key, Parameter.Type.STRING_ARRAY, value))
         else:
             overrides.append(Parameter(key, value=value))
+    if namespace:
+        return BagPlayer(context=ros_context, namespace=namespace,
+                         parameter_overrides=overrides)
     return BagPlayer(context=ros_context, parameter_overrides=overrides)
 
 
@@ -113,8 +116,12 @@ def test_unknown_type_is_skipped_and_the_rest_plays(tmp_path, ros_context, execu
     expected = _make_bag(tmp_path / "bag", namespace, n=6, spacing_ms=5, custom=True)
     collector, got = _collector(ros_context, {f"{namespace}/chatter": "std_msgs/msg/String",
                                               f"{namespace}/image": "sensor_msgs/msg/Image"})
-    player = _player(ros_context, tmp_path / "bag", wait_for_subscribers=10.0)
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    player = _player(ros_context, tmp_path / "bag", namespace, wait_for_subscribers=10.0)
     assert player.skipped_types == {f"{namespace}/custom": "my_robot_msgs/msg/Flag"}
+    diags: list = []
+    collector.create_subscription(DiagnosticArray, f"{namespace}/diagnostics", diags.append, 10)
     executor.add_node(collector)
     executor.add_node(player)
     player.start()
@@ -122,6 +129,13 @@ def test_unknown_type_is_skipped_and_the_rest_plays(tmp_path, ros_context, execu
         got[f"{namespace}/chatter"]) == 3, 20.0)
     assert got[f"{namespace}/chatter"] == [raw for _s, raw in expected[f"{namespace}/chatter"]]
     assert f"{namespace}/custom" not in player.published
+    # reported on diagnostics (WARN while topics are skipped) and logged once
+    assert spin_until(executor, lambda: (player.diag.publish(), bool(diags))[1], 10.0)
+    status = diags[-1].status[0]
+    values = {kv.key: kv.value for kv in status.values}
+    assert status.level == bytes([1]) and "skipped_topics = 1" in status.message
+    assert values["published"] == "6" and values["state"] == "finished"
+    assert values[f"problem: type_not_installed:{namespace}/custom"] == "1"
 
 
 def test_start_offset_topics_and_clock(tmp_path, ros_context, executor, spin_until,

@@ -47,6 +47,10 @@ def test_records_topics_that_appear_later(tmp_path, ros_context, executor, spin_
         pub.publish(msg)
     assert spin_until(executor, lambda: rec.received.get(topic, 0) == 10, 15.0)
     assert rec.missing_topics == [f"{namespace}/never"]
+    status = rec.diag.build_status()
+    values = {kv.key: kv.value for kv in status.values}
+    assert values["messages"] == "10" and values["missing_topics"] == "1"
+    assert status.level == bytes([1]) and "missing_topics = 1 > 0" in status.message
     rec.close()
     info = bag_info(tmp_path / "bag")
     assert info.storage == storage
