@@ -64,6 +64,28 @@ def _read(path: str, side: str):
     return img
 
 
+def apply_overrides(config, *, radius: float | None = None, method: str | None = None):
+    """The locator config with ``--radius`` (first target, metres) and ``--method`` applied.
+
+    Raises:
+        InputError: a radius that is not a positive number.
+    """
+    import math
+
+    from eye_in_hand.errors import InputError
+
+    if radius is not None:
+        if not (math.isfinite(radius) and radius > 0):
+            raise InputError(f"--radius: must be a positive number of metres, got {radius}")
+        targets = list(config.detector.targets)
+        targets[0] = dataclasses.replace(targets[0], radius_m=float(radius))
+        config = dataclasses.replace(
+            config, detector=dataclasses.replace(config.detector, targets=tuple(targets)))
+    if method is not None:
+        config = dataclasses.replace(config, method=method)
+    return config
+
+
 def run(args: argparse.Namespace) -> int:
     """Locate the target; print it (text or JSON). Returns the exit code."""
     import math
@@ -72,16 +94,8 @@ def run(args: argparse.Namespace) -> int:
     from eye_in_hand.core.locator import StereoLocator, load_locator_config
     from eye_in_hand.errors import ConfigError, InputError
 
-    config = load_locator_config(args.params)
-    if args.radius is not None:
-        if not (math.isfinite(args.radius) and args.radius > 0):
-            raise InputError(f"--radius: must be a positive number of metres, got {args.radius}")
-        targets = list(config.detector.targets)
-        targets[0] = dataclasses.replace(targets[0], radius_m=float(args.radius))
-        config = dataclasses.replace(
-            config, detector=dataclasses.replace(config.detector, targets=tuple(targets)))
-    if args.method is not None:
-        config = dataclasses.replace(config, method=args.method)
+    config = apply_overrides(load_locator_config(args.params), radius=args.radius,
+                             method=args.method)
     rig = StereoRig.load(args.calibration)
     try:
         locator = StereoLocator(rig, config)

@@ -1,0 +1,408 @@
+"""Offline processing of a bag: the live pipeline's core code, with no DDS, as fast as the CPU allows.
+
+One pass over the bag in log-time order:
+
+* robot poses (``/ee_pose`` PoseStamped, or ``/joint_states`` + kinematics) go into the
+  :class:`~eye_in_hand.core.localization.Localizer`'s pose buffer;
+* left/right images are paired by :class:`~eye_in_hand.core.sync.ApproximateStereoSync` and
+  located by :class:`~eye_in_hand.core.locator.StereoLocator`, exactly as ``detect_triangulate``
+  does;
+* each located point waits until a robot pose at or after its stamp has been read (as the live
+  ``hand_eye`` node waits for one), then is mapped into the base frame, exactly as ``hand_eye``
+  does.
+
+Decoding (bag decompression, CDR deserialization, image views) runs on a reader thread while the
+main thread locates, so both cores work. The locator runs on one thread, in stamp order, so its
+state (``selection: nearest``) evolves as in the live node. The live and offline paths therefore
+give the same numbers on the same bag.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import queue
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import numpy as np
+
+from eye_in_hand.core.camera import StereoRig
+from eye_in_hand.core.localization import Localizer, LocalizerConfig
+from eye_in_hand.core.locator import LocatorConfig, StereoLocator
+from eye_in_hand.core.sync import ApproximateStereoSync
+from eye_in_hand.errors import BagError, ConversionError, InputError, LocalizationError
+
+__all__ = ["ProcessOptions", "FrameResult", "ProcessResult", "process_bag", "error_stats",
+           "write_results"]
+
+
+@dataclass(frozen=True)
+class ProcessOptions:
+    """Topics and settings of :func:`process_bag` (defaults: the simulator's bags).
+
+    Attributes:
+        left_topic, right_topic: image topics (sensor_msgs/Image).
+        left_info_topic, right_info_topic: camera_info topics, used when no rig is given.
+        robot_pose_source: ``"ee_pose"`` or ``"joint_states"``.
+        ee_pose_topic: PoseStamped topic (base -> tool).
+        joint_states_topic: JointState topic (with ``kinematics``).
+        kinematics: a chain with ``joint_names`` and ``fk(q)`` (joint_states source only).
+        ground_truth_topic: PointStamped of the targets in the base frame (optional in the bag).
+        base_frame: frame id of the output poses.
+        camera_frame: frame id of the output points.
+        sync_slop_s, sync_queue_size: stereo pairing, as ``detect_triangulate``'s ``sync.*``.
+        max_pose_gap_s, robot_sigma_pos_m, robot_sigma_rot_rad: as the ``hand_eye`` node's.
+    """
+
+    left_topic: str = "/stereo/left/image_raw"
+    right_topic: str = "/stereo/right/image_raw"
+    left_info_topic: str = "/stereo/left/camera_info"
+    right_info_topic: str = "/stereo/right/camera_info"
+    robot_pose_source: str = "ee_pose"
+    ee_pose_topic: str = "/ee_pose"
+    joint_states_topic: str = "/joint_states"
+    kinematics: Any = None
+    ground_truth_topic: str = "/ground_truth/target"
+    base_frame: str = "base_link"
+    camera_frame: str = "camera_left_optical_frame"
+    sync_slop_s: float = 0.005
+    sync_queue_size: int = 5
+    max_pose_gap_s: float = 0.05
+    robot_sigma_pos_m: float = 0.0001
+    robot_sigma_rot_rad: float = 0.0001
+
+    def __post_init__(self) -> None:
+        if self.robot_pose_source not in ("ee_pose", "joint_states"):
+            raise InputError(f"robot_pose_source: expected ee_pose or joint_states, got "
+                             f"{self.robot_pose_source!r}")
+        if self.robot_pose_source == "joint_states" and self.kinematics is None:
+            raise InputError("kinematics: required when robot_pose_source is joint_states")
+
+    @property
+    def pose_topic(self) -> str:
+        return self.ee_pose_topic if self.robot_pose_source == "ee_pose" else \
+            self.joint_states_topic
+
+
+@dataclass
+class FrameResult:
+    """One stereo pair's outcome.
+
+    Attributes:
+        stamp_ns: the image stamp.
+        status: ``"ok"``, ``"no_target"`` (with the locator's reason in ``reason``), or
+            ``"no_robot_pose"`` (located in the camera, but no robot pose brackets the stamp).
+        point_cam, cov_cam, residual_px, left_px, right_px: the triangulation (when located).
+        point_base, cov_base: the base-frame result (status ok).
+        truth_base: the ground-truth target at this stamp, when the bag has it.
+    """
+
+    stamp_ns: int
+    status: str
+    reason: str = ""
+    point_cam: np.ndarray | None = None
+    cov_cam: np.ndarray | None = None
+    residual_px: float = math.nan
+    left_px: np.ndarray | None = None
+    right_px: np.ndarray | None = None
+    point_base: np.ndarray | None = None
+    cov_base: np.ndarray | None = None
+    truth_base: np.ndarray | None = None
+
+    @property
+    def error_m(self) -> float:
+        """Distance to the ground truth (m), NaN when either is missing."""
+        if self.point_base is None or self.truth_base is None:
+            return math.nan
+        return float(np.linalg.norm(self.point_base - self.truth_base))
+
+
+@dataclass
+class ProcessResult:
+    """All frames, counters, and what the bag covered."""
+
+    frames: list[FrameResult] = field(default_factory=list)
+    counts: dict[str, int] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    duration_s: float = 0.0
+    rig: StereoRig | None = None
+
+    def ok(self) -> list[FrameResult]:
+        return [f for f in self.frames if f.status == "ok"]
+
+
+def error_stats(frames: list[FrameResult]) -> dict[str, float] | None:
+    """RMS, p95 and max error in mm over frames with a result and ground truth (None if none)."""
+    errs = np.array([f.error_m for f in frames if math.isfinite(f.error_m)])
+    if errs.size == 0:
+        return None
+    return {"frames": int(errs.size), "rms_mm": 1000.0 * float(np.sqrt(np.mean(errs ** 2))),
+            "p95_mm": 1000.0 * float(np.percentile(errs, 95)),
+            "max_mm": 1000.0 * float(errs.max()), "mean_mm": 1000.0 * float(errs.mean())}
+
+
+_END = object()
+
+
+def _decoded(path: Path, topics: list[str], typestore: Any, errors: list[BaseException],
+             ) -> Iterator[tuple[str, int, Any]]:
+    """(topic, log time, deserialized message), produced on a reader thread (bounded queue)."""
+    from eye_in_hand.io.bags import deserialize, iter_messages
+
+    q: queue.Queue = queue.Queue(maxsize=16)
+    stop = threading.Event()
+
+    def reader() -> None:
+        try:
+            for topic, msgtype, t_ns, raw in iter_messages(path, topics):
+                if stop.is_set():
+                    return
+                q.put((topic, t_ns, deserialize(raw, msgtype, typestore)))
+        except BaseException as exc:  # handed to the consumer, re-raised there
+            errors.append(exc)
+        finally:
+            q.put(_END)
+
+    th = threading.Thread(target=reader, name="bag-reader", daemon=True)
+    th.start()
+    try:
+        while True:
+            item = q.get()
+            if item is _END:
+                break
+            yield item
+    finally:
+        stop.set()
+        while th.is_alive():
+            try:
+                q.get(timeout=0.05)
+            except queue.Empty:
+                pass
+        th.join()
+    if errors:
+        raise errors[0]
+
+
+def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: LocatorConfig,
+                rig: StereoRig | None = None, hand_eye_cov: np.ndarray | None = None,
+                options: ProcessOptions | None = None,
+                progress: Callable[[int], None] | None = None) -> ProcessResult:
+    """Run detection, triangulation and localization over a bag.
+
+    Args:
+        path: bag directory or ``.mcap`` file.
+        hand_eye_T: ``ee_T_cam``, shape (4, 4).
+        locator_config: detector/triangulation settings (``load_locator_config``).
+        rig: the stereo calibration; None: built from the bag's camera_info topics.
+        hand_eye_cov: optional (6, 6) covariance of ``hand_eye_T``.
+        options: topics and settings.
+        progress: called with the number of messages read since the last call.
+
+    Returns:
+        Every stereo pair's :class:`FrameResult`, in stamp order, and counters.
+
+    Raises:
+        BagError: the bag cannot be read or lacks a required topic.
+        InputError: malformed settings.
+    """
+    from eye_in_hand.io.bags import bag_info, require_topics, typestore_for
+    from eye_in_hand.ros.conversions import (header_stamp_ns, image_to_numpy, point_to_xyz,
+                                             pose_to_matrix)
+
+    opts = options or ProcessOptions()
+    path = Path(path)
+    info = bag_info(path)
+    required = [opts.left_topic, opts.right_topic, opts.pose_topic]
+    require_topics(info, required + ([opts.left_info_topic, opts.right_info_topic]
+                                     if rig is None else []))
+    topics = list(required) + ([opts.ground_truth_topic]
+                               if opts.ground_truth_topic in info.topics else [])
+    n_poses = info.topics[opts.pose_topic].count
+    localizer = Localizer(hand_eye_T, hand_eye_cov, LocalizerConfig(
+        max_gap_ns=int(opts.max_pose_gap_s * 1e9), buffer_size=max(2, n_poses + 2),
+        robot_sigma_pos_m=opts.robot_sigma_pos_m, robot_sigma_rot_rad=opts.robot_sigma_rot_rad))
+    sync = ApproximateStereoSync(int(round(opts.sync_slop_s * 1e9)), opts.sync_queue_size)
+    result = ProcessResult(duration_s=info.duration_ns / 1e9, rig=rig)
+    counts = result.counts
+    for key in ("pairs", "located", "localized", "no_target", "no_robot_pose", "bad_messages"):
+        counts[key] = 0
+    if rig is None:
+        rig = _rig_from_camera_info(path, opts)
+        result.rig = rig
+    locator = StereoLocator(rig, locator_config)
+    truth: dict[int, np.ndarray] = {}
+    pending: list[FrameResult] = []      # located, waiting for a robot pose after the stamp
+    joint_index: np.ndarray | None = None
+
+    def finish(frame: FrameResult) -> None:
+        try:
+            res = localizer.locate(frame.stamp_ns, frame.point_cam, frame.cov_cam)
+        except LocalizationError as exc:
+            frame.status, frame.reason = "no_robot_pose", str(exc)
+            counts["no_robot_pose"] += 1
+            return
+        frame.point_base, frame.cov_base = res.point_base, res.covariance
+        counts["localized"] += 1
+
+    def flush(newest: int | None) -> None:
+        while pending and (newest is None or pending[0].stamp_ns <= newest):
+            finish(pending.pop(0))
+
+    typestore = typestore_for(path)
+    errors: list[BaseException] = []
+    for topic, _t, msg in _decoded(path, topics, typestore, errors):
+        if progress is not None:
+            progress(1)
+        try:
+            if topic == opts.pose_topic:
+                stamp = header_stamp_ns(msg)
+                if opts.robot_pose_source == "ee_pose":
+                    T = pose_to_matrix(msg.pose)
+                else:
+                    names = list(msg.name)
+                    if joint_index is None:
+                        missing = [n for n in opts.kinematics.joint_names if n not in names]
+                        if missing:
+                            raise InputError(f"joint_states lacks {', '.join(missing)}")
+                        joint_index = np.array([names.index(n)
+                                                for n in opts.kinematics.joint_names])
+                    T = opts.kinematics.fk(np.asarray(msg.position, dtype=np.float64)[joint_index])
+                localizer.add_robot_pose(stamp, T)
+                flush(localizer.poses.newest_ns)
+            elif topic == opts.ground_truth_topic:
+                stamp = header_stamp_ns(msg)
+                truth.setdefault(stamp, point_to_xyz(msg.point))  # first target at a stamp
+            elif topic in (opts.left_topic, opts.right_topic):
+                stamp = header_stamp_ns(msg)
+                push = sync.push_left if topic == opts.left_topic else sync.push_right
+                for pair in push(stamp, msg):
+                    counts["pairs"] += 1
+                    frame = _locate_pair(locator, pair, image_to_numpy, counts)
+                    result.frames.append(frame)
+                    if frame.status == "located":
+                        pending.append(frame)
+                        flush(localizer.poses.newest_ns)
+        except (ConversionError, InputError) as exc:
+            counts["bad_messages"] += 1
+            if len(result.notes) < 20:
+                result.notes.append(f"{topic} at {_t} ns: {exc}")
+    flush(None)  # end of bag: the last points are resolved (or refused) now
+    for frame in result.frames:
+        frame.truth_base = truth.get(frame.stamp_ns)
+        if frame.status == "located":
+            frame.status = "ok"
+    counts["ground_truth"] = len(truth)
+    return result
+
+
+def _rig_from_camera_info(path: Path, opts: ProcessOptions) -> StereoRig:
+    """The stereo rig from the first camera_info message of each side."""
+    from eye_in_hand.io.bags import deserialize, iter_messages
+    from eye_in_hand.ros.conversions import camera_info_to_model
+
+    infos: dict[str, Any] = {}
+    for topic, msgtype, t_ns, raw in iter_messages(path, [opts.left_info_topic,
+                                                          opts.right_info_topic]):
+        if topic not in infos:
+            try:
+                infos[topic] = camera_info_to_model(deserialize(raw, msgtype))
+            except ConversionError as exc:
+                raise BagError(f"{path}: {topic} at {t_ns} ns: {exc}") from exc
+        if len(infos) == 2:
+            break
+    return StereoRig.from_ros_pair(infos[opts.left_info_topic], infos[opts.right_info_topic],
+                                   source=f"{path} {opts.right_info_topic}")
+
+
+def _locate_pair(locator: StereoLocator, pair: Any, image_to_numpy: Callable[..., Any],
+                 counts: dict[str, int]) -> FrameResult:
+    left = image_to_numpy(pair.left, desired_encoding="bgr8")
+    right = image_to_numpy(pair.right, desired_encoding="bgr8")
+    res = locator.locate(left, right)
+    first = res.first
+    if first is None:
+        counts["no_target"] += 1
+        return FrameResult(pair.stamp_ns, "no_target",
+                           res.messages.get(res.first_name, res.rejected.get(res.first_name, "")))
+    counts["located"] += 1
+    return FrameResult(pair.stamp_ns, "located", point_cam=np.asarray(first.point_m),
+                       cov_cam=np.asarray(first.covariance), residual_px=float(first.residual_px),
+                       left_px=np.asarray(first.left_px), right_px=np.asarray(first.right_px))
+
+
+def write_results(out: str | Path, result: ProcessResult, opts: ProcessOptions | None = None,
+                  *, storage: str = "mcap") -> dict[str, Path]:
+    """Write ``OUT`` as a bag (``/target/point``, ``/target/pose``, ``/target/pose_cov``) with
+    ``OUT/results.csv`` and ``OUT/summary.json`` beside the bag's files.
+
+    Raises:
+        BagError: OUT exists or cannot be written.
+    """
+    from eye_in_hand.io.bags import BagWriter
+
+    opts = opts or ProcessOptions()
+    out = Path(out)
+    if out.exists():
+        raise BagError(f"{out}: output exists already (choose a new -o)")
+    with BagWriter(out, storage=storage) as writer:  # type: ignore[arg-type]
+        store = writer._store
+        T = store.types
+        writer.add_topic("/target/point", "geometry_msgs/msg/PointStamped")
+        writer.add_topic("/target/pose", "geometry_msgs/msg/PoseStamped")
+        writer.add_topic("/target/pose_cov", "geometry_msgs/msg/PoseWithCovarianceStamped")
+
+        def header(stamp: int, frame: str) -> Any:
+            return T["std_msgs/msg/Header"](
+                stamp=T["builtin_interfaces/msg/Time"](sec=stamp // 1_000_000_000,
+                                                       nanosec=stamp % 1_000_000_000),
+                frame_id=frame)
+
+        def point(p: np.ndarray) -> Any:
+            return T["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]), z=float(p[2]))
+
+        for f in result.frames:
+            if f.point_cam is None:
+                continue
+            writer.write("/target/point", f.stamp_ns, T["geometry_msgs/msg/PointStamped"](
+                header=header(f.stamp_ns, opts.camera_frame), point=point(f.point_cam)))
+            if f.point_base is None or f.cov_base is None:
+                continue
+            pose = T["geometry_msgs/msg/Pose"](
+                position=point(f.point_base),
+                orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+            writer.write("/target/pose", f.stamp_ns, T["geometry_msgs/msg/PoseStamped"](
+                header=header(f.stamp_ns, opts.base_frame), pose=pose))
+            cov = np.zeros((6, 6))
+            cov[:3, :3] = f.cov_base
+            cov[3:, 3:] = np.eye(3) * 1e6
+            writer.write("/target/pose_cov", f.stamp_ns,
+                         T["geometry_msgs/msg/PoseWithCovarianceStamped"](
+                             header=header(f.stamp_ns, opts.base_frame),
+                             pose=T["geometry_msgs/msg/PoseWithCovariance"](
+                                 pose=pose, covariance=cov.ravel())))
+    csv_path = out / "results.csv"
+    with csv_path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["stamp_ns", "status", "x_cam", "y_cam", "z_cam", "residual_px", "left_u",
+                    "left_v", "right_u", "right_v", "x_base", "y_base", "z_base", "sigma_x_mm",
+                    "sigma_y_mm", "sigma_z_mm", "gt_x", "gt_y", "gt_z", "error_mm", "reason"])
+        for f in result.frames:
+            def cols(v: np.ndarray | None, n: int) -> list[str]:
+                return [repr(float(x)) for x in v] if v is not None else [""] * n
+            sig = ([f"{1000.0 * math.sqrt(max(f.cov_base[i, i], 0.0)):.6f}" for i in range(3)]
+                   if f.cov_base is not None else [""] * 3)
+            err = f.error_m
+            w.writerow([f.stamp_ns, f.status, *cols(f.point_cam, 3),
+                        "" if math.isnan(f.residual_px) else f"{f.residual_px:.6f}",
+                        *cols(f.left_px, 2), *cols(f.right_px, 2), *cols(f.point_base, 3), *sig,
+                        *cols(f.truth_base, 3), "" if math.isnan(err) else f"{1000 * err:.6f}",
+                        f.reason])
+    summary = {"counts": result.counts, "bag_duration_s": result.duration_s,
+               "error": error_stats(result.frames)}
+    summary_path = out / "summary.json"
+    summary_path.write_text(json.dumps(summary, indent=2))
+    return {"bag": out, "csv": csv_path, "summary": summary_path}
+
