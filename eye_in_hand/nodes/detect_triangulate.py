@@ -8,6 +8,9 @@ Subscribes (relative names, :data:`~eye_in_hand.ros.qos.SENSOR_QOS`):
 Publishes:
     ``target/point`` (geometry_msgs/PointStamped, RESULT_QOS): the first configured target, in
     the left optical frame, stamped with the left image's stamp; nothing when it is not found.
+    ``target/point_cov`` (geometry_msgs/PoseWithCovarianceStamped, RESULT_QOS): the same point
+    with its triangulation covariance (position block, m^2; orientation variances 1e6),
+    published just before ``target/point``; ``hand_eye`` propagates it into ``target/pose_cov``.
     ``targets/<name>/point`` (PointStamped, RESULT_QOS): every target, only when more than one
     target is configured.
     ``target/debug_image`` (sensor_msgs/Image bgr8, half size, left|right side by side with the
@@ -186,6 +189,8 @@ class DetectTriangulateNode(Node):
 
         names = [t.name for t in self.config.detector.targets]
         self._pub_point = self.create_publisher(_point_type(), "target/point", RESULT_QOS)
+        self._pub_point_cov = self.create_publisher(_point_cov_type(), "target/point_cov",
+                                                    RESULT_QOS)
         self._pub_targets = ({n: self.create_publisher(_point_type(), f"targets/{n}/point",
                                                        RESULT_QOS) for n in names}
                              if len(names) > 1 else {})
@@ -327,6 +332,9 @@ class DetectTriangulateNode(Node):
         frame = self._frame_id or pair.left.header.frame_id or DEFAULT_FRAME
         first = result.first
         if first is not None:
+            # The covariance first: hand_eye pairs the two by stamp and waits for the point.
+            self._pub_point_cov.publish(point_cov_message(first.point_m, first.covariance,
+                                                          stamp_ns=stamp, frame_id=frame))
             self._pub_point.publish(xyz_to_point_stamped(first.point_m, stamp_ns=stamp,
                                                          frame_id=frame))
             self.diag.count("detections")
@@ -362,6 +370,33 @@ class DetectTriangulateNode(Node):
             self._worker.join(timeout=5.0)
         self.diag.destroy()
         super().destroy_node()
+
+
+def _point_cov_type() -> Any:
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+
+    return PoseWithCovarianceStamped
+
+
+def point_cov_message(point_m: np.ndarray, covariance: np.ndarray, *, stamp_ns: int,
+                      frame_id: str) -> Any:
+    """``target/point_cov``: the point with its 3x3 triangulation covariance.
+
+    A PoseWithCovarianceStamped whose position is the point, orientation identity, covariance
+    position block the triangulation covariance (m^2) and orientation variances 1e6 (unknown).
+    """
+    from eye_in_hand.ros.conversions import make_header
+
+    msg = _point_cov_type()()
+    msg.header = make_header(stamp_ns, frame_id)
+    p = msg.pose.pose.position
+    p.x, p.y, p.z = (float(v) for v in point_m)
+    msg.pose.pose.orientation.w = 1.0
+    full = np.zeros((6, 6))
+    full[:3, :3] = covariance
+    full[3:, 3:] = np.eye(3) * 1e6
+    msg.pose.covariance = [float(v) for v in full.ravel()]
+    return msg
 
 
 def _point_type() -> Any:

@@ -1,0 +1,210 @@
+"""Process launcher: the three nodes as separate processes, one parameter file.
+
+The equivalent of ``launch/eye_in_hand.launch.py`` for installs without ``ros2 launch``:
+
+=================== ============ ===========================================================
+node                namespace    remappings (relative to the root namespace)
+=================== ============ ===========================================================
+stereo_capture      ``stereo``   ``ee_pose``, ``joint_states`` -> root (sim source)
+detect_triangulate  ``stereo``   ``target/point``, ``target/point_cov``,
+                                 ``target/debug_image`` -> root
+hand_eye            root         (subscribes ``target/point``, ``ee_pose`` / ``joint_states``)
+=================== ============ ===========================================================
+
+Every node's ``diagnostics`` goes to the root ``diagnostics`` topic. So with the default root
+namespace ``/`` the cameras are ``/stereo/left/image_raw`` ... (what the simulator's bags hold),
+the robot pose is ``/ee_pose`` and the result is ``/target/pose``.
+
+Each child's output lines are prefixed with ``[node]``; Ctrl-C (SIGINT) and SIGTERM are
+forwarded to every child; when a child exits on its own, the others are stopped and the
+launcher exits non-zero, naming it.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Sequence
+
+from eye_in_hand.errors import ConfigError, InputError
+
+__all__ = ["NodeSpec", "NODES", "node_command", "Launcher", "default_params_file"]
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    """How one node is started."""
+
+    name: str
+    module: str
+    namespace: str = ""                       # relative to the root namespace
+    remaps: tuple[tuple[str, str], ...] = ()  # (from, to); a 'to' without '/' is root-relative
+    extra_args: tuple[str, ...] = field(default=())
+
+
+_TO_ROOT = ("diagnostics",)
+
+#: The nodes, in start order.
+NODES: tuple[NodeSpec, ...] = (
+    NodeSpec("stereo_capture", "eye_in_hand.nodes.stereo_capture", "stereo",
+             (("ee_pose", "ee_pose"), ("joint_states", "joint_states"))),
+    NodeSpec("detect_triangulate", "eye_in_hand.nodes.detect_triangulate", "stereo",
+             (("target/point", "target/point"), ("target/point_cov", "target/point_cov"),
+              ("target/debug_image", "target/debug_image"))),
+    NodeSpec("hand_eye", "eye_in_hand.nodes.hand_eye", ""),
+)
+
+
+def default_params_file() -> Path:
+    """``config/eye_in_hand.yaml`` of the source tree, or of the installed share folder."""
+    here = Path(__file__).resolve().parent.parent / "config" / "eye_in_hand.yaml"
+    if here.is_file():
+        return here
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        return Path(get_package_share_directory("eye_in_hand")) / "config" / "eye_in_hand.yaml"
+    except Exception as exc:  # noqa: BLE001 - any failure means: not installed with ament
+        raise ConfigError("cannot find config/eye_in_hand.yaml: pass --params FILE") from exc
+
+
+def _join(root: str, rel: str) -> str:
+    root = "/" + root.strip("/")
+    return (root.rstrip("/") + "/" + rel.strip("/")) if rel else root
+
+
+def node_command(spec: NodeSpec, params_file: str | os.PathLike[str], *,
+                 root_namespace: str = "/", python: str = sys.executable) -> list[str]:
+    """The command line that starts ``spec`` as a process."""
+    ns = _join(root_namespace, spec.namespace)
+    cmd = [python, "-u", "-m", spec.module, "--ros-args", "-r", f"__ns:={ns}",
+           "--params-file", str(params_file)]
+    remaps = list(spec.remaps) + [(t, t) for t in _TO_ROOT]
+    for src, dst in remaps:
+        target = _join(root_namespace, dst)
+        if target != _join(ns, src):
+            cmd += ["-r", f"{src}:={target}"]
+    return cmd + list(spec.extra_args)
+
+
+class Launcher:
+    """Start nodes as child processes and supervise them.
+
+    Args:
+        params_file: the ROS parameter file given to every node.
+        nodes: which nodes (names from :data:`NODES`), in start order.
+        root_namespace: prefix of every node's namespace.
+        env: environment of the children (default: this process's).
+        out: where prefixed child output goes (default: stdout).
+    """
+
+    def __init__(self, params_file: str | os.PathLike[str], nodes: Sequence[str] | None = None,
+                 *, root_namespace: str = "/", env: dict[str, str] | None = None,
+                 out: IO[str] | None = None) -> None:
+        self.params_file = Path(params_file)
+        if not self.params_file.is_file():
+            raise ConfigError(f"{self.params_file}: parameter file not found")
+        names = [n.name for n in NODES]
+        chosen = list(nodes) if nodes is not None else names
+        unknown = [n for n in chosen if n not in names]
+        if unknown:
+            raise InputError(f"unknown node(s) {', '.join(unknown)} (known: {', '.join(names)})")
+        if not chosen:
+            raise InputError("no node to launch")
+        self.specs = [s for s in NODES if s.name in chosen]
+        self.root_namespace = root_namespace
+        self.env = dict(os.environ if env is None else env)
+        self.env.setdefault("PYTHONUNBUFFERED", "1")
+        self.out = out or sys.stdout
+        self.procs: dict[str, subprocess.Popen[str]] = {}
+        self._threads: list[threading.Thread] = []
+        self._lock = threading.Lock()
+
+    def start(self) -> None:
+        """Start every node (each in its own process group)."""
+        for spec in self.specs:
+            cmd = node_command(spec, self.params_file, root_namespace=self.root_namespace)
+            proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                    text=True, env=self.env, start_new_session=True)
+            self.procs[spec.name] = proc
+            th = threading.Thread(target=self._pump, args=(spec.name, proc), daemon=True)
+            th.start()
+            self._threads.append(th)
+
+    def _pump(self, name: str, proc: subprocess.Popen[str]) -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            with self._lock:
+                self.out.write(f"[{name}] {line}")
+                self.out.flush()
+
+    def signal_all(self, sig: int = signal.SIGINT) -> None:
+        """Send ``sig`` to every child still running."""
+        for proc in self.procs.values():
+            if proc.poll() is None:
+                try:
+                    os.killpg(proc.pid, sig)
+                except ProcessLookupError:
+                    pass
+
+    def stop(self, timeout_s: float = 10.0) -> dict[str, int]:
+        """SIGINT every child, then SIGKILL what is left after ``timeout_s``; exit codes."""
+        self.signal_all(signal.SIGINT)
+        deadline = time.monotonic() + timeout_s
+        for proc in self.procs.values():
+            try:
+                proc.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+        for th in self._threads:
+            th.join(timeout=2.0)
+        return {name: proc.returncode for name, proc in self.procs.items()}
+
+    def first_exited(self) -> tuple[str, int] | None:
+        """The first child that has exited, with its code, or None."""
+        for name, proc in self.procs.items():
+            code = proc.poll()
+            if code is not None:
+                return name, code
+        return None
+
+    def run(self, duration_s: float | None = None) -> int:
+        """Start, wait for Ctrl-C/SIGTERM, ``duration_s``, or a child's exit; stop; exit code.
+
+        Returns:
+            0 after Ctrl-C, SIGTERM or the duration with every child stopping cleanly; 1 when a
+            child exited on its own or failed to stop cleanly.
+        """
+        stop = threading.Event()
+        previous = {}
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, lambda *_: stop.set())
+        self.start()
+        died = None
+        end = None if duration_s is None else time.monotonic() + duration_s
+        try:
+            while not stop.is_set():
+                died = self.first_exited()
+                if died is not None or (end is not None and time.monotonic() >= end):
+                    break
+                stop.wait(0.1)
+        finally:
+            codes = self.stop()
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+        if died is not None:
+            print(f"eye-in-hand launch: {died[0]} exited with code {died[1]}; stopped the "
+                  "others", file=sys.stderr)
+            return 1
+        bad = {n: c for n, c in codes.items() if c not in (0, -signal.SIGINT, 130)}
+        if bad:
+            print("eye-in-hand launch: did not stop cleanly: " + ", ".join(
+                f"{n} (code {c})" for n, c in bad.items()), file=sys.stderr)
+            return 1
+        return 0
