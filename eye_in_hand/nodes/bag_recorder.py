@@ -117,6 +117,12 @@ def message_definition(msgtype: str) -> str:
     return "".join(parts)
 
 
+def _is_hidden(topic: str) -> bool:
+    """Hidden topics (a name component starting with ``_``: service events, action internals)
+    are left out of ``all``, as ``ros2 bag record -a`` does; name them to record them."""
+    return any(part.startswith("_") for part in topic.split("/"))
+
+
 def _policy_name(policy: Any) -> str:
     return str(getattr(policy, "name", policy)).lower()
 
@@ -233,9 +239,10 @@ class BagRecorder(Node):
         if self.writer.closed:
             return
         for name, types in self.get_topic_names_and_types():
-            if name in self._topic_subs or not (self.record_all or name in self.wanted):
+            if name in self._topic_subs:
                 continue
-            self._try_subscribe(name, types)
+            if name in self.wanted or (self.record_all and not _is_hidden(name)):
+                self._try_subscribe(name, types)
         self.diag.gauge("missing_topics", len(self.missing_topics))
         self.diag.gauge("topics", len(self._topic_subs))
 

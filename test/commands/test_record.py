@@ -75,6 +75,7 @@ def test_all_topics_qos_and_latched_data(tmp_path, ros_context, executor, spin_u
         durability=DurabilityPolicy.TRANSIENT_LOCAL))
     sensor = pub_node.create_publisher(PointStamped, f"{namespace}/sensor", QoSProfile(
         depth=5, reliability=ReliabilityPolicy.BEST_EFFORT))
+    pub_node.create_publisher(String, f"{namespace}/_hidden/internal", 10)
     latched.publish(String(data="calibration"))  # before the recorder exists
     executor.add_node(pub_node)
     rec = _recorder(ros_context, tmp_path / "bag", **{"all": True})
@@ -90,7 +91,8 @@ def test_all_topics_qos_and_latched_data(tmp_path, ros_context, executor, spin_u
     assert info.topics[f"{namespace}/latched"].offered_qos[0].durability == "transient_local"
     assert info.topics[f"{namespace}/sensor"].offered_qos[0].reliability == "best_effort"
     assert info.topics[f"{namespace}/sensor"].msgtype == "geometry_msgs/msg/PointStamped"
-    assert "/rosout" in info.topics  # --all records every topic, like ros2 bag record -a
+    assert "/rosout" in info.topics  # --all records every topic, like ros2 bag record -a,
+    assert f"{namespace}/_hidden/internal" not in info.topics  # except hidden ones
 
 
 def test_duration_ends_recording_with_a_valid_bag(tmp_path, ros_context, executor,
