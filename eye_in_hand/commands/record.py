@@ -22,7 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", required=True, metavar="BAG",
                         help="bag directory to create (must not exist)")
     parser.add_argument("-a", "--all", action="store_true",
-                        help="record every topic, including ones that appear later")
+                        help="record every topic, including ones that appear later, except "
+                             "hidden ones (a name component starting with '_')")
     parser.add_argument("-s", "--storage", choices=("mcap", "sqlite3"), default="mcap",
                         help="storage plugin (default mcap, as ros2 bag record on Jazzy)")
     parser.add_argument("--compression", choices=("none", "zstd"), default="none",
