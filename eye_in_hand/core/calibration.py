@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
-from typing import Literal, Sequence
+from typing import Any, Literal, Sequence
 
 import numpy as np
 
@@ -1122,18 +1122,32 @@ class _Bundle:
         return K, p[4:].copy()
 
     def evaluate(self, x: np.ndarray, jac: bool = True
-                 ) -> tuple[np.ndarray, np.ndarray | None, list[list[np.ndarray | None]]]:
+                 ) -> tuple[np.ndarray, Any, list[list[np.ndarray | None]]]:
+        """Residuals (projected - observed), the sparse Jacobian (CSR, all parameters) and the
+        per-view residuals (observed - projected) of each camera."""
         import cv2
+        from scipy.sparse import csr_matrix
 
         r = np.empty(self.m)
-        J = np.zeros((self.m, x.size)) if jac else None
+        rows_l: list[np.ndarray] = []
+        cols_l: list[np.ndarray] = []
+        vals_l: list[np.ndarray] = []
+
+        def put(row0: int, block: np.ndarray, cols: np.ndarray) -> None:
+            nr = block.shape[0]
+            rows_l.append(np.repeat(np.arange(row0, row0 + nr), cols.size))
+            cols_l.append(np.tile(cols, nr))
+            vals_l.append(block.ravel())
+
         per_view: list[list[np.ndarray | None]] = []
         row = 0
         er, et = x[self.ext0:self.ext0 + 3], x[self.ext0 + 3:self.ext0 + 6]
+        ext_cols = np.arange(self.ext0, self.ext0 + 6)
         cams = [self.camera(x, 0), self.camera(x, 1)]
         for v in range(self.nv):
             pv = self.pose0 + 6 * v
             vr, vt = x[pv:pv + 3], x[pv + 3:pv + 6]
+            pose_cols = np.arange(pv, pv + 6)
             out: list[np.ndarray | None] = [None, None]
             for c in range(2):
                 o = self.obs[v][c]
@@ -1151,66 +1165,100 @@ class _Bundle:
                 res = proj.reshape(-1, 2) - img
                 out[c] = -res
                 r[row:row + 2 * n] = res.ravel()
-                if J is not None:
-                    Jr, Jt = jp[:, 0:3], jp[:, 3:6]
+                if jac:
+                    Jrt = jp[:, 0:6]
                     Jf, Jc, Jd = jp[:, 6:8], jp[:, 8:10], jp[:, 10:10 + self.nd]
                     base = c * self.nc
                     if self.fix_aspect:
-                        J[row:row + 2 * n, base] = Jf[:, 0] + Jf[:, 1] / self.aspect[c]
-                    else:
-                        J[row:row + 2 * n, base:base + 2] = Jf
-                    J[row:row + 2 * n, base + 2:base + 4] = Jc
-                    J[row:row + 2 * n, base + 4:base + 4 + self.nd] = Jd
+                        Jf = np.column_stack([Jf[:, 0] + Jf[:, 1] / self.aspect[c],
+                                              np.zeros(Jf.shape[0])])
+                    put(row, np.hstack([Jf, Jc, Jd]), np.arange(base, base + self.nc))
                     if c == 0:
-                        J[row:row + 2 * n, pv:pv + 3] = Jr
-                        J[row:row + 2 * n, pv + 3:pv + 6] = Jt
+                        put(row, Jrt, pose_cols)
                     else:
                         _, _, dr3dr1, dr3dt1, dr3dr2, dr3dt2, dt3dr1, dt3dt1, dt3dr2, dt3dt2 = comp
-                        J[row:row + 2 * n, pv:pv + 3] = Jr @ dr3dr1 + Jt @ dt3dr1
-                        J[row:row + 2 * n, pv + 3:pv + 6] = Jr @ dr3dt1 + Jt @ dt3dt1
-                        J[row:row + 2 * n, self.ext0:self.ext0 + 3] = Jr @ dr3dr2 + Jt @ dt3dr2
-                        J[row:row + 2 * n, self.ext0 + 3:self.ext0 + 6] = Jr @ dr3dt2 + Jt @ dt3dt2
+                        Jr, Jt = Jrt[:, :3], Jrt[:, 3:]
+                        put(row, np.hstack([Jr @ dr3dr1 + Jt @ dt3dr1, Jr @ dr3dt1 + Jt @ dt3dt1]),
+                            pose_cols)
+                        put(row, np.hstack([Jr @ dr3dr2 + Jt @ dt3dr2, Jr @ dr3dt2 + Jt @ dt3dt2]),
+                            ext_cols)
                 row += 2 * n
             per_view.append(out)
+        J = None
+        if jac:
+            J = csr_matrix((np.concatenate(vals_l), (np.concatenate(rows_l),
+                                                     np.concatenate(cols_l))),
+                           shape=(self.m, x.size))
         return r, J, per_view
 
-    def solve(self, max_nfev: int = 200) -> tuple[np.ndarray, np.ndarray]:
-        """Run Levenberg-Marquardt; returns ``(x, covariance of the free parameters)``."""
-        from scipy.optimize import least_squares
-
-        x_full = self.x0.copy()
-        free = self.free
-
-        def fun(xf: np.ndarray) -> np.ndarray:
-            x_full[free] = xf
-            return self.evaluate(x_full, jac=False)[0]
-
-        def jac(xf: np.ndarray) -> np.ndarray:
-            x_full[free] = xf
-            J = self.evaluate(x_full, jac=True)[1]
-            assert J is not None
-            return J[:, free]
-
-        sol = least_squares(fun, self.x0[free], jac=jac, method="lm", x_scale="jac",
-                            xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=max_nfev)
-        x = self.x0.copy()
-        x[free] = sol.x
-        return x, self.covariance(x)
-
-    def covariance(self, x: np.ndarray) -> np.ndarray:
+    def _normal(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         r, J, _ = self.evaluate(x, jac=True)
-        assert J is not None
         Jf = J[:, self.free]
-        dof = max(1, r.size - Jf.shape[1])
+        return r, np.asarray((Jf.T @ Jf).todense()), np.asarray(Jf.T @ r).ravel()
+
+    def solve(self, max_iterations: int = 100) -> tuple[np.ndarray, np.ndarray]:
+        """Levenberg-Marquardt (Marquardt's diagonal scaling) on the normal equations.
+
+        The Jacobian is sparse (each board pose touches only its own rows); the normal matrix
+        has the size of the parameter vector, so hundreds of views stay cheap.
+
+        Returns:
+            ``(x, covariance)``: all parameters, and the covariance over all parameters (zero
+            rows/columns for fixed ones).
+        """
+        import scipy.linalg
+
+        x = self.x0.copy()
+        free = self.free
+        r, A, g = self._normal(x)
+        cost = float(r @ r)
+        lam = 1e-3
+        for _ in range(max_iterations):
+            diag = np.diag(A).copy()
+            diag[diag <= 0] = 1.0
+            step = None
+            while lam < 1e16:
+                try:
+                    M = A + lam * np.diag(diag)
+                    step = -scipy.linalg.cho_solve(scipy.linalg.cho_factor(M), g)
+                except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):
+                    lam *= 10.0
+                    continue
+                x_try = x.copy()
+                x_try[free] += step
+                r_try = self.evaluate(x_try, jac=False)[0]
+                cost_try = float(r_try @ r_try)
+                if np.isfinite(cost_try) and cost_try < cost:
+                    break
+                lam *= 10.0
+                step = None
+            if step is None:
+                break
+            improvement = (cost - cost_try) / max(cost, 1e-300)
+            x, cost = x_try, cost_try
+            lam = max(lam / 10.0, 1e-12)
+            r, A, g = self._normal(x)
+            if improvement < 1e-12 or np.linalg.norm(step) < 1e-12 * (1 + np.linalg.norm(x[free])):
+                break
+        return x, self._covariance(r, A)
+
+    def _covariance(self, r: np.ndarray, A: np.ndarray) -> np.ndarray:
+        n_free = int(self.free.sum())
+        dof = max(1, r.size - n_free)
         sigma2 = float(r @ r) / dof
         try:
-            cov = np.linalg.inv(Jf.T @ Jf) * sigma2
+            cov = np.linalg.inv(A) * sigma2
         except np.linalg.LinAlgError:
-            cov = np.linalg.pinv(Jf.T @ Jf) * sigma2
-        full = np.zeros((x.size, x.size))
+            cov = np.linalg.pinv(A) * sigma2
+        full = np.zeros((self.x0.size, self.x0.size))
         idx = np.flatnonzero(self.free)
         full[np.ix_(idx, idx)] = cov
         return full
+
+    def covariance(self, x: np.ndarray) -> np.ndarray:
+        """Covariance of all parameters at ``x`` (sigma^2 (J^T J)^-1 over the free ones)."""
+        r, A, _ = self._normal(x)
+        return self._covariance(r, A)
 
 
 def _pair_points(ld: BoardDetection, rd: BoardDetection
