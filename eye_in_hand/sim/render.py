@@ -42,6 +42,7 @@ __all__ = [
     "sphere_silhouette",
     "sphere_silhouette_centroid",
     "polygon_centroid",
+    "board_in_view",
 ]
 
 # Surface labels of the label image.
@@ -67,8 +68,9 @@ class FrameTruth:
             silhouettes in the distorted images, shape (M, 2) (NaN if not in front).
         target_visible_left, target_visible_right: silhouette fully inside the image, (M,).
         board_corners_px_left, board_corners_px_right: projected inner corners, (N, 2).
-        board_visible_left, board_visible_right: every corner inside the image (with a margin
-            of one projected square) and the board seen from its -z side.
+        board_visible_left, board_visible_right: every corner inside the image by at least the
+            largest projected square, and the board seen from its -z side
+            (:func:`board_in_view`).
     """
 
     q: np.ndarray
@@ -201,6 +203,26 @@ def sphere_silhouette_centroid(cam: CameraModel, center_cam: np.ndarray, radius:
     if poly is None:
         return np.full(2, np.nan)
     return polygon_centroid(poly)[1]
+
+
+def board_in_view(cam: CameraModel, cam_T_board: np.ndarray, corners_px: np.ndarray,
+                  cols: int, rows: int, margin_px: float = 0.0) -> bool:
+    """Whether a board is fully visible: seen from its -z side, every inner corner in front of
+    the camera and inside the image by at least one projected square (so that the outer
+    squares are in view too) or ``margin_px``, whichever is larger.
+
+    Args:
+        cam: the camera; cam_T_board: (4, 4); corners_px: (cols * rows, 2) projections.
+    """
+    if invert(cam_T_board)[2, 3] >= 0 or not np.all(np.isfinite(corners_px)):
+        return False
+    grid = corners_px.reshape(rows, cols, 2)
+    spacing = max(float(np.max(np.linalg.norm(np.diff(grid, axis=1), axis=2))),
+                  float(np.max(np.linalg.norm(np.diff(grid, axis=0), axis=2))))
+    m = max(spacing, margin_px)
+    return bool(np.all(corners_px[:, 0] >= m) and np.all(corners_px[:, 1] >= m)
+                and np.all(corners_px[:, 0] <= cam.width - 1 - m)
+                and np.all(corners_px[:, 1] <= cam.height - 1 - m))
 
 
 class _RayCache:
@@ -342,19 +364,9 @@ class Renderer:
             out[f"silhouette_centroid_px_{side}"] = np.array(cents).reshape(-1, 2)
             out[f"target_visible_{side}"] = np.array(vis, dtype=bool)
             cam_T_board = compose(T, w.base_T_board)
-            corners_cam = apply(cam_T_board, w.board_points())
-            px = cam.project(corners_cam)
+            px = cam.project(apply(cam_T_board, w.board_points()))
             out[f"board_corners_px_{side}"] = px
-            # camera position in the board frame must be on the -z side
-            cam_in_board = invert(cam_T_board)[:3, 3]
-            visible = bool(np.all(np.isfinite(px)) and cam_in_board[2] < 0)
-            if visible:
-                spacing = float(np.min(np.linalg.norm(np.diff(
-                    px.reshape(w.board.rows, w.board.cols, 2), axis=1), axis=2)))
-                m = max(spacing, 1.0)
-                visible = bool(np.all(px[:, 0] >= m) and np.all(px[:, 1] >= m)
-                               and np.all(px[:, 0] <= cam.width - 1 - m)
-                               and np.all(px[:, 1] <= cam.height - 1 - m))
+            visible = board_in_view(cam, cam_T_board, px, w.board.cols, w.board.rows)
             out[f"board_visible_{side}"] = visible
         return FrameTruth(q=qv, base_T_ee=base_T_ee, base_T_cam=base_T_cam,
                           targets_base=centers, targets_cam=t_left, targets_cam_right=t_right,

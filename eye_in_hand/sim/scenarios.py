@@ -59,9 +59,10 @@ def _inside(px: np.ndarray, w: int, h: int, margin: float) -> bool:
 
 def camera_pose_ok(world: World, base_T_cam: np.ndarray, *, board: bool = False,
                    targets: bool = False, margin_px: float = 20.0) -> bool:
-    """Whether the board (all corners, seen from its -z side) and/or every target silhouette
-    lies inside both images with ``margin_px`` to spare, for a left camera at ``base_T_cam``."""
-    from eye_in_hand.sim.render import sphere_silhouette
+    """Whether the board (see :func:`~eye_in_hand.sim.render.board_in_view`; at least
+    ``margin_px`` inside) and/or every target silhouette (``margin_px`` inside) is in both
+    images, for a left camera at ``base_T_cam``."""
+    from eye_in_hand.sim.render import board_in_view, sphere_silhouette
 
     cam_T_base = invert(base_T_cam)
     W, H = world.image_size
@@ -69,12 +70,11 @@ def camera_pose_ok(world: World, base_T_cam: np.ndarray, *, board: bool = False,
                    (world.rig.right, compose(world.rig.right_T_left, cam_T_base))):
         if board:
             cam_T_board = compose(T, world.base_T_board)
-            if invert(cam_T_board)[2, 3] >= 0:
-                return False
             pts = world.board_points() @ cam_T_board[:3, :3].T + cam_T_board[:3, 3]
             if np.any(pts[:, 2] <= 0.05):
                 return False
-            if not _inside(cam.project(pts), W, H, margin_px):
+            if not board_in_view(cam, cam_T_board, cam.project(pts), world.board.cols,
+                                 world.board.rows, margin_px):
                 return False
         if targets:
             for tgt in world.targets:
