@@ -10,7 +10,9 @@ decompression do not delay publishing either.
 
 Diagnostics (``diagnostics``, 1 Hz): ``published`` counter, ``late_ms`` (how late the last
 message went out), ``state``, ``loops``, and ``skipped_topics`` (WARN while > 0; each skipped
-topic is also logged once). A bag read error is reported at ERROR and ends playback.
+topic is also logged once), ``problem: type_mismatch:<topic>`` when the bag recorded a type
+hash (metadata >= 7) that differs from the installed definition (logged once; the topic still
+plays, as with ``ros2 bag play``). A bag read error is reported at ERROR and ends playback.
 
 Like ``ros2 bag play``, the player does not wait for subscribers by default: messages published
 before DDS discovery completes are lost. ``wait_for_subscribers`` (seconds) waits until every
@@ -49,6 +51,7 @@ __all__ = [
     "PlayerConfig",
     "BagPlayer",
     "import_message_type",
+    "installed_type_hash",
     "playback_qos",
     "spin_player",
     "main",
@@ -81,6 +84,32 @@ def import_message_type(msgtype: str) -> Any:
             type(cls), "_TYPE_SUPPORT"):
         return None
     return cls
+
+
+_HASHES: dict[str, str | None] = {}
+
+
+def installed_type_hash(msgtype: str) -> str | None:
+    """The RIHS01 type hash of the installed message class, or None when unknown.
+
+    Computed from the class's fields (see :func:`eye_in_hand.nodes.bag_recorder.
+    message_definition`), so it can be compared with the hash a bag recorded (metadata >= 7).
+    """
+    if msgtype not in _HASHES:
+        from rosbags.interfaces import MessageDefinitionFormat
+        from rosbags.typesys import Stores, get_typestore
+
+        from eye_in_hand.io.bags import _types_from_definition
+        from eye_in_hand.nodes.bag_recorder import message_definition
+
+        try:
+            store = get_typestore(Stores.EMPTY)
+            store.register(_types_from_definition(
+                msgtype, MessageDefinitionFormat.MSG, message_definition(msgtype)))
+            _HASHES[msgtype] = store.hash_rihs01(msgtype)
+        except (EyeInHandError, ValueError, KeyError):
+            _HASHES[msgtype] = None
+    return _HASHES[msgtype]
 
 
 def playback_qos(offered: Sequence[OfferedQos]) -> QoSProfile:
@@ -154,6 +183,7 @@ class BagPlayer(Node):
         self._error: BaseException | None = None
         self.published: dict[str, int] = {}
         self.skipped_types: dict[str, str] = {}
+        self.type_mismatches: dict[str, str] = {}
         self.loops_done = 0
         # playback time: (monotonic start, bag time at that instant); None before the start
         self._timebase: tuple[float, int] | None = None
@@ -175,6 +205,13 @@ class BagPlayer(Node):
                                  f"skipping topic {name}: message type {topic.msgtype} is not "
                                  "installed")
                 continue
+            if topic.type_hash and installed_type_hash(topic.msgtype) not in (
+                    None, topic.type_hash):
+                self.type_mismatches[name] = topic.msgtype
+                self.diag.report(
+                    f"type_mismatch:{name}",
+                    f"topic {name}: the bag's {topic.msgtype} ({topic.type_hash}) is not the "
+                    "installed definition; subscribers may misread it (playing it anyway)")
             self._topic_pubs[name] = self.create_publisher(
                 cls, name, playback_qos(topic.offered_qos))
             self.published[name] = 0

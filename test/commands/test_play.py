@@ -240,3 +240,24 @@ def test_play_process_stops_cleanly_on_ctrl_c(tmp_path, ros_env, namespace) -> N
             proc.communicate()
     assert proc.returncode == 0, err
     assert "Traceback" not in err and "error" not in err.lower(), err
+
+
+def test_type_recorded_with_another_definition_is_flagged(tmp_path, ros_context,
+                                                          namespace) -> None:
+    """A bag (metadata >= 7) whose type hash differs from the installed definition: the topic
+    still plays (as with ros2 bag play) but the mismatch is logged and on diagnostics."""
+    from rosbags.rosbag2 import Writer
+
+    with Writer(tmp_path / "bag", version=9) as writer:
+        conn = writer.add_connection(f"{namespace}/old", "std_msgs/msg/String",
+                                     msgdef="string data\nint32 extra\n",
+                                     rihs01="RIHS01_" + "ab" * 32)
+        ok = writer.add_connection(f"{namespace}/ok", "std_msgs/msg/String",
+                                   typestore=default_typestore())
+        writer.write(conn, T0, b"\x00\x01\x00\x00\x01\x00\x00\x00\x00\x00\x00\x00\x07\x00\x00\x00")
+        writer.write(ok, T0, _string("fine"))
+    player = _player(ros_context, tmp_path / "bag", namespace)
+    assert player.type_mismatches == {f"{namespace}/old": "std_msgs/msg/String"}
+    assert set(player.published) == {f"{namespace}/old", f"{namespace}/ok"}
+    status = player.diag.build_status()
+    assert f"type_mismatch:{namespace}/old" in status.message
