@@ -30,23 +30,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="board spec for --bag, e.g. chessboard:9x6:0.025")
     bag.add_argument("--calibration", metavar="PATH",
                      help="camera calibration for --bag: a camera YAML (mono) or a folder "
-                          "with left.yaml, right.yaml [, stereo.yaml] (stereo)")
-    bag.add_argument("--image-topic", default="left/image_raw",
-                     help="image topic (left camera for stereo) (default: %(default)s)")
+                          "with left.yaml, right.yaml [, stereo.yaml] (stereo); default: the "
+                          "bag's camera_info")
+    bag.add_argument("--image-topic", default=None,
+                     help="image topic (left camera for stereo); a suffix such as "
+                          "left/image_raw matches /stereo/left/image_raw (default: the only "
+                          "image topic, or the one with 'left' in its name)")
     bag.add_argument("--right-image-topic", default=None,
-                     help="right image topic for a stereo rig (default: left topic with "
-                          "'left' replaced by 'right' when --calibration is a folder)")
+                     help="right image topic for a stereo rig (default: the left topic with "
+                          "'left' replaced by 'right', when the bag has it)")
     bag.add_argument("--pose-topic", default=None,
-                     help="geometry_msgs/PoseStamped robot pose topic (e.g. /ee_pose)")
+                     help="geometry_msgs/PoseStamped robot pose topic (default: /ee_pose when "
+                          "the bag has it, else /tf)")
     bag.add_argument("--joint-topic", default=None,
                      help="sensor_msgs/JointState topic, with --kinematics")
     bag.add_argument("--kinematics", default=None,
-                     help="kinematic chain for --joint-topic: 'ur5e' or a DH YAML file")
+                     help="kinematic chain for --joint-topic: 'ur5e', a URDF file "
+                          "(--base-frame to --ee-frame) or a DH YAML file (or a world.yaml)")
     bag.add_argument("--tf", action="store_true",
                      help="take the robot pose from /tf (--base-frame to --ee-frame)")
     bag.add_argument("--base-frame", default="base_link", help="(default: %(default)s)")
     bag.add_argument("--ee-frame", default="tool0", help="(default: %(default)s)")
-    bag.add_argument("--still-window", type=float, default=0.5, metavar="S",
+    bag.add_argument("--still-window", type=float, default=0.1, metavar="S",
                      help="the robot must be still this long (s) around an image "
                           "(default: %(default)s)")
     bag.add_argument("--still-translation", type=float, default=0.0005, metavar="M",
@@ -97,9 +102,7 @@ def _load_inputs(args: argparse.Namespace) -> dict[str, Any]:
                 "skipped": [], "notes": [], "input": {"type": "pairs", "path": args.pairs,
                                                       "count": len(samples)}}
     if args.bag:
-        from eye_in_hand.commands._handeye_bag import load_bag_samples
-
-        return load_bag_samples(args)
+        return _load_bag(args)
     import cv2
 
     ds = load_dataset(args.dataset)
@@ -123,6 +126,88 @@ def _load_inputs(args: argparse.Namespace) -> dict[str, Any]:
             "skipped": skipped, "notes": notes, "ground_truth": dict(ds.ground_truth),
             "input": {"type": "dataset", "path": str(ds.root), "board": ds.board,
                       "stereo": ds.is_stereo, "count": len(ds.samples)}}
+
+
+def _kinematics(spec: str, base_frame: str, ee_frame: str) -> Any:
+    """A kinematic chain from 'ur5e', a URDF file or a DH YAML file (or a world.yaml)."""
+    import yaml
+
+    from eye_in_hand.core.kinematics import DHChain, UrdfChain
+    from eye_in_hand.errors import ConfigError, InputError
+
+    if spec == "ur5e":
+        return DHChain.ur5e()
+    path = Path(spec)
+    if not path.is_file():
+        raise ConfigError(f"--kinematics: {spec}: not 'ur5e' and not a file")
+    if path.suffix.lower() in (".urdf", ".xml"):
+        return UrdfChain.from_file(path, base_frame, ee_frame)
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(f"{path}: cannot read kinematics ({exc})") from exc
+    if isinstance(data, dict) and isinstance(data.get("arm"), dict):
+        data = data["arm"]
+    try:
+        return DHChain.from_dict(data)
+    except (InputError, TypeError, AttributeError) as exc:
+        raise ConfigError(f"{path}: not a DH chain ({exc})") from exc
+
+
+def _load_bag(args: argparse.Namespace) -> dict[str, Any]:
+    """Still robot stops of a bag -> detected boards -> samples."""
+    from eye_in_hand.core.calibration import BoardSpec
+    from eye_in_hand.core.camera import CameraModel, StereoRig
+    from eye_in_hand.core.handeye.observe import observe_sample, rig_views
+    from eye_in_hand.errors import ConfigError
+    from eye_in_hand.io.datasets import read_bag_samples
+
+    if not args.board:
+        raise ConfigError("--bag needs --board (e.g. chessboard:9x6:0.025)")
+    board = BoardSpec.parse(args.board)
+    camera = rig = None
+    if args.calibration:
+        cal = Path(args.calibration)
+        if cal.is_dir():
+            rig = StereoRig.load(cal)
+        else:
+            camera = CameraModel.load_yaml(cal)
+    kin = (_kinematics(args.kinematics, args.base_frame, args.ee_frame)
+           if args.kinematics else None)
+    found = read_bag_samples(
+        args.bag, image_topic=args.image_topic, right_image_topic=args.right_image_topic,
+        pose_topic=args.pose_topic, joint_topic=args.joint_topic, kinematics=kin,
+        use_tf=args.tf, base_frame=args.base_frame, ee_frame=args.ee_frame,
+        stereo=None if args.calibration is None else rig is not None,
+        still_window_s=args.still_window, still_translation_m=args.still_translation,
+        still_rotation_deg=args.still_rotation)
+    if camera is None and rig is None:
+        camera, rig = found.camera, found.rig
+        if camera is None and rig is None:
+            raise ConfigError(f"{args.bag}: no camera_info for {dict(found.image_topics)}: give "
+                              "--calibration")
+    views = rig_views(camera, rig)
+    if {v.name for v in views} != set(found.image_topics):
+        raise ConfigError(f"--calibration is {'stereo' if rig else 'mono'} but the bag's images "
+                          f"are {sorted(found.image_topics)}")
+    samples, skipped, notes = [], [], []
+    for s in found.samples:
+        obs = observe_sample(s.name, s.images, s.base_T_ee, board, views)
+        notes.extend(obs.notes)
+        if obs.sample is None:
+            skipped.append({"name": s.name, "reason": obs.reason})
+        else:
+            samples.append(obs.sample)
+    moving = sum(1 for s in found.skipped if s["reason"] == "robot moving")
+    notes.append(f"bag: {found.n_images} images, {len(found.samples)} still stops, {moving} "
+                 f"images with the robot moving; robot pose from {found.pose_source}")
+    skipped.extend(s for s in found.skipped if "name" in s)
+    return {"samples": samples, "views": views, "setup": args.setup or "eye_in_hand",
+            "skipped": skipped, "notes": notes, "ground_truth": dict(found.ground_truth),
+            "input": {"type": "bag", "path": str(args.bag), "board": args.board,
+                      "stereo": rig is not None, "count": len(found.samples),
+                      "image_topics": dict(found.image_topics),
+                      "pose_source": found.pose_source}}
 
 
 def _html(result: Any, report: dict[str, Any], path: Path) -> None:

@@ -48,6 +48,9 @@ __all__ = [
 #: Every method name accepted by ``--method`` (besides ``all``).
 METHODS = (*CLOSED_FORM_METHODS, "refined")
 
+# Below this many samples the leave-one-out predictions are too noisy to reject anything.
+_MIN_SAMPLES_FOR_REJECTION = 8
+
 #: Default (parent, child) frame ids of X per setup.
 FRAMES = {"eye_in_hand": ("tool0", "camera_left_optical_frame"),
           "eye_to_hand": ("base_link", "camera_left_optical_frame")}
@@ -370,7 +373,8 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
         method: the method whose X is the result: ``"all"`` (= ``refined`` when ``refine``,
             else the best closed form), a closed-form name, or ``"refined"``.
         refine: run the joint refinement.
-        reject_outliers: reject samples by leave-one-out prediction (see module docstring).
+        reject_outliers: reject samples by leave-one-out prediction (see module docstring);
+            needs at least 8 samples (else a warning says it was skipped).
         outlier_threshold: rejection limit in multiples of the median deviation.
         outlier_floor_mm, outlier_floor_deg: deviations below both floors are never rejected.
         leave_one_out: compute leave-one-out changes and jackknife uncertainties.
@@ -396,7 +400,11 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                            f"{len(kept)} usable: add samples")
     motion_diagnostics(np.stack([s.base_T_ee for s in kept]), setup)  # fail early
     rejected: list[RejectedSample] = []
-    if reject_outliers and len(kept) >= 6:
+    if reject_outliers and len(kept) < _MIN_SAMPLES_FOR_REJECTION:
+        warnings.append(f"outlier rejection skipped: {len(kept)} samples, fewer than "
+                        f"{_MIN_SAMPLES_FOR_REJECTION} (too little redundancy to tell a bad "
+                        "sample from noise)")
+    elif reject_outliers:
         min_keep = max(MIN_SAMPLES + 2, (len(kept) + 1) // 2)
         kept, rejected = _reject_outliers(kept, setup, outlier_threshold, outlier_floor_mm,
                                           outlier_floor_deg, min_keep)

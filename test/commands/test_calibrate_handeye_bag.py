@@ -1,0 +1,167 @@
+"""``calibrate handeye --bag``: still-robot sampling, pose interpolation at the image stamp."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from eye_in_hand.cli import main
+from eye_in_hand.core.camera import CameraModel
+from eye_in_hand.core.handeye.synthetic import make_problem
+from eye_in_hand.core.transforms import interpolate, invert, to_xyz_quat, transform_distance
+from eye_in_hand.io.bags import BagWriter, default_typestore
+from eye_in_hand.io.config import load_hand_eye
+from eye_in_hand.io.datasets import read_bag_samples
+
+T0 = 1_700_000_000_000_000_000
+HOLD_NS, MOVE_NS = 300_000_000, 300_000_000
+IMAGE_PERIOD_NS, ROBOT_PERIOD_NS, ROBOT_OFFSET_NS = 50_000_000, 10_000_000, 3_000_000
+
+
+def _render(cam: CameraModel, T: np.ndarray, cols: int = 9, rows: int = 6, sq: float = 0.025,
+            scale: int = 4) -> np.ndarray:
+    """Fast anti-aliased chessboard (filled distorted squares at 4x, area downsampling)."""
+    img = np.full((cam.height * scale, cam.width * scale), 110, np.uint8)
+    t = np.linspace(0.0, 1.0, 9)
+
+    def poly(x0: float, y0: float, x1: float, y1: float) -> np.ndarray:
+        pts = np.concatenate([np.stack([x0 + (x1 - x0) * t, np.full(9, y0)], 1),
+                              np.stack([np.full(9, x1), y0 + (y1 - y0) * t], 1),
+                              np.stack([x1 - (x1 - x0) * t, np.full(9, y1)], 1),
+                              np.stack([np.full(9, x0), y1 - (y1 - y0) * t], 1)])
+        P = np.hstack([pts, np.zeros((len(pts), 1))]) @ T[:3, :3].T + T[:3, 3]
+        return np.round((cam.project(P) * scale + (scale - 1) / 2.0) * 16).astype(np.int32)
+
+    cv2.fillPoly(img, [poly(-2 * sq, -2 * sq, (cols + 1) * sq, (rows + 1) * sq)], 230,
+                 cv2.LINE_8, 4)
+    for i in range(-1, cols):
+        for j in range(-1, rows):
+            if (i + j) % 2 == 0:
+                cv2.fillPoly(img, [poly(i * sq, j * sq, (i + 1) * sq, (j + 1) * sq)], 25,
+                             cv2.LINE_8, 4)
+    return cv2.resize(img, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
+
+
+class _Msgs:
+    def __init__(self) -> None:
+        self.t = default_typestore().types
+
+    def header(self, ns: int, frame: str):
+        stamp = self.t["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9)
+        return self.t["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
+
+    def image(self, img: np.ndarray, ns: int):
+        h, w = img.shape
+        return self.t["sensor_msgs/msg/Image"](
+            header=self.header(ns, "camera_optical_frame"), height=h, width=w,
+            encoding="mono8", is_bigendian=0, step=w, data=img.reshape(-1).copy())
+
+    def camera_info(self, cam: CameraModel, ns: int):
+        roi = self.t["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0,
+                                                         width=0, do_rectify=False)
+        return self.t["sensor_msgs/msg/CameraInfo"](
+            header=self.header(ns, "camera_optical_frame"), height=cam.height,
+            width=cam.width, distortion_model="plumb_bob", d=cam.dist.copy(),
+            k=cam.K.reshape(9).copy(), r=np.eye(3).reshape(9), p=cam.P.reshape(12).copy(),
+            binning_x=0, binning_y=0, roi=roi)
+
+    def pose_stamped(self, T: np.ndarray, ns: int):
+        xyz, q = to_xyz_quat(T)
+        pose = self.t["geometry_msgs/msg/Pose"](
+            position=self.t["geometry_msgs/msg/Point"](x=xyz[0], y=xyz[1], z=xyz[2]),
+            orientation=self.t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]))
+        return self.t["geometry_msgs/msg/PoseStamped"](header=self.header(ns, "base_link"),
+                                                       pose=pose)
+
+
+@pytest.fixture(scope="module")
+def calib_bag(tmp_path_factory):
+    """Mono camera on the flange, 7 stops (the 4th with the board hidden), moves between."""
+    cam = CameraModel(K=np.array([[560.0, 0, 320], [0, 560.0, 200], [0, 0, 1]]),
+                      dist=np.array([-0.1, 0.05, 0, 0, 0]), width=640, height=400,
+                      name="camera")
+    P = make_problem(7, seed=9, noise_px=0.0, camera=cam)
+    stops = list(P.true_base_T_ee)
+    hidden = 3
+    # Timeline: stop k held on [k*(H+M), k*(H+M)+H], then a move to stop k+1.
+    period = HOLD_NS + MOVE_NS
+    end = len(stops) * period - MOVE_NS
+
+    def robot_at(t: int) -> np.ndarray:
+        k = min(t // period, len(stops) - 1)
+        s = t - k * period
+        if s <= HOLD_NS or k == len(stops) - 1:
+            return stops[k]
+        return interpolate(s - HOLD_NS, 0, stops[k], MOVE_NS, stops[k + 1])
+
+    m = _Msgs()
+    path = tmp_path_factory.mktemp("bag") / "calib"
+    w = BagWriter(path)
+    w.add_topic("/cam/image_raw", "sensor_msgs/msg/Image")
+    w.add_topic("/cam/camera_info", "sensor_msgs/msg/CameraInfo")
+    w.add_topic("/ee_pose", "geometry_msgs/msg/PoseStamped")
+    events = []
+    for t in range(0, end + 1, ROBOT_PERIOD_NS):
+        rt = t + ROBOT_OFFSET_NS
+        events.append((T0 + rt, "/ee_pose", m.pose_stamped(robot_at(rt), T0 + rt)))
+    for t in range(IMAGE_PERIOD_NS, end, IMAGE_PERIOD_NS):
+        k = min(t // period, len(stops) - 1)
+        hold = t - k * period <= HOLD_NS
+        if hold and k == hidden:
+            img = np.full((400, 640), 110, np.uint8)
+        else:
+            cam_T_board = invert(robot_at(t) @ P.X) @ P.Y
+            img = _render(cam, cam_T_board)
+        events.append((T0 + t, "/cam/image_raw", m.image(img, T0 + t)))
+        events.append((T0 + t, "/cam/camera_info", m.camera_info(cam, T0 + t)))
+    for stamp, topic, msg in sorted(events, key=lambda e: e[0]):
+        w.write(topic, stamp, msg)
+    w.close()
+    return path, P.X, len(stops)
+
+
+def test_read_bag_samples_finds_still_stops(calib_bag) -> None:
+    path, _, n_stops = calib_bag
+    found = read_bag_samples(path)
+    assert found.image_topics == {"image": "/cam/image_raw"}
+    assert found.pose_source.startswith("/ee_pose")
+    assert len(found.samples) == n_stops
+    assert found.camera is not None and found.rig is None
+    moving = [s for s in found.skipped if s["reason"] == "robot moving"]
+    assert len(moving) >= n_stops  # images during the moves are never used
+    for s in found.samples:
+        assert s.images["image"].shape == (400, 640)
+        # Every chosen image is taken while the robot holds a stop.
+        assert (s.stamp_ns - T0) % (HOLD_NS + MOVE_NS) <= HOLD_NS
+
+
+def test_bag_end_to_end(calib_bag, tmp_path: Path, capsys) -> None:
+    path, X, n_stops = calib_bag
+    out = tmp_path / "out"
+    rc = main(["calibrate", "handeye", "--bag", str(path), "--board", "chessboard:9x6:0.025",
+               "--image-topic", "image_raw", "--no-html", "-o", str(out)])
+    assert rc == 0
+    err = capsys.readouterr().err
+    assert "board not found" in err and "stop003" in err
+    report = json.loads((out / "report.json").read_text())
+    assert report["input"]["type"] == "bag" and report["input"]["count"] == n_stops
+    assert [s["name"] for s in report["skipped"]] == ["stop003"]
+    calib = load_hand_eye(out / "hand_eye.yaml")
+    assert calib.sample_count == n_stops - 1
+    dt, dr = transform_distance(X, calib.transform)
+    assert dt < 0.001 and np.degrees(dr) < 0.1, (dt, np.degrees(dr))
+
+
+def test_bag_errors(calib_bag, tmp_path: Path, capsys) -> None:
+    path, _, _ = calib_bag
+    assert main(["calibrate", "handeye", "--bag", str(path), "-o", str(tmp_path)]) == 1
+    assert "--bag needs --board" in capsys.readouterr().err
+    assert main(["calibrate", "handeye", "--bag", str(path), "--board", "chessboard:9x6:0.025",
+                 "--pose-topic", "/nope", "-o", str(tmp_path)]) == 1
+    assert "no pose topic '/nope'" in capsys.readouterr().err
+    assert main(["calibrate", "handeye", "--bag", str(path), "--board", "chessboard:9x6:0.025",
+                 "--joint-topic", "/joint_states", "-o", str(tmp_path)]) == 1
+    assert "--kinematics" in capsys.readouterr().err
