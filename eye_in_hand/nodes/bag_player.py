@@ -4,9 +4,10 @@ Every message goes out as the CDR bytes stored in the bag (no decode/re-encode),
 recorded topic with its recorded type. Types whose Python message package is not installed are
 skipped with one warning each. Timing follows the bag's log times, scaled by ``rate``: each
 message is due at ``start + (t - t_first) / rate`` on the monotonic clock, so timing does not
-drift and a slow publish only delays that one message (the next ones are still due on time).
-A reader thread decodes the bag ahead of the publisher (bounded queue), so storage I/O and
-decompression do not delay publishing either.
+drift: a slow publish delays only the messages that fall due while it runs (they then go out at
+once), never the schedule of the rest.
+A reader thread decodes the bag ahead of the publisher (at most 256 messages and 64 MiB), so
+storage I/O and decompression do not delay publishing either.
 
 Diagnostics (``diagnostics``, 1 Hz): ``published`` counter, ``late_ms`` (how late the last
 message went out), ``state``, ``loops``, and ``skipped_topics`` (WARN while > 0; each skipped
@@ -28,10 +29,10 @@ or ``eye-in-hand play /path/to/bag --rate 2``.
 from __future__ import annotations
 
 import importlib
-import queue
 import sys
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Any, Sequence
 
@@ -58,6 +59,7 @@ __all__ = [
 ]
 
 _END = object()
+_NOTHING = object()
 
 
 def import_message_type(msgtype: str) -> Any:
@@ -330,21 +332,15 @@ class BagPlayer(Node):
                 return
             self._stop.wait(0.02)
 
-    def _reader(self, out: queue.Queue) -> None:
+    def _reader(self, out: _Prefetch) -> None:
         try:
             for item in iter_messages(self.info.path, topics=list(self._topic_pubs),
                                       start_ns=self._first_ns):
-                while not self._stop.is_set():
-                    try:
-                        out.put(item, timeout=0.1)
-                        break
-                    except queue.Full:
-                        continue
-                if self._stop.is_set():
-                    return
-            out.put(_END)
+                if not out.put(item, len(item[3])):
+                    return  # the pass ended (stop, or the publisher gave up)
+            out.put(_END, 0)
         except BaseException as exc:  # handed to the publishing thread, which re-raises it
-            out.put(exc)
+            out.put(exc, 0)
 
     def _run(self) -> None:
         try:
@@ -372,7 +368,7 @@ class BagPlayer(Node):
             self._done.set()
 
     def _play_once(self) -> None:
-        buffer: queue.Queue = queue.Queue(maxsize=256)
+        buffer = _Prefetch()
         reader = threading.Thread(target=self._reader, args=(buffer,), daemon=True,
                                   name="bag_reader")
         reader.start()
@@ -382,7 +378,9 @@ class BagPlayer(Node):
             with self._lock:
                 self._timebase = (mono0, self._first_ns)
             while not self._stop.is_set():
-                item = buffer.get()
+                item = buffer.get(timeout_s=0.1)
+                if item is _NOTHING:
+                    continue
                 if item is _END:
                     return
                 if isinstance(item, BaseException):
@@ -397,20 +395,58 @@ class BagPlayer(Node):
                 self.diag.count("published")
                 self.diag.gauge("late_ms", round(max(0.0, time.monotonic() - due) * 1e3, 3))
         finally:
-            self._stop_reader(reader, buffer)
+            buffer.close()
+            reader.join(5.0)
 
-    def _stop_reader(self, reader: threading.Thread, buffer: queue.Queue) -> None:
-        if not reader.is_alive():
-            return
-        stop_was_set = self._stop.is_set()
-        self._stop.set()
-        while reader.is_alive():
-            try:
-                buffer.get_nowait()
-            except queue.Empty:
-                reader.join(0.05)
-        if not stop_was_set:
-            self._stop.clear()
+
+class _Prefetch:
+    """Hand-over from the reader thread to the publisher, bounded in messages and bytes.
+
+    At most ``max_items`` messages and ``max_bytes`` bytes wait (one message always fits), so
+    reading ahead smooths storage I/O and decompression without holding a bag of images in
+    memory. :meth:`close` ends the hand-over: a blocked :meth:`put` returns False.
+    """
+
+    def __init__(self, max_items: int = 256, max_bytes: int = 64 << 20) -> None:
+        self._cv = threading.Condition()
+        self._items: deque[tuple[Any, int]] = deque()
+        self._bytes = 0
+        self._closed = False
+        self.max_items = max_items
+        self.max_bytes = max_bytes
+
+    def put(self, item: Any, size: int) -> bool:
+        """Queue ``item`` (``size`` bytes), waiting for room; False once closed."""
+        with self._cv:
+            while not self._closed and self._items and (
+                    len(self._items) >= self.max_items or self._bytes + size > self.max_bytes):
+                self._cv.wait()
+            if self._closed:
+                return False
+            self._items.append((item, size))
+            self._bytes += size
+            self._cv.notify_all()
+            return True
+
+    def get(self, timeout_s: float) -> Any:
+        """The next item, or ``_NOTHING`` when none arrived within ``timeout_s``."""
+        with self._cv:
+            if not self._items:
+                self._cv.wait(timeout_s)
+            if not self._items:
+                return _NOTHING
+            item, size = self._items.popleft()
+            self._bytes -= size
+            self._cv.notify_all()
+            return item
+
+    def close(self) -> None:
+        """Drop what is queued and release a waiting :meth:`put`."""
+        with self._cv:
+            self._closed = True
+            self._items.clear()
+            self._bytes = 0
+            self._cv.notify_all()
 
 
 def spin_player(node: BagPlayer, executor: Any | None = None) -> int:
