@@ -692,6 +692,9 @@ def serialize(msg: Any, msgtype: str, typestore: Any = None) -> bytes:
     store = typestore if typestore is not None else default_typestore()
     if msgtype not in store.types:
         raise BagError(f"message type {msgtype} is not known; cannot encode it")
+    if hasattr(type(msg), "get_fields_and_field_types"):
+        raise BagError(f"got an rclpy {type(msg).__name__} for {msgtype}: pass its CDR bytes "
+                       "(rclpy.serialization.serialize_message(msg)) or a rosbags message")
     try:
         return bytes(store.serialize_cdr(msg, msgtype))
     except Exception as exc:

@@ -396,3 +396,11 @@ def test_interrupted_mcap_recording_is_read_by_scanning(tmp_path: Path,
 
 
 MS_10 = 10_000_000
+
+
+def test_rclpy_message_objects_are_refused_with_a_hint(tmp_path: Path) -> None:
+    rclpy_msgs = pytest.importorskip("std_msgs.msg")
+    with BagWriter(tmp_path / "bag") as bag:
+        bag.add_topic("/a", STRING)
+        with pytest.raises(BagError, match="serialize_message"):
+            bag.write("/a", T0, rclpy_msgs.String(data="x"))
