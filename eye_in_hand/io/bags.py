@@ -536,13 +536,13 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
                 conns = [c for c in part.connections if wanted is None or c.topic in wanted]
                 if conns:
                     streams.append(_storage_stream(part, conns, start_ns, stop,
-                                                   per_message_zstd))
+                                                   per_message_zstd, len(streams)))
         if not streams:
             return
         merged = streams[0] if len(streams) == 1 else heapq.merge(*streams)
         index = 0
         try:
-            for stamp, _order, topic, msgtype, raw in merged:
+            for stamp, _stream, _order, topic, msgtype, raw in merged:
                 yield topic, msgtype, stamp, raw
                 index += 1
         except BagError:
@@ -553,7 +553,8 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
 
 
 def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int | None,
-                    per_message_zstd: bool) -> Iterator[tuple[int, int, str, str, bytes]]:
+                    per_message_zstd: bool, stream: int,
+                    ) -> Iterator[tuple[int, int, int, str, str, bytes]]:
     """Messages of one storage file, with its own connections.
 
     ``rosbags``' directory reader matches the connections of ``metadata.yaml`` to those of the
@@ -569,7 +570,7 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
             from backports import zstd  # type: ignore[import-not-found,no-redef]
     for order, (conn, stamp, raw) in enumerate(storage.messages(conns, start, stop)):
         data = zstd.decompress(raw) if per_message_zstd else bytes(raw)
-        yield int(stamp), order, conn.topic, conn.msgtype, data
+        yield int(stamp), stream, order, conn.topic, conn.msgtype, data
 
 
 # --------------------------------------------------------------------------------------------
