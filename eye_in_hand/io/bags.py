@@ -524,7 +524,7 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
     wanted = None if topics is None else set(topics)
     stop = None if end_ns is None else end_ns + 1
     with _OpenBag(path) as bag:
-        streams = []
+        streams: list[Iterator[tuple[int, int, int, str, str, bytes]]] = []
         for reader in bag.readers:
             inner = reader.storage
             if hasattr(inner, "storages"):  # a directory: read its storage files directly
