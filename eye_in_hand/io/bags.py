@@ -27,6 +27,8 @@ Example::
     store = typestore_for("run1")
     for topic, msgtype, stamp_ns, raw in iter_messages("run1", topics=["/left/image_raw"]):
         msg = deserialize(raw, msgtype, store)
+    for topic, stamp_ns, msg in iter_decoded("run1", topics=["/right/image_raw"]):
+        ...
 
     with BagWriter("out", storage="mcap", compression="zstd") as bag:
         bag.add_topic("/target/point", "geometry_msgs/msg/PointStamped")
@@ -52,6 +54,7 @@ __all__ = [
     "BagMessage",
     "bag_info",
     "iter_messages",
+    "iter_decoded",
     "typestore_for",
     "default_typestore",
     "deserialize",
@@ -550,6 +553,30 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
         except Exception as exc:
             raise BagError(f"cannot read bag {bag.path} after message {index}: "
                            f"{str(exc) or type(exc).__name__}") from exc
+
+
+def iter_decoded(path: str | Path, topics: Iterable[str] | None = None,
+                 start_ns: int | None = None, end_ns: int | None = None,
+                 ) -> Iterator[tuple[str, int, Any]]:
+    """Like :func:`iter_messages`, with each message decoded (for offline processing).
+
+    Types are taken from :func:`typestore_for` (the bag's own definitions, Jazzy for the rest).
+
+    Yields:
+        ``(topic, log_time_ns, message)`` with rosbags message objects (numpy arrays for
+        numeric sequences).
+
+    Raises:
+        BagError: as :func:`iter_messages`, or a message that does not decode (names the topic
+            and the log time).
+    """
+    store = typestore_for(path)
+    for topic, msgtype, stamp, raw in iter_messages(path, topics, start_ns, end_ns):
+        try:
+            msg = deserialize(raw, msgtype, store)
+        except BagError as exc:
+            raise BagError(f"bag {Path(path)}, topic {topic} at {stamp} ns: {exc}") from exc
+        yield topic, stamp, msg
 
 
 def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int | None,

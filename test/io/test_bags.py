@@ -15,6 +15,7 @@ from eye_in_hand.io.bags import (
     bag_info,
     default_typestore,
     deserialize,
+    iter_decoded,
     iter_messages,
     require_topics,
     serialize,
@@ -404,3 +405,16 @@ def test_rclpy_message_objects_are_refused_with_a_hint(tmp_path: Path) -> None:
         bag.add_topic("/a", STRING)
         with pytest.raises(BagError, match="serialize_message"):
             bag.write("/a", T0, rclpy_msgs.String(data="x"))
+
+
+def test_iter_decoded_yields_message_objects(tmp_path: Path) -> None:
+    expected = _write_sample(tmp_path / "bag", "sqlite3", n=6)
+    got = list(iter_decoded(tmp_path / "bag", topics=["/a/chatter"]))
+    want = [(t, st, deserialize(r, STRING).data) for t, st, r in expected if t == "/a/chatter"]
+    assert [(t, st, m.data) for t, st, m in got] == want
+    con = sqlite3.connect(tmp_path / "bag" / "bag.db3")
+    con.execute("UPDATE messages SET data = X'0001'")
+    con.commit()
+    con.close()
+    with pytest.raises(BagError, match=r"topic /\w/chatter at \d+ ns: cannot decode"):
+        next(iter_decoded(tmp_path / "bag"))
