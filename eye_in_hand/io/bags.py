@@ -827,6 +827,12 @@ class BagWriter:
             raise _bag_error(self.path, exc, "create") from exc
 
     @property
+    def typestore(self) -> Any:
+        """The writer's rosbags type store: build message objects with ``typestore.types``
+        (it also knows the types added with ``msgdef``)."""
+        return self._store
+
+    @property
     def topics(self) -> dict[str, str]:
         """Topic name -> message type of the topics added so far."""
         return {name: t.msgtype for name, t in self._topics.items()}

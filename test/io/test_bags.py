@@ -252,7 +252,7 @@ uint8 level
 def test_custom_type_definition_is_stored_and_used(tmp_path: Path) -> None:
     with BagWriter(tmp_path / "bag", "mcap") as bag:
         bag.add_topic("/s", CUSTOM, msgdef=CUSTOM_DEF)
-        store = bag._store  # the writer's store knows the type now
+        store = bag.typestore  # the writer's store knows the type now
         Sample = store.types[CUSTOM]
         Flag = store.types["my_robot_msgs/msg/Flag"]
         Header = store.types["std_msgs/msg/Header"]
