@@ -239,6 +239,7 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
     sel_X = result.X
     fig = new_figure(7.0, 3.2)
     ax1, ax2 = fig.subplots(1, 2)
+    fig.subplots_adjust(wspace=0.35)
     for i, name in enumerate(names):
         X = result.methods[name].X
         dmm = 1000.0 * np.linalg.norm(X[:3, 3] - sel_X[:3, 3])
@@ -253,6 +254,7 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
     m = result.methods[result.selected]
     fig = new_figure(7.0, 3.2)
     ax1, ax2 = fig.subplots(1, 2)
+    fig.subplots_adjust(wspace=0.35)
     x = np.arange(len(result.sample_names))
     ax1.bar(x, m.axxb_trans_mm, label="AX=XB trans (mm)")
     ax1.plot(x, m.board_dev_mm, "k.", label="board dev (mm)")
@@ -285,6 +287,7 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
     names_used = result.sample_names
     fig = new_figure(7.0, 3.2)
     ax1, ax2 = fig.subplots(1, 2)
+    fig.subplots_adjust(wspace=0.35)
     for name in names:
         mr = result.methods[name]
         bte = report["_bte"]
