@@ -34,8 +34,8 @@ from std_msgs.msg import String
 prefix, out, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
 rclpy.init()
 node = rclpy.create_node("round_trip_publisher")
-pubs = {f"{prefix}/chatter": node.create_publisher(String, f"{prefix}/chatter", 10),
-        f"{prefix}/image": node.create_publisher(Image, f"{prefix}/image", 10)}
+pubs = {f"{prefix}/chatter": node.create_publisher(String, f"{prefix}/chatter", 100),
+        f"{prefix}/image": node.create_publisher(Image, f"{prefix}/image", 100)}
 deadline = time.monotonic() + 30
 while any(p.get_subscription_count() == 0 for p in pubs.values()):
     if time.monotonic() > deadline:
@@ -143,3 +143,8 @@ def test_record_then_play_across_processes(tmp_path: Path, ros_env: dict[str, st
             subscriber.communicate()
     assert subscriber.returncode == 0, err
     assert json.loads(out) == recorded  # exactly the stored bytes, in order
+    # the publisher's offer is stored, as ros2 bag record stores it: DDS discovery carries
+    # reliability and durability but not history depth (0, history unknown)
+    offered = info.topics[f"{prefix}/chatter"].offered_qos
+    assert [(q.reliability, q.durability, q.history, q.depth) for q in offered] == [
+        ("reliable", "volatile", "unknown", 0)]
