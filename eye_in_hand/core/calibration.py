@@ -21,6 +21,12 @@ ChArUco it is also the corner id).
 
 Detection (:func:`detect_board`) always returns a :class:`BoardDetection`; when no board is found
 its ``found`` is False and ``reason`` says why, so callers can list skipped images.
+
+Calibration: :func:`calibrate_camera` (``cv2.calibrateCameraExtended`` with per-view errors,
+outlier flags and rejection, coverage, parameter standard deviations) and
+:func:`calibrate_stereo` (each camera alone, then a joint bundle adjustment over both cameras'
+intrinsics and distortion, the extrinsic and every board pose, then rectification and the
+checks of :func:`stereo_quality`).
 """
 from __future__ import annotations
 
@@ -43,6 +49,7 @@ __all__ = [
     "ViewResult",
     "CameraCalibration",
     "StereoViewResult",
+    "StereoQuality",
     "StereoCalibration",
     "STEREO_METHODS",
     "calibrate_camera",
@@ -236,6 +243,8 @@ class BoardDetection:
         detector: the detector that produced the corners (``classic``, ``sb``, ``charuco``) or
             the last one tried when not found.
         reason: why nothing was found (empty when found).
+        meta: detector details (``tried``: detectors run; ``orientation_from_colour``: the
+            corner order was fixed by the squares' colours).
     """
 
     found: bool

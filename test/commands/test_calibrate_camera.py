@@ -184,3 +184,38 @@ def test_camera_from_compressed_bag_and_wrong_topic_type(data_dir: Path, tmp_pat
     err = capsys.readouterr().err
     assert code == 1 and "topic /chatter has type std_msgs/msg/String" in err
     assert not (tmp_path / "out2").exists()
+
+
+def test_atomic_output_dir_leaves_nothing_on_failure(tmp_path: Path) -> None:
+    from eye_in_hand.commands.calibrate_camera import atomic_output_dir
+
+    out = tmp_path / "out"
+    with pytest.raises(RuntimeError, match="boom"):
+        with atomic_output_dir(out) as tmp:
+            (tmp / "camera.yaml").write_text("partial")
+            raise RuntimeError("boom")
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+    out.mkdir()
+    (out / "keep.txt").write_text("x")
+    with pytest.raises(RuntimeError):
+        with atomic_output_dir(out) as tmp:
+            (tmp / "camera.yaml").write_text("partial")
+            raise RuntimeError("boom")
+    assert [p.name for p in out.iterdir()] == ["keep.txt"] and len(list(tmp_path.iterdir())) == 1
+    with atomic_output_dir(out) as tmp:
+        (tmp / "camera.yaml").write_text("done")
+    assert sorted(p.name for p in out.iterdir()) == ["camera.yaml", "keep.txt"]
+
+
+def test_new_output_folder_gets_normal_permissions(tmp_path: Path) -> None:
+    import os
+
+    from eye_in_hand.commands.calibrate_camera import atomic_output_dir
+
+    umask = os.umask(0o022)
+    try:
+        with atomic_output_dir(tmp_path / "new") as tmp:
+            (tmp / "a.txt").write_text("x")
+    finally:
+        os.umask(umask)
+    assert (tmp_path / "new").stat().st_mode & 0o777 == 0o755
