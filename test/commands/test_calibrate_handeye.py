@@ -122,3 +122,23 @@ def test_errors_are_one_line(tmp_path: Path, data_dir: Path, capsys) -> None:
     assert err.count("\n") == 1
     assert main(["calibrate", "handeye", str(tmp_path / "none"), "-o", str(tmp_path / "o")]) == 1
     assert "dataset file not found" in capsys.readouterr().err
+
+
+def test_mono_eye_to_hand_dataset(tmp_path: Path) -> None:
+    cam = CameraModel(K=np.array([[560.0, 0, 320], [0, 560.0, 200], [0, 0, 1]]),
+                      dist=np.array([-0.1, 0.05, 0, 0, 0]), width=640, height=400,
+                      name="camera")
+    P = make_problem(9, setup="eye_to_hand", seed=6, noise_px=0.0, camera=cam)
+    images = [{"image": _render(cam, C)} for C in P.true_cam_T_board]
+    write_dataset(tmp_path / "ds", setup="eye_to_hand", board="chessboard:9x6:0.025",
+                  images=images, base_T_ee=list(P.true_base_T_ee), camera=cam,
+                  ground_truth={"base_T_cam": P.X})
+    out = tmp_path / "out"
+    assert main(["calibrate", "handeye", str(tmp_path / "ds"), "--no-html", "-o", str(out)]) == 0
+    calib = load_hand_eye(out / "hand_eye.yaml")
+    assert calib.setup == "eye_to_hand" and calib.parent_frame == "base_link"
+    dt, dr = transform_distance(P.X, calib.transform)  # base_T_cam
+    assert dt < 0.001 and np.degrees(dr) < 0.1, (dt, np.degrees(dr))
+    report = json.loads((out / "report.json").read_text())
+    assert report["refinement"]["space"] == "reprojection"
+    assert report["ground_truth_error"]["refined"]["mm"] < 1.0
