@@ -11,9 +11,11 @@ import pytest
 from eye_in_hand.cli import main
 from eye_in_hand.core.camera import CameraModel
 from eye_in_hand.core.handeye.synthetic import make_problem
-from eye_in_hand.core.transforms import interpolate, invert, to_xyz_quat, transform_distance
+from eye_in_hand.core.transforms import (from_rotvec, interpolate, invert, to_xyz_quat,
+                                         transform_distance)
 from eye_in_hand.io.bags import BagWriter, default_typestore
 from eye_in_hand.io.config import load_hand_eye
+from eye_in_hand.errors import ConfigError
 from eye_in_hand.io.datasets import read_bag_samples
 
 T0 = 1_700_000_000_000_000_000
@@ -68,6 +70,18 @@ class _Msgs:
             k=cam.K.reshape(9).copy(), r=np.eye(3).reshape(9), p=cam.P.reshape(12).copy(),
             binning_x=0, binning_y=0, roi=roi)
 
+    def tf(self, edges: list[tuple[str, str, np.ndarray]], ns: int):
+        out = []
+        for parent, child, T in edges:
+            xyz, q = to_xyz_quat(T)
+            tr = self.t["geometry_msgs/msg/Transform"](
+                translation=self.t["geometry_msgs/msg/Vector3"](x=xyz[0], y=xyz[1], z=xyz[2]),
+                rotation=self.t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2],
+                                                               w=q[3]))
+            out.append(self.t["geometry_msgs/msg/TransformStamped"](
+                header=self.header(ns, parent), child_frame_id=child, transform=tr))
+        return self.t["tf2_msgs/msg/TFMessage"](transforms=out)
+
     def pose_stamped(self, T: np.ndarray, ns: int):
         xyz, q = to_xyz_quat(T)
         pose = self.t["geometry_msgs/msg/Pose"](
@@ -103,10 +117,19 @@ def calib_bag(tmp_path_factory):
     w.add_topic("/cam/image_raw", "sensor_msgs/msg/Image")
     w.add_topic("/cam/camera_info", "sensor_msgs/msg/CameraInfo")
     w.add_topic("/ee_pose", "geometry_msgs/msg/PoseStamped")
+    w.add_topic("/tf", "tf2_msgs/msg/TFMessage")
+    w.add_topic("/tf_static", "tf2_msgs/msg/TFMessage")
     events = []
+    # /tf: base_link -> shoulder (moving) -> tool0, and a static camera frame off tool0.
+    events.append((T0, "/tf_static", m.tf([("tool0", "camera", P.X)], T0)))
     for t in range(0, end + 1, ROBOT_PERIOD_NS):
         rt = t + ROBOT_OFFSET_NS
-        events.append((T0 + rt, "/ee_pose", m.pose_stamped(robot_at(rt), T0 + rt)))
+        T = robot_at(rt)
+        events.append((T0 + rt, "/ee_pose", m.pose_stamped(T, T0 + rt)))
+        shoulder = from_rotvec([0.0, 0.0, 1e-9 * rt], [0.0, 0.0, 0.1])
+        events.append((T0 + rt, "/tf", m.tf([("base_link", "shoulder", shoulder),
+                                             ("shoulder", "tool0", invert(shoulder) @ T)],
+                                            T0 + rt)))
     for t in range(IMAGE_PERIOD_NS, end, IMAGE_PERIOD_NS):
         k = min(t // period, len(stops) - 1)
         hold = t - k * period <= HOLD_NS
@@ -136,6 +159,19 @@ def test_read_bag_samples_finds_still_stops(calib_bag) -> None:
         assert s.images["image"].shape == (400, 640)
         # Every chosen image is taken while the robot holds a stop.
         assert (s.stamp_ns - T0) % (HOLD_NS + MOVE_NS) <= HOLD_NS
+
+
+def test_tf_pose_source_matches_pose_topic(calib_bag) -> None:
+    path, _, n_stops = calib_bag
+    a = read_bag_samples(path, pose_topic="/ee_pose")
+    b = read_bag_samples(path, use_tf=True)
+    assert b.pose_source == "/tf base_link -> tool0"
+    assert [s.stamp_ns for s in a.samples] == [s.stamp_ns for s in b.samples]
+    assert len(b.samples) == n_stops
+    for sa, sb in zip(a.samples, b.samples):
+        np.testing.assert_allclose(sa.base_T_ee, sb.base_T_ee, atol=1e-9)
+    with pytest.raises(ConfigError, match="no chain from 'base_link' to 'flange'"):
+        read_bag_samples(path, use_tf=True, ee_frame="flange")
 
 
 def test_bag_end_to_end(calib_bag, tmp_path: Path, capsys) -> None:
