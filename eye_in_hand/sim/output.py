@@ -256,7 +256,8 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
 
     rig = world.rig.rectified()
     arm = world.arm
-    sensor_qos = (OfferedQos("best_effort", "volatile", "keep_last", 5),)
+    # images offered reliable (as stereo_capture and most camera drivers): every subscriber matches
+    sensor_qos = (OfferedQos("reliable", "volatile", "keep_last", 5),)
     latched = (OfferedQos("reliable", "transient_local", "keep_last", 1),)
     reliable = (OfferedQos("reliable", "volatile", "keep_last", 100),)
     from rosbags.typesys import Stores, get_typestore
