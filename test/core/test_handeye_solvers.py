@@ -178,3 +178,17 @@ def test_unknown_method_and_setup() -> None:
         solve_closed_form("tsai", bte, ctb, "eye_on_head")
     with pytest.raises(HandEyeError, match="equal shape"):
         solve_closed_form("tsai", bte, ctb[:3])
+
+
+def test_wrong_setup_or_pose_direction_is_an_error(data_dir) -> None:
+    pairs = json.loads((data_dir / "moveit_eye_to_hand" / "pose_samples.json").read_text())
+    samples = [HandEyeSample(f"p{i}", np.array(a), np.array(b))
+               for i, (a, b) in enumerate(pairs[:20])]
+    with pytest.raises(HandEyeError, match="fit with --setup eye_to_hand"):
+        calibrate_hand_eye(samples, "eye_in_hand", leave_one_out=False)
+    inverted = [HandEyeSample(s.name, s.base_T_ee, invert(s.cam_T_board)) for s in samples]
+    with pytest.raises(HandEyeError, match="cam_T_board inverted"):
+        calibrate_hand_eye(inverted, "eye_to_hand", leave_one_out=False)
+    res = calibrate_hand_eye(samples, "eye_in_hand", leave_one_out=False,
+                             check_conventions=False, refine=False)
+    assert res.methods["park"].axxb_rot_deg.mean() > 10

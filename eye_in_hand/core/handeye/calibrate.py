@@ -48,6 +48,11 @@ __all__ = [
 #: Every method name accepted by ``--method`` (besides ``all``).
 METHODS = (*CLOSED_FORM_METHODS, "refined")
 
+# A reading of the poses whose AX = XB rotation residual is this many times lower than the
+# given one (which is above the floor, degrees) means the given conventions are wrong.
+_CONVENTION_RATIO = 10.0
+_CONVENTION_MIN_DEG = 2.0
+
 # Below this many samples the leave-one-out predictions are too noisy to reject anything.
 _MIN_SAMPLES_FOR_REJECTION = 8
 
@@ -320,6 +325,33 @@ def _reject_outliers(samples: list[HandEyeSample], setup: str, threshold: float,
     return kept, rejected
 
 
+def _check_conventions(bte: np.ndarray, ctb: np.ndarray, setup: str) -> str | None:
+    """Compare the AX = XB rotation residual of the given reading of the poses with the other
+    readings (other setup; ``cam_T_board`` inverted). Returns an error message when another
+    reading fits far better, i.e. the input's conventions are almost certainly wrong."""
+    other = "eye_to_hand" if setup == "eye_in_hand" else "eye_in_hand"
+    inv_ctb = _inv_stack(ctb)
+
+    def rot_rms(b: np.ndarray, c: np.ndarray, su: str) -> float:
+        X = _solve("park", b, c, su)
+        r, _ = axxb_residuals(X, b, c, su)
+        return float(np.sqrt(np.mean(r ** 2)))
+
+    given = rot_rms(bte, ctb, setup)
+    if given < _CONVENTION_MIN_DEG:
+        return None
+    variants = {f"--setup {other}": rot_rms(bte, ctb, other),
+                "cam_T_board inverted (board_T_cam given)": rot_rms(bte, inv_ctb, setup)}
+    best = min(variants.values())
+    if best * _CONVENTION_RATIO < given:
+        fits = " or ".join(f"with {k} ({v:.3f} deg)" for k, v in variants.items()
+                           if v < 2.0 * best + 1e-9)
+        return (f"the poses do not fit AX = XB as given ({setup}: rotation residual "
+                f"{given:.2f} deg RMS) but fit {fits}: check the setup and that the poses are "
+                "base_T_ee (flange in base) and cam_T_board (board in camera)")
+    return None
+
+
 def _jackknife(xs: Sequence[np.ndarray], X: np.ndarray) -> tuple[float, float, np.ndarray,
                                                                    np.ndarray]:
     n = len(xs)
@@ -362,7 +394,8 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                        outlier_floor_mm: float = 1.0,
                        outlier_floor_deg: float = 0.2,
                        leave_one_out: bool = True,
-                       leave_one_out_refined: bool = True) -> HandEyeResult:
+                       leave_one_out_refined: bool = True,
+                       check_conventions: bool = True) -> HandEyeResult:
     """Solve AX = XB with every method, refine, and assess the result.
 
     Args:
@@ -379,13 +412,16 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
         outlier_floor_mm, outlier_floor_deg: deviations below both floors are never rejected.
         leave_one_out: compute leave-one-out changes and jackknife uncertainties.
         leave_one_out_refined: also for the refinement (one refinement per sample).
+        check_conventions: refuse input that fits AX = XB far better read another way (the
+            other setup, or ``cam_T_board`` inverted): a wrong setup or pose direction.
 
     Returns:
         The result; ``result.X`` is the selected method's transform.
 
     Raises:
         HandEyeError: bad poses (naming the sample), too few samples, degenerate motion,
-            unknown setup or method, or a solver failure.
+            poses that only fit with another setup or pose direction, unknown setup or
+            method, or a solver failure.
     """
     if setup not in SETUPS:
         raise HandEyeError(f"setup: expected one of {', '.join(SETUPS)}, got {setup!r}")
@@ -399,6 +435,11 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
         raise HandEyeError(f"hand-eye calibration needs at least {MIN_SAMPLES} samples, got "
                            f"{len(kept)} usable: add samples")
     motion_diagnostics(np.stack([s.base_T_ee for s in kept]), setup)  # fail early
+    if check_conventions:
+        problem = _check_conventions(np.stack([s.base_T_ee for s in kept]),
+                                     np.stack([s.cam_T_board for s in kept]), setup)
+        if problem:
+            raise HandEyeError(problem)
     rejected: list[RejectedSample] = []
     if reject_outliers and len(kept) < _MIN_SAMPLES_FOR_REJECTION:
         warnings.append(f"outlier rejection skipped: {len(kept)} samples, fewer than "
