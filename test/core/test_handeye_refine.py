@@ -156,3 +156,14 @@ def test_selected_method_and_no_refine() -> None:
     assert "refined" not in res.methods and res.selected in CLOSED_FORM_METHODS
     with pytest.raises(HandEyeError, match="refinement disabled"):
         calibrate_hand_eye(P.samples, method="refined", refine=False)
+
+
+def test_three_samples_work_with_warnings() -> None:
+    P = make_problem(3, seed=2, noise_px=0.3)
+    res = calibrate_hand_eye(P.samples, cameras=P.views)
+    assert res.selected == "refined" and res.methods["refined"].loo_mm is None
+    assert any("leave-one-out figures need more than 3" in w for w in res.warnings)
+    assert any("outlier rejection skipped" in w for w in res.warnings)
+    assert any("only 3 samples" in w for w in res.warnings)
+    dt, dr = transform_distance(P.X, res.X)
+    assert dt < 0.005 and np.degrees(dr) < 0.5

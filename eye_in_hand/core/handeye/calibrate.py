@@ -459,6 +459,9 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
     if bool(cameras) and not use_corners and any(len(s.observations) for s in kept):
         warnings.append("some samples have no corner observations: refinement in pose space")
 
+    loo = leave_one_out and len(kept) > MIN_SAMPLES
+    if leave_one_out and not loo:
+        warnings.append(f"leave-one-out figures need more than {MIN_SAMPLES} samples")
     results: dict[str, MethodResult] = {}
     for name in CLOSED_FORM_METHODS:
         X = _solve(name, bte, ctb, setup)
@@ -468,10 +471,14 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
         if use_corners:
             assert cameras is not None
             mr.reproj_rms_px = _reproj_rms(X, Y, kept, cameras, setup)
-        if leave_one_out:
-            xs = [_solve(name, bte[np.arange(len(kept)) != i], ctb[np.arange(len(kept)) != i],
-                         setup) for i in range(len(kept))]
-            mr.std_mm, mr.std_deg, mr.loo_mm, mr.loo_deg = _jackknife(xs, X)
+        if loo:
+            try:
+                xs = [_solve(name, bte[np.arange(len(kept)) != i],
+                             ctb[np.arange(len(kept)) != i], setup) for i in range(len(kept))]
+            except HandEyeError as exc:
+                warnings.append(f"leave-one-out figures of {name} unavailable: {exc}")
+            else:
+                mr.std_mm, mr.std_deg, mr.loo_mm, mr.loo_deg = _jackknife(xs, X)
         results[name] = mr
 
     # Best closed form: lowest reprojection RMS, else lowest normalised board spread.
@@ -498,7 +505,7 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
         if use_corners:
             assert cameras is not None
             mr.reproj_rms_px = _reproj_rms(X, Y, kept, cameras, setup)
-        if leave_one_out and leave_one_out_refined:
+        if loo and leave_one_out_refined:
             loo_mm = np.zeros(len(kept))
             loo_deg = np.zeros(len(kept))
             for i in range(len(kept)):
