@@ -453,6 +453,17 @@ class _PoseSeries:
         return self.poses[a:b]
 
 
+def _cdr_header_stamp_ns(raw: bytes) -> int:
+    """The ``header.stamp`` of a CDR message whose first field is a ``std_msgs/Header``, read
+    without decoding the rest (an image's pixels are not copied)."""
+    import struct
+
+    if len(raw) < 12 or raw[1] not in (0, 1):
+        raise ConfigError("message is not plain CDR: cannot read its header stamp")
+    sec, nsec = struct.unpack("<iI" if raw[1] == 1 else ">iI", bytes(raw[4:12]))
+    return int(sec) * 1_000_000_000 + int(nsec)
+
+
 def _resolve_topic(topics: Mapping[str, Any], name: str, what: str, source: str) -> str:
     if name in topics:
         return name
@@ -624,7 +635,7 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
     # Image stamps of the reference view (pass 1), stillness and grouping.
     stamps: list[int] = []
     for topic, msgtype, _, raw in iter_messages(path, [left_topic]):
-        stamps.append(header_stamp_ns(deserialize(raw, msgtype, store)))
+        stamps.append(_cdr_header_stamp_ns(raw))
     stamps.sort()
     half = int(round(still_window_s * 0.5e9))
     skipped: list[dict[str, Any]] = []
@@ -679,9 +690,9 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
         if topic == "/ground_truth/hand_eye":
             truth["ee_T_cam"] = transform_to_matrix(deserialize(raw, msgtype, store))
             continue
-        msg = deserialize(raw, msgtype, store)
-        stamp = header_stamp_ns(msg)
+        stamp = _cdr_header_stamp_ns(raw)
         if stamp in decoded:
+            msg = deserialize(raw, msgtype, store)
             img = image_to_numpy(msg, copy=True)
             enc = str(msg.encoding).lower()
             if enc == "rgb8":
