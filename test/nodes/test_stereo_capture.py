@@ -156,3 +156,32 @@ def test_sim_source_publishes_paired_frames_with_robot_state(ros_context, execut
     T = pose_to_matrix(stamp_of[min(common)].pose)
     dist = np.linalg.norm(T[:3, 3] - world.targets[0].center_base)
     assert 0.2 < dist < 0.8   # the trajectory circles the target
+
+
+def test_video_source_splits_side_by_side_frames(tmp_path, ros_context, executor, namespace,
+                                                 spin_until):
+    from eye_in_hand.nodes.stereo_capture import StereoCaptureNode
+
+    path = tmp_path / "sbs.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (128, 48))
+    if not writer.isOpened():
+        pytest.skip("this OpenCV build cannot write MJPG video")
+    for i in range(4):
+        img = np.zeros((48, 128, 3), np.uint8)
+        img[:, :64] = 40 * i
+        img[:, 64:] = 200 - 20 * i
+        writer.write(img)
+    writer.release()
+    node = StereoCaptureNode(context=ros_context, namespace=namespace,
+                             parameter_overrides=_params(source="video", rate_hz=50.0,
+                                                         video__left=str(path),
+                                                         side_by_side=True))
+    listener = rclpy.create_node("listener", context=ros_context)
+    col = _Collector(listener, namespace)
+    executor.add_node(node)
+    executor.add_node(listener)
+    assert spin_until(executor, lambda: len(col.msgs["right"]) >= 4, 15.0)
+    assert col.stamps("left")[:4] == col.stamps("right")[:4]
+    for i, (lm, rm) in enumerate(zip(col.msgs["left"][:4], col.msgs["right"][:4])):
+        assert (lm.width, lm.height) == (64, 48) == (rm.width, rm.height)
+        assert abs(int(lm.data[0]) - 40 * i) <= 3 and abs(int(rm.data[0]) - (200 - 20 * i)) <= 3
