@@ -12,7 +12,9 @@ Publishes (relative names):
 
 Sources (parameter ``source``):
     ``sim``: the synthetic world (``sim.world`` YAML or the built-in one) along its
-    localization trajectory (``sim.duration_s`` long, looping), rendered live.
+    localization trajectory (``sim.duration_s`` long, looping), rendered live; or, with
+    ``sim.follow_joint_states``, at the latest joint vector received on
+    ``sim.joint_states_topic`` (e.g. from a bag or a robot driver).
     ``images``: ``images.left`` / ``images.right`` folders or glob patterns, in sorted order,
     optionally looping (``images.loop``).
     ``video``: ``video.left`` and ``video.right`` files, or one side-by-side file in
@@ -100,7 +102,11 @@ NODE_PARAMETERS: tuple[Param, ...] = (
     Param("sim.noise_sigma", 1.0, "sim source: sensor noise (grey levels)", range=(0.0, 50.0)),
     Param("sim.supersample", 2, "sim source: sub-pixel rays per axis on edges", range=(1, 8)),
     Param("sim.publish_robot_state", True, "sim source: also publish joint_states and "
-          "ee_pose at each pair's stamp"),
+          "ee_pose at each pair's stamp (not when following joint states)"),
+    Param("sim.follow_joint_states", False, "sim source: render at the joint vector of the "
+          "latest message on sim.joint_states_topic instead of the built-in trajectory"),
+    Param("sim.joint_states_topic", "joint_states", "sim source: JointState topic followed "
+          "when sim.follow_joint_states"),
     Param("base_frame", "base_link", "sim source: frame of ee_pose"),
     Param("diagnostics_period_s", 1.0, "diagnostics publication period (s)",
           range=(0.05, 60.0)),
@@ -250,31 +256,52 @@ class CaptureSource(FrameSource):
             cap.release()
 
 
+class _NotReady(Exception):
+    """No frame can be produced yet (e.g. no joint state received); not a failure."""
+
+
 class SimSource(FrameSource):
-    """The synthetic world rendered along its localization trajectory (looping)."""
+    """The synthetic world rendered along its localization trajectory (looping), or at the
+    latest joint vector given to :meth:`set_joints` (``follow`` mode)."""
 
     def __init__(self, world: Any, rate_hz: float, duration_s: float, seed: int,
-                 noise_sigma: float, supersample: int) -> None:
+                 noise_sigma: float, supersample: int, *, follow: bool = False) -> None:
         from eye_in_hand.sim.scenarios import localization_trajectory
 
         self.world = world
-        try:
-            traj = localization_trajectory(world, duration_s, rate_hz, seed)
-        except EyeInHandError as exc:
-            raise ConfigError(f"sim source: no trajectory ({exc})") from exc
-        # ping-pong so that the loop is continuous
-        qs = [q for _, q in traj]
-        self.qs = qs + qs[-2:0:-1] if len(qs) > 2 else qs
+        self.follow = follow
+        self._lock = threading.Lock()
+        self._latest: np.ndarray | None = None
+        self.qs: list[np.ndarray] = []
+        if not follow:
+            try:
+                traj = localization_trajectory(world, duration_s, rate_hz, seed)
+            except EyeInHandError as exc:
+                raise ConfigError(f"sim source: no trajectory ({exc})") from exc
+            # ping-pong so that the loop is continuous
+            qs = [q for _, q in traj]
+            self.qs = qs + qs[-2:0:-1] if len(qs) > 2 else qs
         self.seed = seed
         self.noise_sigma = noise_sigma
         self.supersample = supersample
         self.i = 0
-        self.name = "sim"
+        self.name = "sim (following joint states)" if follow else "sim"
+
+    def set_joints(self, q: np.ndarray) -> None:
+        """Follow mode: render at this joint vector from now on."""
+        with self._lock:
+            self._latest = np.array(q, dtype=np.float64)
 
     def read(self) -> _Pair:
+        if self.follow:
+            with self._lock:
+                q = None if self._latest is None else self._latest.copy()
+            if q is None:
+                raise _NotReady("no joint state received yet")
+        else:
+            q = self.qs[self.i % len(self.qs)]
         k = self.i
         self.i += 1
-        q = self.qs[k % len(self.qs)]
         frame = self.world.render(q, seed=self.seed * 1_000_003 + k,
                                   noise_sigma=self.noise_sigma, supersample=self.supersample)
         return _Pair(frame.left, frame.right, q=q, index=k)
@@ -313,7 +340,13 @@ class StereoCaptureNode(Node):
         self.pub_info_right = self.create_publisher(CameraInfo, "right/camera_info",
                                                     IMAGE_PUB_QOS)
         self.pub_joints = self.pub_pose = None
-        if self._world is not None and self.cfg["sim.publish_robot_state"]:
+        follow = self._world is not None and self.cfg["sim.follow_joint_states"]
+        if follow:
+            from sensor_msgs.msg import JointState
+
+            self.create_subscription(JointState, self.cfg["sim.joint_states_topic"],
+                                     self._on_joint_state, 10)
+        elif self._world is not None and self.cfg["sim.publish_robot_state"]:
             from geometry_msgs.msg import PoseStamped
             from sensor_msgs.msg import JointState
 
@@ -348,7 +381,8 @@ class StereoCaptureNode(Node):
             world = world.with_image_size(c["sim.width"] or w0, c["sim.height"] or h0)
         self._world = world
         return SimSource(world, c["rate_hz"], c["sim.duration_s"], c["sim.seed"],
-                         c["sim.noise_sigma"], c["sim.supersample"])
+                         c["sim.noise_sigma"], c["sim.supersample"],
+                         follow=c["sim.follow_joint_states"])
 
     def _load_models(self) -> tuple[CameraModel | None, CameraModel | None]:
         c = self.cfg
@@ -366,11 +400,34 @@ class StereoCaptureNode(Node):
             right = CameraModel.load_yaml(c["right_camera_info"])
         return left, right
 
+    def _on_joint_state(self, msg: Any) -> None:
+        names = list(msg.name)
+        arm = self._world.arm  # type: ignore[union-attr]
+        try:
+            if names:
+                index = {n: i for i, n in enumerate(names)}
+                q = np.array([msg.position[index[n]] for n in arm.joint_names], dtype=float)
+            else:
+                q = np.array(msg.position, dtype=float)
+                if q.shape != (len(arm.joint_names),):
+                    raise KeyError(f"{q.size} unnamed positions")
+        except (KeyError, IndexError) as exc:
+            self.diag.report("bad_joint_state", f"{self.cfg['sim.joint_states_topic']}: "
+                             f"joints {', '.join(arm.joint_names)} not all present ({exc})")
+            return
+        if not np.all(np.isfinite(q)):
+            self.diag.report("bad_joint_state", "joint state with NaN or infinite positions")
+            return
+        self.source.set_joints(q)  # type: ignore[attr-defined]
+
     # -- worker ---------------------------------------------------------------------------
     def _produce(self) -> None:
         while not self._stop.is_set():
             try:
                 pair = self.source.read()
+            except _NotReady:
+                self._stop.wait(0.5 / self.cfg["rate_hz"])
+                continue
             except _ReadFailure as exc:
                 self.diag.count("read_failures")
                 self.diag.report("read_failure", str(exc))

@@ -185,3 +185,31 @@ def test_video_source_splits_side_by_side_frames(tmp_path, ros_context, executor
     for i, (lm, rm) in enumerate(zip(col.msgs["left"][:4], col.msgs["right"][:4])):
         assert (lm.width, lm.height) == (64, 48) == (rm.width, rm.height)
         assert abs(int(lm.data[0]) - 40 * i) <= 3 and abs(int(rm.data[0]) - (200 - 20 * i)) <= 3
+
+
+def test_sim_source_follows_joint_states(ros_context, executor, namespace, spin_until):
+    from sensor_msgs.msg import JointState
+
+    from eye_in_hand.nodes.stereo_capture import StereoCaptureNode
+    from eye_in_hand.sim import World
+    from eye_in_hand.sim.scenarios import localization_trajectory
+
+    node = StereoCaptureNode(context=ros_context, namespace=namespace,
+                             parameter_overrides=_params(
+                                 source="sim", rate_hz=20.0, sim__width=160, sim__height=90,
+                                 sim__follow_joint_states=True, sim__noise_sigma=0.0))
+    listener = rclpy.create_node("listener", context=ros_context)
+    col = _Collector(listener, namespace)
+    pub = listener.create_publisher(JointState, f"{namespace}/joint_states", 10)
+    executor.add_node(node)
+    executor.add_node(listener)
+    assert not spin_until(executor, lambda: len(col.msgs["left"]) > 0, 0.5)  # nothing yet
+    world = World.default().with_image_size(160, 90)
+    q = localization_trajectory(world, 0.1, 10.0, seed=0)[0][1]
+    js = JointState()
+    js.name = list(reversed(world.arm.joint_names))         # any order, matched by name
+    js.position = [float(v) for v in reversed(q)]
+    assert spin_until(executor, lambda: (pub.publish(js), len(col.msgs["left"]) >= 2)[1], 20.0)
+    expected = world.render(q, noise_sigma=0.0, supersample=2)
+    got = np.frombuffer(bytes(col.msgs["left"][-1].data), np.uint8).reshape(90, 160, 3)
+    np.testing.assert_array_equal(got, expected.left)
