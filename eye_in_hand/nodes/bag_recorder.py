@@ -13,9 +13,13 @@ offers the same again. Message definitions are stored too (MCAP schemas / the sq
 definitions table): from the ROS 2 Jazzy type store, or, for other types, generated from the
 installed Python message class.
 
-Diagnostics (``diagnostics``, 1 Hz): ``messages`` and ``write_errors`` counters (a write error
-is logged once per topic and reported at ERROR), ``topics`` recorded, and ``missing_topics``
-(WARN while a requested topic has no publisher yet).
+Callbacks only stamp and queue each message; a writer thread writes them, so disk and
+compression never stall the executor. At most ``max_cache_mb`` MiB wait; beyond that new
+messages are dropped, counted and reported (as ``ros2 bag record`` does when its cache is full).
+
+Diagnostics (``diagnostics``, 1 Hz): ``messages``, ``dropped`` and ``write_errors`` counters
+(a write error is logged once per topic and reported at ERROR), ``topics`` recorded, and
+``missing_topics`` (WARN while a requested topic has no publisher yet).
 
 The bag is always left valid: :meth:`BagRecorder.close` writes ``metadata.yaml``; ``main`` and
 ``eye-in-hand record`` call it on Ctrl-C, SIGTERM (rclpy turns it into a shutdown) and at the end
@@ -23,7 +27,8 @@ of ``--duration``.
 
 Parameters (read-only): ``output`` (bag directory to create), ``topics`` (string array),
 ``all`` (bool), ``storage`` (``mcap``/``sqlite3``), ``compression`` (``""``/``zstd``),
-``discovery_period`` (s), ``duration`` (s, 0: until stopped; used by ``main``).
+``discovery_period`` (s), ``max_cache_mb`` (MiB), ``duration`` (s, 0: until stopped; used by
+``main``).
 
 Run: ``ros2 run eye_in_hand bag_recorder --ros-args -p output:=run1 -p "topics:=[/a, /b]"``
 or ``eye-in-hand record -o run1 /a /b``.
@@ -35,6 +40,7 @@ import signal
 import sys
 import threading
 import time
+from concurrent.futures import Future
 from functools import partial
 from typing import Any, Sequence
 
@@ -160,6 +166,47 @@ def subscription_qos(endpoints: Sequence[Any], depth: int = 100) -> QoSProfile:
         durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
 
 
+class _WriteQueue:
+    """Messages waiting for the writer thread; bounded in bytes, never blocks the callback.
+
+    One message always fits (so a single huge image is never dropped for its size alone).
+    """
+
+    def __init__(self, max_bytes: int) -> None:
+        self._cv = threading.Condition()
+        self._items: list[tuple[Any, ...]] = []
+        self._bytes = 0
+        self.max_bytes = max_bytes
+        self.closed = False
+
+    def put(self, item: tuple[Any, ...], size: int, *, force: bool = False) -> bool:
+        """Queue ``item``; False (not queued) when closed or, unless ``force``, over budget."""
+        with self._cv:
+            if self.closed or (not force and self._items
+                               and self._bytes + size > self.max_bytes):
+                return False
+            self._items.append(item)
+            self._bytes += size
+            self._cv.notify()
+            return True
+
+    def get_batch(self, timeout_s: float) -> list[tuple[Any, ...]] | None:
+        """Everything queued (possibly empty after ``timeout_s``); None once closed and empty."""
+        with self._cv:
+            if not self._items and not self.closed:
+                self._cv.wait(timeout_s)
+            if not self._items:
+                return None if self.closed else []
+            batch, self._items, self._bytes = self._items, [], 0
+            return batch
+
+    def close(self) -> None:
+        """Accept nothing more; :meth:`get_batch` still returns what is queued."""
+        with self._cv:
+            self.closed = True
+            self._cv.notify_all()
+
+
 class BagRecorder(Node):
     """Records topics into a bag; call :meth:`close` (or destroy the node) to finish it.
 
@@ -181,11 +228,19 @@ class BagRecorder(Node):
         self._lock = threading.Lock()
         self._topic_subs: dict[str, Any] = {}
         self.received: dict[str, int] = {}
+        self.dropped: dict[str, int] = {}
         self.write_errors = 0
-        self.writer = BagWriter(self.output, storage=self.storage,  # type: ignore[arg-type]
-                                compression=self.compression or None)  # type: ignore[arg-type]
         self.diag = NodeDiagnostics(self, hardware_id=self.output)
-        self.diag.declare_counter("messages", "write_errors")
+        self.diag.declare_counter("messages", "write_errors", "dropped")
+        # The writer thread owns the bag (sqlite3 connections are bound to their thread):
+        # it creates the BagWriter, adds topics on request and writes queued messages.
+        self._queue = _WriteQueue(int(self.max_cache_mb * (1 << 20)))
+        self._close_error: BaseException | None = None
+        ready: Future = Future()
+        self._writer_thread = threading.Thread(target=self._writer_main, args=(ready,),
+                                               name="bag_writer", daemon=True)
+        self._writer_thread.start()
+        self.writer: BagWriter = ready.result()  # re-raises BagError (exists, not writable)
         self.diag.gauge("missing_topics", len(self.wanted))
         self.diag.warn_above("missing_topics", 0)
         self._timer = self.create_timer(self.discovery_period, self.discover)
@@ -214,6 +269,9 @@ class BagRecorder(Node):
         self.discovery_period = float(self.declare_parameter(
             "discovery_period", 0.2, desc("seconds between topic discovery polls",
                                           0.01, 60.0)).value)
+        self.max_cache_mb = float(self.declare_parameter(
+            "max_cache_mb", 512.0, desc("MiB of received messages that may wait for the disk "
+                                        "before new ones are dropped", 1.0, 65536.0)).value)
         self.duration = float(self.declare_parameter(
             "duration", 0.0, desc("stop after this many seconds (0: until stopped)",
                                   0.0, 1e9)).value)
@@ -236,7 +294,7 @@ class BagRecorder(Node):
 
     def discover(self) -> None:
         """Subscribe to requested topics that have appeared since the last call."""
-        if self.writer.closed:
+        if self._queue.closed:
             return
         for name, types in self.get_topic_names_and_types():
             if name in self._topic_subs:
@@ -263,7 +321,8 @@ class BagRecorder(Node):
                             "is not installed")
             return
         msgdef = None if msgtype in default_typestore().types else message_definition(msgtype)
-        self.writer.add_topic(name, msgtype, msgdef=msgdef, qos=offered_qos(publishers))
+        self._in_writer_thread(self.writer.add_topic, name, msgtype, msgdef=msgdef,
+                               qos=offered_qos(publishers))
         with self._lock:
             self.received[name] = 0
         self._topic_subs[name] = self.create_subscription(
@@ -271,12 +330,55 @@ class BagRecorder(Node):
         self.get_logger().info(f"subscribed to {name} ({msgtype})")
 
     def _on_message(self, topic: str, raw: bytes) -> None:
+        """Stamp and queue (the writer thread writes); drop when the queue is over budget."""
         stamp = self.get_clock().now().nanoseconds
+        if not self._queue.put(("msg", topic, stamp, raw), len(raw)):
+            if self._queue.closed:
+                return  # arrived while closing: the bag is complete without it
+            with self._lock:
+                self.dropped[topic] = self.dropped.get(topic, 0) + 1
+            self.diag.count("dropped")
+            self.diag.report(f"queue_full:{topic}",
+                             f"dropping messages of {topic}: more than "
+                             f"{self.max_cache_mb:g} MiB wait to be written (disk too slow?)")
+
+    def _in_writer_thread(self, fn: Any, *args: Any, **kwargs: Any) -> Any:
+        """Run ``fn(*args, **kwargs)`` in the writer thread, wait, and return its result."""
+        done: Future = Future()
+        if not self._queue.put(("call", fn, args, kwargs, done), 0, force=True):
+            raise BagError(f"bag {self.output} is closed")
+        return done.result()
+
+    def _writer_main(self, ready: Future) -> None:
+        """Writer thread: create the bag, then run calls and write messages until closed."""
         try:
-            self.writer.write(topic, stamp, raw)
+            writer = BagWriter(self.output, storage=self.storage,  # type: ignore[arg-type]
+                               compression=self.compression or None)  # type: ignore[arg-type]
+        except BaseException as exc:
+            ready.set_exception(exc)
+            return
+        ready.set_result(writer)
+        try:
+            while (batch := self._queue.get_batch(timeout_s=0.1)) is not None:
+                for item in batch:
+                    if item[0] == "call":
+                        _, fn, args, kwargs, done = item
+                        try:
+                            done.set_result(fn(*args, **kwargs))
+                        except BaseException as exc:  # handed to the waiting caller
+                            done.set_exception(exc)
+                    else:
+                        self._write(writer, *item[1:])
+        finally:
+            try:
+                writer.close()
+            except BaseException as exc:  # re-raised by close() in the caller's thread
+                self._close_error = exc
+
+    def _write(self, writer: BagWriter, topic: str, stamp: int, raw: bytes) -> None:
+        try:
+            writer.write(topic, stamp, raw)
         except BagError as exc:
-            if self.writer.closed:
-                return  # a message that arrived while closing: the bag is complete
             self.write_errors += 1
             self.diag.count("write_errors")
             self.diag.report(f"write_error:{topic}",
@@ -287,16 +389,28 @@ class BagRecorder(Node):
         self.diag.count("messages")
 
     def close(self) -> None:
-        """Stop recording and finish the bag (writes metadata.yaml). Idempotent."""
-        if self.writer.closed:
+        """Stop recording, write what is queued, and finish the bag (writes metadata.yaml).
+
+        Idempotent.
+
+        Raises:
+            BagError: the bag could not be finished.
+        """
+        if self._queue.closed:
             return
         self._timer.cancel()
         for sub in self._topic_subs.values():
             self.destroy_subscription(sub)
         self._topic_subs.clear()
-        self.writer.close()
+        self._queue.close()
+        self._writer_thread.join()  # writes what is queued, then closes the bag
+        if self._close_error is not None:
+            error, self._close_error = self._close_error, None
+            raise BagError(f"cannot finish bag {self.output}: {error}") from error
         total = sum(self.received.values())
-        text = f"wrote {total} message(s) to {self.output}"
+        dropped = sum(self.dropped.values())
+        text = f"wrote {total} message(s) to {self.output}" + (
+            f" ({dropped} dropped: the write queue was full)" if dropped else "")
         if self.context.ok():
             self.get_logger().info(text)
         else:  # after Ctrl-C the context is gone and /rosout with it
