@@ -31,6 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(sqlite3); default none")
     parser.add_argument("-d", "--duration", type=_non_negative, default=0.0, metavar="S",
                         help="stop after S seconds (default 0: until Ctrl-C / SIGTERM)")
+    parser.add_argument("--max-cache-mb", type=float, default=512.0, metavar="MIB",
+                        help="MiB of received messages that may wait for the disk before new "
+                             "ones are dropped (default 512)")
     parser.add_argument("--discovery-period", type=float, default=0.2, metavar="S",
                         help="seconds between polls for new topics (default 0.2)")
 
@@ -59,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
         Parameter("compression", value="" if args.compression == "none" else args.compression),
         Parameter("discovery_period", value=float(args.discovery_period)),
         Parameter("duration", value=float(args.duration)),
+        Parameter("max_cache_mb", value=float(args.max_cache_mb)),
     ]
     if args.topics:  # an empty list would be typed as a byte array
         overrides.append(Parameter("topics", Parameter.Type.STRING_ARRAY, list(args.topics)))
