@@ -26,7 +26,7 @@ PUBLISHER = r"""
 import json, sys, time
 import numpy as np
 import rclpy
-from rclpy.qos import QoSProfile
+from rclpy.qos import DurabilityPolicy, QoSProfile
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Image
 from std_msgs.msg import String
@@ -34,8 +34,11 @@ from std_msgs.msg import String
 prefix, out, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
 rclpy.init()
 node = rclpy.create_node("round_trip_publisher")
-pubs = {f"{prefix}/chatter": node.create_publisher(String, f"{prefix}/chatter", 100),
-        f"{prefix}/image": node.create_publisher(Image, f"{prefix}/image", 100)}
+# transient local with a history that holds every message: a reader whose side of the
+# DDS match completes a moment after ours still gets the first messages (volatile would not)
+qos = QoSProfile(depth=100, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+pubs = {f"{prefix}/chatter": node.create_publisher(String, f"{prefix}/chatter", qos),
+        f"{prefix}/image": node.create_publisher(Image, f"{prefix}/image", qos)}
 deadline = time.monotonic() + 30
 while any(p.get_subscription_count() == 0 for p in pubs.values()):
     if time.monotonic() > deadline:
@@ -65,7 +68,7 @@ rclpy.shutdown()
 SUBSCRIBER = r"""
 import json, sys, time
 import rclpy
-from rclpy.qos import QoSProfile
+from rclpy.qos import DurabilityPolicy, QoSProfile
 from sensor_msgs.msg import Image
 from std_msgs.msg import String
 
@@ -75,7 +78,8 @@ node = rclpy.create_node("round_trip_subscriber")
 got = {f"{prefix}/chatter": [], f"{prefix}/image": []}
 for topic, cls in ((f"{prefix}/chatter", String), (f"{prefix}/image", Image)):
     node.create_subscription(cls, topic, lambda raw, t=topic: got[t].append(raw.hex()),
-                             QoSProfile(depth=100), raw=True)
+                             QoSProfile(depth=100, durability=DurabilityPolicy.TRANSIENT_LOCAL),
+                             raw=True)
 deadline = time.monotonic() + 40
 while any(len(v) < n for v in got.values()) and time.monotonic() < deadline:
     rclpy.spin_once(node, timeout_sec=0.05)
@@ -147,4 +151,4 @@ def test_record_then_play_across_processes(tmp_path: Path, ros_env: dict[str, st
     # reliability and durability but not history depth (0, history unknown)
     offered = info.topics[f"{prefix}/chatter"].offered_qos
     assert [(q.reliability, q.durability, q.history, q.depth) for q in offered] == [
-        ("reliable", "volatile", "unknown", 0)]
+        ("reliable", "transient_local", "unknown", 0)]
