@@ -209,7 +209,8 @@ def test_sim_source_follows_joint_states(ros_context, executor, namespace, spin_
     js = JointState()
     js.name = list(reversed(world.arm.joint_names))         # any order, matched by name
     js.position = [float(v) for v in reversed(q)]
-    assert spin_until(executor, lambda: (pub.publish(js), len(col.msgs["left"]) >= 2)[1], 20.0)
+    listener.create_timer(0.05, lambda: pub.publish(js))   # a robot driver at 20 Hz
+    assert spin_until(executor, lambda: len(col.msgs["left"]) >= 2, 20.0)
     expected = world.render(q, noise_sigma=0.0, supersample=2)
     got = np.frombuffer(bytes(col.msgs["left"][-1].data), np.uint8).reshape(90, 160, 3)
     np.testing.assert_array_equal(got, expected.left)
