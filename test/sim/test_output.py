@@ -165,3 +165,41 @@ def test_simulate_command(tmp_path, capsys):
     assert main(["simulate", "--scenario", "localization", "--out", str(out), "--frames", "3",
                  "--size", "160x120", "--quiet"]) == 1
     assert "exists" in capsys.readouterr().err
+
+
+def test_board_pose_from_images_agrees_with_ground_truth(tmp_path, world):
+    """Independent chain: detected corners + camera_info -> PnP -> composed with /ee_pose
+    (interpolated at the image stamp) and /ground_truth/hand_eye gives /ground_truth/board."""
+    from eye_in_hand.core.transforms import interpolate, transform_distance
+
+    w = world.with_image_size(640, 360)
+    path = tmp_path / "cal"
+    write_bag(w, path, scenario="calibration", frames=2, seed=5, hold_frames=1, move_s=0.2,
+              still_images_only=True, render=RenderOptions(noise_sigma=0.0))
+    msgs = _read(path)
+    poses = [(t, _pose(m.pose)) for t, m in msgs[TOPICS["ee_pose"]]]
+    stamps = np.array([t for t, _ in poses])
+    ee_T_cam = _tf(msgs[TOPICS["gt_hand_eye"]][0][1].transform)
+    base_T_board = _pose(msgs[TOPICS["gt_board"]][0][1].pose)
+    info = msgs[TOPICS["left_info"]][0][1]
+    K, D = np.reshape(info.k, (3, 3)), np.asarray(info.d)
+    obj = np.array([[i * 0.025, j * 0.025, 0.0] for j in range(6) for i in range(9)])
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 100, 1e-6)
+    checked = 0
+    for t, m in msgs[TOPICS["left_image"]]:
+        gray = cv2.cvtColor(np.asarray(m.data).reshape(m.height, m.width, 3),
+                            cv2.COLOR_BGR2GRAY)
+        found, corners = cv2.findChessboardCorners(gray, (9, 6))
+        assert found
+        corners = cv2.cornerSubPix(gray, corners, (7, 7), (-1, -1), crit)
+        ok, rvec, tvec = cv2.solvePnP(obj, corners, K, D)
+        assert ok
+        cam_T_board = np.eye(4)
+        cam_T_board[:3, :3] = cv2.Rodrigues(rvec)[0]
+        cam_T_board[:3, 3] = tvec.ravel()
+        i = int(np.searchsorted(stamps, t)) - 1
+        base_T_ee = interpolate(t, *poses[i], *poses[i + 1])
+        dt, dr = transform_distance(base_T_ee @ ee_T_cam @ cam_T_board, base_T_board)
+        assert dt < 0.5e-3 and np.degrees(dr) < 0.1
+        checked += 1
+    assert checked >= 2
