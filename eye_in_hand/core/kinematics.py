@@ -299,8 +299,8 @@ class UrdfChain:
         """Parse the chain ``base_link`` -> ``tip_link`` of a URDF file.
 
         Raises:
-            ConfigError-like :class:`KinematicsError`: the file is missing or not valid URDF,
-            a link is unknown, or the tip is not below the base.
+            KinematicsError: the file cannot be read or is not valid URDF, a joint is malformed
+                or of an unsupported type, a link is unknown, or the tip is not below the base.
         """
         p = Path(path)
         try:
@@ -312,7 +312,16 @@ class UrdfChain:
     @classmethod
     def from_string(cls, text: str, base_link: str, tip_link: str, *,
                     source: str = "<string>") -> "UrdfChain":
-        """Parse the chain ``base_link`` -> ``tip_link`` from URDF XML text."""
+        """Parse the chain ``base_link`` -> ``tip_link`` from URDF XML text.
+
+        Args:
+            text: the URDF document.
+            base_link, tip_link: link names; the tip must be a descendant of the base.
+            source: name used in error messages (a file path).
+
+        Raises:
+            KinematicsError: as :meth:`from_file`.
+        """
         try:
             root = ET.fromstring(text)
         except ET.ParseError as exc:
