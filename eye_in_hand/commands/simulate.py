@@ -52,12 +52,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--supersample", type=int, default=3,
                         help="sub-pixel rays per axis on edge pixels (default 3)")
     parser.add_argument("--hold-frames", type=int, default=3,
-                        help="calibration bag: image periods still at each pose (default 3)")
+                        help="calibration bag: image periods of the settled part of each stop "
+                             "(default 3)")
+    parser.add_argument("--settle-s", type=float, default=0.25,
+                        help="calibration bag: the arm also rests this long before and after "
+                             "those frames (default 0.25 s)")
     parser.add_argument("--move-s", type=float, default=1.2,
                         help="calibration bag: seconds per move between poses (default 1.2)")
     parser.add_argument("--still-images-only", action="store_true",
-                        help="calibration bag: record no images while the arm moves "
-                             "(robot topics stay continuous); makes much smaller bags")
+                        help="calibration bag: record only the --hold-frames settled images of "
+                             "each stop (robot topics stay continuous); much smaller bags")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -75,8 +79,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--noise and --blur must be >= 0 and --exposure > 0")
     if not 1 <= args.supersample <= 8:
         raise InputError(f"--supersample must be in 1..8, got {args.supersample}")
-    if args.hold_frames < 1 or args.move_s <= 0:
-        raise InputError("--hold-frames must be >= 1 and --move-s > 0")
+    if args.hold_frames < 1 or args.move_s <= 0 or args.settle_s < 0:
+        raise InputError("--hold-frames must be >= 1, --move-s > 0 and --settle-s >= 0")
     world = World.from_yaml(args.world) if args.world is not None else World.default()
     if args.size is not None:
         world = world.with_image_size(*args.size)
@@ -104,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
         summary = write_bag(world, args.out, scenario=args.scenario, frames=frames,
                             seed=args.seed, storage=args.storage, render=render,
                             hold_frames=args.hold_frames, move_s=args.move_s,
+                            settle_s=args.settle_s,
                             still_images_only=args.still_images_only, progress=progress)
     finally:
         if bar is not None:

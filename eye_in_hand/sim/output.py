@@ -168,21 +168,24 @@ class _Msgs:
 # -- trajectories --------------------------------------------------------------------------------
 def joint_samples(world: World, scenario: str, *, frames: int, seed: int,
                   robot_rate_hz: float = 125.0, hold_frames: int = 3,
-                  image_rate_hz: float = 30.0, move_s: float = 1.2,
+                  image_rate_hz: float = 30.0, move_s: float = 1.2, settle_s: float = 0.25,
                   duration_s: float | None = None) -> tuple[list[int], np.ndarray, np.ndarray]:
     """Robot samples of a scenario.
 
     Args:
-        scenario: ``"calibration"`` (``frames`` still poses, ``hold_frames`` image periods
-            still at each, ``move_s`` between) or ``"localization"`` (``frames`` images worth
-            of continuous motion, or ``duration_s`` seconds).
+        scenario: ``"calibration"`` (``frames`` still poses; at each the arm rests
+            ``settle_s``, then ``hold_frames`` image periods, then ``settle_s`` again;
+            ``move_s`` between poses) or ``"localization"`` (``frames`` images worth of
+            continuous motion, or ``duration_s`` seconds).
 
     Returns:
         ``(stamps_ns, q (K, 6), still (K,) bool)``.
     """
     if scenario == "calibration":
         poses = calibration_poses(world, frames, seed)
-        hold_s = (hold_frames + 0.5) / image_rate_hz
+        if settle_s < 0:
+            raise InputError(f"settle_s must be >= 0, got {settle_s}")
+        hold_s = (hold_frames + 0.5) / image_rate_hz + 2.0 * settle_s
         tl = calibration_timeline(poses, hold_s=hold_s, move_s=move_s, rate_hz=robot_rate_hz)
         return ([t for t, _, _ in tl], np.array([q for _, q, _ in tl]),
                 np.array([s for _, _, s in tl], dtype=bool))
@@ -205,7 +208,8 @@ def _interp_q(stamps: np.ndarray, qs: np.ndarray, t_ns: int) -> tuple[np.ndarray
 def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed: int = 0,
               storage: str = "mcap", render: RenderOptions = RenderOptions(),
               image_rate_hz: float = 30.0, robot_rate_hz: float = 125.0,
-              hold_frames: int = 3, move_s: float = 1.2, still_images_only: bool = False,
+              hold_frames: int = 3, move_s: float = 1.2, settle_s: float = 0.25,
+              still_images_only: bool = False,
               start_ns: int = 1_700_000_000_000_000_000,
               progress: Callable[[int, int], None] | None = None) -> BagSummary:
     """Simulate a scenario and record it as a rosbag2 bag (zstd-compressed chunks).
@@ -219,9 +223,11 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
         storage: ``"mcap"`` or ``"sqlite3"``.
         render: image formation options.
         image_rate_hz, robot_rate_hz: stream rates.
-        hold_frames: calibration: image periods the arm stays still at each pose.
+        hold_frames: calibration: image periods of the settled part of each stop.
         move_s: calibration: seconds per move between poses.
-        still_images_only: calibration: record no images while the arm moves (smaller bag).
+        settle_s: calibration: the arm also rests this long before and after those frames.
+        still_images_only: calibration: record only the ``hold_frames`` settled images of
+            each stop (no images while moving or settling; a much smaller bag).
         start_ns: stamp of the first robot sample.
         progress: called with (images done, images total) after each image pair.
 
@@ -240,15 +246,28 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
         raise InputError("image_rate_hz and robot_rate_hz must be positive")
     stamps_l, qs, still = joint_samples(world, scenario, frames=frames, seed=seed,
                                         robot_rate_hz=robot_rate_hz, hold_frames=hold_frames,
-                                        image_rate_hz=image_rate_hz, move_s=move_s)
+                                        image_rate_hz=image_rate_hz, move_s=move_s,
+                                        settle_s=settle_s)
     stamps = np.array(stamps_l, dtype=np.int64) + start_ns
+    # settled windows: [start + settle, end - settle] of every run of still samples
+    settle_ns = int(round(settle_s * 1e9))
+    windows = []
+    k = 0
+    while k < len(still):
+        if still[k]:
+            j = k
+            while j + 1 < len(still) and still[j + 1]:
+                j += 1
+            windows.append((int(stamps[k]) + settle_ns, int(stamps[j]) - settle_ns))
+            k = j + 1
+        else:
+            k += 1
     img_period = int(round(1e9 / image_rate_hz))
     img_stamps = []
     t = int(stamps[0]) + _IMAGE_CLOCK_OFFSET_NS
     while t <= stamps[-1]:
-        i = int(np.searchsorted(stamps, t, side="right")) - 1
-        is_still = bool(still[i] and (i + 1 >= len(still) or still[i + 1]))
-        if not still_images_only or scenario != "calibration" or is_still:
+        settled = any(a <= t <= b for a, b in windows)
+        if not still_images_only or scenario != "calibration" or settled:
             img_stamps.append(t)
         t += img_period
     if scenario == "localization":
