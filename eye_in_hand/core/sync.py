@@ -151,6 +151,11 @@ class ApproximateStereoSync(Generic[T]):
         """Frames waiting for a partner: (left, right)."""
         return len(self._queues[0]), len(self._queues[1])
 
+    @property
+    def last_stamps(self) -> tuple[int | None, int | None]:
+        """The newest stamp pushed on each side: (left, right), None before the first."""
+        return self._last_in[0], self._last_in[1]
+
     def reset(self) -> None:
         """Forget queued frames and the stamp history (e.g. after a clock jump); keep counters."""
         for q in self._queues:

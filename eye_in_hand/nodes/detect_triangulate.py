@@ -68,6 +68,9 @@ from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS
 __all__ = ["NODE_PARAMETERS", "DetectTriangulateNode", "main"]
 
 NODE_NAME = "detect_triangulate"
+#: A stamp this far behind the previous one on the same side is a time jump (bag loop, sim
+#: reset), not an out-of-order frame: pairing restarts.
+TIME_JUMP_BACK_NS = 1_000_000_000
 DEFAULT_FRAME = "camera_left_optical_frame"
 #: Encodings the detector accepts (converted to bgr8); anything else is "bad_encoding".
 COLOR_ENCODINGS = ("bgr8", "rgb8", "bgra8", "rgba8", "bayer_rggb8", "bayer_bggr8",
@@ -229,6 +232,15 @@ class DetectTriangulateNode(Node):
         except ConversionError as exc:
             self.diag.report("bad_image", f"{topic}: {exc}")
             return
+        last = self._sync.last_stamps[side]
+        if last is not None and last - stamp > TIME_JUMP_BACK_NS:
+            # A bag replay restarted (--loop) or simulated time was reset: start pairing afresh
+            # instead of rejecting every frame until the stamps catch up.
+            self.get_logger().info(f"{topic}: time jumped back {(last - stamp) / 1e9:.3f} s: "
+                                   "stereo pairing and tracking reset")
+            self._sync.reset()
+            self._sync_seen = (self._sync.stats.dropped, self._sync.stats.dropped_stale)
+            self.diag.count("time_jumps")
         pairs = (self._sync.push_left if side == 0 else self._sync.push_right)(stamp, msg)
         stats = self._sync.stats
         seen = (stats.dropped, stats.dropped_stale)

@@ -277,3 +277,25 @@ def test_node_process_publishes_across_dds(ros_context, executor, namespace, spi
             out, _ = proc.communicate()
     assert proc.returncode == 0, out
     assert "Traceback" not in out, out
+
+
+def test_point_cov_and_a_time_jump_back_resets_pairing(executor, ros_context, namespace,
+                                                       spin_until):
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+
+    node, feeder = start(executor, ros_context, namespace, **{"sync.slop_s": 0.0})
+    covs = []
+    feeder.node.create_subscription(PoseWithCovarianceStamped, "target/point_cov", covs.append,
+                                    RESULT_QOS)
+    assert pump(executor, spin_until, feeder, lambda: len(feeder.points) >= 2 and len(covs) >= 2)
+    c = covs[0]
+    assert any(c.header.stamp == p.header.stamp for p in feeder.points)
+    cov = np.asarray(c.pose.covariance).reshape(6, 6)[:3, :3]
+    assert np.all(np.linalg.eigvalsh(cov) > 0) and np.allclose(cov, cov.T)
+    assert c.pose.pose.position.z == pytest.approx(X_TRUE[2], abs=1e-3)
+    # A bag restarted with --loop: stamps jump 5 s back. Pairing restarts, nothing is stale.
+    n = len(feeder.points)
+    feeder.k = -100
+    assert pump(executor, spin_until, feeder, lambda: len(feeder.points) >= n + 2)
+    assert node.diag.counter("time_jumps") >= 1
+    assert "stale_stamp" not in node.diag.causes
