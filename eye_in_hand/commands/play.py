@@ -46,7 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Play the bag until its end (or forever with ``--loop``); Ctrl-C stops cleanly."""
     import rclpy
-    from rclpy.executors import ExternalShutdownException
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
     from eye_in_hand.nodes.bag_recorder import sigterm_as_interrupt
@@ -69,12 +69,17 @@ def run(args: argparse.Namespace) -> int:
     sigterm_as_interrupt()
     rclpy.init(args=[])
     node: BagPlayer | None = None
+    executor = None
     try:
+        # the executor first: an rclpy executor interrupted in its constructor spews on exit
+        executor = SingleThreadedExecutor()
         node = BagPlayer(parameter_overrides=overrides)
-        return spin_player(node)
+        return spin_player(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0
     finally:
         if node is not None:
             node.destroy_node()
+        if executor is not None:
+            executor.shutdown()
         rclpy.try_shutdown()

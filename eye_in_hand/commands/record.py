@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--discovery-period must be in [0.01, 60] s, got "
                          f"{args.discovery_period}")
     import rclpy
-    from rclpy.executors import ExternalShutdownException
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
     from eye_in_hand.nodes.bag_recorder import sigterm_as_interrupt
@@ -69,12 +69,17 @@ def run(args: argparse.Namespace) -> int:
     sigterm_as_interrupt()
     rclpy.init(args=[])
     node: BagRecorder | None = None
+    executor = None
     try:
+        # the executor first: an rclpy executor interrupted in its constructor spews on exit
+        executor = SingleThreadedExecutor()
         node = BagRecorder(parameter_overrides=overrides)
-        return spin_recorder(node, float(args.duration))
+        return spin_recorder(node, float(args.duration), executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0
     finally:
         if node is not None:
             node.destroy_node()
+        if executor is not None:
+            executor.shutdown()
         rclpy.try_shutdown()

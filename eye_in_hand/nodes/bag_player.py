@@ -231,11 +231,6 @@ class BagPlayer(Node):
         self.diag.gauge("state", "waiting")
         first = self.info.start_ns + int(round(self.config.start_offset * 1e9))
         self._first_ns = first
-        self.get_logger().info(
-            f"playing {self.info.path}: {len(self._topic_pubs)} topic(s), "
-            f"{sum(self.info.topics[t].count for t in self._topic_pubs)} message(s), "
-            f"{self.info.duration_ns / 1e9:.3f} s at rate {self.config.rate:g}"
-            f"{', looping' if self.config.loop else ''}")
 
     # -- parameters ---------------------------------------------------------------------------
 
@@ -284,9 +279,14 @@ class BagPlayer(Node):
         """Start playback in a background thread (returns at once)."""
         if self._threads:
             return
+        self.get_logger().info(
+            f"playing {self.info.path}: {len(self._topic_pubs)} topic(s), "
+            f"{sum(self.info.topics[t].count for t in self._topic_pubs)} message(s), "
+            f"{self.info.duration_ns / 1e9:.3f} s at rate {self.config.rate:g}"
+            f"{', looping' if self.config.loop else ''}")
         thread = threading.Thread(target=self._run, name="bag_player", daemon=True)
-        self._threads.append(thread)
         thread.start()
+        self._threads.append(thread)
 
     def stop(self, timeout_s: float = 5.0) -> None:
         """Stop playback and join the threads."""
@@ -455,15 +455,18 @@ def spin_player(node: BagPlayer, executor: Any | None = None) -> int:
     Raises:
         EyeInHandError: the error that ended playback (bag read failure).
     """
+    own = executor is None
     ex = executor or SingleThreadedExecutor(context=node.context)
-    ex.add_node(node)
-    node.start()
     try:
+        ex.add_node(node)
+        node.start()
         while not node.finished and node.context.ok():
             ex.spin_once(timeout_sec=0.1)
     finally:
         ex.remove_node(node)
         node.stop()
+        if own:  # before the context goes: a garbage-collected executor can crash rclpy
+            ex.shutdown()
     if node.error is not None:
         if isinstance(node.error, EyeInHandError):
             raise node.error
@@ -478,10 +481,12 @@ def main(args: list[str] | None = None) -> None:
     sigterm_as_interrupt()
     rclpy.init(args=args)
     node: BagPlayer | None = None
+    executor: SingleThreadedExecutor | None = None
     code = 0
     try:
+        executor = SingleThreadedExecutor()  # first: see spin_player
         node = BagPlayer()
-        code = spin_player(node)
+        code = spin_player(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except EyeInHandError as exc:
@@ -490,6 +495,8 @@ def main(args: list[str] | None = None) -> None:
     finally:
         if node is not None:
             node.destroy_node()
+        if executor is not None:
+            executor.shutdown()
         rclpy.try_shutdown()
     sys.exit(code)
 

@@ -438,6 +438,7 @@ def spin_recorder(node: BagRecorder, duration_s: float = 0.0, executor: Any | No
 
     The bag is closed (valid) whatever ends the spin: the duration, Ctrl-C, SIGTERM.
     """
+    own = executor is None
     ex = executor or SingleThreadedExecutor(context=node.context)
     ex.add_node(node)
     deadline = time.monotonic() + duration_s if duration_s > 0 else None
@@ -453,6 +454,8 @@ def spin_recorder(node: BagRecorder, duration_s: float = 0.0, executor: Any | No
     finally:
         ex.remove_node(node)
         node.close()
+        if own:  # before the context goes: a garbage-collected executor can crash rclpy
+            ex.shutdown()
     return 0
 
 
@@ -461,10 +464,12 @@ def main(args: list[str] | None = None) -> None:
     sigterm_as_interrupt()
     rclpy.init(args=args)
     node: BagRecorder | None = None
+    executor: SingleThreadedExecutor | None = None
     code = 0
     try:
+        executor = SingleThreadedExecutor()  # first: see spin_recorder
         node = BagRecorder()
-        spin_recorder(node, node.duration)
+        spin_recorder(node, node.duration, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except EyeInHandError as exc:
@@ -473,6 +478,8 @@ def main(args: list[str] | None = None) -> None:
     finally:
         if node is not None:
             node.destroy_node()
+        if executor is not None:
+            executor.shutdown()
         rclpy.try_shutdown()
     sys.exit(code)
 

@@ -231,7 +231,7 @@ def test_play_process_stops_cleanly_on_ctrl_c(tmp_path, ros_env, namespace) -> N
         while "playing" not in seen and time.monotonic() < deadline:
             if sel.select(timeout=deadline - time.monotonic()):
                 seen += proc.stderr.readline()
-        assert "playing" in seen, seen
+        assert "playing" in seen, seen  # logged once the executor spins and playback runs
         proc.send_signal(signal.SIGINT)
         _out, err = proc.communicate(timeout=30)
     finally:
