@@ -99,8 +99,8 @@ def run(args: argparse.Namespace) -> int:
     executor = None
     received = 0
     try:
+        executor = SingleThreadedExecutor()  # first: one interrupted in its constructor spews
         node = Node("eye_in_hand_echo")
-        executor = SingleThreadedExecutor()
         executor.add_node(node)
         topic = node.resolve_topic_name(args.topic if args.topic.startswith("/")
                                         else "/" + args.topic)
