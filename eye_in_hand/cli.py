@@ -71,6 +71,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``eye-in-hand`` console script."""
+    from eye_in_hand.ros.dds import use_large_data_profile
+
+    use_large_data_profile()  # before any command starts rclpy (children inherit it)
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

@@ -348,8 +348,7 @@ def write_results(out: str | Path, result: ProcessResult, opts: ProcessOptions |
     if out.exists():
         raise BagError(f"{out}: output exists already (choose a new -o)")
     with BagWriter(out, storage=storage) as writer:  # type: ignore[arg-type]
-        store = writer._store
-        T = store.types
+        T = writer.typestore.types
         writer.add_topic("/target/point", "geometry_msgs/msg/PointStamped")
         writer.add_topic("/target/pose", "geometry_msgs/msg/PoseStamped")
         writer.add_topic("/target/pose_cov", "geometry_msgs/msg/PoseWithCovarianceStamped")

@@ -44,6 +44,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.errors import BagError, ConfigError, EyeInHandError
 from eye_in_hand.io.bags import BagInfo, OfferedQos, bag_info, iter_messages
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
@@ -479,6 +480,7 @@ def main(args: list[str] | None = None) -> None:
     from eye_in_hand.nodes.bag_recorder import sigterm_as_interrupt
 
     sigterm_as_interrupt()
+    use_large_data_profile()  # large images over shared memory (see ros/dds.py)
     rclpy.init(args=args)
     node: BagPlayer | None = None
     executor: SingleThreadedExecutor | None = None

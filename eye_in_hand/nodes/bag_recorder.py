@@ -52,6 +52,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.errors import BagError, ConfigError, EyeInHandError
 from eye_in_hand.io.bags import STORAGES, BagWriter, OfferedQos, default_typestore
 from eye_in_hand.nodes.bag_player import import_message_type
@@ -462,6 +463,7 @@ def spin_recorder(node: BagRecorder, duration_s: float = 0.0, executor: Any | No
 def main(args: list[str] | None = None) -> None:
     """Console-script entry point (``ros2 run eye_in_hand bag_recorder --ros-args ...``)."""
     sigterm_as_interrupt()
+    use_large_data_profile()  # large images over shared memory (see ros/dds.py)
     rclpy.init(args=args)
     node: BagRecorder | None = None
     executor: SingleThreadedExecutor | None = None

@@ -42,6 +42,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
+from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.core.camera import StereoRig
 from eye_in_hand.core.locator import (
     LOCATOR_PARAMETERS,
@@ -451,6 +452,7 @@ def draw_debug(left: np.ndarray, right: np.ndarray, result: LocateResult) -> np.
 
 def main(args: list[str] | None = None) -> None:
     """Console entry point: ``ros2 run eye_in_hand detect_triangulate``."""
+    use_large_data_profile()  # large images over shared memory (see ros/dds.py)
     rclpy.init(args=args)
     node = None
     try:

@@ -42,6 +42,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, JointState
 from std_srvs.srv import Trigger
 
+from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.core.localization import Localizer, LocalizerConfig
 from eye_in_hand.core.transforms import rotation_angle
 from eye_in_hand.errors import (ConfigError, ConversionError, EyeInHandError, InputError,
@@ -530,6 +531,7 @@ class HandEyeNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Console entry point: ``ros2 run eye_in_hand hand_eye``."""
+    use_large_data_profile()  # large images over shared memory (see ros/dds.py)
     rclpy.init(args=args)
     node = None
     try:

@@ -44,6 +44,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.core.camera import CameraModel, StereoRig
 from eye_in_hand.errors import ConfigError, EyeInHandError
 from eye_in_hand.ros.conversions import (
@@ -520,6 +521,7 @@ def _camera_info(model: CameraModel | None, img: np.ndarray, header: Any) -> Any
 
 def main(args: list[str] | None = None) -> None:
     """Console entry point: ``ros2 run eye_in_hand stereo_capture``."""
+    use_large_data_profile()  # large images over shared memory (see ros/dds.py)
     rclpy.init(args=args)
     node = None
     try:
