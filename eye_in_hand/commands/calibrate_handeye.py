@@ -308,12 +308,60 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
     rep.save(path)
 
 
+def write_outputs(out: Path, result: Any, samples: list[Any], *, setup: str, parent_frame: str,
+                  child_frame: str, input_meta: dict[str, Any],
+                  skipped: list[dict[str, str]] | None = None, notes: list[str] | None = None,
+                  ground_truth: dict[str, Any] | None = None, html: bool = True) -> list[Path]:
+    """Write ``hand_eye.yaml``, ``report.json`` and (``html``) ``report.html`` into ``out``.
+
+    Shared by ``eye-in-hand calibrate handeye`` and the ``hand_eye`` node's ``hand_eye/save``
+    service, so both produce the same files.
+
+    Returns:
+        The paths written.
+    """
+    from eye_in_hand.core.transforms import transform_distance
+    from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye
+
+    skipped = list(skipped or [])
+    out.mkdir(parents=True, exist_ok=True)
+    sel = result.methods[result.selected]
+    residuals = {k: v for k, v in sel.summary()["residuals"].items()}
+    calib = HandEyeCalibration(setup=setup, parent_frame=parent_frame, child_frame=child_frame,
+                               transform=result.X, method=result.selected,
+                               covariance=result.covariance,
+                               sample_count=len(result.sample_names), residuals=residuals)
+    save_hand_eye(out / "hand_eye.yaml", calib)
+    report = result.to_report()
+    report["input"] = input_meta
+    report["skipped"] = skipped
+    report["warnings"] = list(notes or []) + report["warnings"]
+    report["frames"] = {"parent": parent_frame, "child": child_frame}
+    report["covariance_order"] = ["x", "y", "z", "rx", "ry", "rz"]
+    truth = ground_truth or {}
+    key = "ee_T_cam" if setup == "eye_in_hand" else "base_T_cam"
+    if key in truth:
+        report["ground_truth_error"] = {}
+        for name, mr in result.methods.items():
+            dt, dr = transform_distance(truth[key], mr.X)
+            report["ground_truth_error"][name] = {"mm": 1000.0 * dt,
+                                                  "deg": float(np.degrees(dr))}
+    (out / "report.json").write_text(json.dumps(report, indent=2))
+    paths = [out / "hand_eye.yaml", out / "report.json"]
+    if html:
+        used = set(result.sample_names)
+        report["_bte"] = np.stack([s.base_T_ee for s in samples if s.name in used])
+        report["_ctb"] = np.stack([s.cam_T_board for s in samples if s.name in used])
+        _html(result, report, out / "report.html")
+        paths.append(out / "report.html")
+    return paths
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the calibration and write hand_eye.yaml, report.json and report.html."""
     from eye_in_hand.core.handeye import FRAMES, calibrate_hand_eye
-    from eye_in_hand.core.transforms import transform_distance
+    from eye_in_hand.core.transforms import matrix_to_quat_xyzw
     from eye_in_hand.errors import HandEyeError
-    from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye
 
     inputs = _load_inputs(args)
     samples = inputs["samples"]
@@ -329,41 +377,18 @@ def run(args: argparse.Namespace) -> int:
         samples, setup, cameras=inputs["views"], method=args.method,
         refine=not args.no_refine, reject_outliers=not args.no_outlier_rejection,
         outlier_threshold=args.outlier_threshold)
-    out = Path(args.output)
-    out.mkdir(parents=True, exist_ok=True)
     parent = args.parent_frame or FRAMES[setup][0]
+    out = Path(args.output)
+    write_outputs(out, result, samples, setup=setup, parent_frame=parent,
+                  child_frame=args.child_frame, input_meta=inputs["input"],
+                  skipped=inputs["skipped"], notes=inputs["notes"],
+                  ground_truth=inputs.get("ground_truth"), html=not args.no_html)
     sel = result.methods[result.selected]
-    residuals = {k: v for k, v in sel.summary()["residuals"].items()}
-    calib = HandEyeCalibration(setup=setup, parent_frame=parent, child_frame=args.child_frame,
-                               transform=result.X, method=result.selected,
-                               covariance=result.covariance,
-                               sample_count=len(result.sample_names), residuals=residuals)
-    save_hand_eye(out / "hand_eye.yaml", calib)
-    report = result.to_report()
-    report["input"] = inputs["input"]
-    report["skipped"] = inputs["skipped"]
-    report["warnings"] = list(inputs["notes"]) + report["warnings"]
-    report["frames"] = {"parent": parent, "child": args.child_frame}
-    report["covariance_order"] = ["x", "y", "z", "rx", "ry", "rz"]
-    truth = inputs.get("ground_truth") or {}
-    key = "ee_T_cam" if setup == "eye_in_hand" else "base_T_cam"
-    if key in truth:
-        report["ground_truth_error"] = {}
-        for name, mr in result.methods.items():
-            dt, dr = transform_distance(truth[key], mr.X)
-            report["ground_truth_error"][name] = {"mm": 1000.0 * dt,
-                                                  "deg": float(np.degrees(dr))}
-    (out / "report.json").write_text(json.dumps(report, indent=2))
-    if not args.no_html:
-        report["_bte"] = np.stack([s.base_T_ee for s in samples
-                                   if s.name in set(result.sample_names)])
-        report["_ctb"] = np.stack([s.cam_T_board for s in samples
-                                   if s.name in set(result.sample_names)])
-        _html(result, report, out / "report.html")
+    calib_quat = matrix_to_quat_xyzw(result.X[:3, :3])
     t = sel.X[:3, 3]
     print(f"hand-eye ({setup}, {result.selected}, {len(result.sample_names)} samples): "
           f"{parent} -> {args.child_frame} translation [{t[0]:.5f}, {t[1]:.5f}, {t[2]:.5f}] m, "
-          f"quat_xyzw {[round(v, 6) for v in calib.quat_xyzw.tolist()]}")
+          f"quat_xyzw {[round(v, 6) for v in calib_quat.tolist()]}")
     if np.isfinite(sel.std_mm):
         print(f"1-sigma uncertainty: {sel.std_mm:.3f} mm, {sel.std_deg:.4f} deg")
     for r in result.rejected:

@@ -202,3 +202,80 @@ def test_missing_or_malformed_hand_eye_file_refuses_to_start(tmp_path, ros_conte
         HandEyeNode(context=ros_context, namespace=namespace,
                     parameter_overrides=[Parameter("hand_eye_file", value=str(path))])
     assert "hand_eye.yaml" in str(info.value)
+
+
+def test_calibration_mode_capture_compute_save(tmp_path, ros_context, executor, namespace,
+                                               spin_until):
+    """Services on rendered views: refuse while moving, capture when still, solve, save."""
+    from sensor_msgs.msg import Image
+    from std_srvs.srv import Trigger
+
+    from eye_in_hand.core.transforms import transform_distance
+    from eye_in_hand.ros.conversions import numpy_to_image
+    from eye_in_hand.sim import World
+    from eye_in_hand.sim.scenarios import calibration_poses
+
+    world = World.default().with_image_size(640, 360)
+    world.rig.save(tmp_path / "calib")
+    out = tmp_path / "he_out"
+    node = HandEyeNode(context=ros_context, namespace=namespace, parameter_overrides=[
+        Parameter("mode", value="calibration"),
+        Parameter("calibration_dir", value=str(tmp_path / "calib")),
+        Parameter("output_dir", value=str(out))])
+    io = Node("he_cal_io", context=ros_context, namespace=namespace)
+    executor.add_node(node)
+    executor.add_node(io)
+    pub_l = io.create_publisher(Image, "left/image_raw", SENSOR_QOS)
+    pub_r = io.create_publisher(Image, "right/image_raw", SENSOR_QOS)
+    from geometry_msgs.msg import PoseStamped
+    pub_pose = io.create_publisher(PoseStamped, "ee_pose", SENSOR_QOS)
+    clients = {n: io.create_client(Trigger, f"hand_eye/{n}") for n in
+               ("capture", "compute", "save", "reset")}
+    assert spin_until(executor, lambda: all(c.service_is_ready() for c in clients.values())
+                      and pub_l.get_subscription_count() and pub_pose.get_subscription_count(),
+                      10.0)
+
+    def call(name):
+        fut = clients[name].call_async(Trigger.Request())
+        assert spin_until(executor, fut.done, 60.0)
+        return fut.result()
+
+    def show(k, q, moving=False):
+        stamp = T0 + k * 1_000_000_000
+        base_T_ee = world.arm.fk(q)
+        for dt in range(-300, 301, 25):                  # 40 Hz poses around the image (ms)
+            T = base_T_ee.copy()
+            if moving:
+                T[0, 3] += dt * 1e-5                          # 10 mm/s
+            pub_pose.publish(matrix_to_pose_stamped(T, stamp_ns=stamp + dt * 1_000_000,
+                                                    frame_id="base_link"))
+        frame = world.render(q, seed=k, noise_sigma=1.0, supersample=2)
+        pub_l.publish(numpy_to_image(frame.left, "bgr8", stamp_ns=stamp))
+        pub_r.publish(numpy_to_image(frame.right, "bgr8", stamp_ns=stamp))
+        assert spin_until(executor, lambda: node._images["left"] and
+                          node._images["left"][-1][0] == stamp and node._images["right"]
+                          and node._images["right"][-1][0] == stamp
+                          and node.localizer.poses.newest_ns == stamp + 300_000_000, 10.0)
+
+    poses = calibration_poses(world, 6, seed=0)
+    show(0, poses[0], moving=True)
+    res = call("capture")
+    assert not res.success and "moving" in res.message
+    for k, q in enumerate(poses, start=1):
+        show(k, q)
+        res = call("capture")
+        assert res.success, res.message
+    res = call("compute")
+    assert res.success, res.message
+    dt, dr = transform_distance(node.result.X, world.ee_T_cam)
+    assert dt < 1e-3 and np.degrees(dr) < 0.1, (dt, np.degrees(dr))
+    res = call("save")
+    assert res.success, res.message
+    from eye_in_hand.io.config import load_hand_eye
+    saved = load_hand_eye(out / "hand_eye.yaml")
+    assert np.allclose(saved.transform, node.result.X, atol=1e-9)
+    assert (out / "report.json").is_file() and (out / "report.html").is_file()
+    res = call("reset")
+    assert res.success and "6" in res.message
+    res = call("compute")
+    assert not res.success
