@@ -81,6 +81,17 @@ def make_data(pairs: int, fresh: bool) -> dict[str, Path]:
     return paths
 
 
+def params_file(paths: dict[str, Path]) -> Path:
+    """config/eye_in_hand.yaml with this run's calibration files: used live and offline."""
+    params = paths["calib"].parent / "params.yaml"
+    base = (ROOT / "config" / "eye_in_hand.yaml").read_text()
+    params.write_text(base.replace('calibration_dir: ""          # empty = use the camera_info '
+                                   'topics', f'calibration_dir: "{paths["calib"]}"')
+                      .replace("hand_eye_file: hand_eye.yaml",
+                               f"hand_eye_file: {paths['he'] / 'hand_eye.yaml'}"))
+    return params
+
+
 def truth_of(bag: Path) -> tuple[dict[int, np.ndarray], np.ndarray]:
     from eye_in_hand.io.bags import deserialize, iter_messages
     from eye_in_hand.ros.conversions import header_stamp_ns, point_to_xyz, transform_to_matrix
@@ -113,7 +124,7 @@ def offline(paths: dict[str, Path]) -> tuple[dict[int, np.ndarray], dict[str, fl
 
     he = load_hand_eye(paths["he"] / "hand_eye.yaml")
     rig = StereoRig.load(paths["calib"])
-    cfg = load_locator_config(None)
+    cfg = load_locator_config(params_file(paths))   # the live nodes' parameter file
     speeds = {}
     points: dict[int, np.ndarray] = {}
     for key in ("loc", "raw"):
@@ -195,12 +206,7 @@ def live(paths: dict[str, Path]) -> tuple[dict[int, np.ndarray], dict[str, float
     use_large_data_profile(env)
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
     use_large_data_profile()
-    params = paths["calib"].parent / "live_params.yaml"
-    base = (ROOT / "config" / "eye_in_hand.yaml").read_text()
-    params.write_text(base.replace('calibration_dir: ""          # empty = use the camera_info '
-                                   'topics', f'calibration_dir: "{paths["calib"]}"')
-                      .replace("hand_eye_file: hand_eye.yaml",
-                               f"hand_eye_file: {paths['he'] / 'hand_eye.yaml'}"))
+    params = params_file(paths)
     launch = subprocess.Popen([sys.executable, "-m", "eye_in_hand.cli", "launch", "--params",
                                str(params), "--skip", "stereo_capture"], env=env, text=True,
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT,

@@ -172,7 +172,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     print("\n== 4/5 offline: the same pipeline over the same bag, no DDS", flush=True)
     processed = out / "processed"
     _run(_cli("process", str(loc_bag), "--calibration", str(calib), "--hand-eye",
-              str(he_dir / "hand_eye.yaml"), "-o", str(processed), "--quiet"), env)
+              str(he_dir / "hand_eye.yaml"), "--params", str(params), "-o", str(processed),
+              "--quiet"), env)
 
     print("\n== 5/5 results against the bags' ground truth", flush=True)
     from eye_in_hand.core.camera import StereoRig

@@ -59,6 +59,9 @@ __all__ = [
     "main",
 ]
 
+#: Pause after every topic has a subscriber, before the first message (wait mode only).
+DISCOVERY_SETTLE_S = 0.5
+
 _END = object()
 _NOTHING = object()
 
@@ -325,6 +328,9 @@ class BagPlayer(Node):
         while not self._stop.is_set():
             waiting = [t for t, p in self._topic_pubs.items() if p.get_subscription_count() == 0]
             if not waiting:
+                # This side sees the subscriptions first; give the subscribers time to match
+                # our writers too, or the first (best-effort, volatile) messages are lost.
+                self._stop.wait(DISCOVERY_SETTLE_S)
                 return
             if time.monotonic() >= deadline:
                 self.get_logger().warning(

@@ -181,6 +181,7 @@ class DetectTriangulateNode(Node):
             except InputError as exc:
                 raise ConfigError(f"calibration_dir '{node_values['calibration_dir']}': "
                                   f"{exc}") from exc
+            warm_up(self._locator)
         self._info: dict[str, Any] = {"left": None, "right": None}
         self._info_key: tuple[Any, ...] | None = None
         self._lock = threading.Lock()
@@ -304,6 +305,7 @@ class DetectTriangulateNode(Node):
                 rm = camera_info_to_model(right, name="right")
                 rig = StereoRig.from_ros_pair(lm, rm, source="left/right camera_info")
                 self._locator = StereoLocator(rig, self.config)
+                warm_up(self._locator)
             except (ConversionError, ConfigError, InputError) as exc:
                 self._locator = None
                 self.diag.report("bad_camera_info", f"camera_info: {exc}")
@@ -383,6 +385,26 @@ class DetectTriangulateNode(Node):
             self._worker.join(timeout=5.0)
         self.diag.destroy()
         super().destroy_node()
+
+
+def warm_up(locator: StereoLocator) -> None:
+    """Run the locator once on a synthetic pair (a disc of each target's colour).
+
+    The first call of the detection path pays one-off costs (OpenCV and NumPy initialisation,
+    lazy imports) of up to ~150 ms; paying them at start-up keeps the first camera frames from
+    overrunning the one-pair hand-over and being dropped.
+    """
+    w, h = locator.rig.left.size
+    img = np.zeros((h, w, 3), np.uint8)
+    for k, spec in enumerate(locator.config.detector.targets):
+        lo, hi = spec.color.lower, spec.color.upper
+        hue = ((lo[0] + hi[0] + (180 if spec.color.wraps else 0)) // 2) % 180
+        hsv = np.array([[[hue, (lo[1] + hi[1]) // 2, (lo[2] + hi[2]) // 2]]], np.uint8)
+        bgr = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)[0, 0]
+        cv2.circle(img, (w // 2 + 60 * k, h // 2), max(8, min(w, h) // 30),
+                   tuple(int(c) for c in bgr), -1)
+    locator.locate(img, img.copy())
+    locator.reset()
 
 
 def _point_cov_type() -> Any:
