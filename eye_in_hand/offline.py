@@ -23,6 +23,7 @@ import json
 import math
 import queue
 import threading
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
@@ -55,6 +56,9 @@ class ProcessOptions:
         camera_frame: frame id of the output points.
         sync_slop_s, sync_queue_size: stereo pairing, as ``detect_triangulate``'s ``sync.*``.
         max_pose_gap_s, robot_sigma_pos_m, robot_sigma_rot_rad: as the ``hand_eye`` node's.
+        workers: threads locating stereo pairs (OpenCV releases the GIL). Results are consumed
+            in stamp order; with ``selection: nearest`` (which depends on the previous frame)
+            one thread is used whatever this says, so the numbers never depend on it.
     """
 
     left_topic: str = "/stereo/left/image_raw"
@@ -73,8 +77,11 @@ class ProcessOptions:
     max_pose_gap_s: float = 0.05
     robot_sigma_pos_m: float = 0.0001
     robot_sigma_rot_rad: float = 0.0001
+    workers: int = 2
 
     def __post_init__(self) -> None:
+        if int(self.workers) < 1:
+            raise InputError(f"workers: must be >= 1, got {self.workers}")
         if self.robot_pose_source not in ("ee_pose", "joint_states"):
             raise InputError(f"robot_pose_source: expected ee_pose or joint_states, got "
                              f"{self.robot_pose_source!r}")
@@ -209,8 +216,7 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         InputError: malformed settings.
     """
     from eye_in_hand.io.bags import bag_info, require_topics, typestore_for
-    from eye_in_hand.ros.conversions import (header_stamp_ns, image_to_numpy, point_to_xyz,
-                                             pose_to_matrix)
+    from eye_in_hand.ros.conversions import header_stamp_ns, point_to_xyz, pose_to_matrix
 
     opts = options or ProcessOptions()
     path = Path(path)
@@ -232,7 +238,7 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     if rig is None:
         rig = _rig_from_camera_info(path, opts)
         result.rig = rig
-    locator = StereoLocator(rig, locator_config)
+    pool = _PairPool(rig, locator_config, opts.workers)
     truth: dict[int, np.ndarray] = {}
     pending: list[FrameResult] = []      # located, waiting for a robot pose after the stamp
     joint_index: np.ndarray | None = None
@@ -250,6 +256,13 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     def flush(newest: int | None) -> None:
         while pending and (newest is None or pending[0].stamp_ns <= newest):
             finish(pending.pop(0))
+
+    def take(frame: FrameResult) -> None:
+        result.frames.append(frame)
+        counts["located" if frame.status == "located" else "no_target"] += 1
+        if frame.status == "located":
+            pending.append(frame)
+            flush(localizer.poses.newest_ns)
 
     typestore = typestore_for(path)
     errors: list[BaseException] = []
@@ -280,15 +293,16 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
                 push = sync.push_left if topic == opts.left_topic else sync.push_right
                 for pair in push(stamp, msg):
                     counts["pairs"] += 1
-                    frame = _locate_pair(locator, pair, image_to_numpy, counts)
-                    result.frames.append(frame)
-                    if frame.status == "located":
-                        pending.append(frame)
-                        flush(localizer.poses.newest_ns)
+                    pool.submit(pair)
+                for frame in pool.ready():
+                    take(frame)
         except (ConversionError, InputError) as exc:
             counts["bad_messages"] += 1
             if len(result.notes) < 20:
                 result.notes.append(f"{topic} at {_t} ns: {exc}")
+    for frame in pool.ready(wait=True):
+        take(frame)
+    pool.close()
     flush(None)  # end of bag: the last points are resolved (or refused) now
     for frame in result.frames:
         frame.truth_base = truth.get(frame.stamp_ns)
@@ -317,20 +331,69 @@ def _rig_from_camera_info(path: Path, opts: ProcessOptions) -> StereoRig:
                                    source=f"{path} {opts.right_info_topic}")
 
 
-def _locate_pair(locator: StereoLocator, pair: Any, image_to_numpy: Callable[..., Any],
-                 counts: dict[str, int]) -> FrameResult:
+def _locate_pair(locator: StereoLocator, pair: Any) -> FrameResult:
+    from eye_in_hand.ros.conversions import image_to_numpy
+
     left = image_to_numpy(pair.left, desired_encoding="bgr8")
     right = image_to_numpy(pair.right, desired_encoding="bgr8")
     res = locator.locate(left, right)
     first = res.first
     if first is None:
-        counts["no_target"] += 1
         return FrameResult(pair.stamp_ns, "no_target",
                            res.messages.get(res.first_name, res.rejected.get(res.first_name, "")))
-    counts["located"] += 1
     return FrameResult(pair.stamp_ns, "located", point_cam=np.asarray(first.point_m),
                        cov_cam=np.asarray(first.covariance), residual_px=float(first.residual_px),
                        left_px=np.asarray(first.left_px), right_px=np.asarray(first.right_px))
+
+
+class _PairPool:
+    """Locate stereo pairs on worker threads, handing results back in submission order."""
+
+    def __init__(self, rig: StereoRig, config: LocatorConfig, workers: int) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        self._rig, self._config = rig, config
+        parallel = workers > 1 and config.detector.selection != "nearest"
+        self._workers = workers if parallel else 1
+        self._local = threading.local()
+        self._inline = StereoLocator(rig, config) if self._workers == 1 else None
+        self._pool = (ThreadPoolExecutor(self._workers, thread_name_prefix="locate")
+                      if self._inline is None else None)
+        self._inflight: deque[Any] = deque()
+
+    def _locator(self) -> StereoLocator:
+        loc = getattr(self._local, "locator", None)
+        if loc is None:
+            loc = self._local.locator = StereoLocator(self._rig, self._config)
+        return loc
+
+    def _work(self, pair: Any) -> FrameResult:
+        return _locate_pair(self._locator(), pair)
+
+    def submit(self, pair: Any) -> None:
+        if self._inline is not None:
+            self._inflight.append(_locate_pair(self._inline, pair))
+            return
+        assert self._pool is not None
+        if len(self._inflight) >= 2 * self._workers:   # bounded: keep memory flat
+            self._inflight[0].result()
+        self._inflight.append(self._pool.submit(self._work, pair))
+
+    def ready(self, wait: bool = False) -> Iterator[FrameResult]:
+        """Finished results at the head of the queue (all of them with ``wait``), in order."""
+        while self._inflight:
+            head = self._inflight[0]
+            if isinstance(head, FrameResult):
+                yield self._inflight.popleft()
+            elif wait or head.done():
+                self._inflight.popleft()
+                yield head.result()
+            else:
+                return
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
 
 
 def write_results(out: str | Path, result: ProcessResult, opts: ProcessOptions | None = None,
