@@ -100,10 +100,21 @@ def _solve(world: World, base_T_cam: np.ndarray, seeds: Sequence[np.ndarray],
     raise last if last is not None else KinematicsError("no IK solution near the seeds")
 
 
+def _axis_rot(axis: int, angle: float) -> np.ndarray:
+    """Rotation by ``angle`` about coordinate axis ``axis`` (0 = x, 1 = y, 2 = z)."""
+    c, s = math.cos(angle), math.sin(angle)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    R = np.eye(3)
+    R[i, i] = R[j, j] = c
+    R[i, j], R[j, i] = -s, s
+    return R
+
+
 def calibration_poses(world: World, n: int, seed: int = 0, *,
                       distance: tuple[float, float] = (0.30, 0.48),
                       max_tilt_deg: float = 38.0,
                       step_deg: tuple[float, float] = (20.0, 40.0),
+                      image_spread: float = 0.6,
                       max_candidates: int = 4000) -> list[np.ndarray]:
     """N reachable joint vectors that see the whole board in both cameras.
 
@@ -111,12 +122,16 @@ def calibration_poses(world: World, n: int, seed: int = 0, *,
     to ``max_tilt_deg`` off the board normal, at ``distance`` (m), with a random roll about the
     optical axis. Each accepted pose is 20-40 degrees (``step_deg``) of rotation from the
     previous one, its relative rotation axis at least 30 degrees from the previous step's,
-    and at least 10 degrees from every earlier pose.
+    and at least 10 degrees from every earlier pose. The camera is then turned about its own
+    axes so that the board centre lands anywhere within ``image_spread`` of the half image
+    size from the principal point (0 = always centred): boards spread over the image constrain
+    the principal point and the distortion far better than centred ones.
 
     Args:
         world: the world.
         n: number of poses (>= 1).
         seed: random seed.
+        image_spread: how far off-centre the board may appear (fraction of half the image).
 
     Returns:
         n joint vectors (each shape (6,)).
@@ -148,6 +163,14 @@ def calibration_poses(world: World, n: int, seed: int = 0, *,
                      + math.sin(tilt) * (math.cos(az) * e1 + math.sin(az) * e2))
         aim = centre + rng.uniform(-0.03, 0.03, size=3) * np.array([1.0, 1.0, 0.0])
         base_T_cam = look_at(aim, aim + d * direction, roll=rng.uniform(-0.6, 0.6))
+        if image_spread > 0:
+            cam = world.rig.left
+            du = rng.uniform(-image_spread, image_spread) * cam.width / 2
+            dv = rng.uniform(-image_spread, image_spread) * cam.height / 2
+            turn = np.eye(4)
+            turn[:3, :3] = (_axis_rot(1, -math.atan2(du, cam.fx))
+                            @ _axis_rot(0, math.atan2(dv, cam.fy)))
+            base_T_cam = base_T_cam @ turn
         if cams:
             R_rel = cams[-1][:3, :3].T @ base_T_cam[:3, :3]
             angle = math.degrees(rotation_angle(R_rel))
