@@ -37,12 +37,10 @@ from typing import Any
 
 import cv2
 import numpy as np
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
-from eye_in_hand.ros.dds import use_large_data_profile
+from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.core.camera import StereoRig
 from eye_in_hand.core.locator import (
     LOCATOR_PARAMETERS,
@@ -474,21 +472,7 @@ def draw_debug(left: np.ndarray, right: np.ndarray, result: LocateResult) -> np.
 
 def main(args: list[str] | None = None) -> None:
     """Console entry point: ``ros2 run eye_in_hand detect_triangulate``."""
-    use_large_data_profile()  # large images over shared memory (see ros/dds.py)
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = DetectTriangulateNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except ConfigError as exc:
-        print(f"detect_triangulate: error: {exc}", flush=True)
-        raise SystemExit(1) from exc
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node("detect_triangulate", DetectTriangulateNode, args)
 
 
 if __name__ == "__main__":

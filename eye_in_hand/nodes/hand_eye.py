@@ -33,16 +33,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import rclpy
 import yaml
 from geometry_msgs.msg import PointStamped, PoseStamped, PoseWithCovarianceStamped, TransformStamped
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, JointState
 from std_srvs.srv import Trigger
 
-from eye_in_hand.ros.dds import use_large_data_profile
+from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.core.localization import Localizer, LocalizerConfig
 from eye_in_hand.core.transforms import rotation_angle
 from eye_in_hand.errors import (ConfigError, ConversionError, EyeInHandError, InputError,
@@ -531,21 +529,7 @@ class HandEyeNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Console entry point: ``ros2 run eye_in_hand hand_eye``."""
-    use_large_data_profile()  # large images over shared memory (see ros/dds.py)
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = HandEyeNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except ConfigError as exc:
-        print(f"{NODE_NAME}: error: {exc}", flush=True)
-        raise SystemExit(1) from exc
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(NODE_NAME, HandEyeNode, args)
 
 
 if __name__ == "__main__":

@@ -39,12 +39,10 @@ from typing import Any
 
 import cv2
 import numpy as np
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from eye_in_hand.ros.dds import use_large_data_profile
+from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.core.camera import CameraModel, StereoRig
 from eye_in_hand.errors import ConfigError, EyeInHandError
 from eye_in_hand.ros.conversions import (
@@ -521,21 +519,7 @@ def _camera_info(model: CameraModel | None, img: np.ndarray, header: Any) -> Any
 
 def main(args: list[str] | None = None) -> None:
     """Console entry point: ``ros2 run eye_in_hand stereo_capture``."""
-    use_large_data_profile()  # large images over shared memory (see ros/dds.py)
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = StereoCaptureNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except EyeInHandError as exc:
-        print(f"{NODE_NAME}: error: {exc}", flush=True)
-        raise SystemExit(1) from exc
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(NODE_NAME, StereoCaptureNode, args)
 
 
 if __name__ == "__main__":

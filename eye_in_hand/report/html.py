@@ -143,7 +143,7 @@ class HtmlReport:
         for r, row in enumerate(rows):
             cls = row_classes[r] if row_classes is not None and r < len(row_classes) else ""
             cells = "".join(
-                (f"<td class='t'>" if i == 0 else "<td>") + html.escape(format_cell(v, precision))
+                ("<td class='t'>" if i == 0 else "<td>") + html.escape(format_cell(v, precision))
                 + "</td>" for i, v in enumerate(row))
             out.append(f"<tr class='{cls}'>{cells}</tr>" if cls else f"<tr>{cells}</tr>")
         out.append("</table>")

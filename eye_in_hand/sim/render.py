@@ -436,7 +436,6 @@ class Renderer:
     def _shade(self, dirs: np.ndarray, s: dict) -> tuple[np.ndarray, np.ndarray]:
         """Colour (K, 3) float32 and label (K,) int16 of rays ``dirs`` (K, 3), camera frame."""
         w = self.world
-        M = len(w.targets)
         cols = np.stack([s["n_tab"], s["n_board"], s["x_board"], s["y_board"], s["x_tab"],
                          s["y_tab"], s["light"], *s["centers"]], axis=1).astype(np.float32)
         D = dirs @ cols  # (K, 7 + M)
