@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 from pathlib import Path
 
 import cv2
@@ -17,6 +16,7 @@ from eye_in_hand.core.locator import (
     locator_config_from_params,
 )
 from eye_in_hand.errors import ConfigError, InputError
+from eye_in_hand.sim.sphere import render_sphere
 
 K = np.array([[900.0, 0.0, 640.0], [0.0, 905.0, 360.0], [0.0, 0.0, 1.0]])
 PARAM_FILE = Path(__file__).resolve().parents[2] / "config" / "detect_triangulate.yaml"
@@ -31,35 +31,6 @@ def make_rig():
 
 
 RIG = make_rig().rectified()
-
-
-def render_sphere(image, cam, center, radius, color_bgr, ss=4):
-    """Ray-cast a sphere (centre in the camera frame) into ``image`` with ss x ss supersampling."""
-    c = np.asarray(center, float)
-    d = np.linalg.norm(c)
-    axis = c / d
-    u = np.cross(axis, [1.0, 0.0, 0.0])
-    u /= np.linalg.norm(u)
-    v = np.cross(axis, u)
-    a = math.asin(radius / d)
-    ang = np.linspace(0, 2 * np.pi, 64, endpoint=False)
-    rim = math.cos(a) * axis + math.sin(a) * (np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * v)
-    px = cam.project(rim)
-    x0, y0 = np.maximum(np.floor(px.min(0)).astype(int) - 2, 0)
-    x1, y1 = np.minimum(np.ceil(px.max(0)).astype(int) + 3, [cam.width, cam.height])
-    offs = (np.arange(ss) + 0.5) / ss - 0.5
-    xs = (np.arange(x0, x1)[:, None] + offs).ravel()
-    ys = (np.arange(y0, y1)[:, None] + offs).ravel()
-    X, Y = np.meshgrid(xs, ys)
-    n = cam.undistort_points(np.c_[X.ravel(), Y.ravel()])
-    rays = np.c_[n, np.ones(len(n))]
-    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-    dc = rays @ c
-    hit = (dc > 0) & (d * d - dc * dc <= radius * radius)
-    cov = hit.reshape(y1 - y0, ss, x1 - x0, ss).mean(axis=(1, 3))[..., None]
-    roi = image[y0:y1, x0:x1].astype(np.float64)
-    roi = roi * (1 - cov) + np.asarray(color_bgr, float) * cov
-    image[y0:y1, x0:x1] = np.clip(np.rint(roi), 0, 255).astype(np.uint8)
 
 
 def pair(spheres, seed=0):
