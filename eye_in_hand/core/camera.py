@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 import yaml
 
+from eye_in_hand.core.transforms import as_finite_array
 from eye_in_hand.errors import ConfigError, InputError
 
 __all__ = [
@@ -47,18 +48,6 @@ _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-
 def _readonly(arr: np.ndarray) -> np.ndarray:
     arr = np.array(arr, dtype=np.float64, copy=True)
     arr.setflags(write=False)
-    return arr
-
-
-def _check_matrix(value: Any, name: str, shape: tuple[int, ...]) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{name}: expected a numeric array of shape {shape}") from exc
-    if arr.shape != shape:
-        raise InputError(f"{name}: expected shape {shape}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise InputError(f"{name}: contains NaN or infinite values")
     return arr
 
 
@@ -122,7 +111,7 @@ class CameraModel:
     name: str = "camera"
 
     def __post_init__(self) -> None:
-        K = _check_matrix(self.K, "K", (3, 3))
+        K = as_finite_array(self.K, "K", (3, 3))
         if K[0, 0] <= 0 or K[1, 1] <= 0:
             raise InputError(f"K: focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}")
         if np.max(np.abs(K[2] - (0.0, 0.0, 1.0))) > 1e-9 or K[1, 0] != 0 or K[2, 0] != 0:
@@ -134,13 +123,13 @@ class CameraModel:
         dist = np.asarray(self.dist, dtype=np.float64).ravel()
         if dist.size < n and np.all(np.isfinite(dist)):
             dist = np.concatenate([dist, np.zeros(n - dist.size)])  # e.g. 4-coefficient plumb_bob
-        dist = _check_matrix(dist, "dist", (n,))
+        dist = as_finite_array(dist, "dist", (n,))
         if int(self.width) <= 0 or int(self.height) <= 0:
             raise InputError(f"image size must be positive, got {self.width}x{self.height}")
-        R = _check_matrix(self.R, "R", (3, 3))
+        R = as_finite_array(self.R, "R", (3, 3))
         if np.max(np.abs(R.T @ R - np.eye(3))) > 1e-5 or np.linalg.det(R) < 0:
             raise InputError("R: rectification matrix is not a rotation")
-        P = np.hstack([K, np.zeros((3, 1))]) if self.P is None else _check_matrix(self.P, "P", (3, 4))
+        P = np.hstack([K, np.zeros((3, 1))]) if self.P is None else as_finite_array(self.P, "P", (3, 4))
         object.__setattr__(self, "K", _readonly(K))
         object.__setattr__(self, "dist", _readonly(dist))
         object.__setattr__(self, "R", _readonly(R))
@@ -305,16 +294,16 @@ class StereoRig:
     Q: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        R = _check_matrix(self.R, "R", (3, 3))
+        R = as_finite_array(self.R, "R", (3, 3))
         if np.max(np.abs(R.T @ R - np.eye(3))) > 1e-5 or np.linalg.det(R) < 0:
             raise InputError("R: stereo rotation is not a rotation matrix")
-        T = _check_matrix(np.ravel(self.T), "T", (3,))
+        T = as_finite_array(np.ravel(self.T), "T", (3,))
         if np.linalg.norm(T) <= 0:
             raise InputError("T: stereo baseline is zero")
         object.__setattr__(self, "R", _readonly(R))
         object.__setattr__(self, "T", _readonly(T))
         if self.Q is not None:
-            object.__setattr__(self, "Q", _readonly(_check_matrix(self.Q, "Q", (4, 4))))
+            object.__setattr__(self, "Q", _readonly(as_finite_array(self.Q, "Q", (4, 4))))
 
     @property
     def baseline(self) -> float:

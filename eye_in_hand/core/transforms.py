@@ -19,6 +19,7 @@ from eye_in_hand.errors import InputError
 
 __all__ = [
     "ORTHONORMAL_ATOL",
+    "as_finite_array",
     "as_points",
     "as_rotation",
     "as_transform",
@@ -44,7 +45,8 @@ __all__ = [
 ORTHONORMAL_ATOL = 1e-6
 
 
-def _finite_array(value, name: str, shape: tuple[int, ...]) -> np.ndarray:
+def as_finite_array(value, name: str, shape: tuple[int, ...]) -> np.ndarray:
+    """Validate a finite float64 array of an exact shape, raising InputError naming ``name``."""
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -70,7 +72,7 @@ def as_rotation(R, name: str = "R", *, atol: float = ORTHONORMAL_ATOL) -> np.nda
     Raises:
         InputError: wrong shape, non-finite values, not orthonormal or a reflection.
     """
-    arr = _finite_array(R, name, (3, 3))
+    arr = as_finite_array(R, name, (3, 3))
     err = np.max(np.abs(arr.T @ arr - np.eye(3)))
     det = np.linalg.det(arr)
     if err > atol or abs(det - 1.0) > max(atol, 3 * err):
@@ -94,7 +96,7 @@ def as_transform(T, name: str = "T", *, atol: float = ORTHONORMAL_ATOL) -> np.nd
     Raises:
         InputError: wrong shape, non-finite values, bad last row or rotation block.
     """
-    arr = _finite_array(T, name, (4, 4))
+    arr = as_finite_array(T, name, (4, 4))
     if np.max(np.abs(arr[3] - (0.0, 0.0, 0.0, 1.0))) > 1e-9:
         raise InputError(f"{name}: last row must be [0, 0, 0, 1], got {arr[3].tolist()}")
     as_rotation(arr[:3, :3], f"{name} rotation block", atol=atol)
@@ -119,7 +121,7 @@ def as_points(points, name: str = "points") -> np.ndarray:
 def make_transform(R, t) -> np.ndarray:
     """Build ``a_T_b`` from rotation (3, 3) and translation (3,)."""
     Rm = as_rotation(R, "R")
-    tv = _finite_array(np.ravel(t), "t", (3,))
+    tv = as_finite_array(np.ravel(t), "t", (3,))
     T = np.eye(4)
     T[:3, :3] = Rm
     T[:3, 3] = tv
@@ -165,7 +167,7 @@ def apply(T, points) -> np.ndarray:
 
 def quat_xyzw_to_matrix(quat_xyzw, name: str = "quat_xyzw") -> np.ndarray:
     """Rotation matrix from a quaternion (x, y, z, w); normalised, must not be near zero."""
-    q = _finite_array(np.ravel(quat_xyzw), name, (4,))
+    q = as_finite_array(np.ravel(quat_xyzw), name, (4,))
     n = np.linalg.norm(q)
     if n < 1e-9:
         raise InputError(f"{name}: quaternion has zero norm")
@@ -184,7 +186,7 @@ def from_xyz_quat(xyz, quat_xyzw) -> np.ndarray:
     """4x4 transform from a translation (3,) and a quaternion (x, y, z, w)."""
     T = np.eye(4)
     T[:3, :3] = quat_xyzw_to_matrix(quat_xyzw)
-    T[:3, 3] = _finite_array(np.ravel(xyz), "xyz", (3,))
+    T[:3, 3] = as_finite_array(np.ravel(xyz), "xyz", (3,))
     return T
 
 
@@ -196,10 +198,10 @@ def to_xyz_quat(T) -> tuple[np.ndarray, np.ndarray]:
 
 def from_rotvec(rotvec, t=(0.0, 0.0, 0.0)) -> np.ndarray:
     """4x4 transform from a rotation vector (axis * angle, radians) and a translation."""
-    rv = _finite_array(np.ravel(rotvec), "rotvec", (3,))
+    rv = as_finite_array(np.ravel(rotvec), "rotvec", (3,))
     T = np.eye(4)
     T[:3, :3] = Rotation.from_rotvec(rv).as_matrix()
-    T[:3, 3] = _finite_array(np.ravel(t), "t", (3,))
+    T[:3, 3] = as_finite_array(np.ravel(t), "t", (3,))
     return T
 
 
@@ -212,7 +214,7 @@ def to_rotvec(T_or_R) -> np.ndarray:
 
 def project_to_so3(M) -> np.ndarray:
     """Nearest rotation (Frobenius norm) to a 3x3 matrix, via SVD with det = +1."""
-    arr = _finite_array(M, "M", (3, 3))
+    arr = as_finite_array(M, "M", (3, 3))
     U, _, Vt = np.linalg.svd(arr)
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
     return U @ D @ Vt
