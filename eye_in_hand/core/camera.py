@@ -28,6 +28,7 @@ import yaml
 
 from eye_in_hand.core.transforms import as_finite_array
 from eye_in_hand.errors import ConfigError, InputError
+from eye_in_hand.yamlfile import read_yaml_file
 
 __all__ = [
     "DISTORTION_MODELS",
@@ -261,18 +262,7 @@ class CameraModel:
         Raises:
             ConfigError: the file is missing, unreadable, not YAML, or malformed (names the file).
         """
-        path = Path(path)
-        try:
-            text = path.read_text()
-        except FileNotFoundError as exc:
-            raise ConfigError(f"{path}: calibration file not found") from exc
-        except OSError as exc:
-            raise ConfigError(f"{path}: cannot read calibration file ({exc.strerror})") from exc
-        try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML ({exc})") from exc
-        return cls.from_dict(data, source=str(path))
+        return cls.from_dict(read_yaml_file(path, "calibration file"), source=str(Path(path)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -453,10 +443,18 @@ class StereoRig:
         stereo_path = directory / "stereo.yaml"
         if not stereo_path.exists():
             return cls.from_ros_pair(left, right, source=f"{directory}/right.yaml")
-        try:
-            data = yaml.safe_load(stereo_path.read_text())
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{stereo_path}: not valid YAML ({exc})") from exc
+        return cls.from_stereo_file(left, right, stereo_path)
+
+    @classmethod
+    def from_stereo_file(cls, left: CameraModel, right: CameraModel,
+                         stereo_path: str | os.PathLike[str]) -> StereoRig:
+        """A rig from two camera models and the ``R``, ``T`` (and ``Q``) of a ``stereo.yaml``.
+
+        Raises:
+            ConfigError: the file is missing, not YAML, or lacks a valid R or T (names it).
+        """
+        stereo_path = Path(stereo_path)
+        data = read_yaml_file(stereo_path, "stereo calibration")
         if not isinstance(data, Mapping) or "R" not in data or "T" not in data:
             raise ConfigError(f"{stereo_path}: expected a mapping with R and T")
         R = matrix_from_yaml(data["R"], "R", str(stereo_path), (3, 3))

@@ -30,7 +30,6 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
-import yaml
 
 from eye_in_hand.core.camera import StereoRig
 from eye_in_hand.core.detection import (
@@ -52,6 +51,7 @@ from eye_in_hand.core.triangulation import (
     triangulate_parallax,
 )
 from eye_in_hand.errors import ConfigError, InputError
+from eye_in_hand.yamlfile import read_yaml_file
 
 __all__ = [
     "ParamSpec",
@@ -292,14 +292,7 @@ def load_parameter_file(path: str | os.PathLike[str],
         ConfigError: missing or unreadable file, not YAML, or no parameters for the node.
     """
     p = Path(path)
-    try:
-        data = yaml.safe_load(p.read_text())
-    except FileNotFoundError as exc:
-        raise ConfigError(f"{p}: parameter file not found") from exc
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read parameter file ({exc.strerror})") from exc
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{p}: not valid YAML ({exc})") from exc
+    data = read_yaml_file(p, "parameter file")
     if not isinstance(data, Mapping):
         raise ConfigError(f"{p}: expected a mapping of node names to ros__parameters")
     out: dict[str, Any] = {}

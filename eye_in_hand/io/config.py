@@ -33,6 +33,7 @@ import yaml
 
 from eye_in_hand.core.transforms import from_xyz_quat, to_xyz_quat
 from eye_in_hand.errors import ConfigError, InputError
+from eye_in_hand.yamlfile import read_yaml_file
 
 __all__ = [
     "HandEyeCalibration",
@@ -241,14 +242,4 @@ def load_hand_eye(path: str | os.PathLike[str]) -> HandEyeCalibration:
             message names the file and the problem.
     """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError as exc:
-        raise ConfigError(f"{p}: hand-eye calibration file not found") from exc
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read hand-eye calibration ({exc})") from exc
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{p}: not valid YAML ({exc})") from exc
-    return hand_eye_from_dict(data, str(p))
+    return hand_eye_from_dict(read_yaml_file(p, "hand-eye calibration file"), str(p))

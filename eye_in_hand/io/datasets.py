@@ -31,7 +31,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import yaml
 
-from eye_in_hand.core.camera import CameraModel, StereoRig, matrix_from_yaml
+from eye_in_hand.core.camera import CameraModel, StereoRig
 from eye_in_hand.core.transforms import as_transform, from_xyz_quat, to_xyz_quat
 from eye_in_hand.errors import ConfigError, InputError
 
@@ -155,21 +155,8 @@ def _load_rig(root: Path, data: Mapping[str, Any], source: str) -> StereoRig:
     right = CameraModel.load_yaml(_rel_file(root, data.get("right"), f"{source}: right"))
     if data.get("stereo") is None:
         return StereoRig.from_ros_pair(left, right, source=f"{source}: right")
-    stereo_path = _rel_file(root, data["stereo"], f"{source}: stereo")
-    try:
-        sdata = yaml.safe_load(stereo_path.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
-        raise ConfigError(f"{stereo_path}: cannot read stereo calibration ({exc})") from exc
-    if not isinstance(sdata, Mapping) or "R" not in sdata or "T" not in sdata:
-        raise ConfigError(f"{stereo_path}: expected a mapping with R and T")
-    R = matrix_from_yaml(sdata["R"], "R", str(stereo_path), (3, 3))
-    T = matrix_from_yaml(sdata["T"], "T", str(stereo_path)).ravel()
-    if T.size != 3:
-        raise ConfigError(f"{stereo_path}: 'T' must have 3 values, got {T.size}")
-    try:
-        return StereoRig(left=left, right=right, R=R, T=T)
-    except InputError as exc:
-        raise ConfigError(f"{stereo_path}: {exc}") from exc
+    return StereoRig.from_stereo_file(
+        left, right, _rel_file(root, data["stereo"], f"{source}: stereo"))
 
 
 def load_dataset(path: str | os.PathLike[str]) -> CalibrationDataset:

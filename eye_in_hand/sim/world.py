@@ -36,6 +36,7 @@ from eye_in_hand.core.transforms import (
     to_xyz_quat,
 )
 from eye_in_hand.errors import ConfigError, EyeInHandError, InputError
+from eye_in_hand.yamlfile import read_yaml_file
 
 __all__ = ["Target", "World", "DEFAULT_WORLD_YAML", "pose_to_dict", "pose_from_dict"]
 
@@ -288,15 +289,7 @@ class World:
             ConfigError: the file cannot be read or is malformed.
         """
         p = Path(path)
-        try:
-            text = p.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise ConfigError(f"world file {p}: cannot read ({exc.strerror})") from exc
-        try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"world file {p}: not valid YAML ({exc})") from exc
-        return cls.from_dict(data, source=str(p))
+        return cls.from_dict(read_yaml_file(p, "world file"), source=str(p))
 
     def to_yaml(self, path: str | Path) -> Path:
         """Write the world file; returns its path."""
