@@ -59,6 +59,8 @@ class ProcessOptions:
         workers: threads locating stereo pairs (OpenCV releases the GIL). Results are consumed
             in stamp order; with ``selection: nearest`` (which depends on the previous frame)
             one thread is used whatever this says, so the numbers never depend on it.
+        verify_crc: check MCAP chunk CRCs (off by default, as in the MCAP reference readers:
+            CRC-32 costs about 16 ms per 1280x720 colour stereo pair here).
     """
 
     left_topic: str = "/stereo/left/image_raw"
@@ -78,6 +80,7 @@ class ProcessOptions:
     robot_sigma_pos_m: float = 0.0001
     robot_sigma_rot_rad: float = 0.0001
     workers: int = 2
+    verify_crc: bool = False
 
     def __post_init__(self) -> None:
         if int(self.workers) < 1:
@@ -155,19 +158,39 @@ _END = object()
 
 
 def _decoded(path: Path, topics: list[str], typestore: Any, errors: list[BaseException],
-             ) -> Iterator[tuple[str, int, Any]]:
-    """(topic, log time, deserialized message), produced on a reader thread (bounded queue)."""
+             verify_crc: bool = False) -> Iterator[tuple[str, int, Any]]:
+    """(topic, log time, message), produced on a reader thread (bounded queue).
+
+    The bag is read without copies (memory-mapped MCAP) and images are decoded straight from
+    their CDR bytes into views (:func:`eye_in_hand.io.cdr.image_from_cdr`); other messages go
+    through the generic deserializer. A message that does not decode is handed on as its
+    exception (the consumer counts it and goes on); an unreadable bag ends the iteration with
+    the error.
+    """
     from eye_in_hand.io.bags import deserialize, iter_messages
+    from eye_in_hand.io.cdr import image_from_cdr, is_image_type
 
     q: queue.Queue = queue.Queue(maxsize=16)
     stop = threading.Event()
 
+    def decode(raw: Any, msgtype: str) -> Any:
+        if is_image_type(msgtype):
+            img = image_from_cdr(raw)
+            if img is not None:
+                return img
+        return deserialize(raw, msgtype, typestore)
+
     def reader() -> None:
         try:
-            for topic, msgtype, t_ns, raw in iter_messages(path, topics):
+            for topic, msgtype, t_ns, raw in iter_messages(path, topics, views=True,
+                                                           verify_crc=verify_crc):
                 if stop.is_set():
                     return
-                q.put((topic, t_ns, deserialize(raw, msgtype, typestore)))
+                try:
+                    msg = decode(raw, msgtype)
+                except (BagError, ConversionError) as exc:
+                    msg = exc
+                q.put((topic, t_ns, msg))
         except BaseException as exc:  # handed to the consumer, re-raised there
             errors.append(exc)
         finally:
@@ -264,12 +287,14 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
             pending.append(frame)
             flush(localizer.poses.newest_ns)
 
-    typestore = typestore_for(path)
+    typestore = typestore_for(path, {info.topics[t].msgtype for t in topics})
     errors: list[BaseException] = []
-    for topic, _t, msg in _decoded(path, topics, typestore, errors):
+    for topic, _t, msg in _decoded(path, topics, typestore, errors, opts.verify_crc):
         if progress is not None:
             progress(1)
         try:
+            if isinstance(msg, Exception):
+                raise msg
             if topic == opts.pose_topic:
                 stamp = header_stamp_ns(msg)
                 if opts.robot_pose_source == "ee_pose":
@@ -296,7 +321,7 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
                     pool.submit(pair)
                 for frame in pool.ready():
                     take(frame)
-        except (ConversionError, InputError) as exc:
+        except (BagError, ConversionError, InputError) as exc:
             counts["bad_messages"] += 1
             if len(result.notes) < 20:
                 result.notes.append(f"{topic} at {_t} ns: {exc}")

@@ -21,7 +21,7 @@ from typing import Generic, TypeVar
 
 import numpy as np
 
-from eye_in_hand.core.transforms import as_transform, interpolate
+from eye_in_hand.core.transforms import as_transform, interpolate_unchecked
 from eye_in_hand.errors import InputError, LocalizationError
 
 __all__ = [
@@ -354,4 +354,4 @@ class PoseBuffer:
             raise LocalizationError(
                 f"{self._name} at {stamp} ns: the bracketing poses are {(s1 - s0) / 1e6:.3f} ms "
                 f"apart, over the limit of {gap_limit / 1e6:.3f} ms")
-        return interpolate(stamp, s0, self._poses[i - 1], s1, self._poses[i])
+        return interpolate_unchecked(stamp, s0, self._poses[i - 1], s1, self._poses[i])

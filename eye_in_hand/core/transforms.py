@@ -13,7 +13,7 @@ from __future__ import annotations
 from typing import Iterable, Sequence
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from eye_in_hand.errors import InputError
 
@@ -37,6 +37,7 @@ __all__ = [
     "rotation_angle",
     "transform_distance",
     "interpolate",
+    "interpolate_unchecked",
     "average_rotations",
     "average_transforms",
 ]
@@ -264,13 +265,21 @@ def interpolate(stamp_ns: int, stamp0_ns: int, T0, stamp1_ns: int, T1) -> np.nda
     if not stamp0_ns <= stamp_ns <= stamp1_ns:
         raise InputError(
             f"interpolate: stamp {stamp_ns} outside [{stamp0_ns}, {stamp1_ns}] (no extrapolation)")
+    return interpolate_unchecked(stamp_ns, stamp0_ns, A, stamp1_ns, B)
+
+
+def interpolate_unchecked(stamp_ns: int, stamp0_ns: int, A: np.ndarray, stamp1_ns: int,
+                          B: np.ndarray) -> np.ndarray:
+    """:func:`interpolate` for transforms and stamps the caller has validated already (a pose
+    buffer's): slerp as ``R_A exp(s log(R_A^T R_B))``, lerp on translation."""
     if stamp1_ns == stamp0_ns:
-        return A.copy()
+        return np.array(A, dtype=np.float64)
     # Integer arithmetic first: ns stamps near 1.7e18 lose precision as float64.
     s = float(stamp_ns - stamp0_ns) / float(stamp1_ns - stamp0_ns)
-    rots = Rotation.from_matrix(np.stack([A[:3, :3], B[:3, :3]]))
     out = np.eye(4)
-    out[:3, :3] = Slerp([0.0, 1.0], rots)([s]).as_matrix()[0]
+    RA = A[:3, :3]
+    rotvec = Rotation.from_matrix(RA.T @ B[:3, :3]).as_rotvec()
+    out[:3, :3] = RA @ Rotation.from_rotvec(s * rotvec).as_matrix()
     out[:3, 3] = (1.0 - s) * A[:3, 3] + s * B[:3, 3]
     return out
 

@@ -502,12 +502,14 @@ def _check_window(start_ns: int | None, end_ns: int | None) -> None:
 
 
 def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
-                  start_ns: int | None = None, end_ns: int | None = None,
-                  ) -> Iterator[BagMessage]:
+                  start_ns: int | None = None, end_ns: int | None = None, *,
+                  views: bool = False, verify_crc: bool = True) -> Iterator[BagMessage]:
     """Iterate over a bag's messages in log-time order, as raw CDR bytes.
 
     Messages of several storage files (split bags, or a directory of loose ``.mcap`` files)
-    are merged by log time; ties keep storage order.
+    are merged by log time; ties keep storage order. Indexed MCAP files are memory-mapped and
+    read without copies (:mod:`eye_in_hand.io.mcap_chunks`); other storage goes through
+    ``rosbags``.
 
     Args:
         path: a bag directory or a ``.mcap``/``.db3`` file.
@@ -515,6 +517,11 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
             use :func:`require_topics` to insist on them.
         start_ns: only messages with log time >= start_ns.
         end_ns: only messages with log time <= end_ns (inclusive).
+        views: yield read-only ``memoryview`` data where the storage allows (indexed MCAP:
+            views of the mapped file or of a decompressed chunk, valid after the iteration)
+            instead of ``bytes``; saves copying every image.
+        verify_crc: check MCAP chunk CRCs when the file has them (CRC-32 runs at about
+            0.35 GB/s here: 16 ms per 1280x720 colour stereo pair).
 
     Yields:
         ``(topic, msgtype, log_time_ns, raw_cdr_bytes)``.
@@ -539,7 +546,8 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
                 conns = [c for c in part.connections if wanted is None or c.topic in wanted]
                 if conns:
                     streams.append(_storage_stream(part, conns, start_ns, stop,
-                                                   per_message_zstd, len(streams)))
+                                                   per_message_zstd, len(streams), views,
+                                                   verify_crc))
         if not streams:
             return
         merged = streams[0] if len(streams) == 1 else heapq.merge(*streams)
@@ -580,7 +588,8 @@ def iter_decoded(path: str | Path, topics: Iterable[str] | None = None,
 
 
 def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int | None,
-                    per_message_zstd: bool, stream: int,
+                    per_message_zstd: bool, stream: int, views: bool = False,
+                    verify_crc: bool = True,
                     ) -> Iterator[tuple[int, int, int, str, str, bytes]]:
     """Messages of one storage file, with its own connections.
 
@@ -590,6 +599,13 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
     in one of them) then yields nothing. Reading each storage file with its own connections
     avoids that.
     """
+    from eye_in_hand.io import mcap_chunks
+
+    if not per_message_zstd and mcap_chunks.supports(storage):
+        source = mcap_chunks.chunk_messages(storage, conns, start, stop, verify_crc=verify_crc)
+        for order, (conn, stamp, view) in enumerate(source):
+            yield stamp, stream, order, conn.topic, conn.msgtype, view if views else bytes(view)
+        return
     if per_message_zstd:
         try:
             from compression import zstd  # type: ignore[import-not-found]  # Python >= 3.14
@@ -636,8 +652,31 @@ def _types_from_definition(msgtype: str, fmt: Any, text: str) -> dict[str, Any]:
     return types
 
 
-def typestore_for(path: str | Path) -> Any:
-    """A type store that can decode every message of a bag.
+def _type_closure(types: Mapping[str, Any], roots: Iterable[str]) -> dict[str, Any]:
+    """``types`` restricted to ``roots`` and every type their fields use, recursively."""
+    out: dict[str, Any] = {}
+    todo = [r for r in roots if r in types]
+
+    def names(node: Any) -> Iterator[str]:
+        if isinstance(node, str):
+            if node in types:
+                yield node
+        elif isinstance(node, (tuple, list)):
+            for item in node:
+                yield from names(item)
+
+    while todo:
+        name = todo.pop()
+        if name in out:
+            continue
+        out[name] = types[name]
+        _consts, fields = types[name]
+        todo.extend(n for n in names([f[1] for f in fields]) if n not in out)
+    return out
+
+
+def typestore_for(path: str | Path, msgtypes: Iterable[str] | None = None) -> Any:
+    """A type store that can decode every message of a bag (or the types asked for).
 
     It holds the message definitions stored in the bag (MCAP schemas, the sqlite3
     ``message_definitions`` table of Jazzy bags) and, for every other type, the ROS 2 Jazzy
@@ -646,6 +685,8 @@ def typestore_for(path: str | Path) -> Any:
 
     Args:
         path: a bag directory or a ``.mcap``/``.db3`` file.
+        msgtypes: only these types (and the types they use) are registered; None: all. Building
+            every type costs ~0.1 s, a few types almost nothing.
 
     Returns:
         A ``rosbags.typesys.store.Typestore``; pass it to :func:`deserialize`.
@@ -656,10 +697,12 @@ def typestore_for(path: str | Path) -> Any:
     from rosbags.interfaces import MessageDefinitionFormat
     from rosbags.typesys import Stores, get_typestore
 
+    wanted = None if msgtypes is None else set(msgtypes)
     types: dict[str, Any] = {}
     with _OpenBag(path) as bag:
         for conn in bag.connections():
-            if conn.msgdef.format == MessageDefinitionFormat.NONE or conn.msgtype in types:
+            if conn.msgdef.format == MessageDefinitionFormat.NONE or conn.msgtype in types \
+                    or (wanted is not None and conn.msgtype not in wanted):
                 continue
             try:
                 types.update(_types_from_definition(conn.msgtype, conn.msgdef.format,
@@ -670,6 +713,8 @@ def typestore_for(path: str | Path) -> Any:
     jazzy = default_typestore()
     for name, fields in jazzy.fielddefs.items():
         types.setdefault(name, fields)
+    if wanted is not None:
+        types = _type_closure(types, wanted)
     store = get_typestore(Stores.EMPTY)
     try:
         store.register(types)

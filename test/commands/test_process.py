@@ -98,3 +98,31 @@ def test_joint_states_source_matches_ee_pose(loc_bag, tmp_path):
     pa = np.array([[float(r[k]) for k in ("x_base", "y_base", "z_base")] for r in ra])
     pb = np.array([[float(r[k]) for k in ("x_base", "y_base", "z_base")] for r in rb])
     assert np.max(np.abs(pa - pb)) < 1e-6
+
+
+def test_a_corrupt_image_is_counted_and_processing_goes_on(loc_bag, tmp_path, capsys):
+    from eye_in_hand.io.bags import BagWriter
+
+    bag, world = loc_bag
+    info = bag_info(bag)
+    broken = tmp_path / "broken"
+    left = "/stereo/left/image_raw"
+    seen = 0
+    with BagWriter(broken) as w:
+        for name, t in info.topics.items():
+            w.add_topic(name, t.msgtype)
+        for topic, _mt, stamp, raw in iter_messages(bag):
+            if topic == left:
+                seen += 1
+                if seen == 5:
+                    raw = raw[:len(raw) // 2]              # the 5th left image cut in half
+            w.write(topic, stamp, raw)
+    out = tmp_path / "out"
+    rc = main(["process", str(broken), "--hand-eye", str(_hand_eye(tmp_path, world)), "-o",
+               str(out), "--quiet"])
+    captured = capsys.readouterr()
+    assert rc == 0, captured.err
+    counts = json.loads((out / "summary.json").read_text())["counts"]
+    assert counts["bad_messages"] == 1
+    assert counts["localized"] == 11                     # the other eleven pairs
+    assert f"warning: {left} at" in captured.err and "data:" in captured.err

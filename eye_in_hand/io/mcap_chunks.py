@@ -1,0 +1,211 @@
+"""Fast message reading of indexed MCAP files: memory-mapped, zero-copy, chunks decompressed ahead.
+
+``rosbags`` reads an MCAP chunk into memory, wraps it in a ``BytesIO`` and copies every message
+out of it: two copies of every byte, about 0.8 GB/s here, which is all the time a 30 Hz 1280x720
+stereo bag allows at 5x real time. This reader uses the chunk index ``rosbags`` has already
+parsed (the file's summary section) and
+
+* maps the file (``mmap``): a message of an uncompressed chunk is a ``memoryview`` of the file's
+  pages, never copied (the page cache is read at memory speed);
+* decompresses zstd / lz4 chunks on a small thread pool a few chunks ahead of the consumer
+  (the decompressors release the GIL), each message then a view of its decompressed chunk;
+* checks a chunk's CRC only when asked (``verify_crc``); the MCAP reference readers do not by
+  default either, and CRC-32 runs at ~0.35 GB/s here.
+
+Order is the one ``rosbags`` gives: log time, ties by chunk position in the file, then by record
+order inside the chunk; chunks that overlap in time are merged.
+
+Files it cannot read this way (no summary, no chunk index, messages outside chunks) are left to
+``rosbags``: :func:`supports` says which.
+"""
+from __future__ import annotations
+
+import heapq
+import mmap
+import struct
+import zlib
+from concurrent.futures import Future, ThreadPoolExecutor
+from pathlib import Path
+from typing import Any, Callable, Iterator, Sequence
+
+__all__ = ["supports", "chunk_messages"]
+
+_RECORD = struct.Struct("<BQ")           # opcode, record length
+_MESSAGE = struct.Struct("<HIQQ")        # channel id, sequence, log time, publish time
+_CHUNK_HEAD = struct.Struct("<QQQI")     # start, end, uncompressed size, uncompressed crc
+_U32 = struct.Struct("<I")
+_U64 = struct.Struct("<Q")
+
+
+def supports(storage: Any) -> bool:
+    """Whether ``storage`` (a ``rosbags`` storage reader) is an indexed MCAP file read here."""
+    path = getattr(storage, "path", None)
+    chunks = getattr(storage, "chunks", None)
+    if path is None or not chunks or Path(path).suffix != ".mcap":
+        return False
+    first = chunks[0]
+    return all(hasattr(first, name) for name in (
+        "message_start_time", "message_end_time", "chunk_start_offset", "chunk_length",
+        "compression", "compressed_size", "uncompressed_size"))
+
+
+def _decompressor(compression: str) -> Callable[[Any, int], bytes]:
+    if compression == "zstd":
+        try:
+            from compression import zstd  # type: ignore[import-not-found]  # Python >= 3.14
+        except ImportError:
+            from backports import zstd  # type: ignore[import-not-found,no-redef]
+        return lambda data, _size: zstd.decompress(data)
+    if compression == "lz4":
+        import lz4.frame
+
+        return lambda data, _size: lz4.frame.decompress(data)
+    raise ValueError(f"unsupported chunk compression {compression!r}")
+
+
+class _Chunk:
+    """One chunk record of the mapped file: where its records are, and how to get them."""
+
+    def __init__(self, info: Any, file_view: memoryview) -> None:
+        self.info = info
+        self.offset = int(info.chunk_start_offset)
+        start = self.offset
+        end = start + int(info.chunk_length)
+        if end > len(file_view) or int(info.chunk_length) < 9 + 40:
+            raise ValueError(f"chunk at byte {start}: extends past the end of the file "
+                             f"({end} > {len(file_view)} bytes)")
+        op, length = _RECORD.unpack_from(file_view, start)
+        if op != 0x06 or 9 + length != int(info.chunk_length):
+            raise ValueError(f"chunk at byte {start}: the index points at a record with opcode "
+                             f"{op:#04x} and length {length}, not a chunk")
+        body = file_view[start + 9:end]
+        _s, _e, self.size, self.crc = _CHUNK_HEAD.unpack_from(body, 0)
+        (n,) = _U32.unpack_from(body, 28)
+        self.compression = bytes(body[32:32 + n]).decode()
+        (csize,) = _U64.unpack_from(body, 32 + n)
+        data_at = 32 + n + 8
+        if data_at + csize > len(body):
+            raise ValueError(f"chunk at byte {start}: compressed data of {csize} bytes exceeds "
+                             "its record")
+        self.data = body[data_at:data_at + csize]
+
+    def records(self, verify_crc: bool) -> memoryview:
+        """The chunk's uncompressed records (a view of the file when not compressed)."""
+        if self.compression == "":
+            raw: Any = self.data
+        else:
+            raw = _decompressor(self.compression)(self.data, self.size)
+        if len(raw) != self.size:
+            raise ValueError(f"chunk at byte {self.offset}: {len(raw)} bytes after "
+                             f"decompression, the chunk says {self.size}")
+        if verify_crc and self.crc and zlib.crc32(raw) != self.crc:
+            raise ValueError(f"chunk at byte {self.offset}: CRC mismatch (corrupt data)")
+        return memoryview(raw)
+
+
+def _messages_of(chunk: _Chunk, records: memoryview, channels: dict[int, Any], lo: int,
+                 hi: int) -> list[tuple[int, int, int, Any, memoryview]]:
+    """(log time, chunk offset, index, connection, data view) of the wanted messages."""
+    out = []
+    pos, end, index = 0, len(records), 0
+    while pos < end:
+        if pos + 9 > end:
+            raise ValueError(f"chunk at byte {chunk.offset}: truncated record at {pos}")
+        op, length = _RECORD.unpack_from(records, pos)
+        body_at, pos = pos + 9, pos + 9 + length
+        if pos > end:
+            raise ValueError(f"chunk at byte {chunk.offset}: record at {body_at - 9} is longer "
+                             "than the chunk")
+        if op != 0x05:
+            continue
+        if length < _MESSAGE.size:
+            raise ValueError(f"chunk at byte {chunk.offset}: message record of {length} bytes")
+        cid, _seq, log_time, _pub = _MESSAGE.unpack_from(records, body_at)
+        conn = channels.get(cid)
+        if conn is not None and lo <= log_time < hi:
+            out.append((log_time, chunk.offset, index, conn, records[body_at + _MESSAGE.size:pos]))
+            index += 1
+    out.sort(key=lambda m: (m[0], m[2]))
+    return out
+
+
+def _may_hold(info: Any, channels: dict[int, Any]) -> bool:
+    """Whether a chunk may hold messages of ``channels``: by its message index when it has one
+    (a writer may leave message indexes out: ``noMessageIndex``; then every chunk is read)."""
+    counts = getattr(info, "channel_count", None)
+    if not counts or not getattr(info, "message_index_offsets", None):
+        return True
+    return any(counts.get(cid, 0) for cid in channels)
+
+
+def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None = None,
+                   stop: int | None = None, *, verify_crc: bool = True, threads: int = 2,
+                   ) -> Iterator[tuple[Any, int, memoryview]]:
+    """``(connection, log_time_ns, data)`` of an indexed MCAP file, in log-time order.
+
+    Args:
+        storage: a ``rosbags`` MCAP storage reader, opened (:func:`supports` is True).
+        connections: the storage's connections to read (their ``id`` is the channel id).
+        start, stop: log-time window ``[start, stop)``; None: unbounded.
+        verify_crc: check each chunk's CRC-32 when the file has one.
+        threads: decompression threads (compressed chunks only).
+
+    Yields:
+        Messages whose data is a read-only ``memoryview`` (of the mapped file, or of a
+        decompressed chunk); it stays valid after the iteration ends.
+
+    Raises:
+        ValueError: an inconsistent index or chunk (names the chunk's byte offset).
+    """
+    channels = {c.id: c for c in connections}
+    lo = 0 if start is None else start
+    hi = 2**63 if stop is None else stop
+    infos = [c for c in storage.chunks
+             if c.message_end_time >= lo and c.message_start_time < hi and _may_hold(c, channels)]
+    infos.sort(key=lambda c: (c.message_start_time, c.chunk_start_offset))
+    if not infos or not channels:
+        return
+    with open(storage.path, "rb") as fh:
+        mapped = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+    file_view = memoryview(mapped)
+    compressed = any(c.compression for c in infos)
+    pool = ThreadPoolExecutor(max(1, threads), thread_name_prefix="mcap-chunk") \
+        if compressed and threads > 0 else None
+    ahead = 2 * max(1, threads)
+    try:
+        chunks = [_Chunk(info, file_view) for info in infos]
+        futures: dict[int, Future[memoryview]] = {}
+
+        def records(i: int) -> memoryview:
+            if pool is None or not chunks[i].compression:
+                return chunks[i].records(verify_crc)
+            for j in range(i, min(i + ahead, len(chunks))):
+                if j not in futures and chunks[j].compression:
+                    futures[j] = pool.submit(chunks[j].records, verify_crc)
+            return futures.pop(i).result()
+
+        pending: list[tuple[int, int, int, Any, memoryview]] = []
+        for i, chunk in enumerate(chunks):
+            t0 = chunk.info.message_start_time
+            while pending and pending[0][0] < t0:     # nothing later can come before these
+                m = heapq.heappop(pending)
+                yield m[3], m[0], m[4]
+            msgs = _messages_of(chunk, records(i), channels, lo, hi)
+            if not pending and (i + 1 == len(chunks)
+                                or not msgs or msgs[-1][0] < chunks[i + 1].info.message_start_time):
+                for m in msgs:                        # the common case: chunks in time order
+                    yield m[3], m[0], m[4]
+                continue
+            for m in msgs:
+                heapq.heappush(pending, m)
+        while pending:
+            m = heapq.heappop(pending)
+            yield m[3], m[0], m[4]
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+        try:          # views handed out keep the mapping alive; it is unmapped when they go
+            file_view.release()
+            mapped.close()
+        except BufferError:
+            pass
