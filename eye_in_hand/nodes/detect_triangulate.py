@@ -19,9 +19,10 @@ Publishes:
     residual, covariance, dropped pairs, sync drops, processing time, bad-input causes.
 
 Processing runs on a worker thread, never on the executor thread: the image callbacks only
-pair frames (:class:`~eye_in_hand.core.sync.ApproximateStereoSync`) and hand the newest pair to
-the worker; a pair still waiting when a newer one arrives is dropped (drop-oldest) and counted,
-so the node never lags behind the cameras.
+pair frames (:class:`~eye_in_hand.core.sync.ApproximateStereoSync`) and queue the pair for the
+worker; at most ``queue_depth`` pairs wait, and a pair arriving at a full queue drops the oldest
+one (counted), so a stall of the worker costs latency for a few frames, not frames, and the
+node never lags far behind the cameras.
 
 Bad input (wrong encoding, size disagreeing with camera_info, empty or truncated data,
 unsynchronised frames, missing camera_info) is logged once per cause, counted on
@@ -31,6 +32,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections import deque
 import time
 import traceback
 from typing import Any
@@ -84,6 +86,8 @@ NODE_PARAMETERS: tuple[Param, ...] = (
     Param("sync.slop_s", 0.005, "largest left/right stamp difference of a stereo pair (s); "
           "0 = exact stamps only", range=(0.0, 1.0)),
     Param("sync.queue_size", 5, "frames per side waiting for a partner", range=(1, 100)),
+    Param("queue_depth", 3, "stereo pairs waiting for the worker; when full the oldest is "
+          "dropped (counted as dropped_pairs). 1 = only ever the newest pair", range=(1, 30)),
     Param("debug_image.max_rate_hz", 5.0, "rate limit of target/debug_image (Hz); 0 = never "
           "publish it", range=(0.0, 100.0)),
     Param("diagnostics_period_s", 1.0, "diagnostics publication period (s)",
@@ -103,31 +107,45 @@ def _to_param(spec: ParamSpec, name: str | None = None) -> Param:
                  choices=spec.choices or None)
 
 
-class _LatestPair:
-    """One-slot, drop-oldest hand-over from the executor thread to the worker."""
+class _PairQueue:
+    """Bounded drop-oldest hand-over from the executor thread to the worker.
 
-    def __init__(self) -> None:
+    Holds at most ``depth`` pairs; putting one into a full queue drops the oldest waiting pair.
+    ``depth`` 1 keeps only the newest pair (lowest latency, drops on any hiccup); a few pairs
+    ride out a stall of the worker (a garbage collection, a burst of DDS deliveries) without
+    losing frames, at the cost of a little latency for the frames that waited.
+    """
+
+    def __init__(self, depth: int = 1) -> None:
+        if depth < 1:
+            raise InputError(f"queue depth must be >= 1, got {depth}")
         self._cond = threading.Condition()
-        self._pair: StereoPair[Image] | None = None
+        self._pairs: deque[StereoPair[Image]] = deque()
+        self._depth = depth
         self._stop = False
         self.dropped = 0
 
     def put(self, pair: StereoPair[Image]) -> bool:
-        """Store the pair; returns True when an unprocessed older pair was dropped."""
+        """Queue the pair; returns True when an unprocessed older pair was dropped for it."""
         with self._cond:
-            dropped = self._pair is not None
+            dropped = len(self._pairs) >= self._depth
             if dropped:
+                self._pairs.popleft()
                 self.dropped += 1
-            self._pair = pair
+            self._pairs.append(pair)
             self._cond.notify()
         return dropped
 
     def take(self, timeout_s: float) -> StereoPair[Image] | None:
+        """The oldest waiting pair, waiting up to ``timeout_s`` for one (None: none came)."""
         with self._cond:
-            if self._pair is None and not self._stop:
+            if not self._pairs and not self._stop:
                 self._cond.wait(timeout_s)
-            pair, self._pair = self._pair, None
-            return pair
+            return self._pairs.popleft() if self._pairs else None
+
+    def __len__(self) -> int:
+        with self._cond:
+            return len(self._pairs)
 
     def stop(self) -> None:
         with self._cond:
@@ -188,7 +206,7 @@ class DetectTriangulateNode(Node):
         self._sync: ApproximateStereoSync[Image] = ApproximateStereoSync(
             slop_ns, node_values["sync.queue_size"])
         self._sync_seen = (0, 0)
-        self._slot = _LatestPair()
+        self._slot = _PairQueue(node_values["queue_depth"])
 
         names = [t.name for t in self.config.detector.targets]
         self._pub_point = self.create_publisher(_point_type(), "target/point", RESULT_QOS)
