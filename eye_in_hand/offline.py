@@ -11,10 +11,13 @@ One pass over the bag in log-time order:
   ``hand_eye`` node waits for one), then is mapped into the base frame, exactly as ``hand_eye``
   does.
 
-Decoding (bag decompression, CDR deserialization, image views) runs on a reader thread while the
-main thread locates, so both cores work. The locator runs on one thread, in stamp order, so its
-state (``selection: nearest``) evolves as in the live node. The live and offline paths therefore
-give the same numbers on the same bag.
+The bag is read without copying pixels: uncompressed MCAP chunks are memory-mapped and images
+decoded straight from their CDR bytes into views; compressed chunks are decompressed a few
+chunks ahead on threads. Reading runs on a thread, and stereo pairs are located by worker
+processes that map the same file pages (threads for images that live only in this process's
+memory), results taken back in stamp order. With ``selection: nearest`` the locator runs in the
+main thread, in stamp order, so its state evolves as in the live node. The live and offline
+paths therefore give the same numbers on the same bag.
 """
 from __future__ import annotations
 
@@ -56,9 +59,10 @@ class ProcessOptions:
         camera_frame: frame id of the output points.
         sync_slop_s, sync_queue_size: stereo pairing, as ``detect_triangulate``'s ``sync.*``.
         max_pose_gap_s, robot_sigma_pos_m, robot_sigma_rot_rad: as the ``hand_eye`` node's.
-        workers: threads locating stereo pairs (OpenCV releases the GIL). Results are consumed
-            in stamp order; with ``selection: nearest`` (which depends on the previous frame)
-            one thread is used whatever this says, so the numbers never depend on it.
+        workers: processes (or threads, see :class:`_PairPool`) locating stereo pairs; 1 =
+            in the calling thread. Results are consumed in stamp order; with ``selection:
+            nearest`` (which depends on the previous frame) one is used whatever this says, so
+            the numbers never depend on it.
         verify_crc: check MCAP chunk CRCs (off by default, as in the MCAP reference readers:
             CRC-32 costs about 16 ms per 1280x720 colour stereo pair here).
     """
@@ -103,8 +107,10 @@ class FrameResult:
 
     Attributes:
         stamp_ns: the image stamp.
-        status: ``"ok"``, ``"no_target"`` (with the locator's reason in ``reason``), or
-            ``"no_robot_pose"`` (located in the camera, but no robot pose brackets the stamp).
+        status: ``"ok"``, ``"no_target"`` (with the locator's reason in ``reason``),
+            ``"no_robot_pose"`` (located in the camera, but no robot pose brackets the stamp),
+            or ``"bad_image"`` (an image that does not decode, or of the wrong size; counted in
+            ``bad_messages``).
         point_cam, cov_cam, residual_px, left_px, right_px: the triangulation (when located).
         point_base, cov_base: the base-frame result (status ok).
         truth_base: the ground-truth target at this stamp, when the bag has it.
@@ -132,13 +138,17 @@ class FrameResult:
 
 @dataclass
 class ProcessResult:
-    """All frames, counters, and what the bag covered."""
+    """All frames, counters, and what the bag covered.
+
+    ``located_in_processes``: pairs located by worker processes (the rest in this process).
+    """
 
     frames: list[FrameResult] = field(default_factory=list)
     counts: dict[str, int] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     duration_s: float = 0.0
     rig: StereoRig | None = None
+    located_in_processes: int = 0
 
     def ok(self) -> list[FrameResult]:
         return [f for f in self.frames if f.status == "ok"]
@@ -238,7 +248,7 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         BagError: the bag cannot be read or lacks a required topic.
         InputError: malformed settings.
     """
-    from eye_in_hand.io.bags import bag_info, require_topics, typestore_for
+    from eye_in_hand.io.bags import bag_info, memory_mappable, require_topics, typestore_for
     from eye_in_hand.ros.conversions import header_stamp_ns, point_to_xyz, pose_to_matrix
 
     opts = options or ProcessOptions()
@@ -262,6 +272,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         rig = _rig_from_camera_info(path, opts)
         result.rig = rig
     pool = _PairPool(rig, locator_config, opts.workers)
+    if memory_mappable(path):
+        pool.start_processes()     # they import and initialise while this process sets up
     truth: dict[int, np.ndarray] = {}
     pending: list[FrameResult] = []      # located, waiting for a robot pose after the stamp
     joint_index: np.ndarray | None = None
@@ -280,8 +292,16 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         while pending and (newest is None or pending[0].stamp_ns <= newest):
             finish(pending.pop(0))
 
+    def note(text: str) -> None:
+        if len(result.notes) < 20:
+            result.notes.append(text)
+
     def take(frame: FrameResult) -> None:
         result.frames.append(frame)
+        if frame.status == "bad_image":
+            counts["bad_messages"] += 1
+            note(f"stereo pair at {frame.stamp_ns} ns: {frame.reason}")
+            return
         counts["located" if frame.status == "located" else "no_target"] += 1
         if frame.status == "located":
             pending.append(frame)
@@ -289,45 +309,49 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
 
     typestore = typestore_for(path, {info.topics[t].msgtype for t in topics})
     errors: list[BaseException] = []
-    for topic, _t, msg in _decoded(path, topics, typestore, errors, opts.verify_crc):
-        if progress is not None:
-            progress(1)
-        try:
-            if isinstance(msg, Exception):
-                raise msg
-            if topic == opts.pose_topic:
-                stamp = header_stamp_ns(msg)
-                if opts.robot_pose_source == "ee_pose":
-                    T = pose_to_matrix(msg.pose)
-                else:
-                    names = list(msg.name)
-                    if joint_index is None:
-                        missing = [n for n in opts.kinematics.joint_names if n not in names]
-                        if missing:
-                            raise InputError(f"joint_states lacks {', '.join(missing)}")
-                        joint_index = np.array([names.index(n)
-                                                for n in opts.kinematics.joint_names])
-                    T = opts.kinematics.fk(np.asarray(msg.position, dtype=np.float64)[joint_index])
-                localizer.add_robot_pose(stamp, T)
-                flush(localizer.poses.newest_ns)
-            elif topic == opts.ground_truth_topic:
-                stamp = header_stamp_ns(msg)
-                truth.setdefault(stamp, point_to_xyz(msg.point))  # first target at a stamp
-            elif topic in (opts.left_topic, opts.right_topic):
-                stamp = header_stamp_ns(msg)
-                push = sync.push_left if topic == opts.left_topic else sync.push_right
-                for pair in push(stamp, msg):
-                    counts["pairs"] += 1
-                    pool.submit(pair)
-                for frame in pool.ready():
-                    take(frame)
-        except (BagError, ConversionError, InputError) as exc:
-            counts["bad_messages"] += 1
-            if len(result.notes) < 20:
-                result.notes.append(f"{topic} at {_t} ns: {exc}")
-    for frame in pool.ready(wait=True):
-        take(frame)
-    pool.close()
+    try:
+        for topic, _t, msg in _decoded(path, topics, typestore, errors, opts.verify_crc):
+            if progress is not None:
+                progress(1)
+            try:
+                if isinstance(msg, Exception):
+                    raise msg
+                if topic == opts.pose_topic:
+                    stamp = header_stamp_ns(msg)
+                    if opts.robot_pose_source == "ee_pose":
+                        T = pose_to_matrix(msg.pose)
+                    else:
+                        names = list(msg.name)
+                        if joint_index is None:
+                            missing = [n for n in opts.kinematics.joint_names if n not in names]
+                            if missing:
+                                raise InputError(f"joint_states lacks {', '.join(missing)}")
+                            joint_index = np.array([names.index(n)
+                                                    for n in opts.kinematics.joint_names])
+                        T = opts.kinematics.fk(
+                            np.asarray(msg.position, dtype=np.float64)[joint_index])
+                    localizer.add_robot_pose(stamp, T)
+                    flush(localizer.poses.newest_ns)
+                elif topic == opts.ground_truth_topic:
+                    stamp = header_stamp_ns(msg)
+                    truth.setdefault(stamp, point_to_xyz(msg.point))  # first target at a stamp
+                elif topic in (opts.left_topic, opts.right_topic):
+                    stamp = header_stamp_ns(msg)
+                    push = sync.push_left if topic == opts.left_topic else sync.push_right
+                    for pair in push(stamp, msg):
+                        counts["pairs"] += 1
+                        pool.submit(pair)
+                    for frame in pool.ready():
+                        take(frame)
+            except (BagError, ConversionError, InputError) as exc:
+                counts["bad_messages"] += 1
+                note(f"{topic} at {_t} ns: {exc}")
+        for frame in pool.ready(wait=True):
+            take(frame)
+    finally:
+        pool.close()
+    result.located_in_processes = pool.in_processes
+    result.notes.extend(pool.notes)
     flush(None)  # end of bag: the last points are resolved (or refused) now
     for frame in result.frames:
         frame.truth_base = truth.get(frame.stamp_ns)
@@ -356,23 +380,100 @@ def _rig_from_camera_info(path: Path, opts: ProcessOptions) -> StereoRig:
                                    source=f"{path} {opts.right_info_topic}")
 
 
-def _locate_pair(locator: StereoLocator, pair: Any) -> FrameResult:
+def _locate_pair(locator: StereoLocator, stamp_ns: int, left_msg: Any,
+                 right_msg: Any) -> FrameResult:
     from eye_in_hand.ros.conversions import image_to_numpy
 
-    left = image_to_numpy(pair.left, desired_encoding="bgr8")
-    right = image_to_numpy(pair.right, desired_encoding="bgr8")
-    res = locator.locate(left, right)
+    try:
+        left = image_to_numpy(left_msg, desired_encoding="bgr8")
+        right = image_to_numpy(right_msg, desired_encoding="bgr8")
+        res = locator.locate(left, right)
+    except (ConversionError, InputError) as exc:
+        return FrameResult(stamp_ns, "bad_image", str(exc))
     first = res.first
     if first is None:
-        return FrameResult(pair.stamp_ns, "no_target",
+        return FrameResult(stamp_ns, "no_target",
                            res.messages.get(res.first_name, res.rejected.get(res.first_name, "")))
-    return FrameResult(pair.stamp_ns, "located", point_cam=np.asarray(first.point_m),
+    return FrameResult(stamp_ns, "located", point_cam=np.asarray(first.point_m),
                        cov_cam=np.asarray(first.covariance), residual_px=float(first.residual_px),
                        left_px=np.asarray(first.left_px), right_px=np.asarray(first.right_px))
 
 
+# -- worker processes ------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _MappedImage:
+    """Where an image's pixels lie in a bag file, with the fields needed to decode them."""
+
+    path: str
+    offset: int
+    nbytes: int
+    height: int
+    width: int
+    step: int
+    encoding: str
+    is_bigendian: int
+
+    @classmethod
+    def of(cls, msg: Any) -> _MappedImage | None:
+        from eye_in_hand.io.mcap_chunks import file_location
+
+        data = getattr(msg, "data", None)
+        if not isinstance(data, np.ndarray):
+            return None
+        where = file_location(data)
+        if where is None:
+            return None
+        return cls(where[0], where[1], int(data.nbytes), int(msg.height), int(msg.width),
+                   int(msg.step), str(msg.encoding), int(msg.is_bigendian))
+
+
+class _ImageView:
+    """Duck-typed ``sensor_msgs/Image`` over a mapped file (what ``image_to_numpy`` reads)."""
+
+    def __init__(self, ref: _MappedImage, mapped: Any) -> None:
+        self.height, self.width, self.step = ref.height, ref.width, ref.step
+        self.encoding, self.is_bigendian = ref.encoding, ref.is_bigendian
+        self.data = np.frombuffer(mapped, dtype=np.uint8, count=ref.nbytes, offset=ref.offset)
+
+
+_WORKER: dict[str, Any] = {}
+
+
+def _worker_init(rig: StereoRig, config: LocatorConfig) -> None:
+    _WORKER["locator"] = StereoLocator(rig, config)
+    _WORKER["maps"] = {}
+
+
+def _worker_locate(stamp_ns: int, left: _MappedImage, right: _MappedImage) -> FrameResult:
+    import mmap
+
+    maps: dict[str, Any] = _WORKER["maps"]
+
+    def view(ref: _MappedImage) -> _ImageView:
+        mapped = maps.get(ref.path)
+        if mapped is None:
+            with open(ref.path, "rb") as fh:
+                mapped = maps[ref.path] = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+        return _ImageView(ref, mapped)
+
+    return _locate_pair(_WORKER["locator"], stamp_ns, view(left), view(right))
+
+
 class _PairPool:
-    """Locate stereo pairs on worker threads, handing results back in submission order."""
+    """Locate stereo pairs on workers, handing results back in submission order.
+
+    * ``selection: nearest`` (each frame depends on the previous one) or one worker: in the
+      calling thread.
+    * Otherwise, pairs whose pixels lie in a memory-mapped bag file (uncompressed MCAP chunks)
+      go to worker *processes* (:class:`eye_in_hand.workers.ProcessPool`), each with its own
+      locator, which map the same file pages: no pixel is copied or pickled, and the Python
+      parts of detection run truly in parallel. Other pairs (compressed chunks, sqlite3), and
+      every pair until a process is up (a few tenths of a second), go to a pool of threads
+      (OpenCV releases the GIL; Python does not).
+
+    The locators keep no state between frames under these selections, so where a pair was
+    located does not change its result.
+    """
 
     def __init__(self, rig: StereoRig, config: LocatorConfig, workers: int) -> None:
         from concurrent.futures import ThreadPoolExecutor
@@ -382,9 +483,27 @@ class _PairPool:
         self._workers = workers if parallel else 1
         self._local = threading.local()
         self._inline = StereoLocator(rig, config) if self._workers == 1 else None
-        self._pool = (ThreadPoolExecutor(self._workers, thread_name_prefix="locate")
-                      if self._inline is None else None)
+        self._threads = (ThreadPoolExecutor(self._workers, thread_name_prefix="locate")
+                         if self._inline is None else None)
+        self._procs: Any = None
+        self._tried_processes = False
+        self.in_processes = 0
+        self.notes: list[str] = []
         self._inflight: deque[Any] = deque()
+
+    def start_processes(self) -> None:
+        """Start the worker processes now (else: at the first pair that lies in a mapped file).
+        Does nothing when pairs are located in the calling thread."""
+        if self._inline is not None or self._tried_processes:
+            return
+        from eye_in_hand.workers import ProcessPool
+
+        self._tried_processes = True
+        try:
+            self._procs = ProcessPool(self._workers, "eye_in_hand.offline:_worker_init",
+                                      (self._rig, self._config))
+        except OSError as exc:
+            self.notes.append(f"worker processes unavailable ({exc}): pairs located on threads")
 
     def _locator(self) -> StereoLocator:
         loc = getattr(self._local, "locator", None)
@@ -393,16 +512,44 @@ class _PairPool:
         return loc
 
     def _work(self, pair: Any) -> FrameResult:
-        return _locate_pair(self._locator(), pair)
+        return _locate_pair(self._locator(), pair.stamp_ns, pair.left, pair.right)
+
+    def _to_process(self, pair: Any) -> Any:
+        """A process future for the pair, or None (not mapped, or no process ready)."""
+        from eye_in_hand.workers import WorkerError
+
+        left = _MappedImage.of(pair.left)
+        right = _MappedImage.of(pair.right) if left is not None else None
+        if left is None or right is None:
+            return None
+        if not self._tried_processes:
+            self.start_processes()
+        if self._procs is None or not self._procs.ready():
+            if self._procs is not None and not self._procs.alive():
+                self.notes.append("worker processes exited: pairs located on threads")
+                self._procs.close()
+                self._procs = None
+            return None
+        try:
+            fut = self._procs.submit("eye_in_hand.offline:_worker_locate", pair.stamp_ns, left,
+                                     right)
+        except WorkerError:
+            return None
+        self.in_processes += 1
+        return fut
 
     def submit(self, pair: Any) -> None:
         if self._inline is not None:
-            self._inflight.append(_locate_pair(self._inline, pair))
+            self._inflight.append(_locate_pair(self._inline, pair.stamp_ns, pair.left,
+                                               pair.right))
             return
-        assert self._pool is not None
-        if len(self._inflight) >= 2 * self._workers:   # bounded: keep memory flat
+        if len(self._inflight) >= 3 * self._workers:   # bounded: keep memory flat
             self._inflight[0].result()
-        self._inflight.append(self._pool.submit(self._work, pair))
+        fut = self._to_process(pair)
+        if fut is None:
+            assert self._threads is not None
+            fut = self._threads.submit(self._work, pair)
+        self._inflight.append(fut)
 
     def ready(self, wait: bool = False) -> Iterator[FrameResult]:
         """Finished results at the head of the queue (all of them with ``wait``), in order."""
@@ -417,8 +564,10 @@ class _PairPool:
                 return
 
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True)
+        if self._threads is not None:
+            self._threads.shutdown(wait=True, cancel_futures=True)
+        if self._procs is not None:
+            self._procs.close()
 
 
 def write_results(out: str | Path, result: ProcessResult, opts: ProcessOptions | None = None,

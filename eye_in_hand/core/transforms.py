@@ -10,10 +10,11 @@ argument; internal helpers trust their inputs.
 """
 from __future__ import annotations
 
+import math
+
 from typing import Iterable, Sequence
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from eye_in_hand.errors import InputError
 
@@ -41,6 +42,14 @@ __all__ = [
     "average_rotations",
     "average_transforms",
 ]
+
+def _rotation_class():
+    """``scipy.spatial.transform.Rotation``, imported on first use (scipy.spatial takes 0.2 s
+    to import; processes that only detect and triangulate never need it)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation
+
 
 #: Largest accepted deviation of R^T R from identity (max abs element) and of det(R) from 1.
 ORTHONORMAL_ATOL = 1e-6
@@ -169,17 +178,24 @@ def apply(T, points) -> np.ndarray:
 def quat_xyzw_to_matrix(quat_xyzw, name: str = "quat_xyzw") -> np.ndarray:
     """Rotation matrix from a quaternion (x, y, z, w); normalised, must not be near zero."""
     q = as_finite_array(np.ravel(quat_xyzw), name, (4,))
-    n = np.linalg.norm(q)
+    x, y, z, w = (float(v) for v in q)
+    n = math.sqrt(x * x + y * y + z * z + w * w)
     if n < 1e-9:
         raise InputError(f"{name}: quaternion has zero norm")
     if abs(n - 1.0) > 1e-3:
         raise InputError(f"{name}: quaternion norm is {n:.6f}, expected 1 (check xyzw order/units)")
-    return Rotation.from_quat(q / n).as_matrix()
+    x, y, z, w = x / n, y / n, z / n, w / n
+    # The unit-quaternion rotation matrix, written out (no BLAS call, no Rotation object: this
+    # runs for every robot pose).
+    return np.array([
+        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)],
+        [2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w)],
+        [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)]])
 
 
 def matrix_to_quat_xyzw(R) -> np.ndarray:
     """Quaternion (x, y, z, w) of a rotation matrix, canonical with w >= 0."""
-    q = Rotation.from_matrix(as_rotation(R, "R")).as_quat()
+    q = _rotation_class().from_matrix(as_rotation(R, "R")).as_quat()
     return -q if q[3] < 0 else q
 
 
@@ -201,7 +217,7 @@ def from_rotvec(rotvec, t=(0.0, 0.0, 0.0)) -> np.ndarray:
     """4x4 transform from a rotation vector (axis * angle, radians) and a translation."""
     rv = as_finite_array(np.ravel(rotvec), "rotvec", (3,))
     T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(rv).as_matrix()
+    T[:3, :3] = _rotation_class().from_rotvec(rv).as_matrix()
     T[:3, 3] = as_finite_array(np.ravel(t), "t", (3,))
     return T
 
@@ -210,7 +226,7 @@ def to_rotvec(T_or_R) -> np.ndarray:
     """Rotation vector (3,) of a 4x4 transform or 3x3 rotation."""
     arr = np.asarray(T_or_R, dtype=np.float64)
     R = as_transform(arr)[:3, :3] if arr.shape == (4, 4) else as_rotation(arr)
-    return Rotation.from_matrix(R).as_rotvec()
+    return _rotation_class().from_matrix(R).as_rotvec()
 
 
 def project_to_so3(M) -> np.ndarray:
@@ -235,7 +251,7 @@ def rotation_angle(R) -> float:
     c = np.clip((np.trace(arr) - 1.0) / 2.0, -1.0, 1.0)
     # arccos is inaccurate near 0; use the rotation vector norm there.
     if c > 0.99:
-        return float(np.linalg.norm(Rotation.from_matrix(arr).as_rotvec()))
+        return float(np.linalg.norm(_rotation_class().from_matrix(arr).as_rotvec()))
     return float(np.arccos(c))
 
 
@@ -271,17 +287,48 @@ def interpolate(stamp_ns: int, stamp0_ns: int, T0, stamp1_ns: int, T1) -> np.nda
 def interpolate_unchecked(stamp_ns: int, stamp0_ns: int, A: np.ndarray, stamp1_ns: int,
                           B: np.ndarray) -> np.ndarray:
     """:func:`interpolate` for transforms and stamps the caller has validated already (a pose
-    buffer's): slerp as ``R_A exp(s log(R_A^T R_B))``, lerp on translation."""
+    buffer's): quaternion slerp along the shorter arc (= ``R_A exp(s log(R_A^T R_B))``), lerp
+    on translation. Plain float arithmetic: it runs for every image."""
     if stamp1_ns == stamp0_ns:
         return np.array(A, dtype=np.float64)
     # Integer arithmetic first: ns stamps near 1.7e18 lose precision as float64.
     s = float(stamp_ns - stamp0_ns) / float(stamp1_ns - stamp0_ns)
+    q0 = _quat_of(A)
+    q1 = _quat_of(B)
+    if sum(a * b for a, b in zip(q0, q1)) < 0.0:
+        q1 = tuple(-v for v in q1)
+    # the angle between the quaternions, accurate also when they are nearly equal
+    theta = 2.0 * math.atan2(math.dist(q0, q1), math.dist(q0, tuple(-v for v in q1)))
+    if theta < 1e-12:
+        w0, w1 = 1.0 - s, s
+    else:
+        sin_t = math.sin(theta)
+        w0, w1 = math.sin((1.0 - s) * theta) / sin_t, math.sin(s * theta) / sin_t
+    q = [w0 * a + w1 * b for a, b in zip(q0, q1)]
     out = np.eye(4)
-    RA = A[:3, :3]
-    rotvec = Rotation.from_matrix(RA.T @ B[:3, :3]).as_rotvec()
-    out[:3, :3] = RA @ Rotation.from_rotvec(s * rotvec).as_matrix()
+    out[:3, :3] = quat_xyzw_to_matrix(q)
     out[:3, 3] = (1.0 - s) * A[:3, 3] + s * B[:3, 3]
     return out
+
+
+def _quat_of(T: np.ndarray) -> tuple[float, float, float, float]:
+    """Unit quaternion (x, y, z, w) of a rotation (block), Shepperd's method (stable)."""
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = np.asarray(T)[:3, :3].tolist()
+    tr = m00 + m11 + m22
+    if tr >= max(m00, m11, m22):
+        r = math.sqrt(1.0 + tr) * 2.0
+        q = ((m21 - m12) / r, (m02 - m20) / r, (m10 - m01) / r, 0.25 * r)
+    elif m00 >= m11 and m00 >= m22:
+        r = math.sqrt(1.0 + m00 - m11 - m22) * 2.0
+        q = (0.25 * r, (m01 + m10) / r, (m02 + m20) / r, (m21 - m12) / r)
+    elif m11 >= m22:
+        r = math.sqrt(1.0 + m11 - m00 - m22) * 2.0
+        q = ((m01 + m10) / r, 0.25 * r, (m12 + m21) / r, (m02 - m20) / r)
+    else:
+        r = math.sqrt(1.0 + m22 - m00 - m11) * 2.0
+        q = ((m02 + m20) / r, (m12 + m21) / r, 0.25 * r, (m10 - m01) / r)
+    n = math.sqrt(sum(v * v for v in q))
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
 
 
 def average_rotations(rotations: Sequence | np.ndarray,
@@ -305,7 +352,7 @@ def average_rotations(rotations: Sequence | np.ndarray,
         w = np.asarray(list(weights), dtype=np.float64)
         if w.shape != (arr.shape[0],) or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
             raise InputError("weights: expected N finite non-negative values with a positive sum")
-    return Rotation.from_matrix(arr).mean(weights=w).as_matrix()
+    return _rotation_class().from_matrix(arr).mean(weights=w).as_matrix()
 
 
 def average_transforms(transforms: Sequence | np.ndarray,

@@ -55,6 +55,7 @@ __all__ = [
     "bag_info",
     "iter_messages",
     "iter_decoded",
+    "memory_mappable",
     "typestore_for",
     "default_typestore",
     "deserialize",
@@ -561,6 +562,23 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
         except Exception as exc:
             raise BagError(f"cannot read bag {bag.path} after message {index}: "
                            f"{str(exc) or type(exc).__name__}") from exc
+
+
+def memory_mappable(path: str | Path) -> bool:
+    """Whether every storage file of a bag is an indexed MCAP file with uncompressed chunks,
+    i.e. whether ``iter_messages(..., views=True)`` yields views of the files themselves."""
+    from eye_in_hand.io import mcap_chunks
+
+    with _OpenBag(path) as bag:
+        for reader in bag.readers:
+            inner = reader.storage
+            if getattr(inner, "metadata", None) is not None and \
+                    getattr(inner.metadata, "compression_mode", "") == "message":
+                return False
+            for part in (list(inner.storages) if hasattr(inner, "storages") else [inner]):
+                if not mcap_chunks.supports(part) or any(c.compression for c in part.chunks):
+                    return False
+    return True
 
 
 def iter_decoded(path: str | Path, topics: Iterable[str] | None = None,

@@ -17,24 +17,57 @@ order inside the chunk; chunks that overlap in time are merged.
 
 Files it cannot read this way (no summary, no chunk index, messages outside chunks) are left to
 ``rosbags``: :func:`supports` says which.
+
+While a file is being read, :func:`file_location` tells where in it a view of an uncompressed
+message lies, so that another process can map the same pages instead of receiving a copy
+(offline processing hands images to worker processes this way).
 """
 from __future__ import annotations
 
 import heapq
 import mmap
 import struct
+import threading
 import zlib
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
-__all__ = ["supports", "chunk_messages"]
+__all__ = ["supports", "chunk_messages", "file_location"]
 
 _RECORD = struct.Struct("<BQ")           # opcode, record length
 _MESSAGE = struct.Struct("<HIQQ")        # channel id, sequence, log time, publish time
 _CHUNK_HEAD = struct.Struct("<QQQI")     # start, end, uncompressed size, uncompressed crc
 _U32 = struct.Struct("<I")
 _U64 = struct.Struct("<Q")
+
+
+_MAPPED: dict[int, tuple[int, int, str]] = {}     # id -> (base address, length, path)
+_MAPPED_LOCK = threading.Lock()
+
+
+def _address(buffer: Any) -> int:
+    import numpy as np
+
+    return int(np.frombuffer(buffer, dtype=np.uint8, count=1).ctypes.data) if len(buffer) else 0
+
+
+def file_location(array: Any) -> tuple[str, int] | None:
+    """``(path, byte offset)`` of a buffer (a numpy array or memoryview of message data) that
+    lies in an MCAP file being read by :func:`chunk_messages`; None otherwise (a decompressed
+    chunk, or a file whose iteration has ended)."""
+    import numpy as np
+
+    arr = np.asarray(array) if not isinstance(array, memoryview) else \
+        np.frombuffer(array, dtype=np.uint8)
+    if arr.nbytes == 0:
+        return None
+    start = int(arr.__array_interface__["data"][0])
+    with _MAPPED_LOCK:
+        for base, length, path in _MAPPED.values():
+            if base <= start and start + arr.nbytes <= base + length:
+                return path, start - base
+    return None
 
 
 def supports(storage: Any) -> bool:
@@ -168,6 +201,9 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
     with open(storage.path, "rb") as fh:
         mapped = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
     file_view = memoryview(mapped)
+    key = id(file_view)
+    with _MAPPED_LOCK:
+        _MAPPED[key] = (_address(file_view), len(file_view), str(Path(storage.path).resolve()))
     compressed = any(c.compression for c in infos)
     pool = ThreadPoolExecutor(max(1, threads), thread_name_prefix="mcap-chunk") \
         if compressed and threads > 0 else None
@@ -202,6 +238,8 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
             m = heapq.heappop(pending)
             yield m[3], m[0], m[4]
     finally:
+        with _MAPPED_LOCK:
+            _MAPPED.pop(key, None)
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
         try:          # views handed out keep the mapping alive; it is unmapped when they go

@@ -1,0 +1,53 @@
+"""eye_in_hand.workers: the subprocess pool (results, task errors, dying workers)."""
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+
+from eye_in_hand.workers import ProcessPool, WorkerError
+
+
+def _wait_ready(pool: ProcessPool, timeout_s: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not pool.ready() and pool.alive() and time.monotonic() < deadline:
+        time.sleep(0.01)
+
+
+def test_results_come_back_from_every_worker():
+    with ProcessPool(2, "builtins:len", ((),)) as pool:
+        _wait_ready(pool)
+        assert pool.ready()
+        futs = [pool.submit("math:sqrt", float(i)) for i in range(50)]
+        assert [f.result(timeout=30) for f in futs] == [math.sqrt(i) for i in range(50)]
+        pids = {pool.submit("os:getpid").result(timeout=30) for _ in range(20)}
+        assert len(pids) >= 1
+
+
+def test_a_task_error_carries_its_traceback_and_the_worker_goes_on():
+    with ProcessPool(1, "builtins:len", ((),)) as pool:
+        _wait_ready(pool)
+        with pytest.raises(WorkerError, match="ValueError: math domain error"):
+            pool.submit("math:sqrt", -1.0).result(timeout=30)
+        assert pool.submit("math:sqrt", 4.0).result(timeout=30) == 2.0
+
+
+def test_a_dying_worker_fails_its_task_and_leaves_the_pool():
+    with ProcessPool(1, "builtins:len", ((),)) as pool:
+        _wait_ready(pool)
+        fut = pool.submit("os:_exit", 3)
+        with pytest.raises(WorkerError, match="exited with code 3"):
+            fut.result(timeout=30)
+        deadline = time.monotonic() + 10
+        while pool.alive() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert not pool.alive() and not pool.ready()
+        with pytest.raises(WorkerError, match="no worker process is ready"):
+            pool.submit("math:sqrt", 1.0)
+
+
+def test_a_failing_initialiser_leaves_no_ready_worker():
+    with ProcessPool(2, "math:sqrt", ("not a number",)) as pool:
+        _wait_ready(pool)
+        assert not pool.ready() and not pool.alive()
