@@ -440,6 +440,9 @@ _WORKER: dict[str, Any] = {}
 
 
 def _worker_init(rig: StereoRig, config: LocatorConfig) -> None:
+    import cv2
+
+    cv2.setNumThreads(1)      # one process per core already: no thread pools inside
     _WORKER["locator"] = StereoLocator(rig, config)
     _WORKER["maps"] = {}
 
@@ -501,7 +504,8 @@ class _PairPool:
         self._tried_processes = True
         try:
             self._procs = ProcessPool(self._workers, "eye_in_hand.offline:_worker_init",
-                                      (self._rig, self._config))
+                                      (self._rig, self._config),
+                                      env={"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"})
         except OSError as exc:
             self.notes.append(f"worker processes unavailable ({exc}): pairs located on threads")
 

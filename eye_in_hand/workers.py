@@ -131,15 +131,17 @@ class _Worker:
 
 
 class ProcessPool:
-    """``n`` worker processes, each initialised by ``init(*init_args)`` (``"module:function"``).
+    """``n`` worker processes, each initialised by ``init(*init_args)`` (``"module:function"``),
+    with ``env`` added to this process's environment.
 
     Processes start at once and become usable after importing and initialising (typically a
     few tenths of a second); :meth:`ready` says whether one is. ``init_args`` and every task's
     arguments and result must pickle.
     """
 
-    def __init__(self, n: int, init: str, init_args: tuple[Any, ...] = ()) -> None:
-        env = dict(os.environ)
+    def __init__(self, n: int, init: str, init_args: tuple[Any, ...] = (),
+                 env: dict[str, str] | None = None) -> None:
+        env = {**os.environ, **(env or {})}
         root = str(Path(__file__).resolve().parent.parent)   # this package, wherever it is
         env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
         self._workers = [_Worker(init, init_args, env) for _ in range(max(1, n))]
