@@ -271,9 +271,6 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     if rig is None:
         rig = _rig_from_camera_info(path, opts)
         result.rig = rig
-    pool = _PairPool(rig, locator_config, opts.workers)
-    if memory_mappable(path):
-        pool.start_processes()     # they import and initialise while this process sets up
     truth: dict[int, np.ndarray] = {}
     pending: list[FrameResult] = []      # located, waiting for a robot pose after the stamp
     joint_index: np.ndarray | None = None
@@ -307,9 +304,12 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
             pending.append(frame)
             flush(localizer.poses.newest_ns)
 
-    typestore = typestore_for(path, {info.topics[t].msgtype for t in topics})
-    errors: list[BaseException] = []
+    pool = _PairPool(rig, locator_config, opts.workers)
     try:
+        if memory_mappable(path):
+            pool.start_processes()     # they import and initialise while this process sets up
+        typestore = typestore_for(path, {info.topics[t].msgtype for t in topics})
+        errors: list[BaseException] = []
         for topic, _t, msg in _decoded(path, topics, typestore, errors, opts.verify_crc):
             if progress is not None:
                 progress(1)
@@ -543,27 +543,45 @@ class _PairPool:
         return fut
 
     def submit(self, pair: Any) -> None:
+        from concurrent.futures import wait
+
         if self._inline is not None:
-            self._inflight.append(_locate_pair(self._inline, pair.stamp_ns, pair.left,
-                                               pair.right))
+            self._inflight.append((_locate_pair(self._inline, pair.stamp_ns, pair.left,
+                                                pair.right), pair))
             return
         if len(self._inflight) >= 3 * self._workers:   # bounded: keep memory flat
-            self._inflight[0].result()
+            wait([self._inflight[0][0]])
         fut = self._to_process(pair)
         if fut is None:
             assert self._threads is not None
             fut = self._threads.submit(self._work, pair)
-        self._inflight.append(fut)
+        self._inflight.append((fut, pair))
+
+    def _result(self, fut: Any, pair: Any) -> FrameResult:
+        from eye_in_hand.workers import WorkerError
+
+        try:
+            return fut.result()
+        except WorkerError as exc:
+            # a worker died (or its task failed in the worker): locate the pair here, where
+            # a real problem with it raises normally
+            self.in_processes -= 1
+            if not any(n.startswith("a worker process failed") for n in self.notes):
+                first = str(exc).strip().splitlines()[-1] if str(exc).strip() else "no reason"
+                self.notes.append(f"a worker process failed ({first}); its pairs were located "
+                                  "again in this process")
+            return self._work(pair)
 
     def ready(self, wait: bool = False) -> Iterator[FrameResult]:
         """Finished results at the head of the queue (all of them with ``wait``), in order."""
         while self._inflight:
-            head = self._inflight[0]
+            head, pair = self._inflight[0]
             if isinstance(head, FrameResult):
-                yield self._inflight.popleft()
+                self._inflight.popleft()
+                yield head
             elif wait or head.done():
                 self._inflight.popleft()
-                yield head.result()
+                yield self._result(head, pair)
             else:
                 return
 

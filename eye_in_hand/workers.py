@@ -3,9 +3,11 @@
 ``multiprocessing`` start methods that are safe in a process with threads (``spawn``,
 ``forkserver``) re-import the caller's ``__main__`` in every child, which breaks scripts
 without an ``if __name__ == "__main__"`` guard, and ``fork`` is unsafe once threads (OpenCV's,
-DDS's) exist. These workers are plain ``python -m eye_in_hand.workers`` subprocesses instead:
-they import only the function they run, talk to the parent over their stdin/stdout with
-length-prefixed pickles, ignore Ctrl-C (the parent decides) and exit when their stdin closes.
+DDS's) exist. These workers are plain ``python`` subprocesses instead: they import this package
+from the same place as the parent (never from their working directory), talk to the parent over
+a private copy of their stdout and their stdin with length-prefixed pickles (anything printed to
+stdout, also by C code such as OpenCV's logger, goes to stderr), run in their own session so
+Ctrl-C is the parent's to handle, and exit when their stdin closes.
 
 Usage::
 
@@ -14,12 +16,14 @@ Usage::
     ...
     pool.close()
 
-``submit`` returns a :class:`concurrent.futures.Future`; a worker that dies fails its pending
+``submit`` returns a :class:`concurrent.futures.Future`; a task that raises fails its future
+with :class:`WorkerError` carrying the traceback, and a worker that dies fails its pending
 futures with :class:`WorkerError` (naming its exit code) and takes no more work.
 """
 from __future__ import annotations
 
 import importlib
+import itertools
 import os
 import pickle
 import struct
@@ -30,30 +34,34 @@ from concurrent.futures import Future
 from pathlib import Path
 from typing import Any, BinaryIO
 
+from eye_in_hand.errors import EyeInHandError
+
 __all__ = ["WorkerError", "ProcessPool"]
 
 _LEN = struct.Struct("<Q")
+_MAX_FRAME = 1 << 31          # a larger length prefix is a corrupt channel, not a message
 
 
-class WorkerError(RuntimeError):
+class WorkerError(EyeInHandError, RuntimeError):
     """A worker process died, or a task raised (the message carries its traceback)."""
 
 
-def _send(stream: BinaryIO, obj: Any) -> None:
+def _frame(obj: Any) -> bytes:
     data = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
-    stream.write(_LEN.pack(len(data)) + data)
-    stream.flush()
+    return _LEN.pack(len(data)) + data
 
 
-def _recv(stream: BinaryIO) -> Any:
+def _recv_bytes(stream: BinaryIO) -> bytes:
     head = stream.read(_LEN.size)
     if len(head) < _LEN.size:
         raise EOFError
     (n,) = _LEN.unpack(head)
+    if n > _MAX_FRAME:
+        raise EOFError(f"corrupt channel: frame length {n}")
     data = stream.read(n)
     if len(data) < n:
         raise EOFError
-    return pickle.loads(data)
+    return data
 
 
 def _resolve(name: str) -> Any:
@@ -61,16 +69,39 @@ def _resolve(name: str) -> Any:
     return getattr(importlib.import_module(module), attr)
 
 
+#: The child's bootstrap: drop the working directory from sys.path, and use this package's
+#: copy when the child's own sys.path would find another one (or none).
+_BOOT = """\
+import importlib.util, os, sys
+root = {root!r}
+sys.path.pop(0)
+spec = importlib.util.find_spec("eye_in_hand")
+if spec is None or os.path.dirname(os.path.dirname(os.path.abspath(spec.origin))) != root:
+    sys.path.insert(0, root)
+from eye_in_hand.workers import _serve
+sys.exit(_serve())
+"""
+
+
 class _Worker:
-    def __init__(self, init: str, init_args: tuple[Any, ...], env: dict[str, str]) -> None:
-        self.proc = subprocess.Popen([sys.executable, "-m", "eye_in_hand.workers"],
-                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
+    def __init__(self, init: str, init_args: tuple[Any, ...], env: dict[str, str],
+                 root: str) -> None:
+        boot = _frame(("init", init, init_args))   # pickling errors surface here, not later
+        self.proc = subprocess.Popen([sys.executable, "-c", _BOOT.format(root=root)],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,
+                                     start_new_session=True)
         self.pending: dict[int, Future[Any]] = {}
         self.ready = threading.Event()
         self.dead = False
-        self.lock = threading.Lock()
+        self.closed = False
+        self._state = threading.Lock()       # pending, dead
+        self._write = threading.Lock()       # the stdin pipe (never held with _state)
         assert self.proc.stdin is not None
-        _send(self.proc.stdin, ("init", init, init_args))
+        try:
+            self.proc.stdin.write(boot)
+            self.proc.stdin.flush()
+        except OSError:
+            pass                              # the reader sees the exit and cleans up
         self.reader = threading.Thread(target=self._read, name=f"worker-{self.proc.pid}",
                                        daemon=True)
         self.reader.start()
@@ -79,47 +110,72 @@ class _Worker:
         assert self.proc.stdout is not None
         try:
             while True:
-                kind, task, payload = _recv(self.proc.stdout)
+                kind, task, payload = pickle.loads(_recv_bytes(self.proc.stdout))
                 if kind == "ready":
                     self.ready.set()
                     continue
-                with self.lock:
+                with self._state:
                     fut = self.pending.pop(task, None)
-                if fut is None:
-                    continue
+                if fut is None or not fut.set_running_or_notify_cancel():
+                    continue                  # unknown task, or cancelled by the caller
                 if kind == "result":
                     fut.set_result(payload)
                 else:
                     fut.set_exception(WorkerError(payload))
-        except (EOFError, OSError, pickle.UnpicklingError):
+        except BaseException:  # noqa: BLE001 - EOF, a corrupt channel: the worker is gone
             pass
-        code = self.proc.wait()
-        with self.lock:
+        finally:
+            self._finish()
+
+    def _finish(self) -> None:
+        """Mark the worker dead and fail what it still owed (from the reader thread)."""
+        if self.proc.stdout is not None:
+            try:
+                self.proc.stdout.close()
+            except OSError:
+                pass
+        try:
+            code = self.proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:       # alive but its channel is broken
+            self.proc.kill()
+            code = self.proc.wait()
+        with self._state:
             self.dead = True
             pending, self.pending = self.pending, {}
         for fut in pending.values():
-            fut.set_exception(WorkerError(f"worker process {self.proc.pid} exited with code "
-                                          f"{code} before finishing its task"))
+            if fut.set_running_or_notify_cancel():
+                fut.set_exception(WorkerError(
+                    f"worker process {self.proc.pid} exited with code {code} before finishing "
+                    "its task"))
         self.ready.set()  # wake anyone waiting for a worker that will never be ready
 
     def submit(self, task: int, fn: str, args: tuple[Any, ...]) -> Future[Any]:
+        # the call is pickled on its own, so that a worker that cannot unpickle it can still
+        # say which task failed
+        data = _frame(("call", task, pickle.dumps((fn, args), protocol=pickle.HIGHEST_PROTOCOL)))
         fut: Future[Any] = Future()
-        with self.lock:
-            if self.dead:
+        with self._state:
+            if self.dead or self.closed:
                 raise WorkerError(f"worker process {self.proc.pid} has exited")
             self.pending[task] = fut
-            assert self.proc.stdin is not None
-            try:
-                _send(self.proc.stdin, ("call", task, (fn, args)))
-            except (BrokenPipeError, OSError) as exc:
+        try:
+            with self._write:
+                assert self.proc.stdin is not None
+                self.proc.stdin.write(data)
+                self.proc.stdin.flush()
+        except (OSError, ValueError) as exc:
+            with self._state:
                 self.pending.pop(task, None)
-                raise WorkerError(f"worker process {self.proc.pid}: {exc}") from exc
+            raise WorkerError(f"worker process {self.proc.pid}: {exc}") from exc
         return fut
 
     def close(self) -> None:
+        with self._state:
+            self.closed = True
         try:
-            if self.proc.stdin is not None:
-                self.proc.stdin.close()
+            with self._write:
+                if self.proc.stdin is not None:
+                    self.proc.stdin.close()
         except OSError:
             pass
         try:
@@ -137,15 +193,23 @@ class ProcessPool:
     Processes start at once and become usable after importing and initialising (typically a
     few tenths of a second); :meth:`ready` says whether one is. ``init_args`` and every task's
     arguments and result must pickle.
+
+    Raises:
+        OSError: a process cannot be started (those already started are closed).
     """
 
     def __init__(self, n: int, init: str, init_args: tuple[Any, ...] = (),
                  env: dict[str, str] | None = None) -> None:
         env = {**os.environ, **(env or {})}
         root = str(Path(__file__).resolve().parent.parent)   # this package, wherever it is
-        env["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [env.get("PYTHONPATH")])])
-        self._workers = [_Worker(init, init_args, env) for _ in range(max(1, n))]
-        self._next = 0
+        self._workers: list[_Worker] = []
+        self._ids = itertools.count(1)
+        try:
+            for _ in range(max(1, n)):
+                self._workers.append(_Worker(init, init_args, env, root))
+        except BaseException:
+            self.close()
+            raise
 
     def ready(self) -> bool:
         """Whether at least one worker is initialised and alive."""
@@ -158,14 +222,13 @@ class ProcessPool:
         """Run ``fn(*args)`` (``"module:function"``) on the least busy ready worker.
 
         Raises:
-            WorkerError: no worker is ready and alive.
+            WorkerError: no worker is ready and alive, or the task cannot be sent.
         """
         live = [w for w in self._workers if w.ready.is_set() and not w.dead]
         if not live:
             raise WorkerError("no worker process is ready")
         worker = min(live, key=lambda w: len(w.pending))
-        self._next += 1
-        return worker.submit(self._next, fn, args)
+        return worker.submit(next(self._ids), fn, args)
 
     def close(self) -> None:
         """Close the workers' stdin (they exit) and wait for them."""
@@ -181,29 +244,39 @@ class ProcessPool:
 
 def _serve() -> int:
     """The worker's loop: init, then calls until stdin closes."""
-    import signal
     import traceback
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)    # the parent handles Ctrl-C and closes us
-    stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
-    sys.stdout = sys.stderr                         # stray prints must not corrupt the channel
+    stdin = sys.stdin.buffer
+    # Results travel on a private copy of fd 1; fd 1 itself (Python prints, C code such as
+    # OpenCV's logger) now goes to stderr, so nothing can corrupt the channel.
+    channel = os.fdopen(os.dup(1), "wb")
+    os.dup2(2, 1)
+    sys.stdout = sys.stderr
+
+    def send(obj: Any) -> None:
+        channel.write(_frame(obj))
+        channel.flush()
+
     try:
-        kind, init, init_args = _recv(stdin)
+        _kind, init, init_args = pickle.loads(_recv_bytes(stdin))
     except EOFError:
         return 0
     _resolve(init)(*init_args)
-    _send(stdout, ("ready", 0, os.getpid()))
+    send(("ready", 0, os.getpid()))
     while True:
         try:
-            _kind, task, (fn, args) = _recv(stdin)
+            raw = _recv_bytes(stdin)
         except EOFError:
             return 0
+        _kind, task, call = pickle.loads(raw)
         try:
+            fn, args = pickle.loads(call)
             result = _resolve(fn)(*args)
+            frame = _frame(("result", task, result))
         except Exception:  # noqa: BLE001 - handed to the parent with its traceback
-            _send(stdout, ("error", task, traceback.format_exc()))
-            continue
-        _send(stdout, ("result", task, result))
+            frame = _frame(("error", task, traceback.format_exc()))
+        channel.write(frame)
+        channel.flush()
 
 
 if __name__ == "__main__":

@@ -92,3 +92,38 @@ def test_process_bag_is_the_same_on_both_storages_and_any_worker_count(bags):
         for a, b in zip(other.frames, first.frames):
             assert a.stamp_ns == b.stamp_ns
             np.testing.assert_array_equal(a.point_base, b.point_base)
+
+
+def test_a_worker_process_that_dies_costs_no_pair(bags):
+    import os
+    import signal
+
+    world, zstd, raw = bags
+    cfg = load_locator_config(None)
+    inline = _PairPool(world.rig, cfg, 1)
+    expected = []
+    for pair in _pairs(raw):
+        inline.submit(pair)
+    expected = list(inline.ready(wait=True))
+    inline.close()
+
+    pool = _PairPool(world.rig, cfg, 2)
+    pool.start_processes()
+    deadline = time.monotonic() + 60
+    while not (pool._procs and all(w.ready.is_set() for w in pool._procs._workers)) \
+            and time.monotonic() < deadline:
+        time.sleep(0.01)
+    victim = pool._procs._workers[0].proc.pid
+    out = []
+    try:
+        for i, pair in enumerate(_pairs(raw)):
+            pool.submit(pair)
+            if i == 2:
+                os.kill(victim, signal.SIGKILL)     # with pairs in flight on it
+        out.extend(pool.ready(wait=True))
+    finally:
+        pool.close()
+    assert [f.stamp_ns for f in out] == [f.stamp_ns for f in expected]
+    for a, b in zip(out, expected):
+        np.testing.assert_array_equal(a.point_cam, b.point_cam)
+    assert any("worker process" in n for n in pool.notes), pool.notes

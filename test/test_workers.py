@@ -51,3 +51,41 @@ def test_a_failing_initialiser_leaves_no_ready_worker():
     with ProcessPool(2, "math:sqrt", ("not a number",)) as pool:
         _wait_ready(pool)
         assert not pool.ready() and not pool.alive()
+
+
+def test_output_on_the_workers_stdout_does_not_disturb_the_channel():
+    with ProcessPool(1, "builtins:len", ((),)) as pool:
+        _wait_ready(pool)
+        assert pool.submit("os:write", 1, b"noise from C code or print\n").result(timeout=30) > 0
+        assert pool.submit("math:sqrt", 9.0).result(timeout=30) == 3.0
+
+
+def test_large_arguments_and_results_do_not_deadlock():
+    with ProcessPool(1, "builtins:len", ((),)) as pool:
+        _wait_ready(pool)
+        lens = [pool.submit("builtins:len", b"x" * 40_000) for _ in range(20)]
+        blobs = [pool.submit("builtins:bytes", 1_000_000) for _ in range(20)]
+        assert [f.result(timeout=60) for f in lens] == [40_000] * 20
+        assert all(len(f.result(timeout=60)) == 1_000_000 for f in blobs)
+
+
+def test_a_cancelled_or_unpicklable_task_leaves_the_pool_working():
+    with ProcessPool(1, "builtins:len", ((),)) as pool:
+        _wait_ready(pool)
+        slow = pool.submit("time:sleep", 0.3)
+        assert slow.cancel()
+        with pytest.raises(WorkerError, match="pickle|Pickl"):
+            pool.submit("threading:Lock").result(timeout=30)     # a result that cannot pickle
+        assert pool.submit("math:sqrt", 16.0).result(timeout=30) == 4.0
+        assert pool.alive() and pool.ready()
+
+
+def test_workers_never_import_from_their_working_directory(tmp_path, monkeypatch):
+    fake = tmp_path / "eye_in_hand"
+    fake.mkdir()
+    (fake / "__init__.py").write_text("raise ImportError('the wrong eye_in_hand')\n")
+    monkeypatch.chdir(tmp_path)
+    with ProcessPool(1, "builtins:len", ((),)) as pool:
+        _wait_ready(pool)
+        assert pool.ready()
+        assert pool.submit("math:sqrt", 1.0).result(timeout=30) == 1.0

@@ -731,8 +731,9 @@ def typestore_for(path: str | Path, msgtypes: Iterable[str] | None = None) -> An
     types: dict[str, Any] = {}
     with _OpenBag(path) as bag:
         for conn in bag.connections():
-            if conn.msgdef.format == MessageDefinitionFormat.NONE or conn.msgtype in types \
-                    or (wanted is not None and conn.msgtype not in wanted):
+            # every stored definition is parsed (cheap): a type asked for may be defined only
+            # inside another topic's definition; building (register) is what costs
+            if conn.msgdef.format == MessageDefinitionFormat.NONE or conn.msgtype in types:
                 continue
             try:
                 types.update(_types_from_definition(conn.msgtype, conn.msgdef.format,

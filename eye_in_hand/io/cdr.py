@@ -54,7 +54,9 @@ def _string(buf: memoryview, pos: int, field: str) -> tuple[str, int]:
     if pos + 4 > len(buf):
         raise ConversionError(f"{field}: message ends before the string length")
     (n,) = _U32.unpack_from(buf, pos)
-    if n == 0 or pos + 4 + n > len(buf):
+    if n == 0:
+        raise ConversionError(f"{field}: string length 0 (a CDR string holds at least its NUL)")
+    if pos + 4 + n > len(buf):
         raise ConversionError(f"{field}: string of {n} bytes does not fit the message")
     raw = bytes(buf[pos + 4:pos + 4 + n])
     if raw[-1:] != b"\x00":

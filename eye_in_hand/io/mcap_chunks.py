@@ -9,14 +9,16 @@ parsed (the file's summary section) and
   pages, never copied (the page cache is read at memory speed);
 * decompresses zstd / lz4 chunks on a small thread pool a few chunks ahead of the consumer
   (the decompressors release the GIL), each message then a view of its decompressed chunk;
-* checks a chunk's CRC only when asked (``verify_crc``); the MCAP reference readers do not by
-  default either, and CRC-32 runs at ~0.35 GB/s here.
+* checks chunk CRCs unless told not to (``verify_crc=False``, what offline processing uses: the
+  MCAP reference readers skip them by default too, and CRC-32 runs at ~0.35 GB/s here).
 
 Order is the one ``rosbags`` gives: log time, ties by chunk position in the file, then by record
 order inside the chunk; chunks that overlap in time are merged.
 
-Files it cannot read this way (no summary, no chunk index, messages outside chunks) are left to
-``rosbags``: :func:`supports` says which.
+Files it cannot read this way (no summary, no chunk index) are left to ``rosbags``:
+:func:`supports` says which. Like ``rosbags``' indexed reader, it reads the messages inside
+chunks; a writer that puts messages outside chunks while also writing a chunk index is not
+known to exist.
 
 While a file is being read, :func:`file_location` tells where in it a view of an uncompressed
 message lies, so that another process can map the same pages instead of receiving a copy
@@ -104,7 +106,10 @@ class _Chunk:
         self.offset = int(info.chunk_start_offset)
         start = self.offset
         end = start + int(info.chunk_length)
-        if end > len(file_view) or int(info.chunk_length) < 9 + 40:
+        if int(info.chunk_length) < 9 + 40:
+            raise ValueError(f"chunk at byte {start}: the index gives a length of "
+                             f"{info.chunk_length} bytes, shorter than a chunk record")
+        if end > len(file_view):
             raise ValueError(f"chunk at byte {start}: extends past the end of the file "
                              f"({end} > {len(file_view)} bytes)")
         op, length = _RECORD.unpack_from(file_view, start)
@@ -112,10 +117,13 @@ class _Chunk:
             raise ValueError(f"chunk at byte {start}: the index points at a record with opcode "
                              f"{op:#04x} and length {length}, not a chunk")
         body = file_view[start + 9:end]
-        _s, _e, self.size, self.crc = _CHUNK_HEAD.unpack_from(body, 0)
-        (n,) = _U32.unpack_from(body, 28)
-        self.compression = bytes(body[32:32 + n]).decode()
-        (csize,) = _U64.unpack_from(body, 32 + n)
+        try:
+            _s, _e, self.size, self.crc = _CHUNK_HEAD.unpack_from(body, 0)
+            (n,) = _U32.unpack_from(body, 28)
+            self.compression = bytes(body[32:32 + n]).decode()
+            (csize,) = _U64.unpack_from(body, 32 + n)
+        except (struct.error, UnicodeDecodeError) as exc:
+            raise ValueError(f"chunk at byte {start}: malformed chunk header ({exc})") from exc
         data_at = 32 + n + 8
         if data_at + csize > len(body):
             raise ValueError(f"chunk at byte {start}: compressed data of {csize} bytes exceeds "
@@ -192,7 +200,7 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
     """
     channels = {c.id: c for c in connections}
     lo = 0 if start is None else start
-    hi = 2**63 if stop is None else stop
+    hi = 2**64 if stop is None else stop
     infos = [c for c in storage.chunks
              if c.message_end_time >= lo and c.message_start_time < hi and _may_hold(c, channels)]
     infos.sort(key=lambda c: (c.message_start_time, c.chunk_start_offset))
