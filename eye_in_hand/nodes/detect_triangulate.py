@@ -86,8 +86,9 @@ NODE_PARAMETERS: tuple[Param, ...] = (
     Param("sync.slop_s", 0.005, "largest left/right stamp difference of a stereo pair (s); "
           "0 = exact stamps only", range=(0.0, 1.0)),
     Param("sync.queue_size", 5, "frames per side waiting for a partner", range=(1, 100)),
-    Param("queue_depth", 3, "stereo pairs waiting for the worker; when full the oldest is "
-          "dropped (counted as dropped_pairs). 1 = only ever the newest pair", range=(1, 30)),
+    Param("queue_depth", 6, "stereo pairs waiting for the worker (6: 0.2 s at 30 Hz, enough "
+          "for a burst of late DDS deliveries); when full the oldest is dropped (counted as "
+          "dropped_pairs). 1 = only ever the newest pair", range=(1, 30)),
     Param("debug_image.max_rate_hz", 5.0, "rate limit of target/debug_image (Hz); 0 = never "
           "publish it", range=(0.0, 100.0)),
     Param("diagnostics_period_s", 1.0, "diagnostics publication period (s)",
@@ -207,6 +208,7 @@ class DetectTriangulateNode(Node):
             slop_ns, node_values["sync.queue_size"])
         self._sync_seen = (0, 0)
         self._slot = _PairQueue(node_values["queue_depth"])
+        self._queue_max = 0
 
         names = [t.name for t in self.config.detector.targets]
         self._pub_point = self.create_publisher(_point_type(), "target/point", RESULT_QOS)
@@ -276,6 +278,10 @@ class DetectTriangulateNode(Node):
         for pair in pairs:
             if self._slot.put(pair):
                 self.diag.count("dropped_pairs")
+            waiting = len(self._slot)
+            if waiting > self._queue_max:     # the most pairs ever waiting: sizes queue_depth
+                self._queue_max = waiting
+                self.diag.gauge("queue_max", waiting)
 
     def _on_info(self, side: str, msg: CameraInfo) -> None:
         with self._lock:
