@@ -60,7 +60,7 @@ class ProcessOptions:
         sync_slop_s, sync_queue_size: stereo pairing, as ``detect_triangulate``'s ``sync.*``.
         max_pose_gap_s, robot_sigma_pos_m, robot_sigma_rot_rad: as the ``hand_eye`` node's.
         workers: processes (or threads, see :class:`_PairPool`) locating stereo pairs; 1 =
-            in the calling thread. Results are consumed in stamp order; with ``selection:
+            in the calling thread; None: one per CPU this process may run on. Results are consumed in stamp order; with ``selection:
             nearest`` (which depends on the previous frame) one is used whatever this says, so
             the numbers never depend on it.
         verify_crc: check MCAP chunk CRCs (off by default, as in the MCAP reference readers:
@@ -83,11 +83,11 @@ class ProcessOptions:
     max_pose_gap_s: float = 0.05
     robot_sigma_pos_m: float = 0.0001
     robot_sigma_rot_rad: float = 0.0001
-    workers: int = 2
+    workers: int | None = None
     verify_crc: bool = False
 
     def __post_init__(self) -> None:
-        if int(self.workers) < 1:
+        if self.workers is not None and int(self.workers) < 1:
             raise InputError(f"workers: must be >= 1, got {self.workers}")
         if self.robot_pose_source not in ("ee_pose", "joint_states"):
             raise InputError(f"robot_pose_source: expected ee_pose or joint_states, got "
@@ -226,6 +226,16 @@ def _decoded(path: Path, topics: list[str], typestore: Any, errors: list[BaseExc
         raise errors[0]
 
 
+def available_cpus() -> int:
+    """CPUs this process may run on (its affinity mask; the CPU count where there is none)."""
+    import os
+
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
 def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: LocatorConfig,
                 rig: StereoRig | None = None, hand_eye_cov: np.ndarray | None = None,
                 options: ProcessOptions | None = None,
@@ -304,7 +314,7 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
             pending.append(frame)
             flush(localizer.poses.newest_ns)
 
-    pool = _PairPool(rig, locator_config, opts.workers)
+    pool = _PairPool(rig, locator_config, opts.workers or available_cpus())
     try:
         if memory_mappable(path):
             pool.start_processes()     # they import and initialise while this process sets up

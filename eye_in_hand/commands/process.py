@@ -52,6 +52,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ground-truth-topic", default="/ground_truth/target")
     parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
                         help="output bag storage (default mcap)")
+    parser.add_argument("--workers", type=int, metavar="N",
+                        help="processes locating stereo pairs (default: one per CPU; 1 = all in "
+                             "this process)")
     parser.add_argument("--verify-crc", action="store_true",
                         help="check MCAP chunk CRCs while reading (slower: CRC-32 of every image)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -118,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
             max_pose_gap_s=float(hand_eye_params.get("max_pose_gap_s", 0.05)),
             robot_sigma_pos_m=float(hand_eye_params.get("robot_sigma_pos_m", 0.0001)),
             robot_sigma_rot_rad=float(hand_eye_params.get("robot_sigma_rot_rad", 0.0001)),
-            verify_crc=args.verify_crc)
+            verify_crc=args.verify_crc, workers=args.workers)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{args.params}: {exc}") from exc
     from pathlib import Path

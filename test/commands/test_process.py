@@ -126,3 +126,20 @@ def test_a_corrupt_image_is_counted_and_processing_goes_on(loc_bag, tmp_path, ca
     assert counts["bad_messages"] == 1
     assert counts["localized"] == 11                     # the other eleven pairs
     assert f"warning: {left} at" in captured.err and "data:" in captured.err
+
+
+def test_workers_option_changes_nothing_but_speed(loc_bag, tmp_path, capsys):
+    bag, world = loc_bag
+    he = str(_hand_eye(tmp_path, world))
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert main(["process", str(bag), "--hand-eye", he, "-o", str(a), "--quiet",
+                 "--workers", "1"]) == 0
+    assert main(["process", str(bag), "--hand-eye", he, "-o", str(b), "--quiet",
+                 "--workers", "2"]) == 0
+    ra = list(csv.DictReader((a / "results.csv").open()))
+    rb = list(csv.DictReader((b / "results.csv").open()))
+    assert ra == rb
+    capsys.readouterr()
+    rc = main(["process", str(bag), "--hand-eye", he, "-o", str(tmp_path / "c"), "--quiet",
+               "--workers", "0"])
+    assert rc == 1 and "workers: must be >= 1" in capsys.readouterr().err
