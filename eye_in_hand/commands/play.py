@@ -45,11 +45,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Play the bag until its end (or forever with ``--loop``); Ctrl-C stops cleanly."""
-    import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
     from eye_in_hand.nodes.bag_recorder import sigterm_as_interrupt
+    from eye_in_hand.ros.node_main import run_with_executor
 
     from eye_in_hand.io.bags import bag_info
     from eye_in_hand.nodes.bag_player import BagPlayer, spin_player
@@ -67,19 +66,5 @@ def run(args: argparse.Namespace) -> int:
     if args.topics:  # an empty list would be typed as a byte array
         overrides.append(Parameter("topics", Parameter.Type.STRING_ARRAY, list(args.topics)))
     sigterm_as_interrupt()
-    rclpy.init(args=[])
-    node: BagPlayer | None = None
-    executor = None
-    try:
-        # the executor first: an rclpy executor interrupted in its constructor spews on exit
-        executor = SingleThreadedExecutor()
-        node = BagPlayer(parameter_overrides=overrides)
-        return spin_player(node, executor)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        return 0
-    finally:
-        if node is not None:
-            node.destroy_node()
-        if executor is not None:
-            executor.shutdown()
-        rclpy.try_shutdown()
+    return run_with_executor(lambda: BagPlayer(parameter_overrides=overrides), spin_player,
+                             args=[])

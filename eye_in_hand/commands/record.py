@@ -47,13 +47,10 @@ def run(args: argparse.Namespace) -> int:
     if not 0.01 <= args.discovery_period <= 60:
         raise InputError(f"--discovery-period must be in [0.01, 60] s, got "
                          f"{args.discovery_period}")
-    import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
-    from eye_in_hand.nodes.bag_recorder import sigterm_as_interrupt
-
-    from eye_in_hand.nodes.bag_recorder import BagRecorder, spin_recorder
+    from eye_in_hand.nodes.bag_recorder import BagRecorder, sigterm_as_interrupt, spin_recorder
+    from eye_in_hand.ros.node_main import run_with_executor
 
     overrides = [
         Parameter("output", value=str(args.output)),
@@ -67,19 +64,6 @@ def run(args: argparse.Namespace) -> int:
     if args.topics:  # an empty list would be typed as a byte array
         overrides.append(Parameter("topics", Parameter.Type.STRING_ARRAY, list(args.topics)))
     sigterm_as_interrupt()
-    rclpy.init(args=[])
-    node: BagRecorder | None = None
-    executor = None
-    try:
-        # the executor first: an rclpy executor interrupted in its constructor spews on exit
-        executor = SingleThreadedExecutor()
-        node = BagRecorder(parameter_overrides=overrides)
-        return spin_recorder(node, float(args.duration), executor)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        return 0
-    finally:
-        if node is not None:
-            node.destroy_node()
-        if executor is not None:
-            executor.shutdown()
-        rclpy.try_shutdown()
+    return run_with_executor(
+        lambda: BagRecorder(parameter_overrides=overrides),
+        lambda node, ex: spin_recorder(node, float(args.duration), ex), args=[])

@@ -36,10 +36,9 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any, Sequence
 
-import rclpy
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -484,30 +483,16 @@ def spin_player(node: BagPlayer, executor: Any | None = None) -> int:
 def main(args: list[str] | None = None) -> None:
     """Console-script entry point (``ros2 run eye_in_hand bag_player --ros-args -p bag:=...``)."""
     from eye_in_hand.nodes.bag_recorder import sigterm_as_interrupt
+    from eye_in_hand.ros.node_main import run_with_executor
 
     sigterm_as_interrupt()
     use_large_data_profile()  # large images over shared memory (see ros/dds.py)
-    rclpy.init(args=args)
-    node: BagPlayer | None = None
-    executor: SingleThreadedExecutor | None = None
-    code = 0
     try:
-        executor = SingleThreadedExecutor()  # first: see spin_player
-        node = BagPlayer()
-        code = spin_player(node, executor)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        code = run_with_executor(BagPlayer, spin_player, args)
     except EyeInHandError as exc:
         print(f"bag_player: error: {exc}", file=sys.stderr)
         code = 1
-    finally:
-        if node is not None:
-            node.destroy_node()
-        if executor is not None:
-            executor.shutdown()
-        rclpy.try_shutdown()
     sys.exit(code)
-
 
 if __name__ == "__main__":
     main()

@@ -44,10 +44,9 @@ from concurrent.futures import Future
 from functools import partial
 from typing import Any, Sequence
 
-import rclpy
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -462,29 +461,17 @@ def spin_recorder(node: BagRecorder, duration_s: float = 0.0, executor: Any | No
 
 def main(args: list[str] | None = None) -> None:
     """Console-script entry point (``ros2 run eye_in_hand bag_recorder --ros-args ...``)."""
+    from eye_in_hand.ros.node_main import run_with_executor
+
     sigterm_as_interrupt()
     use_large_data_profile()  # large images over shared memory (see ros/dds.py)
-    rclpy.init(args=args)
-    node: BagRecorder | None = None
-    executor: SingleThreadedExecutor | None = None
-    code = 0
     try:
-        executor = SingleThreadedExecutor()  # first: see spin_recorder
-        node = BagRecorder()
-        spin_recorder(node, node.duration, executor)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        code = run_with_executor(BagRecorder,
+                                 lambda node, ex: spin_recorder(node, node.duration, ex), args)
     except EyeInHandError as exc:
         print(f"bag_recorder: error: {exc}", file=sys.stderr)
         code = 1
-    finally:
-        if node is not None:
-            node.destroy_node()
-        if executor is not None:
-            executor.shutdown()
-        rclpy.try_shutdown()
     sys.exit(code)
-
 
 if __name__ == "__main__":
     main()

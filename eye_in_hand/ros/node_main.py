@@ -5,7 +5,7 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["run_node"]
+__all__ = ["run_node", "run_with_executor"]
 
 
 def run_node(name: str, factory: Callable[[], Any], args: Sequence[str] | None = None) -> None:
@@ -36,4 +36,32 @@ def run_node(name: str, factory: Callable[[], Any], args: Sequence[str] | None =
     finally:
         if node is not None:
             node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def run_with_executor(factory: Callable[[], Any], spin: Callable[[Any, Any], int],
+                      args: Sequence[str] | None = None) -> int:
+    """Initialise rclpy, build a ``SingleThreadedExecutor`` and then the node, and return
+    ``spin(node, executor)``; Ctrl-C and external shutdown return 0. The node, the executor
+    and the context are always shut down. Errors propagate (callers print them their way).
+
+    The executor is built first: an rclpy executor interrupted in its constructor spews on exit.
+    """
+    import rclpy
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+    rclpy.init(args=args)
+    node = None
+    executor = None
+    try:
+        executor = SingleThreadedExecutor()
+        node = factory()
+        return spin(node, executor)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if executor is not None:
+            executor.shutdown()
         rclpy.try_shutdown()
