@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv test demo bench clean
+.PHONY: venv test demo bench mutation clean
 
 venv: $(STAMP)
 
@@ -23,6 +23,11 @@ demo: $(STAMP)
 
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+
+# Before a release: plant known bugs in core/, io/ and offline code, one at a time; every one
+# must make a test fail (tools/mutation.py).
+mutation: $(STAMP)
+	$(PY) tools/mutation.py
 
 clean:
 	rm -rf $(VENV) build install log .pytest_cache
