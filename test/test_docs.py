@@ -19,12 +19,14 @@ from eye_in_hand.cli import build_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs"
+# (module, class, parameter overrides): stereo_capture declares everything up front, then its
+# default source would build a simulator (seconds); an images source without files stops at once
 NODES = [
-    ("eye_in_hand.nodes.bag_player", "BagPlayer"),
-    ("eye_in_hand.nodes.bag_recorder", "BagRecorder"),
-    ("eye_in_hand.nodes.detect_triangulate", "DetectTriangulateNode"),
-    ("eye_in_hand.nodes.hand_eye", "HandEyeNode"),
-    ("eye_in_hand.nodes.stereo_capture", "StereoCaptureNode"),
+    ("eye_in_hand.nodes.bag_player", "BagPlayer", {}),
+    ("eye_in_hand.nodes.bag_recorder", "BagRecorder", {}),
+    ("eye_in_hand.nodes.detect_triangulate", "DetectTriangulateNode", {}),
+    ("eye_in_hand.nodes.hand_eye", "HandEyeNode", {}),
+    ("eye_in_hand.nodes.stereo_capture", "StereoCaptureNode", {"source": "images"}),
 ]
 
 
@@ -84,6 +86,7 @@ def test_every_node_parameter_is_documented(ros_context, namespace) -> None:
     import importlib
 
     from rclpy.node import Node
+    from rclpy.parameter import Parameter
 
     declared: dict[str, set[str]] = {}
     original_one, original_many = Node.declare_parameter, Node.declare_parameters
@@ -100,10 +103,11 @@ def test_every_node_parameter_is_documented(ros_context, namespace) -> None:
 
     Node.declare_parameter, Node.declare_parameters = one, many  # type: ignore[method-assign]
     try:
-        for module, cls in NODES:
+        for module, cls, overrides in NODES:
             node_cls = getattr(importlib.import_module(module), cls)
             try:
-                node = node_cls(context=ros_context, namespace=namespace)
+                node = node_cls(context=ros_context, namespace=namespace, parameter_overrides=[
+                    Parameter(k, value=v) for k, v in overrides.items()])
             except Exception:  # noqa: BLE001 - a missing required file; declarations are in
                 continue
             node.destroy_node()
