@@ -8,7 +8,8 @@ Each sub-command lives in its own module under :mod:`eye_in_hand.commands` and p
 
 Command modules import heavy dependencies (rclpy, OpenCV, matplotlib) inside ``run`` so that
 ``eye-in-hand --help`` stays fast. Errors derived from :class:`eye_in_hand.errors.EyeInHandError`
-are printed as one line on stderr (``eye-in-hand: error: ...``) with exit code 1, never a traceback.
+are printed as one line on stderr (``eye-in-hand: error: ...``) with exit code 1, never a traceback;
+so is any ``OSError`` that reaches the top (e.g. a full disk), with the file it names.
 """
 from __future__ import annotations
 
@@ -69,17 +70,30 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _printable(text: str) -> str:
+    """``text`` with the undecodable bytes of file names shown as ``\\xNN``."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``eye-in-hand`` console script."""
     from eye_in_hand.ros.dds import use_large_data_profile
 
     use_large_data_profile()  # before any command starts rclpy (children inherit it)
+    # file names are bytes: print a non-UTF-8 name as the bytes it is (like ls), never fail
+    for stream in (sys.stdout, sys.stderr):
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="surrogateescape")
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return int(args._run(args) or 0)
     except EyeInHandError as exc:
-        print(f"eye-in-hand: error: {exc}", file=sys.stderr)
+        print(f"eye-in-hand: error: {_printable(str(exc))}", file=sys.stderr)
+        return 1
+    except OSError as exc:  # a file system error not caught closer to its cause (ENOSPC, EACCES)
+        where = f"{_printable(str(exc.filename))}: " if exc.filename else ""
+        print(f"eye-in-hand: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("eye-in-hand: interrupted", file=sys.stderr)

@@ -40,6 +40,7 @@ import yaml
 
 from eye_in_hand.core.transforms import to_xyz_quat
 from eye_in_hand.errors import InputError
+from eye_in_hand.io.images import write_image_file
 from eye_in_hand.sim.scenarios import (
     calibration_poses,
     calibration_timeline,
@@ -376,8 +377,7 @@ def write_dataset(world: World, out: str | Path, *, frames: int, seed: int = 0,
                              exposure=render.exposure)
         for side, img in (("left", frame.left), ("right", frame.right)):
             path = root / side / f"{i:04d}.png"
-            if not cv2.imwrite(str(path), img):
-                raise InputError(f"cannot write image {path}")
+            write_image_file(path, img)
         samples.append({"left": f"left/{i:04d}.png", "right": f"right/{i:04d}.png",
                         "base_T_ee": pose_to_dict(frame.truth.base_T_ee),
                         "joint_positions": [float(v) for v in q]})
