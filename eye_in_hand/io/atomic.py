@@ -69,7 +69,18 @@ class OutputExistsError(OutputError):
 
 
 class OutputWriteError(OutputError):
-    """Writing an output failed (full disk, permissions); the earlier output is unchanged."""
+    """Writing an output failed (full disk, permissions); the earlier output is unchanged.
+
+    Attributes:
+        filename: the file that could not be written (None when unknown).
+        strerror: the system's reason (e.g. ``No space left on device``).
+    """
+
+    def __init__(self, message: str, filename: str | None = None,
+                 strerror: str | None = None) -> None:
+        super().__init__(message)
+        self.filename = filename
+        self.strerror = strerror
 
 
 def _show(path: Path | str) -> str:
@@ -235,12 +246,31 @@ def _commit(staged: Path, out: Path, overwrite: bool, option: str, hint: str) ->
     _fsync_path(parent, directory=True)
 
 
-def _write_error(exc: OSError, out: Path, existed: bool) -> OutputWriteError:
-    where = _show(exc.filename) if exc.filename else _show(out)
+def _newest_file(root: Path) -> str | None:
+    newest: tuple[float, str] | None = None
+    for dirpath, _dirnames, filenames in os.walk(root):
+        for name in filenames:
+            with contextlib.suppress(OSError):
+                p = os.path.join(dirpath, name)
+                key = (os.stat(p).st_mtime, p)
+                newest = key if newest is None or key > newest else newest
+    return None if newest is None else newest[1]
+
+
+def _write_error(exc: OSError | OutputWriteError, out: Path, existed: bool,
+                 staged: Path | None = None) -> OutputWriteError:
+    """One line: the file (as it would be named in ``out``), the reason, and what was kept."""
+    filename = os.fspath(exc.filename) if getattr(exc, "filename", None) else None
+    if filename is None and staged is not None:  # a write() failed: the file written last
+        filename = _newest_file(staged)
+    if filename is not None and staged is not None:
+        with contextlib.suppress(ValueError):  # a file of the staged folder: its final name
+            filename = os.fspath(out / Path(filename).absolute().relative_to(staged.absolute()))
     what = exc.strerror or str(exc)
     kept = (f"the earlier {_show(out)} is unchanged" if existed
             else f"nothing was written to {_show(out)}")
-    return OutputWriteError(f"{where}: cannot write ({what}); {kept}")
+    where = _show(filename) if filename else _show(out)
+    return OutputWriteError(f"{where}: cannot write ({what}); {kept}", filename, exc.strerror)
 
 
 @contextlib.contextmanager
@@ -287,8 +317,8 @@ def atomic_output_dir(out: str | os.PathLike[str], *, overwrite: bool = False,
             raise OutputError(f"{_show(out)}: nothing was written")
         _fsync_tree(staged)
         _commit(staged, out, overwrite, option, hint)
-    except OSError as exc:
-        raise _write_error(exc, out, existed) from exc
+    except (OSError, OutputWriteError) as exc:
+        raise _write_error(exc, out, existed, staged) from exc
     finally:
         _remove(root)
 
@@ -335,7 +365,8 @@ def atomic_file(path: str | os.PathLike[str], mode: str = "w", *,
 
 def _file_error(exc: OSError, path: Path, existed: bool) -> OutputWriteError:
     kept = "the earlier file is unchanged" if existed else "nothing was written"
-    return OutputWriteError(f"{_show(path)}: cannot write ({exc.strerror or exc}); {kept}")
+    return OutputWriteError(f"{_show(path)}: cannot write ({exc.strerror or exc}); {kept}",
+                            os.fspath(path), exc.strerror or str(exc))
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str, *,
