@@ -14,6 +14,7 @@ so is any ``OSError`` that reaches the top (e.g. a full disk), with the file it 
 from __future__ import annotations
 
 import argparse
+import codecs
 import importlib
 import sys
 from typing import Sequence
@@ -70,6 +71,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _escape_undecodable(exc: UnicodeError) -> tuple[str, int]:
+    """Codec error handler: an undecodable file-name byte (a surrogate escape) as ``\\xNN``,
+    anything else unencodable as a backslash escape."""
+    if not isinstance(exc, UnicodeEncodeError):
+        raise exc
+    chunk = exc.object[exc.start:exc.end]
+    text = "".join(f"\\x{ord(c) - 0xDC00:02x}" if 0xDC80 <= ord(c) <= 0xDCFF
+                   else c.encode("ascii", "backslashreplace").decode("ascii") for c in chunk)
+    return text, exc.end
+
+
 def _printable(text: str) -> str:
     """``text`` with the undecodable bytes of file names shown as ``\\xNN``."""
     return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
@@ -80,10 +92,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     from eye_in_hand.ros.dds import use_large_data_profile
 
     use_large_data_profile()  # before any command starts rclpy (children inherit it)
-    # file names are bytes: print a non-UTF-8 name as the bytes it is (like ls), never fail
+    # a file name is bytes: print a non-UTF-8 byte of one as \\xNN, never fail on it
+    codecs.register_error("eye_in_hand_escape", _escape_undecodable)
     for stream in (sys.stdout, sys.stderr):
         if hasattr(stream, "reconfigure"):
-            stream.reconfigure(errors="surrogateescape")
+            stream.reconfigure(errors="eye_in_hand_escape")
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
