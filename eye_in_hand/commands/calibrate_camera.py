@@ -165,7 +165,8 @@ def expand_glob(pattern: str, option: str) -> list[Path]:
     else:
         files = sorted(Path(p) for p in glob.glob(os.path.expanduser(pattern)) if Path(p).is_file())
     if not files:
-        raise InputError(f"{option} {pattern!r}: no image files match")
+        shown = pattern.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+        raise InputError(f"{option} '{shown}': no image files match")
     return files
 
 
