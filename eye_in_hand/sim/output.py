@@ -40,7 +40,6 @@ import yaml
 
 from eye_in_hand.core.transforms import to_xyz_quat
 from eye_in_hand.errors import InputError
-from eye_in_hand.io.images import write_image_file
 from eye_in_hand.sim.scenarios import (
     calibration_poses,
     calibration_timeline,
@@ -359,6 +358,8 @@ def write_dataset(world: World, out: str | Path, *, frames: int, seed: int = 0,
         InputError: ``out`` exists and is not empty (unless ``overwrite``), or frames < 1.
         KinematicsError: fewer reachable poses than asked.
     """
+    from eye_in_hand.io.images import write_image_file
+
     root = Path(out)
     if frames < 1:
         raise InputError(f"frames must be >= 1, got {frames}")
@@ -377,7 +378,7 @@ def write_dataset(world: World, out: str | Path, *, frames: int, seed: int = 0,
                              exposure=render.exposure)
         for side, img in (("left", frame.left), ("right", frame.right)):
             path = root / side / f"{i:04d}.png"
-            write_image_file(path, img)
+            write_image_file(path, img)  # through bytes: any file name works
         samples.append({"left": f"left/{i:04d}.png", "right": f"right/{i:04d}.png",
                         "base_T_ee": pose_to_dict(frame.truth.base_T_ee),
                         "joint_positions": [float(v) for v in q]})
