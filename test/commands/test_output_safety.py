@@ -317,6 +317,35 @@ def test_invalid_topic_names_are_one_line(tmp_path, capsys) -> None:
     assert "record TOPIC '/2fast': not a valid topic name (token must not start with a " \
            "number)" in line
     assert not (tmp_path / "r").exists()
+    assert main(["launch", "--namespace", "robot 1", "--duration", "1"]) == 1
+    assert "--namespace 'robot 1': not a valid namespace" in _one_line_error(
+        capsys.readouterr().err)
+
+
+def test_recorder_node_names_an_invalid_topic_parameter(tmp_path, ros_context) -> None:
+    pytest.importorskip("rclpy")
+    from rclpy.parameter import Parameter
+
+    from eye_in_hand.errors import ConfigError
+    from eye_in_hand.nodes.bag_recorder import BagRecorder
+
+    with pytest.raises(ConfigError, match=r"parameter 'topics': '/a/' is not a valid topic name "
+                                          r"\(must not end with a forward slash\)"):
+        BagRecorder(context=ros_context, parameter_overrides=[
+            Parameter("output", value=str(tmp_path / "bag")),
+            Parameter("topics", Parameter.Type.STRING_ARRAY, ["/ok", "/a/"])])
+    assert not (tmp_path / "bag").exists()
+
+
+def test_launch_refuses_a_bad_parameter_file_before_starting_nodes(tmp_path, capsys) -> None:
+    bad = tmp_path / "params.yaml"
+    bad.write_bytes(b"hand_eye:\n  ros__parameters: {output_dir: \xff}\n")
+    assert main(["launch", "--params", str(bad), "--duration", "1"]) == 1
+    line = _one_line_error(capsys.readouterr().err)
+    assert f"{bad}: parameter file is not UTF-8 text (byte 0xff at offset 42)" in line
+    bad.write_text("hand_eye: [1, 2")
+    assert main(["launch", "--params", str(bad), "--duration", "1"]) == 1
+    assert "params.yaml: not valid YAML" in _one_line_error(capsys.readouterr().err)
 
 
 # ------------------------------------------------------------------------------------------------
