@@ -310,7 +310,10 @@ def atomic_output_dir(out: str | os.PathLike[str], *, overwrite: bool = False,
             staged.mkdir()
     except OSError as exc:
         _remove(root)
-        raise _write_error(exc, out, existed) from exc
+        kept = f"the earlier {_show(out)} is unchanged" if existed else "nothing was written"
+        raise OutputWriteError(f"{_show(parent)}: cannot create {_show(out.name)} there "
+                               f"({exc.strerror or exc}); {kept}", os.fspath(parent),
+                               exc.strerror) from exc
     try:
         yield staged
         if not staged.is_dir():
