@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     params = args.params or default_params_file()
     # bad input is one line here, not a traceback from rcl in every node
     from eye_in_hand.errors import ConfigError
-    from eye_in_hand.ros.names import topic_name_problem
+    from eye_in_hand.ros.names import check_parameter_text, topic_name_problem
     from eye_in_hand.yamlfile import printable, read_yaml_file
 
     ns = "/" + args.namespace.strip("/")
@@ -47,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
     if problem is not None:
         raise InputError(f"--namespace {printable(args.namespace)!r}: not a valid namespace "
                          f"({problem})")
+    check_parameter_text(str(params), "--params")  # rcl takes it as UTF-8 text
     if not isinstance(read_yaml_file(params, "parameter file"), dict):
         raise ConfigError(f"{printable(params)}: parameter file must map node names to "
                           "'ros__parameters'")

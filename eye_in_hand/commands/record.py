@@ -48,8 +48,9 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.topics and not args.all:
         raise InputError("give the topics to record, or --all")
-    from eye_in_hand.ros.names import check_topic_name
+    from eye_in_hand.ros.names import check_parameter_text, check_topic_name
 
+    check_parameter_text(str(args.output), "-o")
     for topic in args.topics:
         check_topic_name(topic, "record TOPIC")
     from eye_in_hand.io.atomic import check_output_dir

@@ -1,7 +1,7 @@
 """ROS topic names checked with rclpy's own rules, with one-line errors that name the name."""
 from __future__ import annotations
 
-__all__ = ["topic_name_problem", "check_topic_name"]
+__all__ = ["topic_name_problem", "check_topic_name", "check_parameter_text"]
 
 
 def topic_name_problem(name: str) -> str | None:
@@ -48,3 +48,21 @@ def check_topic_name(name: str, what: str = "topic") -> str:
             if isinstance(name, str) else name
         raise InputError(f"{what} {shown!r}: not a valid topic name ({problem})")
     return name
+
+
+def check_parameter_text(text: str, what: str) -> str:
+    """``text`` if it can be a ROS string parameter (UTF-8; a file name with bytes that are not
+    UTF-8 cannot: rclpy would fail on it with a traceback).
+
+    Raises:
+        InputError: ``<what> '<text with \\xNN>': not UTF-8 text; ...``.
+    """
+    from eye_in_hand.errors import InputError
+
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError as exc:
+        shown = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+        raise InputError(f"{what} '{shown}': not UTF-8 text, so it cannot be passed to a ROS "
+                         "node (rename it)") from exc
+    return text

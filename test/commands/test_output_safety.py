@@ -322,6 +322,24 @@ def test_invalid_topic_names_are_one_line(tmp_path, capsys) -> None:
         capsys.readouterr().err)
 
 
+def test_non_utf8_names_passed_to_ros_nodes_are_one_line(tmp_path, capsys) -> None:
+    """A ROS parameter or argument is UTF-8 text: a non-UTF-8 bag or parameter file name is
+    refused with one line instead of a traceback inside rclpy."""
+    odd = tmp_path / NON_UTF8
+    assert main(["record", "-o", str(odd), "/chatter", "-d", "0.1"]) == 1
+    assert "-o '" in _one_line_error(capsys.readouterr().err)
+    from eye_in_hand.io.bags import BagWriter
+
+    with BagWriter(odd):
+        pass
+    assert main(["play", str(odd)]) == 1
+    assert "caf\\xe9': not UTF-8 text" in _one_line_error(capsys.readouterr().err)
+    params = tmp_path / (NON_UTF8 + ".yaml")
+    params.write_text("/**/hand_eye:\n  ros__parameters: {}\n")
+    assert main(["launch", "--params", str(params), "--duration", "1"]) == 1
+    assert "--params '" in _one_line_error(capsys.readouterr().err)
+
+
 def test_recorder_node_names_an_invalid_topic_parameter(tmp_path, ros_context) -> None:
     pytest.importorskip("rclpy")
     from rclpy.parameter import Parameter
