@@ -24,6 +24,7 @@ import numpy as np
 
 from eye_in_hand.errors import BagError, CalibrationError, ConversionError, InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
+from eye_in_hand.yamlfile import printable
 
 __all__ = [
     "HELP",
@@ -212,7 +213,8 @@ def detect_files(files: Sequence[Path], board, args: argparse.Namespace, desc: s
                     f"{path} is {size[0]}x{size[1]}")
             det = detect_board(image, board, args.detector, subpix_window=args.subpix_window,
                                fallback=not args.no_fallback)
-            frames.append(Frame(path.name, det, image if keep(i) else None))
+            # the name as text every report can hold (a non-UTF-8 byte as \xNN)
+            frames.append(Frame(printable(path.name), det, image if keep(i) else None))
             bar.update(1)
     return frames
 

@@ -263,6 +263,12 @@ codes = [main(["simulate", "--scenario", "calibration", "--format", "dataset", "
                "--size", "320x240", "--supersample", "1", "--out", ds, "--quiet"]),
          main(["calibrate", "handeye", ds, "-o", ds + "_he", "--no-html"]),
          main(["tune-color", os.path.join(ds, "left", "0000.png"), "--roi", "10,10,8,8"])]
+imgs = os.fsdecode(b"imgs")
+os.mkdir(imgs)
+for name in sorted(os.listdir(os.path.join(ds, "left"))):  # non-UTF-8 file names too
+    os.link(os.path.join(ds, "left", name), os.path.join(imgs, name[:-4] + ds + ".png"))
+codes.append(main(["calibrate", "camera", "--images", imgs, "--board", "chessboard:9x6:0.025",
+                   "--min-views", "3", "-o", ds + "_cam"]))  # with report.html
 print("codes", codes)
 """
 
@@ -275,10 +281,13 @@ def test_non_utf8_file_names_work(tmp_path, ros_env) -> None:
                          capture_output=True, text=True, timeout=180)
     assert res.returncode == 0, (res.returncode, res.stderr[-2000:])
     assert "Traceback" not in res.stderr
-    assert res.stdout.splitlines()[-1] == "codes [0, 0, 0]", res.stdout + res.stderr
+    assert res.stdout.splitlines()[-1] == "codes [0, 0, 0, 0]", res.stdout + res.stderr
     assert "wrote calibration dataset caf\\xe9/dataset.yaml" in res.stdout
     he = tmp_path / (NON_UTF8 + "_he")
     assert (he / "hand_eye.yaml").is_file()
+    report = json.loads((tmp_path / (NON_UTF8 + "_cam") / "report.json").read_text())
+    assert report["views"][0]["file"] == "0000caf\\xe9.png"
+    assert (tmp_path / (NON_UTF8 + "_cam") / "report.html").is_file()
 
 
 def test_non_utf8_missing_image_is_one_line(tmp_path, capsys) -> None:
