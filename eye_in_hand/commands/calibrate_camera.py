@@ -109,7 +109,11 @@ def check_common_arguments(args: argparse.Namespace) -> None:
         raise InputError(f"--min-views must be >= 1, got {args.min_views}")
     if args.outlier_threshold is not None and not args.outlier_threshold > 0:
         raise InputError(f"--outlier-threshold must be > 0, got {args.outlier_threshold}")
-    check_output_dir(args.output, overwrite=args.overwrite)  # refuse now, not after the work
+    globs = [getattr(args, k, None) for k in ("images", "left", "right")]
+    inputs = [args.bag] + [g if os.path.isdir(g) else os.path.dirname(g) or "."
+                           for g in globs if g]
+    # refuse now, not after the work
+    check_output_dir(args.output, overwrite=args.overwrite, inputs=inputs)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

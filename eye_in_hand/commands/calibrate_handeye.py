@@ -369,7 +369,9 @@ def run(args: argparse.Namespace) -> int:
 
     from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 
-    check_output_dir(args.output, overwrite=args.overwrite)  # refuse now, not after the work
+    check_output_dir(args.output, overwrite=args.overwrite,  # refuse now, not after the work
+                     inputs=[args.dataset, args.pairs, args.bag, args.calibration,
+                             args.kinematics])
     inputs = _load_inputs(args)
     samples = inputs["samples"]
     setup = inputs["setup"]

@@ -132,7 +132,9 @@ def run(args: argparse.Namespace) -> int:
 
     from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 
-    check_output_dir(args.output, overwrite=args.overwrite)  # refuse now, not after the work
+    check_output_dir(args.output, overwrite=args.overwrite,  # refuse now, not after the work
+                     inputs=[args.bag, args.hand_eye, args.calibration, args.params,
+                             args.kinematics])
     info = bag_info(args.bag)
     total = sum(info.topics[t].count for t in {opts.left_topic, opts.right_topic,
                                                opts.pose_topic, opts.ground_truth_topic}

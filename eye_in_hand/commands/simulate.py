@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--hold-frames must be >= 1, --move-s > 0 and --settle-s >= 0")
     from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 
-    check_output_dir(args.out, overwrite=args.overwrite, option="--out")
+    check_output_dir(args.out, overwrite=args.overwrite, option="--out", inputs=[args.world])
     if args.format == "dataset" and args.scenario != "calibration":
         raise InputError("--format dataset needs --scenario calibration")
     world = World.from_yaml(args.world) if args.world is not None else World.default()

@@ -37,7 +37,7 @@ import os
 import re
 import shutil
 from pathlib import Path
-from typing import IO, Iterator
+from typing import IO, Iterable, Iterator
 
 from eye_in_hand.errors import EyeInHandError
 
@@ -98,7 +98,8 @@ def _is_nonempty_dir(path: Path) -> bool:
 
 
 def check_output_dir(out: str | os.PathLike[str], *, overwrite: bool = False,
-                     option: str = "-o", hint: str = "give --overwrite to replace it") -> Path:
+                     option: str = "-o", hint: str = "give --overwrite to replace it",
+                     inputs: Iterable[str | os.PathLike[str] | None] = ()) -> Path:
     """Check early (before any long work) that ``out`` may be written.
 
     Args:
@@ -106,18 +107,29 @@ def check_output_dir(out: str | os.PathLike[str], *, overwrite: bool = False,
         overwrite: an existing folder may be replaced.
         option: the command-line option that named ``out``, for messages.
         hint: how to allow replacing it, for messages.
+        inputs: the command's input files and folders (None entries are ignored): an ``out``
+            that is one of them or holds one is refused even with ``overwrite`` (replacing it
+            would delete the input).
 
     Returns:
         ``out`` as a Path.
 
     Raises:
-        OutputError: ``out`` exists and is not a folder.
+        OutputError: ``out`` exists and is not a folder, or it is or holds an input.
         OutputExistsError: ``out`` is a non-empty folder and ``overwrite`` is false.
     """
     out = Path(out)
     if out.exists() or out.is_symlink():
         if not out.is_dir():
             raise OutputError(f"{option} {_show(out)}: exists and is not a folder")
+        real = out.resolve()
+        for item in inputs:
+            if item is None or os.fspath(item) == "":
+                continue
+            p = Path(item).resolve()
+            if p == real or real in p.parents:
+                raise OutputError(f"{option} {_show(out)}: holds the input {_show(item)}; "
+                                  "choose another output")
         if not overwrite and _is_nonempty_dir(out):
             raise OutputExistsError(f"{option} {_show(out)}: exists already ({hint}, or "
                                     "choose another output)")

@@ -66,6 +66,13 @@ def test_calibrate_handeye_refuses_then_replaces_whole(pairs, tmp_path, capsys) 
     line = _one_line_error(capsys.readouterr().err)
     assert f"-o {out}: exists already" in line and "--overwrite" in line
     assert _tree(out) == before
+    # never replace the folder that holds the input, even with --overwrite
+    inside = out / "pairs.json"
+    inside.write_bytes(pairs.read_bytes())
+    assert main(["calibrate", "handeye", "--pairs", str(inside), "--setup", "eye_to_hand", "-o",
+                 str(out), "--overwrite"]) == 1
+    assert "holds the input" in _one_line_error(capsys.readouterr().err)
+    inside.unlink()
     assert main(argv + ["--no-html", "--overwrite"]) == 0
     # replaced whole: the old report.html does not stay beside the new hand_eye.yaml
     assert {p.name for p in out.iterdir()} == {"hand_eye.yaml", "report.json"}

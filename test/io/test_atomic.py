@@ -76,6 +76,16 @@ def test_overwrite_replaces_the_folder_whole(tmp_path: Path, monkeypatch, exchan
     assert _leftovers(tmp_path) == []
 
 
+def test_an_output_holding_an_input_is_refused_even_with_overwrite(tmp_path: Path) -> None:
+    out = _old(tmp_path)
+    with pytest.raises(OutputError, match=r"-o .*out: holds the input .*hand_eye.yaml; choose "
+                                          r"another output"):
+        check_output_dir(out, overwrite=True, inputs=[None, out / "hand_eye.yaml"])
+    with pytest.raises(OutputError, match="holds the input"):
+        check_output_dir(tmp_path / "." / "out", overwrite=True, inputs=[out])
+    assert check_output_dir(out, overwrite=True, inputs=[tmp_path / "elsewhere"]) == out
+
+
 def test_empty_folder_counts_as_absent_and_a_file_is_refused(tmp_path: Path) -> None:
     out = tmp_path / "out"
     out.mkdir()
