@@ -159,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
     report["board"] = str(board)
     report["input"] = {"source": description, "pairs": len(left), "skipped": skipped,
                        "unmatched": unmatched, "detector": args.detector}
-    with atomic_output_dir(args.output) as tmp:
+    with atomic_output_dir(args.output, overwrite=args.overwrite) as tmp:
         cal.rig.save(tmp)
         write_json(tmp / "report.json", report)
         if not args.no_html:

@@ -7,8 +7,9 @@ Example::
 Runs the same core code as the live ``detect_triangulate`` and ``hand_eye`` nodes on the bag's
 messages, as fast as the CPU allows, and writes ``OUT`` as a rosbag2 bag with
 ``/target/point``, ``/target/pose`` and ``/target/pose_cov`` plus ``OUT/results.csv`` (one row per
-stereo pair) and ``OUT/summary.json``. When the bag carries ``/ground_truth/target`` it prints
-the base-frame error statistics (RMS, p95, max, in mm).
+stereo pair) and ``OUT/summary.json``, all under a temporary name renamed into place at the
+end (an existing OUT is refused unless ``--overwrite``). When the bag carries
+``/ground_truth/target`` it prints the base-frame error statistics (RMS, p95, max, in mm).
 """
 from __future__ import annotations
 
@@ -23,7 +24,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``eye-in-hand process``."""
     parser.add_argument("bag", metavar="BAG", help="input bag directory or .mcap file")
     parser.add_argument("-o", "--output", required=True, metavar="OUT",
-                        help="output bag directory (must not exist)")
+                        help="output bag directory, written whole or not at all (must not "
+                             "exist, or give --overwrite)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace an existing OUT (whole, once the new one is complete)")
     parser.add_argument("--hand-eye", required=True, metavar="FILE",
                         help="hand_eye.yaml (eye_in_hand: tool0 -> left optical frame)")
     parser.add_argument("--calibration", metavar="DIR",
@@ -126,8 +130,11 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.params}: {exc}") from exc
     from pathlib import Path
 
-    if Path(args.output).exists():
-        raise InputError(f"-o {args.output}: exists already (choose a new output)")
+    from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
+
+    check_output_dir(args.output, overwrite=args.overwrite,  # refuse now, not after the work
+                     inputs=[args.bag, args.hand_eye, args.calibration, args.params,
+                             args.kinematics])
     info = bag_info(args.bag)
     total = sum(info.topics[t].count for t in {opts.left_topic, opts.right_topic,
                                                opts.pose_topic, opts.ground_truth_topic}
@@ -142,7 +149,12 @@ def run(args: argparse.Namespace) -> int:
     finally:
         bar.close()
     wall = time.perf_counter() - t0
-    paths = write_results(args.output, result, opts, storage=args.storage)
+    # the bag, results.csv and summary.json appear together (temporary folder, then rename)
+    with atomic_output_dir(args.output, overwrite=args.overwrite, create=False) as tmp:
+        written = write_results(tmp, result, opts, storage=args.storage)
+    out = Path(args.output)
+    paths = {"bag": out, "csv": out / written["csv"].name,
+             "summary": out / written["summary"].name}
     c = result.counts
     speed = result.duration_s / wall if wall > 0 else math.inf
     print(f"processed {c['pairs']} stereo pairs in {wall:.2f} s ({speed:.1f}x real time): "

@@ -107,6 +107,8 @@ class HandEyeNodeConfig:
     calibration_dir: str = param("", "directory with left.yaml + right.yaml (stereo) or "
                                  "camera.yaml (mono) for calibration mode")
     output_dir: str = param("hand_eye_calibration", "where hand_eye/save writes its files")
+    overwrite_output: bool = param(False, "hand_eye/save may replace an output_dir that this "
+                                   "node did not write itself (it always replaces its own)")
     still_window_s: float = param(0.2, "capture: the robot must be still over +- this window "
                                   "around the image stamp (s)", range=(0.0, 5.0))
     still_max_speed_m_s: float = param(0.002, "capture: largest tool speed counted as still "
@@ -390,6 +392,7 @@ class HandEyeNode(Node):
         self.samples: list[Any] = []
         self.skipped: list[dict[str, str]] = []
         self.result = None
+        self._saved_dir: Path | None = None  # what hand_eye/save wrote (it may replace that)
         for name, cb in (("capture", self._srv_capture), ("compute", self._srv_compute),
                          ("save", self._srv_save), ("reset", self._srv_reset)):
             self.create_service(Trigger, f"hand_eye/{name}", cb)
@@ -500,21 +503,28 @@ class HandEyeNode(Node):
 
     def _srv_save(self, request: Trigger.Request, response: Trigger.Response):
         from eye_in_hand.commands.calibrate_handeye import write_outputs
+        from eye_in_hand.io.atomic import atomic_output_dir
 
         if self.result is None:
             response.success, response.message = False, "nothing to save: call hand_eye/compute"
             return response
-        try:
-            paths = write_outputs(
-                Path(self.config.output_dir), self.result, self.samples, setup="eye_in_hand",
-                parent_frame=self.config.ee_frame, child_frame=self.config.camera_frame,
-                input_meta={"source": "hand_eye node", "count": len(self.samples)
-                            + len(self.skipped)}, skipped=self.skipped)
+        out = Path(self.config.output_dir)
+        own = self._saved_dir is not None and out.absolute() == self._saved_dir
+        try:  # written whole under a temporary name, then renamed into place
+            with atomic_output_dir(out, overwrite=self.config.overwrite_output or own,
+                                   option="parameter 'output_dir'",
+                                   hint="set overwrite_output:=true to replace it") as tmp:
+                paths = write_outputs(
+                    tmp, self.result, self.samples, setup="eye_in_hand",
+                    parent_frame=self.config.ee_frame, child_frame=self.config.camera_frame,
+                    input_meta={"source": "hand_eye node", "count": len(self.samples)
+                                + len(self.skipped)}, skipped=self.skipped)
         except (EyeInHandError, OSError) as exc:
             response.success, response.message = False, f"save failed: {exc}"
             return response
+        self._saved_dir = out.absolute()
         response.success = True
-        response.message = "wrote " + ", ".join(str(p) for p in paths)
+        response.message = "wrote " + ", ".join(str(out / p.name) for p in paths)
         return response
 
     def _srv_reset(self, request: Trigger.Request, response: Trigger.Response):

@@ -44,7 +44,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.core.camera import CameraModel, StereoRig
-from eye_in_hand.errors import ConfigError, EyeInHandError
+from eye_in_hand.errors import ConfigError, EyeInHandError, InputError
+from eye_in_hand.io.images import read_image_file
 from eye_in_hand.ros.conversions import (
     make_header,
     matrix_to_pose_stamped,
@@ -171,9 +172,10 @@ class ImageFilesSource(FrameSource):
         self.i += 1
         imgs = []
         for path in (self.left[i], self.right[i]):
-            img = cv2.imread(path, cv2.IMREAD_COLOR)
-            if img is None:
-                raise _ReadFailure(f"cannot read image {path}")
+            try:
+                img = read_image_file(path, cv2.IMREAD_COLOR)
+            except InputError as exc:
+                raise _ReadFailure(str(exc)) from exc
             imgs.append(img)
         return _Pair(imgs[0], imgs[1], index=i)
 

@@ -34,7 +34,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-import cv2
 import numpy as np
 import yaml
 
@@ -358,6 +357,8 @@ def write_dataset(world: World, out: str | Path, *, frames: int, seed: int = 0,
         InputError: ``out`` exists and is not empty (unless ``overwrite``), or frames < 1.
         KinematicsError: fewer reachable poses than asked.
     """
+    from eye_in_hand.io.images import write_image_file
+
     root = Path(out)
     if frames < 1:
         raise InputError(f"frames must be >= 1, got {frames}")
@@ -376,8 +377,7 @@ def write_dataset(world: World, out: str | Path, *, frames: int, seed: int = 0,
                              exposure=render.exposure)
         for side, img in (("left", frame.left), ("right", frame.right)):
             path = root / side / f"{i:04d}.png"
-            if not cv2.imwrite(str(path), img):
-                raise InputError(f"cannot write image {path}")
+            write_image_file(path, img)  # through bytes: any file name works
         samples.append({"left": f"left/{i:04d}.png", "right": f"right/{i:04d}.png",
                         "base_T_ee": pose_to_dict(frame.truth.base_T_ee),
                         "joint_positions": [float(v) for v in q]})
