@@ -106,8 +106,9 @@ def add_tf_message(buffer: Any, msg: Any, *, static: bool) -> tuple[int, list[st
                                  static=static)
             added += 1
         except (ConversionError, InputError, AttributeError) as exc:
-            problems.append(f"transforms[{k}] ({getattr(getattr(tr, 'header', None), 'frame_id', '?')}"
-                            f" -> {getattr(tr, 'child_frame_id', '?')}): {exc}")
+            parent = getattr(getattr(tr, "header", None), "frame_id", "?")
+            child = getattr(tr, "child_frame_id", "?")
+            problems.append(f"transforms[{k}] ({parent} -> {child}): {exc}")
     return added, problems
 
 
