@@ -25,7 +25,8 @@ def tf_bag(tmp_path_factory):
     """A 10-pair localization bag at 480x270 with the robot only on /tf + /joint_states."""
     out = tmp_path_factory.mktemp("tfbag") / "loc"
     world = World.default().with_image_size(480, 270)
-    write_bag(world, out, scenario="localization", frames=10, seed=4, ee_pose=False)
+    write_bag(world, out, scenario="localization", frames=10, seed=4, ee_pose=False,
+              render=RenderOptions(supersample=1))
     return out, world
 
 
@@ -84,9 +85,9 @@ def test_process_with_tf_equals_joint_states_kinematics(tf_bag, tmp_path, capsys
 
 
 def test_calibrate_handeye_from_a_tf_only_bag(tmp_path, capsys):
-    world = World.default().with_image_size(640, 360)
+    world = World.default().with_image_size(480, 270)
     bag = tmp_path / "cal"
-    write_bag(world, bag, scenario="calibration", frames=8, seed=1, still_images_only=True,
+    write_bag(world, bag, scenario="calibration", frames=5, seed=1, still_images_only=True,
               hold_frames=1, ee_pose=False, render=RenderOptions(supersample=1))
     out = tmp_path / "out"
     rc = main(["calibrate", "handeye", "--bag", str(bag), "--board", "chessboard:9x6:0.025",
@@ -131,13 +132,13 @@ def test_live_replay_with_tf_gives_the_offline_numbers(tf_bag, tmp_path, ros_con
     for n in (detect, hand_eye, listener):
         executor.add_node(n)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "eye_in_hand.cli", "play", str(bag), "--rate", "0.5",
+        [sys.executable, "-m", "eye_in_hand.cli", "play", str(bag), "--rate", "0.25",
          "--wait-for-subscribers", "30", "--topics", "/stereo/left/image_raw",
          "/stereo/right/image_raw", "/stereo/left/camera_info", "/stereo/right/camera_info",
          "/tf", "/tf_static"], env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     try:
-        spin_until(executor, lambda: proc.poll() is not None and len(poses) >= 10, 90.0)
-        spin_until(executor, lambda: len(poses) >= 10, 3.0)
+        spin_until(executor, lambda: proc.poll() is not None, 90.0)
+        spin_until(executor, lambda: len(poses) >= len(offline), 3.0)   # the last in flight
     finally:
         try:
             out, _ = proc.communicate(timeout=30)
@@ -147,7 +148,9 @@ def test_live_replay_with_tf_gives_the_offline_numbers(tf_bag, tmp_path, ros_con
     assert proc.returncode == 0, out.decode(errors="replace")
     live = {header_stamp_ns(m): np.array([m.pose.position.x, m.pose.position.y,
                                           m.pose.position.z]) for m in poses}
-    # every pose published live is the offline one (live may drop a frame, never alter one)
-    assert len(live) >= 8, (len(live), hand_eye.diag.causes)
+    # every pose published live is the offline one (the live detector may drop a frame on a
+    # busy machine, hand_eye must lose none for want of a TF pose, and none may differ)
+    assert len(live) >= 5, (len(live), hand_eye.diag.causes)
+    assert "no_robot_pose" not in hand_eye.diag.causes
     for stamp, p in live.items():
         np.testing.assert_allclose(p, offline[stamp], atol=1e-9)
