@@ -15,6 +15,15 @@ Localization mode (``mode: localization``)
     and ``diagnostics`` says why. ``hand_eye/transform`` (TransformStamped tool0 -> camera,
     transient local) is published once at start-up.
 
+TF (see docs/localization.md)
+    ``robot_pose_source: tf``: the robot pose is ``base_frame -> ee_frame`` looked up at each
+    image stamp in a TF buffer (:class:`eye_in_hand.core.tf.TfBuffer`) fed by ``/tf`` and
+    ``/tf_static`` (chained, interpolated per edge, never extrapolated, no bracket over
+    ``max_pose_gap_s``). With ``publish_tf`` (and tf2_msgs installed) the node publishes
+    ``/tf_static`` (``ee_frame -> camera_frame``, and ``camera_frame -> right_camera_frame``
+    from ``stereo_calibration_dir``) and, for every located target, ``/tf``
+    (``base_frame -> target_frame`` at the image stamp).
+
 Calibration mode (``mode: calibration``)
     Subscribes ``left/image_raw`` (and ``right/image_raw`` for a stereo rig) and the robot pose.
     Services (std_srvs/Trigger): ``hand_eye/capture`` takes the newest image, detects the board,
