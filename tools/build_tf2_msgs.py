@@ -17,7 +17,8 @@ and exits 0: the package then works without /tf (robot poses from ``ee_pose`` or
 ``joint_states``). A build that fails with every tool present exits 1 and names its log.
 
 Options: ``--force`` rebuilds even when ``tf2_msgs`` imports; ``--build-dir DIR`` (default
-``<prefix>/build/tf2_msgs``).
+``<prefix>/build/tf2_msgs``); ``--any-prefix`` installs even when this Python is not a
+virtual environment's (by default it refuses to write into a system prefix).
 """
 from __future__ import annotations
 
@@ -164,6 +165,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--force", action="store_true", help="rebuild even when tf2_msgs imports")
     ap.add_argument("--build-dir", type=Path, default=None,
                     help="where to build (default: <prefix>/build/tf2_msgs)")
+    ap.add_argument("--any-prefix", action="store_true",
+                    help="install even when this Python is not a virtual environment's")
     args = ap.parse_args(argv)
     prefix = Path(sys.prefix)
     if not args.force:
@@ -171,6 +174,10 @@ def main(argv: list[str] | None = None) -> int:
         if where:
             say(f"available ({where})")
             return 0
+    if sys.prefix == sys.base_prefix and not args.any_prefix:
+        say(f"not built: {sys.executable} is not a virtual environment's Python (it would "
+            f"install into {prefix}; pass --any-prefix to do that). {FALLBACK}.")
+        return 0
     lack = missing_tools()
     if lack:
         say(f"not built: {lack}. {FALLBACK}.")
