@@ -158,27 +158,24 @@ class TfBuffer:
             c = normalize_frame(child, "child_frame_id")
             if p == c:
                 raise InputError(f"transform {p!r} -> {c!r}: a frame cannot be its own parent")
-            T = as_transform(parent_T_child, f"transform {p} -> {c}")
-            if self._is_ancestor(c, p):
+            edge = self._edges.get(c)
+            same_parent = edge is not None and edge.parent == p
+            if not same_parent and self._is_ancestor(c, p):
                 raise InputError(f"transform {p!r} -> {c!r} would close a loop ({c!r} is "
                                  f"already above {p!r})")
-            edge = self._edges.get(c)
             if static:
-                T = T.copy()
+                T = as_transform(parent_T_child, f"transform {p} -> {c}").copy()
                 T.setflags(write=False)
-                if edge is not None and edge.parent != p:
-                    self.stats.reparented += 1
                 self._edges[c] = _Edge(p, T, None)
                 self.stats.static += 1
+            elif same_parent and edge is not None and edge.history is not None:
+                edge.history.add(stamp_ns, parent_T_child)   # validates stamp and matrix
             else:
-                if edge is None or edge.parent != p or edge.history is None:
-                    if edge is not None and edge.parent != p:
-                        self.stats.reparented += 1
-                    edge = _Edge(p, None, PoseBuffer(self._capacity, name=f"{p} -> {c}"))
-                    edge.history.add(stamp_ns, T)   # validate before replacing the old edge
-                    self._edges[c] = edge
-                else:
-                    edge.history.add(stamp_ns, T)
+                history = PoseBuffer(self._capacity, name=f"{p} -> {c}")
+                history.add(stamp_ns, parent_T_child)      # validate before replacing
+                self._edges[c] = _Edge(p, None, history)
+            if edge is not None and not same_parent:
+                self.stats.reparented += 1
         except InputError:
             self.stats.rejected += 1
             raise
