@@ -3,10 +3,11 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+TF2    := $(VENV)/.tf2_msgs
 
 .PHONY: venv test demo bench mutation clean
 
-venv: $(STAMP)
+venv: $(STAMP) $(TF2)
 
 # Re-installs only when the package metadata changes; otherwise a no-op.
 $(STAMP): setup.py setup.cfg package.xml
@@ -15,13 +16,19 @@ $(STAMP): setup.py setup.cfg package.xml
 	$(PY) -m pip install --quiet -e '.[ros,test]'
 	touch $(STAMP)
 
-test: $(STAMP)
+# tf2_msgs (/tf, /tf_static) has no PyPI wheel: build it into the venv (about 30 s once; says
+# so and goes on without it where there is no compiler). See docs/development.md.
+$(TF2): $(STAMP) tools/build_tf2_msgs.py
+	$(PY) tools/build_tf2_msgs.py
+	touch $(TF2)
+
+test: venv
 	$(PY) -m pytest -q test
 
-demo: $(STAMP)
+demo: venv
 	$(PY) -m eye_in_hand.demo
 
-bench: $(STAMP)
+bench: venv
 	for b in benchmarks/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
 
 # Before a release: plant known bugs in core/, io/ and offline code, one at a time; every one

@@ -45,10 +45,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--right-topic", default="/stereo/right/image_raw")
     parser.add_argument("--left-info-topic", default="/stereo/left/camera_info")
     parser.add_argument("--right-info-topic", default="/stereo/right/camera_info")
-    parser.add_argument("--robot-pose", choices=("ee_pose", "joint_states"), default="ee_pose",
-                        help="robot pose source (default ee_pose)")
+    parser.add_argument("--robot-pose", choices=("ee_pose", "joint_states", "tf"),
+                        default="ee_pose",
+                        help="robot pose source (default ee_pose; tf: /tf + /tf_static, "
+                             "--base-frame -> --ee-frame at each image stamp)")
     parser.add_argument("--ee-pose-topic", default="/ee_pose")
     parser.add_argument("--joint-states-topic", default="/joint_states")
+    parser.add_argument("--tf-topic", default="/tf")
+    parser.add_argument("--tf-static-topic", default="/tf_static")
+    parser.add_argument("--base-frame", default=None,
+                        help="robot base frame (default: hand_eye base_frame in --params, else "
+                             "base_link)")
+    parser.add_argument("--ee-frame", default=None,
+                        help="tool frame looked up in /tf (default: hand_eye ee_frame in "
+                             "--params, else the hand-eye file's parent frame)")
     parser.add_argument("--kinematics", metavar="FILE",
                         help="DH YAML or URDF file (with --robot-pose joint_states)")
     parser.add_argument("--urdf-base-link", default="base_link")
@@ -117,8 +127,10 @@ def run(args: argparse.Namespace) -> int:
             left_info_topic=args.left_info_topic, right_info_topic=args.right_info_topic,
             robot_pose_source=args.robot_pose, ee_pose_topic=args.ee_pose_topic,
             joint_states_topic=args.joint_states_topic, kinematics=kinematics,
+            tf_topic=args.tf_topic, tf_static_topic=args.tf_static_topic,
+            ee_frame=str(args.ee_frame or hand_eye_params.get("ee_frame", calib.parent_frame)),
             ground_truth_topic=args.ground_truth_topic,
-            base_frame=str(hand_eye_params.get("base_frame", "base_link")),
+            base_frame=str(args.base_frame or hand_eye_params.get("base_frame", "base_link")),
             camera_frame=calib.child_frame,
             sync_slop_s=float(detect.get("sync.slop_s", 0.005)),
             sync_queue_size=int(detect.get("sync.queue_size", 5)),
@@ -138,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
     info = bag_info(args.bag)
     total = sum(info.topics[t].count for t in {opts.left_topic, opts.right_topic,
                                                opts.pose_topic, opts.ground_truth_topic}
+                | ({opts.tf_static_topic} if opts.robot_pose_source == "tf" else set())
                 if t in info.topics)
     bar = tqdm(total=total, unit="msg", desc="processing", disable=args.quiet,
                file=sys.stderr)

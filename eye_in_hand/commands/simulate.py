@@ -65,6 +65,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--still-images-only", action="store_true",
                         help="calibration bag: record only the --hold-frames settled images of "
                              "each stop (robot topics stay continuous); much smaller bags")
+    parser.add_argument("--no-ee-pose", action="store_true",
+                        help="bag: record the robot as a real cell does, /tf, /tf_static and "
+                             "/joint_states without /ee_pose")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -116,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
                                     hold_frames=args.hold_frames, move_s=args.move_s,
                                     settle_s=args.settle_s,
                                     still_images_only=args.still_images_only,
-                                    progress=progress)
+                                    ee_pose=not args.no_ee_pose, progress=progress)
     finally:
         if bar is not None:
             bar.close()

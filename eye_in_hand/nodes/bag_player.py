@@ -48,6 +48,7 @@ from eye_in_hand.io.bags import BagInfo, OfferedQos, bag_info, iter_messages
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
 from eye_in_hand.ros.msgtypes import import_message_type as _import_message_type
 from eye_in_hand.ros.names import topic_name_problem
+from eye_in_hand.ros.tf import TF_STATIC_TOPIC
 
 __all__ = [
     "PlayerConfig",
@@ -129,6 +130,16 @@ def playback_qos(offered: Sequence[OfferedQos]) -> QoSProfile:
                       durability=durability)
 
 
+def static_tf_playback_qos(count: int) -> QoSProfile:
+    """QoS of a replayed ``/tf_static``: reliable and transient local whatever the bag
+    recorded (tf2 listeners subscribe transient local and match nothing else), deep enough
+    (the bag's message count, 1..1000) that a late subscriber still gets every recorded
+    publisher's static transforms."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(1, min(int(count), 1000)),
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
 @dataclass(frozen=True)
 class PlayerConfig:
     """Validated ``bag_player`` parameters."""
@@ -205,8 +216,10 @@ class BagPlayer(Node):
                     f"type_mismatch:{name}",
                     f"topic {name}: the bag's {topic.msgtype} ({topic.type_hash}) is not the "
                     "installed definition; subscribers may misread it (playing it anyway)")
-            self._topic_pubs[name] = self.create_publisher(
-                cls, name, playback_qos(topic.offered_qos))
+            qos = playback_qos(topic.offered_qos)
+            if name == TF_STATIC_TOPIC:
+                qos = static_tf_playback_qos(topic.count)
+            self._topic_pubs[name] = self.create_publisher(cls, name, qos)
             self.published[name] = 0
         self._clock_pub = None
         self._clock_timer = None
