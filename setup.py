@@ -30,14 +30,19 @@ setup(
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
     ],
     python_requires=">=3.10",
+    # Each minimum is the version pinned in .ci/min-constraints.txt, where `make test-min-deps`
+    # runs the bag tests (docs/development.md, "Dependencies"). rosbags < 0.11.6 lacks
+    # storage_mcap.get_msgdef, which the MCAP chunk scanner of io/bags.py uses.
     install_requires=[
-        "numpy>=1.26",
-        "scipy>=1.11",
-        "opencv-python-headless>=4.8",
-        "rosbags>=0.10",
-        "pyyaml>=6.0",
-        "matplotlib>=3.8",
-        "tqdm>=4.66",
+        "numpy>=1.26.0",
+        "scipy>=1.11.0",
+        "opencv-python-headless>=4.8.0.76",
+        "rosbags>=0.11.6",
+        "lz4>=4.0.2",
+        'backports.zstd>=1.0.0; python_version < "3.14"',  # compression.zstd from 3.14 on
+        "pyyaml>=6.0.1",
+        "matplotlib>=3.8.0",
+        "tqdm>=4.66.0",
     ],
     extras_require={
         "ros": [
@@ -47,6 +52,7 @@ setup(
         "test": [
             "pytest>=8",
             "colcon-common-extensions>=0.3",
+            "catkin_pkg",  # imported by test_package.py (colcon-ros requires it as well)
         ],
     },
     zip_safe=True,
