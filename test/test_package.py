@@ -347,6 +347,35 @@ def test_colcon_installed_cli_runs_from_the_install_tree(colcon_install):
     assert "usage: eye-in-hand" in proc.stdout
 
 
+def test_ros2_run_finds_the_cli_in_the_sourced_workspace(colcon_install):
+    """What ``ros2 run eye_in_hand eye-in-hand --help`` does after ``colcon build`` and
+    ``source install/setup.bash``: find the package prefix in the ament index, run
+    ``<prefix>/lib/eye_in_hand/eye-in-hand``, importing eye_in_hand from the install tree."""
+    bash = shutil.which("bash")
+    if bash is None:
+        pytest.skip("bash is not installed")
+    setup = colcon_install / "setup.bash"
+    assert setup.is_file(), sorted(p.name for p in colcon_install.iterdir())
+    script = f"""set -e
+. "{setup}"
+prefix=$("{sys.executable}" -c "from ament_index_python.packages import get_package_prefix
+print(get_package_prefix('{PACKAGE}'))")
+echo "prefix=$prefix"
+"$prefix/lib/{PACKAGE}/eye-in-hand" --help
+"{sys.executable}" -c "import {PACKAGE}; print('module=' + {PACKAGE}.__file__)"
+"""
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("PYTHONPATH", "AMENT_PREFIX_PATH", "COLCON_PREFIX_PATH", "CMAKE_PREFIX_PATH")}
+    proc = subprocess.run([bash, "-c", script], env=env, cwd=colcon_install,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    lines = proc.stdout.splitlines()
+    assert f"prefix={colcon_install / PACKAGE}" in lines
+    assert "usage: eye-in-hand" in proc.stdout
+    module = next(line for line in lines if line.startswith("module="))[len("module="):]
+    assert Path(module).is_relative_to(colcon_install), module
+
+
 # -- the eye-in-hand command ------------------------------------------------------------------
 def _help(argv: list[str], capsys) -> str:
     from eye_in_hand.cli import main
