@@ -1,4 +1,8 @@
-"""Package-level tests: ament metadata, a real ``colcon build``, and the CLI's command list.
+"""Package-level tests: ament metadata, declared dependencies, a real ``colcon build``, and the
+CLI's command list.
+
+The dependency tests parse every Python file of the package, the launch file, the tests and
+the benchmarks, and fail on any third-party import not declared in setup.py and package.xml.
 
 The colcon test copies the package sources into a temporary workspace and builds it with the
 colcon of the venv (colcon-common-extensions, no network, no ROS install), as a user would on a
@@ -24,6 +28,8 @@ PACKAGE = "eye_in_hand"
 REQUIRED_EXEC_DEPENDS = {
     "rclpy", "sensor_msgs", "geometry_msgs", "std_msgs", "std_srvs", "diagnostic_msgs",
     "python3-numpy", "python3-scipy", "python3-opencv", "python3-yaml",
+    "launch", "launch_ros", "ament_index_python", "tf2_msgs", "python3-rosbags-pip",
+    "python3-lz4",
 }
 #: Every third-party Python import that is not a ROS package: import name -> (PyPI
 #: distribution declared in setup.py, rosdep key declared in package.xml). An import missing
