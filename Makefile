@@ -38,3 +38,22 @@ mutation: $(STAMP)
 
 clean:
 	rm -rf $(VENV) build install log .pytest_cache
+
+# The oldest dependency versions the package declares (setup.py minimums, pinned in
+# .ci/min-constraints.txt): a fresh build/min-venv made by the venv recipe with those pins,
+# a check that the pins are what got installed, then the bag, offline and calibration tests
+# in it. .ci/run calls this after `make test`.
+MIN_VENV       := build/min-venv
+MIN_DEPS_TESTS := test/io test/commands/test_bag_info.py test/commands/test_play.py \
+                  test/commands/test_record_play_round_trip.py test/commands/test_process.py \
+                  test/commands/test_calibrate_handeye_bag.py \
+                  test/commands/test_calibrate_camera.py test/sim/test_output.py \
+                  test/test_offline.py
+
+.PHONY: test-min-deps
+test-min-deps:
+	rm -rf $(MIN_VENV)
+	PIP_CONSTRAINT=$(CURDIR)/.ci/min-constraints.txt \
+	  $(MAKE) --no-print-directory venv VENV=$(MIN_VENV)
+	$(MIN_VENV)/bin/python .ci/check_min_versions.py .ci/min-constraints.txt
+	$(MIN_VENV)/bin/python -m pytest -q -p no:cacheprovider $(MIN_DEPS_TESTS)

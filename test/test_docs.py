@@ -118,3 +118,13 @@ def test_every_node_parameter_is_documented(ros_context, namespace) -> None:
     missing = sorted(f"{node}: {name}" for node, names in declared.items() for name in names
                      if name not in ROS_BUILTIN and not _documented(_doc_name(name), text))
     assert not missing, "node parameters missing from docs/: " + ", ".join(missing)
+
+
+def test_every_page_has_its_contents_list_up_to_date() -> None:
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, str(ROOT / "tools" / "docs_contents.py"), "--check"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout + proc.stderr + (
+        " (run: .venv/bin/python tools/docs_contents.py)")
