@@ -59,6 +59,10 @@ class ProcessOptions:
         camera_frame: frame id of the output points.
         sync_slop_s, sync_queue_size: stereo pairing, as ``detect_triangulate``'s ``sync.*``.
         max_pose_gap_s, robot_sigma_pos_m, robot_sigma_rot_rad: as the ``hand_eye`` node's.
+        max_pose_age_s, pose_jump_back_s: the ``hand_eye`` node's staleness rule, on the bag's
+            log time: the robot poses used for a pair must have been recorded within
+            ``max_pose_age_s`` before the pair's image (log time), and the pose buffer (and the
+            stereo pairing) restart when stamps jump back more than ``pose_jump_back_s``.
         workers: processes (or threads, see :class:`_PairPool`) locating stereo pairs; 1 =
             in the calling thread; None: one per CPU this process may run on. Results are consumed in stamp order; with ``selection:
             nearest`` (which depends on the previous frame) one is used whatever this says, so
@@ -83,6 +87,8 @@ class ProcessOptions:
     max_pose_gap_s: float = 0.05
     robot_sigma_pos_m: float = 0.0001
     robot_sigma_rot_rad: float = 0.0001
+    max_pose_age_s: float = 1.0
+    pose_jump_back_s: float = 1.0
     workers: int | None = None
     verify_crc: bool = False
 
@@ -272,12 +278,14 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     n_poses = info.topics[opts.pose_topic].count
     localizer = Localizer(hand_eye_T, hand_eye_cov, LocalizerConfig(
         max_gap_ns=int(opts.max_pose_gap_s * 1e9), buffer_size=max(2, n_poses + 2),
-        robot_sigma_pos_m=opts.robot_sigma_pos_m, robot_sigma_rot_rad=opts.robot_sigma_rot_rad))
+        robot_sigma_pos_m=opts.robot_sigma_pos_m, robot_sigma_rot_rad=opts.robot_sigma_rot_rad,
+        max_age_ns=int(opts.max_pose_age_s * 1e9), jump_back_ns=int(opts.pose_jump_back_s * 1e9)))
     sync = ApproximateStereoSync(int(round(opts.sync_slop_s * 1e9)), opts.sync_queue_size)
     result = ProcessResult(duration_s=info.duration_ns / 1e9, rig=rig)
     counts = result.counts
     for key in ("pairs", "located", "localized", "no_target", "no_robot_pose", "bad_messages"):
         counts[key] = 0
+    ledger = _Ledger(counts, int(opts.pose_jump_back_s * 1e9))
     if rig is None:
         rig = _rig_from_camera_info(path, opts)
         result.rig = rig
@@ -287,10 +295,12 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
 
     def finish(frame: FrameResult) -> None:
         try:
-            res = localizer.locate(frame.stamp_ns, frame.point_cam, frame.cov_cam)
+            res = localizer.locate(frame.stamp_ns, frame.point_cam, frame.cov_cam,
+                                   now_ns=ledger.arrival(frame.stamp_ns))
         except LocalizationError as exc:
             frame.status, frame.reason = "no_robot_pose", str(exc)
             counts["no_robot_pose"] += 1
+            ledger.refused(exc.reason)
             return
         frame.point_base, frame.cov_base = res.point_base, res.covariance
         counts["localized"] += 1
@@ -307,6 +317,7 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         result.frames.append(frame)
         if frame.status == "bad_image":
             counts["bad_messages"] += 1
+            ledger.count("bad_pairs")
             note(f"stereo pair at {frame.stamp_ns} ns: {frame.reason}")
             return
         counts["located" if frame.status == "located" else "no_target"] += 1
@@ -340,16 +351,19 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
                                                     for n in opts.kinematics.joint_names])
                         T = opts.kinematics.fk(
                             np.asarray(msg.position, dtype=np.float64)[joint_index])
-                    localizer.add_robot_pose(stamp, T)
+                    localizer.add_robot_pose(stamp, T, received_ns=_t)
                     flush(localizer.poses.newest_ns)
                 elif topic == opts.ground_truth_topic:
                     stamp = header_stamp_ns(msg)
                     truth.setdefault(stamp, point_to_xyz(msg.point))  # first target at a stamp
                 elif topic in (opts.left_topic, opts.right_topic):
                     stamp = header_stamp_ns(msg)
-                    push = sync.push_left if topic == opts.left_topic else sync.push_right
+                    left = topic == opts.left_topic
+                    ledger.frame(sync, left, stamp)
+                    push = sync.push_left if left else sync.push_right
                     for pair in push(stamp, msg):
                         counts["pairs"] += 1
+                        ledger.submitted(pair.stamp_ns, _t)
                         pool.submit(pair)
                     for frame in pool.ready():
                         take(frame)
@@ -363,12 +377,67 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     result.located_in_processes = pool.in_processes
     result.notes.extend(pool.notes)
     flush(None)  # end of bag: the last points are resolved (or refused) now
+    ledger.close(sync, localizer)
     for frame in result.frames:
         frame.truth_base = truth.get(frame.stamp_ns)
         if frame.status == "located":
             frame.status = "ok"
     counts["ground_truth"] = len(truth)
     return result
+
+
+class _Ledger:
+    """Counts every frame that does not become a result (``summary.json``'s ``counts``)::
+
+        left_frames  = pairs + unpaired_left     (every image that entered the stereo pairing)
+        right_frames = pairs + unpaired_right
+        pairs        = localized + no_target + no_robot_pose + bad_pairs
+        no_robot_pose = sum of refused.<reason>  (no_pose, before_buffer, no_newer_pose,
+                                                  pose_gap, stale_pose)
+
+    Images that do not decode are in ``bad_messages`` (before pairing). It also keeps each
+    pair's arrival (the log time of the image that completed it): the clock of the receive-age
+    rule, so the result never depends on how fast workers return pairs.
+    """
+
+    def __init__(self, counts: dict[str, int], jump_back_ns: int) -> None:
+        self.counts = counts
+        self.jump_back_ns = jump_back_ns
+        self._arrivals: dict[int, int] = {}
+        for key in ("left_frames", "right_frames", "unpaired_left", "unpaired_right",
+                    "bad_pairs", "refused.stale_pose", "pose_buffer_resets", "time_jumps"):
+            counts.setdefault(key, 0)
+
+    def count(self, key: str, n: int = 1) -> None:
+        self.counts[key] = self.counts.get(key, 0) + n
+
+    def frame(self, sync: ApproximateStereoSync, left: bool, stamp: int) -> None:
+        """An image about to be pushed; a stamp far behind its side's last one restarts the
+        pairing (a bag that jumps back in time), its waiting frames counted as unpaired."""
+        self.count("left_frames" if left else "right_frames")
+        last = sync.last_stamps[0 if left else 1]
+        if last is not None and last - stamp > self.jump_back_ns:
+            pl, pr = sync.pending
+            self.count("unpaired_left", pl)
+            self.count("unpaired_right", pr)
+            sync.reset()
+            self.count("time_jumps")
+
+    def submitted(self, stamp: int, t_ns: int) -> None:
+        self._arrivals[stamp] = t_ns
+
+    def arrival(self, stamp: int) -> int | None:
+        return self._arrivals.pop(stamp, None)
+
+    def refused(self, reason: str) -> None:
+        self.count(f"refused.{reason}")
+
+    def close(self, sync: ApproximateStereoSync, localizer: Localizer) -> None:
+        """End of bag: frames still waiting for a partner are unpaired; sync drops counted."""
+        pl, pr = sync.pending
+        self.count("unpaired_left", sync.stats.dropped_left + pl)
+        self.count("unpaired_right", sync.stats.dropped_right + pr)
+        self.count("pose_buffer_resets", sum(localizer.poses.resets.values()))
 
 
 def _rig_from_camera_info(path: Path, opts: ProcessOptions) -> StereoRig:
