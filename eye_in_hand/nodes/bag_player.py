@@ -9,7 +9,8 @@ once), never the schedule of the rest.
 A reader thread decodes the bag ahead of the publisher (at most 256 messages and 64 MiB), so
 storage I/O and decompression do not delay publishing either.
 
-Diagnostics (``diagnostics``, 1 Hz): ``published`` counter, ``late_ms`` (how late the last
+Diagnostics (``diagnostics``, 1 Hz): ``published`` counter (and ``published <topic>`` per
+topic, to reconcile with what the receiving nodes count), ``late_ms`` (how late the last
 message went out), ``state``, ``loops``, and ``skipped_topics`` (WARN while > 0; each skipped
 topic is also logged once), ``problem: type_mismatch:<topic>`` when the bag recorded a type
 hash (metadata >= 7) that differs from the installed definition (logged once; the topic still
@@ -399,6 +400,7 @@ class BagPlayer(Node):
                 self._topic_pubs[topic].publish(raw)
                 self.published[topic] += 1
                 self.diag.count("published")
+                self.diag.count(f"published {topic}")  # to reconcile with the receivers
                 self.diag.gauge("late_ms", round(max(0.0, time.monotonic() - due) * 1e3, 3))
         finally:
             buffer.close()
