@@ -67,6 +67,9 @@ class ProcessOptions:
             in the calling thread; None: one per CPU this process may run on. Results are consumed in stamp order; with ``selection:
             nearest`` (which depends on the previous frame) one is used whatever this says, so
             the numbers never depend on it.
+        task_timeout_s: deadline of a worker process for one stereo pair (s): a worker that
+            gives no result for this long (stopped with SIGSTOP, hung) is killed and its pairs
+            are located again in this process, so ``process`` never hangs.
         verify_crc: check MCAP chunk CRCs (off by default, as in the MCAP reference readers:
             CRC-32 costs about 16 ms per 1280x720 colour stereo pair here).
     """
@@ -90,11 +93,14 @@ class ProcessOptions:
     max_pose_age_s: float = 1.0
     pose_jump_back_s: float = 1.0
     workers: int | None = None
+    task_timeout_s: float = 20.0
     verify_crc: bool = False
 
     def __post_init__(self) -> None:
         if self.workers is not None and int(self.workers) < 1:
             raise InputError(f"workers: must be >= 1, got {self.workers}")
+        if not self.task_timeout_s > 0:
+            raise InputError(f"task_timeout_s: must be > 0, got {self.task_timeout_s}")
         if self.robot_pose_source not in ("ee_pose", "joint_states"):
             raise InputError(f"robot_pose_source: expected ee_pose or joint_states, got "
                              f"{self.robot_pose_source!r}")
@@ -325,7 +331,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
             pending.append(frame)
             flush(localizer.poses.newest_ns)
 
-    pool = _PairPool(rig, locator_config, opts.workers or available_cpus())
+    pool = _PairPool(rig, locator_config, opts.workers or available_cpus(),
+                     task_timeout_s=opts.task_timeout_s)
     try:
         if memory_mappable(path):
             pool.start_processes()     # they import and initialise while this process sets up
@@ -376,6 +383,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         pool.close()
     result.located_in_processes = pool.in_processes
     result.notes.extend(pool.notes)
+    counts["worker_timeouts"] = pool.timeouts        # their pairs were located again here
+    counts["pairs_relocated"] = pool.relocated
     flush(None)  # end of bag: the last points are resolved (or refused) now
     ledger.close(sync, localizer)
     for frame in result.frames:
@@ -557,9 +566,11 @@ class _PairPool:
     located does not change its result.
     """
 
-    def __init__(self, rig: StereoRig, config: LocatorConfig, workers: int) -> None:
+    def __init__(self, rig: StereoRig, config: LocatorConfig, workers: int,
+                 task_timeout_s: float | None = 20.0) -> None:
         from concurrent.futures import ThreadPoolExecutor
 
+        self._task_timeout_s = task_timeout_s
         self._rig, self._config = rig, config
         parallel = workers > 1 and config.detector.selection != "nearest"
         self._workers = workers if parallel else 1
@@ -570,6 +581,7 @@ class _PairPool:
         self._procs: Any = None
         self._tried_processes = False
         self.in_processes = 0
+        self.relocated = 0
         self.notes: list[str] = []
         self._inflight: deque[Any] = deque()
 
@@ -584,7 +596,8 @@ class _PairPool:
         try:
             self._procs = ProcessPool(self._workers, "eye_in_hand.offline:_worker_init",
                                       (self._rig, self._config),
-                                      env={"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"})
+                                      env={"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"},
+                                      task_timeout_s=self._task_timeout_s)
         except OSError as exc:
             self.notes.append(f"worker processes unavailable ({exc}): pairs located on threads")
 
@@ -611,6 +624,7 @@ class _PairPool:
             if self._procs is not None and not self._procs.alive():
                 self.notes.append("worker processes exited: pairs located on threads")
                 self._procs.close()
+                self._timeouts += self._procs.timeouts
                 self._procs = None
             return None
         try:
@@ -645,6 +659,7 @@ class _PairPool:
             # a worker died (or its task failed in the worker): locate the pair here, where
             # a real problem with it raises normally
             self.in_processes -= 1
+            self.relocated += 1
             if not any(n.startswith("a worker process failed") for n in self.notes):
                 first = str(exc).strip().splitlines()[-1] if str(exc).strip() else "no reason"
                 self.notes.append(f"a worker process failed ({first}); its pairs were located "
@@ -663,6 +678,13 @@ class _PairPool:
                 yield self._result(head, pair)
             else:
                 return
+
+    @property
+    def timeouts(self) -> int:
+        """Worker processes killed for missing the task deadline."""
+        return self._timeouts + (self._procs.timeouts if self._procs is not None else 0)
+
+    _timeouts = 0
 
     def close(self) -> None:
         if self._threads is not None:

@@ -187,3 +187,41 @@ def test_every_unpaired_image_is_counted(bags, tmp_path):
     assert c["pairs"] == 8 - dropped and c["unpaired_left"] == dropped, c
     assert c["unpaired_right"] == 0 and c["left_frames"] == 8 and c["right_frames"] == 5
     _ledger_ok(c)
+
+
+def test_a_stopped_worker_process_times_out_and_costs_no_pair(bags):
+    """SIGSTOP a worker with pairs in flight: process_bag's pool kills it at the deadline,
+    locates its pairs again here, and finishes with every result."""
+    import os
+    import signal
+
+    world, _zstd, raw = bags
+    cfg = load_locator_config(None)
+    inline = _PairPool(world.rig, cfg, 1)
+    for pair in _pairs(raw):
+        inline.submit(pair)
+    expected = list(inline.ready(wait=True))
+    inline.close()
+
+    pool = _PairPool(world.rig, cfg, 2, task_timeout_s=1.0)
+    pool.start_processes()
+    deadline = time.monotonic() + 60
+    while not (pool._procs and all(w.ready.is_set() for w in pool._procs._workers)) \
+            and time.monotonic() < deadline:
+        time.sleep(0.01)
+    victim = pool._procs._workers[0].proc.pid
+    os.kill(victim, signal.SIGSTOP)                   # stopped, not dead: it never answers
+    t0 = time.monotonic()
+    out = []
+    try:
+        for pair in _pairs(raw):
+            pool.submit(pair)
+        out.extend(pool.ready(wait=True))
+    finally:
+        pool.close()
+    assert time.monotonic() - t0 < 30
+    assert pool.timeouts == 1 and pool.relocated >= 1
+    assert [f.stamp_ns for f in out] == [f.stamp_ns for f in expected]
+    for a, b in zip(out, expected):
+        np.testing.assert_array_equal(a.point_cam, b.point_cam)
+    assert any("task deadline" in n for n in pool.notes), pool.notes

@@ -53,6 +53,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ground-truth-topic", default="/ground_truth/target")
     parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
                         help="output bag storage (default mcap)")
+    parser.add_argument("--task-timeout", type=float, default=20.0, metavar="S",
+                        help="deadline of a worker process for one stereo pair (default 20 s): "
+                             "a worker that gives no result for this long (stopped, hung) is "
+                             "killed and its pairs are located again in the main process")
     parser.add_argument("--workers", type=int, metavar="N",
                         help="processes locating stereo pairs (default: one per CPU; 1 = all in "
                              "this process)")
@@ -124,7 +128,8 @@ def run(args: argparse.Namespace) -> int:
             pose_jump_back_s=float(hand_eye_params.get("pose_jump_back_s", 1.0)),
             robot_sigma_pos_m=float(hand_eye_params.get("robot_sigma_pos_m", 0.0001)),
             robot_sigma_rot_rad=float(hand_eye_params.get("robot_sigma_rot_rad", 0.0001)),
-            verify_crc=args.verify_crc, workers=args.workers)
+            verify_crc=args.verify_crc, workers=args.workers,
+            task_timeout_s=args.task_timeout)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{args.params}: {exc}") from exc
     from pathlib import Path
