@@ -112,6 +112,8 @@ def run(args: argparse.Namespace) -> int:
         from eye_in_hand.nodes.hand_eye import load_kinematics
 
         kinematics = load_kinematics(args.kinematics, args.urdf_base_link, args.urdf_tip_link)
+    if not args.task_timeout > 0:
+        raise InputError(f"--task-timeout: must be > 0 s, got {args.task_timeout}")
     try:
         opts = ProcessOptions(
             left_topic=args.left_topic, right_topic=args.right_topic,
