@@ -52,6 +52,7 @@ from typing import Any
 import cv2
 import numpy as np
 from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 
 from eye_in_hand.ros.node_main import run_node
@@ -101,6 +102,11 @@ NODE_PARAMETERS: tuple[Param, ...] = (
     Param("queue_depth", 6, "stereo pairs waiting for the worker (6: 0.2 s at 30 Hz, enough "
           "for a burst of late DDS deliveries); when full the oldest is dropped (counted as "
           "dropped_pairs). 1 = only ever the newest pair", range=(1, 30)),
+    Param("images.reliable", False, "subscribe to the images reliably: lost samples are sent "
+          "again (a bag replay loses nothing in transport) but only reliable publishers "
+          "match; false = best effort (sensor data QoS), which matches every camera driver"),
+    Param("images.depth", 5, "images kept per side until the executor takes them (a busy "
+          "machine may stall it for a few frames)", range=(1, 100)),
     Param("debug_image.max_rate_hz", 5.0, "rate limit of target/debug_image (Hz); 0 = never "
           "publish it", range=(0.0, 100.0)),
     Param("diagnostics_period_s", 1.0, "diagnostics publication period (s)",
@@ -238,8 +244,13 @@ class DetectTriangulateNode(Node):
         self.diag.warn_above("processing_ms", 50.0)
         self.diag.stale_after("pairs", 5.0)  # WARN when no stereo pair arrived for 5 s
 
-        self.create_subscription(Image, "left/image_raw", self._on_left, SENSOR_QOS)
-        self.create_subscription(Image, "right/image_raw", self._on_right, SENSOR_QOS)
+        image_qos = QoSProfile(depth=int(node_values["images.depth"]),
+                               history=HistoryPolicy.KEEP_LAST,
+                               reliability=ReliabilityPolicy.RELIABLE
+                               if node_values["images.reliable"] else SENSOR_QOS.reliability,
+                               durability=SENSOR_QOS.durability)
+        self.create_subscription(Image, "left/image_raw", self._on_left, image_qos)
+        self.create_subscription(Image, "right/image_raw", self._on_right, image_qos)
         if not self._from_files:
             self.create_subscription(CameraInfo, "left/camera_info",
                                      lambda m: self._on_info("left", m), SENSOR_QOS)
