@@ -117,9 +117,13 @@ def live_step(params: Path, loc_bag: Path, live_file: Path, env: dict[str, str],
                                 stderr=subprocess.PIPE)
         try:
             _run(play_cmd, env, quiet=quiet)
-            deadline = time.monotonic() + 10.0
-            while echo.poll() is None and time.monotonic() < deadline:
-                time.sleep(0.1)  # the last poses are still in flight
+            # The last poses are still in flight (a busy machine detects late): wait while
+            # they keep coming, up to 10 s after the last one and 60 s in all.
+            size, last, end = -1, time.monotonic(), time.monotonic() + 60.0
+            while echo.poll() is None and time.monotonic() < min(last + 10.0, end):
+                if live_file.stat().st_size != size:
+                    size, last = live_file.stat().st_size, time.monotonic()
+                time.sleep(0.1)
         finally:
             if echo.poll() is None:
                 echo.send_signal(signal.SIGINT)
