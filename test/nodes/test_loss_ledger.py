@@ -1,6 +1,6 @@
 """Issue #14: a replay at 10x through detect_triangulate and hand_eye loses nothing uncounted.
 
-The simulated localization bag is played at ten times its rate (the bag_player node, as
+A simulated localization bag (24 pairs, 320x240) is played at ten times its rate (the bag_player node, as
 ``eye-in-hand play --rate 10``) into ``detect_triangulate`` and ``hand_eye``, in process. At the
 end every left image the player published is accounted for by the nodes' diagnostics counters:
 
@@ -52,9 +52,9 @@ def ledger(player: BagPlayer, detect: DetectTriangulateNode, hand_eye: HandEyeNo
 
 
 def test_replay_at_10x_reconciles(tmp_path, ros_context, executor, namespace, spin_until):
-    world = World.default().with_image_size(640, 360)
+    world = World.default().with_image_size(320, 240)
     bag = tmp_path / "loc"
-    summary = write_bag(world, bag, scenario="localization", frames=30, seed=3)
+    summary = write_bag(world, bag, scenario="localization", frames=24, seed=3)
     n = summary.counts[LEFT] if LEFT in summary.counts else summary.n_images
     world.rig.save(tmp_path / "calib")
     he = tmp_path / "hand_eye.yaml"
