@@ -302,7 +302,7 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     def finish(frame: FrameResult) -> None:
         try:
             res = localizer.locate(frame.stamp_ns, frame.point_cam, frame.cov_cam,
-                                   now_ns=ledger.arrival(frame.stamp_ns))
+                                   now_ns=arrived.pop(id(frame), None))
         except LocalizationError as exc:
             frame.status, frame.reason = "no_robot_pose", str(exc)
             counts["no_robot_pose"] += 1
@@ -319,8 +319,11 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         if len(result.notes) < 20:
             result.notes.append(text)
 
+    arrived: dict[int, int | None] = {}  # id(pending frame) -> its pair's arrival (log time)
+
     def take(frame: FrameResult) -> None:
         result.frames.append(frame)
+        t_arrival = ledger.arrival(frame.stamp_ns)     # taken for every frame, in order
         if frame.status == "bad_image":
             counts["bad_messages"] += 1
             ledger.count("bad_pairs")
@@ -328,6 +331,7 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
             return
         counts["located" if frame.status == "located" else "no_target"] += 1
         if frame.status == "located":
+            arrived[id(frame)] = t_arrival
             pending.append(frame)
             flush(localizer.poses.newest_ns)
 
@@ -412,7 +416,7 @@ class _Ledger:
     def __init__(self, counts: dict[str, int], jump_back_ns: int) -> None:
         self.counts = counts
         self.jump_back_ns = jump_back_ns
-        self._arrivals: dict[int, int] = {}
+        self._arrivals: dict[int, deque[int]] = {}   # stamp -> arrivals (a replay repeats)
         for key in ("left_frames", "right_frames", "unpaired_left", "unpaired_right",
                     "bad_pairs", "refused.stale_pose", "pose_buffer_resets", "time_jumps"):
             counts.setdefault(key, 0)
@@ -433,10 +437,17 @@ class _Ledger:
             self.count("time_jumps")
 
     def submitted(self, stamp: int, t_ns: int) -> None:
-        self._arrivals[stamp] = t_ns
+        self._arrivals.setdefault(stamp, deque()).append(t_ns)
 
     def arrival(self, stamp: int) -> int | None:
-        return self._arrivals.pop(stamp, None)
+        """The log time at which the (oldest unfinished) pair with this stamp was complete."""
+        times = self._arrivals.get(stamp)
+        if not times:
+            return None
+        t = times.popleft()
+        if not times:
+            del self._arrivals[stamp]
+        return t
 
     def refused(self, reason: str) -> None:
         self.count(f"refused.{reason}")
