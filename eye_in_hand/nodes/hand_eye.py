@@ -313,7 +313,12 @@ class HandEyeNode(Node):
                                   "refused.pending_overflow", "pose_buffer_resets.time_jump",
                                   "pose_buffer_resets.stream_stopped")
         self.diag.stale_after("points", cfg.stale_after_s)
-        self.create_timer(0.02, self._expire_pending)
+        from rclpy.clock import Clock, ClockType
+
+        # Steady time: waiting points expire and stopped pose streams are noticed also while
+        # simulated time (use_sim_time) stands still.
+        self.create_timer(0.02, self._expire_pending,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _on_point(self, msg: PointStamped) -> None:
         self.diag.count("points")

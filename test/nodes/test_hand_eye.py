@@ -348,3 +348,37 @@ def test_a_bag_replayed_again_resets_the_pose_buffer(tmp_path, ros_context, exec
     assert len(rig.node.localizer.poses) == 5
     rig.send_point(0.02, [0.0, 0.0, 0.5])
     assert spin_until(executor, lambda: len(rig.poses) == 1, 10.0)
+
+
+def test_receive_age_uses_the_simulated_clock(tmp_path, ros_context, executor, namespace,
+                                              spin_until):
+    """With use_sim_time the receive age is measured on /clock: 2 s of simulated time without
+    robot poses make them stale, although hardly any wall time passed."""
+    from rosgraph_msgs.msg import Clock
+
+    rig = _Rig(ros_context, executor, namespace,
+               _overrides(_hand_eye_file(tmp_path), max_pose_wait_s=0.05) +
+               [Parameter("use_sim_time", value=True)])
+    clock_pub = rig.io.create_publisher(Clock, "/clock", 10)
+    node = rig.node
+
+    def set_clock(t_s: float) -> bool:
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(int(t_s * 1e9), 10**9)
+        return spin_until(executor, lambda: (clock_pub.publish(msg), False)[1]
+                          or node.get_clock().now().nanoseconds == int(t_s * 1e9), 10.0)
+
+    assert spin_until(executor, rig.connected, 10.0)
+    assert set_clock(100.0)
+    for k in range(5):
+        rig.send_pose(0.01 * k)
+    assert spin_until(executor, lambda: node.diag.counter("robot_poses") == 5, 10.0)
+    assert set_clock(100.5)                       # 0.5 s later on /clock: fresh
+    rig.send_point(0.015, [0.0, 0.0, 0.5])
+    assert spin_until(executor, lambda: len(rig.poses) == 1, 10.0)
+    assert set_clock(102.5)                       # 2.5 s on /clock: the stream has stopped
+    rig.send_point(0.025, [0.0, 0.0, 0.5])
+    assert spin_until(executor, lambda: node.diag.counter("rejected") == 1, 10.0)
+    assert node.diag.counter("pose_buffer_resets.stream_stopped") \
+        + node.diag.counter("refused.stale_pose") >= 1
+    assert len(rig.poses) == 1
