@@ -88,6 +88,56 @@ def _stats(errors_m: Sequence[float]) -> str:
             f"max {e.max():.3f} mm over {e.size} frames")
 
 
+def live_step(params: Path, loc_bag: Path, live_file: Path, env: dict[str, str], n_pairs: int,
+              *, quiet: bool = False) -> tuple[list[dict], str]:
+    """Step 3: ``launch`` (no stereo_capture), ``echo /target/pose``, ``play`` the bag.
+
+    Nothing is lost to discovery: ``play --wait-for-topics`` waits, before the first message,
+    until every hop of the pipeline has a publisher and a subscriber: its own topics (images,
+    robot pose: matched subscribers) and ``/target/point`` (detect_triangulate -> hand_eye)
+    and ``/target/pose`` (hand_eye -> echo), however slowly the processes start.
+
+    Returns:
+        The target poses received (JSON dicts) and the launch's output.
+    """
+    launch_cmd = _cli("launch", "--params", str(params), "--skip", "stereo_capture")
+    echo_cmd = _cli("echo", "/target/pose", "--json", "--count", str(n_pairs),
+                    "--timeout", "60")
+    play_cmd = _cli("play", str(loc_bag), "--topics", LEFT, RIGHT, "/ee_pose",
+                    "--wait-for-subscribers", "60", "--wait-for-topics", "/target/point",
+                    "/target/pose")
+    if not quiet:
+        print(_show(launch_cmd) + " &", flush=True)
+    launch = subprocess.Popen(launch_cmd, env=env, text=True, stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT, start_new_session=True)
+    if not quiet:
+        print(_show(echo_cmd) + f" > {live_file.name} &", flush=True)
+    with live_file.open("w") as fh:
+        echo = subprocess.Popen(echo_cmd, env=env, text=True, stdout=fh,
+                                stderr=subprocess.PIPE)
+        try:
+            _run(play_cmd, env, quiet=quiet)
+            # The last poses are still in flight (a busy machine detects late): wait while
+            # they keep coming, up to 10 s after the last one and 60 s in all.
+            size, last, end = -1, time.monotonic(), time.monotonic() + 60.0
+            while echo.poll() is None and time.monotonic() < min(last + 10.0, end):
+                if live_file.stat().st_size != size:
+                    size, last = live_file.stat().st_size, time.monotonic()
+                time.sleep(0.1)
+        finally:
+            if echo.poll() is None:
+                echo.send_signal(signal.SIGINT)
+                echo.wait(timeout=10)
+            os.killpg(launch.pid, signal.SIGINT)
+            try:
+                launch_out, _ = launch.communicate(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(launch.pid, signal.SIGKILL)
+                launch_out, _ = launch.communicate()
+    live = [json.loads(line) for line in live_file.read_text().splitlines() if line.strip()]
+    return live, launch_out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the demo; returns 0 when every step ran and the live path produced poses."""
     parser = argparse.ArgumentParser(prog="python -m eye_in_hand.demo", description=__doc__,
@@ -126,42 +176,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     params.write_text(base.replace('calibration_dir: ""          # empty = use the camera_info '
                                    'topics', f'calibration_dir: "{calib}"')
                       .replace("hand_eye_file: hand_eye.yaml", f"hand_eye_file: "
-                               f"{he_dir / 'hand_eye.yaml'}"))
+                               f"{he_dir / 'hand_eye.yaml'}")
+                      # a replay of a bag, where every frame counts: images reliably, and
+                      # room for a machine too busy to detect at 30 Hz (latency, not losses)
+                      .replace("    method: dlt ", "    images: {reliable: true, depth: 30}\n"
+                               "    queue_depth: 30\n    method: dlt "))
     if str(calib) not in params.read_text():
         raise SystemExit("demo: could not set calibration_dir in the parameter file")
     from eye_in_hand.io.bags import bag_info
 
     n_pairs = bag_info(loc_bag).topics[LEFT].count
-    launch_cmd = _cli("launch", "--params", str(params), "--skip", "stereo_capture")
-    echo_cmd = _cli("echo", "/target/pose", "--json", "--count", str(n_pairs),
-                    "--timeout", "60")
-    play_cmd = _cli("play", str(loc_bag), "--topics", LEFT, RIGHT, "/ee_pose",
-                    "--wait-for-subscribers", "20")
     live_file = out / "live_target_pose.jsonl"
-    print(_show(launch_cmd) + " &", flush=True)
-    launch = subprocess.Popen(launch_cmd, env=env, text=True, stdout=subprocess.PIPE,
-                              stderr=subprocess.STDOUT, start_new_session=True)
-    print(_show(echo_cmd) + f" > {live_file.name} &", flush=True)
-    with live_file.open("w") as fh:
-        echo = subprocess.Popen(echo_cmd, env=env, text=True, stdout=fh,
-                                stderr=subprocess.PIPE)
-        try:
-            _run(play_cmd, env)
-            deadline = time.monotonic() + 10.0
-            while echo.poll() is None and time.monotonic() < deadline:
-                time.sleep(0.1)  # the last poses are still in flight
-        finally:
-            if echo.poll() is None:
-                echo.send_signal(signal.SIGINT)
-                echo.wait(timeout=10)
-            os.killpg(launch.pid, signal.SIGINT)
-            try:
-                launch_out, _ = launch.communicate(timeout=20)
-            except subprocess.TimeoutExpired:
-                os.killpg(launch.pid, signal.SIGKILL)
-                launch_out, _ = launch.communicate()
+    live, launch_out = live_step(params, loc_bag, live_file, env, n_pairs)
     (out / "launch.log").write_text(launch_out)
-    live = [json.loads(line) for line in live_file.read_text().splitlines() if line.strip()]
     for msg in live[:3]:
         p = msg["pose"]["position"]
         print(f"  target/pose @ {msg['header']['stamp']['sec']}.{msg['header']['stamp']['nanosec']:09d}"

@@ -62,4 +62,14 @@ class KinematicsError(EyeInHandError):
 
 
 class LocalizationError(EyeInHandError):
-    """A target pose cannot be formed (no robot pose at the image stamp, stale input)."""
+    """A target pose cannot be formed (no robot pose at the image stamp, stale input).
+
+    Attributes:
+        reason: a short stable key saying why (``no_pose``, ``before_buffer``,
+            ``no_newer_pose``, ``pose_gap``, ``stale_pose``), used to count refusals by
+            reason on ``diagnostics`` and in ``process``'s summary.
+    """
+
+    def __init__(self, message: str = "", reason: str = "no_robot_pose") -> None:
+        super().__init__(message)
+        self.reason = reason

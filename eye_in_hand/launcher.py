@@ -16,8 +16,14 @@ namespace ``/`` the cameras are ``/stereo/left/image_raw`` ... (what the simulat
 the robot pose is ``/ee_pose`` and the result is ``/target/pose``.
 
 Each child's output lines are prefixed with ``[node]``; Ctrl-C (SIGINT) and SIGTERM are
-forwarded to every child; when a child exits on its own, the others are stopped and the
-launcher exits non-zero, naming it.
+forwarded to every child.
+
+Supervision: a child that exits on its own (a crash, ``kill -9``) is started again after a
+bounded exponential back-off (``respawn_delay_s``, doubled for each restart within
+``restart_window_s``, at most ``respawn_max_delay_s``), and the launcher's own lines
+(``[launch] ...``) say so. A node that needs more than ``max_restarts`` restarts within
+``restart_window_s`` is given up: the others are stopped and the launcher exits non-zero,
+naming it. With ``respawn=False`` (``--no-respawn``) the first exit stops everything at once.
 """
 from __future__ import annotations
 
@@ -27,6 +33,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Sequence
@@ -101,11 +108,32 @@ class Launcher:
         root_namespace: prefix of every node's namespace.
         env: environment of the children (default: this process's).
         out: where prefixed child output goes (default: stdout).
+        respawn: restart a child that exits on its own (see the module docstring).
+        respawn_delay_s: back-off before the first restart; doubled for each further restart
+            within ``restart_window_s``.
+        respawn_max_delay_s: the longest back-off.
+        max_restarts: restarts of one node allowed within ``restart_window_s``; one more and
+            the launch stops, naming the node.
+        restart_window_s: the window of ``max_restarts`` (s).
     """
 
     def __init__(self, params_file: str | os.PathLike[str], nodes: Sequence[str] | None = None,
                  *, root_namespace: str = "/", env: dict[str, str] | None = None,
-                 out: IO[str] | None = None) -> None:
+                 out: IO[str] | None = None, respawn: bool = True,
+                 respawn_delay_s: float = 0.5, respawn_max_delay_s: float = 8.0,
+                 max_restarts: int = 5, restart_window_s: float = 60.0) -> None:
+        if not (respawn_delay_s >= 0 and respawn_max_delay_s >= respawn_delay_s):
+            raise InputError(f"respawn delays: need 0 <= first ({respawn_delay_s}) <= max "
+                             f"({respawn_max_delay_s})")
+        if max_restarts < 0 or not restart_window_s > 0:
+            raise InputError(f"max_restarts ({max_restarts}) must be >= 0 and restart_window_s "
+                             f"({restart_window_s}) > 0")
+        self.respawn = respawn
+        self.respawn_delay_s = float(respawn_delay_s)
+        self.respawn_max_delay_s = float(respawn_max_delay_s)
+        self.max_restarts = int(max_restarts)
+        self.restart_window_s = float(restart_window_s)
+        self.restarts: dict[str, int] = {}
         self.params_file = Path(params_file)
         if not self.params_file.is_file():
             raise ConfigError(f"{self.params_file}: parameter file not found")
@@ -128,13 +156,23 @@ class Launcher:
     def start(self) -> None:
         """Start every node (each in its own process group)."""
         for spec in self.specs:
-            cmd = node_command(spec, self.params_file, root_namespace=self.root_namespace)
-            proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                    text=True, env=self.env, start_new_session=True)
-            self.procs[spec.name] = proc
-            th = threading.Thread(target=self._pump, args=(spec.name, proc), daemon=True)
-            th.start()
-            self._threads.append(th)
+            self._start_one(spec)
+
+    def _start_one(self, spec: NodeSpec) -> None:
+        cmd = node_command(spec, self.params_file, root_namespace=self.root_namespace)
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                text=True, env=self.env, start_new_session=True)
+        self.procs[spec.name] = proc
+        self._say(f"started {spec.name} (pid {proc.pid})")
+        th = threading.Thread(target=self._pump, args=(spec.name, proc), daemon=True)
+        th.start()
+        self._threads.append(th)
+
+    def _say(self, text: str) -> None:
+        """A line of the launcher's own, prefixed ``[launch]``."""
+        with self._lock:
+            self.out.write(f"[launch] {text}\n")
+            self.out.flush()
 
     def _pump(self, name: str, proc: subprocess.Popen[str]) -> None:
         assert proc.stdout is not None
@@ -166,6 +204,41 @@ class Launcher:
             th.join(timeout=2.0)
         return {name: proc.returncode for name, proc in self.procs.items()}
 
+    def _supervise(self, stop: threading.Event, end: float | None) -> tuple[str, int] | None:
+        """Watch the children until ``stop``, ``end`` or a node given up (returned)."""
+        history: dict[str, deque[float]] = {s.name: deque() for s in self.specs}
+        due: dict[str, float] = {}
+        specs = {s.name: s for s in self.specs}
+        while not stop.is_set():
+            now = time.monotonic()
+            if end is not None and now >= end:
+                return None
+            for name, proc in self.procs.items():
+                code = proc.poll()
+                if code is None or name in due:
+                    continue
+                if not self.respawn:
+                    return name, code
+                recent = history[name]
+                while recent and now - recent[0] > self.restart_window_s:
+                    recent.popleft()
+                if len(recent) >= self.max_restarts:
+                    return name, code
+                delay = min(self.respawn_max_delay_s,
+                            self.respawn_delay_s * 2 ** len(recent))
+                self._say(f"{name} exited with code {code}; restarting in {delay:.1f} s "
+                          f"(restart {len(recent) + 1} of at most {self.max_restarts} within "
+                          f"{self.restart_window_s:g} s)")
+                due[name] = now + delay
+            for name, when in list(due.items()):
+                if now >= when and not stop.is_set():
+                    del due[name]
+                    history[name].append(time.monotonic())
+                    self.restarts[name] = self.restarts.get(name, 0) + 1
+                    self._start_one(specs[name])
+            stop.wait(0.05)
+        return None
+
     def first_exited(self) -> tuple[str, int] | None:
         """The first child that has exited, with its code, or None."""
         for name, proc in self.procs.items():
@@ -189,17 +262,16 @@ class Launcher:
         died = None
         end = None if duration_s is None else time.monotonic() + duration_s
         try:
-            while not stop.is_set():
-                died = self.first_exited()
-                if died is not None or (end is not None and time.monotonic() >= end):
-                    break
-                stop.wait(0.1)
+            died = self._supervise(stop, end)
         finally:
             codes = self.stop()
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
         if died is not None:
-            print(f"eye-in-hand launch: {died[0]} exited with code {died[1]}; stopped the "
+            name, code = died
+            why = (f" ({self.max_restarts} restart(s) within {self.restart_window_s:g} s "
+                   "already): giving up" if self.respawn else "")
+            print(f"eye-in-hand launch: {name} exited with code {code}{why}; stopped the "
                   "others", file=sys.stderr)
             return 1
         bad = {n: c for n, c in codes.items() if c not in (0, -signal.SIGINT, 130)}

@@ -63,10 +63,17 @@ class ProcessOptions:
         camera_frame: frame id of the output points.
         sync_slop_s, sync_queue_size: stereo pairing, as ``detect_triangulate``'s ``sync.*``.
         max_pose_gap_s, robot_sigma_pos_m, robot_sigma_rot_rad: as the ``hand_eye`` node's.
+        max_pose_age_s, pose_jump_back_s: the ``hand_eye`` node's staleness rule, on the bag's
+            log time: the robot poses used for a pair must have been recorded within
+            ``max_pose_age_s`` before the pair's image (log time), and the pose buffer (and the
+            stereo pairing) restart when stamps jump back more than ``pose_jump_back_s``.
         workers: processes (or threads, see :class:`_PairPool`) locating stereo pairs; 1 =
             in the calling thread; None: one per CPU this process may run on. Results are consumed in stamp order; with ``selection:
             nearest`` (which depends on the previous frame) one is used whatever this says, so
             the numbers never depend on it.
+        task_timeout_s: deadline of a worker process for one stereo pair (s): a worker that
+            gives no result for this long (stopped with SIGSTOP, hung) is killed and its pairs
+            are located again in this process, so ``process`` never hangs.
         verify_crc: check MCAP chunk CRCs (off by default, as in the MCAP reference readers:
             CRC-32 costs about 16 ms per 1280x720 colour stereo pair here).
     """
@@ -90,12 +97,17 @@ class ProcessOptions:
     max_pose_gap_s: float = 0.05
     robot_sigma_pos_m: float = 0.0001
     robot_sigma_rot_rad: float = 0.0001
+    max_pose_age_s: float = 1.0
+    pose_jump_back_s: float = 1.0
     workers: int | None = None
+    task_timeout_s: float = 20.0
     verify_crc: bool = False
 
     def __post_init__(self) -> None:
         if self.workers is not None and int(self.workers) < 1:
             raise InputError(f"workers: must be >= 1, got {self.workers}")
+        if not self.task_timeout_s > 0:
+            raise InputError(f"task_timeout_s: must be > 0, got {self.task_timeout_s}")
         if self.robot_pose_source not in ("ee_pose", "joint_states", "tf"):
             raise InputError(f"robot_pose_source: expected ee_pose, joint_states or tf, got "
                              f"{self.robot_pose_source!r}")
@@ -284,13 +296,15 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     n_poses = info.topics[opts.pose_topic].count
     localizer = Localizer(hand_eye_T, hand_eye_cov, LocalizerConfig(
         max_gap_ns=int(opts.max_pose_gap_s * 1e9), buffer_size=max(2, n_poses + 2),
-        robot_sigma_pos_m=opts.robot_sigma_pos_m, robot_sigma_rot_rad=opts.robot_sigma_rot_rad))
+        robot_sigma_pos_m=opts.robot_sigma_pos_m, robot_sigma_rot_rad=opts.robot_sigma_rot_rad,
+        max_age_ns=int(opts.max_pose_age_s * 1e9), jump_back_ns=int(opts.pose_jump_back_s * 1e9)))
     tf_buffer = _use_tf(localizer, opts, n_poses) if use_tf else None
     sync = ApproximateStereoSync(int(round(opts.sync_slop_s * 1e9)), opts.sync_queue_size)
     result = ProcessResult(duration_s=info.duration_ns / 1e9, rig=rig)
     counts = result.counts
     for key in ("pairs", "located", "localized", "no_target", "no_robot_pose", "bad_messages"):
         counts[key] = 0
+    ledger = _Ledger(counts, int(opts.pose_jump_back_s * 1e9))
     if rig is None:
         rig = _rig_from_camera_info(path, opts)
         result.rig = rig
@@ -300,10 +314,12 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
 
     def finish(frame: FrameResult) -> None:
         try:
-            res = localizer.locate(frame.stamp_ns, frame.point_cam, frame.cov_cam)
+            res = localizer.locate(frame.stamp_ns, frame.point_cam, frame.cov_cam,
+                                   now_ns=arrived.pop(id(frame), None))
         except LocalizationError as exc:
             frame.status, frame.reason = "no_robot_pose", str(exc)
             counts["no_robot_pose"] += 1
+            ledger.refused(exc.reason)
             return
         frame.point_base, frame.cov_base = res.point_base, res.covariance
         counts["localized"] += 1
@@ -316,18 +332,24 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         if len(result.notes) < 20:
             result.notes.append(text)
 
+    arrived: dict[int, int | None] = {}  # id(pending frame) -> its pair's arrival (log time)
+
     def take(frame: FrameResult) -> None:
         result.frames.append(frame)
+        t_arrival = ledger.arrival(frame.stamp_ns)     # taken for every frame, in order
         if frame.status == "bad_image":
             counts["bad_messages"] += 1
+            ledger.count("bad_pairs")
             note(f"stereo pair at {frame.stamp_ns} ns: {frame.reason}")
             return
         counts["located" if frame.status == "located" else "no_target"] += 1
         if frame.status == "located":
+            arrived[id(frame)] = t_arrival
             pending.append(frame)
             flush(localizer.poses.newest_ns)
 
-    pool = _PairPool(rig, locator_config, opts.workers or available_cpus())
+    pool = _PairPool(rig, locator_config, opts.workers or available_cpus(),
+                     task_timeout_s=opts.task_timeout_s)
     try:
         if memory_mappable(path):
             pool.start_processes()     # they import and initialise while this process sets up
@@ -357,16 +379,19 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
                                                     for n in opts.kinematics.joint_names])
                         T = opts.kinematics.fk(
                             np.asarray(msg.position, dtype=np.float64)[joint_index])
-                    localizer.add_robot_pose(stamp, T)
+                    localizer.add_robot_pose(stamp, T, received_ns=_t)
                     flush(localizer.poses.newest_ns)
                 elif topic == opts.ground_truth_topic:
                     stamp = header_stamp_ns(msg)
                     truth.setdefault(stamp, point_to_xyz(msg.point))  # first target at a stamp
                 elif topic in (opts.left_topic, opts.right_topic):
                     stamp = header_stamp_ns(msg)
-                    push = sync.push_left if topic == opts.left_topic else sync.push_right
+                    left = topic == opts.left_topic
+                    ledger.frame(sync, left, stamp)
+                    push = sync.push_left if left else sync.push_right
                     for pair in push(stamp, msg):
                         counts["pairs"] += 1
+                        ledger.submitted(pair.stamp_ns, _t)
                         pool.submit(pair)
                     for frame in pool.ready():
                         take(frame)
@@ -379,7 +404,10 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         pool.close()
     result.located_in_processes = pool.in_processes
     result.notes.extend(pool.notes)
+    counts["worker_timeouts"] = pool.timeouts        # their pairs were located again here
+    counts["pairs_relocated"] = pool.relocated
     flush(None)  # end of bag: the last points are resolved (or refused) now
+    ledger.close(sync, localizer)
     for frame in result.frames:
         frame.truth_base = truth.get(frame.stamp_ns)
         if frame.status == "located":
@@ -392,20 +420,85 @@ def _use_tf(localizer: Localizer, opts: ProcessOptions, n_messages: int) -> Any:
     """A TF buffer whose ``base_frame -> ee_frame`` chain becomes the localizer's robot pose."""
     from eye_in_hand.core.tf import TfBuffer, TfPoseView
 
-    buffer = TfBuffer(max(2, n_messages + 2))
-    localizer.poses = TfPoseView(buffer, opts.base_frame, opts.ee_frame)  # type: ignore
-    return buffer
+    view = TfPoseView(TfBuffer(max(2, n_messages + 2)), opts.base_frame, opts.ee_frame,
+                      jump_back_ns=int(opts.pose_jump_back_s * 1e9))
+    localizer.poses = view  # type: ignore[assignment]
+    return view
 
 
-def _add_tf(buffer: Any, msg: Any, static: bool, topic: str, t_ns: int,
+def _add_tf(view: Any, msg: Any, static: bool, topic: str, t_ns: int,
             counts: dict[str, int], note: Callable[[str], None]) -> None:
-    """One TFMessage into the buffer; each bad transform counts as a bad message."""
-    from eye_in_hand.ros.tf import add_tf_message
+    """One TFMessage into the buffer (received at its log time); each bad transform counts as
+    a bad message, a jump back in time as ``time_jumps``."""
+    from eye_in_hand.ros.tf import feed_tf_message
 
-    _, problems = add_tf_message(buffer, msg, static=static)
+    _, problems, jumped = feed_tf_message(view, msg, static=static, received_ns=t_ns)
+    if jumped:
+        counts["time_jumps"] = counts.get("time_jumps", 0) + 1
     for text in problems:
         counts["bad_messages"] += 1
         note(f"{topic} at {t_ns} ns: {text}")
+
+
+class _Ledger:
+    """Counts every frame that does not become a result (``summary.json``'s ``counts``)::
+
+        left_frames  = pairs + unpaired_left     (every image that entered the stereo pairing)
+        right_frames = pairs + unpaired_right
+        pairs        = localized + no_target + no_robot_pose + bad_pairs
+        no_robot_pose = sum of refused.<reason>  (no_pose, before_buffer, no_newer_pose,
+                                                  pose_gap, stale_pose)
+
+    Images that do not decode are in ``bad_messages`` (before pairing). It also keeps each
+    pair's arrival (the log time of the image that completed it): the clock of the receive-age
+    rule, so the result never depends on how fast workers return pairs.
+    """
+
+    def __init__(self, counts: dict[str, int], jump_back_ns: int) -> None:
+        self.counts = counts
+        self.jump_back_ns = jump_back_ns
+        self._arrivals: dict[int, deque[int]] = {}   # stamp -> arrivals (a replay repeats)
+        for key in ("left_frames", "right_frames", "unpaired_left", "unpaired_right",
+                    "bad_pairs", "refused.stale_pose", "pose_buffer_resets", "time_jumps"):
+            counts.setdefault(key, 0)
+
+    def count(self, key: str, n: int = 1) -> None:
+        self.counts[key] = self.counts.get(key, 0) + n
+
+    def frame(self, sync: ApproximateStereoSync, left: bool, stamp: int) -> None:
+        """An image about to be pushed; a stamp far behind its side's last one restarts the
+        pairing (a bag that jumps back in time), its waiting frames counted as unpaired."""
+        self.count("left_frames" if left else "right_frames")
+        last = sync.last_stamps[0 if left else 1]
+        if last is not None and last - stamp > self.jump_back_ns:
+            pl, pr = sync.pending
+            self.count("unpaired_left", pl)
+            self.count("unpaired_right", pr)
+            sync.reset()
+            self.count("time_jumps")
+
+    def submitted(self, stamp: int, t_ns: int) -> None:
+        self._arrivals.setdefault(stamp, deque()).append(t_ns)
+
+    def arrival(self, stamp: int) -> int | None:
+        """The log time at which the (oldest unfinished) pair with this stamp was complete."""
+        times = self._arrivals.get(stamp)
+        if not times:
+            return None
+        t = times.popleft()
+        if not times:
+            del self._arrivals[stamp]
+        return t
+
+    def refused(self, reason: str) -> None:
+        self.count(f"refused.{reason}")
+
+    def close(self, sync: ApproximateStereoSync, localizer: Localizer) -> None:
+        """End of bag: frames still waiting for a partner are unpaired; sync drops counted."""
+        pl, pr = sync.pending
+        self.count("unpaired_left", sync.stats.dropped_left + pl)
+        self.count("unpaired_right", sync.stats.dropped_right + pr)
+        self.count("pose_buffer_resets", sum(localizer.poses.resets.values()))
 
 
 def _rig_from_camera_info(path: Path, opts: ProcessOptions) -> StereoRig:
@@ -525,9 +618,11 @@ class _PairPool:
     located does not change its result.
     """
 
-    def __init__(self, rig: StereoRig, config: LocatorConfig, workers: int) -> None:
+    def __init__(self, rig: StereoRig, config: LocatorConfig, workers: int,
+                 task_timeout_s: float | None = 20.0) -> None:
         from concurrent.futures import ThreadPoolExecutor
 
+        self._task_timeout_s = task_timeout_s
         self._rig, self._config = rig, config
         parallel = workers > 1 and config.detector.selection != "nearest"
         self._workers = workers if parallel else 1
@@ -538,6 +633,7 @@ class _PairPool:
         self._procs: Any = None
         self._tried_processes = False
         self.in_processes = 0
+        self.relocated = 0
         self.notes: list[str] = []
         self._inflight: deque[Any] = deque()
 
@@ -552,7 +648,8 @@ class _PairPool:
         try:
             self._procs = ProcessPool(self._workers, "eye_in_hand.offline:_worker_init",
                                       (self._rig, self._config),
-                                      env={"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"})
+                                      env={"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"},
+                                      task_timeout_s=self._task_timeout_s)
         except OSError as exc:
             self.notes.append(f"worker processes unavailable ({exc}): pairs located on threads")
 
@@ -579,6 +676,7 @@ class _PairPool:
             if self._procs is not None and not self._procs.alive():
                 self.notes.append("worker processes exited: pairs located on threads")
                 self._procs.close()
+                self._timeouts += self._procs.timeouts
                 self._procs = None
             return None
         try:
@@ -613,6 +711,7 @@ class _PairPool:
             # a worker died (or its task failed in the worker): locate the pair here, where
             # a real problem with it raises normally
             self.in_processes -= 1
+            self.relocated += 1
             if not any(n.startswith("a worker process failed") for n in self.notes):
                 first = str(exc).strip().splitlines()[-1] if str(exc).strip() else "no reason"
                 self.notes.append(f"a worker process failed ({first}); its pairs were located "
@@ -631,6 +730,13 @@ class _PairPool:
                 yield self._result(head, pair)
             else:
                 return
+
+    @property
+    def timeouts(self) -> int:
+        """Worker processes killed for missing the task deadline."""
+        return self._timeouts + (self._procs.timeouts if self._procs is not None else 0)
+
+    _timeouts = 0
 
     def close(self) -> None:
         if self._threads is not None:

@@ -19,6 +19,12 @@ Usage::
 ``submit`` returns a :class:`concurrent.futures.Future`; a task that raises fails its future
 with :class:`WorkerError` carrying the traceback, and a worker that dies fails its pending
 futures with :class:`WorkerError` (naming its exit code) and takes no more work.
+
+Deadline: with ``task_timeout_s``, a worker that owes a result and has given none for that long
+(stopped with SIGSTOP, deadlocked, swapping) is killed; its pending futures fail with a
+:class:`WorkerError` that says it timed out, so a caller waiting on a result never hangs. The
+clock of a task starts when the worker is free to start it (at submission to an idle worker,
+or at the previous result).
 """
 from __future__ import annotations
 
@@ -30,6 +36,7 @@ import struct
 import subprocess
 import sys
 import threading
+import time
 from concurrent.futures import Future
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -92,6 +99,8 @@ class _Worker:
                                      start_new_session=True)
         self.pending: dict[int, Future[Any]] = {}
         self.ready = threading.Event()
+        self.progress_at = time.monotonic()  # last result, or submission to an idle worker
+        self.timed_out: float | None = None  # the deadline that was missed, once killed
         self.dead = False
         self.closed = False
         self._state = threading.Lock()       # pending, dead
@@ -116,6 +125,7 @@ class _Worker:
                     continue
                 with self._state:
                     fut = self.pending.pop(task, None)
+                    self.progress_at = time.monotonic()
                 if fut is None or not fut.set_running_or_notify_cancel():
                     continue                  # unknown task, or cancelled by the caller
                 if kind == "result":
@@ -145,6 +155,9 @@ class _Worker:
         for fut in pending.values():
             if fut.set_running_or_notify_cancel():
                 fut.set_exception(WorkerError(
+                    f"worker process {self.proc.pid} gave no result within the "
+                    f"{self.timed_out:g} s task deadline (stopped or hung): killed"
+                    if self.timed_out is not None else
                     f"worker process {self.proc.pid} exited with code {code} before finishing "
                     "its task"))
         self.ready.set()  # wake anyone waiting for a worker that will never be ready
@@ -157,6 +170,8 @@ class _Worker:
         with self._state:
             if self.dead or self.closed:
                 raise WorkerError(f"worker process {self.proc.pid} has exited")
+            if not self.pending:
+                self.progress_at = time.monotonic()
             self.pending[task] = fut
         try:
             with self._write:
@@ -168,6 +183,23 @@ class _Worker:
                 self.pending.pop(task, None)
             raise WorkerError(f"worker process {self.proc.pid}: {exc}") from exc
         return fut
+
+    def overdue(self, timeout_s: float) -> bool:
+        """Whether the worker owes a result and has given none for ``timeout_s``."""
+        with self._state:
+            return (bool(self.pending) and not self.dead
+                    and time.monotonic() - self.progress_at > timeout_s)
+
+    def kill(self, timeout_s: float) -> None:
+        """Kill a worker that missed its deadline (its reader then fails what it owed)."""
+        with self._state:
+            if self.dead:
+                return
+            self.timed_out = timeout_s
+        try:
+            self.proc.kill()                  # SIGKILL also ends a SIGSTOPped process
+        except OSError:
+            pass
 
     def close(self) -> None:
         with self._state:
@@ -194,22 +226,46 @@ class ProcessPool:
     few tenths of a second); :meth:`ready` says whether one is. ``init_args`` and every task's
     arguments and result must pickle.
 
+    ``task_timeout_s`` (None: no deadline): a worker that owes a result and gave none for that
+    long is killed and its tasks fail with :class:`WorkerError` (see the module docstring).
+
     Raises:
         OSError: a process cannot be started (those already started are closed).
     """
 
     def __init__(self, n: int, init: str, init_args: tuple[Any, ...] = (),
-                 env: dict[str, str] | None = None) -> None:
+                 env: dict[str, str] | None = None,
+                 task_timeout_s: float | None = None) -> None:
+        if task_timeout_s is not None and not task_timeout_s > 0:
+            raise ValueError(f"task_timeout_s: must be > 0, got {task_timeout_s}")
         env = {**os.environ, **(env or {})}
         root = str(Path(__file__).resolve().parent.parent)   # this package, wherever it is
         self._workers: list[_Worker] = []
         self._ids = itertools.count(1)
+        self.task_timeout_s = task_timeout_s
+        self.timeouts = 0
+        self._closing = threading.Event()
+        self._watchdog: threading.Thread | None = None
         try:
             for _ in range(max(1, n)):
                 self._workers.append(_Worker(init, init_args, env, root))
         except BaseException:
             self.close()
             raise
+        if task_timeout_s is not None:
+            self._watchdog = threading.Thread(target=self._watch, name="worker-watchdog",
+                                              daemon=True)
+            self._watchdog.start()
+
+    def _watch(self) -> None:
+        """Kill workers that missed the task deadline."""
+        assert self.task_timeout_s is not None
+        period = min(0.1, self.task_timeout_s / 4)
+        while not self._closing.wait(period):
+            for w in self._workers:
+                if w.overdue(self.task_timeout_s):
+                    self.timeouts += 1
+                    w.kill(self.task_timeout_s)
 
     def ready(self) -> bool:
         """Whether at least one worker is initialised and alive."""
@@ -232,8 +288,11 @@ class ProcessPool:
 
     def close(self) -> None:
         """Close the workers' stdin (they exit) and wait for them."""
+        self._closing.set()
+        if self._watchdog is not None:
+            self._watchdog.join(timeout=5)
         for w in self._workers:
-            w.close()
+            w.close()                         # a hung worker: killed after 10 s
 
     def __enter__(self) -> ProcessPool:
         return self

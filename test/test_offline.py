@@ -127,3 +127,101 @@ def test_a_worker_process_that_dies_costs_no_pair(bags):
     for a, b in zip(out, expected):
         np.testing.assert_array_equal(a.point_cam, b.point_cam)
     assert any("worker process" in n for n in pool.notes), pool.notes
+
+
+def _ledger_ok(c):
+    assert c["left_frames"] == c["pairs"] + c["unpaired_left"], c
+    assert c["right_frames"] == c["pairs"] + c["unpaired_right"], c
+    assert c["pairs"] == c["localized"] + c["no_target"] + c["no_robot_pose"] + c["bad_pairs"], c
+    assert c["no_robot_pose"] == sum(v for k, v in c.items() if k.startswith("refused.")), c
+
+
+def test_images_replayed_after_the_robot_poses_give_no_pose(bags, tmp_path):
+    """Issue #14 offline: a bag holding one pass with /ee_pose and a second pass with only the
+    images (same stamps, seconds later): the second pass gives no pose, and it is counted."""
+    world, zstd, _raw = bags
+    info = bag_info(zstd)
+    replay = tmp_path / "replay"
+    later = info.duration_ns + 5_000_000_000
+    with BagWriter(replay) as w:
+        for name, t in info.topics.items():
+            w.add_topic(name, t.msgtype)
+        for topic, _mt, stamp, data in iter_messages(zstd):
+            w.write(topic, stamp, data)
+        for topic, _mt, stamp, data in iter_messages(zstd, [LEFT, RIGHT]):
+            w.write(topic, stamp + later, data)       # the header stamps are the first pass's
+    cfg = load_locator_config(None)
+    res = process_bag(replay, hand_eye_T=world.ee_T_cam, locator_config=cfg, rig=world.rig,
+                      options=ProcessOptions(workers=1, pose_jump_back_s=0.1))  # 0.27 s bag
+    c = res.counts
+    assert c["localized"] == 8 and c["pairs"] == 16, c
+    assert c["refused.stale_pose"] == 8 and c["no_robot_pose"] == 8, c
+    assert c["time_jumps"] == 1
+    _ledger_ok(c)
+    # Planted: without the age rule the 8 stale pairs come out (the bug of the issue).
+    loose = process_bag(replay, hand_eye_T=world.ee_T_cam, locator_config=cfg, rig=world.rig,
+                        options=ProcessOptions(workers=1, pose_jump_back_s=0.1,
+                                               max_pose_age_s=1e6))
+    assert loose.counts["localized"] == 16
+
+
+def test_every_unpaired_image_is_counted(bags, tmp_path):
+    world, zstd, _raw = bags
+    info = bag_info(zstd)
+    cut = tmp_path / "cut"
+    dropped = 0
+    with BagWriter(cut) as w:
+        for name, t in info.topics.items():
+            w.add_topic(name, t.msgtype)
+        k = 0
+        for topic, _mt, stamp, data in iter_messages(zstd):
+            if topic == RIGHT:
+                k += 1
+                if k in (2, 5, 8):                   # three right images lost
+                    dropped += 1
+                    continue
+            w.write(topic, stamp, data)
+    res = process_bag(cut, hand_eye_T=world.ee_T_cam, locator_config=load_locator_config(None),
+                      rig=world.rig, options=ProcessOptions(workers=1))
+    c = res.counts
+    assert c["pairs"] == 8 - dropped and c["unpaired_left"] == dropped, c
+    assert c["unpaired_right"] == 0 and c["left_frames"] == 8 and c["right_frames"] == 5
+    _ledger_ok(c)
+
+
+def test_a_stopped_worker_process_times_out_and_costs_no_pair(bags):
+    """SIGSTOP a worker with pairs in flight: process_bag's pool kills it at the deadline,
+    locates its pairs again here, and finishes with every result."""
+    import os
+    import signal
+
+    world, _zstd, raw = bags
+    cfg = load_locator_config(None)
+    inline = _PairPool(world.rig, cfg, 1)
+    for pair in _pairs(raw):
+        inline.submit(pair)
+    expected = list(inline.ready(wait=True))
+    inline.close()
+
+    pool = _PairPool(world.rig, cfg, 2, task_timeout_s=1.0)
+    pool.start_processes()
+    deadline = time.monotonic() + 60
+    while not (pool._procs and all(w.ready.is_set() for w in pool._procs._workers)) \
+            and time.monotonic() < deadline:
+        time.sleep(0.01)
+    victim = pool._procs._workers[0].proc.pid
+    os.kill(victim, signal.SIGSTOP)                   # stopped, not dead: it never answers
+    t0 = time.monotonic()
+    out = []
+    try:
+        for pair in _pairs(raw):
+            pool.submit(pair)
+        out.extend(pool.ready(wait=True))
+    finally:
+        pool.close()
+    assert time.monotonic() - t0 < 30
+    assert pool.timeouts == 1 and pool.relocated >= 1
+    assert [f.stamp_ns for f in out] == [f.stamp_ns for f in expected]
+    for a, b in zip(out, expected):
+        np.testing.assert_array_equal(a.point_cam, b.point_cam)
+    assert any("task deadline" in n for n in pool.notes), pool.notes

@@ -97,3 +97,27 @@ def test_workers_never_import_from_their_working_directory(tmp_path, monkeypatch
         _wait_ready(pool)
         assert pool.ready()
         assert pool.submit("math:sqrt", 1.0).result(timeout=30) == 1.0
+
+
+def test_a_stopped_worker_misses_its_deadline_and_is_killed():
+    import os
+    import signal
+
+    with ProcessPool(1, "builtins:len", ((),), task_timeout_s=0.5) as pool:
+        _wait_ready(pool)
+        assert pool.submit("math:sqrt", 4.0).result(timeout=30) == 2.0
+        os.kill(pool._workers[0].proc.pid, signal.SIGSTOP)
+        t0 = time.monotonic()
+        fut = pool.submit("math:sqrt", 9.0)
+        with pytest.raises(WorkerError, match="0.5 s task deadline"):
+            fut.result(timeout=30)                  # fails, does not hang
+        assert time.monotonic() - t0 < 10
+        assert pool.timeouts == 1 and not pool.alive()
+
+
+def test_a_slow_but_answering_worker_is_not_killed():
+    with ProcessPool(1, "builtins:len", ((),), task_timeout_s=1.0) as pool:
+        _wait_ready(pool)
+        futs = [pool.submit("time:sleep", 0.4) for _ in range(5)]   # 2 s in all, 0.4 s each
+        assert [f.result(timeout=30) for f in futs] == [None] * 5
+        assert pool.timeouts == 0 and pool.alive()

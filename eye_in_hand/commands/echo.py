@@ -127,7 +127,8 @@ def run(args: argparse.Namespace) -> int:
         cls = import_message_type(msgtype)
         if cls is None:
             raise InputError(f"message type {msgtype} of topic {topic} is not installed")
-        qos = subscription_qos(publishers, depth=10) if publishers else QoSProfile(depth=10)
+        # 100 deep: a burst of results is not lost while this process is busy printing
+        qos = subscription_qos(publishers, depth=100) if publishers else QoSProfile(depth=100)
 
         def on_message(msg: Any) -> None:
             nonlocal received

@@ -6,7 +6,10 @@ Example::
     eye-in-hand launch --params my.yaml --skip stereo_capture     # images come from a bag
 
 One ROS parameter file configures all three nodes (``/**/<node>:`` sections). Output lines are
-prefixed with ``[node]``; Ctrl-C is forwarded; the command exits non-zero when a node dies.
+prefixed with ``[node]``; Ctrl-C is forwarded. A node that crashes is restarted after a bounded
+exponential back-off; one that crashes more than ``--max-restarts`` times within
+``--restart-window`` seconds stops the launch (non-zero exit, naming it). ``--no-respawn``:
+the first node that exits stops everything.
 ``launch/eye_in_hand.launch.py`` is the same bring-up for ``ros2 launch`` on a ROS install.
 """
 from __future__ import annotations
@@ -27,6 +30,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="root namespace of every node and topic (default /)")
     parser.add_argument("--duration", type=float, metavar="S",
                         help="stop after S seconds (default: run until Ctrl-C)")
+    parser.add_argument("--no-respawn", action="store_true",
+                        help="do not restart a node that exits: stop every node instead")
+    parser.add_argument("--respawn-delay", type=float, default=0.5, metavar="S",
+                        help="back-off before restarting a crashed node, doubled for each "
+                             "further restart within the window, at most 8 s (default 0.5)")
+    parser.add_argument("--max-restarts", type=int, default=5, metavar="N",
+                        help="restarts of one node allowed within --restart-window; one more "
+                             "stops the launch (default 5)")
+    parser.add_argument("--restart-window", type=float, default=60.0, metavar="S",
+                        help="window of --max-restarts in seconds (default 60)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -52,6 +65,12 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"{printable(params)}: parameter file must map node names to "
                           "'ros__parameters'")
     nodes = [n.name for n in NODES if n.name not in args.skip]
-    launcher = Launcher(params, nodes, root_namespace=args.namespace)
+    if not 0 <= args.respawn_delay <= 8.0:
+        raise InputError(f"--respawn-delay: must be within [0, 8] s, got {args.respawn_delay}")
+    if args.max_restarts < 0 or not args.restart_window > 0:
+        raise InputError("--max-restarts must be >= 0 and --restart-window > 0")
+    launcher = Launcher(params, nodes, root_namespace=args.namespace,
+                        respawn=not args.no_respawn, respawn_delay_s=args.respawn_delay,
+                        max_restarts=args.max_restarts, restart_window_s=args.restart_window)
     print(f"eye-in-hand launch: starting {', '.join(nodes)} with {params}", flush=True)
     return launcher.run(args.duration)

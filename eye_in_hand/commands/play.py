@@ -41,6 +41,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="before the first message, wait up to S seconds until every "
                              "topic has a subscriber (default 0: do not wait, like ros2 bag "
                              "play; messages sent before discovery completes are lost)")
+    parser.add_argument("--wait-for-topics", nargs="+", default=[], metavar="TOPIC",
+                        help="with --wait-for-subscribers: also wait until each TOPIC (the "
+                             "pipeline's downstream hops, e.g. /target/point /target/pose) has "
+                             "a publisher and a subscriber")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -68,6 +72,14 @@ def run(args: argparse.Namespace) -> int:
         Parameter("start_offset", value=float(args.start_offset)),
         Parameter("wait_for_subscribers", value=float(args.wait_for_subscribers)),
     ]
+    if args.wait_for_topics:
+        if not args.wait_for_subscribers > 0:
+            from eye_in_hand.errors import InputError
+
+            raise InputError("--wait-for-topics: needs --wait-for-subscribers S (how long to "
+                             "wait)")
+        overrides.append(Parameter("wait_for_topics", Parameter.Type.STRING_ARRAY,
+                                   list(args.wait_for_topics)))
     if args.topics:  # an empty list would be typed as a byte array
         overrides.append(Parameter("topics", Parameter.Type.STRING_ARRAY, list(args.topics)))
     sigterm_as_interrupt()

@@ -35,7 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "files; stereo.yaml optional); default: the bag's camera_info")
     parser.add_argument("--params", metavar="FILE",
                         help="ROS parameter file with detect_triangulate (detector, sync) and "
-                             "optionally hand_eye (max_pose_gap_s, robot sigmas) sections; "
+                             "optionally hand_eye (max_pose_gap_s, max_pose_age_s, "
+                             "pose_jump_back_s, robot sigmas) sections; "
                              "default: built-in red sphere")
     parser.add_argument("--radius", type=float, metavar="R",
                         help="sphere radius of the first target in metres (overrides --params)")
@@ -66,6 +67,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ground-truth-topic", default="/ground_truth/target")
     parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
                         help="output bag storage (default mcap)")
+    parser.add_argument("--task-timeout", type=float, default=20.0, metavar="S",
+                        help="deadline of a worker process for one stereo pair (default 20 s): "
+                             "a worker that gives no result for this long (stopped, hung) is "
+                             "killed and its pairs are located again in the main process")
     parser.add_argument("--workers", type=int, metavar="N",
                         help="processes locating stereo pairs (default: one per CPU; 1 = all in "
                              "this process)")
@@ -121,6 +126,8 @@ def run(args: argparse.Namespace) -> int:
         from eye_in_hand.nodes.hand_eye import load_kinematics
 
         kinematics = load_kinematics(args.kinematics, args.urdf_base_link, args.urdf_tip_link)
+    if not args.task_timeout > 0:
+        raise InputError(f"--task-timeout: must be > 0 s, got {args.task_timeout}")
     try:
         opts = ProcessOptions(
             left_topic=args.left_topic, right_topic=args.right_topic,
@@ -135,9 +142,12 @@ def run(args: argparse.Namespace) -> int:
             sync_slop_s=float(detect.get("sync.slop_s", 0.005)),
             sync_queue_size=int(detect.get("sync.queue_size", 5)),
             max_pose_gap_s=float(hand_eye_params.get("max_pose_gap_s", 0.05)),
+            max_pose_age_s=float(hand_eye_params.get("max_pose_age_s", 1.0)),
+            pose_jump_back_s=float(hand_eye_params.get("pose_jump_back_s", 1.0)),
             robot_sigma_pos_m=float(hand_eye_params.get("robot_sigma_pos_m", 0.0001)),
             robot_sigma_rot_rad=float(hand_eye_params.get("robot_sigma_rot_rad", 0.0001)),
-            verify_crc=args.verify_crc, workers=args.workers)
+            verify_crc=args.verify_crc, workers=args.workers,
+            task_timeout_s=args.task_timeout)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{args.params}: {exc}") from exc
     from pathlib import Path
@@ -174,6 +184,11 @@ def run(args: argparse.Namespace) -> int:
           f"{c['located']} located, {c['localized']} in the base frame, {c['no_target']} "
           f"without target, {c['no_robot_pose']} without robot pose, {c['bad_messages']} bad "
           "messages")
+    refused = {k[len("refused."):]: v for k, v in c.items() if k.startswith("refused.") and v}
+    if c.get("unpaired_left") or c.get("unpaired_right") or refused:
+        print(f"losses: {c.get('unpaired_left', 0)} left and {c.get('unpaired_right', 0)} right "
+              "images without a partner" + (", robot pose refused: " + ", ".join(
+                  f"{v} {k}" for k, v in refused.items()) if refused else ""))
     for note in result.notes:
         print(f"warning: {note}", file=sys.stderr)
     stats = error_stats(result.frames)

@@ -119,18 +119,29 @@ class LocalizerConfig:
         buffer_size: robot poses kept (at 500 Hz, 1000 poses are 2 s).
         robot_sigma_pos_m: robot pose position noise (1 sigma, metres).
         robot_sigma_rot_rad: robot pose rotation noise (1 sigma, radians).
+        max_age_ns: largest receive age of the robot poses used for a frame (see
+            :class:`~eye_in_hand.core.sync.PoseBuffer`), checked when :meth:`Localizer.locate`
+            is given ``now_ns``; None: no age rule.
+        jump_back_ns: a robot pose stamp (or receive time) this far behind the newest clears
+            the pose buffer (bag replayed again, simulated time reset); None: never.
     """
 
     max_gap_ns: int = 50_000_000
     buffer_size: int = 2000
     robot_sigma_pos_m: float = 0.0
     robot_sigma_rot_rad: float = 0.0
+    max_age_ns: int | None = None
+    jump_back_ns: int | None = None
 
     def __post_init__(self) -> None:
         if int(self.max_gap_ns) <= 0:
             raise InputError(f"max_gap_ns: must be positive, got {self.max_gap_ns}")
         if int(self.buffer_size) < 2:
             raise InputError(f"buffer_size: must be >= 2, got {self.buffer_size}")
+        for name in ("max_age_ns", "jump_back_ns"):
+            v = getattr(self, name)
+            if v is not None and int(v) < 0:
+                raise InputError(f"{name}: must be >= 0 or None, got {v}")
         for name in ("robot_sigma_pos_m", "robot_sigma_rot_rad"):
             v = float(getattr(self, name))
             if not np.isfinite(v) or v < 0:
@@ -155,21 +166,35 @@ class Localizer:
         self.ee_T_cam = as_transform(ee_T_cam, "ee_T_cam").copy()
         self.cov_hand_eye = (None if cov_hand_eye is None
                              else _as_cov(cov_hand_eye, "cov_hand_eye", 6).copy())
-        self.poses = PoseBuffer(self.config.buffer_size, name="base_T_ee")
+        self.poses = PoseBuffer(self.config.buffer_size, name="base_T_ee",
+                                jump_back_ns=self.config.jump_back_ns)
 
-    def add_robot_pose(self, stamp_ns: int, base_T_ee) -> None:
-        """Buffer a robot pose (int ns stamp, (4, 4)); raises InputError on a bad pose."""
-        self.poses.add(stamp_ns, base_T_ee)
+    def add_robot_pose(self, stamp_ns: int, base_T_ee, *, received_ns: int | None = None
+                       ) -> bool:
+        """Buffer a robot pose (int ns stamp, (4, 4)) received at ``received_ns`` (optional,
+        the clock of :meth:`locate`'s ``now_ns``); raises InputError on a bad pose.
 
-    def locate(self, stamp_ns: int, point_cam, cov_cam=None) -> TargetInBase:
+        Returns:
+            True when the buffer was cleared first (time jumped back, see ``jump_back_ns``).
+        """
+        return self.poses.add(stamp_ns, base_T_ee, received_ns=received_ns)
+
+    def locate(self, stamp_ns: int, point_cam, cov_cam=None, *,
+               now_ns: int | None = None) -> TargetInBase:
         """The target in the base frame at an image stamp.
 
+        Args:
+            now_ns: the clock now (as ``received_ns``); with ``config.max_age_ns`` the robot
+                poses used must have been received within that age.
+
         Raises:
-            eye_in_hand.errors.LocalizationError: no robot pose brackets ``stamp_ns`` within ``max_gap_ns``
-                (stale or missing robot poses): never a pose from a stale transform.
+            eye_in_hand.errors.LocalizationError: no robot pose brackets ``stamp_ns`` within
+                ``max_gap_ns``, or the poses are older than ``max_age_ns`` (``reason`` says
+                which): never a pose from a stale transform.
             InputError: a malformed point or covariance.
         """
-        base_T_ee = self.poses.lookup(stamp_ns, int(self.config.max_gap_ns))
+        base_T_ee = self.poses.lookup(stamp_ns, int(self.config.max_gap_ns), now_ns=now_ns,
+                                      max_age_ns=self.config.max_age_ns)
         p, cov = target_in_base(base_T_ee, self.ee_T_cam, point_cam, cov_cam=cov_cam,
                                 cov_hand_eye=self.cov_hand_eye,
                                 robot_sigma_pos_m=self.config.robot_sigma_pos_m,

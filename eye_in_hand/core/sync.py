@@ -10,7 +10,11 @@ Two independent tools, both pure Python/numpy (no rclpy), stamps as int nanoseco
   counted per side and per cause.
 * :class:`PoseBuffer` keeps a bounded, time-ordered history of stamped poses ``(stamp_ns,
   a_T_b)`` and returns the pose at an image stamp, interpolated with
-  :func:`eye_in_hand.core.transforms.interpolate` (slerp + lerp), never extrapolated.
+  :func:`eye_in_hand.core.transforms.interpolate` (slerp + lerp), never extrapolated. Each
+  pose may carry the time it was *received* (on the consumer's clock); a lookup can then refuse
+  poses older than a receive age (``max_age_ns``), and the buffer clears itself when stamps or
+  the receive clock jump backwards (a bag replayed again, simulated time reset) or when the
+  stream stops (:meth:`PoseBuffer.expire`): never a pose from a stale stream.
 """
 from __future__ import annotations
 
@@ -249,22 +253,47 @@ class PoseBuffer:
     Poses may arrive slightly out of order (they are inserted in stamp order); a pose with a
     stamp already present replaces the old one. When full, the oldest pose is evicted.
 
+    Staleness (all optional): :meth:`add` may record each pose's receive time (int ns on the
+    consumer's clock: wall time, or simulated time under ``use_sim_time``, or a bag's log time
+    offline). Then
+
+    * :meth:`lookup` with ``now_ns`` and ``max_age_ns`` refuses (``reason="stale_pose"``) a
+      bracket whose older pose was received more than ``max_age_ns`` before ``now_ns``, or
+      after ``now_ns`` (the clock went backwards);
+    * :meth:`add` clears the buffer first when the new stamp is more than ``jump_back_ns``
+      before the newest one, or its receive time more than ``jump_back_ns`` before the newest
+      receive time (a bag loop or replay, a simulated-time reset): ``resets["time_jump"]``;
+    * :meth:`expire` clears the buffer when the newest pose was received more than
+      ``max_age_ns`` ago (the stream stopped: ``resets["stream_stopped"]``) or the clock went
+      back more than ``jump_back_ns`` (``resets["clock_jump"]``).
+
     Args:
         capacity: the most poses kept (>= 2).
         name: what the poses are (e.g. ``"base_T_ee"``), used in error messages.
+        jump_back_ns: a stamp (or receive time) this far behind the newest is a time jump that
+            clears the buffer; None: never (poses older than the buffer are then simply
+            inserted in order).
 
     Raises:
-        InputError: capacity below 2.
+        InputError: capacity below 2, or a negative ``jump_back_ns``.
     """
 
-    def __init__(self, capacity: int = 1000, *, name: str = "pose") -> None:
+    def __init__(self, capacity: int = 1000, *, name: str = "pose",
+                 jump_back_ns: int | None = None) -> None:
         if isinstance(capacity, bool) or not isinstance(capacity, (int, np.integer)) \
                 or capacity < 2:
             raise InputError(f"capacity: must be an int >= 2, got {capacity!r}")
+        if jump_back_ns is not None and _as_stamp(jump_back_ns, "jump_back_ns") < 0:
+            raise InputError(f"jump_back_ns: must be >= 0, got {jump_back_ns}")
         self._capacity = int(capacity)
         self._name = name
+        self._jump_back = None if jump_back_ns is None else int(jump_back_ns)
         self._stamps: list[int] = []
         self._poses: list[np.ndarray] = []
+        self._received: list[int | None] = []
+        self._newest_received: int | None = None
+        #: Buffer clears per cause: ``time_jump``, ``stream_stopped``, ``clock_jump``.
+        self.resets: dict[str, int] = {"time_jump": 0, "stream_stopped": 0, "clock_jump": 0}
 
     def __len__(self) -> int:
         return len(self._stamps)
@@ -284,74 +313,173 @@ class PoseBuffer:
         """Stamp of the newest pose, or None when empty."""
         return self._stamps[-1] if self._stamps else None
 
+    @property
+    def newest_received_ns(self) -> int | None:
+        """Receive time of the most recently received pose, or None (none, or not recorded)."""
+        return self._newest_received
+
     def clear(self) -> None:
         """Remove every pose (e.g. after a clock jump back in simulation time)."""
         self._stamps.clear()
         self._poses.clear()
+        self._received.clear()
+        self._newest_received = None
 
-    def add(self, stamp_ns: int, pose) -> None:
+    def _reset(self, cause: str) -> None:
+        self.clear()
+        self.resets[cause] += 1
+
+    def add(self, stamp_ns: int, pose, *, received_ns: int | None = None) -> bool:
         """Insert a stamped pose.
 
         Args:
             stamp_ns: int ns.
             pose: array-like, shape (4, 4), a rigid transform.
+            received_ns: when the pose was received (int ns on the consumer's clock), for the
+                receive-age rule of :meth:`lookup`; None: not recorded (no age check).
+
+        Returns:
+            True when the buffer was cleared first because time jumped back (see the class).
 
         Raises:
             InputError: bad stamp or not a rigid transform.
         """
         stamp = _as_stamp(stamp_ns)
+        recv = None if received_ns is None else _as_stamp(received_ns, "received_ns")
         T = as_transform(pose, f"{self._name} at {stamp} ns").copy()
         T.setflags(write=False)
+        jumped = False
+        if self._jump_back is not None and self._stamps and (
+                self._stamps[-1] - stamp > self._jump_back
+                or (recv is not None and self._newest_received is not None
+                    and self._newest_received - recv > self._jump_back)):
+            self._reset("time_jump")
+            jumped = True
+        if recv is not None:
+            self._newest_received = recv
         i = bisect.bisect_left(self._stamps, stamp)
         if i < len(self._stamps) and self._stamps[i] == stamp:
             self._poses[i] = T
-            return
+            self._received[i] = recv
+            return jumped
         if len(self._stamps) >= self._capacity:
             if i == 0:
-                return  # older than everything in a full buffer: it would be evicted at once
+                return jumped  # older than everything in a full buffer: evicted at once
             del self._stamps[0]
             del self._poses[0]
+            del self._received[0]
             i -= 1
         self._stamps.insert(i, stamp)
         self._poses.insert(i, T)
+        self._received.insert(i, recv)
+        return jumped
 
-    def lookup(self, stamp_ns: int, max_gap_ns: int) -> np.ndarray:
+    def expire(self, now_ns: int, max_age_ns: int) -> str | None:
+        """Clear the buffer when its poses can only be stale.
+
+        Args:
+            now_ns: the consumer's clock now (int ns, the clock of ``received_ns``).
+            max_age_ns: the receive age after which the stream counts as stopped.
+
+        Returns:
+            The cause when the buffer was cleared (``"stream_stopped"``: no pose received for
+            over ``max_age_ns``; ``"clock_jump"``: ``now_ns`` is over ``jump_back_ns`` before
+            the newest receive time), else None. An empty buffer or poses without receive
+            times are left alone.
+        """
+        now = _as_stamp(now_ns, "now_ns")
+        newest = self._newest_received
+        if newest is None or not self._stamps:
+            return None
+        if self._jump_back is not None and newest - now > self._jump_back:
+            self._reset("clock_jump")
+            return "clock_jump"
+        if now - newest > max_age_ns:
+            self._reset("stream_stopped")
+            return "stream_stopped"
+        return None
+
+    def _check_age(self, stamp: int, indices: tuple[int, ...], now_ns: int | None,
+                   max_age_ns: int | None) -> None:
+        if now_ns is None or max_age_ns is None:
+            return
+        now = _as_stamp(now_ns, "now_ns")
+        received = [self._received[j] for j in indices if self._received[j] is not None]
+        if not received:
+            return
+        oldest = min(received)
+        if now - oldest > max_age_ns:
+            raise LocalizationError(
+                f"{self._name} at {stamp} ns: the robot pose was received "
+                f"{(now - oldest) / 1e9:.3f} s ago, over the receive age limit of "
+                f"{max_age_ns / 1e9:.3f} s (a stale stream, e.g. poses of an earlier replay)",
+                reason="stale_pose")
+        if max(received) - now > (self._jump_back or 0):
+            raise LocalizationError(
+                f"{self._name} at {stamp} ns: the robot pose was received "
+                f"{(max(received) - now) / 1e9:.3f} s after now: the clock went backwards",
+                reason="stale_pose")
+
+    def check_age(self, stamp_ns: int, now_ns: int | None, max_age_ns: int | None) -> None:
+        """The receive-age rule of :meth:`lookup` alone, for the poses that bracket
+        ``stamp_ns`` (the nearest one when the stamp is outside the buffer; nothing when it is
+        empty). Raises LocalizationError (``stale_pose``) as :meth:`lookup` does."""
+        if not self._stamps:
+            return
+        stamp = _as_stamp(stamp_ns)
+        i = bisect.bisect_left(self._stamps, stamp)
+        if i < len(self._stamps) and self._stamps[i] == stamp:
+            indices: tuple[int, ...] = (i,)
+        else:
+            indices = tuple(j for j in (i - 1, i) if 0 <= j < len(self._stamps))
+        self._check_age(stamp, indices, now_ns, max_age_ns)
+
+    def lookup(self, stamp_ns: int, max_gap_ns: int, *, now_ns: int | None = None,
+               max_age_ns: int | None = None) -> np.ndarray:
         """The pose at ``stamp_ns``, interpolated between the two poses that bracket it.
 
         Args:
             stamp_ns: the query stamp (int ns), typically an image stamp.
             max_gap_ns: the largest accepted time between the two bracketing poses (>= 0). A
                 stamp equal to a buffered pose's stamp needs no bracket and is always accepted.
+            now_ns: the consumer's clock now (the clock of :meth:`add`'s ``received_ns``).
+            max_age_ns: with ``now_ns``: the largest accepted receive age of the poses used.
 
         Returns:
             A new float64 array, shape (4, 4).
 
         Raises:
             InputError: bad stamp or negative ``max_gap_ns``.
-            LocalizationError: the buffer is empty, the stamp is before the oldest or after the
-                newest pose (no extrapolation), or the bracketing gap exceeds ``max_gap_ns``.
+            LocalizationError: the buffer is empty (``reason`` ``no_pose``), the stamp is before
+                the oldest (``before_buffer``) or after the newest pose (``no_newer_pose``: no
+                extrapolation), the bracketing gap exceeds ``max_gap_ns`` (``pose_gap``), or a
+                pose used was received too long ago or in the clock's future (``stale_pose``).
         """
         stamp = _as_stamp(stamp_ns)
         gap_limit = _as_stamp(max_gap_ns, "max_gap_ns")
         if gap_limit < 0:
             raise InputError(f"max_gap_ns: must be >= 0, got {gap_limit}")
         if not self._stamps:
-            raise LocalizationError(f"no {self._name} received yet (lookup at {stamp} ns)")
+            raise LocalizationError(f"no {self._name} received yet (lookup at {stamp} ns)",
+                                    reason="no_pose")
         i = bisect.bisect_left(self._stamps, stamp)
         if i < len(self._stamps) and self._stamps[i] == stamp:
+            self._check_age(stamp, (i,), now_ns, max_age_ns)
             return np.array(self._poses[i])
         if i == 0:
             raise LocalizationError(
                 f"{self._name} at {stamp} ns is older than the buffer (oldest "
-                f"{self._stamps[0]} ns, {(self._stamps[0] - stamp) / 1e6:.3f} ms later)")
+                f"{self._stamps[0]} ns, {(self._stamps[0] - stamp) / 1e6:.3f} ms later)",
+                reason="before_buffer")
         if i == len(self._stamps):
             raise LocalizationError(
                 f"{self._name} at {stamp} ns is newer than the newest pose "
                 f"({self._stamps[-1]} ns, {(stamp - self._stamps[-1]) / 1e6:.3f} ms earlier): "
-                f"no extrapolation")
+                f"no extrapolation", reason="no_newer_pose")
         s0, s1 = self._stamps[i - 1], self._stamps[i]
         if s1 - s0 > gap_limit:
             raise LocalizationError(
                 f"{self._name} at {stamp} ns: the bracketing poses are {(s1 - s0) / 1e6:.3f} ms "
-                f"apart, over the limit of {gap_limit / 1e6:.3f} ms")
+                f"apart, over the limit of {gap_limit / 1e6:.3f} ms", reason="pose_gap")
+        self._check_age(stamp, (i - 1, i), now_ns, max_age_ns)
         return interpolate_unchecked(stamp, s0, self._poses[i - 1], s1, self._poses[i])

@@ -301,16 +301,33 @@ class TfPoseView:
     ``newest_ns`` / ``oldest_ns`` cover the whole chain. Poses are added to the buffer, not to
     the view (:meth:`add` raises).
 
+    The staleness rules of :class:`PoseBuffer` hold for the chain too. The feeder calls
+    :meth:`check_jump` before adding a dynamic transform and :meth:`received` after: each time
+    the chain's newest stamp advances, its receive time is recorded, so :meth:`lookup` with
+    ``now_ns`` and ``max_age_ns`` refuses (``stale_pose``) a chain last covered by transforms
+    received too long ago; a transform stamped (or received) more than ``jump_back_ns`` before
+    the newest clears the dynamic transforms (``resets["time_jump"]``: a bag loop or replay);
+    :meth:`expire` clears them when the stream stopped or the clock went back.
+
     Args:
         buffer: the TF buffer.
         base_frame: the frame the pose is expressed in (``base_link``).
         ee_frame: the frame whose pose is wanted (``tool0``).
+        jump_back_ns: see :class:`PoseBuffer`; None: no time-jump rule.
     """
 
-    def __init__(self, buffer: TfBuffer, base_frame: str, ee_frame: str) -> None:
+    def __init__(self, buffer: TfBuffer, base_frame: str, ee_frame: str, *,
+                 jump_back_ns: int | None = None) -> None:
         self.buffer = buffer
         self.base_frame = normalize_frame(base_frame, "base_frame")
         self.ee_frame = normalize_frame(ee_frame, "ee_frame")
+        self._jump_back = jump_back_ns
+        # the chain's newest stamp each time it advanced, with its receive time (identity poses)
+        self._receipts = PoseBuffer(max(2, buffer.capacity), name=f"{self.base_frame} -> "
+                                    f"{self.ee_frame}", jump_back_ns=jump_back_ns)
+        self._last_newest: int | None = None
+        #: Clears per cause, as :attr:`PoseBuffer.resets`.
+        self.resets = self._receipts.resets
 
     def __len__(self) -> int:
         newest = self.newest_ns
@@ -330,14 +347,58 @@ class TfPoseView:
         """See :meth:`TfBuffer.oldest_ns`."""
         return self.buffer.oldest_ns(self.base_frame, self.ee_frame)
 
-    def clear(self) -> None:
-        """Forget the dynamic transforms (static ones stay)."""
-        self.buffer.clear(keep_static=True)
+    @property
+    def newest_received_ns(self) -> int | None:
+        """Receive time of the transforms that last advanced the chain (None: not recorded)."""
+        return self._receipts.newest_received_ns
 
-    def add(self, stamp_ns: int, pose) -> None:
+    def clear(self) -> None:
+        """Forget the dynamic transforms (static ones stay) and their receive times."""
+        self.buffer.clear(keep_static=True)
+        self._receipts.clear()
+        self._last_newest = None
+
+    def add(self, stamp_ns: int, pose, *, received_ns: int | None = None) -> bool:
         raise InputError(f"robot poses come from TF ({self.base_frame} -> {self.ee_frame}): "
                          "add transforms to the TfBuffer")
 
-    def lookup(self, stamp_ns: int, max_gap_ns: int) -> np.ndarray:
-        """``base_T_ee`` at ``stamp_ns``: see :meth:`TfBuffer.lookup`."""
-        return self.buffer.lookup(self.base_frame, self.ee_frame, stamp_ns, max_gap_ns)
+    def check_jump(self, stamp_ns: int, received_ns: int | None = None) -> bool:
+        """Before a dynamic transform stamped ``stamp_ns`` (received at ``received_ns``) is
+        added: clear the dynamic transforms when time jumped back (see the class).
+
+        Returns:
+            True when they were cleared.
+        """
+        if self._jump_back is None:
+            return False
+        newest, recv = self.newest_ns, self._receipts.newest_received_ns
+        if (newest is not None and newest - int(stamp_ns) > self._jump_back) or (
+                received_ns is not None and recv is not None
+                and recv - int(received_ns) > self._jump_back):
+            self.clear()
+            self.resets["time_jump"] += 1
+            return True
+        return False
+
+    def received(self, received_ns: int) -> None:
+        """After transforms were added: record ``received_ns`` if the chain's newest advanced."""
+        newest = self.newest_ns
+        if newest is not None and newest != self._last_newest:
+            self._receipts.add(newest, np.eye(4), received_ns=received_ns)
+            self._last_newest = newest
+
+    def expire(self, now_ns: int, max_age_ns: int) -> str | None:
+        """As :meth:`PoseBuffer.expire`; a clear forgets the dynamic transforms too."""
+        cause = self._receipts.expire(now_ns, max_age_ns)
+        if cause is not None:
+            self.buffer.clear(keep_static=True)
+            self._last_newest = None
+        return cause
+
+    def lookup(self, stamp_ns: int, max_gap_ns: int, *, now_ns: int | None = None,
+               max_age_ns: int | None = None) -> np.ndarray:
+        """``base_T_ee`` at ``stamp_ns``: see :meth:`TfBuffer.lookup`; with ``now_ns`` and
+        ``max_age_ns`` also the receive-age rule of :meth:`PoseBuffer.lookup`."""
+        T = self.buffer.lookup(self.base_frame, self.ee_frame, stamp_ns, max_gap_ns)
+        self._receipts.check_age(stamp_ns, now_ns, max_age_ns)
+        return T

@@ -9,7 +9,8 @@ once), never the schedule of the rest.
 A reader thread decodes the bag ahead of the publisher (at most 256 messages and 64 MiB), so
 storage I/O and decompression do not delay publishing either.
 
-Diagnostics (``diagnostics``, 1 Hz): ``published`` counter, ``late_ms`` (how late the last
+Diagnostics (``diagnostics``, 1 Hz): ``published`` counter (and ``published <topic>`` per
+topic, to reconcile with what the receiving nodes count), ``late_ms`` (how late the last
 message went out), ``state``, ``loops``, and ``skipped_topics`` (WARN while > 0; each skipped
 topic is also logged once), ``problem: type_mismatch:<topic>`` when the bag recorded a type
 hash (metadata >= 7) that differs from the installed definition (logged once; the topic still
@@ -17,11 +18,14 @@ plays, as with ``ros2 bag play``). A bag read error is reported at ERROR and end
 
 Like ``ros2 bag play``, the player does not wait for subscribers by default: messages published
 before DDS discovery completes are lost. ``wait_for_subscribers`` (seconds) waits until every
-topic has at least one subscriber, or the time is up, before the first message.
+topic has at least one subscriber, or the time is up, before the first message; with
+``wait_for_topics`` it also waits until each of those topics (the downstream hops of a
+pipeline, e.g. ``/target/point`` and ``/target/pose``) has a publisher and a subscriber, so
+nothing of the first frames is lost to a node or listener still starting up.
 
 Parameters (all read-only): ``bag`` (path), ``rate`` (> 0), ``loop``, ``clock`` (publish
 ``/clock``), ``clock_hz``, ``topics`` (empty: all), ``start_offset`` (s), ``wait_for_subscribers``
-(s, 0: do not wait).
+(s, 0: do not wait), ``wait_for_topics`` (downstream topics, with ``wait_for_subscribers``).
 
 Run: ``ros2 run eye_in_hand bag_player --ros-args -p bag:=/path/to/bag -p rate:=2.0``
 or ``eye-in-hand play /path/to/bag --rate 2``.
@@ -152,6 +156,7 @@ class PlayerConfig:
     topics: tuple[str, ...]
     start_offset: float
     wait_for_subscribers: float
+    wait_for_topics: tuple[str, ...] = ()
 
 
 class BagPlayer(Node):
@@ -261,11 +266,16 @@ class BagPlayer(Node):
         wait = self.declare_parameter("wait_for_subscribers", 0.0, desc(
             "wait up to this many seconds for a subscriber on every topic (0: do not wait)",
             0.0, 3600.0)).value
+        downstream = self.declare_parameter("wait_for_topics", Parameter.Type.STRING_ARRAY, desc(
+            "with wait_for_subscribers: also wait until each of these topics has a publisher "
+            "and a subscriber (the downstream hops of a pipeline)")).value or []
         if not bag:
             raise ConfigError("parameter 'bag' is required (a bag directory or .mcap file)")
         return PlayerConfig(bag=str(bag), rate=float(rate), loop=bool(loop), clock=bool(clock),
                             clock_hz=float(clock_hz), topics=tuple(str(t) for t in topics),
-                            start_offset=float(offset), wait_for_subscribers=float(wait))
+                            start_offset=float(offset), wait_for_subscribers=float(wait),
+                            wait_for_topics=tuple(self.resolve_topic_name(str(t))
+                                                  for t in downstream))
 
     # -- control ------------------------------------------------------------------------------
 
@@ -327,6 +337,8 @@ class BagPlayer(Node):
         deadline = time.monotonic() + self.config.wait_for_subscribers
         while not self._stop.is_set():
             waiting = [t for t, p in self._topic_pubs.items() if p.get_subscription_count() == 0]
+            waiting += [t for t in self.config.wait_for_topics
+                        if self.count_publishers(t) == 0 or self.count_subscribers(t) == 0]
             if not waiting:
                 # This side sees the subscriptions first; give the subscribers time to match
                 # our writers too, or the first (best-effort, volatile) messages are lost.
@@ -400,6 +412,7 @@ class BagPlayer(Node):
                 self._topic_pubs[topic].publish(raw)
                 self.published[topic] += 1
                 self.diag.count("published")
+                self.diag.count(f"published {topic}")  # to reconcile with the receivers
                 self.diag.gauge("late_ms", round(max(0.0, time.monotonic() - due) * 1e3, 3))
         finally:
             buffer.close()

@@ -16,7 +16,19 @@ Publishes:
     ``target/debug_image`` (sensor_msgs/Image bgr8, half size, left|right side by side with the
     detections drawn): only while someone subscribes, at most ``debug_image.max_rate_hz``.
     ``diagnostics`` (diagnostic_msgs/DiagnosticArray): pairs, detections, detection rate,
-    residual, covariance, dropped pairs, sync drops, processing time, bad-input causes.
+    residual, covariance, dropped pairs, sync drops, processing time, bad-input causes, and
+    the loss ledger below.
+
+Every frame is accounted for on ``diagnostics`` (counters since start; see docs/localization.md
+"Losses and staleness")::
+
+    left_frames  = sync_pairs + sync_unpaired_left  + sync_pending_left   (gauge)
+    right_frames = sync_pairs + sync_unpaired_right + sync_pending_right  (gauge)
+    sync_pairs   = dropped_pairs + pairs + queued                         (gauge)
+    pairs        = points_published + no_target + failed_pairs
+
+``points_published`` is what ``hand_eye`` should receive: its ``points`` counter is the other
+end, and the difference is lost between the nodes.
 
 Processing runs on a worker thread, never on the executor thread: the image callbacks only
 pair frames (:class:`~eye_in_hand.core.sync.ApproximateStereoSync`) and queue the pair for the
@@ -40,6 +52,7 @@ from typing import Any
 import cv2
 import numpy as np
 from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 
 from eye_in_hand.ros.node_main import run_node
@@ -89,6 +102,11 @@ NODE_PARAMETERS: tuple[Param, ...] = (
     Param("queue_depth", 6, "stereo pairs waiting for the worker (6: 0.2 s at 30 Hz, enough "
           "for a burst of late DDS deliveries); when full the oldest is dropped (counted as "
           "dropped_pairs). 1 = only ever the newest pair", range=(1, 30)),
+    Param("images.reliable", False, "subscribe to the images reliably: lost samples are sent "
+          "again (a bag replay loses nothing in transport) but only reliable publishers "
+          "match; false = best effort (sensor data QoS), which matches every camera driver"),
+    Param("images.depth", 5, "images kept per side until the executor takes them (a busy "
+          "machine may stall it for a few frames)", range=(1, 100)),
     Param("debug_image.max_rate_hz", 5.0, "rate limit of target/debug_image (Hz); 0 = never "
           "publish it", range=(0.0, 100.0)),
     Param("diagnostics_period_s", 1.0, "diagnostics publication period (s)",
@@ -219,12 +237,20 @@ class DetectTriangulateNode(Node):
                              if len(names) > 1 else {})
         self._pub_debug = self.create_publisher(Image, "target/debug_image", SENSOR_QOS)
         self.diag = NodeDiagnostics(self, period_s=node_values["diagnostics_period_s"])
-        self.diag.declare_counter("pairs", "detections", "dropped_pairs", "sync_dropped")
+        self.diag.declare_counter("pairs", "detections", "dropped_pairs", "sync_dropped",
+                                  "left_frames", "right_frames", "sync_pairs",
+                                  "sync_unpaired_left", "sync_unpaired_right",
+                                  "points_published", "no_target", "failed_pairs")
         self.diag.warn_above("processing_ms", 50.0)
         self.diag.stale_after("pairs", 5.0)  # WARN when no stereo pair arrived for 5 s
 
-        self.create_subscription(Image, "left/image_raw", self._on_left, SENSOR_QOS)
-        self.create_subscription(Image, "right/image_raw", self._on_right, SENSOR_QOS)
+        image_qos = QoSProfile(depth=int(node_values["images.depth"]),
+                               history=HistoryPolicy.KEEP_LAST,
+                               reliability=ReliabilityPolicy.RELIABLE
+                               if node_values["images.reliable"] else SENSOR_QOS.reliability,
+                               durability=SENSOR_QOS.durability)
+        self.create_subscription(Image, "left/image_raw", self._on_left, image_qos)
+        self.create_subscription(Image, "right/image_raw", self._on_right, image_qos)
         if not self._from_files:
             self.create_subscription(CameraInfo, "left/camera_info",
                                      lambda m: self._on_info("left", m), SENSOR_QOS)
@@ -247,9 +273,11 @@ class DetectTriangulateNode(Node):
 
     def _on_image(self, side: int, msg: Image) -> None:
         topic = ("left", "right")[side] + "/image_raw"
+        self.diag.count(f"{('left', 'right')[side]}_frames")
         try:
             stamp = header_stamp_ns(msg)
         except ConversionError as exc:
+            self.diag.count(f"sync_unpaired_{('left', 'right')[side]}")
             self.diag.report("bad_image", f"{topic}: {exc}")
             return
         last = self._sync.last_stamps[side]
@@ -258,12 +286,14 @@ class DetectTriangulateNode(Node):
             # instead of rejecting every frame until the stamps catch up.
             self.get_logger().info(f"{topic}: time jumped back {(last - stamp) / 1e9:.3f} s: "
                                    "stereo pairing and tracking reset")
+            self._count_unpaired(*self._sync.pending)   # frames waiting in the sync are lost
             self._sync.reset()
             self._sync_seen = (self._sync.stats.dropped, self._sync.stats.dropped_stale)
             self.diag.count("time_jumps")
         pairs = (self._sync.push_left if side == 0 else self._sync.push_right)(stamp, msg)
         stats = self._sync.stats
         seen = (stats.dropped, stats.dropped_stale)
+        self._count_sync_drops()
         if seen != self._sync_seen:
             self.diag.count("sync_dropped", seen[0] - self._sync_seen[0])
             if seen[1] > self._sync_seen[1]:
@@ -276,12 +306,37 @@ class DetectTriangulateNode(Node):
                     f"{topic})")
             self._sync_seen = seen
         for pair in pairs:
+            self.diag.count("sync_pairs")
             if self._slot.put(pair):
                 self.diag.count("dropped_pairs")
             waiting = len(self._slot)
             if waiting > self._queue_max:     # the most pairs ever waiting: sizes queue_depth
                 self._queue_max = waiting
                 self.diag.gauge("queue_max", waiting)
+        self._ledger_gauges()
+
+    _sync_sides_seen = (0, 0)
+
+    def _count_sync_drops(self) -> None:
+        """Frames the stereo sync dropped since the last call, per side."""
+        stats = self._sync.stats
+        now = (stats.dropped_left, stats.dropped_right)
+        self._count_unpaired(now[0] - self._sync_sides_seen[0],
+                             now[1] - self._sync_sides_seen[1])
+        self._sync_sides_seen = now
+
+    def _count_unpaired(self, left: int, right: int) -> None:
+        if left:
+            self.diag.count("sync_unpaired_left", left)
+        if right:
+            self.diag.count("sync_unpaired_right", right)
+
+    def _ledger_gauges(self) -> None:
+        """What is still in flight, so the counters reconcile at any moment."""
+        pending = self._sync.pending
+        self.diag.gauge("sync_pending_left", pending[0])
+        self.diag.gauge("sync_pending_right", pending[1])
+        self.diag.gauge("queued", len(self._slot))
 
     def _on_info(self, side: str, msg: CameraInfo) -> None:
         with self._lock:
@@ -297,15 +352,19 @@ class DetectTriangulateNode(Node):
                 break  # shutting down (e.g. Ctrl-C shut the context down under us)
             t0 = time.perf_counter()
             try:
-                self._process(pair)
+                outcome = self._process(pair)
             except EyeInHandError as exc:  # per-pair input problems: counted, node keeps going
+                outcome = "failed_pairs"
                 self.diag.report(type(exc).__name__, str(exc))
             except Exception as exc:  # noqa: BLE001 - a bug must not stop the stream silently:
                 if not self.context.ok():
                     break  # publishing raced with the context's shutdown: nothing to report
                 # logged with its traceback (first occurrence) and counted at ERROR level
+                outcome = "failed_pairs"
                 self.diag.report("internal_error", f"{type(exc).__name__}: {exc}\n"
                                  f"{traceback.format_exc()}", level=ERROR)
+            self.diag.count(outcome)
+            self._ledger_gauges()
             self.diag.gauge("processing_ms", (time.perf_counter() - t0) * 1e3)
 
     def _current_locator(self) -> StereoLocator | None:
@@ -354,16 +413,18 @@ class DetectTriangulateNode(Node):
             return None
         return np.ascontiguousarray(img)
 
-    def _process(self, pair: StereoPair[Image]) -> None:
+    def _process(self, pair: StereoPair[Image]) -> str:
+        """Locate and publish one pair; the ledger counter of its outcome
+        (``points_published``, ``no_target`` or ``failed_pairs``)."""
         self.diag.count("pairs")
         locator = self._current_locator()
         if locator is None:
-            return
+            return "failed_pairs"
         rig = locator.rig
         left = self._image(pair.left, "left/image_raw", rig.left.size)
         right = self._image(pair.right, "right/image_raw", rig.right.size)
         if left is None or right is None:
-            return
+            return "failed_pairs"
         result = locator.locate(left, right)
         stamp = pair.stamp_ns
         frame = self._frame_id or pair.left.header.frame_id or DEFAULT_FRAME
@@ -386,7 +447,11 @@ class DetectTriangulateNode(Node):
                 pub.publish(xyz_to_point_stamped(t.point_m, stamp_ns=stamp, frame_id=frame))
         n_pairs = self.diag.counter("pairs")
         self.diag.gauge("detection_rate", self.diag.counter("detections") / max(1, n_pairs))
-        self._maybe_debug(left, right, result, pair)
+        try:
+            self._maybe_debug(left, right, result, pair)
+        except (EyeInHandError, cv2.error, ValueError) as exc:  # the point is out already
+            self.diag.report("debug_image", f"target/debug_image: {exc}")
+        return "points_published" if first is not None else "no_target"
 
     def _maybe_debug(self, left: np.ndarray, right: np.ndarray, result: LocateResult,
                      pair: StereoPair[Image]) -> None:

@@ -12,8 +12,13 @@ Localization mode (``mode: localization``)
     i.e. unknown). A point whose stamp is newer than the newest robot pose waits up to
     ``max_pose_wait_s`` for it; the pose is never extrapolated and never taken across a gap
     over ``max_pose_gap_s``, so when robot poses stop arriving no ``target/pose`` is published
-    and ``diagnostics`` says why. ``hand_eye/transform`` (TransformStamped tool0 -> camera,
-    transient local) is published once at start-up.
+    and ``diagnostics`` says why. Never stale: the robot poses used for a point must also have
+    been *received* within ``max_pose_age_s`` (on the node's clock: wall time, or ``/clock``
+    under ``use_sim_time``), and the pose buffer is cleared when robot pose stamps (or the
+    clock) jump back more than ``pose_jump_back_s`` (a bag replayed again) or no pose arrived
+    for ``max_pose_age_s`` (the stream stopped). Every point that gives no ``target/pose`` is
+    counted on ``diagnostics`` by reason (``refused.<reason>``). ``hand_eye/transform``
+    (TransformStamped tool0 -> camera, transient local) is published once at start-up.
 
 TF (see docs/localization.md)
     ``robot_pose_source: tf``: the robot pose is ``base_frame -> ee_frame`` looked up at each
@@ -104,6 +109,13 @@ class HandEyeNodeConfig:
     max_pose_wait_s: float = param(0.2, "how long a point waits for a robot pose newer than "
                                    "its stamp before it is dropped as stale (s)",
                                    range=(0.0, 10.0))
+    max_pose_age_s: float = param(1.0, "largest receive age of the robot poses used for a "
+                                  "point, on the node's clock (sim time under use_sim_time); "
+                                  "older poses are refused as stale (s)", range=(0.001, 3600.0))
+    pose_jump_back_s: float = param(1.0, "a robot pose stamp (or the node's clock) this far "
+                                    "behind the newest is a time jump (bag loop or replay, sim "
+                                    "reset): the pose buffer is cleared (s)",
+                                    range=(0.001, 3600.0))
     pose_buffer_size: int = param(4000, "robot poses kept for interpolation",
                                   range=(2, 1_000_000))
     robot_sigma_pos_m: float = param(0.0001, "robot pose position noise, 1 sigma (m)",
@@ -208,7 +220,9 @@ class HandEyeNode(Node):
         self.localizer = Localizer(ee_T_cam, cov, LocalizerConfig(
             max_gap_ns=int(cfg.max_pose_gap_s * 1e9), buffer_size=cfg.pose_buffer_size,
             robot_sigma_pos_m=cfg.robot_sigma_pos_m,
-            robot_sigma_rot_rad=cfg.robot_sigma_rot_rad))
+            robot_sigma_rot_rad=cfg.robot_sigma_rot_rad,
+            max_age_ns=int(cfg.max_pose_age_s * 1e9),
+            jump_back_ns=int(cfg.pose_jump_back_s * 1e9)))
 
         if cfg.robot_pose_source == "ee_pose":
             self.create_subscription(PoseStamped, "ee_pose", self._on_ee_pose, ROBOT_POSE_QOS)
@@ -237,7 +251,7 @@ class HandEyeNode(Node):
                 self.diag.report("ee_pose_frame", f"ee_pose in frame {frame!r}, expected "
                                  f"{self.config.base_frame!r}: ignored")
                 return
-            self.localizer.add_robot_pose(stamp, pose_to_matrix(msg.pose))
+            self._add_pose(stamp, pose_to_matrix(msg.pose))
         except (ConversionError, InputError) as exc:
             self.diag.report("bad_ee_pose", f"ee_pose: {exc}")
             return
@@ -253,7 +267,7 @@ class HandEyeNode(Node):
             q = np.asarray(msg.position, dtype=np.float64)[self._joint_index]
             if not np.all(np.isfinite(q)):
                 raise InputError("joint_states: position contains NaN")
-            self.localizer.add_robot_pose(stamp, self._chain.fk(q))
+            self._add_pose(stamp, self._chain.fk(q))
         except (ConversionError, InputError, IndexError, EyeInHandError) as exc:
             self._joint_index = None
             self.diag.report("bad_joint_states", f"joint_states: {exc}")
@@ -270,6 +284,33 @@ class HandEyeNode(Node):
                              f"(has {', '.join(names)})")
         self._joint_index = np.array([names.index(n) for n in want])
         self._joint_index_names = tuple(names)
+
+    # -- staleness: receive times, time jumps, stopped streams ------------------------------
+    def _now_ns(self) -> int:
+        """The node's clock (sim time under use_sim_time): the clock of receive ages."""
+        return self.get_clock().now().nanoseconds
+
+    def _add_pose(self, stamp: int, base_T_ee: np.ndarray) -> None:
+        """Buffer a robot pose with its receive time; a time jump back clears the buffer."""
+        if self.localizer.add_robot_pose(stamp, base_T_ee, received_ns=self._now_ns()):
+            self.diag.count("pose_buffer_resets.time_jump")
+            self.get_logger().info(f"robot pose time jumped back (stamp {stamp} ns): pose "
+                                   "buffer cleared, earlier poses are never used again")
+
+    def _expire_poses(self) -> None:
+        """Clear the pose buffer when the stream stopped or the clock jumped back."""
+        cause = self.localizer.poses.expire(self._now_ns(),
+                                            int(self.config.max_pose_age_s * 1e9))
+        if cause is not None:
+            self.diag.count(f"pose_buffer_resets.{cause}")
+            self.get_logger().info(f"robot pose buffer cleared ({cause.replace('_', ' ')})")
+
+    def _refuse(self, reason: str, message: str, cause: str | None = None) -> None:
+        """Count a point that gives no target/pose in ``rejected`` and ``refused.<reason>``;
+        report (log once, WARN) under ``cause`` (default: the reason)."""
+        self.diag.count("rejected")
+        self.diag.count(f"refused.{reason}")
+        self.diag.report(cause or reason, message)
 
     def _after_pose(self) -> None:
         self.diag.count("robot_poses")
@@ -293,9 +334,16 @@ class HandEyeNode(Node):
         self.pub_transform.publish(matrix_to_transform_stamped(
             self.calibration.transform, stamp_ns=self.get_clock().now().nanoseconds,
             frame_id=cfg.ee_frame, child_frame_id=cfg.camera_frame))
-        self.diag.declare_counter("points", "poses_published", "rejected")
+        self.diag.declare_counter("points", "poses_published", "rejected", "refused.stale_pose",
+                                  "refused.pending_overflow", "pose_buffer_resets.time_jump",
+                                  "pose_buffer_resets.stream_stopped")
         self.diag.stale_after("points", cfg.stale_after_s)
-        self.create_timer(0.02, self._expire_pending)
+        from rclpy.clock import Clock, ClockType
+
+        # Steady time: waiting points expire and stopped pose streams are noticed also while
+        # simulated time (use_sim_time) stands still.
+        self.create_timer(0.02, self._expire_pending,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _on_point(self, msg: PointStamped) -> None:
         self.diag.count("points")
@@ -303,15 +351,17 @@ class HandEyeNode(Node):
             stamp = header_stamp_ns(msg)
             frame = msg.header.frame_id
             if frame and frame.lstrip("/") != self.config.camera_frame:
-                self.diag.report("point_frame", f"target/point in frame {frame!r}, expected "
-                                 f"{self.config.camera_frame!r}: ignored")
-                self.diag.count("rejected")
+                self._refuse("point_frame", f"target/point in frame {frame!r}, expected "
+                             f"{self.config.camera_frame!r}: ignored")
                 return
             p = point_to_xyz(msg.point)
         except (ConversionError, InputError) as exc:
-            self.diag.report("bad_point", f"target/point: {exc}")
-            self.diag.count("rejected")
+            self._refuse("bad_point", f"target/point: {exc}")
             return
+        if len(self._pending) == self._pending.maxlen:
+            old = self._pending[0]
+            self._refuse("pending_overflow", f"more than {self._pending.maxlen} points wait "
+                         f"for robot poses: the oldest (at {old.stamp_ns} ns) was dropped")
         self._pending.append(_Pending(stamp, p, self._covs.pop(stamp, None), time.monotonic()))
         self._drain_pending()
 
@@ -352,16 +402,18 @@ class HandEyeNode(Node):
             self._locate(self._pending.popleft())
 
     def _expire_pending(self) -> None:
+        self._expire_poses()
         if self._pending:
             self._drain_pending()
+        self.diag.gauge("pending", len(self._pending))
 
     def _locate(self, item: _Pending) -> None:
         try:
-            res = self.localizer.locate(item.stamp_ns, item.point, item.cov)
+            res = self.localizer.locate(item.stamp_ns, item.point, item.cov,
+                                        now_ns=self._now_ns())
         except LocalizationError as exc:
-            self.diag.count("rejected")
-            self.diag.report("no_robot_pose", f"no target/pose for the point at "
-                             f"{item.stamp_ns} ns: {exc}")
+            self._refuse(exc.reason, f"no target/pose for the point at {item.stamp_ns} ns: "
+                         f"{exc}", cause="no_robot_pose")
             return
         self._publish(res.stamp_ns, res.point_base, res.covariance)
 
@@ -402,8 +454,9 @@ class HandEyeNode(Node):
         except ConfigError as exc:
             raise ConfigError(f"robot_pose_source: tf: {exc}") from exc
         self.tf_buffer = TfBuffer(cfg.pose_buffer_size)
-        self.localizer.poses = TfPoseView(self.tf_buffer, cfg.base_frame,  # type: ignore
-                                          cfg.ee_frame)
+        self.localizer.poses = TfPoseView(  # type: ignore[assignment]
+            self.tf_buffer, cfg.base_frame, cfg.ee_frame,
+            jump_back_ns=int(cfg.pose_jump_back_s * 1e9))
         self.create_subscription(TFMessage, TF_TOPIC, lambda m: self._on_tf(m, False),
                                  tf_qos())
         self.create_subscription(TFMessage, TF_STATIC_TOPIC, lambda m: self._on_tf(m, True),
@@ -411,11 +464,16 @@ class HandEyeNode(Node):
         self.diag.declare_counter("tf_messages", "tf_rejected")
 
     def _on_tf(self, msg: Any, static: bool) -> None:
-        from eye_in_hand.ros.tf import add_tf_message
+        from eye_in_hand.ros.tf import feed_tf_message
 
         self.diag.count("tf_messages")
         before = self.localizer.poses.newest_ns
-        added, problems = add_tf_message(self.tf_buffer, msg, static=static)
+        added, problems, jumped = feed_tf_message(self.localizer.poses, msg, static=static,
+                                                  received_ns=self._now_ns())
+        if jumped:
+            self.diag.count("pose_buffer_resets.time_jump")
+            self.get_logger().info("TF time jumped back: dynamic transforms cleared, earlier "
+                                   "ones are never used again")
         for text in problems:
             self.diag.count("tf_rejected")
             self.diag.report("bad_tf", f"{'/tf_static' if static else '/tf'}: {text}")
@@ -553,12 +611,13 @@ class HandEyeNode(Node):
         """Robot pose at ``stamp`` and '' if still, else a reason."""
         cfg = self.config
         gap = int(cfg.max_pose_gap_s * 1e9)
-        T = self.localizer.poses.lookup(stamp, gap)
+        age = {"now_ns": self._now_ns(), "max_age_ns": int(cfg.max_pose_age_s * 1e9)}
+        T = self.localizer.poses.lookup(stamp, gap, **age)
         w = int(cfg.still_window_s * 1e9)
         if w > 0:
             for s in (stamp - w, stamp + w):
                 try:
-                    Ts = self.localizer.poses.lookup(s, gap)
+                    Ts = self.localizer.poses.lookup(s, gap, **age)
                 except LocalizationError as exc:
                     return T, f"cannot check that the robot is still: {exc}"
                 dt = abs(s - stamp) / 1e9

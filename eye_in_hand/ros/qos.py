@@ -5,7 +5,7 @@ profile          reliability  durability        depth use
 =============== ============ ================= ===== ==================================
 ``SENSOR_QOS``   best effort  volatile          5     images, camera_info, robot poses:
                                                       drop old frames, never lag behind
-``RESULT_QOS``   reliable     volatile          10    target points/poses, diagnostics
+``RESULT_QOS``   reliable     volatile          100   target points/poses, diagnostics
 ``LATCHED_QOS``  reliable     transient local   1     calibration results (a late
                                                       subscriber still gets the last one)
 =============== ============ ================= ===== ==================================
@@ -37,10 +37,13 @@ SENSOR_QOS: QoSProfile = QoSProfile(
     durability=qos_profile_sensor_data.durability,
 )
 
-#: Results that must not be lost: reliable, volatile, keep last 10.
+#: Results that must not be lost: reliable, volatile, keep last 100. Reliable alone does not
+#: keep a burst: a subscriber whose executor is busy (a replay at 10x, a garbage collection)
+#: loses what overflows its keep-last queue, so the queue holds 100 small messages (3 s of
+#: points at 30 Hz), not 10.
 RESULT_QOS: QoSProfile = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
-    depth=10,
+    depth=100,
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )

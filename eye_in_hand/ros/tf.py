@@ -23,7 +23,7 @@ from eye_in_hand.errors import ConfigError, ConversionError, InputError
 
 __all__ = ["TF_TOPIC", "TF_STATIC_TOPIC", "TFMESSAGE_TYPE", "have_tf2_msgs", "tf_message_class",
            "tf_qos", "tf_static_pub_qos", "tf_static_sub_qos", "add_tf_message",
-           "make_tf_message", "chain_tf_edges"]
+           "feed_tf_message", "make_tf_message", "chain_tf_edges"]
 
 TF_TOPIC = "/tf"
 TF_STATIC_TOPIC = "/tf_static"
@@ -110,6 +110,34 @@ def add_tf_message(buffer: Any, msg: Any, *, static: bool) -> tuple[int, list[st
             child = getattr(tr, "child_frame_id", "?")
             problems.append(f"transforms[{k}] ({parent} -> {child}): {exc}")
     return added, problems
+
+
+def feed_tf_message(view: Any, msg: Any, *, static: bool, received_ns: int
+                    ) -> tuple[int, list[str], bool]:
+    """Add a TFMessage to the buffer behind a ``TfPoseView`` with its staleness bookkeeping:
+    a dynamic transform far behind the chain's newest stamp first clears the dynamic
+    transforms (a bag loop or replay), and the receive time is recorded when the chain
+    advances.
+
+    Returns:
+        ``(added, problems, jumped)``: as :func:`add_tf_message`, and whether time jumped back.
+    """
+    from eye_in_hand.ros.conversions import header_stamp_ns
+
+    jumped = False
+    if not static:
+        stamps = []
+        for tr in getattr(msg, "transforms", None) or ():
+            try:
+                stamps.append(header_stamp_ns(tr))
+            except (ConversionError, InputError, AttributeError):
+                pass  # reported by add_tf_message
+        if stamps:
+            jumped = view.check_jump(max(stamps), received_ns)
+    added, problems = add_tf_message(view.buffer, msg, static=static)
+    if added:
+        view.received(received_ns)
+    return added, problems, jumped
 
 
 def make_tf_message(transforms: Iterable[tuple[str, str, int, Any]]) -> Any:

@@ -37,11 +37,117 @@ def test_node_commands_put_topics_where_the_bags_have_them():
 
 
 def test_a_node_that_dies_stops_the_launch_with_its_name(tmp_path, ros_env):
-    proc = _launch(_params(tmp_path, tmp_path / "missing.yaml"), ros_env)
+    proc = _launch(_params(tmp_path, tmp_path / "missing.yaml"), ros_env, "--no-respawn")
     out, _ = proc.communicate(timeout=60)
     assert proc.returncode == 1, out
     assert "[hand_eye]" in out and "missing.yaml" in out
-    assert "hand_eye exited with code" in out
+    assert "hand_eye exited with code" in out and "restarting" not in out
+
+
+def test_a_node_that_keeps_crashing_is_given_up_with_its_name(tmp_path, ros_env):
+    proc = _launch(_params(tmp_path, tmp_path / "missing.yaml"), ros_env,
+                   "--respawn-delay", "0.1", "--max-restarts", "2")
+    out, _ = proc.communicate(timeout=90)
+    assert proc.returncode == 1, out
+    assert out.count("[launch] hand_eye exited with code 1; restarting in") == 2, out
+    assert "restarting in 0.1 s (restart 1 of at most 2" in out
+    assert "restarting in 0.2 s (restart 2 of at most 2" in out          # back-off doubles
+    assert "hand_eye exited with code 1 (2 restart(s) within 60 s already): giving up" in out
+
+
+class _Lines:
+    """The launcher's output, read on a thread."""
+
+    def __init__(self, proc):
+        import threading
+
+        self.lines: list[str] = []
+        self.proc = proc
+        self._th = threading.Thread(target=self._read, daemon=True)
+        self._th.start()
+
+    def _read(self):
+        for line in self.proc.stdout:
+            self.lines.append(line)
+
+    @property
+    def text(self):
+        return "".join(self.lines)
+
+    def wait_for(self, cond, timeout_s=60.0):
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if cond(self.text):
+                return True
+            time.sleep(0.05)
+        return False
+
+
+def test_a_killed_node_is_restarted_and_messages_flow_again(tmp_path, ros_env, ros_context,
+                                                            executor, spin_until, namespace):
+    import os
+    import re
+
+    from geometry_msgs.msg import PointStamped, PoseStamped
+
+    from eye_in_hand.ros.conversions import matrix_to_pose_stamped, xyz_to_point_stamped
+    from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS
+
+    he = tmp_path / "hand_eye.yaml"
+    save_hand_eye(he, HandEyeCalibration("eye_in_hand", "tool0", "camera_left_optical_frame",
+                                         np.eye(4)))
+    proc = subprocess.Popen([sys.executable, "-m", "eye_in_hand.cli", "launch", "--params",
+                             str(_params(tmp_path, he)), "--skip", "stereo_capture",
+                             "detect_triangulate", "--namespace", namespace,
+                             "--respawn-delay", "0.2"],
+                            env=ros_env, text=True, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT)
+    out = _Lines(proc)
+    import rclpy
+
+    node = rclpy.create_node("he_client", context=ros_context, namespace=namespace)
+    executor.add_node(node)
+    pub_pose = node.create_publisher(PoseStamped, "ee_pose", SENSOR_QOS)
+    pub_point = node.create_publisher(PointStamped, "target/point", RESULT_QOS)
+    got: list = []
+    node.create_subscription(PoseStamped, "target/pose", got.append, RESULT_QOS)
+    t0 = [1_700_000_000_000_000_000]
+
+    def one_pose_through() -> bool:
+        """Robot poses and a point in, a target/pose out; sent again every second (robot poses
+        are best effort, and a node just started may still be matching)."""
+        n = len(got)
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline:
+            spin_until(executor, lambda: pub_point.get_subscription_count() > 0
+                       and pub_pose.get_subscription_count() > 0
+                       and node.count_publishers("target/pose") > 0, 5.0)
+            stamp = t0[0]
+            t0[0] += 10**9
+            for k in range(3):
+                pub_pose.publish(matrix_to_pose_stamped(
+                    np.eye(4), stamp_ns=stamp + k * 10_000_000, frame_id="base_link"))
+            spin_until(executor, lambda: False, 0.1)
+            pub_point.publish(xyz_to_point_stamped([0.0, 0.0, 0.5], stamp_ns=stamp + 5_000_000,
+                                                   frame_id="camera_left_optical_frame"))
+            if spin_until(executor, lambda: len(got) > n, 1.0):
+                return True
+        return False
+
+    try:
+        assert out.wait_for(lambda t: "[hand_eye]" in t and "started in" in t), out.text
+        assert one_pose_through(), out.text
+        pid = int(re.search(r"\[launch\] started hand_eye \(pid (\d+)\)", out.text).group(1))
+        os.kill(pid, signal.SIGKILL)
+        assert out.wait_for(lambda t: t.count("started in localization mode") == 2), out.text
+        assert "[launch] hand_eye exited with code -9; restarting in 0.2 s" in out.text
+        new = re.findall(r"\[launch\] started hand_eye \(pid (\d+)\)", out.text)
+        assert len(new) == 2 and int(new[1]) != pid
+        assert one_pose_through(), out.text             # the pipeline resumed
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=60)
+    assert proc.returncode == 0, out.text
 
 
 def test_ctrl_c_stops_every_node_cleanly(tmp_path, ros_env):

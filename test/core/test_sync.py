@@ -157,3 +157,71 @@ def test_pose_buffer_errors_name_the_reason():
         buf.add(500, np.ones((4, 4)))
     with pytest.raises(InputError, match="capacity"):
         PoseBuffer(capacity=1)
+
+
+# -- staleness: receive age, time jumps, stopped streams --------------------------------------
+S = 1_000_000_000
+
+
+def _moving(t_ns: int) -> np.ndarray:
+    T = np.eye(4)
+    T[0, 3] = t_ns / S
+    return T
+
+
+def test_pose_buffer_refuses_poses_received_longer_ago_than_the_age_limit():
+    buf = PoseBuffer(100, name="base_T_ee", jump_back_ns=S)
+    for k in range(10):                           # 100 Hz stream, received as stamped
+        buf.add(k * 10 * MS, _moving(k * 10 * MS), received_ns=5 * S + k * 10 * MS)
+    now = 5 * S + 95 * MS                         # just after the last pose: accepted
+    T = buf.lookup(45 * MS, 20 * MS, now_ns=now, max_age_ns=S)
+    assert T[0, 3] == pytest.approx(0.045)
+    # the same stamps, looked up seconds later (images of a second replay): refused
+    with pytest.raises(LocalizationError, match="received 2.0") as err:
+        buf.lookup(45 * MS, 20 * MS, now_ns=7 * S + 40 * MS, max_age_ns=S)
+    assert err.value.reason == "stale_pose"
+    # an exact stamp match is checked too
+    with pytest.raises(LocalizationError) as err:
+        buf.lookup(40 * MS, 20 * MS, now_ns=7 * S, max_age_ns=S)
+    assert err.value.reason == "stale_pose"
+    # a clock that went backwards (simulated time restarted) is refused as stale as well
+    with pytest.raises(LocalizationError, match="clock went backwards"):
+        buf.lookup(45 * MS, 20 * MS, now_ns=2 * S, max_age_ns=S)
+    # without now_ns the age is not checked (old behaviour)
+    assert buf.lookup(45 * MS, 20 * MS)[0, 3] == pytest.approx(0.045)
+
+
+def test_pose_buffer_resets_when_stamps_or_the_receive_clock_jump_back():
+    buf = PoseBuffer(100, jump_back_ns=S)
+    for k in range(300):
+        buf.add(10 * S + k * 10 * MS, _moving(k), received_ns=k * 10 * MS)
+    assert len(buf) == 100 and buf.resets["time_jump"] == 0
+    # the bag starts again: stamps 3 s back -> everything of the first pass is forgotten
+    assert buf.add(10 * S, np.eye(4), received_ns=3 * S + 10 * MS) is True
+    assert len(buf) == 1 and buf.resets["time_jump"] == 1
+    # a slightly out-of-order pose is not a jump
+    buf.add(10 * S + 20 * MS, np.eye(4), received_ns=3 * S + 20 * MS)
+    assert buf.add(10 * S + 10 * MS, np.eye(4), received_ns=3 * S + 30 * MS) is False
+    assert len(buf) == 3
+    # the receive clock going back (sim time reset with the same stamps) is a jump too
+    assert buf.add(10 * S + 30 * MS, np.eye(4), received_ns=1 * S) is True
+    assert buf.resets["time_jump"] == 2 and len(buf) == 1
+    # without jump_back_ns: no reset (the plain buffer of before)
+    plain = PoseBuffer(10)
+    plain.add(10 * S, np.eye(4))
+    assert plain.add(0, np.eye(4)) is False and len(plain) == 2
+
+
+def test_pose_buffer_expires_a_stopped_stream_and_a_clock_jump():
+    buf = PoseBuffer(100, jump_back_ns=S)
+    buf.add(0, np.eye(4), received_ns=10 * S)
+    buf.add(10 * MS, np.eye(4), received_ns=10 * S + 10 * MS)
+    assert buf.expire(10 * S + 500 * MS, S) is None and len(buf) == 2
+    assert buf.expire(11 * S + 11 * MS, S) == "stream_stopped" and len(buf) == 0
+    assert buf.resets["stream_stopped"] == 1
+    assert buf.expire(20 * S, S) is None              # empty: nothing to do
+    buf.add(0, np.eye(4), received_ns=10 * S)
+    assert buf.expire(5 * S, S) == "clock_jump" and len(buf) == 0
+    with pytest.raises(LocalizationError) as err:
+        buf.lookup(0, MS)
+    assert err.value.reason == "no_pose"

@@ -279,3 +279,106 @@ def test_calibration_mode_capture_compute_save(tmp_path, ros_context, executor, 
     assert res.success and "6" in res.message
     res = call("compute")
     assert not res.success
+
+
+def test_images_replayed_without_robot_poses_give_no_pose(tmp_path, ros_context, executor,
+                                                          namespace, spin_until):
+    """Issue #14: replay a bag once with ee_pose, then only its images: no target/pose may come
+    out of the poses buffered during the first replay; every refusal is counted."""
+    rig = _Rig(ros_context, executor, namespace,
+               _overrides(_hand_eye_file(tmp_path), max_pose_age_s=0.3, max_pose_wait_s=0.05))
+    assert spin_until(executor, rig.connected, 10.0)
+    n = 12
+    for k in range(n + 2):                 # first replay: robot poses and images
+        rig.send_pose(0.01 * k)
+    for k in range(n):
+        rig.send_point(0.01 * k + 0.005, [0.0, 0.0, 0.5])
+    ok = spin_until(executor, lambda: len(rig.poses) == n, 10.0)
+    diag = rig.node.diag
+    assert ok, (len(rig.poses), diag.snapshot().counters, diag.causes)
+    # The robot pose stream has stopped: the buffer is cleared once it is older than the limit.
+    assert spin_until(executor, lambda: diag.counter("pose_buffer_resets.stream_stopped") == 1,
+                      10.0)
+    for k in range(n):                     # second replay: the same images, no robot poses
+        rig.send_point(0.01 * k + 0.005, [0.0, 0.0, 0.5])
+    assert spin_until(executor, lambda: diag.counter("rejected") == n, 10.0)
+    refused = {k: v for k, v in diag.snapshot().counters.items()
+               if k.startswith("refused.") and v}
+    assert sum(refused.values()) == n, refused
+    assert diag.counter("points") == diag.counter("poses_published") + diag.counter("rejected")
+    spin_until(executor, lambda: False, 0.3)   # anything late would arrive now
+    assert len(rig.poses) == n
+
+
+def test_poses_received_long_ago_are_refused_as_stale(tmp_path, ros_context, executor,
+                                                      namespace, spin_until):
+    """Refusal by receive age, not by buffer reset: a long age limit for stream stops is not
+    needed; the lookup itself checks the age of the bracketing poses."""
+    rig = _Rig(ros_context, executor, namespace,
+               _overrides(_hand_eye_file(tmp_path), max_pose_age_s=0.3, max_pose_wait_s=0.05))
+    assert spin_until(executor, rig.connected, 10.0)
+    node = rig.node
+    for k in range(4):
+        rig.send_pose(0.01 * k)
+    assert spin_until(executor, lambda: node.diag.counter("robot_poses") == 4, 10.0)
+    # Keep the buffer from expiring (as if poses kept arriving for other stamps) and age the
+    # clock seen by the lookup: the poses that bracket the stamp are now 5 s old.
+    node._expire_poses = lambda: None
+    real_now = node._now_ns
+    node._now_ns = lambda: real_now() + 5_000_000_000
+    rig.send_point(0.015, [0.0, 0.0, 0.5])
+    assert spin_until(executor, lambda: node.diag.counter("refused.stale_pose") == 1, 10.0)
+    assert rig.poses == []
+
+
+def test_a_bag_replayed_again_resets_the_pose_buffer(tmp_path, ros_context, executor,
+                                                     namespace, spin_until):
+    rig = _Rig(ros_context, executor, namespace, _overrides(_hand_eye_file(tmp_path)))
+    assert spin_until(executor, rig.connected, 10.0)
+    for k in range(0, 150):                # 1.5 s of robot poses (every 10 ms)
+        rig.send_pose(0.01 * k)
+        if k % 50 == 49:
+            spin_until(executor, lambda: rig.node.diag.counter("robot_poses") == k + 1, 10.0)
+    assert spin_until(executor, lambda: rig.node.diag.counter("robot_poses") == 150, 10.0)
+    assert len(rig.node.localizer.poses) == 150
+    for k in range(5):                     # the bag starts again
+        rig.send_pose(0.01 * k)
+    assert spin_until(executor, lambda: rig.node.diag.counter("robot_poses") == 155, 10.0)
+    assert rig.node.diag.counter("pose_buffer_resets.time_jump") == 1
+    assert len(rig.node.localizer.poses) == 5
+    rig.send_point(0.02, [0.0, 0.0, 0.5])
+    assert spin_until(executor, lambda: len(rig.poses) == 1, 10.0)
+
+
+def test_receive_age_uses_the_simulated_clock(tmp_path, ros_context, executor, namespace,
+                                              spin_until):
+    """With use_sim_time the receive age is measured on /clock: 2 s of simulated time without
+    robot poses make them stale, although hardly any wall time passed."""
+    from rosgraph_msgs.msg import Clock
+
+    rig = _Rig(ros_context, executor, namespace,
+               _overrides(_hand_eye_file(tmp_path), max_pose_wait_s=0.05) +
+               [Parameter("use_sim_time", value=True)])
+    clock_pub = rig.io.create_publisher(Clock, "/clock", 10)
+    node = rig.node
+
+    def set_clock(t_s: float) -> bool:
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(int(t_s * 1e9), 10**9)
+        return spin_until(executor, lambda: (clock_pub.publish(msg), False)[1]
+                          or node.get_clock().now().nanoseconds == int(t_s * 1e9), 10.0)
+
+    assert spin_until(executor, rig.connected, 10.0)
+    assert set_clock(100.0)
+    for k in range(5):
+        rig.send_pose(0.01 * k)
+    assert spin_until(executor, lambda: node.diag.counter("robot_poses") == 5, 10.0)
+    assert set_clock(100.5)                       # 0.5 s later on /clock: fresh
+    rig.send_point(0.015, [0.0, 0.0, 0.5])
+    assert spin_until(executor, lambda: len(rig.poses) == 1, 10.0)
+    assert set_clock(102.5)                       # 2.5 s on /clock: the stream has stopped
+    rig.send_point(0.025, [0.0, 0.0, 0.5])
+    assert spin_until(executor, lambda: node.diag.counter("rejected") == 1, 10.0)
+    assert node.diag.counter("pose_buffer_resets.stream_stopped") \
+        + node.diag.counter("refused.stale_pose") >= 1
+    assert len(rig.poses) == 1

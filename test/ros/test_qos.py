@@ -20,7 +20,7 @@ def test_profiles():
     assert (SENSOR_QOS.reliability, SENSOR_QOS.history, SENSOR_QOS.depth) == (
         ReliabilityPolicy.BEST_EFFORT, HistoryPolicy.KEEP_LAST, 5)
     assert (RESULT_QOS.reliability, RESULT_QOS.durability, RESULT_QOS.depth) == (
-        ReliabilityPolicy.RELIABLE, DurabilityPolicy.VOLATILE, 10)
+        ReliabilityPolicy.RELIABLE, DurabilityPolicy.VOLATILE, 100)
     assert (LATCHED_QOS.reliability, LATCHED_QOS.durability, LATCHED_QOS.depth) == (
         ReliabilityPolicy.RELIABLE, DurabilityPolicy.TRANSIENT_LOCAL, 1)
 
