@@ -19,9 +19,12 @@ prior is the unit residual ``u_i`` whatever the scale. The measurements are
 
 * with corners: every corner's pixel error in every camera, divided by the pixel noise ``s_px``;
 * pose pairs only: the measured ``cam_T_board`` against the prediction (rotation vector and
-  translation), divided by the camera-pose noise levels ``s_cr`` (rad) and ``s_ct`` (m).
+  translation), divided by the camera-pose rotation noise ``s_cr`` (rad) and by ``s_t``: a
+  translation error of the camera pose and one of the robot pose are both isotropic in the
+  base frame and cannot be told apart from pose pairs, so one level serves both (``s_t`` is
+  then the robot's and the camera's translation noise together, an upper bound of the robot's).
 
-Variance components. The noise levels (``s_px`` or ``s_cr, s_ct``; and ``s_t, s_r``) are
+Variance components. The noise levels (``s_px`` or ``s_cr``; and ``s_t, s_r``) are
 estimated from the data by Förstner's iteration: after each weighted least-squares solve, each
 group's level is rescaled by ``sum(w_g^2) / r_g``, its whitened square sum over its redundancy
 ``r_g = n_g - trace(H_gg)`` (``H`` the hat matrix of the whitened problem), until the levels
@@ -72,7 +75,7 @@ class EivResult:
             the left).
         covariance_full: covariance of X and Y, shape (12, 12).
         sigmas: the estimated noise levels: ``robot_t`` (m, per axis), ``robot_r`` (rad, per
-            axis), and ``px`` (pixels, per coordinate) or ``cam_t`` (m), ``cam_r`` (rad).
+            axis), and ``px`` (pixels, per coordinate) or ``cam_r`` (rad, pose pairs).
         corrections: the estimated robot-pose corrections ``[d_t (m), d_r (rad)]`` per sample,
             shape (N, 6).
         sigma: measurement noise level (px for reprojection; unitless 1 for pose space).
@@ -158,8 +161,10 @@ class _Problem:
         else:
             self.C = np.stack([s.cam_T_board for s in samples])
             self.meas_sample = np.repeat(np.arange(self.n), 6)
+            # Camera and robot translation noise are both isotropic in the base frame and cannot
+            # be told apart from pose pairs: one level (robot_t) for both.
             self.meas_groups = np.tile([0, 0, 0, 1, 1, 1], self.n)
-            self.group_names = ["cam_r", "cam_t", "robot_t", "robot_r"]
+            self.group_names = ["cam_r", "robot_t", "robot_t", "robot_r"]
         m = self.meas_sample.size
         # Prior rows: u_i (t then r), 6 per sample.
         prior_groups = np.tile([0, 0, 0, 1, 1, 1], self.n) + (1 if use_corners else 2)
@@ -208,7 +213,7 @@ class _Problem:
         else:
             dR = np.einsum("kji,kjl->kil", self.C[:, :3, :3], C[:, :3, :3])
             r = Rotation.from_matrix(dR).as_rotvec() / sig["cam_r"]
-            t = (C[:, :3, 3] - self.C[:, :3, 3]) / sig["cam_t"]
+            t = (C[:, :3, 3] - self.C[:, :3, 3]) / sig["robot_t"]
             out.append(np.concatenate([r, t], axis=1).ravel())
         out.append(p[12:])
         return np.concatenate(out)
@@ -285,8 +290,8 @@ def refine_errors_in_variables(X0: np.ndarray, Y0: np.ndarray,
         if use_corners:
             sig["px"] = 0.5
         else:
-            sr, st = pose_residual_scales(X0, Y0, bte, ctb, setup)
-            sig["cam_r"], sig["cam_t"] = sr, st
+            sr, _ = pose_residual_scales(X0, Y0, bte, ctb, setup)
+            sig["cam_r"] = sr
     else:
         sig = dict(sigmas)
     p = np.concatenate([_start(X0), _start(Y0), np.zeros(6 * prob.n)])
@@ -300,8 +305,9 @@ def refine_errors_in_variables(X0: np.ndarray, Y0: np.ndarray,
         _, h = _normal_inverse(res.jac)
         w2 = res.fun ** 2
         new = dict(sig)
-        for g, name in enumerate(prob.group_names):
-            rows = prob.groups == g
+        for name in dict.fromkeys(prob.group_names):
+            rows = np.isin(prob.groups, [g for g, nm in enumerate(prob.group_names)
+                                         if nm == name])
             r_g = float(rows.sum() - h[rows].sum())
             redundancy[name] = r_g
             if r_g > 1e-6:
