@@ -121,11 +121,9 @@ def test_methods_disagreement_warning() -> None:
         T = s.base_T_ee.copy()
         T[:3, 3] *= 1.02
         scaled.append(HandEyeSample(s.name, T, s.cam_T_board, s.observations))
-    res = calibrate_hand_eye(scaled, cameras=P.views, reject_outliers=False,
-                             leave_one_out_refined=False)
+    res = calibrate_hand_eye(scaled, cameras=P.views, reject_outliers=False)
     assert any(w.startswith("methods disagree") for w in res.warnings)
-    ok = calibrate_hand_eye(P.samples, cameras=P.views, reject_outliers=False,
-                            leave_one_out_refined=False)
+    ok = calibrate_hand_eye(P.samples, cameras=P.views, reject_outliers=False)
     assert not any(w.startswith("methods disagree") for w in ok.warnings)
 
 

@@ -35,9 +35,11 @@ Covariance. ``(J^T J)^-1`` of the whitened problem at the solution, X block, ord
 ``x y z rx ry rz`` (rotation vector applied on the left), as in :mod:`.refine`: with the noise
 levels estimated, it accounts for both the image and the robot-pose noise.
 
-The problem is solved with ``scipy.optimize.least_squares`` (MINPACK
-Levenberg-Marquardt), the Jacobian by forward differences grouped by its sparsity (a sample's
-residuals depend on X, Y and that sample's correction only: 18 evaluations per Jacobian).
+The problem is solved by Gauss-Newton steps (with step halving should the cost rise), each
+followed by the variance-component update from the linearised residuals, until both settle; the
+Jacobian by forward differences grouped by its sparsity (a sample's residuals depend on X, Y and
+that sample's correction only: 18 evaluations per Jacobian). The normal equations are small
+(12 + 6 N unknowns) and solved through their Cholesky factor.
 """
 from __future__ import annotations
 
@@ -45,7 +47,6 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from eye_in_hand.errors import HandEyeError
@@ -172,25 +173,29 @@ class _Problem:
         self.n_meas = m
         self.meas_cols = 12 + 6 * self.meas_sample      # first correction column of each row
 
-    def jacobian(self, p: np.ndarray, sig: dict[str, float]) -> np.ndarray:
-        """Dense Jacobian by forward differences, 18 evaluations: one per X/Y parameter and one
-        per correction component (all samples at once, as a sample's residuals depend on its
-        own correction only)."""
-        f0 = self.residuals(p, sig)
+    def jacobian(self, p: np.ndarray, sig: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
+        """The Jacobian of the measurement rows by forward differences, 18 evaluations: one per
+        X/Y parameter and one per correction component (all samples at once, as a sample's
+        residuals depend on its own correction only).
+
+        Returns:
+            ``(Jg (M, 12), Ju (M, 6))``: the derivatives by X, Y and by the row's own sample's
+            correction. The prior rows' Jacobian is the identity on the corrections.
+        """
+        f0 = self.residuals(p, sig)[:self.n_meas]
         m = self.n_meas
-        J = np.zeros((f0.size, p.size))
+        Jg = np.zeros((m, 12))
+        Ju = np.zeros((m, 6))
         for j in range(12):
             q = p.copy()
             q[j] += _FD_STEP
-            J[:m, j] = (self.residuals(q, sig)[:m] - f0[:m]) / _FD_STEP
-        rows = np.arange(m)
+            Jg[:, j] = (self.residuals(q, sig)[:m] - f0) / _FD_STEP
         for j in range(6):
             h = _FD_STEP / (sig["robot_t"] if j < 3 else sig["robot_r"])
             q = p.copy()
             q[12 + j::6] += h
-            J[rows, self.meas_cols + j] = (self.residuals(q, sig)[:m] - f0[:m]) / h
-        J[m + np.arange(6 * self.n), 12 + np.arange(6 * self.n)] = 1.0
-        return J
+            Ju[:, j] = (self.residuals(q, sig)[:m] - f0) / h
+        return Jg, Ju
 
     def corrections(self, p: np.ndarray, sig: dict[str, float]) -> np.ndarray:
         u = p[12:].reshape(self.n, 6)
@@ -219,39 +224,77 @@ class _Problem:
         return np.concatenate(out)
 
 
-def _solve(prob: _Problem, p0: np.ndarray, sig: dict[str, float], max_nfev: int):
-    res = least_squares(prob.residuals, p0, jac=prob.jacobian, args=(sig,), method="lm",
-                        x_scale="jac", max_nfev=max_nfev, xtol=1e-10, ftol=1e-10)
-    res.jac = prob.jacobian(res.x, sig)
-    return res
+@dataclass
+class _Normal:
+    """The whitened normal equations in block form: 12 global unknowns (X, Y) and one 6x6 block
+    per sample's correction, reduced by the Schur complement (no large dense products)."""
+
+    A: np.ndarray        # (12, 12) global block
+    B: np.ndarray        # (N, 12, 6) global-correction blocks
+    Dinv: np.ndarray     # (N, 6, 6) inverse correction blocks
+    gg: np.ndarray       # (12,) gradient, global part
+    gu: np.ndarray       # (N, 6) gradient, corrections
+    A_k: np.ndarray      # (N, 12, 12) each sample's share of A
+    gg_k: np.ndarray     # (N, 12) each sample's share of gg
 
 
-def _normal_inverse(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(J^T J)^-1`` and the hat-matrix diagonal ``diag(J (J^T J)^-1 J^T)``.
+def _normal(prob: _Problem, Jg: np.ndarray, Ju: np.ndarray, r: np.ndarray) -> _Normal:
+    n, m = prob.n, prob.n_meas
+    k = prob.meas_sample
+    rm = r[:m]
+    A_k = np.zeros((n, 12, 12))
+    np.add.at(A_k, k, np.einsum("ki,kj->kij", Jg, Jg))
+    B = np.zeros((n, 12, 6))
+    np.add.at(B, k, np.einsum("ki,kj->kij", Jg, Ju))
+    D = np.zeros((n, 6, 6))
+    np.add.at(D, k, np.einsum("ki,kj->kij", Ju, Ju))
+    D += np.eye(6)
+    gg_k = np.zeros((n, 12))
+    np.add.at(gg_k, k, Jg * rm[:, None])
+    gu = np.zeros((n, 6))
+    np.add.at(gu, k, Ju * rm[:, None])
+    gu += r[m:].reshape(n, 6)
+    return _Normal(A_k.sum(axis=0), B, np.linalg.inv(D), gg_k.sum(axis=0), gu, A_k, gg_k)
 
-    Through a Cholesky factor and ``einsum`` (no threaded BLAS products: on a loaded machine
-    those are far slower for matrices this small).
-    """
-    from scipy.linalg import solve_triangular
 
-    N = np.einsum("ki,kj->ij", J, J)
+def _schur_solve(S: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``S^-1`` and ``S^-1 rhs`` for the 12x12 reduced system."""
     try:
-        L = np.linalg.cholesky(N)
+        L = np.linalg.cholesky(0.5 * (S + S.T))
     except np.linalg.LinAlgError as exc:
         raise HandEyeError("errors-in-variables refinement: the problem is singular (the "
                            "motions do not determine X)") from exc
-    Linv = solve_triangular(L, np.eye(N.shape[0]), lower=True)
-    Ninv = np.einsum("ki,kj->ij", Linv, Linv)
-    W = np.einsum("ij,kj->ik", J, Linv)
-    return Ninv, np.einsum("ij,ij->i", W, W)
+    Linv = np.linalg.inv(L)
+    Sinv = Linv.T @ Linv
+    return Sinv, Sinv @ rhs
+
+
+def _solve_normal(prob: _Problem, nm: _Normal, Jg: np.ndarray, Ju: np.ndarray,
+                  hat: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The Gauss-Newton step, the covariance of the 12 global unknowns and (``hat``) the
+    hat-matrix diagonal of every row (measurements, then priors)."""
+    BD = np.einsum("kij,kjl->kil", nm.B, nm.Dinv)                   # (N, 12, 6)
+    S = nm.A - np.einsum("kij,klj->il", BD, nm.B)
+    Cg, xg = _schur_solve(S, -nm.gg + np.einsum("kij,kj->i", BD, nm.gu))
+    xu = -np.einsum("kij,kj->ki", nm.Dinv, nm.gu + np.einsum("kji,j->ki", nm.B, xg))
+    step = np.concatenate([xg, xu.ravel()])
+    if not hat:
+        return step, Cg, None
+    Cgu = -np.einsum("ij,kjl->kil", Cg, BD)                        # (N, 12, 6)
+    Cuu = nm.Dinv + np.einsum("kji,jl,klm->kim", BD, Cg, BD)       # (N, 6, 6)
+    k = prob.meas_sample
+    h_meas = (np.einsum("ki,ij,kj->k", Jg, Cg, Jg)
+              + 2.0 * np.einsum("ki,kij,kj->k", Jg, Cgu[k], Ju)
+              + np.einsum("ki,kij,kj->k", Ju, Cuu[k], Ju))
+    h_prior = np.einsum("kii->ki", Cuu).ravel()
+    return step, Cg, np.concatenate([h_meas, h_prior])
 
 
 def refine_errors_in_variables(X0: np.ndarray, Y0: np.ndarray,
                                samples: Sequence[HandEyeSample],
                                cameras: Sequence[CameraView] | None, setup: str, *,
                                sigmas: dict[str, float] | None = None,
-                               estimate: bool = True, max_iter: int = 15,
-                               max_nfev: int = 100) -> EivResult:
+                               estimate: bool = True, max_iter: int = 40) -> EivResult:
     """Refine X and Y with per-sample robot-pose corrections and estimated noise levels.
 
     Args:
@@ -264,8 +307,7 @@ def refine_errors_in_variables(X0: np.ndarray, Y0: np.ndarray,
         sigmas: start (or, with ``estimate=False``, fixed) noise levels by group name (see
             :class:`EivResult`); estimated from the start solution when None.
         estimate: estimate the noise levels (variance components); False keeps ``sigmas``.
-        max_iter: variance-component iterations.
-        max_nfev: evaluation budget per least-squares solve.
+        max_iter: iterations (Gauss-Newton step + variance-component update).
 
     Returns:
         The result.
@@ -295,46 +337,81 @@ def refine_errors_in_variables(X0: np.ndarray, Y0: np.ndarray,
     else:
         sig = dict(sigmas)
     p = np.concatenate([_start(X0), _start(Y0), np.zeros(6 * prob.n)])
+    names = list(dict.fromkeys(prob.group_names))
+    group_rows = {name: np.isin(prob.groups, [g for g, nm in enumerate(prob.group_names)
+                                              if nm == name]) for name in names}
     nfev = 0
-    converged = not estimate
-    iterations = 0
+    converged = False
     redundancy: dict[str, float] = {}
-    res = _solve(prob, p, sig, max_nfev)
-    nfev += int(res.nfev)
-    for iterations in range(1, (max_iter if estimate else 0) + 1):
-        _, h = _normal_inverse(res.jac)
-        w2 = res.fun ** 2
+    r = prob.residuals(p, sig)
+    cost = 0.5 * float(r @ r)
+    iterations = 0
+    # Gauss-Newton steps, each followed by the variance-component update computed from the
+    # linearised residuals at the new point (exact for the linearised problem).
+    for iterations in range(1, max_iter + 1):
+        Jg, Ju = prob.jacobian(p, sig)
+        nfev += 19
+        step, _, h = _solve_normal(prob, _normal(prob, Jg, Ju, r), Jg, Ju, hat=estimate)
+        # Step halving if the cost rises (a safeguard: the problem is nearly linear here).
+        for _ in range(20):
+            r_new = prob.residuals(p + step, sig)
+            nfev += 1
+            cost_new = 0.5 * float(r_new @ r_new)
+            if cost_new <= cost * (1 + 1e-12) or np.linalg.norm(step) < 1e-14:
+                break
+            step *= 0.5
+        p = p + step
+        m = prob.n_meas
+        r_lin = r.copy()
+        r_lin[:m] += Jg @ step[:12] + np.einsum("kj,kj->k", Ju,
+                                                 step[12:].reshape(prob.n, 6)[prob.meas_sample])
+        r_lin[m:] += step[12:]
+        r, cost = r_new, cost_new
+        small_step = bool(np.max(np.abs(step[:12])) < 1e-9)
+        if not estimate:
+            if small_step:
+                converged = True
+                break
+            continue
+        assert h is not None
         new = dict(sig)
-        for name in dict.fromkeys(prob.group_names):
-            rows = np.isin(prob.groups, [g for g, nm in enumerate(prob.group_names)
-                                         if nm == name])
+        for name in names:
+            rows = group_rows[name]
             r_g = float(rows.sum() - h[rows].sum())
             redundancy[name] = r_g
             if r_g > 1e-6:
-                new[name] = max(sig[name] * np.sqrt(float(w2[rows].sum()) / r_g),
+                new[name] = max(sig[name] * np.sqrt(float(r_lin[rows] @ r_lin[rows]) / r_g),
                                 SIGMA_FLOORS[name])
         settled = all(abs(new[k] - sig[k]) < max(0.01 * sig[k], _SETTLED_ABS[k]) for k in sig)
         # Keep the corrections d fixed while their scale changes.
-        p = res.x.copy()
         u = p[12:].reshape(prob.n, 6)
         u[:, :3] *= sig["robot_t"] / new["robot_t"]
         u[:, 3:] *= sig["robot_r"] / new["robot_r"]
         sig = new
-        res = _solve(prob, p, sig, max_nfev)
-        nfev += int(res.nfev)
-        if settled:
+        r = prob.residuals(p, sig)
+        cost = 0.5 * float(r @ r)
+        nfev += 1
+        if settled and small_step:
             converged = True
             break
-    Ninv, _ = _normal_inverse(res.jac)
-    cov = 0.5 * (Ninv[:12, :12] + Ninv[:12, :12].T)
-    X = perturb(X0, res.x[:6])
-    Y = perturb(Y0, res.x[6:12])
+    # A last step at the final levels, and the covariance there.
+    Jg, Ju = prob.jacobian(p, sig)
+    step, _, _ = _solve_normal(prob, _normal(prob, Jg, Ju, r), Jg, Ju, hat=False)
+    p = p + step
+    r = prob.residuals(p, sig)
+    Jg, Ju = prob.jacobian(p, sig)
+    nfev += 39
+    _, Cg, _ = _solve_normal(prob, _normal(prob, Jg, Ju, r), Jg, Ju, hat=False)
+    cov = 0.5 * (Cg + Cg.T)
+    X = perturb(X0, p[:6])
+    Y = perturb(Y0, p[6:12])
     return EivResult(X=X, Y=Y, covariance=cov[:6, :6], covariance_full=cov,
                      sigmas={k: float(v) for k, v in sig.items()},
-                     corrections=prob.corrections(res.x, sig),
-                     sigma=float(sig["px"]) if use_corners else 1.0, cost=float(res.cost),
-                     nfev=nfev, iterations=iterations, converged=converged,
-                     space="reprojection" if use_corners else "pose", redundancy=redundancy)
+                     corrections=prob.corrections(p, sig),
+                     sigma=float(sig["px"]) if use_corners else 1.0,
+                     cost=0.5 * float(r @ r), nfev=nfev, iterations=iterations,
+                     converged=converged, space="reprojection" if use_corners else "pose",
+                     redundancy=redundancy)
 
 
 def leave_one_out_steps(X: np.ndarray, Y: np.ndarray, samples: Sequence[HandEyeSample],
@@ -362,7 +439,6 @@ def leave_one_out_steps(X: np.ndarray, Y: np.ndarray, samples: Sequence[HandEyeS
     Returns:
         ``(X_without_i, Y_without_i)`` for every sample, in order.
     """
-    from scipy.linalg import cho_factor, cho_solve
 
     samples = list(samples)
     use_corners = bool(cameras) and all(len(s.observations) > 0 for s in samples)
@@ -372,22 +448,20 @@ def leave_one_out_steps(X: np.ndarray, Y: np.ndarray, samples: Sequence[HandEyeS
     u[:, 3:] /= sigmas["robot_r"]
     p = np.concatenate([_start(X), _start(Y), u.ravel()])
     r = prob.residuals(p, sigmas)
-    J = prob.jacobian(p, sigmas)
-    N = np.einsum("ki,kj->ij", J, J)
-    g = np.einsum("ki,k->i", J, r)
-    row_sample = np.concatenate([prob.meas_sample, np.repeat(np.arange(prob.n), 6)])
+    Jg, Ju = prob.jacobian(p, sigmas)
+    nm = _normal(prob, Jg, Ju, r)
+    BD = np.einsum("kij,kjl->kil", nm.B, nm.Dinv)
+    BDB = np.einsum("kij,klj->kil", BD, nm.B)                      # (N, 12, 12)
+    BDg = np.einsum("kij,kj->ki", BD, nm.gu)                        # (N, 12)
+    S = nm.A - BDB.sum(axis=0)
+    rhs = -nm.gg + BDg.sum(axis=0)
     out = []
     for i in range(prob.n):
-        rows = row_sample == i
-        Ji = J[rows]
-        keep = np.ones(p.size, dtype=bool)
-        keep[12 + 6 * i:18 + 6 * i] = False
-        Ni = (N - np.einsum("ki,kj->ij", Ji, Ji))[np.ix_(keep, keep)]
-        gi = (g - np.einsum("ki,k->i", Ji, r[rows]))[keep]
+        # Without sample i: its rows leave A and gg, its correction block leaves the sums.
         try:
-            step = -cho_solve(cho_factor(Ni), gi)
-        except np.linalg.LinAlgError as exc:
+            _, xg = _schur_solve(S - nm.A_k[i] + BDB[i], rhs + nm.gg_k[i] - BDg[i])
+        except HandEyeError as exc:
             raise HandEyeError(f"leave-one-out without sample {samples[i].name!r}: the "
                                "remaining samples do not determine X") from exc
-        out.append((perturb(X, p[:6] + step[:6]), perturb(Y, p[6:12] + step[6:12])))
+        out.append((perturb(X, p[:6] + xg[:6]), perturb(Y, p[6:12] + xg[6:12])))
     return out
