@@ -72,14 +72,22 @@ def test_dataset_end_to_end(stereo_dataset, tmp_path: Path, capsys) -> None:
     assert "sample '0010' skipped: board not found in the left image" in printed.err
     calib = load_hand_eye(out / "hand_eye.yaml")
     assert calib.setup == "eye_in_hand" and calib.parent_frame == "tool0"
-    assert calib.child_frame == "camera_left_optical_frame" and calib.method == "refined"
+    report = json.loads((out / "report.json").read_text())
+    # Exact robot poses: the two refinements coincide and predict the held-out samples best.
+    assert calib.child_frame == "camera_left_optical_frame"
+    assert calib.method == report["selected"] in ("refined", "refined_exact")
+    scores = report["selection"]["scores"]
+    assert f"selected {report['selected']}: " in printed.out
+    assert "held-out corner RMS" in report["selection"]["reason"]
     assert calib.sample_count == 10 and calib.covariance is not None
+    noise = calib.robot_pose_noise
+    assert noise is not None and noise == report["robot_pose_noise"]
+    assert noise["translation_sigma_m"] < 5e-5 and noise["rotation_sigma_rad"] < 1e-4
     dt, dr = transform_distance(X_true, calib.transform)
     assert dt < 0.0005 and np.degrees(dr) < 0.05, (dt, np.degrees(dr))
-    report = json.loads((out / "report.json").read_text())
-    assert report["selected"] == "refined"
-    assert set(report["methods"]) == {"tsai", "park", "horaud", "daniilidis", "andreff",
-                                      "kronecker", "refined"}
+    assert set(report["methods"]) == set(scores) == {
+        "tsai", "park", "horaud", "daniilidis", "andreff", "kronecker", "refined_exact",
+        "refined"}
     for m in report["methods"].values():
         assert len(m["translation"]) == 3 and len(m["quat_xyzw"]) == 4
         assert m["residuals"]["reproj_px_rms"] < 1.0

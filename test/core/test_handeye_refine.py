@@ -141,8 +141,11 @@ def test_quality_figures_shapes_and_meaning() -> None:
     rot, trans = axxb_residuals(P.X, P.true_base_T_ee, P.true_cam_T_board, "eye_in_hand")
     assert np.max(rot) < 1e-9 and np.max(trans) < 1e-9
     report = res.to_report()
-    assert report["selected"] == "refined"
-    assert set(report["methods"]) == set(CLOSED_FORM_METHODS) | {"refined"}
+    scores = report["selection"]["scores"]
+    assert set(scores) == set(report["methods"])
+    assert report["selected"] in report["selection"]["reason"]
+    assert all(m["held_out"]["px_rms"] > 0 for m in report["methods"].values())
+    assert set(report["methods"]) == set(CLOSED_FORM_METHODS) | {"refined", "refined_exact"}
     assert report["diagnostics"]["n_samples"] == n
 
 

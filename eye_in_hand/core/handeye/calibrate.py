@@ -38,7 +38,7 @@ from .samples import MIN_SAMPLES, CameraView, HandEyeSample, MotionDiagnostics, 
     motion_diagnostics, validate_samples
 from .solvers import CLOSED_FORM_METHODS, SETUPS, board_in_fixed_frame, gripper_poses, \
     motion_pairs
-from .select import HeldOut, held_out_prediction, selection_scores
+from .select import HeldOut, choose, held_out_prediction, selection_scores
 
 __all__ = [
     "METHODS",
@@ -478,8 +478,8 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
     if method != "all" and method not in METHODS:
         raise HandEyeError(f"method: expected 'all' or one of {', '.join(METHODS)}, "
                            f"got {method!r}")
-    if method == "refined" and not refine:
-        raise HandEyeError("method 'refined' requested with refinement disabled")
+    if method in ("refined", "refined_exact") and not refine:
+        raise HandEyeError(f"method {method!r} requested with refinement disabled")
     kept, warnings = validate_samples(samples)
     if len(kept) < MIN_SAMPLES:
         raise HandEyeError(f"hand-eye calibration needs at least {MIN_SAMPLES} samples, got "
@@ -586,18 +586,19 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
             if not refinement.converged:
                 warnings.append("refined: the noise levels did not settle in "
                                 f"{refinement.iterations} iterations")
-    scores, criterion = selection_scores(held) if held else ({}, "")
+    scores, _ = selection_scores(held) if held else ({}, "")
+    # refined_exact is listed with its figures but not a candidate when the errors-in-variables
+    # refinement ran: its covariance ignores the robot-pose noise (with exact poses the two
+    # coincide), so the written uncertainty could not be trusted.
+    candidates = {k: v for k, v in scores.items()
+                  if not (k == "refined_exact" and "refined" in scores)}
     if method != "all":
         selected, reason = method, f"forced by --method {method}"
         if method not in results:
             raise HandEyeError(f"method {method!r} failed on these samples: "
                                + "; ".join(w for w in warnings if w.startswith(method)))
-    elif scores:
-        selected = min(scores, key=lambda k: scores[k])
-        reason = (f"lowest {criterion}: {scores[selected]:.4g} (next "
-                  + ", ".join(f"{k} {v:.4g}" for k, v in sorted(scores.items(),
-                                                                key=lambda kv: kv[1])[1:3])
-                  + ")")
+    elif candidates:
+        selected, reason = choose(held, list(candidates))
     else:
         selected = "refined" if "refined" in results else best
         reason = ("no leave-one-out figures (leave-one-out off or too few samples): "

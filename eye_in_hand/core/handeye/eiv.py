@@ -171,7 +171,13 @@ class _Problem:
         prior_groups = np.tile([0, 0, 0, 1, 1, 1], self.n) + (1 if use_corners else 2)
         self.groups = np.concatenate([self.meas_groups, prior_groups])
         self.n_meas = m
-        self.meas_cols = 12 + 6 * self.meas_sample      # first correction column of each row
+        # Rows sorted by sample, and where each sample's rows start (per-sample sums).
+        self.order = np.argsort(self.meas_sample, kind="stable")
+        self.starts = np.searchsorted(self.meas_sample[self.order], np.arange(self.n))
+
+    def per_sample_sum(self, a: np.ndarray) -> np.ndarray:
+        """Sum of a per-row array over each sample's measurement rows, shape (N, ...)."""
+        return np.add.reduceat(a[self.order], self.starts, axis=0)
 
     def jacobian(self, p: np.ndarray, sig: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
         """The Jacobian of the measurement rows by forward differences, 18 evaluations: one per
@@ -240,20 +246,12 @@ class _Normal:
 
 def _normal(prob: _Problem, Jg: np.ndarray, Ju: np.ndarray, r: np.ndarray) -> _Normal:
     n, m = prob.n, prob.n_meas
-    k = prob.meas_sample
     rm = r[:m]
-    A_k = np.zeros((n, 12, 12))
-    np.add.at(A_k, k, np.einsum("ki,kj->kij", Jg, Jg))
-    B = np.zeros((n, 12, 6))
-    np.add.at(B, k, np.einsum("ki,kj->kij", Jg, Ju))
-    D = np.zeros((n, 6, 6))
-    np.add.at(D, k, np.einsum("ki,kj->kij", Ju, Ju))
-    D += np.eye(6)
-    gg_k = np.zeros((n, 12))
-    np.add.at(gg_k, k, Jg * rm[:, None])
-    gu = np.zeros((n, 6))
-    np.add.at(gu, k, Ju * rm[:, None])
-    gu += r[m:].reshape(n, 6)
+    A_k = prob.per_sample_sum(np.einsum("ki,kj->kij", Jg, Jg))
+    B = prob.per_sample_sum(np.einsum("ki,kj->kij", Jg, Ju))
+    D = prob.per_sample_sum(np.einsum("ki,kj->kij", Ju, Ju)) + np.eye(6)
+    gg_k = prob.per_sample_sum(Jg * rm[:, None])
+    gu = prob.per_sample_sum(Ju * rm[:, None]) + r[m:].reshape(n, 6)
     return _Normal(A_k.sum(axis=0), B, np.linalg.inv(D), gg_k.sum(axis=0), gu, A_k, gg_k)
 
 

@@ -10,10 +10,18 @@ then predicts what sample ``i`` measured from its *reported* robot pose:
   without the sample (mm, deg).
 
 This is the error a calibration makes where it is used: predicting where something seen by the
-camera is in the robot's frame, from a robot pose as the robot reports it. The method with the
-lowest held-out figure is written: the RMS held-out corner error when every sample has corners,
-else the held-out board error in the fixed frame, millimetres and degrees each divided by their
-median over the methods and summed.
+camera is in the robot's frame, from a robot pose as the robot reports it. The score is the RMS
+held-out corner error when every sample has corners, else the held-out board error in the fixed
+frame, millimetres and degrees each divided by their median over the methods and summed.
+
+The method with the lowest score is written, unless the errors-in-variables refinement
+(``refined``, the one whose covariance accounts for both noise sources) predicts the held-out
+samples as well within the statistical noise of the comparison: the per-sample differences of
+the squared held-out errors between the two, paired over the samples, must be below zero by
+more than twice their standard error for another method to replace it. When the robot poses are
+noisy, each held-out prediction carries that sample's own robot error, which is the same for
+every method; the paired test keeps a method from being written on the strength of that noise
+alone.
 """
 from __future__ import annotations
 
@@ -27,7 +35,7 @@ from .refine import reprojection_errors
 from .samples import CameraView, HandEyeSample
 from .solvers import board_in_fixed_frame
 
-__all__ = ["HeldOut", "held_out_prediction", "selection_scores"]
+__all__ = ["HeldOut", "held_out_prediction", "selection_scores", "choose"]
 
 
 @dataclass(frozen=True)
@@ -83,6 +91,19 @@ def held_out_prediction(solutions: Sequence[tuple[np.ndarray, np.ndarray]],
     return HeldOut(px, mm, deg)
 
 
+def _per_sample(held_out: dict[str, HeldOut]) -> tuple[dict[str, np.ndarray], str]:
+    """Each method's per-sample held-out error (the quantity whose RMS is the score)."""
+    if held_out and all(h.px is not None for h in held_out.values()):
+        return ({k: np.asarray(h.px) for k, h in held_out.items()},
+                "held-out corner RMS (px)")
+    ref_mm = max(float(np.median([np.sqrt(np.mean(h.mm ** 2)) for h in held_out.values()])),
+                 1e-12)
+    ref_deg = max(float(np.median([np.sqrt(np.mean(h.deg ** 2)) for h in held_out.values()])),
+                  1e-12)
+    return ({k: np.hypot(h.mm / ref_mm, h.deg / ref_deg) for k, h in held_out.items()},
+            "held-out board pose in the fixed frame (mm and deg, each over its median RMS)")
+
+
 def selection_scores(held_out: dict[str, HeldOut]) -> tuple[dict[str, float], str]:
     """The selection score of every method (lower is better) and what it measures.
 
@@ -90,14 +111,37 @@ def selection_scores(held_out: dict[str, HeldOut]) -> tuple[dict[str, float], st
         held_out: the held-out figures by method.
 
     Returns:
-        ``(scores, criterion)``.
+        ``(scores, criterion)``: the RMS over the samples of each method's held-out error.
     """
-    if held_out and all(h.px is not None for h in held_out.values()):
-        return ({k: float(np.sqrt(np.mean(h.px ** 2))) for k, h in held_out.items()},  # type: ignore[operator]
-                "held-out corner RMS (px)")
-    mm = {k: float(np.sqrt(np.mean(h.mm ** 2))) for k, h in held_out.items()}
-    deg = {k: float(np.sqrt(np.mean(h.deg ** 2))) for k, h in held_out.items()}
-    ref_mm = max(float(np.median(list(mm.values()))), 1e-12)
-    ref_deg = max(float(np.median(list(deg.values()))), 1e-12)
-    return ({k: mm[k] / ref_mm + deg[k] / ref_deg for k in held_out},
-            "held-out board pose in the fixed frame (mm and deg, each over its median)")
+    per, criterion = _per_sample(held_out)
+    return {k: float(np.sqrt(np.mean(v ** 2))) for k, v in per.items()}, criterion
+
+
+def choose(held_out: dict[str, HeldOut], candidates: Sequence[str],
+           reference: str = "refined") -> tuple[str, str]:
+    """Pick the result among ``candidates`` (see the module docstring for the rule).
+
+    Args:
+        held_out: the held-out figures by method.
+        candidates: the methods that may be written.
+        reference: the method kept unless another predicts significantly better.
+
+    Returns:
+        ``(method, reason)``.
+    """
+    per, criterion = _per_sample(held_out)
+    scores = {k: float(np.sqrt(np.mean(per[k] ** 2))) for k in candidates}
+    best = min(scores, key=lambda k: scores[k])
+    others = ", ".join(f"{k} {v:.4g}" for k, v in sorted(scores.items(),
+                                                         key=lambda kv: kv[1]) if k != best)
+    if reference not in scores or best == reference:
+        return best, f"lowest {criterion}: {best} {scores[best]:.4g} (then {others})"
+    d = per[best] ** 2 - per[reference] ** 2
+    se = float(np.std(d, ddof=1) / np.sqrt(d.size)) if d.size > 1 else float("inf")
+    if float(np.mean(d)) < -2.0 * se:
+        return best, (f"lowest {criterion}: {best} {scores[best]:.4g}, significantly below "
+                      f"{reference} {scores[reference]:.4g} (paired over the samples; then "
+                      f"{others})")
+    return reference, (f"{criterion}: {reference} {scores[reference]:.4g} is within the noise of "
+                       f"the lowest, {best} {scores[best]:.4g} (paired over the samples, under 2 "
+                       "standard errors), and its covariance models both noise sources")
