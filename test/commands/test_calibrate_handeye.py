@@ -117,6 +117,20 @@ def test_pairs_eye_to_hand_with_method(data_dir: Path, tmp_path: Path) -> None:
     assert not (out / "report.html").exists()
 
 
+def test_duplicate_sample_is_reported(data_dir: Path, tmp_path: Path, capsys) -> None:
+    pairs = json.loads((data_dir / "moveit_eye_to_hand" / "pose_samples.json").read_text())
+    dup = tmp_path / "dup.json"
+    dup.write_text(json.dumps(pairs[:12] + [pairs[3]]))
+    out = tmp_path / "o"
+    assert main(["calibrate", "handeye", "--pairs", str(dup), "--setup", "eye_to_hand",
+                 "--no-html", "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "warning: sample 'pair012' (#12) duplicates sample 'pair003': dropped" in err
+    report = json.loads((out / "report.json").read_text())
+    assert any("duplicates sample 'pair003'" in w for w in report["warnings"])
+    assert load_hand_eye(out / "hand_eye.yaml").sample_count == 12
+
+
 def test_errors_are_one_line(tmp_path: Path, data_dir: Path, capsys) -> None:
     pairs = data_dir / "moveit_eye_to_hand" / "pose_samples.json"
     assert main(["calibrate", "handeye", str(tmp_path), "--pairs", str(pairs),
