@@ -23,7 +23,8 @@ ellipsoid (translation, rotation, and the joint 6-dof one) contains the true X.
 Usage::
 
     .venv/bin/python benchmarks/bench_handeye.py [--trials 8] [--samples 15] [--noise 0.5]
-    .venv/bin/python benchmarks/bench_handeye.py --nees 120
+    .venv/bin/python benchmarks/bench_handeye.py --pairs --no-opencv   # pose pairs only
+    .venv/bin/python benchmarks/bench_handeye.py --nees 102
 """
 from __future__ import annotations
 
@@ -126,13 +127,15 @@ def moveit_figures() -> None:
           f"{len(res.rejected)} rejected), X = base_T_cam vs the published reference; "
           f"selected {res.selected} ({res.selection_reason})")
     if noise is not None:
-        print(f"  estimated robot+camera translation noise {1000 * noise['translation_sigma_m']:.3f}"
-              f" mm, robot rotation noise {np.degrees(noise['rotation_sigma_rad']):.4f} deg")
+        print("  estimated robot+camera translation noise "
+              f"{1000 * noise['translation_sigma_m']:.3f} mm, robot rotation noise "
+              f"{np.degrees(noise['rotation_sigma_rad']):.4f} deg")
     for name, mr in res.methods.items():
         deg, mm = errors(ref, mr.X)
         h = mr.held_out.summary() if mr.held_out is not None else {}
-        print(f"  {name:14s} {mm:6.2f} mm {deg:6.3f} deg   held-out {h.get('mm_rms', float('nan')):6.2f}"
-              f" mm {h.get('deg_rms', float('nan')):6.3f} deg, score "
+        nan = float("nan")
+        print(f"  {name:14s} {mm:6.2f} mm {deg:6.3f} deg   held-out "
+              f"{h.get('mm_rms', nan):6.2f} mm {h.get('deg_rms', nan):6.3f} deg, score "
               f"{res.selection_scores.get(name, float('nan')):.3f}"
               + ("  <- selected" if name == res.selected else ""))
 
@@ -157,14 +160,16 @@ LEVELS = ((0.0, 0.0), (0.2, 0.02), (1.0, 0.1))
 
 def accuracy(args: argparse.Namespace) -> None:
     """Median errors per robot error level: selected, closed forms, refinements, OpenCV."""
-    from eye_in_hand.core.handeye import CLOSED_FORM_METHODS, CameraView, calibrate_hand_eye
+    from eye_in_hand.core.handeye import (CLOSED_FORM_METHODS, CameraView, HandEyeSample,
+                                          calibrate_hand_eye)
     from eye_in_hand.sim import World
 
     world = World.default().with_image_size(640, 480)
     views = [CameraView("left", world.rig.left)]
     print(f"hand-eye benchmark: eye-in-hand, {args.samples} samples, 640x480, {args.noise} px "
           f"corner noise, {args.trials} datasets per robot error level (World.default() "
-          "geometry); medians of |error| (mm, deg)")
+          "geometry)" + (", pose pairs only (corners dropped)" if args.pairs else "")
+          + "; medians of |error| (mm, deg)")
     t_ours = 0.0
     for mm_sig, deg_sig in LEVELS:
         errs: dict[str, list[tuple[float, float]]] = {}
@@ -176,7 +181,9 @@ def accuracy(args: argparse.Namespace) -> None:
             payload.append({"base_T_ee": [s.base_T_ee.tolist() for s in samples],
                             "cam_T_board": [s.cam_T_board.tolist() for s in samples]})
             t1 = time.perf_counter()
-            res = calibrate_hand_eye(samples, "eye_in_hand", cameras=views)
+            if args.pairs:
+                samples = [HandEyeSample(s.name, s.base_T_ee, s.cam_T_board) for s in samples]
+            res = calibrate_hand_eye(samples, "eye_in_hand", cameras=None if args.pairs else views)
             t_ours += time.perf_counter() - t1
             picked[res.selected] = picked.get(res.selected, 0) + 1
             errs.setdefault("selected", []).append(errors(world.ee_T_cam, res.X))
@@ -270,6 +277,8 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=1000)
     parser.add_argument("--no-opencv", action="store_true",
                         help="skip the OpenCV 4.12 comparison")
+    parser.add_argument("--pairs", action="store_true",
+                        help="calibrate from the pose pairs only (no corners)")
     parser.add_argument("--nees", type=int, default=0, metavar="N",
                         help="instead: the uncertainty check over N datasets")
     args = parser.parse_args()
