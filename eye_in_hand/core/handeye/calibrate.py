@@ -695,7 +695,8 @@ def bootstrap_covariance(samples: Sequence[HandEyeSample], setup: str, *,
                          seed: int = 0, start: str = "park",
                          X0: np.ndarray | None = None,
                          Y0: np.ndarray | None = None) -> np.ndarray:
-    """Bootstrap covariance of the refined X (resampling samples with replacement).
+    """Bootstrap covariance of the exact-pose refinement's X (``refined_exact``; resampling
+    samples with replacement).
 
     Used to check the Jacobian covariance. Each draw solves ``start`` and refines from it.
 
