@@ -1,22 +1,30 @@
-"""Hand-eye accuracy: our solvers against OpenCV 4.12's ``calibrateHandEye`` on the same data.
+"""Hand-eye accuracy with robot pose errors; the reported uncertainty against the actual error.
 
-Datasets: the simulator's geometry (``World.default()``: arm, distorted camera on ``tool0``,
-9x6 chessboard), eye-in-hand, 15 samples per trial from ``calibration_poses``; board corners
-projected through the true (distorted) left camera with 0.5 px Gaussian noise; ``cam_T_board``
-from ``cv2.solvePnP`` on the noisy corners. Every method sees the same robot poses and the same
-PnP poses; our ``refined`` additionally uses the same noisy corners of the left camera (no
-right-camera data, so the comparison stays fair).
+Datasets: the simulator's geometry (``World.default()`` resampled to 640x480: arm, distorted
+camera on ``tool0``, 9x6 chessboard), eye-in-hand, 15 samples per dataset from
+``calibration_poses``; board corners projected through the true (distorted) camera with Gaussian
+pixel noise; ``cam_T_board`` from ``cv2.solvePnP`` on the noisy corners. Robot pose error: each
+reported ``base_T_ee`` is multiplied on the right (flange frame) by a random SE(3) perturbation
+whose translation and rotation-vector components are Gaussian with the given 1-sigma per axis.
 
-OpenCV 4.12 (which still ships ``calibrateHandEye``; the package's OpenCV 5 does not) is
-installed by this script into its own venv under ``build/bench-venv`` and run as a subprocess.
+Default mode: for robot error 0, 0.2 mm / 0.02 deg and 1 mm / 0.1 deg, the median error of the
+selected result (what ``calibrate handeye`` writes), every closed form, the exact-pose refinement
+(``refined_exact``) and the errors-in-variables refinement (``refined``), in one run; OpenCV
+4.12's ``calibrateHandEye`` on the same poses (installed by this script into its own venv under
+``build/bench-venv``, since the package's OpenCV 5 has no ``calibrateHandEye``; skipped with
+``--no-opencv`` or when it cannot be installed); then the real eye-to-hand pose pairs of
+``test/data/moveit_eye_to_hand``.
+
+``--nees N``: N datasets over robot error {0, 0.2 mm/0.02 deg, 1 mm/0.1 deg} x pixel noise
+{0.3, 1.0} px; for the selected result, the mean normalised estimation error squared (NEES,
+3 dof each for translation and rotation: 3 when the covariance is right) and how often the 95 %
+ellipsoid (translation, rotation, and the joint 6-dof one) contains the true X.
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_handeye.py [--trials 40] [--samples 15] [--noise 0.5]
-
-Prints per-method median rotation (deg) and translation (mm) errors, ours vs OpenCV's, their
-ratios, and the refined-vs-best-OpenCV ratios; then every method on the real eye-to-hand pose
-pairs of ``test/data/moveit_eye_to_hand`` against the published reference.
+    .venv/bin/python benchmarks/bench_handeye.py [--trials 8] [--samples 15] [--noise 0.5]
+    .venv/bin/python benchmarks/bench_handeye.py --pairs --no-opencv   # pose pairs only
+    .venv/bin/python benchmarks/bench_handeye.py --nees 102
 """
 from __future__ import annotations
 
@@ -69,11 +77,12 @@ def ensure_opencv_venv() -> Path:
     return py
 
 
-def make_trial(world, seed: int, n: int, noise_px: float):
-    """One dataset: samples (robot pose, PnP board pose, corners) and the true ee_T_cam."""
+def make_trial(world, seed: int, n: int, noise_px: float, robot_mm: float = 0.0,
+               robot_deg: float = 0.0):
+    """One dataset: samples (reported robot pose, PnP board pose, corners)."""
     from eye_in_hand.core.handeye import CornerObservation, HandEyeSample
     from eye_in_hand.core.handeye.observe import board_pose_pnp
-    from eye_in_hand.core.transforms import invert
+    from eye_in_hand.core.transforms import from_rotvec, invert
     from eye_in_hand.sim.scenarios import calibration_poses
 
     rng = np.random.default_rng(seed)
@@ -86,7 +95,9 @@ def make_trial(world, seed: int, n: int, noise_px: float):
         px = cam.project(obj @ cam_T_board[:3, :3].T + cam_T_board[:3, 3])
         px = px + rng.normal(scale=noise_px, size=px.shape)
         C, _ = board_pose_pnp(cam, obj, px)
-        samples.append(HandEyeSample(f"{k:02d}", base_T_ee, C,
+        reported = base_T_ee @ from_rotvec(rng.normal(scale=np.radians(robot_deg), size=3),
+                                           rng.normal(scale=robot_mm / 1000.0, size=3))
+        samples.append(HandEyeSample(f"{k:02d}", reported, C,
                                      (CornerObservation("left", obj, px),)))
     return samples
 
@@ -107,92 +118,174 @@ def moveit_figures() -> None:
 
     pairs = load_pose_pairs(ROOT / "test" / "data" / "moveit_eye_to_hand" / "pose_samples.json")
     samples = [HandEyeSample(f"{i:02d}", a, b) for i, (a, b) in enumerate(pairs)]
-    res = calibrate_hand_eye(samples, "eye_to_hand", leave_one_out=False)
+    res = calibrate_hand_eye(samples, "eye_to_hand")
     ref = np.eye(4)
     ref[:3, :3] = Rotation.from_euler("XYZ", [0.230, -2.540, 1.950]).as_matrix()
     ref[:3, 3] = [0.659, -0.249, 0.830]
+    noise = res.robot_pose_noise
     print(f"real data: moveit_eye_to_hand ({len(samples)} pose pairs, eye-to-hand, "
-          f"{len(res.rejected)} rejected), X = base_T_cam vs the published reference:")
-    parts = []
+          f"{len(res.rejected)} rejected), X = base_T_cam vs the published reference; "
+          f"selected {res.selected} ({res.selection_reason})")
+    if noise is not None:
+        print("  estimated robot+camera translation noise "
+              f"{1000 * noise['translation_sigma_m']:.3f} mm, robot rotation noise "
+              f"{np.degrees(noise['rotation_sigma_rad']):.4f} deg")
     for name, mr in res.methods.items():
         deg, mm = errors(ref, mr.X)
-        parts.append(f"{name} {mm:.2f} mm / {deg:.3f} deg")
-    print("  " + ", ".join(parts))
+        h = mr.held_out.summary() if mr.held_out is not None else {}
+        nan = float("nan")
+        print(f"  {name:14s} {mm:6.2f} mm {deg:6.3f} deg   held-out "
+              f"{h.get('mm_rms', nan):6.2f} mm {h.get('deg_rms', nan):6.3f} deg, score "
+              f"{res.selection_scores.get(name, float('nan')):.3f}"
+              + ("  <- selected" if name == res.selected else ""))
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--trials", type=int, default=40)
-    parser.add_argument("--samples", type=int, default=15)
-    parser.add_argument("--noise", type=float, default=0.5, help="corner noise, px")
-    parser.add_argument("--seed", type=int, default=1000)
-    args = parser.parse_args()
-
-    from eye_in_hand.core.handeye import CLOSED_FORM_METHODS, CameraView, calibrate_hand_eye
-    from eye_in_hand.sim import World
-
-    cv_py = ensure_opencv_venv()
-    world = World.default()
-    views = [CameraView("left", world.rig.left)]
-    ours: dict[str, list[tuple[float, float]]] = {}
-    payload = []
-    t_ours = 0.0
-    t0 = time.perf_counter()
-    for trial in range(args.trials):
-        samples = make_trial(world, args.seed + trial, args.samples, args.noise)
-        payload.append({"base_T_ee": [s.base_T_ee.tolist() for s in samples],
-                        "cam_T_board": [s.cam_T_board.tolist() for s in samples]})
-        t1 = time.perf_counter()
-        res = calibrate_hand_eye(samples, "eye_in_hand", cameras=views, reject_outliers=False,
-                                 leave_one_out=False)
-        t_ours += time.perf_counter() - t1
-        for name, mr in res.methods.items():
-            ours.setdefault(name, []).append(errors(world.ee_T_cam, mr.X))
-    t_gen = time.perf_counter() - t0 - t_ours
+def run_opencv(payload: list[dict]) -> dict | None:
+    """OpenCV 4.12's five methods on every dataset, or None when it cannot be installed."""
+    try:
+        cv_py = ensure_opencv_venv()
+    except (subprocess.CalledProcessError, OSError) as exc:
+        print(f"OpenCV 4.12 comparison skipped: cannot install it ({exc})")
+        return None
     with tempfile.TemporaryDirectory() as tmp:
         inp, outp, script = Path(tmp) / "in.json", Path(tmp) / "out.json", Path(tmp) / "cv.py"
         inp.write_text(json.dumps(payload))
         script.write_text(_OPENCV_SCRIPT)
-        t1 = time.perf_counter()
         subprocess.run([str(cv_py), str(script), str(inp), str(outp)], check=True)
-        t_cv = time.perf_counter() - t1
-        cv_out = json.loads(outp.read_text())
-    theirs: dict[str, list[tuple[float, float]]] = {}
-    for trial in cv_out["trials"]:
-        for name, X in trial.items():
-            theirs.setdefault(name, []).append(errors(world.ee_T_cam, np.array(X)))
+        return json.loads(outp.read_text())
 
-    def med(v: list[tuple[float, float]]) -> tuple[float, float]:
-        a = np.asarray(v)
-        return float(np.median(a[:, 0])), float(np.median(a[:, 1]))
 
-    print(f"hand-eye benchmark: eye-in-hand, {args.samples} samples, {args.noise} px corner "
-          f"noise, {args.trials} trials (simulator geometry, World.default()); medians")
-    print(f"OpenCV {cv_out['version']} calibrateHandEye (own venv {BENCH_VENV.relative_to(ROOT)})")
-    print(f"{'method':11s} {'ours deg':>9s} {'cv deg':>9s} {'ratio':>6s}   "
-          f"{'ours mm':>8s} {'cv mm':>8s} {'ratio':>6s}")
-    for name in CLOSED_FORM_METHODS:
-        o = med(ours[name])
-        if name in theirs:
-            c = med(theirs[name])
-            print(f"{name:11s} {o[0]:9.4f} {c[0]:9.4f} {o[0] / c[0]:6.2f}   "
-                  f"{o[1]:8.3f} {c[1]:8.3f} {o[1] / c[1]:6.2f}")
-        else:
-            print(f"{name:11s} {o[0]:9.4f} {'-':>9s} {'-':>6s}   {o[1]:8.3f} {'-':>8s} "
-                  f"{'-':>6s}   (no OpenCV counterpart)")
-    r = med(ours["refined"])
-    best_deg = min(med(v)[0] for v in theirs.values())
-    best_mm = min(med(v)[1] for v in theirs.values())
-    best_deg_name = min(theirs, key=lambda k: med(theirs[k])[0])
-    best_mm_name = min(theirs, key=lambda k: med(theirs[k])[1])
-    print(f"{'refined':11s} {r[0]:9.4f} {'':9s} {'':6s}   {r[1]:8.3f}")
-    print(f"refined vs best OpenCV: rotation {r[0] / best_deg:.2f}x (best {best_deg_name} "
-          f"{best_deg:.4f} deg), translation {r[1] / best_mm:.2f}x (best {best_mm_name} "
-          f"{best_mm:.3f} mm)")
+LEVELS = ((0.0, 0.0), (0.2, 0.02), (1.0, 0.1))
+
+
+def accuracy(args: argparse.Namespace) -> None:
+    """Median errors per robot error level: selected, closed forms, refinements, OpenCV."""
+    from eye_in_hand.core.handeye import (CLOSED_FORM_METHODS, CameraView, HandEyeSample,
+                                          calibrate_hand_eye)
+    from eye_in_hand.sim import World
+
+    world = World.default().with_image_size(640, 480)
+    views = [CameraView("left", world.rig.left)]
+    print(f"hand-eye benchmark: eye-in-hand, {args.samples} samples, 640x480, {args.noise} px "
+          f"corner noise, {args.trials} datasets per robot error level (World.default() "
+          "geometry)" + (", pose pairs only (corners dropped)" if args.pairs else "")
+          + "; medians of |error| (mm, deg)")
+    t_ours = 0.0
+    for mm_sig, deg_sig in LEVELS:
+        errs: dict[str, list[tuple[float, float]]] = {}
+        payload = []
+        picked: dict[str, int] = {}
+        for trial in range(args.trials):
+            samples = make_trial(world, args.seed + trial, args.samples, args.noise, mm_sig,
+                                 deg_sig)
+            payload.append({"base_T_ee": [s.base_T_ee.tolist() for s in samples],
+                            "cam_T_board": [s.cam_T_board.tolist() for s in samples]})
+            t1 = time.perf_counter()
+            if args.pairs:
+                samples = [HandEyeSample(s.name, s.base_T_ee, s.cam_T_board) for s in samples]
+            res = calibrate_hand_eye(samples, "eye_in_hand", cameras=None if args.pairs else views)
+            t_ours += time.perf_counter() - t1
+            picked[res.selected] = picked.get(res.selected, 0) + 1
+            errs.setdefault("selected", []).append(errors(world.ee_T_cam, res.X))
+            for name, mr in res.methods.items():
+                errs.setdefault(name, []).append(errors(world.ee_T_cam, mr.X))
+        cv_out = None if args.no_opencv else run_opencv(payload)
+
+        def med(v: list[tuple[float, float]]) -> tuple[float, float]:
+            a = np.asarray(v)
+            return float(np.median(a[:, 0])), float(np.median(a[:, 1]))
+
+        print(f"robot error {mm_sig} mm / {deg_sig} deg (1 sigma per axis, per pose); selected: "
+              + ", ".join(f"{k} {v}x" for k, v in sorted(picked.items())))
+        rows = ["selected", "refined", "refined_exact", *CLOSED_FORM_METHODS]
+        for name in rows:
+            if name in errs:
+                d, m = med(errs[name])
+                extra = "" if len(errs[name]) == args.trials else \
+                    f"  (ran on {len(errs[name])} of {args.trials})"
+                print(f"  {name:14s} {m:8.3f} mm {d:8.4f} deg{extra}")
+        closed = [k for k in CLOSED_FORM_METHODS if k in errs]
+        best_mm = min(closed, key=lambda k: med(errs[k])[1])
+        best_deg = min(closed, key=lambda k: med(errs[k])[0])
+        s_deg, s_mm = med(errs["selected"])
+        print(f"  selected / best closed form: translation {s_mm / med(errs[best_mm])[1]:.2f}x "
+              f"({best_mm}), rotation {s_deg / med(errs[best_deg])[0]:.2f}x ({best_deg})")
+        if cv_out is not None:
+            theirs: dict[str, list[tuple[float, float]]] = {}
+            for trial in cv_out["trials"]:
+                for name, X in trial.items():
+                    theirs.setdefault(name, []).append(errors(world.ee_T_cam, np.array(X)))
+            cv_mm = min(theirs, key=lambda k: med(theirs[k])[1])
+            cv_deg = min(theirs, key=lambda k: med(theirs[k])[0])
+            print(f"  OpenCV {cv_out['version']} best: {med(theirs[cv_mm])[1]:.3f} mm ({cv_mm}), "
+                  f"{med(theirs[cv_deg])[0]:.4f} deg ({cv_deg}); OpenCV park "
+                  f"{med(theirs['park'])[1]:.3f} mm / {med(theirs['park'])[0]:.4f} deg")
+    print(f"time: {1000 * t_ours / (3 * args.trials):.0f} ms per calibration (all methods, "
+          "refinements, leave-one-out selection)")
     moveit_figures()
-    print(f"time: data {t_gen:.1f} s, ours (6 closed forms + refinement + figures) "
-          f"{1000 * t_ours / args.trials:.0f} ms/trial, OpenCV 5 methods "
-          f"{1000 * t_cv / args.trials:.0f} ms/trial incl. process start")
+
+
+def nees(args: argparse.Namespace) -> None:
+    """NEES and 95 % coverage of the selected result's covariance over a sweep of datasets."""
+    from scipy.spatial.transform import Rotation
+    from scipy.stats import chi2
+
+    from eye_in_hand.core.handeye import CameraView, calibrate_hand_eye
+    from eye_in_hand.sim import World
+
+    world = World.default().with_image_size(640, 480)
+    views = [CameraView("left", world.rig.left)]
+    X_true = world.ee_T_cam
+    cells = [(lv, px) for lv in LEVELS for px in (0.3, 1.0)]
+    k3, k6 = chi2.ppf(0.95, 3), chi2.ppf(0.95, 6)
+    rows = []
+    for i in range(args.nees):
+        (mm_sig, deg_sig), px = cells[i % len(cells)]
+        samples = make_trial(world, args.seed + 5000 + i, args.samples, px, mm_sig, deg_sig)
+        res = calibrate_hand_eye(samples, "eye_in_hand", cameras=views)
+        C = res.covariance
+        e = np.concatenate([res.X[:3, 3] - X_true[:3, 3], Rotation.from_matrix(
+            res.X[:3, :3] @ X_true[:3, :3].T).as_rotvec()])
+        nt = float(e[:3] @ np.linalg.solve(C[:3, :3], e[:3]))
+        nr = float(e[3:] @ np.linalg.solve(C[3:, 3:], e[3:]))
+        n6 = float(e @ np.linalg.solve(C, e))
+        rows.append((i % len(cells), nt, nr, n6, res.selected))
+    a = np.array([r[1:4] for r in rows])
+    print(f"uncertainty check: {len(rows)} datasets ({args.samples} samples, 640x480), robot "
+          "error {0, 0.2 mm/0.02 deg, 1 mm/0.1 deg} x pixel noise {0.3, 1.0} px; covariance of "
+          "the selected result")
+    print(f"  mean NEES translation {a[:, 0].mean():.2f}, rotation {a[:, 1].mean():.2f} "
+          f"(3 when right; target 1.5-6); 6-dof {a[:, 2].mean():.2f} (6 when right)")
+    print(f"  95 % ellipsoid coverage: translation {100 * np.mean(a[:, 0] < k3):.1f} %, rotation "
+          f"{100 * np.mean(a[:, 1] < k3):.1f} %, 6-dof {100 * np.mean(a[:, 2] < k6):.1f} % "
+          "(target 85-99 %)")
+    for c, ((mm_sig, deg_sig), px) in enumerate(cells):
+        sub = np.array([r[1:4] for r in rows if r[0] == c])
+        sel = [r[4] for r in rows if r[0] == c]
+        if sub.size:
+            print(f"  robot {mm_sig} mm/{deg_sig} deg, {px} px: n={len(sub)} NEES t "
+                  f"{sub[:, 0].mean():.2f} r {sub[:, 1].mean():.2f}, coverage 6-dof "
+                  f"{100 * np.mean(sub[:, 2] < k6):.0f} %; selected "
+                  + ", ".join(f"{k} {sel.count(k)}" for k in sorted(set(sel))))
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--trials", type=int, default=8, help="datasets per robot error level")
+    parser.add_argument("--samples", type=int, default=15)
+    parser.add_argument("--noise", type=float, default=0.5, help="corner noise, px")
+    parser.add_argument("--seed", type=int, default=1000)
+    parser.add_argument("--no-opencv", action="store_true",
+                        help="skip the OpenCV 4.12 comparison")
+    parser.add_argument("--pairs", action="store_true",
+                        help="calibrate from the pose pairs only (no corners)")
+    parser.add_argument("--nees", type=int, default=0, metavar="N",
+                        help="instead: the uncertainty check over N datasets")
+    args = parser.parse_args()
+    if args.nees:
+        nees(args)
+    else:
+        accuracy(args)
     return 0
 
 

@@ -14,7 +14,7 @@ import numpy as np
 HELP = "hand-eye calibration (AX = XB) from a dataset, pose pairs or a bag"
 
 _METHOD_CHOICES = ("all", "tsai", "park", "horaud", "daniilidis", "andreff", "kronecker",
-                   "refined")
+                   "refined_exact", "refined")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -65,10 +65,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="camera on the flange (X = ee_T_cam) or fixed (X = base_T_cam); "
                           "default: the dataset's, else eye_in_hand")
     opt.add_argument("--method", choices=_METHOD_CHOICES, default="all",
-                     help="the method whose X is written to hand_eye.yaml; 'all' = refined "
-                          "(default: %(default)s); every method is always in report.json")
+                     help="the method whose X is written to hand_eye.yaml; 'all' = the one "
+                          "that best predicts the held-out samples in leave-one-out (default: "
+                          "%(default)s); every method is always in report.json")
     opt.add_argument("--no-refine", action="store_true",
-                     help="skip the joint refinement (the best closed form is selected)")
+                     help="skip the joint refinements (refined, refined_exact)")
     opt.add_argument("--no-outlier-rejection", action="store_true",
                      help="keep every sample")
     opt.add_argument("--outlier-threshold", type=float, default=5.0, metavar="K",
@@ -221,9 +222,15 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
                                             f"{result.selected}")
     rep.add_section("Result")
     sel = report["methods"][result.selected]
+    noise = result.robot_pose_noise
     rep.add_table([["translation (m)", " ".join(f"{v:.6f}" for v in sel["translation"])],
                    ["quat_xyzw", " ".join(f"{v:.6f}" for v in sel["quat_xyzw"])],
                    ["1-sigma (mm / deg)", f"{sel['std_mm']} / {sel['std_deg']}"],
+                   ["selected because", result.selection_reason],
+                   ["robot pose noise (1 sigma per axis)",
+                    "not estimated" if noise is None else
+                    f"{1000 * noise['translation_sigma_m']:.3f} mm, "
+                    f"{np.degrees(noise['rotation_sigma_rad']):.4f} deg"],
                    ["samples used", len(result.sample_names)],
                    ["samples rejected", ", ".join(r.name for r in result.rejected) or "none"],
                    ["samples skipped", ", ".join(s["name"] for s in report["skipped"]) or
@@ -235,11 +242,16 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
     for name in names:
         s = report["methods"][name]
         r = s["residuals"]
-        rows.append([name, r["axxb_rot_deg_rms"], r["axxb_trans_mm_rms"],
+        h = s["held_out"] or {}
+        rows.append([name + (" (selected)" if name == result.selected else ""),
+                     result.selection_scores.get(name), h.get("px_rms"), h.get("mm_rms"),
+                     h.get("deg_rms"), r["axxb_rot_deg_rms"], r["axxb_trans_mm_rms"],
                      r["board_spread_mm_rms"], r["board_spread_deg_rms"], r["reproj_px_rms"],
                      s["std_mm"], s["std_deg"]])
-    rep.add_table(rows, header=["method", "AX=XB rot deg", "AX=XB trans mm", "board spread mm",
-                                "board spread deg", "reproj px", "sigma mm", "sigma deg"])
+    rep.add_table(rows, header=["method", "selection score", "held-out px", "held-out mm",
+                                "held-out deg", "AX=XB rot deg", "AX=XB trans mm",
+                                "board spread mm", "board spread deg", "reproj px", "sigma mm",
+                                "sigma deg"])
     sel_X = result.X
     fig = new_figure(7.0, 3.2)
     ax1, ax2 = fig.subplots(1, 2)
@@ -334,7 +346,8 @@ def write_outputs(out: Path, result: Any, samples: list[Any], *, setup: str, par
     calib = HandEyeCalibration(setup=setup, parent_frame=parent_frame, child_frame=child_frame,
                                transform=result.X, method=result.selected,
                                covariance=result.covariance,
-                               sample_count=len(result.sample_names), residuals=residuals)
+                               sample_count=len(result.sample_names), residuals=residuals,
+                               robot_pose_noise=result.robot_pose_noise)
     save_hand_eye(out / "hand_eye.yaml", calib)
     report = result.to_report()
     report["input"] = input_meta
@@ -399,12 +412,19 @@ def run(args: argparse.Namespace) -> int:
     print(f"hand-eye ({setup}, {result.selected}, {len(result.sample_names)} samples): "
           f"{parent} -> {args.child_frame} translation [{t[0]:.5f}, {t[1]:.5f}, {t[2]:.5f}] m, "
           f"quat_xyzw {[round(v, 6) for v in calib_quat.tolist()]}")
+    print(f"selected {result.selected}: {result.selection_reason}")
     if np.isfinite(sel.std_mm):
         print(f"1-sigma uncertainty: {sel.std_mm:.3f} mm, {sel.std_deg:.4f} deg")
+    noise = result.robot_pose_noise
+    if noise is not None:
+        print(f"robot pose noise (estimated, 1 sigma per axis): "
+              f"{1000 * noise['translation_sigma_m']:.3f} mm, "
+              f"{np.degrees(noise['rotation_sigma_rad']):.4f} deg")
+    rejected = {f"sample {r.name!r} rejected: {r.reason}" for r in result.rejected}
     for r in result.rejected:
         print(f"rejected sample {r.name!r}: {r.reason}")
     for w in result.warnings:
-        if not w.startswith("sample "):
+        if w not in rejected:
             print(f"warning: {w}", file=sys.stderr)
     print(f"wrote {out / 'hand_eye.yaml'}, {out / 'report.json'}"
           + ("" if args.no_html else f", {out / 'report.html'}"))

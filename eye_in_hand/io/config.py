@@ -16,6 +16,9 @@ Format (YAML, safe_load; every length in metres, angles in radians)::
       axxb_rot_deg_rms: 0.01
       ...
     stamp: "2026-01-01T00:00:00Z"      # optional, when it was computed
+    robot_pose_noise:                  # optional: the robot-pose noise the calibration
+      translation_sigma_m: 0.0002      #   estimated (1 sigma per axis, flange frame)
+      rotation_sigma_rad: 0.0003
 
 ``translation`` and ``quat_xyzw`` sit at the top level so that other tools can read the file
 without knowing the rest.
@@ -47,6 +50,7 @@ __all__ = [
 COVARIANCE_ORDER = ("x", "y", "z", "rx", "ry", "rz")
 
 _SETUPS = ("eye_in_hand", "eye_to_hand")
+_NOISE_KEYS = ("translation_sigma_m", "rotation_sigma_rad")
 _QUAT_NORM_TOL = 1e-6
 
 
@@ -64,6 +68,9 @@ class HandEyeCalibration:
         sample_count: number of samples used.
         residuals: summary residual figures (name -> number or None).
         stamp: free-form time stamp text ('' when absent).
+        robot_pose_noise: the estimated robot-pose noise, ``{"translation_sigma_m": float,
+            "rotation_sigma_rad": float}`` (1 sigma per axis, flange frame), or None (files
+            written before it existed, or without the errors-in-variables refinement).
     """
 
     setup: str
@@ -75,6 +82,7 @@ class HandEyeCalibration:
     sample_count: int = 0
     residuals: Mapping[str, float | None] = field(default_factory=dict)
     stamp: str = ""
+    robot_pose_noise: Mapping[str, float] | None = None
 
     @property
     def translation(self) -> np.ndarray:
@@ -105,6 +113,8 @@ class HandEyeCalibration:
         }
         if self.stamp:
             out["stamp"] = self.stamp
+        if self.robot_pose_noise is not None:
+            out["robot_pose_noise"] = {k: float(v) for k, v in self.robot_pose_noise.items()}
         return out
 
 
@@ -195,10 +205,22 @@ def hand_eye_from_dict(data: Any, source: str = "<hand_eye>") -> HandEyeCalibrat
     method = data.get("method", "unknown")
     if not isinstance(method, str):
         raise _fail(source, f"'method' must be text, got {method!r}")
+    noise = data.get("robot_pose_noise")
+    if noise is not None:
+        if not isinstance(noise, Mapping) or set(noise) != set(_NOISE_KEYS):
+            raise _fail(source, "'robot_pose_noise' must be a mapping with "
+                                f"{', '.join(_NOISE_KEYS)}, got {noise!r}")
+        for k in _NOISE_KEYS:
+            v = noise[k]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+                    or v < 0:
+                raise _fail(source, f"robot_pose_noise.{k}: expected a finite number >= 0, got "
+                                    f"{v!r}")
+        noise = {k: float(noise[k]) for k in _NOISE_KEYS}
     return HandEyeCalibration(setup=setup, parent_frame=frames[0], child_frame=frames[1],
                               transform=T, method=method, covariance=cov,
                               sample_count=count, residuals=clean,
-                              stamp=str(data.get("stamp", "") or ""))
+                              stamp=str(data.get("stamp", "") or ""), robot_pose_noise=noise)
 
 
 def save_hand_eye(path: str | os.PathLike[str], calibration: HandEyeCalibration) -> Path:

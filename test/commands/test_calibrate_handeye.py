@@ -72,14 +72,22 @@ def test_dataset_end_to_end(stereo_dataset, tmp_path: Path, capsys) -> None:
     assert "sample '0010' skipped: board not found in the left image" in printed.err
     calib = load_hand_eye(out / "hand_eye.yaml")
     assert calib.setup == "eye_in_hand" and calib.parent_frame == "tool0"
-    assert calib.child_frame == "camera_left_optical_frame" and calib.method == "refined"
+    report = json.loads((out / "report.json").read_text())
+    # Exact robot poses: the two refinements coincide and predict the held-out samples best.
+    assert calib.child_frame == "camera_left_optical_frame"
+    assert calib.method == report["selected"] in ("refined", "refined_exact")
+    scores = report["selection"]["scores"]
+    assert f"selected {report['selected']}: " in printed.out
+    assert "held-out corner RMS" in report["selection"]["reason"]
     assert calib.sample_count == 10 and calib.covariance is not None
+    noise = calib.robot_pose_noise
+    assert noise is not None and noise == report["robot_pose_noise"]
+    assert noise["translation_sigma_m"] < 5e-5 and noise["rotation_sigma_rad"] < 1e-4
     dt, dr = transform_distance(X_true, calib.transform)
     assert dt < 0.0005 and np.degrees(dr) < 0.05, (dt, np.degrees(dr))
-    report = json.loads((out / "report.json").read_text())
-    assert report["selected"] == "refined"
-    assert set(report["methods"]) == {"tsai", "park", "horaud", "daniilidis", "andreff",
-                                      "kronecker", "refined"}
+    assert set(report["methods"]) == set(scores) == {
+        "tsai", "park", "horaud", "daniilidis", "andreff", "kronecker", "refined_exact",
+        "refined"}
     for m in report["methods"].values():
         assert len(m["translation"]) == 3 and len(m["quat_xyzw"]) == 4
         assert m["residuals"]["reproj_px_rms"] < 1.0
@@ -107,6 +115,20 @@ def test_pairs_eye_to_hand_with_method(data_dir: Path, tmp_path: Path) -> None:
     report = json.loads((out / "report.json").read_text())
     assert report["refinement"]["space"] == "pose" and "refined" in report["methods"]
     assert not (out / "report.html").exists()
+
+
+def test_duplicate_sample_is_reported(data_dir: Path, tmp_path: Path, capsys) -> None:
+    pairs = json.loads((data_dir / "moveit_eye_to_hand" / "pose_samples.json").read_text())
+    dup = tmp_path / "dup.json"
+    dup.write_text(json.dumps(pairs[:12] + [pairs[3]]))
+    out = tmp_path / "o"
+    assert main(["calibrate", "handeye", "--pairs", str(dup), "--setup", "eye_to_hand",
+                 "--no-html", "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "warning: sample 'pair012' (#12) duplicates sample 'pair003': dropped" in err
+    report = json.loads((out / "report.json").read_text())
+    assert any("duplicates sample 'pair003'" in w for w in report["warnings"])
+    assert load_hand_eye(out / "hand_eye.yaml").sample_count == 12
 
 
 def test_errors_are_one_line(tmp_path: Path, data_dir: Path, capsys) -> None:

@@ -121,11 +121,9 @@ def test_methods_disagreement_warning() -> None:
         T = s.base_T_ee.copy()
         T[:3, 3] *= 1.02
         scaled.append(HandEyeSample(s.name, T, s.cam_T_board, s.observations))
-    res = calibrate_hand_eye(scaled, cameras=P.views, reject_outliers=False,
-                             leave_one_out_refined=False)
+    res = calibrate_hand_eye(scaled, cameras=P.views, reject_outliers=False)
     assert any(w.startswith("methods disagree") for w in res.warnings)
-    ok = calibrate_hand_eye(P.samples, cameras=P.views, reject_outliers=False,
-                            leave_one_out_refined=False)
+    ok = calibrate_hand_eye(P.samples, cameras=P.views, reject_outliers=False)
     assert not any(w.startswith("methods disagree") for w in ok.warnings)
 
 
@@ -143,8 +141,11 @@ def test_quality_figures_shapes_and_meaning() -> None:
     rot, trans = axxb_residuals(P.X, P.true_base_T_ee, P.true_cam_T_board, "eye_in_hand")
     assert np.max(rot) < 1e-9 and np.max(trans) < 1e-9
     report = res.to_report()
-    assert report["selected"] == "refined"
-    assert set(report["methods"]) == set(CLOSED_FORM_METHODS) | {"refined"}
+    scores = report["selection"]["scores"]
+    assert set(scores) == set(report["methods"])
+    assert report["selected"] in report["selection"]["reason"]
+    assert all(m["held_out"]["px_rms"] > 0 for m in report["methods"].values())
+    assert set(report["methods"]) == set(CLOSED_FORM_METHODS) | {"refined", "refined_exact"}
     assert report["diagnostics"]["n_samples"] == n
 
 

@@ -67,12 +67,29 @@ def _write(tmp_path: Path, **changes) -> Path:
     ({"covariance": (np.eye(6) + np.triu(np.ones((6, 6)), 1)).tolist()}, "not symmetric"),
     ({"covariance_order": ["rx", "ry", "rz", "x", "y", "z"]}, "covariance_order"),
     ({"sample_count": -3}, "sample_count"),
+    ({"robot_pose_noise": {"translation_sigma_m": 1e-4}}, "'robot_pose_noise' must be a mapping"),
+    ({"robot_pose_noise": {"translation_sigma_m": -1.0, "rotation_sigma_rad": 1e-4}},
+     "robot_pose_noise.translation_sigma_m"),
 ])
 def test_invalid_files_name_file_and_problem(tmp_path: Path, changes, message) -> None:
     p = _write(tmp_path, **changes)
     with pytest.raises(ConfigError) as info:
         load_hand_eye(p)
     assert str(p) in str(info.value) and message in str(info.value)
+
+
+def test_robot_pose_noise_round_trip_and_old_files(tmp_path: Path) -> None:
+    import dataclasses
+
+    noise = {"translation_sigma_m": 2e-4, "rotation_sigma_rad": 3.5e-4}
+    c = dataclasses.replace(_calib(), robot_pose_noise=noise)
+    path = save_hand_eye(tmp_path / "hand_eye.yaml", c)
+    assert yaml.safe_load(path.read_text())["robot_pose_noise"] == noise
+    assert load_hand_eye(path).robot_pose_noise == noise
+    # Files written before the key existed load without it.
+    old = save_hand_eye(tmp_path / "old.yaml", _calib())
+    assert "robot_pose_noise" not in yaml.safe_load(old.read_text())
+    assert load_hand_eye(old).robot_pose_noise is None
 
 
 def test_missing_file_and_bad_yaml(tmp_path: Path) -> None:

@@ -8,12 +8,17 @@
    predicted from X solved without it, is compared with the other samples' board poses; the
    worst sample beyond ``outlier_threshold`` times the median deviation (and beyond absolute
    floors) is rejected and the test repeated;
-4. every closed form (:data:`CLOSED_FORM_METHODS`) on the kept samples;
-5. the joint refinement from the best closed form (reprojection when corners are available,
-   pose space otherwise), with the covariance of X from its Jacobian;
+4. every closed form (:data:`CLOSED_FORM_METHODS`) on the kept samples; a solver that fails on
+   them is left out of the comparison with a warning;
+5. two joint refinements from the best closed form (reprojection when corners are available,
+   pose space otherwise): ``refined_exact`` takes the robot poses as exact (:mod:`.refine`),
+   ``refined`` models their errors too and estimates both noise levels (:mod:`.eiv`);
 6. quality figures for every method: AX = XB residuals per sample, reprojection RMS per sample,
-   the spread of the board pose in the fixed frame, leave-one-out changes and a jackknife
-   standard deviation, and warnings when methods disagree beyond their uncertainty.
+   the spread of the board pose in the fixed frame, and, leaving each sample out in turn, the
+   prediction of the held-out sample (:mod:`.select`), the change of X and, for the closed
+   forms, a jackknife covariance;
+7. selection: the method that best predicts the held-out samples is the result (``method``
+   forces one); a warning names any method that differs from it beyond their uncertainty.
 """
 from __future__ import annotations
 
@@ -26,12 +31,14 @@ from scipy.spatial.transform import Rotation
 from eye_in_hand.core.transforms import average_transforms, to_xyz_quat
 from eye_in_hand.errors import HandEyeError
 
+from .eiv import EivResult, refine_errors_in_variables
 from .refine import RefinementResult, refine_pose_space, refine_reprojection, \
     reprojection_errors
 from .samples import MIN_SAMPLES, CameraView, HandEyeSample, MotionDiagnostics, \
     motion_diagnostics, validate_samples
 from .solvers import CLOSED_FORM_METHODS, SETUPS, board_in_fixed_frame, gripper_poses, \
     motion_pairs
+from .select import HeldOut, choose, held_out_prediction, selection_scores
 
 __all__ = [
     "METHODS",
@@ -46,7 +53,7 @@ __all__ = [
 ]
 
 #: Every method name accepted by ``--method`` (besides ``all``).
-METHODS = (*CLOSED_FORM_METHODS, "refined")
+METHODS = (*CLOSED_FORM_METHODS, "refined_exact", "refined")
 
 # A reading of the poses whose AX = XB rotation residual is this many times lower than the
 # given one (which is above the floor, degrees) means the given conventions are wrong.
@@ -87,7 +94,9 @@ class MethodResult:
         std_mm, std_deg: one-sigma uncertainty of X (translation norm, rotation angle): from
             the covariance for ``refined``, the jackknife of the leave-one-out solutions for
             the closed forms; NaN when not computed.
-        covariance: (6, 6) covariance of X (``refined`` only), order ``x y z rx ry rz``.
+        covariance: (6, 6) covariance of X, order ``x y z rx ry rz``: from the Jacobian for
+            the refinements, the jackknife of the leave-one-out solutions for the closed forms.
+        held_out: leave-one-out prediction figures (see :mod:`.select`), or None.
     """
 
     name: str
@@ -103,6 +112,7 @@ class MethodResult:
     std_mm: float = float("nan")
     std_deg: float = float("nan")
     covariance: np.ndarray | None = None
+    held_out: HeldOut | None = None
 
     def summary(self) -> dict[str, Any]:
         """Plain-data summary for report.json (X as translation + quat_xyzw, RMS figures)."""
@@ -126,6 +136,7 @@ class MethodResult:
             "std_mm": None if not np.isfinite(self.std_mm) else float(self.std_mm),
             "std_deg": None if not np.isfinite(self.std_deg) else float(self.std_deg),
         }
+        out["held_out"] = None if self.held_out is None else self.held_out.summary()
         if self.covariance is not None:
             out["covariance"] = self.covariance.tolist()
         return out
@@ -140,10 +151,14 @@ class HandEyeResult:
         sample_names: names of the samples used, in order (per-sample arrays follow it).
         rejected: samples rejected as outliers, with the reason.
         diagnostics: motion diagnostics of the samples used.
-        methods: results by method name (closed forms, and ``refined`` when run).
+        methods: results by method name (closed forms, and ``refined_exact`` and ``refined``
+            when run); a method that failed on the samples is absent (and named in warnings).
         selected: the method whose X is the result.
         warnings: every warning (duplicates, weak motion, disagreement, ...).
-        refinement: the refinement details, or None.
+        refinement: the errors-in-variables refinement (``refined``), or None.
+        refinement_exact: the exact-pose refinement (``refined_exact``), or None.
+        selection_reason: why ``selected`` was chosen.
+        selection_scores: the held-out score of every method (lower is better).
     """
 
     setup: str
@@ -153,7 +168,10 @@ class HandEyeResult:
     methods: dict[str, MethodResult]
     selected: str
     warnings: list[str] = field(default_factory=list)
-    refinement: RefinementResult | None = None
+    refinement: EivResult | None = None
+    refinement_exact: RefinementResult | None = None
+    selection_reason: str = ""
+    selection_scores: dict[str, float] = field(default_factory=dict)
 
     @property
     def X(self) -> np.ndarray:
@@ -164,6 +182,15 @@ class HandEyeResult:
     def covariance(self) -> np.ndarray | None:
         """Covariance of the selected X, shape (6, 6), when available."""
         return self.methods[self.selected].covariance
+
+    @property
+    def robot_pose_noise(self) -> dict[str, float] | None:
+        """The robot-pose noise estimated by the errors-in-variables refinement (1 sigma per
+        axis, flange frame): ``translation_sigma_m``, ``rotation_sigma_rad``; None without it."""
+        if self.refinement is None:
+            return None
+        return {"translation_sigma_m": self.refinement.robot_translation_sigma_m,
+                "rotation_sigma_rad": self.refinement.robot_rotation_sigma_rad}
 
     def sample_table(self) -> list[dict[str, Any]]:
         """Per-sample rows for the selected method (report.json ``samples``)."""
@@ -195,9 +222,17 @@ class HandEyeResult:
             "rejected": [{"name": r.name, "reason": r.reason} for r in self.rejected],
             "diagnostics": self.diagnostics.to_dict(),
             "warnings": list(self.warnings),
+            "selection": {"reason": self.selection_reason,
+                          "scores": dict(self.selection_scores)},
+            "robot_pose_noise": self.robot_pose_noise,
             "refinement": None if self.refinement is None else {
                 "space": self.refinement.space, "sigma": self.refinement.sigma,
-                "nfev": self.refinement.nfev},
+                "noise_levels": dict(self.refinement.sigmas),
+                "iterations": self.refinement.iterations,
+                "converged": self.refinement.converged, "nfev": self.refinement.nfev},
+            "refinement_exact": None if self.refinement_exact is None else {
+                "space": self.refinement_exact.space, "sigma": self.refinement_exact.sigma,
+                "nfev": self.refinement_exact.nfev},
         }
 
 
@@ -267,10 +302,22 @@ def board_spread(X: np.ndarray, base_T_ee: np.ndarray, cam_T_board: np.ndarray, 
 
 def _solve(method: str, base_T_ee: np.ndarray, cam_T_board: np.ndarray, setup: str) -> np.ndarray:
     m = motion_pairs(gripper_poses(base_T_ee, setup), cam_T_board)
-    X = CLOSED_FORM_METHODS[method](m)
+    with np.errstate(all="ignore"):
+        X = CLOSED_FORM_METHODS[method](m)
     if not np.all(np.isfinite(X)):
         raise HandEyeError(f"{method}: solution is not finite (degenerate motions)")
     return X
+
+
+def _solve_first(base_T_ee: np.ndarray, cam_T_board: np.ndarray, setup: str) -> np.ndarray:
+    """Park-Martin, or the first closed form that solves these samples (for the checks)."""
+    errors = []
+    for method in ("park", *[k for k in CLOSED_FORM_METHODS if k != "park"]):
+        try:
+            return _solve(method, base_T_ee, cam_T_board, setup)
+        except (HandEyeError, np.linalg.LinAlgError, ValueError) as exc:
+            errors.append(str(exc))
+    raise HandEyeError("every closed-form solver failed on these samples: " + "; ".join(errors))
 
 
 def _x_delta(Xa: np.ndarray, Xb: np.ndarray) -> tuple[float, float]:
@@ -291,7 +338,8 @@ def _loo_prediction(method: str, base_T_ee: np.ndarray, cam_T_board: np.ndarray,
     xs: list[np.ndarray] = []
     for i in range(n):
         keep = np.arange(n) != i
-        Xi = _solve(method, base_T_ee[keep], cam_T_board[keep], setup)
+        Xi = (_solve_first(base_T_ee[keep], cam_T_board[keep], setup) if method == "first"
+              else _solve(method, base_T_ee[keep], cam_T_board[keep], setup))
         xs.append(Xi)
         Yo = average_transforms(board_in_fixed_frame(Xi, base_T_ee[keep], cam_T_board[keep],
                                                      setup))
@@ -308,7 +356,7 @@ def _reject_outliers(samples: list[HandEyeSample], setup: str, threshold: float,
     while len(kept) > min_keep:
         bte = np.stack([s.base_T_ee for s in kept])
         ctb = np.stack([s.cam_T_board for s in kept])
-        dmm, ddeg, _ = _loo_prediction("park", bte, ctb, setup)
+        dmm, ddeg, _ = _loo_prediction("first", bte, ctb, setup)
         med_mm = max(float(np.median(dmm)), 1e-12)
         med_deg = max(float(np.median(ddeg)), 1e-12)
         score = np.maximum(dmm / med_mm, ddeg / med_deg)
@@ -333,7 +381,7 @@ def _check_conventions(bte: np.ndarray, ctb: np.ndarray, setup: str) -> str | No
     inv_ctb = _inv_stack(ctb)
 
     def rot_rms(b: np.ndarray, c: np.ndarray, su: str) -> float:
-        X = _solve("park", b, c, su)
+        X = _solve_first(b, c, su)
         r, _ = axxb_residuals(X, b, c, su)
         return float(np.sqrt(np.mean(r ** 2)))
 
@@ -394,7 +442,6 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                        outlier_floor_mm: float = 1.0,
                        outlier_floor_deg: float = 0.2,
                        leave_one_out: bool = True,
-                       leave_one_out_refined: bool = True,
                        check_conventions: bool = True) -> HandEyeResult:
     """Solve AX = XB with every method, refine, and assess the result.
 
@@ -403,15 +450,18 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
         setup: ``"eye_in_hand"`` (X = ``ee_T_cam``) or ``"eye_to_hand"`` (X = ``base_T_cam``).
         cameras: the rig's cameras, needed for the reprojection refinement and reprojection
             figures; without them (or without corners) the refinement is done in pose space.
-        method: the method whose X is the result: ``"all"`` (= ``refined`` when ``refine``,
-            else the best closed form), a closed-form name, or ``"refined"``.
-        refine: run the joint refinement.
+        method: the method whose X is the result: ``"all"`` (the method that best predicts
+            the held-out samples), or a method name (``refined``: errors in variables;
+            ``refined_exact``: the refinement that takes the robot poses as exact).
+        refine: run the joint refinements.
         reject_outliers: reject samples by leave-one-out prediction (see module docstring);
             needs at least 8 samples (else a warning says it was skipped).
         outlier_threshold: rejection limit in multiples of the median deviation.
         outlier_floor_mm, outlier_floor_deg: deviations below both floors are never rejected.
-        leave_one_out: compute leave-one-out changes and jackknife uncertainties.
-        leave_one_out_refined: also for the refinement (one refinement per sample).
+        leave_one_out: solve every method without each sample in turn: the held-out
+            prediction figures the result is selected by (see :mod:`.select`), leave-one-out
+            changes, and the jackknife uncertainties of the closed forms. Without it (or with
+            3 samples) ``refined`` is selected.
         check_conventions: refuse input that fits AX = XB far better read another way (the
             other setup, or ``cam_T_board`` inverted): a wrong setup or pose direction.
 
@@ -428,8 +478,8 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
     if method != "all" and method not in METHODS:
         raise HandEyeError(f"method: expected 'all' or one of {', '.join(METHODS)}, "
                            f"got {method!r}")
-    if method == "refined" and not refine:
-        raise HandEyeError("method 'refined' requested with refinement disabled")
+    if method in ("refined", "refined_exact") and not refine:
+        raise HandEyeError(f"method {method!r} requested with refinement disabled")
     kept, warnings = validate_samples(samples)
     if len(kept) < MIN_SAMPLES:
         raise HandEyeError(f"hand-eye calibration needs at least {MIN_SAMPLES} samples, got "
@@ -463,8 +513,15 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
     if leave_one_out and not loo:
         warnings.append(f"leave-one-out figures need more than {MIN_SAMPLES} samples")
     results: dict[str, MethodResult] = {}
+    held: dict[str, HeldOut] = {}
+    keep_masks = [np.arange(len(kept)) != i for i in range(len(kept))]
     for name in CLOSED_FORM_METHODS:
-        X = _solve(name, bte, ctb, setup)
+        try:
+            X = _solve(name, bte, ctb, setup)
+        except (HandEyeError, np.linalg.LinAlgError, ValueError) as exc:
+            warnings.append(f"{name} failed on these samples and is left out of the "
+                            f"comparison: {exc}")
+            continue
         rot, trans = axxb_residuals(X, bte, ctb, setup)
         Y, dmm, ddeg = board_spread(X, bte, ctb, setup)
         mr = MethodResult(name, X, Y, rot, trans, dmm, ddeg)
@@ -473,13 +530,20 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
             mr.reproj_rms_px = _reproj_rms(X, Y, kept, cameras, setup)
         if loo:
             try:
-                xs = [_solve(name, bte[np.arange(len(kept)) != i],
-                             ctb[np.arange(len(kept)) != i], setup) for i in range(len(kept))]
-            except HandEyeError as exc:
+                xs = [_solve(name, bte[k], ctb[k], setup) for k in keep_masks]
+            except (HandEyeError, np.linalg.LinAlgError, ValueError) as exc:
                 warnings.append(f"leave-one-out figures of {name} unavailable: {exc}")
             else:
                 mr.std_mm, mr.std_deg, mr.loo_mm, mr.loo_deg = _jackknife(xs, X)
+                mr.covariance = _jackknife_covariance(xs)
+                ys = [average_transforms(board_in_fixed_frame(x, bte[k], ctb[k], setup))
+                      for x, k in zip(xs, keep_masks)]
+                held[name] = held_out_prediction(list(zip(xs, ys)), kept, cameras, setup)
+                mr.held_out = held[name]
         results[name] = mr
+    if not results:
+        raise HandEyeError("every closed-form solver failed on these samples: "
+                           + "; ".join(w for w in warnings if " failed on these samples" in w))
 
     # Best closed form: lowest reprojection RMS, else lowest normalised board spread.
     def score(mr: MethodResult) -> float:
@@ -491,30 +555,55 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                      + np.sqrt(np.mean(mr.board_dev_deg ** 2)) / max(ref_deg, 1e-12))
 
     best = min(results, key=lambda k: score(results[k]))
-    refinement: RefinementResult | None = None
+    refinement: EivResult | None = None
+    refinement_exact: RefinementResult | None = None
     if refine:
         start = results[best]
-        refinement = _refine(start.X, start.Y, kept, cameras, setup, use_corners)
-        X, Y = refinement.X, refinement.Y
-        rot, trans = axxb_residuals(X, bte, ctb, setup)
-        _, dmm, ddeg = board_spread(X, bte, ctb, setup, Y)
-        mr = MethodResult("refined", X, Y, rot, trans, dmm, ddeg, covariance=refinement.covariance)
-        cov = refinement.covariance
-        mr.std_mm = 1000.0 * float(np.sqrt(np.trace(cov[:3, :3])))
-        mr.std_deg = float(np.degrees(np.sqrt(np.trace(cov[3:, 3:]))))
-        if use_corners:
-            assert cameras is not None
-            mr.reproj_rms_px = _reproj_rms(X, Y, kept, cameras, setup)
-        if loo and leave_one_out_refined:
-            loo_mm = np.zeros(len(kept))
-            loo_deg = np.zeros(len(kept))
-            for i in range(len(kept)):
-                sub = [s for k, s in enumerate(kept) if k != i]
-                r_i = _refine(X, Y, sub, cameras, setup, use_corners)
-                loo_mm[i], loo_deg[i] = _x_delta(r_i.X, X)
-            mr.loo_mm, mr.loo_deg = loo_mm, loo_deg
-        results["refined"] = mr
-    selected = method if method != "all" else ("refined" if refine else best)
+        # Today's refinement: the robot poses taken as exact.
+        try:
+            refinement_exact = _refine(start.X, start.Y, kept, cameras, setup, use_corners)
+        except HandEyeError as exc:
+            warnings.append(f"refined_exact failed and is left out of the comparison: {exc}")
+        else:
+            mr = _refined_result("refined_exact", refinement_exact.X, refinement_exact.Y,
+                                 refinement_exact.covariance, kept, cameras, setup, use_corners)
+            if loo:
+                sig = _exact_pose_sigmas(refinement_exact, kept, setup, use_corners)
+                _refined_loo(mr, kept, cameras, setup, sig, None, warnings, held)
+            results["refined_exact"] = mr
+        # Errors in variables: robot poses and images both noisy, noise levels estimated.
+        try:
+            refinement = refine_errors_in_variables(start.X, start.Y, kept, cameras, setup)
+        except HandEyeError as exc:
+            warnings.append(f"refined failed and is left out of the comparison: {exc}")
+        else:
+            mr = _refined_result("refined", refinement.X, refinement.Y, refinement.covariance,
+                                 kept, cameras, setup, use_corners)
+            if loo:
+                _refined_loo(mr, kept, cameras, setup, refinement.sigmas,
+                             refinement.corrections, warnings, held)
+            results["refined"] = mr
+            if not refinement.converged:
+                warnings.append("refined: the noise levels did not settle in "
+                                f"{refinement.iterations} iterations")
+    scores, _ = selection_scores(held) if held else ({}, "")
+    # refined_exact is listed with its figures but not a candidate when the errors-in-variables
+    # refinement ran: its covariance ignores the robot-pose noise (with exact poses the two
+    # coincide), so the written uncertainty could not be trusted.
+    candidates = {k: v for k, v in scores.items()
+                  if not (k == "refined_exact" and "refined" in scores)}
+    if method != "all":
+        selected, reason = method, f"forced by --method {method}"
+        if method not in results:
+            raise HandEyeError(f"method {method!r} failed on these samples: "
+                               + "; ".join(w for w in warnings if w.startswith(method)))
+    elif candidates:
+        selected, reason = choose(held, list(candidates))
+    else:
+        selected = "refined" if "refined" in results else best
+        reason = ("no leave-one-out figures (leave-one-out off or too few samples): "
+                  + ("the errors-in-variables refinement" if selected == "refined"
+                     else "the closed form with the lowest residuals"))
 
     # Disagreement beyond the combined uncertainty (3 sigma).
     sel = results[selected]
@@ -531,7 +620,74 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                 f"{lim_deg:.3f} deg): check for bad samples or unmodelled errors")
     return HandEyeResult(setup=setup, sample_names=[s.name for s in kept], rejected=rejected,
                          diagnostics=diag, methods=results, selected=selected,
-                         warnings=warnings, refinement=refinement)
+                         warnings=warnings, refinement=refinement,
+                         refinement_exact=refinement_exact, selection_reason=reason,
+                         selection_scores=scores)
+
+
+def _jackknife_covariance(xs: Sequence[np.ndarray]) -> np.ndarray:
+    """Jackknife covariance (6, 6) of X from its leave-one-out solutions (``x y z rx ry rz``,
+    rotation on the left of their mean)."""
+    n = len(xs)
+    X_mean = average_transforms(np.stack(xs))
+    par = np.stack([np.concatenate([x[:3, 3], Rotation.from_matrix(
+        x[:3, :3] @ X_mean[:3, :3].T).as_rotvec()]) for x in xs])
+    d = par - par.mean(axis=0)
+    cov = (n - 1) / n * np.einsum("ki,kj->ij", d, d)
+    return 0.5 * (cov + cov.T)
+
+
+def _refined_result(name: str, X: np.ndarray, Y: np.ndarray, cov: np.ndarray,
+                    kept: Sequence[HandEyeSample], cameras: Sequence[CameraView] | None,
+                    setup: str, use_corners: bool) -> MethodResult:
+    bte = np.stack([s.base_T_ee for s in kept])
+    ctb = np.stack([s.cam_T_board for s in kept])
+    rot, trans = axxb_residuals(X, bte, ctb, setup)
+    _, dmm, ddeg = board_spread(X, bte, ctb, setup, Y)
+    mr = MethodResult(name, X, Y, rot, trans, dmm, ddeg, covariance=cov)
+    mr.std_mm = 1000.0 * float(np.sqrt(np.trace(cov[:3, :3])))
+    mr.std_deg = float(np.degrees(np.sqrt(np.trace(cov[3:, 3:]))))
+    if use_corners:
+        assert cameras is not None
+        mr.reproj_rms_px = _reproj_rms(X, Y, kept, cameras, setup)
+    return mr
+
+
+def _exact_pose_sigmas(ref: RefinementResult, kept: Sequence[HandEyeSample], setup: str,
+                       use_corners: bool) -> dict[str, float]:
+    """Noise levels under which the errors-in-variables model is the exact-pose refinement."""
+    from .eiv import SIGMA_FLOORS
+    from .refine import pose_residual_scales
+
+    sig = {"robot_t": SIGMA_FLOORS["robot_t"], "robot_r": SIGMA_FLOORS["robot_r"]}
+    if use_corners:
+        sig["px"] = max(ref.sigma, SIGMA_FLOORS["px"])
+    else:
+        sig["cam_r"], sig["cam_t"] = pose_residual_scales(
+            ref.X, ref.Y, np.stack([s.base_T_ee for s in kept]),
+            np.stack([s.cam_T_board for s in kept]), setup)
+    return sig
+
+
+def _refined_loo(mr: MethodResult, kept: Sequence[HandEyeSample],
+                 cameras: Sequence[CameraView] | None, setup: str, sigmas: dict[str, float],
+                 corrections: np.ndarray | None, warnings: list[str],
+                 held: dict[str, HeldOut]) -> None:
+    from .eiv import leave_one_out_steps
+
+    try:
+        sols = leave_one_out_steps(mr.X, mr.Y, kept, cameras if cameras else None, setup,
+                                   sigmas, corrections)
+    except HandEyeError as exc:
+        warnings.append(f"leave-one-out figures of {mr.name} unavailable: {exc}")
+        return
+    n = len(sols)
+    mr.loo_mm = np.zeros(n)
+    mr.loo_deg = np.zeros(n)
+    for i, (Xi, _) in enumerate(sols):
+        mr.loo_mm[i], mr.loo_deg[i] = _x_delta(Xi, mr.X)
+    held[mr.name] = held_out_prediction(sols, kept, cameras, setup)
+    mr.held_out = held[mr.name]
 
 
 def bootstrap_covariance(samples: Sequence[HandEyeSample], setup: str, *,
@@ -539,7 +695,8 @@ def bootstrap_covariance(samples: Sequence[HandEyeSample], setup: str, *,
                          seed: int = 0, start: str = "park",
                          X0: np.ndarray | None = None,
                          Y0: np.ndarray | None = None) -> np.ndarray:
-    """Bootstrap covariance of the refined X (resampling samples with replacement).
+    """Bootstrap covariance of the exact-pose refinement's X (``refined_exact``; resampling
+    samples with replacement).
 
     Used to check the Jacobian covariance. Each draw solves ``start`` and refines from it.
 

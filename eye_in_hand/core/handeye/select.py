@@ -1,0 +1,147 @@
+"""Choosing the hand-eye result by leave-one-out prediction of the held-out samples.
+
+Every method (each closed form, the exact-pose refinement and the errors-in-variables
+refinement) is solved once without each sample in turn; the solution without sample ``i``
+then predicts what sample ``i`` measured from its *reported* robot pose:
+
+* the board's corners in pixels (with corners): ``cam_T_board = inv(X) inv(G_i) Y`` projected
+  through every camera of the rig, compared with the detected corners (RMS px over the corners);
+* the board in its fixed frame: ``G_i X cam_T_board[i]`` against the ``Y`` of the solution
+  without the sample (mm, deg).
+
+This is the error a calibration makes where it is used: predicting where something seen by the
+camera is in the robot's frame, from a robot pose as the robot reports it. The score is the RMS
+held-out corner error when every sample has corners, else the held-out board error in the fixed
+frame, millimetres and degrees each divided by their median over the methods and summed.
+
+The method with the lowest score is written, unless the errors-in-variables refinement
+(``refined``, the one whose covariance accounts for both noise sources) predicts the held-out
+samples as well within the statistical noise of the comparison: the per-sample differences of
+the squared held-out errors between the two, paired over the samples, must be below zero by
+more than twice their standard error for another method to replace it. When the robot poses are
+noisy, each held-out prediction carries that sample's own robot error, which is the same for
+every method; the paired test keeps a method from being written on the strength of that noise
+alone.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .refine import reprojection_errors
+from .samples import CameraView, HandEyeSample
+from .solvers import board_in_fixed_frame
+
+__all__ = ["HeldOut", "held_out_prediction", "selection_scores", "choose"]
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """Leave-one-out prediction figures of one method, per sample (sample order).
+
+    Attributes:
+        px: RMS corner error of each held-out sample, px, shape (N,); None without corners.
+        mm, deg: the held-out sample's board pose in the fixed frame against the solution's,
+            shape (N,) each.
+    """
+
+    px: np.ndarray | None
+    mm: np.ndarray
+    deg: np.ndarray
+
+    def summary(self) -> dict[str, float | None]:
+        """RMS figures for report.json."""
+        def rms(a: np.ndarray | None) -> float | None:
+            return None if a is None else float(np.sqrt(np.mean(a ** 2)))
+
+        return {"px_rms": rms(self.px), "mm_rms": rms(self.mm), "deg_rms": rms(self.deg)}
+
+
+def held_out_prediction(solutions: Sequence[tuple[np.ndarray, np.ndarray]],
+                        samples: Sequence[HandEyeSample],
+                        cameras: Sequence[CameraView] | None, setup: str) -> HeldOut:
+    """Predict each sample from the solution computed without it.
+
+    Args:
+        solutions: ``(X, Y)`` without sample ``i``, for every sample, in order.
+        samples: the samples.
+        cameras: the rig's cameras (corner figures when given and every sample has corners).
+        setup: ``"eye_in_hand"`` or ``"eye_to_hand"``.
+
+    Returns:
+        The figures.
+    """
+    n = len(samples)
+    use_corners = bool(cameras) and all(len(s.observations) > 0 for s in samples)
+    px = np.zeros(n) if use_corners else None
+    mm = np.zeros(n)
+    deg = np.zeros(n)
+    for i, ((X, Y), s) in enumerate(zip(solutions, samples)):
+        Yi = board_in_fixed_frame(X, s.base_T_ee[None], s.cam_T_board[None], setup)[0]
+        mm[i] = 1000.0 * float(np.linalg.norm(Yi[:3, 3] - Y[:3, 3]))
+        deg[i] = float(np.degrees(np.linalg.norm(
+            Rotation.from_matrix(Y[:3, :3].T @ Yi[:3, :3]).as_rotvec())))
+        if px is not None:
+            assert cameras is not None
+            e = reprojection_errors(X, Y, [s], cameras, setup)[0]
+            px[i] = float(np.sqrt(np.mean(np.sum(e ** 2, axis=1))))
+    return HeldOut(px, mm, deg)
+
+
+def _per_sample(held_out: dict[str, HeldOut]) -> tuple[dict[str, np.ndarray], str]:
+    """Each method's per-sample held-out error (the quantity whose RMS is the score)."""
+    if held_out and all(h.px is not None for h in held_out.values()):
+        return ({k: np.asarray(h.px) for k, h in held_out.items()},
+                "held-out corner RMS (px)")
+    ref_mm = max(float(np.median([np.sqrt(np.mean(h.mm ** 2)) for h in held_out.values()])),
+                 1e-12)
+    ref_deg = max(float(np.median([np.sqrt(np.mean(h.deg ** 2)) for h in held_out.values()])),
+                  1e-12)
+    return ({k: np.hypot(h.mm / ref_mm, h.deg / ref_deg) for k, h in held_out.items()},
+            "held-out board pose in the fixed frame (mm and deg, each over its median RMS)")
+
+
+def selection_scores(held_out: dict[str, HeldOut]) -> tuple[dict[str, float], str]:
+    """The selection score of every method (lower is better) and what it measures.
+
+    Args:
+        held_out: the held-out figures by method.
+
+    Returns:
+        ``(scores, criterion)``: the RMS over the samples of each method's held-out error.
+    """
+    per, criterion = _per_sample(held_out)
+    return {k: float(np.sqrt(np.mean(v ** 2))) for k, v in per.items()}, criterion
+
+
+def choose(held_out: dict[str, HeldOut], candidates: Sequence[str],
+           reference: str = "refined") -> tuple[str, str]:
+    """Pick the result among ``candidates`` (see the module docstring for the rule).
+
+    Args:
+        held_out: the held-out figures by method.
+        candidates: the methods that may be written.
+        reference: the method kept unless another predicts significantly better.
+
+    Returns:
+        ``(method, reason)``.
+    """
+    per, criterion = _per_sample(held_out)
+    scores = {k: float(np.sqrt(np.mean(per[k] ** 2))) for k in candidates}
+    best = min(scores, key=lambda k: scores[k])
+    others = ", ".join(f"{k} {v:.4g}" for k, v in sorted(scores.items(),
+                                                         key=lambda kv: kv[1]) if k != best)
+    if reference not in scores or best == reference:
+        return best, f"lowest {criterion}: {best} {scores[best]:.4g} (then {others})"
+    d = per[best] ** 2 - per[reference] ** 2
+    se = float(np.std(d, ddof=1) / np.sqrt(d.size)) if d.size > 1 else float("inf")
+    if float(np.mean(d)) < -2.0 * se:
+        return best, (f"lowest {criterion}: {best} {scores[best]:.4g}, significantly below "
+                      f"{reference} {scores[reference]:.4g} (paired over the samples; then "
+                      f"{others})")
+    return reference, (f"{criterion}: {reference} {scores[reference]:.4g} is within the noise of "
+                       f"the lowest, {best} {scores[best]:.4g} (paired over the samples, under 2 "
+                       "standard errors), and its covariance models both noise sources")
