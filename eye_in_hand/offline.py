@@ -81,8 +81,8 @@ class ProcessOptions:
     sync_slop_s: float = 0.005
     sync_queue_size: int = 5
     max_pose_gap_s: float = 0.05
-    robot_sigma_pos_m: float = 0.0001
-    robot_sigma_rot_rad: float = 0.0001
+    robot_sigma_pos_m: float = 0.00015
+    robot_sigma_rot_rad: float = 0.0004
     workers: int | None = None
     verify_crc: bool = False
 

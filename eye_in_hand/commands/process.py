@@ -119,8 +119,13 @@ def run(args: argparse.Namespace) -> int:
             sync_slop_s=float(detect.get("sync.slop_s", 0.005)),
             sync_queue_size=int(detect.get("sync.queue_size", 5)),
             max_pose_gap_s=float(hand_eye_params.get("max_pose_gap_s", 0.05)),
-            robot_sigma_pos_m=float(hand_eye_params.get("robot_sigma_pos_m", 0.0001)),
-            robot_sigma_rot_rad=float(hand_eye_params.get("robot_sigma_rot_rad", 0.0001)),
+            # hand_eye.yaml's robot_pose_noise when present, else the hand_eye parameters
+            robot_sigma_pos_m=(calib.robot_pose_noise[0] if calib.robot_pose_noise else
+                               float(hand_eye_params.get("robot_sigma_pos_m",
+                                                         ProcessOptions.robot_sigma_pos_m))),
+            robot_sigma_rot_rad=(calib.robot_pose_noise[1] if calib.robot_pose_noise else
+                                 float(hand_eye_params.get("robot_sigma_rot_rad",
+                                                           ProcessOptions.robot_sigma_rot_rad))),
             verify_crc=args.verify_crc, workers=args.workers)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{args.params}: {exc}") from exc

@@ -64,6 +64,9 @@ class HandEyeCalibration:
         sample_count: number of samples used.
         residuals: summary residual figures (name -> number or None).
         stamp: free-form time stamp text ('' when absent).
+        robot_pose_noise: optional per-pose 1-sigma of the reported flange pose, as estimated
+            while calibrating: ``(translation_sigma_m, rotation_sigma_rad)`` per axis, or None
+            (absent in older files; the localization then uses its own parameters).
     """
 
     setup: str
@@ -75,6 +78,7 @@ class HandEyeCalibration:
     sample_count: int = 0
     residuals: Mapping[str, float | None] = field(default_factory=dict)
     stamp: str = ""
+    robot_pose_noise: tuple[float, float] | None = None
 
     @property
     def translation(self) -> np.ndarray:
@@ -105,6 +109,9 @@ class HandEyeCalibration:
         }
         if self.stamp:
             out["stamp"] = self.stamp
+        if self.robot_pose_noise is not None:
+            out["robot_pose_noise"] = {"translation_sigma_m": float(self.robot_pose_noise[0]),
+                                       "rotation_sigma_rad": float(self.robot_pose_noise[1])}
         return out
 
 
@@ -195,10 +202,26 @@ def hand_eye_from_dict(data: Any, source: str = "<hand_eye>") -> HandEyeCalibrat
     method = data.get("method", "unknown")
     if not isinstance(method, str):
         raise _fail(source, f"'method' must be text, got {method!r}")
+    noise = None
+    rpn = data.get("robot_pose_noise")
+    if rpn is not None:
+        if not isinstance(rpn, Mapping):
+            raise _fail(source, "'robot_pose_noise' must be a mapping with translation_sigma_m "
+                                "and rotation_sigma_rad")
+        vals = []
+        for key in ("translation_sigma_m", "rotation_sigma_rad"):
+            v = rpn.get(key)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) \
+                    or not math.isfinite(float(v)) or v < 0:
+                raise _fail(source, f"robot_pose_noise.{key}: expected a finite number >= 0, "
+                                    f"got {v!r}")
+            vals.append(float(v))
+        noise = (vals[0], vals[1])
     return HandEyeCalibration(setup=setup, parent_frame=frames[0], child_frame=frames[1],
                               transform=T, method=method, covariance=cov,
                               sample_count=count, residuals=clean,
-                              stamp=str(data.get("stamp", "") or ""))
+                              stamp=str(data.get("stamp", "") or ""),
+                              robot_pose_noise=noise)
 
 
 def save_hand_eye(path: str | os.PathLike[str], calibration: HandEyeCalibration) -> Path:

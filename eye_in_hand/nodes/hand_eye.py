@@ -96,10 +96,12 @@ class HandEyeNodeConfig:
                                    range=(0.0, 10.0))
     pose_buffer_size: int = param(4000, "robot poses kept for interpolation",
                                   range=(2, 1_000_000))
-    robot_sigma_pos_m: float = param(0.0001, "robot pose position noise, 1 sigma (m)",
+    robot_sigma_pos_m: float = param(0.00015, "robot pose position noise per axis, 1 sigma (m); "
+                                     "hand_eye.yaml's robot_pose_noise replaces it when present",
                                      range=(0.0, 1.0))
-    robot_sigma_rot_rad: float = param(0.0001, "robot pose rotation noise about the flange, "
-                                       "1 sigma (rad)", range=(0.0, 1.0))
+    robot_sigma_rot_rad: float = param(0.0004, "robot pose rotation noise about the flange per "
+                                       "axis, 1 sigma (rad); hand_eye.yaml's robot_pose_noise "
+                                       "replaces it when present", range=(0.0, 1.0))
     stale_after_s: float = param(1.0, "diagnostics WARN when no robot pose or point arrived "
                                  "for this long (s)", range=(0.01, 3600.0))
     # -- calibration mode ---------------------------------------------------------------
@@ -183,10 +185,14 @@ class HandEyeNode(Node):
                 raise ConfigError(f"{cfg.hand_eye_file}: setup is {self.calibration.setup!r}; "
                                   "this node localizes with an eye_in_hand calibration")
             ee_T_cam, cov = self.calibration.transform, self.calibration.covariance
+        # robot pose noise: hand_eye.yaml's robot_pose_noise (estimated while calibrating)
+        # when present, else the robot_sigma_* parameters
+        sig_pos, sig_rot = cfg.robot_sigma_pos_m, cfg.robot_sigma_rot_rad
+        if self.calibration is not None and self.calibration.robot_pose_noise is not None:
+            sig_pos, sig_rot = self.calibration.robot_pose_noise
         self.localizer = Localizer(ee_T_cam, cov, LocalizerConfig(
             max_gap_ns=int(cfg.max_pose_gap_s * 1e9), buffer_size=cfg.pose_buffer_size,
-            robot_sigma_pos_m=cfg.robot_sigma_pos_m,
-            robot_sigma_rot_rad=cfg.robot_sigma_rot_rad))
+            robot_sigma_pos_m=sig_pos, robot_sigma_rot_rad=sig_rot))
 
         if cfg.robot_pose_source == "ee_pose":
             self.create_subscription(PoseStamped, "ee_pose", self._on_ee_pose, ROBOT_POSE_QOS)

@@ -95,3 +95,25 @@ def test_save_refuses_invalid_covariance(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="NaN"):
         save_hand_eye(tmp_path / "x.yaml", bad)
     assert not (tmp_path / "x.yaml").exists()
+
+
+def test_robot_pose_noise_optional_round_trip_and_errors(tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    old = load_hand_eye(save_hand_eye(tmp_path / "old.yaml", _calib()))
+    assert old.robot_pose_noise is None                       # absent in older files
+    c = replace(_calib(), robot_pose_noise=(0.00018, 0.00042))
+    path = save_hand_eye(tmp_path / "new.yaml", c)
+    data = yaml.safe_load(path.read_text())
+    assert data["robot_pose_noise"] == {"translation_sigma_m": 0.00018,
+                                        "rotation_sigma_rad": 0.00042}
+    assert load_hand_eye(path).robot_pose_noise == (0.00018, 0.00042)
+    for bad, msg in (([1, 2], "must be a mapping"),
+                     ({"translation_sigma_m": -1, "rotation_sigma_rad": 0.1},
+                      "robot_pose_noise.translation_sigma_m"),
+                     ({"translation_sigma_m": 0.1}, "robot_pose_noise.rotation_sigma_rad")):
+        p = tmp_path / "bad.yaml"
+        p.write_text(yaml.safe_dump({**data, "robot_pose_noise": bad}))
+        with pytest.raises(ConfigError, match=msg) as info:
+            load_hand_eye(p)
+        assert "bad.yaml" in str(info.value)
