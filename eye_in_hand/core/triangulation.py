@@ -226,7 +226,8 @@ def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float | Sequ
     return _finish(rig, X, cov, _reproj_rms(P1, P2, X, xl, xr), "dlt", d, max_residual_px)
 
 
-def triangulate_parallax(rig: StereoRig, left_px, right_px, *, sigma_px: float | Sequence[float] = 0.5,
+def triangulate_parallax(rig: StereoRig, left_px, right_px, *,
+                         sigma_px: float | Sequence[float] = 0.5,
                          max_residual_px: float | None = None,
                          rectified: bool = False) -> StereoPoint:
     """(b) Parallax triangulation on rectified coordinates: ``Z = f B / d``, then X, Y.
@@ -273,7 +274,8 @@ def _project_with_jacobian(K: np.ndarray, dist: np.ndarray, R: np.ndarray, t: np
     return img.reshape(2), jac[:, 3:6] @ R
 
 
-def triangulate_optimal(rig: StereoRig, left_px, right_px, *, sigma_px: float | Sequence[float] = 0.5,
+def triangulate_optimal(rig: StereoRig, left_px, right_px, *,
+                        sigma_px: float | Sequence[float] = 0.5,
                         max_residual_px: float | None = None, max_iterations: int = 10,
                         initial: StereoPoint | None = None) -> StereoPoint:
     """(c) Optimal triangulation: minimise the reprojection error in both distorted images.
@@ -340,7 +342,8 @@ def triangulate_optimal(rig: StereoRig, left_px, right_px, *, sigma_px: float | 
 
 
 def triangulate(rig: StereoRig, left_px, right_px, *, method: str = "dlt",
-                sigma_px: float | Sequence[float] = 0.5, max_residual_px: float | None = None) -> StereoPoint:
+                sigma_px: float | Sequence[float] = 0.5,
+                max_residual_px: float | None = None) -> StereoPoint:
     """Triangulate with the named method ("dlt", "disparity" or "optimal").
 
     Arguments, returns and errors as the individual methods; InputError for an unknown method.

@@ -10,9 +10,10 @@ Bag topics (absolute names; message types in parentheses):
 ``/stereo/right/camera_info``   (sensor_msgs/CameraInfo; right P carries -fx * baseline)
 ``/joint_states``               (sensor_msgs/JointState, robot rate, own stamps)
 ``/ee_pose``                    (geometry_msgs/PoseStamped, ``base_link`` -> ``tool0``)
-``/tf``                         (tf2_msgs/TFMessage: the arm's DH link chain base_link ->
+``/tf``                         (tf2_msgs/TFMessage: the arm's DH link chain base ->
                                 shoulder_link -> ... -> wrist_2_link -> tool0, robot rate)
-``/tf_static``                  (tf2_msgs/TFMessage, once: camera_left_optical_frame ->
+``/tf_static``                  (tf2_msgs/TFMessage, once: base_link -> base (Rz(pi), as
+                                ur_description) and camera_left_optical_frame ->
                                 camera_right_optical_frame, the stereo extrinsic)
 ``/ground_truth/target``        (geometry_msgs/PointStamped in ``base_link``, one per target
                                 per image, in ``world.targets`` order, at the image stamp)
@@ -319,15 +320,18 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
                 ("gt_ee_pose_reported", "geometry_msgs/msg/PoseStamped", reliable)):
             writer.add_topic(TOPICS[key], typ, qos=qos)
         t0 = int(stamps[0])
-        writer.write(TOPICS["tf_static"], t0, m.tf([m.transform_stamped(
-            world.left_T_right, t0, FRAMES["left"], FRAMES["right"])]))
+        static = [m.transform_stamped(world.left_T_right, t0, FRAMES["left"], FRAMES["right"])]
+        if arm.dh_frame != arm.base_frame:    # ur_description: base_link -> base, Rz(pi)
+            static.insert(0, m.transform_stamped(np.array(arm.base_T_dh), t0, arm.base_frame,
+                                                 arm.dh_frame))
+        writer.write(TOPICS["tf_static"], t0, m.tf(static))
         writer.write(TOPICS["gt_hand_eye"], t0, m.transform_stamped(
             world.ee_T_cam, t0, FRAMES["tool"], FRAMES["left"]))
         writer.write(TOPICS["gt_board"], t0, m.pose_stamped(world.base_T_board, t0,
-                                                            FRAMES["base"]))
+                                                            arm.base_frame))
         # robot streams
         dt = 1.0 / robot_rate_hz
-        frames_names = (arm.base_frame, *arm.link_names)
+        frames_names = (arm.dh_frame, *arm.link_names)
         for k, (ns, q) in enumerate(zip(stamps, qs_rep)):
             ns = int(ns)
             k0, k1 = max(k - 1, 0), min(k + 1, len(qs) - 1)
@@ -337,7 +341,7 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
             writer.write(TOPICS["tf"], ns, m.tf([
                 m.transform_stamped(A, ns, frames_names[i], frames_names[i + 1])
                 for i, A in enumerate(link_T)]))
-            writer.write(TOPICS["ee_pose"], ns, m.pose_stamped(arm.fk(q), ns, FRAMES["base"]))
+            writer.write(TOPICS["ee_pose"], ns, m.pose_stamped(arm.fk(q), ns, arm.base_frame))
         # images
         for n_img, ns in enumerate(img_stamps):
             q, _ = _interp_q(stamps, qs, ns + offset_ns)   # the true arm when exposed
@@ -352,11 +356,11 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
             writer.write(TOPICS["right_info"], ns, m.camera_info(rig.right, ns,
                                                                  FRAMES["right"]))
             for c in frame.truth.targets_base:
-                writer.write(TOPICS["gt_target"], ns, m.point_stamped(c, ns, FRAMES["base"]))
+                writer.write(TOPICS["gt_target"], ns, m.point_stamped(c, ns, arm.base_frame))
             writer.write(TOPICS["gt_ee_pose"], ns, m.pose_stamped(frame.truth.base_T_ee, ns,
-                                                                  FRAMES["base"]))
+                                                                  arm.base_frame))
             writer.write(TOPICS["gt_ee_pose_reported"], ns,
-                         m.pose_stamped(arm.fk(q_rep), ns, FRAMES["base"]))
+                         m.pose_stamped(arm.fk(q_rep), ns, arm.base_frame))
             if progress is not None:
                 progress(n_img + 1, len(img_stamps))
         counts = writer.counts

@@ -4,9 +4,12 @@ Everything geometric is a field of :class:`World` and round-trips through ``worl
 (:meth:`World.from_yaml` / :meth:`World.to_yaml`); ``config/world.yaml`` holds the default,
 which :meth:`World.default` reproduces exactly.
 
-Frames: ``base_link`` is the arm's DH base frame (UR's controller ``base`` frame for the UR5e;
-in ur_description's URDF ``base_link`` is rotated by pi about z from it); the table top is the
-plane ``z = table.height`` in it. ``tool0`` is the last DH frame. ``camera_left_optical_frame``
+Frames follow ur_description: ``base_link`` is the world frame (targets, board and table are
+given in it; the table top is the plane ``z = table.height``); the arm's DH chain is expressed
+in ``base`` (UR's controller frame, DH frame 0), with ``base_link`` -> ``base`` = Rz(pi)
+(``arm.base_T_dh``, published on ``/tf_static``). ``tool0`` is the last DH frame; ``arm.fk``
+gives ``base_link`` -> ``tool0``. All names are the ``arm`` section's (``base_frame``,
+``dh_frame``, ``link_names``). ``camera_left_optical_frame``
 is ``base_T_ee @ ee_T_cam`` (x right, y down, z forward); the right camera follows OpenCV's
 ``X_right = R @ X_left + T`` (``world.rig.R``, ``world.rig.T``).
 

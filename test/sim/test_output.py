@@ -82,8 +82,10 @@ def test_bag_topics_stamps_and_ground_truth(loc_bag, small_world):
     (_, board), = msgs[TOPICS["gt_board"]]
     np.testing.assert_allclose(_pose(board.pose), world.base_T_board, atol=1e-12)
     (_, static), = msgs[TOPICS["tf_static"]]
-    np.testing.assert_allclose(_tf(static.transforms[0].transform), world.left_T_right,
-                               atol=1e-12)
+    by_child = {tr.child_frame_id: tr for tr in static.transforms}
+    np.testing.assert_allclose(_tf(by_child["camera_right_optical_frame"].transform),
+                               world.left_T_right, atol=1e-12)
+    assert by_child["base"].header.frame_id == "base_link"
 
 
 def test_fk_of_joint_states_equals_ee_pose_and_tf_chain(loc_bag, small_world):
@@ -92,19 +94,24 @@ def test_fk_of_joint_states_equals_ee_pose_and_tf_chain(loc_bag, small_world):
     arm = small_world.arm
     poses = {_stamp(m): _pose(m.pose) for _, m in msgs[TOPICS["ee_pose"]]}
     tfs = {t: m for t, m in msgs[TOPICS["tf"]]}
+    (_, st), = msgs[TOPICS["tf_static"]]
+    static = {tr.child_frame_id: _tf(tr.transform) for tr in st.transforms
+              if tr.header.frame_id == "base_link"}
+    np.testing.assert_allclose(static["base"], np.diag([-1.0, -1.0, 1.0, 1.0]), atol=1e-12)
     assert len(poses) == len(msgs[TOPICS["joint_states"]]) > 30
     for t, js in msgs[TOPICS["joint_states"]]:
         assert list(js.name) == list(arm.joint_names)
         T = arm.fk(np.asarray(js.position))
         np.testing.assert_allclose(T, poses[_stamp(js)], atol=1e-9)
-        # /tf: base_link -> ... -> tool0, composed in order
+        # /tf: base -> ... -> tool0, composed in order; /tf_static: base_link -> base, Rz(pi)
         chain = {tr.child_frame_id: tr for tr in tfs[t].transforms}
         frame, acc = "tool0", np.eye(4)
-        while frame != "base_link":
+        while frame != "base":
             tr = chain[frame]
             assert _stamp(tr) == _stamp(js)
             acc = _tf(tr.transform) @ acc
             frame = tr.header.frame_id
+        acc = static["base"] @ acc
         np.testing.assert_allclose(acc, poses[_stamp(js)], atol=1e-9)
 
 
