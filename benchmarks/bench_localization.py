@@ -315,7 +315,11 @@ def consistency(pairs: int, fresh: bool) -> dict[str, dict[str, float]]:
                  RIGHT, "--no-html", "-o", str(he_dir))
         he = load_hand_eye(he_dir / "hand_eye.yaml")
         cfg = load_locator_config(ROOT / "config" / "eye_in_hand.yaml")  # radius 35 mm
+        # robot pose noise: hand_eye.yaml's when present; else the defaults of process, or 0
+        # for the ideal arm (its poses are exact: the honest setting there)
         opts = ProcessOptions(workers=1)
+        if spec.is_ideal:
+            opts = ProcessOptions(workers=1, robot_sigma_pos_m=0.0, robot_sigma_rot_rad=0.0)
         if he.robot_pose_noise is not None:
             opts = ProcessOptions(workers=1, robot_sigma_pos_m=he.robot_pose_noise[0],
                                   robot_sigma_rot_rad=he.robot_pose_noise[1])
@@ -343,7 +347,7 @@ def consistency(pairs: int, fresh: bool) -> dict[str, dict[str, float]]:
               f"{fig['rms_mm']:.3f} mm, p95 {fig['p95_mm']:.3f} mm, max {fig['max_mm']:.3f} mm; "
               f"reported sigma (sqrt trace) mean {fig['sigma_mm']:.3f} mm; robot pose sigmas "
               f"{opts.robot_sigma_pos_m * 1e3:.3g} mm, {opts.robot_sigma_rot_rad * 1e3:.3g} mrad"
-              f"{' (hand_eye.yaml)' if he.robot_pose_noise is not None else ' (defaults)'}",
+              f"{' (hand_eye.yaml)' if he.robot_pose_noise is not None else ''}",
               flush=True)
         out[tag] = fig
     return out

@@ -504,32 +504,37 @@ class StereoLocator:
                     first_reason, first_msg = exc.reason, str(exc)
         return None, first_reason, first_msg
 
-    def _sigmas(self, dl: Detection, dr: Detection) -> float | tuple[float, float]:
-        """The pixel sigma(s) of a pair: the configured one, else each detection's own."""
+    def _pixel_cov(self, dl: Detection, dr: Detection) -> tuple[float, np.ndarray | None]:
+        """``(sigma_px, pixel_cov)`` of a pair: the configured pixel sigma (``pixel_cov`` None),
+        else the detections' own, (4, 4) over (xl, yl, xr, yr): each image's edge term plus
+        the shading shifts ``shade_px``, fully correlated between the two images (one light)."""
         if self.config.pixel_sigma > 0:
-            return self.config.pixel_sigma
-        return tuple(max(MIN_PIXEL_SIGMA, d.center_sigma_px) if math.isfinite(d.center_sigma_px)
-                     else FALLBACK_PIXEL_SIGMA for d in (dl, dr))  # type: ignore[return-value]
+            return self.config.pixel_sigma, None
+        if not (math.isfinite(dl.edge_sigma_px) and math.isfinite(dr.edge_sigma_px)):
+            return FALLBACK_PIXEL_SIGMA, None
+        e = [max(MIN_PIXEL_SIGMA, d.edge_sigma_px) ** 2 for d in (dl, dr)]
+        v = np.concatenate([dl.shade_px, dr.shade_px])
+        return 0.0, np.diag([e[0], e[0], e[1], e[1]]) + np.outer(v, v)
 
     def _point(self, left_px: np.ndarray, right_px: np.ndarray, xl: np.ndarray,
-               xr: np.ndarray, sigma: float | tuple[float, float] = FALLBACK_PIXEL_SIGMA
+               xr: np.ndarray, pix: tuple[float, np.ndarray | None] = (FALLBACK_PIXEL_SIGMA, None)
                ) -> StereoPoint:
         cfg = self.config
         gate = cfg.max_residual_px
+        kw: dict = ({"sigma_px": pix[0]} if pix[1] is None else {"pixel_cov": pix[1]})
         if cfg.method == "dlt":
-            return triangulate_dlt(self.rig, xl, xr, rectified=True, sigma_px=sigma,
-                                   max_residual_px=gate)
+            return triangulate_dlt(self.rig, xl, xr, rectified=True, max_residual_px=gate, **kw)
         if cfg.method == "disparity":
-            return triangulate_parallax(self.rig, xl, xr, rectified=True, sigma_px=sigma,
-                                        max_residual_px=gate)
-        start = triangulate_dlt(self.rig, xl, xr, rectified=True, sigma_px=sigma)
-        return triangulate_optimal(self.rig, left_px, right_px, initial=start, sigma_px=sigma,
-                                   max_residual_px=gate)
+            return triangulate_parallax(self.rig, xl, xr, rectified=True, max_residual_px=gate,
+                                        **kw)
+        start = triangulate_dlt(self.rig, xl, xr, rectified=True, **kw)
+        return triangulate_optimal(self.rig, left_px, right_px, initial=start,
+                                   max_residual_px=gate, **kw)
 
     def _triangulate(self, spec: TargetSpec, dl: Detection, dr: Detection, xl: np.ndarray,
                      xr: np.ndarray) -> TargetLocation:
-        sigma = self._sigmas(dl, dr)
-        pt = self._point(dl.center_px, dr.center_px, xl, xr, sigma)
+        pix = self._pixel_cov(dl, dr)
+        pt = self._point(dl.center_px, dr.center_px, xl, xr, pix)
         left_px, right_px = dl.center_px, dr.center_px
         if spec.radius_m is not None and np.all(np.isfinite(dl.ellipse_norm)) \
                 and np.all(np.isfinite(dr.ellipse_norm)):
@@ -542,7 +547,7 @@ class StereoLocator:
                 left_px = self.rig.left.project(np.array([[nl[0], nl[1], 1.0]]))[0]
                 right_px = self.rig.right.project(np.array([[nr[0], nr[1], 1.0]]))[0]
                 pt = self._point(left_px, right_px, self._rect(self._H1, nl),
-                                 self._rect(self._H2, nr), sigma)
+                                 self._rect(self._H2, nr), pix)
         return TargetLocation(
             name=spec.name, point_m=pt.point, covariance=pt.covariance,
             residual_px=pt.residual_px, left_px=np.asarray(left_px, dtype=np.float64),

@@ -8,8 +8,10 @@ rectified (``rig.rectified()``, or loaded from ROS calibration files), and retur
 * ``residual_px``: the RMS reprojection error over the four image coordinates (pixels);
 * ``covariance``: 3x3, propagated to first order from the pixel noise ``sigma_px`` on each image
   coordinate (``J S J^T`` for the closed forms, ``(J^T J)^-1 J^T S J (J^T J)^-1`` for the
-  least-squares refinement, ``S = diag(sigma^2)``); ``sigma_px`` is one number for all four
-  coordinates or a pair ``(left, right)``, e.g. the detector's per-detection centre sigmas.
+  least-squares refinement, ``S`` the pixel covariance); ``sigma_px`` is one number for all four
+  coordinates or a pair ``(left, right)``, or ``pixel_cov`` gives the whole (4, 4) ``S`` (the
+  stereo locator's: per-detection edge terms plus a shading shift common to both images,
+  which moves the point sideways, not in depth).
 
 Methods:
 
@@ -162,6 +164,22 @@ def _finish(rig: StereoRig, X_rect: np.ndarray, cov_rect: np.ndarray, residual: 
     return StereoPoint(X, 0.5 * (cov + cov.T), residual, method, disparity)
 
 
+def _pixel_cov(sigma_px: float | Sequence[float], pixel_cov=None) -> np.ndarray:
+    """Covariance (4, 4) of (xl, yl, xr, yr): ``pixel_cov`` when given (checked), else
+    independent ``sigma_px`` per coordinate (one number or (left, right))."""
+    if pixel_cov is None:
+        s = _check_sigma(sigma_px)
+        return np.diag(s * s)
+    try:
+        S = np.asarray(pixel_cov, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError("pixel_cov: expected a 4x4 matrix") from exc
+    if S.shape != (4, 4) or not np.all(np.isfinite(S)) or not np.allclose(S, S.T) \
+            or np.linalg.eigvalsh(0.5 * (S + S.T)).min() < -1e-12 * max(1.0, np.abs(S).max()):
+        raise InputError("pixel_cov: expected a symmetric positive semi-definite 4x4 matrix")
+    return S
+
+
 def _check_sigma(sigma_px: float | Sequence[float]) -> np.ndarray:
     """Per-coordinate sigmas (xl, yl, xr, yr), shape (4,), from one number or (left, right)."""
     try:
@@ -194,6 +212,7 @@ def _check_disparity(rig: StereoRig, d: float) -> None:
 
 
 def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float | Sequence[float] = 0.5,
+                    pixel_cov: np.ndarray | None = None,
                     max_residual_px: float | None = None,
                     rectified: bool = False) -> StereoPoint:
     """(a) Linear (DLT) triangulation from rectified pixels with ``P1, P2``.
@@ -202,7 +221,10 @@ def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float | Sequ
         rig: rectified stereo rig.
         left_px, right_px: pixel coordinates, shape (2,): distorted image pixels, or rectified
             pixels when ``rectified`` is True.
-        sigma_px: pixel noise (1 sigma) per coordinate for the covariance.
+        sigma_px: pixel noise (1 sigma) per coordinate for the covariance: one number, or
+            (left, right) per image.
+        pixel_cov: optional full (4, 4) covariance of (xl, yl, xr, yr) instead of
+            ``sigma_px`` (e.g. per-image terms plus a shift common to both images).
         max_residual_px: reject above this RMS reprojection residual (None: no gate).
         rectified: the inputs are already rectified pixel coordinates.
 
@@ -213,7 +235,7 @@ def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float | Sequ
         InputError: bad arguments. Rejected: behind a camera, non-positive disparity, residual.
     """
     _check_rig(rig)
-    s = _check_sigma(sigma_px)
+    S = _pixel_cov(sigma_px, pixel_cov)
     xl, xr = ((_px(left_px, "left_px"), _px(right_px, "right_px")) if rectified
               else rectify_pair(rig, left_px, right_px))
     d = _disparity(rig, xl, xr)
@@ -222,12 +244,13 @@ def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float | Sequ
     X, J = _dlt_rect(P1, P2, xl, xr, with_jacobian=True)
     if J is None:
         raise Rejected("behind_camera", "the DLT solution is at infinity")
-    cov = (J * (s * s)[None, :]) @ J.T
+    cov = J @ S @ J.T
     return _finish(rig, X, cov, _reproj_rms(P1, P2, X, xl, xr), "dlt", d, max_residual_px)
 
 
 def triangulate_parallax(rig: StereoRig, left_px, right_px, *,
                          sigma_px: float | Sequence[float] = 0.5,
+                         pixel_cov: np.ndarray | None = None,
                          max_residual_px: float | None = None,
                          rectified: bool = False) -> StereoPoint:
     """(b) Parallax triangulation on rectified coordinates: ``Z = f B / d``, then X, Y.
@@ -238,7 +261,7 @@ def triangulate_parallax(rig: StereoRig, left_px, right_px, *,
     vertically rectified rig.
     """
     _check_rig(rig)
-    s = _check_sigma(sigma_px)
+    S = _pixel_cov(sigma_px, pixel_cov)
     P1, P2 = rig.P1, rig.P2
     if abs(P2[1, 3]) > abs(P2[0, 3]):
         raise InputError("parallax method: the rig is rectified vertically; use 'dlt' or "
@@ -260,7 +283,7 @@ def triangulate_parallax(rig: StereoRig, left_px, right_px, *,
     J[0] = (u / f) * dZ + np.array([Z / f, 0.0, 0.0, 0.0])
     J[1] = (v / fy) * dZ + np.array([0.0, 0.5 * Z / fy, 0.0, 0.5 * Z / fy])
     J[2] = dZ
-    cov = (J * (s * s)[None, :]) @ J.T
+    cov = J @ S @ J.T
     return _finish(rig, X_rect, cov, _reproj_rms(P1, P2, X_rect, xl, xr), "disparity", d,
                    max_residual_px)
 
@@ -276,6 +299,7 @@ def _project_with_jacobian(K: np.ndarray, dist: np.ndarray, R: np.ndarray, t: np
 
 def triangulate_optimal(rig: StereoRig, left_px, right_px, *,
                         sigma_px: float | Sequence[float] = 0.5,
+                        pixel_cov: np.ndarray | None = None,
                         max_residual_px: float | None = None, max_iterations: int = 10,
                         initial: StereoPoint | None = None) -> StereoPoint:
     """(c) Optimal triangulation: minimise the reprojection error in both distorted images.
@@ -301,9 +325,10 @@ def triangulate_optimal(rig: StereoRig, left_px, right_px, *,
             over the gate, or no convergence.
     """
     _check_rig(rig)
-    s = _check_sigma(sigma_px)
+    S = _pixel_cov(sigma_px, pixel_cov)
     ul, ur = _px(left_px, "left_px"), _px(right_px, "right_px")
-    start = initial if initial is not None else triangulate_dlt(rig, ul, ur, sigma_px=sigma_px)
+    start = initial if initial is not None else triangulate_dlt(
+        rig, ul, ur, sigma_px=sigma_px, pixel_cov=pixel_cov)
     X = np.array(start.point, dtype=np.float64)
     I3, z3 = np.eye(3), np.zeros(3)
     Kl, dl, Kr, dr = rig.left.K, rig.left.dist, rig.right.K, rig.right.dist
@@ -334,7 +359,7 @@ def triangulate_optimal(rig: StereoRig, left_px, right_px, *,
     # the estimator is unweighted least squares: sandwich covariance (= sigma^2 (J^T J)^-1
     # when the four sigmas are equal)
     JtJ_inv = np.linalg.inv(J.T @ J)
-    cov_left = JtJ_inv @ ((J.T * (s * s)[None, :]) @ J) @ JtJ_inv
+    cov_left = JtJ_inv @ (J.T @ S @ J) @ JtJ_inv
     # _finish works in the rectified frame: hand it X and cov rotated there
     R1 = rig.R1
     return _finish(rig, R1 @ X, R1 @ cov_left @ R1.T, residual, "optimal",
