@@ -14,7 +14,16 @@ Prints, using only calibrations the package computes itself from a simulated cal
   latency p50 / p95, and frames lost (published pairs without a target/pose, and the
   detector's drop-oldest count).
 
+* consistency of the reported covariance (``target/pose_cov``, ``process`` output): NEES (mean
+  squared Mahalanobis error of the base-frame point; consistent: within [0.5, 2] x 3 = [1.5, 6])
+  and the share of frames inside the 95 % ellipsoid (chi-square, 3 dof), with the simulator's
+  robot error off (``--robot-error 0``) and at the realistic default, each with its own
+  calibration bag and calibrations; and the base-frame error at the realistic default.
+
+The world is the simulator's default, robot error included (``World.default()``).
+
 Usage: .venv/bin/python benchmarks/bench_localization.py [--pairs N (600: a 20 s bag)] [--fresh]
+       .venv/bin/python benchmarks/bench_localization.py --consistency-only [--nees-pairs N]
 Data is cached in build/bench-data/ (regenerate with --fresh).
 """
 from __future__ import annotations
@@ -270,15 +279,96 @@ def live(paths: dict[str, Path]) -> tuple[dict[int, np.ndarray], dict[str, float
     return {stamp - offset: p for stamp, _now, p in received}, figures
 
 
+def consistency(pairs: int, fresh: bool) -> dict[str, dict[str, float]]:
+    """NEES, 95 % coverage and error of the base-frame point, robot error 0 and default."""
+    from eye_in_hand.core.camera import StereoRig
+    from eye_in_hand.core.locator import load_locator_config
+    from eye_in_hand.io.config import load_hand_eye
+    from eye_in_hand.offline import ProcessOptions, process_bag
+    from eye_in_hand.sim import World
+    from eye_in_hand.sim.output import write_bag
+    from eye_in_hand.sim.robot_error import RobotErrorSpec
+
+    chi2_95 = 7.8147  # chi-square, 3 dof, 95 %
+    out: dict[str, dict[str, float]] = {}
+    for tag, spec in (("robot error 0", RobotErrorSpec.none()),
+                      ("robot error default", RobotErrorSpec.default())):
+        d = DATA / f"nees{pairs}-{'ideal' if spec.is_ideal else 'default'}"
+        if fresh and d.exists():
+            shutil.rmtree(d)
+        world = World.default().with_robot_error(spec)
+        cal, loc, calib, he_dir = d / "calibration", d / "localization", d / "calib", d / "he"
+        for bag, kwargs in ((cal, dict(scenario="calibration", frames=15, seed=21,
+                                       hold_frames=2, still_images_only=True)),
+                            (loc, dict(scenario="localization", frames=pairs, seed=22))):
+            if not bag.exists():   # written aside, then renamed: never a half bag in the cache
+                print(f"[{tag}] rendering {bag} ...", flush=True)
+                shutil.rmtree(bag.with_name(bag.name + ".part"), ignore_errors=True)
+                write_bag(world, bag.with_name(bag.name + ".part"), **kwargs)  # type: ignore
+                bag.with_name(bag.name + ".part").rename(bag)
+        if not (calib / "left.yaml").exists():
+            _cli("calibrate", "stereo", "--bag", str(cal), "--left-topic", LEFT,
+                 "--right-topic", RIGHT, "--board", "chessboard:9x6:0.025", "-o", str(calib))
+        if not (he_dir / "hand_eye.yaml").exists():
+            _cli("calibrate", "handeye", "--bag", str(cal), "--board", "chessboard:9x6:0.025",
+                 "--calibration", str(calib), "--image-topic", LEFT, "--right-image-topic",
+                 RIGHT, "--no-html", "-o", str(he_dir))
+        he = load_hand_eye(he_dir / "hand_eye.yaml")
+        cfg = load_locator_config(ROOT / "config" / "eye_in_hand.yaml")  # radius 35 mm
+        # robot pose noise: hand_eye.yaml's when present; else the defaults of process, or 0
+        # for the ideal arm (its poses are exact: the honest setting there)
+        opts = ProcessOptions(workers=1)
+        if spec.is_ideal:
+            opts = ProcessOptions(workers=1, robot_sigma_pos_m=0.0, robot_sigma_rot_rad=0.0)
+        if he.robot_pose_noise is not None:
+            opts = ProcessOptions(workers=1, robot_sigma_pos_m=he.robot_pose_noise[0],
+                                  robot_sigma_rot_rad=he.robot_pose_noise[1])
+        res = process_bag(loc, hand_eye_T=he.transform, hand_eye_cov=he.covariance,
+                          locator_config=cfg,
+                          rig=StereoRig.load(calib), options=opts)
+        truth, _ = truth_of(loc)
+        m2, err = [], []
+        for f in res.frames:
+            if f.point_base is None or f.cov_base is None or f.stamp_ns not in truth:
+                continue
+            e = f.point_base - truth[f.stamp_ns]
+            m2.append(float(e @ np.linalg.solve(f.cov_base, e)))
+            err.append(float(np.linalg.norm(e)))
+        m2a, erra = np.array(m2), np.array(err) * 1e3
+        fig = {"nees": float(m2a.mean()), "coverage95": float(np.mean(m2a <= chi2_95)),
+               "rms_mm": float(np.sqrt(np.mean(erra ** 2))),
+               "p95_mm": float(np.percentile(erra, 95)), "max_mm": float(erra.max()),
+               "frames": float(m2a.size),
+               "sigma_mm": float(np.mean([np.sqrt(np.trace(f.cov_base)) for f in res.frames
+                                          if f.cov_base is not None])) * 1e3,
+               "robot_sigmas": (opts.robot_sigma_pos_m, opts.robot_sigma_rot_rad)}
+        print(f"[{tag}] base-frame point over {m2a.size} frames: NEES {fig['nees']:.2f} "
+              f"(consistent: 1.5-6), 95 % coverage {100 * fig['coverage95']:.1f} %, error RMS "
+              f"{fig['rms_mm']:.3f} mm, p95 {fig['p95_mm']:.3f} mm, max {fig['max_mm']:.3f} mm; "
+              f"reported sigma (sqrt trace) mean {fig['sigma_mm']:.3f} mm; robot pose sigmas "
+              f"{opts.robot_sigma_pos_m * 1e3:.3g} mm, {opts.robot_sigma_rot_rad * 1e3:.3g} mrad"
+              f"{' (hand_eye.yaml)' if he.robot_pose_noise is not None else ''}",
+              flush=True)
+        out[tag] = fig
+    return out
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--pairs", type=int, default=600, help="localization pairs (30 Hz)")
     parser.add_argument("--fresh", action="store_true", help="regenerate the cached data")
     parser.add_argument("--replay", metavar="BAG", help=argparse.SUPPRESS)
+    parser.add_argument("--nees-pairs", type=int, default=90,
+                        help="localization pairs of the consistency part (default 90)")
+    parser.add_argument("--consistency-only", action="store_true",
+                        help="only the covariance consistency (NEES) part")
     args = parser.parse_args()
     if args.replay:
         replay(args.replay, lead_s=0.5)
+        return 0
+    if args.consistency_only:
+        consistency(args.nees_pairs, args.fresh)
         return 0
     paths = make_data(args.pairs, args.fresh)
     truth, X_true = truth_of(paths["loc"])
@@ -313,8 +403,10 @@ def main() -> int:
     print(f"live frames: {fig['received']}/{n} poses received; detect_triangulate dropped "
           f"{fig['dropped_pairs']:.0f} pairs to backlog (at most {fig['queue_max']:.0f} pairs "
           f"waited), {fig['sync_dropped']:.0f} frames unpaired  (target: 0 lost to backlog)")
+    nees = consistency(args.nees_pairs, args.fresh)
     (DATA / "bench_localization.json").write_text(json.dumps(
-        {"speeds": speeds, "live": fig, "live_vs_offline_m": diff}, indent=2))
+        {"speeds": speeds, "live": fig, "live_vs_offline_m": diff, "consistency": nees},
+        indent=2))
     return 0
 
 

@@ -1,4 +1,5 @@
-"""Simulator figures: render speed, ray accuracy, blob and chessboard-corner agreement with truth.
+"""Simulator figures: render speed, ray accuracy, blob and chessboard-corner agreement with truth,
+and the per-pose flange error of the default robot error (``--robot-error-only`` for just that).
 
 Run: ``.venv/bin/python benchmarks/bench_sim.py`` (about a minute on a loaded 2-core machine).
 """
@@ -19,8 +20,50 @@ def _moments(w: np.ndarray) -> np.ndarray:
     return np.array([(w * xs).sum(), (w * ys).sum()]) / w.sum()
 
 
+def robot_error_figures(world: World) -> None:
+    """Per-pose flange error (reported nominal FK vs true arm) of the default robot error, over
+    the default scenarios' poses: the default arm (seed 1) and 20 other draws."""
+    import math
+
+    from eye_in_hand.sim.robot_error import RobotErrorSpec, draw_true_arm, flange_errors
+
+    spec = world.robot_error
+    qs = np.array(calibration_poses(world, 15, seed=0)
+                  + [q for _, q in localization_trajectory(world, 3.0, 10.0, seed=0)])
+    print(f"{spec.describe()}; {len(qs)} poses (15 calibration poses, 3 s of localization "
+          "orbit)")
+
+    def line(label: str, dt: np.ndarray, dr: np.ndarray) -> str:
+        dt, dr = dt * 1e3, np.degrees(dr)
+        return (f"{label}: translation mean {dt.mean():.3f} mm (p5 {np.percentile(dt, 5):.3f}, "
+                f"p95 {np.percentile(dt, 95):.3f}), rotation mean {dr.mean():.4f} deg "
+                f"(p5 {np.percentile(dr, 5):.4f}, p95 {np.percentile(dr, 95):.4f})")
+
+    print("  " + line(f"default arm (seed {spec.seed})", *flange_errors(world.arm,
+                                                                       world.true_arm, qs)))
+    all_t, all_r = [], []
+    for seed in range(2, 22):
+        arm = draw_true_arm(world.arm, RobotErrorSpec(**{**spec.to_dict(), "seed": seed}))
+        dt, dr = flange_errors(world.arm, arm, qs)
+        all_t.append(dt)
+        all_r.append(dr)
+    print("  " + line("20 other arms (seeds 2-21)", np.concatenate(all_t),
+                      np.concatenate(all_r)))
+    rng = np.random.default_rng(0)
+    enc = spec.encoder_sigma_rad * rng.standard_normal(qs.shape)
+    dt, dr = flange_errors(world.arm, world.arm, qs, qs + enc)
+    print(f"  encoder noise alone ({math.degrees(spec.encoder_sigma_rad):.2g} deg per joint): "
+          f"translation RMS {np.sqrt(np.mean(dt ** 2)) * 1e3:.4f} mm, rotation RMS "
+          f"{math.degrees(np.sqrt(np.mean(dr ** 2))):.5f} deg")
+
+
 def main() -> None:
+    import sys
+
     world = World.default()
+    robot_error_figures(world)
+    if "--robot-error-only" in sys.argv[1:]:
+        return
     t = time.perf_counter()
     r = Renderer(world)
     r.rays("left")

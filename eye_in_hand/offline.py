@@ -95,8 +95,8 @@ class ProcessOptions:
     sync_slop_s: float = 0.005
     sync_queue_size: int = 5
     max_pose_gap_s: float = 0.05
-    robot_sigma_pos_m: float = 0.0001
-    robot_sigma_rot_rad: float = 0.0001
+    robot_sigma_pos_m: float = 0.00015
+    robot_sigma_rot_rad: float = 0.0004
     max_pose_age_s: float = 1.0
     pose_jump_back_s: float = 1.0
     workers: int | None = None

@@ -115,6 +115,7 @@ def run(args: argparse.Namespace) -> int:
          and k not in ("calibration_dir", "frame_id") and not k.startswith("debug_image.")}),
         radius=args.radius, method=args.method)
     calib = load_hand_eye(args.hand_eye)
+    noise = calib.robot_pose_noise
     if calib.setup != "eye_in_hand":
         raise ConfigError(f"{args.hand_eye}: setup is {calib.setup!r}; process needs an "
                           "eye_in_hand calibration")
@@ -144,8 +145,13 @@ def run(args: argparse.Namespace) -> int:
             max_pose_gap_s=float(hand_eye_params.get("max_pose_gap_s", 0.05)),
             max_pose_age_s=float(hand_eye_params.get("max_pose_age_s", 1.0)),
             pose_jump_back_s=float(hand_eye_params.get("pose_jump_back_s", 1.0)),
-            robot_sigma_pos_m=float(hand_eye_params.get("robot_sigma_pos_m", 0.0001)),
-            robot_sigma_rot_rad=float(hand_eye_params.get("robot_sigma_rot_rad", 0.0001)),
+            # hand_eye.yaml's robot_pose_noise when present, else the hand_eye parameters
+            robot_sigma_pos_m=(noise["translation_sigma_m"] if noise else
+                               float(hand_eye_params.get("robot_sigma_pos_m",
+                                                         ProcessOptions.robot_sigma_pos_m))),
+            robot_sigma_rot_rad=(noise["rotation_sigma_rad"] if noise else
+                                 float(hand_eye_params.get("robot_sigma_rot_rad",
+                                                           ProcessOptions.robot_sigma_rot_rad))),
             verify_crc=args.verify_crc, workers=args.workers,
             task_timeout_s=args.task_timeout)
     except (TypeError, ValueError) as exc:

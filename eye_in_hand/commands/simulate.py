@@ -46,6 +46,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--format", choices=("bag", "dataset"), default="bag",
                         help="bag (default) or dataset (PNG images + dataset.yaml; "
                              "calibration scenario only)")
+    parser.add_argument("--robot-error", default=None, metavar="SPEC",
+                        help="robot error of the arm (true arm vs the reported nominal one): 0 "
+                             "(ideal arm), default, a scale of the default (e.g. 2), or "
+                             "key=value,... overrides (link_sigma_m, twist_sigma_rad, "
+                             "joint_offset_sigma_rad, encoder_sigma_rad, time_offset_s, seed), "
+                             "e.g. 1,time_offset_s=0.004 (default: the world's robot_error, "
+                             "the realistic default)")
     parser.add_argument("--noise", type=float, default=1.0,
                         help="sensor noise sigma in grey levels (default 1.0; 0 = none)")
     parser.add_argument("--blur", type=float, default=0.0,
@@ -95,6 +102,11 @@ def run(args: argparse.Namespace) -> int:
     world = World.from_yaml(args.world) if args.world is not None else World.default()
     if args.size is not None:
         world = world.with_image_size(*args.size)
+    if args.robot_error is not None:
+        from eye_in_hand.sim.robot_error import RobotErrorSpec
+
+        world = world.with_robot_error(RobotErrorSpec.parse(args.robot_error,
+                                                            world.robot_error))
     render = RenderOptions(noise_sigma=args.noise, supersample=args.supersample,
                            blur_sigma=args.blur, exposure=args.exposure)
     bar = None
@@ -125,10 +137,12 @@ def run(args: argparse.Namespace) -> int:
             bar.close()
     if args.format == "dataset":
         print(f"wrote calibration dataset {args.out / path.name} ({frames} stereo pairs, "
-              f"{world.image_size[0]}x{world.image_size[1]}, board {world.board})")
+              f"{world.image_size[0]}x{world.image_size[1]}, board {world.board}; "
+              f"{world.robot_error.describe()})")
         return 0
     size = sum(p.stat().st_size for p in Path(args.out).rglob("*") if p.is_file())
     print(f"wrote bag {args.out} ({args.storage}, {size / 1e6:.1f} MB): "
           f"{summary.n_images} stereo pairs at {world.image_size[0]}x{world.image_size[1]}, "
-          f"{summary.n_robot} robot samples, {summary.duration_s:.2f} s")
+          f"{summary.n_robot} robot samples, {summary.duration_s:.2f} s; "
+          f"{world.robot_error.describe()}")
     return 0

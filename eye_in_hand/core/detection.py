@@ -24,6 +24,22 @@ Colour ranges use OpenCV's 8-bit conventions: hue 0..179 (degrees / 2), saturati
 0..255. A range whose lower hue exceeds its upper hue wraps around 0 (red: ``170..10``). HSI
 (hue, saturation ``1 - min/mean``, intensity ``mean``) uses the same scales.
 
+Per-detection centre uncertainty (``Detection.center_sigma_px``, 1 sigma per image axis),
+estimated from the blob itself as ``sqrt(sigma_edge^2 + sigma_shade^2)``:
+
+* ``sigma_edge``: the roughness of the blob's edge. An ellipse is fitted to the outer contour;
+  the radial residuals' RMS ``s`` (pixel quantisation, image noise, blur) and their correlation
+  along the contour (integrated autocorrelation ``tau``) give the centre's uncertainty as that of
+  a fit to ``N / tau`` independent edge points: ``s * sqrt(2 tau / N)``.
+* ``sigma_shade``: the threshold cuts a shaded sphere's dark side further in than its lit side,
+  shifting the centroid towards the light. The shift scales with the brightness asymmetry of
+  the blob: ``SHADE_GAIN * |g|``, ``g`` the offset (px) of the brightness-weighted centroid from
+  the area centroid; it lies along ``g`` (``Detection.shade_px``, a rank-one covariance), and
+  the stereo locator treats it as common to both images (the same light). ``SHADE_GAIN`` =
+  0.015 was measured on the simulator's renders (least squares of the centre error on ``g``:
+  0.015 on both axes; median ``|error| / |g|`` 0.016, 90th percentile 0.020; 48 stereo views
+  at 1280x720, 0.3-0.6 m, one orbit).
+
 A detector returns detections or nothing, never a guess: blobs that fail a gate or touch the
 image border (a truncated silhouette has a biased centre) are not reported.
 """
@@ -54,6 +70,9 @@ __all__ = [
     "angular_radius_from_minor_axis",
     "range_from_samples",
 ]
+
+#: Centroid shift per pixel of brightness asymmetry of the blob (see the module docstring).
+SHADE_GAIN = 0.015
 
 #: Supported colour spaces for thresholds.
 COLOR_SPACES = ("hsv", "hsi")
@@ -279,6 +298,13 @@ class Detection:
         ellipse_norm: centre of the silhouette ellipse in normalised coordinates, shape (2,)
             (the uncorrected centre; NaN unless the sphere correction ran), from which
             :func:`sphere_center_direction` recomputes the centre for a better ``alpha``.
+        center_sigma_px: estimated 1-sigma error of ``center_px`` per image axis (pixels),
+            from the blob's edge roughness and shading (module docstring); NaN if the blob is
+            too small to tell.
+        edge_sigma_px: the edge-roughness part of ``center_sigma_px`` (pixels, per axis).
+        shade_px: the shading part as a vector (pixels, shape (2,)): ``SHADE_GAIN * g``, the
+            1-sigma extent of the centroid's shift along the brightness asymmetry ``g`` (the
+            same light shifts both images of a stereo pair alike).
     """
 
     name: str
@@ -290,6 +316,9 @@ class Detection:
     bbox: tuple[int, int, int, int]
     angular_radius: float = float("nan")
     ellipse_norm: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    center_sigma_px: float = float("nan")
+    edge_sigma_px: float = float("nan")
+    shade_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
 
 def range_from_samples(samples: np.ndarray, space: str = "hsv", *, percentile: float = 5.0,
@@ -402,6 +431,9 @@ class _Blob:
     centroid: np.ndarray
     contour: np.ndarray       # (K, 2) float64 full-image pixel coordinates
     bbox: tuple[int, int, int, int]
+    center_sigma_px: float = float("nan")
+    edge_sigma_px: float = float("nan")
+    shade_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
 
 class ColorDetector:
@@ -572,18 +604,23 @@ class ColorDetector:
         mom = cv2.moments(comp, binaryImage=True)
         centroid = np.array([x0 + bx + mom["m10"] / mom["m00"], y0 + by + mom["m01"] / mom["m00"]])
         pts = contour.reshape(-1, 2).astype(np.float64) + (x0 + bx, y0 + by)
-        return _Blob(comp, x0, y0, float(area), float(min(circ, 1.0)), centroid, pts, bbox)
+        grey = cv2.cvtColor(roi[by:by + bh, bx:bx + bw], cv2.COLOR_BGR2GRAY)
+        edge, shade = center_sigma_parts(comp, grey, contour.reshape(-1, 2).astype(np.float64))
+        return _Blob(comp, x0, y0, float(area), float(min(circ, 1.0)), centroid, pts, bbox,
+                     math.hypot(edge, float(np.hypot(*shade))), edge, shade)
 
     def _make_detection(self, target: TargetSpec, blob: _Blob,
                         camera: CameraModel | None) -> Detection | None:
         if camera is None:
             nan2 = np.full(2, np.nan)
             return Detection(target.name, blob.centroid, blob.centroid.copy(), nan2, blob.area,
-                             blob.circularity, blob.bbox)
+                             blob.circularity, blob.bbox, center_sigma_px=blob.center_sigma_px,
+                             edge_sigma_px=blob.edge_sigma_px, shade_px=blob.shade_px)
         if not (self.config.sphere_correction and target.is_sphere) or len(blob.contour) < 5:
             norm = camera.undistort_points(blob.centroid)[0]
             return Detection(target.name, blob.centroid, blob.centroid.copy(), norm, blob.area,
-                             blob.circularity, blob.bbox)
+                             blob.circularity, blob.bbox, center_sigma_px=blob.center_sigma_px,
+                             edge_sigma_px=blob.edge_sigma_px, shade_px=blob.shade_px)
         contour_norm = camera.undistort_points(blob.contour)
         ellipse_c, minor = _polygon_center_and_minor_axis(contour_norm, camera.fx)
         if ellipse_c is None:
@@ -593,7 +630,8 @@ class ColorDetector:
         center_norm = sphere_center_direction(ellipse_c, alpha)
         center_px = camera.project(np.array([[center_norm[0], center_norm[1], 1.0]]))[0]
         return Detection(target.name, blob.centroid, center_px, center_norm, blob.area,
-                         blob.circularity, blob.bbox, alpha, ellipse_c)
+                         blob.circularity, blob.bbox, alpha, ellipse_c, blob.center_sigma_px,
+                         blob.edge_sigma_px, blob.shade_px)
 
     def _rank(self, dets: list[Detection], previous: np.ndarray | None) -> list[Detection]:
         sel = self.config.selection
@@ -605,6 +643,52 @@ class ColorDetector:
         else:
             dets.sort(key=lambda d: -d.area_px)
         return dets[: self.config.max_candidates]
+
+
+def center_sigma_parts(mask: np.ndarray, grey: np.ndarray,
+                       contour: np.ndarray) -> tuple[float, np.ndarray]:
+    """Estimated 1-sigma error (px, per axis) of a blob's centre (see the module docstring),
+    as its two parts: ``sigma_edge`` (per axis) and the shading vector ``SHADE_GAIN * g``.
+
+    Args:
+        mask: the blob's 0/1 mask, shape (h, w).
+        grey: the grey image over the same pixels, shape (h, w).
+        contour: the blob's outer contour in the same coordinates, shape (K, 2).
+
+    Returns:
+        ``(sigma_edge, shade (2,))``; ``(nan, 0)`` for fewer than 12 contour points.
+    """
+    n = len(contour)
+    if n < 12:
+        return float("nan"), np.zeros(2)
+    (cx, cy), (d1, d2), ang = cv2.fitEllipse(contour.astype(np.float32))
+    a, b = 0.5 * d1, 0.5 * d2
+    if not (a > 0 and b > 0):
+        return float("nan"), np.zeros(2)
+    c, s_ = math.cos(math.radians(ang)), math.sin(math.radians(ang))
+    d = contour - (cx, cy)
+    u, v = d[:, 0] * c + d[:, 1] * s_, -d[:, 0] * s_ + d[:, 1] * c
+    rho = np.sqrt((u / a) ** 2 + (v / b) ** 2)
+    res = (rho - 1.0) * np.hypot(u, v) / np.maximum(rho, 1e-12)
+    res = res - res.mean()
+    var = float(np.mean(res * res))
+    tau = 1.0
+    if var > 0:
+        spec = np.fft.rfft(res)
+        ac = np.fft.irfft(spec * np.conj(spec), n) / (n * var)   # circular autocorrelation
+        for k in range(1, n // 4):
+            if ac[k] < 0.05:
+                break
+            tau += 2.0 * float(ac[k])
+    sigma_edge2 = var * 2.0 * tau / n
+    ys, xs = np.nonzero(mask)
+    wgt = grey[ys, xs].astype(np.float64)
+    total = float(wgt.sum())
+    shade = np.zeros(2)
+    if total > 0:
+        shade = np.array([float(wgt @ xs) / total - float(xs.mean()),
+                          float(wgt @ ys) / total - float(ys.mean())])
+    return math.sqrt(sigma_edge2), SHADE_GAIN * shade
 
 
 def _polygon_center_and_minor_axis(contour_norm: np.ndarray,

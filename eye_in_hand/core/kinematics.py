@@ -4,8 +4,10 @@ Two chain models share one small interface (:class:`KinematicChain`):
 
 * :class:`DHChain` -- standard (distal) Denavit-Hartenberg parameters, one revolute joint per
   row: ``i-1_T_i = Rz(theta_i + offset_i) Tz(d_i) Tx(a_i) Rx(alpha_i)``.
-  :meth:`DHChain.ur5e` gives the published UR5e parameters; its base frame is UR's controller
-  ``base`` frame and its last frame is ``tool0`` (the flange frame).
+  :meth:`DHChain.ur5e` gives the published UR5e parameters and ur_description's frames: the DH
+  chain is expressed in UR's controller frame ``base`` (DH frame 0), ``fk`` gives poses in
+  ``base_link`` = ``Rz(pi) base`` (``base_T_dh``, as ur_description's fixed joint
+  ``base_link`` -> ``base``), and the last frame is ``tool0`` (the flange frame).
 * :class:`UrdfChain` -- the chain of joints between a base link and a tip link of a URDF file
   (``revolute``, ``continuous``, ``prismatic`` and ``fixed`` joints; ``origin xyz/rpy`` and
   ``axis``), parsed with :mod:`xml.etree.ElementTree`.
@@ -42,6 +44,7 @@ __all__ = [
     "UR5E_DH",
     "UR5E_JOINT_NAMES",
     "UR5E_LINK_NAMES",
+    "UR_BASE_LINK_T_BASE",
 ]
 
 #: Published UR5e standard-DH parameters (Universal Robots, "DH parameters for calculations of
@@ -56,6 +59,10 @@ UR5E_JOINT_NAMES: tuple[str, ...] = (
     "wrist_1_joint", "wrist_2_joint", "wrist_3_joint",
 )
 #: Frame names of the DH frames 1..6 (frame 0 is the chain's base frame); the last one is tool0.
+#: ur_description's fixed joint ``base_link`` -> ``base``: Rz(pi) (UR's controller frame ``base``
+#: is the DH frame 0; the URDF's ``base_link`` is rotated by pi about z from it).
+UR_BASE_LINK_T_BASE: np.ndarray = np.diag([-1.0, -1.0, 1.0, 1.0])
+UR_BASE_LINK_T_BASE.setflags(write=False)
 UR5E_LINK_NAMES: tuple[str, ...] = (
     "shoulder_link", "upper_arm_link", "forearm_link", "wrist_1_link", "wrist_2_link", "tool0",
 )
@@ -114,7 +121,10 @@ class DHChain:
         lower, upper: joint limits, shape (n,), radians.
         joint_names: n joint names (used in ``/joint_states``).
         link_names: n frame names of DH frames 1..n (the last is the tool frame).
-        base_frame: name of DH frame 0.
+        base_frame: the frame ``fk`` is expressed in.
+        dh_frame: name of DH frame 0 ('' = ``base_frame``: no fixed base transform).
+        base_T_dh: (4, 4) fixed transform ``base_frame`` -> DH frame 0 (identity by default;
+            ``Rz(pi)`` for the UR arms: ``base_link`` -> ``base``).
     """
 
     d: np.ndarray
@@ -126,8 +136,14 @@ class DHChain:
     joint_names: tuple[str, ...]
     link_names: tuple[str, ...]
     base_frame: str = "base_link"
+    dh_frame: str = ""
+    base_T_dh: np.ndarray = field(default_factory=lambda: np.eye(4))
 
     def __post_init__(self) -> None:
+        base_T_dh = as_transform(self.base_T_dh, "DHChain.base_T_dh").copy()
+        base_T_dh.setflags(write=False)
+        object.__setattr__(self, "base_T_dh", base_T_dh)
+        object.__setattr__(self, "dh_frame", str(self.dh_frame or self.base_frame))
         n = len(self.joint_names)
         if n < 1:
             raise InputError("DHChain: needs at least one joint")
@@ -143,21 +159,26 @@ class DHChain:
         object.__setattr__(self, "link_names", tuple(self.link_names))
 
     @classmethod
-    def ur5e(cls, *, base_frame: str = "base_link",
+    def ur5e(cls, *, base_frame: str = "base_link", dh_frame: str = "base",
              limit: float = 2.0 * math.pi) -> "DHChain":
-        """The UR5e with its published DH parameters and +-``limit`` joint limits."""
+        """The UR5e with its published DH parameters and +-``limit`` joint limits, in
+        ur_description's frames: DH frame 0 is ``dh_frame`` (``base``), ``fk`` is in
+        ``base_frame`` (``base_link`` = Rz(pi) ``base``)."""
         n = 6
         return cls(
             d=np.array(UR5E_DH["d"]), a=np.array(UR5E_DH["a"]),
             alpha=np.array(UR5E_DH["alpha"]), theta_offset=np.zeros(n),
             lower=np.full(n, -limit), upper=np.full(n, limit),
             joint_names=UR5E_JOINT_NAMES, link_names=UR5E_LINK_NAMES, base_frame=base_frame,
+            dh_frame=dh_frame, base_T_dh=UR_BASE_LINK_T_BASE,
         )
 
     @classmethod
     def from_dict(cls, data: dict) -> "DHChain":
         """Build from a mapping with keys d, a, alpha [, theta_offset, lower, upper,
-        joint_names, link_names, base_frame] (the ``arm`` section of ``world.yaml``).
+        joint_names, link_names, base_frame, dh_frame, base_T_dh] (the ``arm`` section of
+        ``world.yaml``; ``base_T_dh`` as ``{translation: [x, y, z], quat_xyzw: [x, y, z, w]}``,
+        default identity).
 
         Raises:
             InputError: a key is missing or has the wrong length.
@@ -169,6 +190,16 @@ class DHChain:
         except KeyError as exc:
             raise InputError(f"DH arm: missing key {exc.args[0]!r} (need d, a, alpha)") from exc
         n = d.size
+        base_T_dh = np.eye(4)
+        if data.get("base_T_dh") is not None:
+            node = data["base_T_dh"]
+            try:
+                base_T_dh[:3, :3] = Rotation.from_quat(
+                    np.asarray(node["quat_xyzw"], dtype=float)).as_matrix()
+                base_T_dh[:3, 3] = np.asarray(node["translation"], dtype=float)
+            except (KeyError, TypeError, ValueError) as exc:
+                raise InputError("DH arm: base_T_dh needs translation [x, y, z] and quat_xyzw "
+                                 f"[x, y, z, w] ({exc})") from exc
         names = data.get("joint_names") or [f"joint_{i + 1}" for i in range(n)]
         links = data.get("link_names") or [f"link_{i + 1}" for i in range(n)]
         return cls(
@@ -178,6 +209,7 @@ class DHChain:
             upper=np.asarray(data.get("upper", np.full(n, 2 * math.pi)), dtype=float),
             joint_names=tuple(names), link_names=tuple(links),
             base_frame=str(data.get("base_frame", "base_link")),
+            dh_frame=str(data.get("dh_frame", "") or ""), base_T_dh=base_T_dh,
         )
 
     def to_dict(self) -> dict:
@@ -188,6 +220,10 @@ class DHChain:
             "lower": self.lower.tolist(), "upper": self.upper.tolist(),
             "joint_names": list(self.joint_names), "link_names": list(self.link_names),
             "base_frame": self.base_frame,
+            "dh_frame": self.dh_frame,
+            "base_T_dh": {"translation": self.base_T_dh[:3, 3].tolist(),
+                          "quat_xyzw": Rotation.from_matrix(self.base_T_dh[:3, :3]).as_quat()
+                          .tolist()},
         }
 
     @property
@@ -201,7 +237,7 @@ class DHChain:
     @property
     def reach(self) -> float:
         """Upper bound on the distance from the base origin to the tip origin (m)."""
-        return float(np.sum(np.hypot(self.a, self.d)))
+        return float(np.sum(np.hypot(self.a, self.d)) + np.linalg.norm(self.base_T_dh[:3, 3]))
 
     def joint_transforms(self, q) -> list[np.ndarray]:
         """The n joint transforms ``i-1_T_i`` (each (4, 4)) at joint vector ``q`` (n,)."""
@@ -210,9 +246,10 @@ class DHChain:
                 for i in range(self.n_joints)]
 
     def fk_frames(self, q) -> list[np.ndarray]:
-        """``base_T_i`` for i = 1..n (list of n (4, 4) arrays); the last one is ``fk(q)``."""
+        """``base_T_i`` for i = 1..n (list of n (4, 4) arrays, in ``base_frame``, ``base_T_dh``
+        included); the last one is ``fk(q)``."""
         out = []
-        T = np.eye(4)
+        T = np.array(self.base_T_dh)
         for A in self.joint_transforms(q):
             T = T @ A
             out.append(T.copy())

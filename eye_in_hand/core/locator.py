@@ -137,13 +137,19 @@ class ParamSpec:
         return out
 
 
+#: Smallest per-detection pixel sigma used (pixels): guards against a degenerate estimate.
+MIN_PIXEL_SIGMA = 0.01
+#: Pixel sigma of a detection without its own estimate (tiny blobs), pixels.
+FALLBACK_PIXEL_SIGMA = 0.3
+
 #: Locator and detector parameters (flat names), shared by the node and the CLI.
 LOCATOR_PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("method", "dlt", "triangulation method: dlt (linear, P1/P2), disparity "
               "(parallax on rectified coordinates) or optimal (reprojection error in both "
               "distorted images)", choices=METHODS),
-    ParamSpec("pixel_sigma", 0.3, "centroid noise (pixels, 1 sigma) for the covariance",
-              0.001, 20.0),
+    ParamSpec("pixel_sigma", 0.0, "centre noise (pixels, 1 sigma) for the covariance; 0 = "
+              "estimated per detection from the blob's edge roughness and shading",
+              0.0, 20.0),
     ParamSpec("max_residual_px", 2.0, "reject a point whose RMS reprojection residual exceeds "
               "this (pixels)", 0.01, 100.0),
     ParamSpec("epipolar_tol_px", 3.0, "left/right association: largest difference of the "
@@ -193,14 +199,16 @@ class LocatorConfig:
     Attributes:
         detector: the colour-detector settings (targets, morphology, selection).
         method: "dlt", "disparity" or "optimal".
-        pixel_sigma: centroid noise (pixels) for the covariance.
+        pixel_sigma: centre noise (pixels) for the covariance; 0 (default): each detection's
+            own ``center_sigma_px`` (:mod:`eye_in_hand.core.detection`), at least
+            ``MIN_PIXEL_SIGMA``; ``FALLBACK_PIXEL_SIGMA`` where a detection has none.
         max_residual_px: residual gate (pixels), None for none.
         epipolar_tol_px: largest rectified row difference of an associated pair (pixels).
     """
 
     detector: DetectorConfig
     method: str = "dlt"
-    pixel_sigma: float = 0.3
+    pixel_sigma: float = 0.0
     max_residual_px: float | None = 2.0
     epipolar_tol_px: float = 3.0
 
@@ -209,8 +217,9 @@ class LocatorConfig:
             raise InputError("detector: expected a DetectorConfig")
         if self.method not in METHODS:
             raise InputError(f"method: '{self.method}' is not one of {', '.join(METHODS)}")
-        if not (math.isfinite(self.pixel_sigma) and self.pixel_sigma > 0):
-            raise InputError(f"pixel_sigma: must be > 0, got {self.pixel_sigma}")
+        if not (math.isfinite(self.pixel_sigma) and self.pixel_sigma >= 0):
+            raise InputError(f"pixel_sigma: must be >= 0 (0 = per detection), "
+                             f"got {self.pixel_sigma}")
         if self.max_residual_px is not None and not self.max_residual_px > 0:
             raise InputError(f"max_residual_px: must be > 0, got {self.max_residual_px}")
         if not self.epipolar_tol_px > 0:
@@ -495,23 +504,37 @@ class StereoLocator:
                     first_reason, first_msg = exc.reason, str(exc)
         return None, first_reason, first_msg
 
+    def _pixel_cov(self, dl: Detection, dr: Detection) -> tuple[float, np.ndarray | None]:
+        """``(sigma_px, pixel_cov)`` of a pair: the configured pixel sigma (``pixel_cov`` None),
+        else the detections' own, (4, 4) over (xl, yl, xr, yr): each image's edge term plus
+        the shading shifts ``shade_px``, fully correlated between the two images (one light)."""
+        if self.config.pixel_sigma > 0:
+            return self.config.pixel_sigma, None
+        if not (math.isfinite(dl.edge_sigma_px) and math.isfinite(dr.edge_sigma_px)):
+            return FALLBACK_PIXEL_SIGMA, None
+        e = [max(MIN_PIXEL_SIGMA, d.edge_sigma_px) ** 2 for d in (dl, dr)]
+        v = np.concatenate([dl.shade_px, dr.shade_px])
+        return 0.0, np.diag([e[0], e[0], e[1], e[1]]) + np.outer(v, v)
+
     def _point(self, left_px: np.ndarray, right_px: np.ndarray, xl: np.ndarray,
-               xr: np.ndarray) -> StereoPoint:
+               xr: np.ndarray, pix: tuple[float, np.ndarray | None] = (FALLBACK_PIXEL_SIGMA, None)
+               ) -> StereoPoint:
         cfg = self.config
-        sigma, gate = cfg.pixel_sigma, cfg.max_residual_px
+        gate = cfg.max_residual_px
+        kw: dict = ({"sigma_px": pix[0]} if pix[1] is None else {"pixel_cov": pix[1]})
         if cfg.method == "dlt":
-            return triangulate_dlt(self.rig, xl, xr, rectified=True, sigma_px=sigma,
-                                   max_residual_px=gate)
+            return triangulate_dlt(self.rig, xl, xr, rectified=True, max_residual_px=gate, **kw)
         if cfg.method == "disparity":
-            return triangulate_parallax(self.rig, xl, xr, rectified=True, sigma_px=sigma,
-                                        max_residual_px=gate)
-        start = triangulate_dlt(self.rig, xl, xr, rectified=True, sigma_px=sigma)
-        return triangulate_optimal(self.rig, left_px, right_px, initial=start, sigma_px=sigma,
-                                   max_residual_px=gate)
+            return triangulate_parallax(self.rig, xl, xr, rectified=True, max_residual_px=gate,
+                                        **kw)
+        start = triangulate_dlt(self.rig, xl, xr, rectified=True, **kw)
+        return triangulate_optimal(self.rig, left_px, right_px, initial=start,
+                                   max_residual_px=gate, **kw)
 
     def _triangulate(self, spec: TargetSpec, dl: Detection, dr: Detection, xl: np.ndarray,
                      xr: np.ndarray) -> TargetLocation:
-        pt = self._point(dl.center_px, dr.center_px, xl, xr)
+        pix = self._pixel_cov(dl, dr)
+        pt = self._point(dl.center_px, dr.center_px, xl, xr, pix)
         left_px, right_px = dl.center_px, dr.center_px
         if spec.radius_m is not None and np.all(np.isfinite(dl.ellipse_norm)) \
                 and np.all(np.isfinite(dr.ellipse_norm)):
@@ -524,7 +547,7 @@ class StereoLocator:
                 left_px = self.rig.left.project(np.array([[nl[0], nl[1], 1.0]]))[0]
                 right_px = self.rig.right.project(np.array([[nr[0], nr[1], 1.0]]))[0]
                 pt = self._point(left_px, right_px, self._rect(self._H1, nl),
-                                 self._rect(self._H2, nr))
+                                 self._rect(self._H2, nr), pix)
         return TargetLocation(
             name=spec.name, point_m=pt.point, covariance=pt.covariance,
             residual_px=pt.residual_px, left_px=np.asarray(left_px, dtype=np.float64),

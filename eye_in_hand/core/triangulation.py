@@ -6,9 +6,12 @@ rectified (``rig.rectified()``, or loaded from ROS calibration files), and retur
 ``camera_left_optical_frame``), with:
 
 * ``residual_px``: the RMS reprojection error over the four image coordinates (pixels);
-* ``covariance``: 3x3, propagated to first order from an isotropic pixel noise ``sigma_px`` on
-  each image coordinate (``J J^T sigma^2`` for the closed forms, ``(J^T J)^-1 sigma^2`` for the
-  least-squares refinement).
+* ``covariance``: 3x3, propagated to first order from the pixel noise ``sigma_px`` on each image
+  coordinate (``J S J^T`` for the closed forms, ``(J^T J)^-1 J^T S J (J^T J)^-1`` for the
+  least-squares refinement, ``S`` the pixel covariance); ``sigma_px`` is one number for all four
+  coordinates or a pair ``(left, right)``, or ``pixel_cov`` gives the whole (4, 4) ``S`` (the
+  stereo locator's: per-detection edge terms plus a shading shift common to both images,
+  which moves the point sideways, not in depth).
 
 Methods:
 
@@ -27,6 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Sequence
 
 import cv2
 import numpy as np
@@ -185,11 +189,34 @@ def _finish(rig: StereoRig, X_rect: np.ndarray, cov_rect: np.ndarray, residual: 
     return StereoPoint(X, 0.5 * (cov + cov.T), residual, method, disparity)
 
 
-def _check_sigma(sigma_px: float) -> float:
-    s = float(sigma_px)
-    if not (math.isfinite(s) and s > 0):
-        raise InputError(f"sigma_px: must be > 0, got {sigma_px}")
-    return s
+def _pixel_cov(sigma_px: float | Sequence[float], pixel_cov=None) -> np.ndarray:
+    """Covariance (4, 4) of (xl, yl, xr, yr): ``pixel_cov`` when given (checked), else
+    independent ``sigma_px`` per coordinate (one number or (left, right))."""
+    if pixel_cov is None:
+        s = _check_sigma(sigma_px)
+        return np.diag(s * s)
+    try:
+        S = np.asarray(pixel_cov, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError("pixel_cov: expected a 4x4 matrix") from exc
+    if S.shape != (4, 4) or not np.all(np.isfinite(S)) or not np.allclose(S, S.T) \
+            or np.linalg.eigvalsh(0.5 * (S + S.T)).min() < -1e-12 * max(1.0, np.abs(S).max()):
+        raise InputError("pixel_cov: expected a symmetric positive semi-definite 4x4 matrix")
+    return S
+
+
+def _check_sigma(sigma_px: float | Sequence[float]) -> np.ndarray:
+    """Per-coordinate sigmas (xl, yl, xr, yr), shape (4,), from one number or (left, right)."""
+    try:
+        vals = np.asarray(sigma_px, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"sigma_px: expected a number or (left, right), got {sigma_px!r}") \
+            from exc
+    if vals.size == 1:
+        vals = np.repeat(vals, 2)
+    if vals.size != 2 or not (np.all(np.isfinite(vals)) and np.all(vals > 0)):
+        raise InputError(f"sigma_px: must be > 0 (one number or left, right), got {sigma_px}")
+    return np.repeat(vals, 2)
 
 
 def _disparity(rig: StereoRig, xl: np.ndarray, xr: np.ndarray) -> float:
@@ -209,7 +236,8 @@ def _check_disparity(rig: StereoRig, d: float) -> None:
                        f"or the left/right association is wrong")
 
 
-def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float = 0.5,
+def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float | Sequence[float] = 0.5,
+                    pixel_cov: np.ndarray | None = None,
                     max_residual_px: float | None = None,
                     rectified: bool = False) -> StereoPoint:
     """(a) Linear (DLT) triangulation from rectified pixels with ``P1, P2``.
@@ -218,9 +246,11 @@ def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float = 0.5,
         rig: rectified stereo rig.
         left_px, right_px: pixel coordinates, shape (2,): distorted image pixels, or rectified
             pixels when ``rectified`` is True.
-        sigma_px: pixel noise (1 sigma) per coordinate for the covariance, in the images the
-            inputs come from (distorted pixels, propagated through the rectification; or
-            rectified pixels when ``rectified`` is True).
+        sigma_px: pixel noise (1 sigma) per coordinate for the covariance: one number, or
+            (left, right) per image; in the images the inputs come from (distorted pixels,
+            propagated through the rectification; or rectified pixels when ``rectified``).
+        pixel_cov: optional full (4, 4) covariance of (xl, yl, xr, yr) instead of
+            ``sigma_px`` (e.g. per-image terms plus a shift common to both images).
         max_residual_px: reject above this RMS reprojection residual (None: no gate).
         rectified: the inputs are already rectified pixel coordinates.
 
@@ -231,7 +261,7 @@ def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float = 0.5,
         InputError: bad arguments. Rejected: behind a camera, non-positive disparity, residual.
     """
     _check_rig(rig)
-    s = _check_sigma(sigma_px)
+    S = _pixel_cov(sigma_px, pixel_cov)
     if rectified:
         xl, xr, Jpx = _px(left_px, "left_px"), _px(right_px, "right_px"), np.eye(4)
     else:
@@ -243,11 +273,13 @@ def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float = 0.5,
     if J is None:
         raise Rejected("behind_camera", "the DLT solution is at infinity")
     J = J @ Jpx
-    cov = (J @ J.T) * s * s
+    cov = J @ S @ J.T
     return _finish(rig, X, cov, _reproj_rms(P1, P2, X, xl, xr), "dlt", d, max_residual_px)
 
 
-def triangulate_parallax(rig: StereoRig, left_px, right_px, *, sigma_px: float = 0.5,
+def triangulate_parallax(rig: StereoRig, left_px, right_px, *,
+                         sigma_px: float | Sequence[float] = 0.5,
+                         pixel_cov: np.ndarray | None = None,
                          max_residual_px: float | None = None,
                          rectified: bool = False) -> StereoPoint:
     """(b) Parallax triangulation on rectified coordinates: ``Z = f B / d``, then X, Y.
@@ -258,7 +290,7 @@ def triangulate_parallax(rig: StereoRig, left_px, right_px, *, sigma_px: float =
     vertically rectified rig.
     """
     _check_rig(rig)
-    s = _check_sigma(sigma_px)
+    S = _pixel_cov(sigma_px, pixel_cov)
     P1, P2 = rig.P1, rig.P2
     if abs(P2[1, 3]) > abs(P2[0, 3]):
         raise InputError("parallax method: the rig is rectified vertically; use 'dlt' or "
@@ -283,7 +315,7 @@ def triangulate_parallax(rig: StereoRig, left_px, right_px, *, sigma_px: float =
     J[1] = (v / fy) * dZ + np.array([0.0, 0.5 * Z / fy, 0.0, 0.5 * Z / fy])
     J[2] = dZ
     J = J @ Jpx
-    cov = (J @ J.T) * s * s
+    cov = J @ S @ J.T
     return _finish(rig, X_rect, cov, _reproj_rms(P1, P2, X_rect, xl, xr), "disparity", d,
                    max_residual_px)
 
@@ -297,7 +329,9 @@ def _project_with_jacobian(K: np.ndarray, dist: np.ndarray, R: np.ndarray, t: np
     return img.reshape(2), jac[:, 3:6] @ R
 
 
-def triangulate_optimal(rig: StereoRig, left_px, right_px, *, sigma_px: float = 0.5,
+def triangulate_optimal(rig: StereoRig, left_px, right_px, *,
+                        sigma_px: float | Sequence[float] = 0.5,
+                        pixel_cov: np.ndarray | None = None,
                         max_residual_px: float | None = None, max_iterations: int = 10,
                         initial: StereoPoint | None = None) -> StereoPoint:
     """(c) Optimal triangulation: minimise the reprojection error in both distorted images.
@@ -309,7 +343,8 @@ def triangulate_optimal(rig: StereoRig, left_px, right_px, *, sigma_px: float = 
         rig: rectified stereo rig (only ``R, T`` and the cameras' ``K, dist`` are used here,
             plus ``P1, P2`` for the DLT start).
         left_px, right_px: distorted pixel coordinates, shape (2,).
-        sigma_px: pixel noise for the covariance ``sigma^2 (J^T J)^-1``.
+        sigma_px: pixel noise for the covariance ``(J^T J)^-1 J^T S J (J^T J)^-1``, one number
+            or (left, right).
         max_residual_px: residual gate (RMS over the four coordinates), None for no gate.
         max_iterations: Gauss-Newton iterations (>= 1).
         initial: a start point (e.g. from :func:`triangulate_dlt`); computed when None.
@@ -322,9 +357,10 @@ def triangulate_optimal(rig: StereoRig, left_px, right_px, *, sigma_px: float = 
             over the gate, or no convergence.
     """
     _check_rig(rig)
-    s = _check_sigma(sigma_px)
+    S = _pixel_cov(sigma_px, pixel_cov)
     ul, ur = _px(left_px, "left_px"), _px(right_px, "right_px")
-    start = initial if initial is not None else triangulate_dlt(rig, ul, ur, sigma_px=s)
+    start = initial if initial is not None else triangulate_dlt(
+        rig, ul, ur, sigma_px=sigma_px, pixel_cov=pixel_cov)
     X = np.array(start.point, dtype=np.float64)
     I3, z3 = np.eye(3), np.zeros(3)
     Kl, dl, Kr, dr = rig.left.K, rig.left.dist, rig.right.K, rig.right.dist
@@ -352,7 +388,10 @@ def triangulate_optimal(rig: StereoRig, left_px, right_px, *, sigma_px: float = 
     e = np.concatenate([pl - ul, pr - ur])
     J = np.vstack([Jl, Jr])
     residual = float(math.sqrt(np.mean(e * e)))
-    cov_left = np.linalg.inv(J.T @ J) * s * s
+    # the estimator is unweighted least squares: sandwich covariance (= sigma^2 (J^T J)^-1
+    # when the four sigmas are equal)
+    JtJ_inv = np.linalg.inv(J.T @ J)
+    cov_left = JtJ_inv @ (J.T @ S @ J) @ JtJ_inv
     # _finish works in the rectified frame: hand it X and cov rotated there
     R1 = rig.R1
     return _finish(rig, R1 @ X, R1 @ cov_left @ R1.T, residual, "optimal",
@@ -360,7 +399,8 @@ def triangulate_optimal(rig: StereoRig, left_px, right_px, *, sigma_px: float = 
 
 
 def triangulate(rig: StereoRig, left_px, right_px, *, method: str = "dlt",
-                sigma_px: float = 0.5, max_residual_px: float | None = None) -> StereoPoint:
+                sigma_px: float | Sequence[float] = 0.5,
+                max_residual_px: float | None = None) -> StereoPoint:
     """Triangulate with the named method ("dlt", "disparity" or "optimal").
 
     Arguments, returns and errors as the individual methods; InputError for an unknown method.

@@ -325,6 +325,7 @@ class StereoCaptureNode(Node):
         self.diag.declare_counter("pairs", "read_failures", "not_ready")
         self.diag.expect_rate("pairs", min_hz=min(1.0, self.cfg["rate_hz"] / 4))
         self._world = None
+        self._encoder_rng: np.random.Generator | None = None
         try:
             self.source = self._open_source()
         except BaseException:
@@ -490,13 +491,21 @@ class StereoCaptureNode(Node):
 
             js = JointState()
             js.header = make_header(stamp_ns, "")
+            from eye_in_hand.sim.robot_error import reported_joints
+
+            # the images come from the true arm; the robot reports its encoders (with noise)
+            # and the nominal arm's FK of them (world.robot_error)
+            err = self._world.robot_error
+            if self._encoder_rng is None:
+                self._encoder_rng = np.random.default_rng([c["sim.seed"], err.seed, 0x5eed])
+            q_rep = reported_joints(pair.q, err, self._encoder_rng)
             js.name = list(self._world.arm.joint_names)
-            js.position = [float(v) for v in pair.q]
+            js.position = [float(v) for v in q_rep]
             self.pub_joints.publish(js)
             self.pub_pose.publish(matrix_to_pose_stamped(  # type: ignore[union-attr]
-                self._world.arm.fk(pair.q), stamp_ns=stamp_ns, frame_id=c["base_frame"]))
-        if self.pub_tf is not None and pair.q is not None:
-            self._publish_sim_tf(pair.q, stamp_ns)
+                self._world.arm.fk(q_rep), stamp_ns=stamp_ns, frame_id=c["base_frame"]))
+            if self.pub_tf is not None:   # robot_state_publisher's view: the reported joints
+                self._publish_sim_tf(q_rep, stamp_ns)
         self.diag.count("pairs")
         self.diag.gauge("source_index", int(pair.index))
 

@@ -167,6 +167,11 @@ def chain_tf_edges(chain: Any, q: Any, base_frame: str | None = None
     frames = getattr(chain, "fk_frames")(q)
     if frames and isinstance(frames[0], tuple):
         return [(p, c, np.asarray(T)) for p, c, T in frames]
-    names = [base_frame or chain.base_frame, *chain.link_names]
-    return [(names[i], names[i + 1], np.asarray(A))
-            for i, A in enumerate(chain.joint_transforms(q))]
+    base = base_frame or chain.base_frame
+    dh = getattr(chain, "dh_frame", "") or base
+    names = [dh, *chain.link_names]
+    edges = [(names[i], names[i + 1], np.asarray(A))
+             for i, A in enumerate(chain.joint_transforms(q))]
+    if dh != base:   # ur_description's fixed base_link -> base (Rz(pi)) first
+        edges.insert(0, (base, dh, np.asarray(chain.base_T_dh)))
+    return edges

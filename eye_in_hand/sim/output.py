@@ -10,9 +10,10 @@ Bag topics (absolute names; message types in parentheses):
 ``/stereo/right/camera_info``   (sensor_msgs/CameraInfo; right P carries -fx * baseline)
 ``/joint_states``               (sensor_msgs/JointState, robot rate, own stamps)
 ``/ee_pose``                    (geometry_msgs/PoseStamped, ``base_link`` -> ``tool0``)
-``/tf``                         (tf2_msgs/TFMessage: the arm's DH link chain base_link ->
+``/tf``                         (tf2_msgs/TFMessage: the arm's DH link chain base ->
                                 shoulder_link -> ... -> wrist_2_link -> tool0, robot rate)
-``/tf_static``                  (tf2_msgs/TFMessage, once: camera_left_optical_frame ->
+``/tf_static``                  (tf2_msgs/TFMessage, once: base_link -> base (Rz(pi), as
+                                ur_description) and camera_left_optical_frame ->
                                 camera_right_optical_frame, the stereo extrinsic)
 ``/ground_truth/target``        (geometry_msgs/PointStamped in ``base_link``, one per target
                                 per image, in ``world.targets`` order, at the image stamp)
@@ -20,12 +21,22 @@ Bag topics (absolute names; message types in parentheses):
                                 camera_left_optical_frame, once at the start)
 ``/ground_truth/board``         (geometry_msgs/PoseStamped of the board frame in base_link,
                                 once at the start)
+``/ground_truth/ee_pose``       (geometry_msgs/PoseStamped base_link -> tool0 of the TRUE arm
+                                when the image was taken, one per image, at the image stamp)
+``/ground_truth/ee_pose_reported`` (geometry_msgs/PoseStamped: what the robot reports at the
+                                image stamp: the nominal FK of the reported joints
+                                interpolated there)
 =============================== ============================================================
 
 Images at ``image_rate_hz`` (30 Hz) with one shared stamp per pair; robot topics at
 ``robot_rate_hz`` (125 Hz) on their own clock, offset from the image clock, as on a real robot.
 The joint vector at an image stamp is the linear interpolation of the robot samples around it.
 The tool pose never needs ``/tf_static``: ``/tf`` ends at ``tool0``.
+
+Robot error (``world.robot_error``, :mod:`eye_in_hand.sim.robot_error`): the images come from
+the true arm (``world.true_arm``) at the true joints; ``/joint_states`` carry the true joints
+plus encoder noise, ``/ee_pose`` and ``/tf`` the nominal arm's FK of those; an image stamped t
+shows the arm at ``t + time_offset_s``.
 """
 from __future__ import annotations
 
@@ -39,6 +50,7 @@ import yaml
 
 from eye_in_hand.core.transforms import to_xyz_quat
 from eye_in_hand.errors import InputError
+from eye_in_hand.sim.robot_error import reported_joints
 from eye_in_hand.sim.scenarios import (
     calibration_poses,
     calibration_timeline,
@@ -69,6 +81,8 @@ TOPICS: dict[str, str] = {
     "gt_target": "/ground_truth/target",
     "gt_hand_eye": "/ground_truth/hand_eye",
     "gt_board": "/ground_truth/board",
+    "gt_ee_pose": "/ground_truth/ee_pose",
+    "gt_ee_pose_reported": "/ground_truth/ee_pose_reported",
 }
 
 #: Frame ids used in simulated bags.
@@ -276,6 +290,10 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
 
     rig = world.rig.rectified()
     arm = world.arm
+    err = world.robot_error
+    # encoder noise: its own stream, so that the images' noise and the poses do not change
+    qs_rep = reported_joints(qs, err, np.random.default_rng([seed, err.seed, 0x5eed]))
+    offset_ns = int(round(err.time_offset_s * 1e9))
     # images offered reliable (as stereo_capture and most camera drivers): every subscriber matches
     sensor_qos = (OfferedQos("reliable", "volatile", "keep_last", 5),)
     latched = (OfferedQos("reliable", "transient_local", "keep_last", 1),)
@@ -298,24 +316,29 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
                 ("tf_static", "tf2_msgs/msg/TFMessage", latched),
                 ("gt_target", "geometry_msgs/msg/PointStamped", reliable),
                 ("gt_hand_eye", "geometry_msgs/msg/TransformStamped", latched),
-                ("gt_board", "geometry_msgs/msg/PoseStamped", latched)):
+                ("gt_board", "geometry_msgs/msg/PoseStamped", latched),
+                ("gt_ee_pose", "geometry_msgs/msg/PoseStamped", reliable),
+                ("gt_ee_pose_reported", "geometry_msgs/msg/PoseStamped", reliable)):
             if key == "ee_pose" and not ee_pose:
                 continue
             writer.add_topic(TOPICS[key], typ, qos=qos)
         t0 = int(stamps[0])
-        writer.write(TOPICS["tf_static"], t0, m.tf([m.transform_stamped(
-            world.left_T_right, t0, FRAMES["left"], FRAMES["right"])]))
+        static = [m.transform_stamped(world.left_T_right, t0, FRAMES["left"], FRAMES["right"])]
+        if arm.dh_frame != arm.base_frame:    # ur_description: base_link -> base, Rz(pi)
+            static.insert(0, m.transform_stamped(np.array(arm.base_T_dh), t0, arm.base_frame,
+                                                 arm.dh_frame))
+        writer.write(TOPICS["tf_static"], t0, m.tf(static))
         writer.write(TOPICS["gt_hand_eye"], t0, m.transform_stamped(
             world.ee_T_cam, t0, FRAMES["tool"], FRAMES["left"]))
         writer.write(TOPICS["gt_board"], t0, m.pose_stamped(world.base_T_board, t0,
-                                                            FRAMES["base"]))
+                                                            arm.base_frame))
         # robot streams
         dt = 1.0 / robot_rate_hz
-        frames_names = (arm.base_frame, *arm.link_names)
-        for k, (ns, q) in enumerate(zip(stamps, qs)):
+        frames_names = (arm.dh_frame, *arm.link_names)
+        for k, (ns, q) in enumerate(zip(stamps, qs_rep)):
             ns = int(ns)
             k0, k1 = max(k - 1, 0), min(k + 1, len(qs) - 1)
-            dq = (qs[k1] - qs[k0]) / (max(k1 - k0, 1) * dt)
+            dq = (qs_rep[k1] - qs_rep[k0]) / (max(k1 - k0, 1) * dt)
             writer.write(TOPICS["joint_states"], ns, m.joint_state(arm.joint_names, q, dq, ns))
             link_T = arm.joint_transforms(q)
             writer.write(TOPICS["tf"], ns, m.tf([
@@ -323,10 +346,11 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
                 for i, A in enumerate(link_T)]))
             if ee_pose:
                 writer.write(TOPICS["ee_pose"], ns, m.pose_stamped(arm.fk(q), ns,
-                                                                   FRAMES["base"]))
+                                                                   arm.base_frame))
         # images
         for n_img, ns in enumerate(img_stamps):
-            q, _ = _interp_q(stamps, qs, ns)
+            q, _ = _interp_q(stamps, qs, ns + offset_ns)   # the true arm when exposed
+            q_rep, _ = _interp_q(stamps, qs_rep, ns)         # what the robot reports at ns
             frame = world.render(q, seed=seed * 1_000_003 + n_img,
                                  noise_sigma=render.noise_sigma,
                                  supersample=render.supersample, blur_sigma=render.blur_sigma,
@@ -337,7 +361,11 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
             writer.write(TOPICS["right_info"], ns, m.camera_info(rig.right, ns,
                                                                  FRAMES["right"]))
             for c in frame.truth.targets_base:
-                writer.write(TOPICS["gt_target"], ns, m.point_stamped(c, ns, FRAMES["base"]))
+                writer.write(TOPICS["gt_target"], ns, m.point_stamped(c, ns, arm.base_frame))
+            writer.write(TOPICS["gt_ee_pose"], ns, m.pose_stamped(frame.truth.base_T_ee, ns,
+                                                                  arm.base_frame))
+            writer.write(TOPICS["gt_ee_pose_reported"], ns,
+                         m.pose_stamped(arm.fk(q_rep), ns, arm.base_frame))
             if progress is not None:
                 progress(n_img + 1, len(img_stamps))
         counts = writer.counts
@@ -373,6 +401,9 @@ def write_dataset(world: World, out: str | Path, *, frames: int, seed: int = 0,
             raise InputError(f"dataset folder {root} exists and is not empty")
         shutil.rmtree(root)
     poses = calibration_poses(world, frames, seed)
+    err = world.robot_error
+    poses_rep = reported_joints(np.array(poses), err,
+                                np.random.default_rng([seed, err.seed, 0x5eed]))
     (root / "left").mkdir(parents=True, exist_ok=True)
     (root / "right").mkdir(parents=True, exist_ok=True)
     world.rig.save(root)
@@ -385,8 +416,9 @@ def write_dataset(world: World, out: str | Path, *, frames: int, seed: int = 0,
             path = root / side / f"{i:04d}.png"
             write_image_file(path, img)  # through bytes: any file name works
         samples.append({"left": f"left/{i:04d}.png", "right": f"right/{i:04d}.png",
-                        "base_T_ee": pose_to_dict(frame.truth.base_T_ee),
-                        "joint_positions": [float(v) for v in q]})
+                        "base_T_ee": pose_to_dict(world.arm.fk(poses_rep[i])),
+                        "joint_positions": [float(v) for v in poses_rep[i]],
+                        "true_base_T_ee": pose_to_dict(frame.truth.base_T_ee)})
         if progress is not None:
             progress(i + 1, len(poses))
     data = {
@@ -398,6 +430,7 @@ def write_dataset(world: World, out: str | Path, *, frames: int, seed: int = 0,
         "samples": samples,
         "ground_truth": {"ee_T_cam": pose_to_dict(world.ee_T_cam),
                          "base_T_board": pose_to_dict(world.base_T_board)},
+        "robot_error": err.to_dict(),
     }
     path = root / "dataset.yaml"
     path.write_text("# eye_in_hand calibration dataset (simulated); paths relative to this "

@@ -57,9 +57,10 @@ class FrameTruth:
     """Ground truth of one rendered frame (M targets, N board corners).
 
     Attributes:
-        q: joint vector, shape (n,).
-        base_T_ee: (4, 4) ``base_link`` -> ``tool0``.
-        base_T_cam: (4, 4) ``base_link`` -> ``camera_left_optical_frame``.
+        q: true joint vector, shape (n,).
+        base_T_ee: (4, 4) true ``base_link`` -> ``tool0`` (the true arm at ``q``; the images
+            come from it).
+        base_T_cam: (4, 4) true ``base_link`` -> ``camera_left_optical_frame``.
         targets_base: target centres in ``base_link``, shape (M, 3).
         targets_cam: target centres in the left optical frame, shape (M, 3).
         targets_cam_right: target centres in the right optical frame, shape (M, 3).
@@ -89,6 +90,7 @@ class FrameTruth:
     board_corners_px_right: np.ndarray
     board_visible_left: bool
     board_visible_right: bool
+    base_T_ee_reported: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -338,7 +340,7 @@ class Renderer:
         """Ground truth at joint vector ``q`` (see :class:`FrameTruth`)."""
         w = self.world
         qv = np.asarray(q, dtype=np.float64).reshape(-1)
-        base_T_ee = w.arm.fk(qv)
+        base_T_ee = w.true_arm.fk(qv)
         base_T_cam = compose(base_T_ee, w.ee_T_cam)
         cam_T_base = invert(base_T_cam)
         right_T_base = compose(w.rig.right_T_left, cam_T_base)
@@ -368,7 +370,7 @@ class Renderer:
             out[f"board_visible_{side}"] = visible
         return FrameTruth(q=qv, base_T_ee=base_T_ee, base_T_cam=base_T_cam,
                           targets_base=centers, targets_cam=t_left, targets_cam_right=t_right,
-                          **out)  # type: ignore[arg-type]
+                          base_T_ee_reported=w.arm.fk(qv), **out)  # type: ignore[arg-type]
 
     # -- rendering ------------------------------------------------------------------------
     def render(self, q, *, seed: int = 0, noise_sigma: float = 2.0, supersample: int = 3,

@@ -30,8 +30,9 @@ __all__ = [
     "camera_pose_ok",
 ]
 
-#: UR5e joint vector with the tool pointing down in front of the base (IK seed).
-HOME_Q = np.array([math.pi, -1.9, 1.9, -1.57, -1.57, 0.0])
+#: UR5e joint vector with the tool pointing down in front of the base (+x of ``base_link``,
+#: i.e. -x of the DH frame ``base``), the IK seed.
+HOME_Q = np.array([0.0, -1.9, 1.9, -1.57, -1.57, 0.0])
 
 
 def look_at(target: np.ndarray, eye: np.ndarray, roll: float = 0.0) -> np.ndarray:

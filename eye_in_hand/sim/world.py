@@ -4,9 +4,12 @@ Everything geometric is a field of :class:`World` and round-trips through ``worl
 (:meth:`World.from_yaml` / :meth:`World.to_yaml`); ``config/world.yaml`` holds the default,
 which :meth:`World.default` reproduces exactly.
 
-Frames: ``base_link`` is the arm's DH base frame (UR's controller ``base`` frame for the UR5e;
-in ur_description's URDF ``base_link`` is rotated by pi about z from it); the table top is the
-plane ``z = table.height`` in it. ``tool0`` is the last DH frame. ``camera_left_optical_frame``
+Frames follow ur_description: ``base_link`` is the world frame (targets, board and table are
+given in it; the table top is the plane ``z = table.height``); the arm's DH chain is expressed
+in ``base`` (UR's controller frame, DH frame 0), with ``base_link`` -> ``base`` = Rz(pi)
+(``arm.base_T_dh``, published on ``/tf_static``). ``tool0`` is the last DH frame; ``arm.fk``
+gives ``base_link`` -> ``tool0``. All names are the ``arm`` section's (``base_frame``,
+``dh_frame``, ``link_names``). ``camera_left_optical_frame``
 is ``base_T_ee @ ee_T_cam`` (x right, y down, z forward); the right camera follows OpenCV's
 ``X_right = R @ X_left + T`` (``world.rig.R``, ``world.rig.T``).
 
@@ -36,6 +39,7 @@ from eye_in_hand.core.transforms import (
     to_xyz_quat,
 )
 from eye_in_hand.errors import ConfigError, EyeInHandError, InputError
+from eye_in_hand.sim.robot_error import RobotErrorSpec, draw_true_arm
 from eye_in_hand.yamlfile import read_yaml_file
 
 __all__ = ["Target", "World", "DEFAULT_WORLD_YAML", "pose_to_dict", "pose_from_dict"]
@@ -130,7 +134,8 @@ class World:
     Attributes:
         rig: the stereo rig with distortion, not rectified (ground truth).
         ee_T_cam: (4, 4) ``tool0`` -> ``camera_left_optical_frame`` (the true hand-eye).
-        arm: the arm's kinematic chain (``fk(q) -> base_T_ee``, ``ik``).
+        arm: the arm's nominal kinematic chain (``fk(q) -> base_T_ee``, ``ik``): what the
+            robot reports (``/joint_states``, ``/ee_pose``, ``/tf``).
         targets: the coloured spheres.
         board: the chessboard (:class:`~eye_in_hand.core.calibration.BoardSpec`).
         base_T_board: (4, 4) board pose in ``base_link``.
@@ -140,6 +145,9 @@ class World:
         texture_seed: seed of the procedural table texture (part of the scene, not the noise).
         light_dir_base: unit vector towards the light in ``base_link``, shape (3,).
         ambient: ambient fraction of the shading in [0, 1].
+        robot_error: how the true arm (which the images come from) differs from ``arm``
+            (:class:`~eye_in_hand.sim.robot_error.RobotErrorSpec`; default the realistic
+            default, ``RobotErrorSpec.none()`` for the ideal arm).
     """
 
     rig: StereoRig
@@ -154,8 +162,11 @@ class World:
     texture_seed: int = 7
     light_dir_base: np.ndarray = field(default_factory=lambda: np.array([0.3, -0.2, 1.0]))
     ambient: float = 0.35
+    robot_error: RobotErrorSpec = field(default_factory=RobotErrorSpec.default)
 
     def __post_init__(self) -> None:
+        if not isinstance(self.robot_error, RobotErrorSpec):
+            raise InputError("robot_error: expected a RobotErrorSpec")
         ee_T_cam = as_transform(self.ee_T_cam, "ee_T_cam")
         base_T_board = as_transform(self.base_T_board, "base_T_board")
         light = np.asarray(self.light_dir_base, dtype=np.float64).reshape(-1)
@@ -254,6 +265,9 @@ class World:
                 texture_seed=int(table.get("texture_seed", 7)),
                 light_dir_base=np.asarray(light.get("direction_base", (0.3, -0.2, 1.0)), float),
                 ambient=float(light.get("ambient", 0.35)),
+                robot_error=RobotErrorSpec.from_dict(data["robot_error"],
+                                                     f"{source}: robot_error")
+                if "robot_error" in data else RobotErrorSpec.default(),
             )
         except ConfigError:
             raise
@@ -279,6 +293,7 @@ class World:
                       "texture_seed": self.texture_seed},
             "light": {"direction_base": [float(v) for v in self.light_dir_base],
                       "ambient": self.ambient},
+            "robot_error": self.robot_error.to_dict(),
         }
 
     @classmethod
@@ -323,6 +338,20 @@ class World:
         rig = StereoRig(left=cams[0], right=cams[1], R=self.rig.R, T=self.rig.T)
         return replace(self, rig=rig)
 
+    def with_robot_error(self, spec: RobotErrorSpec) -> "World":
+        """The same world with another robot error (``RobotErrorSpec.none()``: ideal arm)."""
+        return replace(self, robot_error=spec)
+
+    @property
+    def true_arm(self) -> DHChain:
+        """The true arm (``arm`` perturbed by ``robot_error``, drawn once from its seed);
+        the images come from it. ``arm`` itself when the kinematic error is zero."""
+        cached = self.__dict__.get("_true_arm_cache")
+        if cached is None:
+            cached = draw_true_arm(self.arm, self.robot_error)
+            object.__setattr__(self, "_true_arm_cache", cached)
+        return cached
+
     # -- geometry helpers -----------------------------------------------------------------
     @property
     def image_size(self) -> tuple[int, int]:
@@ -350,8 +379,8 @@ class World:
         return self.board_points_base().mean(axis=0)
 
     def base_T_cam(self, q: Sequence[float] | np.ndarray) -> np.ndarray:
-        """(4, 4) left optical frame in ``base_link`` at joint vector ``q``."""
-        return compose(self.arm.fk(q), self.ee_T_cam)
+        """(4, 4) true left optical frame in ``base_link`` at true joint vector ``q``."""
+        return compose(self.true_arm.fk(q), self.ee_T_cam)
 
     def target_centers_base(self) -> np.ndarray:
         """Target centres in ``base_link``, shape (M, 3)."""

@@ -18,27 +18,42 @@ BASE_LINK_T_DH_BASE = np.diag([-1.0, -1.0, 1.0, 1.0])
 
 def test_ur5e_zero_pose_matches_published_geometry():
     arm = DHChain.ur5e()
-    T = arm.fk(np.zeros(6))
-    # at q = 0 the UR arm is stretched along -x: x = a2 + a3, y = -(d4 + d6), z = d1 - d5
-    np.testing.assert_allclose(T[:3, 3], [-0.425 - 0.3922, -(0.1333 + 0.0996), 0.1625 - 0.0997],
-                               atol=1e-12)
+    assert (arm.base_frame, arm.dh_frame) == ("base_link", "base")
+    np.testing.assert_array_equal(arm.base_T_dh, BASE_LINK_T_DH_BASE)
+    T_dh = invert(arm.base_T_dh) @ arm.fk(np.zeros(6))      # in UR's controller frame base
+    # at q = 0 the UR arm is stretched along -x of base: x = a2 + a3, y = -(d4 + d6),
+    # z = d1 - d5 (so along +x of base_link)
+    np.testing.assert_allclose(T_dh[:3, 3], [-0.425 - 0.3922, -(0.1333 + 0.0996),
+                                             0.1625 - 0.0997], atol=1e-12)
     # the alphas compose to Rx(pi/2) at q = 0
-    np.testing.assert_allclose(T[:3, :3], [[1, 0, 0], [0, 0, -1], [0, 1, 0]], atol=1e-12)
+    np.testing.assert_allclose(T_dh[:3, :3], [[1, 0, 0], [0, 0, -1], [0, 1, 0]], atol=1e-12)
     frames = arm.fk_frames(np.zeros(6))
-    assert len(frames) == 6 and np.allclose(frames[-1], T)
+    assert len(frames) == 6 and np.allclose(frames[-1], arm.fk(np.zeros(6)))
+    # the frames round-trip through the world.yaml mapping
+    back = DHChain.from_dict(arm.to_dict())
+    assert back.dh_frame == "base"
+    np.testing.assert_allclose(back.base_T_dh, arm.base_T_dh, atol=1e-15)
+    # a DH mapping without base_T_dh: identity, DH frame 0 = base_frame
+    plain = DHChain.from_dict({k: v for k, v in arm.to_dict().items()
+                               if k not in ("dh_frame", "base_T_dh")})
+    np.testing.assert_allclose(plain.fk(np.zeros(6)), T_dh, atol=1e-12)
+    assert plain.dh_frame == plain.base_frame == "base_link"
 
 
-def test_urdf_chain_equals_dh_model_with_documented_base_offset():
+def test_urdf_chain_equals_dh_model_in_ur_description_frames():
     dh = DHChain.ur5e()
     urdf = UrdfChain.from_file(URDF, "base_link", "tool0")
     assert urdf.joint_names == dh.joint_names
     rng = np.random.default_rng(11)
     for _ in range(20):
         q = rng.uniform(-math.pi, math.pi, 6)
-        np.testing.assert_allclose(urdf.fk(q), BASE_LINK_T_DH_BASE @ dh.fk(q), atol=1e-12)
+        # the same base_link -> tool0 as ur_description's URDF: a UR bag and the simulator agree
+        np.testing.assert_allclose(urdf.fk(q), dh.fk(q), atol=1e-12)
     # the "base" link of the URDF is the DH base frame itself
     base = UrdfChain.from_file(URDF, "base_link", "base")
     np.testing.assert_allclose(base.fk(np.zeros(0)), BASE_LINK_T_DH_BASE, atol=1e-12)
+    np.testing.assert_allclose(base.fk(np.zeros(0)), dh.base_T_dh, atol=1e-12)
+    assert dh.dh_frame == "base"
     # intermediate frames compose to the tip
     T = np.eye(4)
     for _, _, A in urdf.fk_frames(q):

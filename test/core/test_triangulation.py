@@ -96,3 +96,39 @@ def test_bad_arguments():
         triangulate_dlt(RIG, (1, np.nan), (3, 4))
     with pytest.raises(InputError, match="sigma_px"):
         triangulate_dlt(RIG, (700, 300), (600, 300), sigma_px=0)
+
+
+@pytest.mark.parametrize("fn", METHODS)
+def test_per_image_sigmas_match_monte_carlo(fn):
+    """sigma_px=(left, right): each image's own centre noise (the detector's estimate)."""
+    rng = np.random.default_rng(13)
+    X = np.array([-0.05, 0.03, 0.45])
+    pl, pr = observe(RIG, X)
+    sl, sr = 0.05, 0.4
+    pts = np.array([fn(RIG, pl + rng.normal(0, sl, 2), pr + rng.normal(0, sr, 2)).point
+                    for _ in range(300)])
+    pred = fn(RIG, pl, pr, sigma_px=(sl, sr)).covariance
+    assert np.allclose(np.sqrt(np.diag(np.cov(pts.T))), np.sqrt(np.diag(pred)), rtol=0.2)
+    # one number = the same number on both sides
+    np.testing.assert_allclose(fn(RIG, pl, pr, sigma_px=(0.3, 0.3)).covariance,
+                               fn(RIG, pl, pr, sigma_px=0.3).covariance, rtol=1e-9)
+    for bad in ((0.1, 0.0), (0.1, float("nan")), (0.1, 0.2, 0.3), "x"):
+        with pytest.raises(InputError, match="sigma_px"):
+            fn(RIG, pl, pr, sigma_px=bad)
+
+
+@pytest.mark.parametrize("fn", METHODS)
+def test_full_pixel_covariance_and_common_shift(fn):
+    """pixel_cov: a shift alike in both images moves the point sideways, hardly in depth."""
+    X = np.array([0.02, -0.01, 0.5])
+    pl, pr = observe(RIG, X)
+    diag = np.diag([0.05, 0.05, 0.4, 0.4]) ** 2
+    np.testing.assert_allclose(fn(RIG, pl, pr, pixel_cov=diag).covariance,
+                               fn(RIG, pl, pr, sigma_px=(0.05, 0.4)).covariance, rtol=1e-9)
+    v = np.array([0.3, 0.0, 0.3, 0.0])                  # common 0.3 px shift along x
+    common = fn(RIG, pl, pr, pixel_cov=np.outer(v, v)).covariance
+    indep = fn(RIG, pl, pr, pixel_cov=np.diag(v * v)).covariance
+    assert common[2, 2] < 0.05 * indep[2, 2]            # disparity unchanged: no depth error
+    assert common[0, 0] > indep[0, 0]                   # lateral: the shifts add up
+    with pytest.raises(InputError, match="pixel_cov"):
+        fn(RIG, pl, pr, pixel_cov=-np.eye(4))

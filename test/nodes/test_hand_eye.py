@@ -382,3 +382,28 @@ def test_receive_age_uses_the_simulated_clock(tmp_path, ros_context, executor, n
     assert node.diag.counter("pose_buffer_resets.stream_stopped") \
         + node.diag.counter("refused.stale_pose") >= 1
     assert len(rig.poses) == 1
+
+
+def test_robot_pose_noise_from_hand_eye_file_replaces_the_parameters(
+        tmp_path, ros_context, executor, namespace, spin_until):
+    """hand_eye.yaml's optional robot_pose_noise (written while calibrating) is the robot pose
+    noise propagated into target/pose_cov; the robot_sigma_* parameters only without it."""
+    from dataclasses import replace
+
+    from eye_in_hand.io.config import load_hand_eye
+
+    path = _hand_eye_file(tmp_path)
+    noise = {"translation_sigma_m": 0.002, "rotation_sigma_rad": 0.003}
+    save_hand_eye(path, replace(load_hand_eye(path), robot_pose_noise=noise))
+    rig = _Rig(ros_context, executor, namespace, _overrides(path))   # parameters say 0, 0
+    assert spin_until(executor, rig.connected, 10.0)
+    for k in range(11):
+        rig.send_pose(0.01 * k)
+    p_cam = np.array([0.02, -0.01, 0.45])
+    rig.send_point(0.05, p_cam, np.diag([1e-8, 1e-8, 4e-7]))
+    assert spin_until(executor, lambda: len(rig.covs) == 1, 10.0)
+    _, want_cov = target_in_base(_robot_pose(0.05), EE_T_CAM, p_cam,
+                                 cov_cam=np.diag([1e-8, 1e-8, 4e-7]), robot_sigma_pos_m=0.002,
+                                 robot_sigma_rot_rad=0.003)
+    got_cov = np.asarray(rig.covs[0].pose.covariance).reshape(6, 6)
+    assert np.allclose(got_cov[:3, :3], want_cov, rtol=1e-9, atol=1e-18)

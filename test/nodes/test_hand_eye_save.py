@@ -26,7 +26,7 @@ def _node(ros_context, namespace: str, tmp_path: Path, out: Path, **extra) -> Ha
     problem = make_problem(6, seed=1)
     node.samples = list(problem.samples)
     node.result = calibrate_hand_eye(node.samples, "eye_in_hand", cameras=problem.views,
-                                     leave_one_out=False, leave_one_out_refined=False)
+                                     leave_one_out=False)
     return node
 
 

@@ -54,7 +54,8 @@ def test_sim_tf_chain_matches_ee_pose_and_static_extrinsic_is_latched(
                                                        "camera_right_optical_frame")
     from eye_in_hand.ros.conversions import transform_to_matrix
     np.testing.assert_allclose(transform_to_matrix(tr), world.left_T_right, atol=1e-9)
-    assert buf.parent("tool0") == "wrist_2_link" and buf.parent("shoulder_link") == "base_link"
+    assert buf.parent("tool0") == "wrist_2_link" and buf.parent("shoulder_link") == "base"
+    assert buf.parent("base") == "base_link"  # ur_description: base_link -> base, Rz(pi)
     checked = 0
     for p in poses:
         s = header_stamp_ns(p)

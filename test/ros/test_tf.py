@@ -72,7 +72,8 @@ def test_chain_edges_compose_to_forward_kinematics():
     q = np.array([0.3, -1.1, 1.4, -0.2, 0.7, -0.5])
     edges = chain_tf_edges(chain, q)
     assert [e[0] for e in edges][0] == chain.base_frame
-    assert [e[1] for e in edges] == list(chain.link_names)
+    # ur_description's fixed base_link -> base (Rz(pi)) first, then one edge per joint
+    assert [e[1] for e in edges] == [chain.dh_frame, *chain.link_names]
     buf = TfBuffer()
     for p, c, T in edges:
         buf.set_transform(p, c, 7, T)

@@ -107,8 +107,10 @@ def test_truth_is_self_consistent(world, q_at):
     tgt = world.targets[0].center_base
     q = q_at(world, tgt, tgt + [0.1, -0.3, 0.35])
     tr = world.truth(q)
-    np.testing.assert_allclose(tr.base_T_ee, world.arm.fk(q))
-    np.testing.assert_allclose(tr.base_T_cam, compose(world.arm.fk(q), world.ee_T_cam))
+    # images and truth come from the true arm; the reported pose is the nominal arm's
+    np.testing.assert_allclose(tr.base_T_ee, world.true_arm.fk(q))
+    np.testing.assert_allclose(tr.base_T_ee_reported, world.arm.fk(q))
+    np.testing.assert_allclose(tr.base_T_cam, compose(world.true_arm.fk(q), world.ee_T_cam))
     np.testing.assert_allclose(tr.targets_cam, apply(invert(tr.base_T_cam), tr.targets_base))
     np.testing.assert_allclose(tr.targets_cam_right,
                                tr.targets_cam @ world.rig.R.T + world.rig.T, atol=1e-12)
@@ -162,6 +164,7 @@ def test_world_yaml_round_trip_and_shipped_default(tmp_path, world):
         np.testing.assert_allclose(other.rig.right_T_left, world.rig.right_T_left, atol=1e-12)
         assert other.targets[0].radius_m == world.targets[0].radius_m
         assert str(other.board) == "chessboard:9x6:0.025"
+        assert other.robot_error == world.robot_error
     # the default: 1280x720, fx ~ 900 px, 60 mm baseline, radial + tangential distortion
     assert world.image_size == (1280, 720)
     assert 850 < world.rig.left.fx < 950 and abs(world.rig.baseline - 0.060) < 1e-3
