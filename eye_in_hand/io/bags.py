@@ -56,6 +56,7 @@ __all__ = [
     "Damage",
     "DamageLog",
     "bag_info",
+    "check_bag",
     "iter_messages",
     "iter_decoded",
     "memory_mappable",
@@ -229,7 +230,8 @@ class Damage:
             lost = f"{self.messages} message(s) lost"
         else:
             lost = "an unknown number of messages lost"
-        return f"{self.file}: {self.where} ({when}) skipped, {lost}: {self.reason}"
+        where = f"{self.file}: {self.where}" if self.file else self.where
+        return f"{where} ({when}) skipped, {lost}: {self.reason}"
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict (for JSON)."""
@@ -749,6 +751,43 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
         except Exception as exc:
             raise BagError(f"cannot read bag {bag.path} after message {index}: "
                            f"{str(exc) or type(exc).__name__}") from exc
+
+
+def check_bag(path: str | Path, damage: DamageLog) -> dict[str, int]:
+    """Read and decode every message of a bag, chunk CRCs checked: what ``bag info --check``
+    does.
+
+    Args:
+        path: a bag directory or a ``.mcap``/``.db3`` file.
+        damage: receives every damaged region and every message that does not decode
+            (images: their layout and data length are checked without copying the pixels).
+
+    Returns:
+        Topic -> number of messages read and decoded.
+
+    Raises:
+        BagError: the bag cannot be opened at all.
+    """
+    from eye_in_hand.errors import ConversionError
+    from eye_in_hand.io.cdr import image_from_cdr, is_image_type
+
+    store = typestore_for(path)
+    good: dict[str, int] = {}
+    for topic, msgtype, stamp, raw in iter_messages(path, views=True, verify_crc=True,
+                                                    damage=damage):
+        try:
+            img = image_from_cdr(raw) if is_image_type(msgtype) else None
+            if img is not None:
+                if img.height * img.step > len(img.data):
+                    raise ConversionError(f"image data: {len(img.data)} bytes, "
+                                          f"height x step needs {img.height * img.step}")
+            else:
+                deserialize(raw, msgtype, store)
+        except (BagError, ConversionError) as exc:
+            damage.bad_message(topic, stamp, str(exc))
+            continue
+        good[topic] = good.get(topic, 0) + 1
+    return good
 
 
 def memory_mappable(path: str | Path) -> bool:
