@@ -254,9 +254,32 @@ class DamageLog:
         self.records: list[Damage] = []
 
     def add(self, damage: Damage) -> None:
-        """Record one damaged region."""
+        """Record one damaged region.
+
+        The same region met again (a command that reads a bag in several passes, or the
+        topics of one chunk read separately) is merged into its first record: topics are
+        united, each topic's count is the largest seen, so nothing is counted twice.
+        """
+        key = self._key(damage)
         with self._lock:
+            for i, have in enumerate(self.records):
+                if self._key(have) != key:
+                    continue
+                topics = dict(have.topics)
+                for t, n in damage.topics.items():
+                    topics[t] = max(n, topics.get(t, 0))
+                known = have.messages is not None and damage.messages is not None
+                self.records[i] = Damage(
+                    have.file, have.where, have.reason, topics, have.start_ns, have.end_ns,
+                    sum(topics.values()) if known else None)
+                return
             self.records.append(damage)
+
+    @staticmethod
+    def _key(d: Damage) -> tuple[Any, ...]:
+        if d.where == "message":
+            return d.file, d.where, tuple(sorted(d.topics)), d.start_ns
+        return d.file, d.where
 
     def bad_message(self, topic: str, stamp_ns: int, reason: str, file: str = "") -> None:
         """Record one message that was read but cannot be used (does not decode, a truncated
@@ -866,7 +889,10 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
             for cid, n in (cd.lost or {}).items():
                 topic = by_id[cid].topic
                 topics[topic] = topics.get(topic, 0) + n
-            damage.add(Damage(name, f"chunk at byte {cd.offset}", cd.reason, topics,
+            where = f"chunk at byte {cd.offset}"
+            reason = cd.reason[len(where) + 2:] if cd.reason.startswith(where + ": ") \
+                else cd.reason
+            damage.add(Damage(name, where, reason, topics,
                               cd.start_ns, cd.end_ns,
                               None if cd.lost is None else sum(topics.values())))
 
