@@ -250,3 +250,27 @@ def test_stored_definition_that_fails_falls_back_to_jazzy(tmp_path: Path) -> Non
     log = DamageLog()
     (topic, _t, decoded), = list(iter_decoded(tmp_path / "bag", damage=log))
     assert topic == "/rosout" and decoded.msg == "hello" and not log
+
+
+def test_messages_before_a_bad_record_are_kept(tmp_path: Path) -> None:
+    sent = _write(tmp_path / "bag", n=60, size=100_000)   # about 10 messages per chunk
+    mcap = tmp_path / "bag" / "bag.mcap"
+    off, _length, _crc, data_at = _chunks(mcap)[2]
+    data = mcap.read_bytes()
+    pos, starts = data_at, []                  # record starts inside the (uncompressed) chunk
+    for _ in range(4):
+        starts.append(pos)
+        pos += 9 + struct.unpack_from("<Q", data, pos + 1)[0]
+    assert all(data[s] == 0x05 for s in starts)          # messages
+    raw = bytearray(data)
+    raw[starts[3] + 1:starts[3] + 9] = (2**40).to_bytes(8, "little")   # a length past the end
+    mcap.write_bytes(bytes(raw))
+    log = DamageLog()
+    # with the CRC checked the whole chunk is refused; without it, the records are parsed
+    got = [(t, s, r) for t, _m, s, r in iter_messages(tmp_path / "bag", damage=log,
+                                                      verify_crc=False)]
+    (d,) = log.records
+    assert d.where == f"chunk at byte {off}" and "longer than the chunk" in d.reason
+    in_chunk = [m for m in sent if d.start_ns <= m[1] <= d.end_ns]
+    assert [m for m in in_chunk if m in got] == in_chunk[:3]     # the three before it
+    assert d.messages == len(in_chunk) - 3 == len(sent) - len(got)
