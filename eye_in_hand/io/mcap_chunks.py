@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
-__all__ = ["supports", "chunk_messages", "file_location", "ChunkDamage"]
+__all__ = ["supports", "chunk_messages", "file_location", "ChunkDamage", "zstd_binding"]
 
 _RECORD = struct.Struct("<BQ")           # opcode, record length
 _MESSAGE = struct.Struct("<HIQQ")        # channel id, sequence, log time, publish time
@@ -127,6 +127,24 @@ def _zstd_decompressor() -> Callable[[Any, int], Any]:
 
 
 _DECOMPRESSORS: dict[str, Callable[[Any, int], Any]] = {}
+
+
+def zstd_binding() -> str:
+    """Which module decompresses zstd chunks, with its version (for benchmarks and reports)."""
+    try:
+        import zstandard
+
+        return f"zstandard {zstandard.__version__}"
+    except ImportError:
+        pass
+    try:
+        from compression import zstd  # type: ignore[import-not-found]  # noqa: F401
+
+        return "compression.zstd"
+    except ImportError:
+        from importlib.metadata import version
+
+        return f"backports.zstd {version('backports.zstd')}"
 
 
 def _decompressor(compression: str) -> Callable[[Any, int], Any]:
