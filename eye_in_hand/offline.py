@@ -13,10 +13,9 @@ One pass over the bag in log-time order:
 
 The bag is read without copying pixels: uncompressed MCAP chunks are memory-mapped and images
 decoded straight from their CDR bytes into views; compressed chunks are decompressed a few
-chunks ahead on threads, into shared-memory files. Reading runs on a thread, and stereo pairs
-are located by worker processes that map the same file pages (of the bag, or of the
-decompressed chunk; threads for images that live only in this process's memory: sqlite3),
-results taken back in stamp order. With ``selection: nearest`` the locator runs in the
+chunks ahead on threads. Reading runs on a thread, and stereo pairs are located by worker
+processes that map the same file pages (threads for images that live only in this process's
+memory), results taken back in stamp order. With ``selection: nearest`` the locator runs in the
 main thread, in stamp order, so its state evolves as in the live node. The live and offline
 paths therefore give the same numbers on the same bag.
 """
@@ -174,8 +173,7 @@ _END = object()
 
 
 def _decoded(path: Path, topics: list[str], typestore: Any, errors: list[BaseException],
-             verify_crc: bool = False, damage: Any = None, shared: Any = None,
-             ) -> Iterator[tuple[str, int, Any]]:
+             verify_crc: bool = False, damage: Any = None) -> Iterator[tuple[str, int, Any]]:
     """(topic, log time, message), produced on a reader thread (bounded queue).
 
     The bag is read without copies (memory-mapped MCAP) and images are decoded straight from
@@ -201,7 +199,7 @@ def _decoded(path: Path, topics: list[str], typestore: Any, errors: list[BaseExc
         try:
             for topic, msgtype, t_ns, raw in iter_messages(path, topics, views=True,
                                                            verify_crc=verify_crc,
-                                                           damage=damage, shared=shared):
+                                                           damage=damage):
                 if stop.is_set():
                     return
                 try:
@@ -323,18 +321,14 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
             pending.append(frame)
             flush(localizer.poses.newest_ns)
 
-    from eye_in_hand.io.mcap_chunks import SharedChunks
-
     pool = _PairPool(rig, locator_config, opts.workers or available_cpus())
-    # decompressed chunks in shared memory: their pairs go to the worker processes too
-    shared = SharedChunks() if pool.uses_processes else None
     try:
-        if memory_mappable(path) or (shared is not None and info.storage == "mcap"):
+        if memory_mappable(path):
             pool.start_processes()     # they import and initialise while this process sets up
         typestore = typestore_for(path, {info.topics[t].msgtype for t in topics})
         errors: list[BaseException] = []
         for topic, _t, msg in _decoded(path, topics, typestore, errors, opts.verify_crc,
-                                       result.damage, shared):
+                                       result.damage):
             if progress is not None:
                 progress(1)
             try:
@@ -374,8 +368,6 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
             take(frame)
     finally:
         pool.close()
-        if shared is not None:
-            shared.close()
     result.located_in_processes = pool.in_processes
     result.notes.extend(pool.notes)
     flush(None)  # end of bag: the last points are resolved (or refused) now
@@ -493,12 +485,6 @@ def _worker_locate(stamp_ns: int, left: _MappedImage, right: _MappedImage) -> Fr
     def view(ref: _MappedImage) -> _ImageView:
         mapped = maps.get(ref.path)
         if mapped is None:
-            while len(maps) >= 16:       # decompressed chunks: one file each, keep the newest
-                old = maps.pop(next(iter(maps)))
-                try:
-                    old.close()
-                except BufferError:
-                    pass
             with open(ref.path, "rb") as fh:
                 mapped = maps[ref.path] = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
         return _ImageView(ref, mapped)
@@ -537,11 +523,6 @@ class _PairPool:
         self.in_processes = 0
         self.notes: list[str] = []
         self._inflight: deque[Any] = deque()
-
-    @property
-    def uses_processes(self) -> bool:
-        """Whether pairs may go to worker processes (not located in the calling thread)."""
-        return self._inline is None
 
     def start_processes(self) -> None:
         """Start the worker processes now (else: at the first pair that lies in a mapped file).

@@ -127,23 +127,3 @@ def test_a_worker_process_that_dies_costs_no_pair(bags):
     for a, b in zip(out, expected):
         np.testing.assert_array_equal(a.point_cam, b.point_cam)
     assert any("worker process" in n for n in pool.notes), pool.notes
-
-
-def test_pairs_of_decompressed_chunks_go_to_worker_processes(bags):
-    """zstd chunks are decompressed into shared-memory files that the worker processes map
-    (how many pairs reach them depends on how fast they start): the numbers are the same, and
-    no file is left behind."""
-    import glob
-
-    from eye_in_hand.io.mcap_chunks import SharedChunks
-
-    world, zstd, _raw = bags
-    cfg = load_locator_config(None)
-    before = set(glob.glob(f"{SharedChunks().dir}/eye_in_hand-chunk-*"))
-    runs = [process_bag(zstd, hand_eye_T=world.ee_T_cam, locator_config=cfg, rig=world.rig,
-                        options=ProcessOptions(workers=w)) for w in (1, 2)]
-    assert runs[0].located_in_processes == 0 and not runs[1].notes
-    for a, b in zip(runs[0].frames, runs[1].frames):
-        assert a.stamp_ns == b.stamp_ns
-        np.testing.assert_array_equal(a.point_base, b.point_base)
-    assert set(glob.glob(f"{SharedChunks().dir}/eye_in_hand-chunk-*")) <= before

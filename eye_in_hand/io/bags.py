@@ -708,7 +708,7 @@ def _check_window(start_ns: int | None, end_ns: int | None) -> None:
 def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
                   start_ns: int | None = None, end_ns: int | None = None, *,
                   views: bool = False, verify_crc: bool = True,
-                  damage: DamageLog | None = None, shared: Any = None) -> Iterator[BagMessage]:
+                  damage: DamageLog | None = None) -> Iterator[BagMessage]:
     """Iterate over a bag's messages in log-time order, as raw CDR bytes.
 
     Messages of several storage files (split bags, or a directory of loose ``.mcap`` files)
@@ -734,9 +734,6 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
             fails part-way (sqlite3): each becomes a :class:`Damage` record in the log, with
             topics, log-time range and messages lost, and the rest of the bag is read on.
             None: such damage raises :class:`BagError` (as before this option existed).
-        shared: an :class:`eye_in_hand.io.mcap_chunks.SharedChunks` (with ``views``):
-            decompressed MCAP chunks go to shared-memory files, so that their messages are
-            views another process can map (``mcap_chunks.file_location``); the caller closes it.
 
     Yields:
         ``(topic, msgtype, log_time_ns, raw_cdr_bytes)``.
@@ -763,7 +760,7 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
                 if conns:
                     streams.append(_storage_stream(part, conns, start_ns, stop,
                                                    per_message_zstd, len(streams), views,
-                                                   verify_crc, damage, shared))
+                                                   verify_crc, damage))
         if not streams:
             return
         merged = streams[0] if len(streams) == 1 else heapq.merge(*streams)
@@ -869,7 +866,7 @@ def iter_decoded(path: str | Path, topics: Iterable[str] | None = None,
 def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int | None,
                     per_message_zstd: bool, stream: int, views: bool = False,
                     verify_crc: bool = True, damage: DamageLog | None = None,
-                    shared: Any = None) -> Iterator[tuple[int, int, int, str, str, bytes]]:
+                    ) -> Iterator[tuple[int, int, int, str, str, bytes]]:
     """Messages of one storage file, with its own connections.
 
     ``rosbags``' directory reader matches the connections of ``metadata.yaml`` to those of the
@@ -900,8 +897,7 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
                               None if cd.lost is None else sum(topics.values())))
 
         source = mcap_chunks.chunk_messages(storage, conns, start, stop, verify_crc=verify_crc,
-                                            on_damage=None if damage is None else chunk_damage,
-                                            shared=shared if views else None)
+                                            on_damage=None if damage is None else chunk_damage)
         for order, (conn, stamp, view) in enumerate(source):
             yield stamp, stream, order, conn.topic, conn.msgtype, view if views else bytes(view)
         return

@@ -28,19 +28,15 @@ from __future__ import annotations
 
 import heapq
 import mmap
-import os
-import tempfile
 import struct
 import threading
 import zlib
-from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
-__all__ = ["supports", "chunk_messages", "file_location", "ChunkDamage", "SharedChunks",
-           "zstd_binding"]
+__all__ = ["supports", "chunk_messages", "file_location", "ChunkDamage", "zstd_binding"]
 
 _RECORD = struct.Struct("<BQ")           # opcode, record length
 _MESSAGE = struct.Struct("<HIQQ")        # channel id, sequence, log time, publish time
@@ -200,9 +196,8 @@ class _Chunk:
                              "its record")
         self.data = body[data_at:data_at + csize]
 
-    def records(self, verify_crc: bool, shared: SharedChunks | None = None) -> memoryview:
-        """The chunk's uncompressed records (a view of the file when not compressed; with
-        ``shared``, a decompressed chunk is a view of a shared-memory file)."""
+    def records(self, verify_crc: bool) -> memoryview:
+        """The chunk's uncompressed records (a view of the file when not compressed)."""
         if self.compression == "":
             raw: Any = self.data
         else:
@@ -220,66 +215,7 @@ class _Chunk:
             if crc != self.crc:
                 raise ValueError(f"chunk at byte {self.offset}: CRC mismatch (corrupt data: "
                                  f"CRC-32 {crc:#010x}, the chunk says {self.crc:#010x})")
-        if shared is not None and self.compression and len(raw):
-            return shared.place(raw)
         return memoryview(raw)
-
-
-class SharedChunks:
-    """Decompressed chunks placed in files of a memory file system (``/dev/shm``), so that
-    other processes can map them: :func:`file_location` names them like the bag file itself,
-    and offline processing hands their images to worker processes as it does for
-    uncompressed chunks (no pixel is pickled). Pass one to :func:`chunk_messages` (or
-    ``iter_messages(shared=...)``) and :meth:`close` it when the consumers are done.
-
-    The newest ``keep_bytes`` of chunks stay reachable by path; older files are unlinked (their
-    pages live on while a view of them exists here, or a worker still maps them; a pair whose
-    file is gone is located in this process instead). :meth:`close` unlinks the rest.
-    """
-
-    def __init__(self, keep_bytes: int = 256 << 20) -> None:
-        self.dir = "/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir()
-        self.keep_bytes = keep_bytes
-        self._live: deque[tuple[int, str, int, memoryview]] = deque()
-        self._bytes = 0
-        self._lock = threading.Lock()
-
-    def place(self, raw: Any) -> memoryview:
-        n = len(raw)
-        fd, path = tempfile.mkstemp(prefix="eye_in_hand-chunk-", dir=self.dir)
-        try:
-            os.ftruncate(fd, n)
-            mapped = mmap.mmap(fd, n)
-        except OSError:
-            os.close(fd)
-            os.unlink(path)
-            return memoryview(raw)          # no room: this chunk stays in this process
-        os.close(fd)
-        view = memoryview(mapped)
-        view[:] = memoryview(raw).cast("B")
-        key = id(view)
-        with _MAPPED_LOCK:
-            _MAPPED[key] = (_address(view), n, path)
-        with self._lock:
-            self._live.append((key, path, n, view))
-            self._bytes += n
-            while self._bytes > self.keep_bytes and len(self._live) > 1:
-                self._drop(*self._live.popleft()[:3])
-        return view.toreadonly()
-
-    def _drop(self, key: int, path: str, n: int) -> None:
-        with _MAPPED_LOCK:
-            _MAPPED.pop(key, None)
-        self._bytes -= n
-        try:
-            os.unlink(path)
-        except OSError:
-            pass
-
-    def close(self) -> None:
-        with self._lock:
-            while self._live:
-                self._drop(*self._live.popleft()[:3])
 
 
 class _DamagedRecords(ValueError):
@@ -379,7 +315,7 @@ def _may_hold(info: Any, channels: dict[int, Any]) -> bool:
 def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None = None,
                    stop: int | None = None, *, verify_crc: bool = True, threads: int = 2,
                    on_damage: Callable[[ChunkDamage], None] | None = None,
-                   shared: SharedChunks | None = None) -> Iterator[tuple[Any, int, memoryview]]:
+                   ) -> Iterator[tuple[Any, int, memoryview]]:
     """``(connection, log_time_ns, data)`` of an indexed MCAP file, in log-time order.
 
     Args:
@@ -392,9 +328,6 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
             (record not where the index says, data that do not decompress, wrong size, CRC
             mismatch, records that stop making sense: then the messages before the bad
             record are still yielded); the other chunks are read on. None: raise instead.
-        shared: put decompressed chunks in these shared-memory files (see
-            :class:`SharedChunks`; the caller closes it) so that :func:`file_location` finds
-            their messages too.
 
     Yields:
         Messages whose data is a read-only ``memoryview`` (of the mapped file, or of a
@@ -422,7 +355,6 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
     pool = ThreadPoolExecutor(max(1, threads), thread_name_prefix="mcap-chunk") \
         if compressed and threads > 0 else None
     ahead = 2 * max(1, threads)
-    shm = shared if compressed else None
 
     def damage(info: Any, exc: BaseException,
                kept: Sequence[tuple[int, int, int, Any, memoryview]] = ()) -> None:
@@ -449,11 +381,11 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
             chunk = chunks[i]
             assert chunk is not None
             if pool is None or not chunk.compression:
-                return chunk.records(verify_crc, shm)
+                return chunk.records(verify_crc)
             for j in range(i, min(i + ahead, len(chunks))):
                 cj = chunks[j]
                 if j not in futures and cj is not None and cj.compression:
-                    futures[j] = pool.submit(cj.records, verify_crc, shm)
+                    futures[j] = pool.submit(cj.records, verify_crc)
             return futures.pop(i).result()
 
         pending: list[tuple[int, int, int, Any, memoryview]] = []

@@ -207,36 +207,3 @@ def test_views_outlive_the_iteration(tmp_path: Path) -> None:
     arrays = [np.frombuffer(v, np.uint8) for v in views]
     assert [a.tobytes() for a in arrays] == [d for _tp, _t, d in _expected(chunks)]
     assert all(v.readonly for v in views)
-
-
-def test_decompressed_chunks_in_shared_memory_are_found_by_path(tmp_path: Path) -> None:
-    """With ``shared``, a message of a decompressed chunk is a view of a shared-memory file
-    that another process can map by the path and offset ``file_location`` gives."""
-    import os
-
-    from eye_in_hand.io.mcap_chunks import SharedChunks, file_location
-
-    chunks = _chunks(n_chunks=4)
-    path = tmp_path / "x.mcap"
-    write_mcap(path, chunks, compression="zstd")
-    shared = SharedChunks()
-    got = list(iter_messages(path, views=True, shared=shared))
-    assert [(t, s, bytes(r)) for t, _m, s, r in got] == _expected(chunks)
-    where = [file_location(r) for *_x, r in got]
-    assert all(w is not None and w[0].startswith(shared.dir) for w in where)
-    for (_t, _m, _s, raw), (shm_path, offset) in zip(got, where):  # type: ignore[misc]
-        with open(shm_path, "rb") as fh:
-            fh.seek(offset)
-            assert fh.read(len(raw)) == bytes(raw)
-    shared.close()
-    assert not any(os.path.exists(w[0]) for w in where if w)
-    assert all(file_location(r) is None for *_x, r in got)
-    assert bytes(got[0][3]) == _expected(chunks)[0][2]   # the views themselves stay valid
-    # only the newest chunk files stay reachable: older ones are no longer offered
-    small = SharedChunks(keep_bytes=1)
-    got = list(iter_messages(path, views=True, shared=small))
-    where = [file_location(r) for *_x, r in got]
-    assert any(w is None for w in where) and any(w is not None for w in where)
-    small.close()
-    # without it, decompressed chunks live in this process only
-    assert all(file_location(r) is None for *_x, r in iter_messages(path, views=True))
