@@ -422,9 +422,10 @@ class _ReportedDamage(DamageLog):
         self._player = player
 
     def add(self, damage: Damage) -> None:
+        before = len(self)
         super().add(damage)
         diag = getattr(self._player, "diag", None)
-        if diag is None:
+        if diag is None or len(self) == before:      # met again (a later loop): counted once
             return
         diag.count("damaged_regions")
         diag.count("messages_lost", damage.messages or 0)
