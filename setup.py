@@ -30,14 +30,22 @@ setup(
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
     ],
     python_requires=">=3.10",
+    # Each minimum is the version pinned in .ci/min-constraints.txt, where `make test-min-deps`
+    # runs the bag, offline and calibration tests (docs/development.md, "Dependencies"). Below
+    # them: rosbags < 0.11.6 lacks storage_mcap.get_msgdef (io/bags.py's MCAP scanner);
+    # OpenCV 4.x has no criteria argument in undistortPoints (core/camera.py); scipy < 1.15.2
+    # refuses read-only matrices in Rotation.from_matrix; OpenCV 5 needs numpy 2, and
+    # matplotlib < 3.8.4 is built for numpy 1.
     install_requires=[
-        "numpy>=1.26",
-        "scipy>=1.11",
-        "opencv-python-headless>=4.8",
-        "rosbags>=0.10",
-        "pyyaml>=6.0",
-        "matplotlib>=3.8",
-        "tqdm>=4.66",
+        "numpy>=2.0.0",
+        "scipy>=1.15.2",
+        "opencv-python-headless>=5.0.0.93",
+        "rosbags>=0.11.6",
+        "lz4>=4.0.2",
+        'backports.zstd>=1.0.0; python_version < "3.14"',  # compression.zstd from 3.14 on
+        "pyyaml>=6.0.1",
+        "matplotlib>=3.8.4",
+        "tqdm>=4.66.0",
     ],
     extras_require={
         "ros": [
@@ -47,6 +55,7 @@ setup(
         "test": [
             "pytest>=8",
             "colcon-common-extensions>=0.3",
+            "catkin_pkg",  # imported by test_package.py (colcon-ros requires it as well)
         ],
     },
     zip_safe=True,

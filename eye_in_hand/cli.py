@@ -8,11 +8,13 @@ Each sub-command lives in its own module under :mod:`eye_in_hand.commands` and p
 
 Command modules import heavy dependencies (rclpy, OpenCV, matplotlib) inside ``run`` so that
 ``eye-in-hand --help`` stays fast. Errors derived from :class:`eye_in_hand.errors.EyeInHandError`
-are printed as one line on stderr (``eye-in-hand: error: ...``) with exit code 1, never a traceback.
+are printed as one line on stderr (``eye-in-hand: error: ...``) with exit code 1, never a traceback;
+so is any ``OSError`` that reaches the top (e.g. a full disk), with the file it names.
 """
 from __future__ import annotations
 
 import argparse
+import codecs
 import importlib
 import sys
 from typing import Sequence
@@ -69,17 +71,42 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _escape_undecodable(exc: UnicodeError) -> tuple[str, int]:
+    """Codec error handler: an undecodable file-name byte (a surrogate escape) as ``\\xNN``,
+    anything else unencodable as a backslash escape."""
+    if not isinstance(exc, UnicodeEncodeError):
+        raise exc
+    chunk = exc.object[exc.start:exc.end]
+    text = "".join(f"\\x{ord(c) - 0xDC00:02x}" if 0xDC80 <= ord(c) <= 0xDCFF
+                   else c.encode("ascii", "backslashreplace").decode("ascii") for c in chunk)
+    return text, exc.end
+
+
+def _printable(text: str) -> str:
+    """``text`` with the undecodable bytes of file names shown as ``\\xNN``."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``eye-in-hand`` console script."""
     from eye_in_hand.ros.dds import use_large_data_profile
 
     use_large_data_profile()  # before any command starts rclpy (children inherit it)
+    # a file name is bytes: print a non-UTF-8 byte of one as \\xNN, never fail on it
+    codecs.register_error("eye_in_hand_escape", _escape_undecodable)
+    for stream in (sys.stdout, sys.stderr):
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="eye_in_hand_escape")
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return int(args._run(args) or 0)
     except EyeInHandError as exc:
-        print(f"eye-in-hand: error: {exc}", file=sys.stderr)
+        print(f"eye-in-hand: error: {_printable(str(exc))}", file=sys.stderr)
+        return 1
+    except OSError as exc:  # a file system error not caught closer to its cause (ENOSPC, EACCES)
+        where = f"{_printable(str(exc.filename))}: " if exc.filename else ""
+        print(f"eye-in-hand: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("eye-in-hand: interrupted", file=sys.stderr)

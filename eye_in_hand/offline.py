@@ -3,7 +3,9 @@
 One pass over the bag in log-time order:
 
 * robot poses (``/ee_pose`` PoseStamped, or ``/joint_states`` + kinematics) go into the
-  :class:`~eye_in_hand.core.localization.Localizer`'s pose buffer;
+  :class:`~eye_in_hand.core.localization.Localizer`'s pose buffer; with ``robot_pose_source:
+  tf``, ``/tf`` and ``/tf_static`` go into a :class:`~eye_in_hand.core.tf.TfBuffer` whose
+  ``base_frame -> ee_frame`` chain is looked up at each image stamp (as the live node does);
 * left/right images are paired by :class:`~eye_in_hand.core.sync.ApproximateStereoSync` and
   located by :class:`~eye_in_hand.core.locator.StereoLocator`, exactly as ``detect_triangulate``
   does;
@@ -50,10 +52,12 @@ class ProcessOptions:
     Attributes:
         left_topic, right_topic: image topics (sensor_msgs/Image).
         left_info_topic, right_info_topic: camera_info topics, used when no rig is given.
-        robot_pose_source: ``"ee_pose"`` or ``"joint_states"``.
+        robot_pose_source: ``"ee_pose"``, ``"joint_states"`` or ``"tf"``.
         ee_pose_topic: PoseStamped topic (base -> tool).
         joint_states_topic: JointState topic (with ``kinematics``).
         kinematics: a chain with ``joint_names`` and ``fk(q)`` (joint_states source only).
+        tf_topic, tf_static_topic: TFMessage topics (tf source).
+        ee_frame: the tool frame looked up from ``base_frame`` (tf source).
         ground_truth_topic: PointStamped of the targets in the base frame (optional in the bag).
         base_frame: frame id of the output poses.
         camera_frame: frame id of the output points.
@@ -75,6 +79,9 @@ class ProcessOptions:
     ee_pose_topic: str = "/ee_pose"
     joint_states_topic: str = "/joint_states"
     kinematics: Any = None
+    tf_topic: str = "/tf"
+    tf_static_topic: str = "/tf_static"
+    ee_frame: str = "tool0"
     ground_truth_topic: str = "/ground_truth/target"
     base_frame: str = "base_link"
     camera_frame: str = "camera_left_optical_frame"
@@ -89,14 +96,16 @@ class ProcessOptions:
     def __post_init__(self) -> None:
         if self.workers is not None and int(self.workers) < 1:
             raise InputError(f"workers: must be >= 1, got {self.workers}")
-        if self.robot_pose_source not in ("ee_pose", "joint_states"):
-            raise InputError(f"robot_pose_source: expected ee_pose or joint_states, got "
+        if self.robot_pose_source not in ("ee_pose", "joint_states", "tf"):
+            raise InputError(f"robot_pose_source: expected ee_pose, joint_states or tf, got "
                              f"{self.robot_pose_source!r}")
         if self.robot_pose_source == "joint_states" and self.kinematics is None:
             raise InputError("kinematics: required when robot_pose_source is joint_states")
 
     @property
     def pose_topic(self) -> str:
+        if self.robot_pose_source == "tf":
+            return self.tf_topic
         return self.ee_pose_topic if self.robot_pose_source == "ee_pose" else \
             self.joint_states_topic
 
@@ -276,10 +285,14 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
                                      if rig is None else []))
     topics = list(required) + ([opts.ground_truth_topic]
                                if opts.ground_truth_topic in info.topics else [])
+    use_tf = opts.robot_pose_source == "tf"
+    if use_tf and opts.tf_static_topic in info.topics:
+        topics.append(opts.tf_static_topic)
     n_poses = info.topics[opts.pose_topic].count
     localizer = Localizer(hand_eye_T, hand_eye_cov, LocalizerConfig(
         max_gap_ns=int(opts.max_pose_gap_s * 1e9), buffer_size=max(2, n_poses + 2),
         robot_sigma_pos_m=opts.robot_sigma_pos_m, robot_sigma_rot_rad=opts.robot_sigma_rot_rad))
+    tf_buffer = _use_tf(localizer, opts, n_poses) if use_tf else None
     sync = ApproximateStereoSync(int(round(opts.sync_slop_s * 1e9)), opts.sync_queue_size)
     result = ProcessResult(duration_s=info.duration_ns / 1e9, rig=rig, damage=DamageLog())
     counts = result.counts
@@ -334,7 +347,11 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
             try:
                 if isinstance(msg, Exception):
                     raise msg
-                if topic == opts.pose_topic:
+                if tf_buffer is not None and topic in (opts.tf_topic, opts.tf_static_topic):
+                    _add_tf(tf_buffer, msg, topic == opts.tf_static_topic, topic, _t, counts,
+                            note)
+                    flush(localizer.poses.newest_ns)
+                elif topic == opts.pose_topic:
                     stamp = header_stamp_ns(msg)
                     if opts.robot_pose_source == "ee_pose":
                         T = pose_to_matrix(msg.pose)
@@ -379,6 +396,26 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     counts["damaged_regions"] = len(result.damage)
     counts["messages_lost"] = result.damage.messages_lost
     return result
+
+
+def _use_tf(localizer: Localizer, opts: ProcessOptions, n_messages: int) -> Any:
+    """A TF buffer whose ``base_frame -> ee_frame`` chain becomes the localizer's robot pose."""
+    from eye_in_hand.core.tf import TfBuffer, TfPoseView
+
+    buffer = TfBuffer(max(2, n_messages + 2))
+    localizer.poses = TfPoseView(buffer, opts.base_frame, opts.ee_frame)  # type: ignore
+    return buffer
+
+
+def _add_tf(buffer: Any, msg: Any, static: bool, topic: str, t_ns: int,
+            counts: dict[str, int], note: Callable[[str], None]) -> None:
+    """One TFMessage into the buffer; each bad transform counts as a bad message."""
+    from eye_in_hand.ros.tf import add_tf_message
+
+    _, problems = add_tf_message(buffer, msg, static=static)
+    for text in problems:
+        counts["bad_messages"] += 1
+        note(f"{topic} at {t_ns} ns: {text}")
 
 
 def _rig_from_camera_info(path: Path, opts: ProcessOptions, damage: Any = None) -> StereoRig:

@@ -1,4 +1,8 @@
-"""Package-level tests: ament metadata, a real ``colcon build``, and the CLI's command list.
+"""Package-level tests: ament metadata, declared dependencies, a real ``colcon build``, and the
+CLI's command list.
+
+The dependency tests parse every Python file of the package, the launch file, the tests and
+the benchmarks, and fail on any third-party import not declared in setup.py and package.xml.
 
 The colcon test copies the package sources into a temporary workspace and builds it with the
 colcon of the venv (colcon-common-extensions, no network, no ROS install), as a user would on a
@@ -8,6 +12,7 @@ from __future__ import annotations
 
 import ast
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -23,14 +28,38 @@ PACKAGE = "eye_in_hand"
 REQUIRED_EXEC_DEPENDS = {
     "rclpy", "sensor_msgs", "geometry_msgs", "std_msgs", "std_srvs", "diagnostic_msgs",
     "python3-numpy", "python3-scipy", "python3-opencv", "python3-yaml",
+    "launch", "launch_ros", "ament_index_python", "tf2_msgs", "python3-rosbags-pip",
+    "python3-lz4",
 }
-#: Python imports -> rosdep keys they need in package.xml.
-PYTHON_ROSDEP = {
-    "numpy": "python3-numpy", "scipy": "python3-scipy", "cv2": "python3-opencv",
-    "yaml": "python3-yaml", "matplotlib": "python3-matplotlib", "tqdm": "python3-tqdm",
+#: Every third-party Python import that is not a ROS package: import name -> (PyPI
+#: distribution declared in setup.py, rosdep key declared in package.xml). An import missing
+#: here fails test_every_import_is_declared until it is added and declared.
+THIRD_PARTY: dict[str, tuple[str, str]] = {
+    "numpy": ("numpy", "python3-numpy"),
+    "scipy": ("scipy", "python3-scipy"),
+    "cv2": ("opencv-python-headless", "python3-opencv"),
+    "yaml": ("pyyaml", "python3-yaml"),
+    "matplotlib": ("matplotlib", "python3-matplotlib"),
+    "tqdm": ("tqdm", "python3-tqdm"),
+    "rosbags": ("rosbags", "python3-rosbags-pip"),
+    "lz4": ("lz4", "python3-lz4"),
+    # No rosdep key of its own: rosdep's pip install of the newest rosbags brings it.
+    "backports.zstd": ("backports.zstd", "python3-rosbags-pip"),
+    "pytest": ("pytest", "python3-pytest"),
+    "catkin_pkg": ("catkin_pkg", "python3-catkin-pkg"),
 }
-#: Interface packages every rclpy install brings (rclpy depends on them itself).
-PROVIDED_BY_RCLPY = {"builtin_interfaces", "rcl_interfaces", "rosgraph_msgs"}
+#: Namespace packages: their distributions are named by the first two parts of the import.
+NAMESPACE_PACKAGES = {"backports"}
+#: ROS packages the code imports besides the interface packages (``*_msgs``, ``*_srvs``,
+#: ``*_interfaces``): their rosdep key is their name; pip gets rclpy and the interfaces
+#: from the ``ros`` extra, launch and launch_ros only come with a ROS install.
+ROS_PACKAGES = {"rclpy", "launch", "launch_ros", "ament_index_python"}
+#: Standard-library modules newer than the oldest supported Python (compression.zstd: 3.14;
+#: the code falls back to backports.zstd before it).
+NEWER_STDLIB = {"compression"}
+#: Where imports are scanned: runtime code, then code that only tests and benchmarks run.
+RUNTIME_DIRS = ("eye_in_hand", "launch")
+TEST_DIRS = ("test", "benchmarks")
 
 # What the build needs from the source tree; everything else (tests, venv, caches) stays out.
 _IGNORE = shutil.ignore_patterns(".git", ".venv", "build", "install", "log", "test", "docs",
@@ -78,34 +107,176 @@ def test_package_xml_is_valid_for_catkin_pkg():
     assert pkg.package_format == 3 and pkg.name == PACKAGE
 
 
-def test_every_imported_dependency_is_declared():
-    """Each ROS interface package and system Python library the code imports is an exec_depend.
+def _literal_call_arg(node: ast.Call) -> str | None:
+    """``"name"`` of ``pytest.importorskip("name")`` / ``importlib.import_module("name")``."""
+    func = node.func
+    name = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
+    if name in ("importorskip", "import_module") and node.args and isinstance(
+            node.args[0], ast.Constant) and isinstance(node.args[0].value, str):
+        return node.args[0].value
+    return None
 
-    A missing one works in the venv but breaks ``rosdep install`` + ``ros2 run`` on a robot.
+
+def scan_imports(paths: list[Path], root: Path = ROOT) -> dict[str, str]:
+    """Every absolute import in ``paths`` (anywhere: module level, functions, try blocks, and
+    ``importorskip``/``import_module`` of a literal name) -> the first file importing it.
+
+    Namespace packages (:data:`NAMESPACE_PACKAGES`) keep two parts (``backports.zstd``),
+    everything else its top-level name.
     """
-    imported: dict[str, str] = {}
-    for path in sorted((ROOT / PACKAGE).rglob("*.py")):
+    found: dict[str, str] = {}
+    for path in paths:
         for node in ast.walk(ast.parse(path.read_text(), str(path))):
-            names = []
+            names: list[str] = []
             if isinstance(node, ast.Import):
                 names = [a.name for a in node.names]
             elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
                 names = [node.module]
+                if node.module in NAMESPACE_PACKAGES:
+                    names = [f"{node.module}.{a.name}" for a in node.names]
+            elif isinstance(node, ast.Call):
+                name = _literal_call_arg(node)
+                names = [name] if name else []
             for name in names:
-                imported.setdefault(name.split(".")[0], str(path.relative_to(ROOT)))
+                parts = name.split(".")
+                key = ".".join(parts[:2]) if parts[0] in NAMESPACE_PACKAGES else parts[0]
+                found.setdefault(key, str(path.relative_to(root)))
+    return found
+
+
+def _python_files(dirs: tuple[str, ...]) -> list[Path]:
+    return sorted(p for d in dirs for p in (ROOT / d).rglob("*.py"))
+
+
+#: Names the sources import from themselves (the package; test helpers via conftest).
+FIRST_PARTY = {PACKAGE, *TEST_DIRS, "conftest"}
+
+
+def _is_ros_package(name: str) -> bool:
+    return name in ROS_PACKAGES or name.endswith(("_msgs", "_srvs", "_interfaces"))
+
+
+def _normalize(dist: str) -> str:
+    return re.sub(r"[-_.]+", "-", dist).lower()
+
+
+def setup_requirements() -> tuple[dict[str, str], dict[str, dict[str, str]]]:
+    """``install_requires`` and ``extras_require`` of setup.py, read without running it, as
+    {normalized distribution: requirement text}."""
+    tree = ast.parse((ROOT / "setup.py").read_text())
+    call = next(n for n in ast.walk(tree) if isinstance(n, ast.Call)
+                and getattr(n.func, "id", "") == "setup")
+    kw = {k.arg: k.value for k in call.keywords}
+
+    def by_name(reqs: list[str]) -> dict[str, str]:
+        return {_normalize(re.match(r"[A-Za-z0-9._-]+", r).group(0)): r for r in reqs}
+
+    extras = ast.literal_eval(kw["extras_require"]) if "extras_require" in kw else {}
+    return (by_name(ast.literal_eval(kw["install_requires"])),
+            {extra: by_name(reqs) for extra, reqs in extras.items()})
+
+
+def check_declared(runtime: dict[str, str], tests: dict[str, str],
+                   first_party: set[str]) -> list[str]:
+    """What is imported but not declared, one line per problem (empty: all declared)."""
     root = package_xml()
-    declared = {e.text for e in root.findall("exec_depend")} | {
+    exec_depends = {e.text for e in root.findall("exec_depend")} | {
         e.text for e in root.findall("depend")}
-    needed = {}
-    for module, where in imported.items():
-        if module == "rclpy" or module.endswith(("_msgs", "_srvs", "_interfaces")):
-            if module not in PROVIDED_BY_RCLPY:
-                needed[module] = where
-        elif module in PYTHON_ROSDEP:
-            needed[PYTHON_ROSDEP[module]] = where
-    missing = {key: where for key, where in needed.items() if key not in declared}
-    assert not missing, "package.xml lacks <exec_depend> for: " + ", ".join(
-        f"{key} (imported in {where})" for key, where in sorted(missing.items()))
+    test_depends = exec_depends | {e.text for e in root.findall("test_depend")}
+    install, extras = setup_requirements()
+    test_reqs = install | extras.get("test", {}) | extras.get("ros", {})
+    stdlib = set(sys.stdlib_module_names) | NEWER_STDLIB
+    problems = []
+    for imports, is_runtime in ((runtime, True), (tests, False)):
+        for name, where in sorted(imports.items()):
+            if name.split(".")[0] in stdlib or name.split(".")[0] in first_party:
+                continue
+            keys = exec_depends if is_runtime else test_depends
+            xml_tag = "exec_depend" if is_runtime else "test_depend (or exec_depend)"
+            if _is_ros_package(name):
+                if name not in keys:
+                    problems.append(f"{name} (imported in {where}): package.xml lacks "
+                                    f"<{xml_tag}>{name}</...>")
+                continue
+            if name not in THIRD_PARTY:
+                problems.append(f"{name} (imported in {where}): unknown third-party import; "
+                                f"add it to THIRD_PARTY and declare it in setup.py and "
+                                f"package.xml")
+                continue
+            dist, key = THIRD_PARTY[name]
+            reqs = install if is_runtime else test_reqs
+            if _normalize(dist) not in reqs:
+                where_in_setup = "install_requires" if is_runtime else (
+                    "install_requires or extras_require['test']")
+                problems.append(f"{name} (imported in {where}): setup.py {where_in_setup} "
+                                f"lacks {dist}")
+            if key not in keys:
+                problems.append(f"{name} (imported in {where}): package.xml lacks "
+                                f"<{xml_tag}>{key}</...>")
+    return problems
+
+
+def test_every_import_is_declared():
+    """Each third-party import of the package, its launch file, tests and benchmarks is
+    declared: runtime ones in setup.py install_requires and as package.xml exec_depend, test
+    ones in the test extra (or install_requires) and as test_depend (or exec_depend).
+
+    A missing one works in the venv but breaks ``pip install``, or ``rosdep install`` +
+    ``ros2 run`` on a robot.
+    """
+    runtime_files, test_files = _python_files(RUNTIME_DIRS), _python_files(TEST_DIRS)
+    assert any(p.name.endswith(".launch.py") for p in runtime_files)
+    runtime, tests = scan_imports(runtime_files), scan_imports(test_files)
+    assert {"rclpy", "rosbags", "lz4", "backports.zstd", "launch_ros"} <= set(runtime)
+    problems = check_declared(runtime, tests, FIRST_PARTY)
+    assert not problems, "undeclared imports:\n" + "\n".join(problems)
+
+
+def test_scan_finds_imports_in_functions_and_flags_undeclared_ones(tmp_path):
+    """The scan sees imports nested in functions and try blocks, and an import that is not
+    declared (or not known at all) is reported."""
+    src = tmp_path / "mod.py"
+    src.write_text("def f():\n    try:\n        from backports import zstd\n"
+                   "    except ImportError:\n        import lz4.frame\n"
+                   "    import requests\n    pytest.importorskip('catkin_pkg.package')\n")
+    names = set(scan_imports([src], tmp_path))
+    assert {"backports.zstd", "lz4", "requests", "catkin_pkg"} <= names
+    problems = check_declared({n: "mod.py" for n in names}, {}, set())
+    assert any(p.startswith("requests ") and "unknown third-party" in p for p in problems)
+    assert any(p.startswith("catkin_pkg ") and "install_requires lacks" in p
+               for p in problems), problems  # a test-only dependency imported at run time
+    assert not any(p.startswith(("lz4 ", "backports.zstd ")) for p in problems), problems
+
+
+def test_third_party_table_names_the_installed_distributions():
+    """THIRD_PARTY maps each import to the distribution that really provides it."""
+    import importlib.metadata
+
+    provided = importlib.metadata.packages_distributions()
+    for name, (dist, _key) in THIRD_PARTY.items():
+        top = name.split(".")[0]
+        if top not in provided:
+            continue  # not installed here (e.g. catkin_pkg without colcon)
+        assert _normalize(dist) in {_normalize(d) for d in provided[top]}, (
+            f"{name} is provided by {provided[top]}, not {dist}")
+
+
+def test_runtime_minimums_are_the_pinned_min_versions():
+    """Each install_requires has a ``>=`` minimum equal to its pin in
+    .ci/min-constraints.txt, where ``make test-min-deps`` runs the bag tests."""
+    install, _extras = setup_requirements()
+    pins = {}
+    for line in (ROOT / ".ci" / "min-constraints.txt").read_text().splitlines():
+        line = line.split("#", 1)[0].strip()
+        if line:
+            name, _, version = line.partition("==")
+            pins[_normalize(name)] = version.strip()
+    for dist, req in install.items():
+        match = re.search(r">=\s*([0-9][0-9a-zA-Z.]*)", req)
+        assert match, f"setup.py: {req!r} has no minimum version"
+        assert pins.get(dist) == match.group(1), (
+            f"setup.py {req!r} but .ci/min-constraints.txt pins {pins.get(dist)!r}")
+    assert set(pins) == set(install), "min-constraints.txt pins what install_requires lists"
 
 
 def test_setup_cfg_and_resource_marker():
@@ -180,6 +351,35 @@ def test_colcon_installed_cli_runs_from_the_install_tree(colcon_install):
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
     assert "usage: eye-in-hand" in proc.stdout
+
+
+def test_ros2_run_finds_the_cli_in_the_sourced_workspace(colcon_install):
+    """What ``ros2 run eye_in_hand eye-in-hand --help`` does after ``colcon build`` and
+    ``source install/setup.bash``: find the package prefix in the ament index, run
+    ``<prefix>/lib/eye_in_hand/eye-in-hand``, importing eye_in_hand from the install tree."""
+    bash = shutil.which("bash")
+    if bash is None:
+        pytest.skip("bash is not installed")
+    setup = colcon_install / "setup.bash"
+    assert setup.is_file(), sorted(p.name for p in colcon_install.iterdir())
+    script = f"""set -e
+. "{setup}"
+prefix=$("{sys.executable}" -c "from ament_index_python.packages import get_package_prefix
+print(get_package_prefix('{PACKAGE}'))")
+echo "prefix=$prefix"
+"$prefix/lib/{PACKAGE}/eye-in-hand" --help
+"{sys.executable}" -c "import {PACKAGE}; print('module=' + {PACKAGE}.__file__)"
+"""
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("PYTHONPATH", "AMENT_PREFIX_PATH", "COLCON_PREFIX_PATH", "CMAKE_PREFIX_PATH")}
+    proc = subprocess.run([bash, "-c", script], env=env, cwd=colcon_install,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    lines = proc.stdout.splitlines()
+    assert f"prefix={colcon_install / PACKAGE}" in lines
+    assert "usage: eye-in-hand" in proc.stdout
+    module = next(line for line in lines if line.startswith("module="))[len("module="):]
+    assert Path(module).is_relative_to(colcon_install), module
 
 
 # -- the eye-in-hand command ------------------------------------------------------------------

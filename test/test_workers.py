@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import os
 import time
 
 import pytest
@@ -21,8 +22,15 @@ def test_results_come_back_from_every_worker():
         assert pool.ready()
         futs = [pool.submit("math:sqrt", float(i)) for i in range(50)]
         assert [f.result(timeout=30) for f in futs] == [math.sqrt(i) for i in range(50)]
-        pids = {pool.submit("os:getpid").result(timeout=30) for _ in range(20)}
-        assert len(pids) >= 1
+        # both workers answer: while each is busy with a sleep, the least-busy rule sends one
+        # getpid to each (a worker may still be starting: try again until the deadline)
+        pids: set[int] = set()
+        deadline = time.monotonic() + 30
+        while len(pids) < 2 and time.monotonic() < deadline:
+            batch = [pool.submit("time:sleep", 0.2), pool.submit("time:sleep", 0.2),
+                     pool.submit("os:getpid"), pool.submit("os:getpid")]
+            pids |= {f.result(timeout=30) for f in batch[2:]}
+        assert len(pids) == 2 and os.getpid() not in pids
 
 
 def test_a_task_error_carries_its_traceback_and_the_worker_goes_on():

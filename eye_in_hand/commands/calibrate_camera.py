@@ -3,21 +3,19 @@
 Inputs are image files (``--images GLOB``) or an image topic of a rosbag2 bag
 (``--bag BAG --left-topic TOPIC [--every N]``). OUT_DIR receives ``camera.yaml``
 (camera_calibration_parsers format), ``report.json`` and ``report.html``; everything is built in a
-temporary folder next to OUT_DIR and moved in at the end, so a failure leaves nothing
-half-written.
+temporary folder next to OUT_DIR and renamed into place at the end
+(:mod:`eye_in_hand.io.atomic`), so a failure leaves nothing half-written; an existing OUT_DIR is
+refused unless ``--overwrite`` is given, and then replaced whole.
 
 This module also holds the input/output helpers shared with ``calibrate stereo``.
 """
 from __future__ import annotations
 
 import argparse
-import contextlib
 import glob
 import json
 import os
-import shutil
 import sys
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
@@ -25,6 +23,8 @@ from typing import Any, Callable, Iterator, Sequence
 import numpy as np
 
 from eye_in_hand.errors import BagError, CalibrationError, ConversionError, InputError
+from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
+from eye_in_hand.yamlfile import printable
 
 __all__ = [
     "HELP",
@@ -59,7 +59,10 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
                         help="board: chessboard:COLSxROWS:SQUARE (inner corners, square in m) or "
                              "charuco:SQUARESXxSQUARESY:SQUARE:MARKER[:DICT][:legacy]")
     parser.add_argument("-o", "--output", required=True, metavar="OUT_DIR", type=Path,
-                        help="output folder (created; existing files of the same name replaced)")
+                        help="output folder, written whole or not at all (must not exist, or "
+                             "give --overwrite)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace an existing OUT_DIR (whole, once the new one is complete)")
     parser.add_argument("--bag", type=Path, metavar="BAG", help="read images from this bag")
     parser.add_argument("--every", type=int, default=1, metavar="N",
                         help="bag input: use every N-th frame (or stereo pair); default 1")
@@ -107,9 +110,11 @@ def check_common_arguments(args: argparse.Namespace) -> None:
         raise InputError(f"--min-views must be >= 1, got {args.min_views}")
     if args.outlier_threshold is not None and not args.outlier_threshold > 0:
         raise InputError(f"--outlier-threshold must be > 0, got {args.outlier_threshold}")
-    out = Path(args.output)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"-o {out}: exists and is not a folder")
+    globs = [getattr(args, k, None) for k in ("images", "left", "right")]
+    inputs = [args.bag] + [g if os.path.isdir(g) else os.path.dirname(g) or "."
+                           for g in globs if g]
+    # refuse now, not after the work
+    check_output_dir(args.output, overwrite=args.overwrite, inputs=inputs)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -167,7 +172,8 @@ def expand_glob(pattern: str, option: str) -> list[Path]:
     else:
         files = sorted(Path(p) for p in glob.glob(os.path.expanduser(pattern)) if Path(p).is_file())
     if not files:
-        raise InputError(f"{option} {pattern!r}: no image files match")
+        shown = pattern.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+        raise InputError(f"{option} '{shown}': no image files match")
     return files
 
 
@@ -177,16 +183,9 @@ def read_image(path: Path) -> np.ndarray:
     Raises:
         InputError: the file cannot be read or decoded.
     """
-    import cv2
+    from eye_in_hand.io.images import read_image_file
 
-    try:
-        data = np.fromfile(str(path), dtype=np.uint8)
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from exc
-    image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
-    if image is None:
-        raise InputError(f"{path}: not a readable image file")
-    return image
+    return read_image_file(path)
 
 
 def detect_files(files: Sequence[Path], board, args: argparse.Namespace, desc: str,
@@ -220,7 +219,8 @@ def detect_files(files: Sequence[Path], board, args: argparse.Namespace, desc: s
                     f"{path} is {size[0]}x{size[1]}")
             det = detect_board(image, board, args.detector, subpix_window=args.subpix_window,
                                fallback=not args.no_fallback)
-            frames.append(Frame(path.name, det, image if keep(i) else None))
+            # the name as text every report can hold (a non-UTF-8 byte as \xNN)
+            frames.append(Frame(printable(path.name), det, image if keep(i) else None))
             bar.update(1)
     return frames
 
@@ -362,38 +362,6 @@ def iter_bag_pairs(bag: Path, left_topic: str, right_topic: str, every: int,
 # ------------------------------------------------------------------------------------------------
 # outputs
 # ------------------------------------------------------------------------------------------------
-@contextlib.contextmanager
-def atomic_output_dir(out_dir: Path) -> Iterator[Path]:
-    """Build outputs in a temporary folder next to ``out_dir``, move them in on success.
-
-    A new ``out_dir`` appears in one rename; into an existing folder every file is moved with
-    an atomic ``os.replace``. On any exception the temporary folder is removed and ``out_dir``
-    is left as it was.
-
-    Yields:
-        The temporary folder to write into.
-    """
-    out_dir = Path(out_dir)
-    parent = out_dir.absolute().parent
-    parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.partial-", dir=parent))
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it private; OUT_DIR gets normal permissions
-    try:
-        yield tmp
-        if not out_dir.exists():
-            os.rename(tmp, out_dir)
-            return
-        if not out_dir.is_dir():
-            raise InputError(f"{out_dir}: exists and is not a folder")
-        for item in sorted(tmp.iterdir()):
-            os.replace(item, out_dir / item.name)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
-
-
 def write_json(path: Path, data: dict) -> None:
     """Write ``data`` as indented JSON (NaN/inf become null)."""
     path.write_text(json.dumps(_clean(data), indent=2) + "\n", encoding="utf-8")
@@ -522,7 +490,7 @@ def run(args: argparse.Namespace) -> int:
                        "detector": args.detector}
     if damage is not None:
         report["input"]["damage"] = damage
-    with atomic_output_dir(args.output) as tmp:
+    with atomic_output_dir(args.output, overwrite=args.overwrite) as tmp:
         cal.camera.save_yaml(tmp / "camera.yaml")
         write_json(tmp / "report.json", report)
         if not args.no_html:

@@ -81,7 +81,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="camera frame id (default: %(default)s)")
     opt.add_argument("--no-html", action="store_true", help="do not write report.html")
     parser.add_argument("-o", "--output", required=True, metavar="OUT_DIR",
-                        help="output folder: hand_eye.yaml, report.json, report.html")
+                        help="output folder: hand_eye.yaml, report.json, report.html; written "
+                             "whole or not at all (must not exist, or give --overwrite)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace an existing OUT_DIR (whole, once the new one is complete)")
 
 
 def _load_inputs(args: argparse.Namespace) -> dict[str, Any]:
@@ -103,7 +106,7 @@ def _load_inputs(args: argparse.Namespace) -> dict[str, Any]:
                                                       "count": len(samples)}}
     if args.bag:
         return _load_bag(args)
-    import cv2
+    from eye_in_hand.io.images import read_image_file
 
     ds = load_dataset(args.dataset)
     board = BoardSpec.parse(ds.board)
@@ -112,9 +115,10 @@ def _load_inputs(args: argparse.Namespace) -> dict[str, Any]:
     for s in ds.samples:
         images = {}
         for key, path in s.images.items():
-            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-            if img is None:
-                raise InputError(f"sample {s.name!r}: cannot read image {path}")
+            try:
+                img = read_image_file(path)
+            except InputError as exc:
+                raise InputError(f"sample {s.name!r}: {exc}") from exc
             images["image" if key == "image" else key] = img
         obs = observe_sample(s.name, images, s.base_T_ee, board, views)
         notes.extend(obs.notes)
@@ -144,7 +148,7 @@ def _kinematics(spec: str, base_frame: str, ee_frame: str) -> Any:
         return UrdfChain.from_file(path, base_frame, ee_frame)
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
+    except (OSError, yaml.YAMLError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: cannot read kinematics ({exc})") from exc
     if isinstance(data, dict) and isinstance(data.get("arm"), dict):
         data = data["arm"]
@@ -367,6 +371,11 @@ def run(args: argparse.Namespace) -> int:
     from eye_in_hand.core.transforms import matrix_to_quat_xyzw
     from eye_in_hand.errors import HandEyeError
 
+    from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
+
+    check_output_dir(args.output, overwrite=args.overwrite,  # refuse now, not after the work
+                     inputs=[args.dataset, args.pairs, args.bag, args.calibration,
+                             args.kinematics])
     inputs = _load_inputs(args)
     samples = inputs["samples"]
     setup = inputs["setup"]
@@ -383,10 +392,11 @@ def run(args: argparse.Namespace) -> int:
         outlier_threshold=args.outlier_threshold)
     parent = args.parent_frame or FRAMES[setup][0]
     out = Path(args.output)
-    write_outputs(out, result, samples, setup=setup, parent_frame=parent,
-                  child_frame=args.child_frame, input_meta=inputs["input"],
-                  skipped=inputs["skipped"], notes=inputs["notes"],
-                  ground_truth=inputs.get("ground_truth"), html=not args.no_html)
+    with atomic_output_dir(out, overwrite=args.overwrite) as tmp:
+        write_outputs(tmp, result, samples, setup=setup, parent_frame=parent,
+                      child_frame=args.child_frame, input_meta=inputs["input"],
+                      skipped=inputs["skipped"], notes=inputs["notes"],
+                      ground_truth=inputs.get("ground_truth"), html=not args.no_html)
     sel = result.methods[result.selected]
     calib_quat = matrix_to_quat_xyzw(result.X[:3, :3])
     t = sel.X[:3, 3]

@@ -170,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
                        "unmatched": unmatched, "detector": args.detector}
     if damage is not None:
         report["input"]["damage"] = damage
-    with atomic_output_dir(args.output) as tmp:
+    with atomic_output_dir(args.output, overwrite=args.overwrite) as tmp:
         cal.rig.save(tmp)
         write_json(tmp / "report.json", report)
         if not args.no_html:

@@ -85,6 +85,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--timeout must be >= 0, got {args.timeout}")
     if args.truncate_length < 0:
         raise InputError(f"--truncate-length must be >= 0, got {args.truncate_length}")
+    from eye_in_hand.ros.names import check_topic_name
+
+    check_topic_name(args.topic, "echo TOPIC")
     import rclpy
     import yaml
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor

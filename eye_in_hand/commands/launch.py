@@ -37,6 +37,20 @@ def run(args: argparse.Namespace) -> int:
     if args.duration is not None and not args.duration > 0:
         raise InputError(f"--duration: must be positive, got {args.duration}")
     params = args.params or default_params_file()
+    # bad input is one line here, not a traceback from rcl in every node
+    from eye_in_hand.errors import ConfigError
+    from eye_in_hand.ros.names import check_parameter_text, topic_name_problem
+    from eye_in_hand.yamlfile import printable, read_yaml_file
+
+    ns = "/" + args.namespace.strip("/")
+    problem = None if ns == "/" else topic_name_problem(ns)
+    if problem is not None:
+        raise InputError(f"--namespace {printable(args.namespace)!r}: not a valid namespace "
+                         f"({problem})")
+    check_parameter_text(str(params), "--params")  # rcl takes it as UTF-8 text
+    if not isinstance(read_yaml_file(params, "parameter file"), dict):
+        raise ConfigError(f"{printable(params)}: parameter file must map node names to "
+                          "'ros__parameters'")
     nodes = [n.name for n in NODES if n.name not in args.skip]
     launcher = Launcher(params, nodes, root_namespace=args.namespace)
     print(f"eye-in-hand launch: starting {', '.join(nodes)} with {params}", flush=True)

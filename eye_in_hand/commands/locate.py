@@ -51,10 +51,12 @@ def _read(path: str, side: str):
 
     from eye_in_hand.errors import InputError
 
-    img = cv2.imread(path, cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InputError(f"--{side} {path}: cannot read the image (missing file or unknown "
-                         "format)")
+    from eye_in_hand.io.images import read_image_file
+
+    try:
+        img = read_image_file(path)
+    except InputError as exc:
+        raise InputError(f"--{side} {exc}") from exc
     if img.ndim == 3 and img.shape[2] == 4:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
     if img.ndim != 3 or img.shape[2] != 3:

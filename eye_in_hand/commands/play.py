@@ -53,7 +53,12 @@ def run(args: argparse.Namespace) -> int:
     from eye_in_hand.io.bags import bag_info
     from eye_in_hand.nodes.bag_player import BagPlayer, spin_player
 
+    from eye_in_hand.ros.names import check_parameter_text
+
     bag_info(args.bag)  # fail with one clear line before starting ROS
+    check_parameter_text(str(args.bag), "BAG")
+    for topic in args.topics or ():
+        check_parameter_text(topic, "--topics")
     overrides = [
         Parameter("bag", value=str(args.bag)),
         Parameter("rate", value=float(args.rate)),

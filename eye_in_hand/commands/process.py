@@ -7,8 +7,9 @@ Example::
 Runs the same core code as the live ``detect_triangulate`` and ``hand_eye`` nodes on the bag's
 messages, as fast as the CPU allows, and writes ``OUT`` as a rosbag2 bag with
 ``/target/point``, ``/target/pose`` and ``/target/pose_cov`` plus ``OUT/results.csv`` (one row per
-stereo pair) and ``OUT/summary.json``. When the bag carries ``/ground_truth/target`` it prints
-the base-frame error statistics (RMS, p95, max, in mm).
+stereo pair) and ``OUT/summary.json``, all under a temporary name renamed into place at the
+end (an existing OUT is refused unless ``--overwrite``). When the bag carries
+``/ground_truth/target`` it prints the base-frame error statistics (RMS, p95, max, in mm).
 """
 from __future__ import annotations
 
@@ -23,7 +24,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``eye-in-hand process``."""
     parser.add_argument("bag", metavar="BAG", help="input bag directory or .mcap file")
     parser.add_argument("-o", "--output", required=True, metavar="OUT",
-                        help="output bag directory (must not exist)")
+                        help="output bag directory, written whole or not at all (must not "
+                             "exist, or give --overwrite)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace an existing OUT (whole, once the new one is complete)")
     parser.add_argument("--hand-eye", required=True, metavar="FILE",
                         help="hand_eye.yaml (eye_in_hand: tool0 -> left optical frame)")
     parser.add_argument("--calibration", metavar="DIR",
@@ -41,10 +45,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--right-topic", default="/stereo/right/image_raw")
     parser.add_argument("--left-info-topic", default="/stereo/left/camera_info")
     parser.add_argument("--right-info-topic", default="/stereo/right/camera_info")
-    parser.add_argument("--robot-pose", choices=("ee_pose", "joint_states"), default="ee_pose",
-                        help="robot pose source (default ee_pose)")
+    parser.add_argument("--robot-pose", choices=("ee_pose", "joint_states", "tf"),
+                        default="ee_pose",
+                        help="robot pose source (default ee_pose; tf: /tf + /tf_static, "
+                             "--base-frame -> --ee-frame at each image stamp)")
     parser.add_argument("--ee-pose-topic", default="/ee_pose")
     parser.add_argument("--joint-states-topic", default="/joint_states")
+    parser.add_argument("--tf-topic", default="/tf")
+    parser.add_argument("--tf-static-topic", default="/tf_static")
+    parser.add_argument("--base-frame", default=None,
+                        help="robot base frame (default: hand_eye base_frame in --params, else "
+                             "base_link)")
+    parser.add_argument("--ee-frame", default=None,
+                        help="tool frame looked up in /tf (default: hand_eye ee_frame in "
+                             "--params, else the hand-eye file's parent frame)")
     parser.add_argument("--kinematics", metavar="FILE",
                         help="DH YAML or URDF file (with --robot-pose joint_states)")
     parser.add_argument("--urdf-base-link", default="base_link")
@@ -113,8 +127,10 @@ def run(args: argparse.Namespace) -> int:
             left_info_topic=args.left_info_topic, right_info_topic=args.right_info_topic,
             robot_pose_source=args.robot_pose, ee_pose_topic=args.ee_pose_topic,
             joint_states_topic=args.joint_states_topic, kinematics=kinematics,
+            tf_topic=args.tf_topic, tf_static_topic=args.tf_static_topic,
+            ee_frame=str(args.ee_frame or hand_eye_params.get("ee_frame", calib.parent_frame)),
             ground_truth_topic=args.ground_truth_topic,
-            base_frame=str(hand_eye_params.get("base_frame", "base_link")),
+            base_frame=str(args.base_frame or hand_eye_params.get("base_frame", "base_link")),
             camera_frame=calib.child_frame,
             sync_slop_s=float(detect.get("sync.slop_s", 0.005)),
             sync_queue_size=int(detect.get("sync.queue_size", 5)),
@@ -126,11 +142,15 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.params}: {exc}") from exc
     from pathlib import Path
 
-    if Path(args.output).exists():
-        raise InputError(f"-o {args.output}: exists already (choose a new output)")
+    from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
+
+    check_output_dir(args.output, overwrite=args.overwrite,  # refuse now, not after the work
+                     inputs=[args.bag, args.hand_eye, args.calibration, args.params,
+                             args.kinematics])
     info = bag_info(args.bag)
     total = sum(info.topics[t].count for t in {opts.left_topic, opts.right_topic,
                                                opts.pose_topic, opts.ground_truth_topic}
+                | ({opts.tf_static_topic} if opts.robot_pose_source == "tf" else set())
                 if t in info.topics)
     bar = tqdm(total=total, unit="msg", desc="processing", disable=args.quiet,
                file=sys.stderr)
@@ -142,7 +162,12 @@ def run(args: argparse.Namespace) -> int:
     finally:
         bar.close()
     wall = time.perf_counter() - t0
-    paths = write_results(args.output, result, opts, storage=args.storage)
+    # the bag, results.csv and summary.json appear together (temporary folder, then rename)
+    with atomic_output_dir(args.output, overwrite=args.overwrite, create=False) as tmp:
+        written = write_results(tmp, result, opts, storage=args.storage)
+    out = Path(args.output)
+    paths = {"bag": out, "csv": out / written["csv"].name,
+             "summary": out / written["summary"].name}
     c = result.counts
     speed = result.duration_s / wall if wall > 0 else math.inf
     print(f"processed {c['pairs']} stereo pairs in {wall:.2f} s ({speed:.1f}x real time): "

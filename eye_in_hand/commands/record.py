@@ -20,7 +20,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("topics", nargs="*", metavar="TOPIC",
                         help="topics to record (waits for topics that do not exist yet)")
     parser.add_argument("-o", "--output", required=True, metavar="BAG",
-                        help="bag directory to create (must not exist)")
+                        help="bag directory to create (must not exist, or give --overwrite)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="delete an existing bag of that name when recording starts (a "
+                             "recording is written in place, so that a crash keeps what was "
+                             "recorded)")
     parser.add_argument("-a", "--all", action="store_true",
                         help="record every topic, including ones that appear later, except "
                              "hidden ones (a name component starting with '_')")
@@ -44,6 +48,18 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.topics and not args.all:
         raise InputError("give the topics to record, or --all")
+    from eye_in_hand.ros.names import check_parameter_text, check_topic_name
+
+    check_parameter_text(str(args.output), "-o")
+    for topic in args.topics:
+        check_topic_name(topic, "record TOPIC")
+    from eye_in_hand.io.atomic import check_output_dir
+
+    out = check_output_dir(args.output, overwrite=args.overwrite)
+    if out.is_dir():  # empty, or --overwrite
+        import shutil
+
+        shutil.rmtree(out)
     if not 0.01 <= args.discovery_period <= 60:
         raise InputError(f"--discovery-period must be in [0.01, 60] s, got "
                          f"{args.discovery_period}")

@@ -27,7 +27,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "localization: continuous motion around the target(s)")
     parser.add_argument("--out", required=True, type=Path,
                         help="bag directory (--format bag) or dataset folder (--format dataset)"
-                             "; must not exist (or be empty)")
+                             ", written whole or not at all; must not exist (or be empty), or "
+                             "give --overwrite")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace an existing --out (whole, once the new one is complete)")
     parser.add_argument("--frames", type=int, default=None,
                         help="calibration: number of still poses (default 16); localization: "
                              "number of stereo pairs at 30 Hz (default 90)")
@@ -62,6 +65,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--still-images-only", action="store_true",
                         help="calibration bag: record only the --hold-frames settled images of "
                              "each stop (robot topics stay continuous); much smaller bags")
+    parser.add_argument("--no-ee-pose", action="store_true",
+                        help="bag: record the robot as a real cell does, /tf, /tf_static and "
+                             "/joint_states without /ee_pose")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -81,6 +87,11 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--supersample must be in 1..8, got {args.supersample}")
     if args.hold_frames < 1 or args.move_s <= 0 or args.settle_s < 0:
         raise InputError("--hold-frames must be >= 1, --move-s > 0 and --settle-s >= 0")
+    from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
+
+    check_output_dir(args.out, overwrite=args.overwrite, option="--out", inputs=[args.world])
+    if args.format == "dataset" and args.scenario != "calibration":
+        raise InputError("--format dataset needs --scenario calibration")
     world = World.from_yaml(args.world) if args.world is not None else World.default()
     if args.size is not None:
         world = world.with_image_size(*args.size)
@@ -96,25 +107,28 @@ def run(args: argparse.Namespace) -> int:
             bar = tqdm(total=total, unit="pair", desc="rendering", file=sys.stderr)
         bar.update(done - bar.n)
 
-    try:
-        if args.format == "dataset":
-            if args.scenario != "calibration":
-                raise InputError("--format dataset needs --scenario calibration")
-            path = write_dataset(world, args.out, frames=frames, seed=args.seed, render=render,
-                                 progress=progress)
-            print(f"wrote calibration dataset {path} ({frames} stereo pairs, "
-                  f"{world.image_size[0]}x{world.image_size[1]}, board {world.board})")
-            return 0
-        summary = write_bag(world, args.out, scenario=args.scenario, frames=frames,
-                            seed=args.seed, storage=args.storage, render=render,
-                            hold_frames=args.hold_frames, move_s=args.move_s,
-                            settle_s=args.settle_s,
-                            still_images_only=args.still_images_only, progress=progress)
+    try:  # written under a temporary name in the same folder, renamed into place when complete
+        with atomic_output_dir(args.out, overwrite=args.overwrite, option="--out",
+                               create=args.format == "dataset") as tmp:
+            if args.format == "dataset":
+                path = write_dataset(world, tmp, frames=frames, seed=args.seed, render=render,
+                                     progress=progress)
+            else:
+                summary = write_bag(world, tmp, scenario=args.scenario, frames=frames,
+                                    seed=args.seed, storage=args.storage, render=render,
+                                    hold_frames=args.hold_frames, move_s=args.move_s,
+                                    settle_s=args.settle_s,
+                                    still_images_only=args.still_images_only,
+                                    ee_pose=not args.no_ee_pose, progress=progress)
     finally:
         if bar is not None:
             bar.close()
-    size = sum(p.stat().st_size for p in summary.path.rglob("*") if p.is_file())
-    print(f"wrote bag {summary.path} ({args.storage}, {size / 1e6:.1f} MB): "
+    if args.format == "dataset":
+        print(f"wrote calibration dataset {args.out / path.name} ({frames} stereo pairs, "
+              f"{world.image_size[0]}x{world.image_size[1]}, board {world.board})")
+        return 0
+    size = sum(p.stat().st_size for p in Path(args.out).rglob("*") if p.is_file())
+    print(f"wrote bag {args.out} ({args.storage}, {size / 1e6:.1f} MB): "
           f"{summary.n_images} stereo pairs at {world.image_size[0]}x{world.image_size[1]}, "
           f"{summary.n_robot} robot samples, {summary.duration_s:.2f} s")
     return 0

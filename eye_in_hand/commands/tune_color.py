@@ -49,9 +49,9 @@ def run(args: argparse.Namespace) -> int:
     from eye_in_hand.core.detection import convert_color, range_from_samples
     from eye_in_hand.errors import InputError
 
-    img = cv2.imread(args.image, cv2.IMREAD_COLOR)
-    if img is None:
-        raise InputError(f"{args.image}: cannot read the image (missing file or unknown format)")
+    from eye_in_hand.io.images import read_image_file
+
+    img = read_image_file(args.image, cv2.IMREAD_COLOR)
     x, y, w, h = args.roi
     H, W = img.shape[:2]
     if x + w > W or y + h > H:

@@ -307,6 +307,9 @@ class UrdfChain:
             text = p.read_text(encoding="utf-8")
         except OSError as exc:
             raise KinematicsError(f"URDF {p}: cannot read ({exc.strerror})") from exc
+        except UnicodeDecodeError as exc:
+            raise KinematicsError(f"URDF {p}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x} "
+                                  f"at offset {exc.start})") from exc
         return cls.from_string(text, base_link, tip_link, source=str(p))
 
     @classmethod

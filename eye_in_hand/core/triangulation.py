@@ -108,6 +108,31 @@ def rectify_pair(rig: StereoRig, left_px, right_px) -> tuple[np.ndarray, np.ndar
             rig.right.rectify_points(_px(right_px, "right_px"))[0])
 
 
+_JAC_STEP_PX = 0.5  # central-difference step of the rectification Jacobian (the map is smooth)
+
+
+def _rectify_with_jacobian(rig: StereoRig, left_px, right_px
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rectified pixels of both images and d(rectified) / d(distorted), shape (4, 4).
+
+    Pixel noise lives in the distorted images, where the target is detected; undistortion and
+    the rectifying rotation and projection stretch it differently across the image, so the
+    covariance propagates it through this Jacobian (block-diagonal: left, right).
+    """
+    _check_rig(rig)
+    h = _JAC_STEP_PX
+    offsets = np.array([[0.0, 0.0], [h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
+    out = []
+    J = np.zeros((4, 4))
+    for k, (cam, px, name) in enumerate(((rig.left, left_px, "left_px"),
+                                         (rig.right, right_px, "right_px"))):
+        r = cam.rectify_points(_px(px, name)[None, :] + offsets)
+        out.append(r[0])
+        J[2 * k:2 * k + 2, 2 * k] = (r[1] - r[2]) / (2 * h)
+        J[2 * k:2 * k + 2, 2 * k + 1] = (r[3] - r[4]) / (2 * h)
+    return out[0], out[1], J
+
+
 def _dlt_rect(P1: np.ndarray, P2: np.ndarray, xl: np.ndarray, xr: np.ndarray,
               with_jacobian: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
     """DLT point (3,) in the rectified-left frame and, optionally, d X / d (xl, yl, xr, yr).
@@ -193,7 +218,9 @@ def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float = 0.5,
         rig: rectified stereo rig.
         left_px, right_px: pixel coordinates, shape (2,): distorted image pixels, or rectified
             pixels when ``rectified`` is True.
-        sigma_px: pixel noise (1 sigma) per coordinate for the covariance.
+        sigma_px: pixel noise (1 sigma) per coordinate for the covariance, in the images the
+            inputs come from (distorted pixels, propagated through the rectification; or
+            rectified pixels when ``rectified`` is True).
         max_residual_px: reject above this RMS reprojection residual (None: no gate).
         rectified: the inputs are already rectified pixel coordinates.
 
@@ -205,14 +232,17 @@ def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float = 0.5,
     """
     _check_rig(rig)
     s = _check_sigma(sigma_px)
-    xl, xr = ((_px(left_px, "left_px"), _px(right_px, "right_px")) if rectified
-              else rectify_pair(rig, left_px, right_px))
+    if rectified:
+        xl, xr, Jpx = _px(left_px, "left_px"), _px(right_px, "right_px"), np.eye(4)
+    else:
+        xl, xr, Jpx = _rectify_with_jacobian(rig, left_px, right_px)
     d = _disparity(rig, xl, xr)
     _check_disparity(rig, d)
     P1, P2 = rig.P1, rig.P2
     X, J = _dlt_rect(P1, P2, xl, xr, with_jacobian=True)
     if J is None:
         raise Rejected("behind_camera", "the DLT solution is at infinity")
+    J = J @ Jpx
     cov = (J @ J.T) * s * s
     return _finish(rig, X, cov, _reproj_rms(P1, P2, X, xl, xr), "dlt", d, max_residual_px)
 
@@ -233,8 +263,10 @@ def triangulate_parallax(rig: StereoRig, left_px, right_px, *, sigma_px: float =
     if abs(P2[1, 3]) > abs(P2[0, 3]):
         raise InputError("parallax method: the rig is rectified vertically; use 'dlt' or "
                          "'optimal'")
-    xl, xr = ((_px(left_px, "left_px"), _px(right_px, "right_px")) if rectified
-              else rectify_pair(rig, left_px, right_px))
+    if rectified:
+        xl, xr, Jpx = _px(left_px, "left_px"), _px(right_px, "right_px"), np.eye(4)
+    else:
+        xl, xr, Jpx = _rectify_with_jacobian(rig, left_px, right_px)
     d = _disparity(rig, xl, xr)
     _check_disparity(rig, d)
     f, fy = P1[0, 0], P1[1, 1]
@@ -250,6 +282,7 @@ def triangulate_parallax(rig: StereoRig, left_px, right_px, *, sigma_px: float =
     J[0] = (u / f) * dZ + np.array([Z / f, 0.0, 0.0, 0.0])
     J[1] = (v / fy) * dZ + np.array([0.0, 0.5 * Z / fy, 0.0, 0.5 * Z / fy])
     J[2] = dZ
+    J = J @ Jpx
     cov = (J @ J.T) * s * s
     return _finish(rig, X_rect, cov, _reproj_rms(P1, P2, X_rect, xl, xr), "disparity", d,
                    max_residual_px)

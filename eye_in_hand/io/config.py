@@ -217,9 +217,11 @@ def save_hand_eye(path: str | os.PathLike[str], calibration: HandEyeCalibration)
     out = Path(path)
     data = calibration.to_dict()
     hand_eye_from_dict(data, str(out))  # never write a file we could not read back
+    from eye_in_hand.io.atomic import atomic_file
+
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        with out.open("w", encoding="utf-8") as fh:
+        with atomic_file(out, "w") as fh:  # temporary file, fsync, rename: never half written
             fh.write("# Hand-eye calibration: parent_T_child (metres, quaternion x y z w).\n")
             fh.write("# covariance order: x y z rx ry rz (rotation vector applied on the left).\n")
             yaml.safe_dump(data, fh, sort_keys=False, default_flow_style=None)

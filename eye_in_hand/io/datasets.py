@@ -181,7 +181,7 @@ def load_dataset(path: str | os.PathLike[str]) -> CalibrationDataset:
     source = str(yaml_path)
     try:
         data = yaml.safe_load(yaml_path.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
+    except (OSError, yaml.YAMLError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{source}: cannot read dataset ({exc})") from exc
     if not isinstance(data, Mapping):
         raise ConfigError(f"{source}: expected a mapping at the top level")
@@ -266,7 +266,7 @@ def write_dataset(directory: str | os.PathLike[str], *, setup: str, board: str,
         InputError: inconsistent arguments.
         ConfigError: files cannot be written.
     """
-    import cv2
+    from eye_in_hand.io.images import write_image_file
 
     if (camera is None) == (rig is None):
         raise InputError("write_dataset: give exactly one of camera (mono) or rig (stereo)")
@@ -295,8 +295,7 @@ def write_dataset(directory: str | os.PathLike[str], *, setup: str, board: str,
                 raise InputError(f"write_dataset: sample {i} has no '{key}' image")
             rel = f"{folder}/{name}.png"
             (out / folder).mkdir(exist_ok=True)
-            if not cv2.imwrite(str(out / rel), np.asarray(imgs[key])):
-                raise ConfigError(f"{out / rel}: cannot write image")
+            write_image_file(out / rel, np.asarray(imgs[key]))
             entry[key] = rel
         entry["base_T_ee"] = pose_to_dict(as_transform(T, f"base_T_ee[{i}]"))
         if names is not None:
@@ -351,10 +350,12 @@ def load_pose_pairs(path: str | os.PathLike[str]) -> list[tuple[np.ndarray, np.n
 def save_pose_pairs(path: str | os.PathLike[str],
                     pairs: Sequence[tuple[np.ndarray, np.ndarray]]) -> Path:
     """Write pose pairs in the format :func:`load_pose_pairs` reads."""
+    from eye_in_hand.io.atomic import atomic_write_text
+
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
-    p.write_text(json.dumps([[np.asarray(a).tolist(), np.asarray(b).tolist()]
-                             for a, b in pairs]))
+    atomic_write_text(p, json.dumps([[np.asarray(a).tolist(), np.asarray(b).tolist()]
+                                     for a, b in pairs]))
     return p
 
 

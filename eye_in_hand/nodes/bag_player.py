@@ -32,7 +32,6 @@ or ``eye-in-hand play /path/to/bag --rate 2``.
 """
 from __future__ import annotations
 
-import importlib
 import sys
 import threading
 import time
@@ -52,6 +51,9 @@ from eye_in_hand.errors import BagError, ConfigError, EyeInHandError
 from eye_in_hand.io.bags import (BagInfo, Damage, DamageLog, OfferedQos, bag_info,
                                  iter_messages)
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
+from eye_in_hand.ros.msgtypes import import_message_type as _import_message_type
+from eye_in_hand.ros.names import topic_name_problem
+from eye_in_hand.ros.tf import TF_STATIC_TOPIC
 
 __all__ = [
     "PlayerConfig",
@@ -71,29 +73,10 @@ _NOTHING = object()
 
 
 def import_message_type(msgtype: str) -> Any:
-    """The Python message class for ``pkg/msg/Type``, or None when it is not installed.
-
-    Args:
-        msgtype: e.g. ``sensor_msgs/msg/Image`` (``pkg/Type`` is read as ``pkg/msg/Type``).
-
-    Returns:
-        The class (e.g. ``sensor_msgs.msg.Image``), or None when the package or the type does not
-        exist in this Python environment.
-    """
-    parts = msgtype.split("/")
-    if len(parts) == 2:
-        parts = [parts[0], "msg", parts[1]]
-    if len(parts) != 3 or not all(p.isidentifier() for p in parts):
-        return None
-    try:
-        module = importlib.import_module(f"{parts[0]}.{parts[1]}")
-    except ImportError:
-        return None
-    cls = getattr(module, parts[2], None)
-    if cls is None or not hasattr(cls, "_TYPE_SUPPORT") and not hasattr(
-            type(cls), "_TYPE_SUPPORT"):
-        return None
-    return cls
+    """The Python message class for ``pkg/msg/Type``, or None when it is not an installed ROS
+    interface type; see :func:`eye_in_hand.ros.msgtypes.import_message_type` (a bag's type
+    name never imports an arbitrary Python package)."""
+    return _import_message_type(msgtype)
 
 
 _HASHES: dict[str, str | None] = {}
@@ -150,6 +133,16 @@ def playback_qos(offered: Sequence[OfferedQos]) -> QoSProfile:
         depth = max([depth] + [q.depth for q in offered if q.history == "keep_last"])
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=reliability,
                       durability=durability)
+
+
+def static_tf_playback_qos(count: int) -> QoSProfile:
+    """QoS of a replayed ``/tf_static``: reliable and transient local whatever the bag
+    recorded (tf2 listeners subscribe transient local and match nothing else), deep enough
+    (the bag's message count, 1..1000) that a late subscriber still gets every recorded
+    publisher's static transforms."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(1, min(int(count), 1000)),
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 @dataclass(frozen=True)
@@ -209,12 +202,18 @@ class BagPlayer(Node):
         self._topic_pubs: dict[str, Any] = {}
         for name in wanted:
             topic = self.info.topics[name]
+            problem = topic_name_problem(name)
+            if problem is not None:  # a damaged or crafted bag: never crash on it
+                self.skipped_types[name] = topic.msgtype
+                self.diag.report(f"bad_topic_name:{name}",
+                                 f"skipping topic {name!r}: not a valid topic name ({problem})")
+                continue
             cls = import_message_type(topic.msgtype)
             if cls is None:
                 self.skipped_types[name] = topic.msgtype
                 self.diag.report(f"type_not_installed:{name}",
                                  f"skipping topic {name}: message type {topic.msgtype} is not "
-                                 "installed")
+                                 "an installed ROS interface type")
                 continue
             if topic.type_hash and installed_type_hash(topic.msgtype) not in (
                     None, topic.type_hash):
@@ -223,8 +222,10 @@ class BagPlayer(Node):
                     f"type_mismatch:{name}",
                     f"topic {name}: the bag's {topic.msgtype} ({topic.type_hash}) is not the "
                     "installed definition; subscribers may misread it (playing it anyway)")
-            self._topic_pubs[name] = self.create_publisher(
-                cls, name, playback_qos(topic.offered_qos))
+            qos = playback_qos(topic.offered_qos)
+            if name == TF_STATIC_TOPIC:
+                qos = static_tf_playback_qos(topic.count)
+            self._topic_pubs[name] = self.create_publisher(cls, name, qos)
             self.published[name] = 0
         self._clock_pub = None
         self._clock_timer = None

@@ -55,6 +55,7 @@ from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.errors import BagError, ConfigError, EyeInHandError
 from eye_in_hand.io.bags import STORAGES, BagWriter, OfferedQos, default_typestore
 from eye_in_hand.nodes.bag_player import import_message_type
+from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
 
 __all__ = [
@@ -285,6 +286,11 @@ class BagRecorder(Node):
                               f"got {self.compression!r}")
         if not topics and not self.record_all:
             raise ConfigError("give parameter 'topics' (a list of topic names) or set 'all'")
+        for t in topics:
+            problem = topic_name_problem(t)
+            if problem is not None:
+                raise ConfigError(f"parameter 'topics': {t!r} is not a valid topic name "
+                                  f"({problem})")
         self.wanted = [self.resolve_topic_name(t) for t in topics]
 
     @property

@@ -15,6 +15,15 @@ Localization mode (``mode: localization``)
     and ``diagnostics`` says why. ``hand_eye/transform`` (TransformStamped tool0 -> camera,
     transient local) is published once at start-up.
 
+TF (see docs/localization.md)
+    ``robot_pose_source: tf``: the robot pose is ``base_frame -> ee_frame`` looked up at each
+    image stamp in a TF buffer (:class:`eye_in_hand.core.tf.TfBuffer`) fed by ``/tf`` and
+    ``/tf_static`` (chained, interpolated per edge, never extrapolated, no bracket over
+    ``max_pose_gap_s``). With ``publish_tf`` (and tf2_msgs installed) the node publishes
+    ``/tf_static`` (``ee_frame -> camera_frame``, and ``camera_frame -> right_camera_frame``
+    from ``stereo_calibration_dir``) and, for every located target, ``/tf``
+    (``base_frame -> target_frame`` at the image stamp).
+
 Calibration mode (``mode: calibration``)
     Subscribes ``left/image_raw`` (and ``right/image_raw`` for a stereo rig) and the robot pose.
     Services (std_srvs/Trigger): ``hand_eye/capture`` takes the newest image, detects the board,
@@ -78,8 +87,9 @@ class HandEyeNodeConfig:
     hand_eye_file: str = param("", "hand_eye.yaml to load (required in localization mode)",
                                validate=_existing_file)
     robot_pose_source: str = param("ee_pose", "where the robot pose comes from: the ee_pose "
-                                   "topic (PoseStamped) or joint_states + kinematics_file",
-                                   choices=("ee_pose", "joint_states"))
+                                   "topic (PoseStamped), joint_states + kinematics_file, or "
+                                   "tf (/tf + /tf_static, base_frame -> ee_frame)",
+                                   choices=("ee_pose", "joint_states", "tf"))
     kinematics_file: str = param("", "DH YAML (the 'arm' mapping of world.yaml: d, a, alpha, "
                                  "...) or URDF file, for robot_pose_source joint_states",
                                  validate=_existing_file)
@@ -100,6 +110,16 @@ class HandEyeNodeConfig:
                                      range=(0.0, 1.0))
     robot_sigma_rot_rad: float = param(0.0001, "robot pose rotation noise about the flange, "
                                        "1 sigma (rad)", range=(0.0, 1.0))
+    publish_tf: bool = param(True, "publish /tf_static (ee_frame -> camera_frame, camera_frame "
+                             "-> right_camera_frame) and /tf (base_frame -> target_frame per "
+                             "located target); needs tf2_msgs")
+    right_camera_frame: str = param("camera_right_optical_frame", "right optical frame id "
+                                    "(child of the stereo extrinsic on /tf_static)")
+    stereo_calibration_dir: str = param("", "directory with left.yaml + right.yaml whose "
+                                        "stereo extrinsic goes on /tf_static ('' = none; "
+                                        "calibration mode uses calibration_dir)")
+    target_frame: str = param("target_0", "child frame id of the located target on /tf "
+                              "(base_frame -> target_frame)")
     stale_after_s: float = param(1.0, "diagnostics WARN when no robot pose or point arrived "
                                  "for this long (s)", range=(0.01, 3600.0))
     # -- calibration mode ---------------------------------------------------------------
@@ -107,6 +127,8 @@ class HandEyeNodeConfig:
     calibration_dir: str = param("", "directory with left.yaml + right.yaml (stereo) or "
                                  "camera.yaml (mono) for calibration mode")
     output_dir: str = param("hand_eye_calibration", "where hand_eye/save writes its files")
+    overwrite_output: bool = param(False, "hand_eye/save may replace an output_dir that this "
+                                   "node did not write itself (it always replaces its own)")
     still_window_s: float = param(0.2, "capture: the robot must be still over +- this window "
                                   "around the image stamp (s)", range=(0.0, 5.0))
     still_max_speed_m_s: float = param(0.002, "capture: largest tool speed counted as still "
@@ -190,6 +212,8 @@ class HandEyeNode(Node):
 
         if cfg.robot_pose_source == "ee_pose":
             self.create_subscription(PoseStamped, "ee_pose", self._on_ee_pose, ROBOT_POSE_QOS)
+        elif cfg.robot_pose_source == "tf":
+            self._setup_tf_input()
         else:
             self.create_subscription(JointState, "joint_states", self._on_joint_state,
                                      ROBOT_POSE_QOS)
@@ -200,6 +224,7 @@ class HandEyeNode(Node):
             self._setup_localization()
         else:
             self._setup_calibration()
+        self._setup_tf_output()
         self.get_logger().info(f"{NODE_NAME} started in {cfg.mode} mode, robot pose from "
                                f"{cfg.robot_pose_source}")
 
@@ -356,10 +381,111 @@ class HandEyeNode(Node):
         full[3:, 3:] = np.eye(3) * UNKNOWN_ROTATION_VARIANCE
         cmsg.pose.covariance = [float(v) for v in full.ravel()]
         self.pub_pose_cov.publish(cmsg)
+        self._publish_target_tf(stamp_ns, p)
         self.diag.count("poses_published")
         self.diag.gauge("latency_ms", round((self.get_clock().now().nanoseconds - stamp_ns) / 1e6,
                                             3))
         self.diag.gauge("sigma_mm", round(1000.0 * float(np.sqrt(max(np.trace(cov), 0.0))), 4))
+
+    # -- TF in (robot_pose_source: tf) -------------------------------------------------------
+    def _setup_tf_input(self) -> None:
+        """Robot poses from /tf + /tf_static: a TF buffer whose base_frame -> ee_frame chain
+        replaces the localizer's pose buffer (same interpolation, gap and no-extrapolation
+        rules, looked up at each image stamp)."""
+        from eye_in_hand.core.tf import TfBuffer, TfPoseView
+        from eye_in_hand.ros.tf import (TF_STATIC_TOPIC, TF_TOPIC, tf_message_class, tf_qos,
+                                        tf_static_sub_qos)
+
+        cfg = self.config
+        try:
+            TFMessage = tf_message_class()
+        except ConfigError as exc:
+            raise ConfigError(f"robot_pose_source: tf: {exc}") from exc
+        self.tf_buffer = TfBuffer(cfg.pose_buffer_size)
+        self.localizer.poses = TfPoseView(self.tf_buffer, cfg.base_frame,  # type: ignore
+                                          cfg.ee_frame)
+        self.create_subscription(TFMessage, TF_TOPIC, lambda m: self._on_tf(m, False),
+                                 tf_qos())
+        self.create_subscription(TFMessage, TF_STATIC_TOPIC, lambda m: self._on_tf(m, True),
+                                 tf_static_sub_qos())
+        self.diag.declare_counter("tf_messages", "tf_rejected")
+
+    def _on_tf(self, msg: Any, static: bool) -> None:
+        from eye_in_hand.ros.tf import add_tf_message
+
+        self.diag.count("tf_messages")
+        before = self.localizer.poses.newest_ns
+        added, problems = add_tf_message(self.tf_buffer, msg, static=static)
+        for text in problems:
+            self.diag.count("tf_rejected")
+            self.diag.report("bad_tf", f"{'/tf_static' if static else '/tf'}: {text}")
+        if added and self.localizer.poses.newest_ns != before:
+            self._after_pose()   # the chain reached a newer stamp: a robot pose
+
+    # -- TF out --------------------------------------------------------------------------------
+    def _setup_tf_output(self) -> None:
+        """Publishers of /tf_static (hand-eye, stereo extrinsic) and /tf (targets), when
+        ``publish_tf`` is on and tf2_msgs is available (else one log line says why not)."""
+        from eye_in_hand.ros.tf import (TF_STATIC_TOPIC, TF_TOPIC, have_tf2_msgs, tf_qos,
+                                        tf_static_pub_qos)
+
+        cfg = self.config
+        self.pub_tf = self.pub_tf_static = None
+        self._static_tf: dict[str, tuple[str, np.ndarray]] = {}
+        if not cfg.publish_tf:
+            return
+        if not have_tf2_msgs():
+            self.get_logger().warning("tf2_msgs is not installed: no /tf or /tf_static "
+                                      "published (run 'make venv' to build it)")
+            return
+        from tf2_msgs.msg import TFMessage
+
+        self.pub_tf = self.create_publisher(TFMessage, TF_TOPIC, tf_qos())
+        self.pub_tf_static = self.create_publisher(TFMessage, TF_STATIC_TOPIC,
+                                                   tf_static_pub_qos())
+        rig = None
+        cdir = cfg.stereo_calibration_dir or (cfg.calibration_dir if cfg.mode == "calibration"
+                                              else "")
+        if cdir and (Path(cdir) / "left.yaml").exists():
+            from eye_in_hand.core.camera import StereoRig
+
+            try:
+                rig = StereoRig.load(cdir)
+            except EyeInHandError as exc:
+                raise ConfigError(f"stereo_calibration_dir: {exc}") from exc
+        elif cfg.stereo_calibration_dir:
+            raise ConfigError(f"stereo_calibration_dir: {cdir} has no left.yaml + right.yaml")
+        if rig is not None:
+            self._static_tf[cfg.right_camera_frame] = (cfg.camera_frame,
+                                                       np.linalg.inv(rig.right_T_left))
+        self._publish_static_tf(self.calibration.transform if self.calibration is not None
+                                else None)
+
+    def _publish_static_tf(self, ee_T_cam: np.ndarray | None) -> None:
+        """(Re)publish every static transform of this node in one /tf_static message."""
+        from eye_in_hand.ros.tf import make_tf_message
+
+        if self.pub_tf_static is None:
+            return
+        cfg = self.config
+        if ee_T_cam is not None:
+            self._static_tf[cfg.camera_frame] = (cfg.ee_frame, np.asarray(ee_T_cam))
+        if not self._static_tf:
+            return
+        stamp = self.get_clock().now().nanoseconds
+        self.pub_tf_static.publish(make_tf_message(
+            (parent, child, stamp, T) for child, (parent, T) in self._static_tf.items()))
+
+    def _publish_target_tf(self, stamp_ns: int, p: np.ndarray) -> None:
+        """``base_frame -> target_frame`` on /tf at the image stamp (translation only)."""
+        from eye_in_hand.ros.tf import make_tf_message
+
+        if self.pub_tf is None:
+            return
+        T = np.eye(4)
+        T[:3, 3] = p
+        self.pub_tf.publish(make_tf_message(
+            [(self.config.base_frame, self.config.target_frame, stamp_ns, T)]))
 
     # -- calibration ---------------------------------------------------------------------
     def _setup_calibration(self) -> None:
@@ -390,6 +516,7 @@ class HandEyeNode(Node):
         self.samples: list[Any] = []
         self.skipped: list[dict[str, str]] = []
         self.result = None
+        self._saved_dir: Path | None = None  # what hand_eye/save wrote (it may replace that)
         for name, cb in (("capture", self._srv_capture), ("compute", self._srv_compute),
                          ("save", self._srv_save), ("reset", self._srv_reset)):
             self.create_service(Trigger, f"hand_eye/{name}", cb)
@@ -489,6 +616,7 @@ class HandEyeNode(Node):
         except EyeInHandError as exc:
             response.success, response.message = False, f"compute failed: {exc}"
             return response
+        self._publish_static_tf(self.result.X)
         sel = self.result.methods[self.result.selected]
         t = self.result.X[:3, 3]
         response.success = True
@@ -500,21 +628,28 @@ class HandEyeNode(Node):
 
     def _srv_save(self, request: Trigger.Request, response: Trigger.Response):
         from eye_in_hand.commands.calibrate_handeye import write_outputs
+        from eye_in_hand.io.atomic import atomic_output_dir
 
         if self.result is None:
             response.success, response.message = False, "nothing to save: call hand_eye/compute"
             return response
-        try:
-            paths = write_outputs(
-                Path(self.config.output_dir), self.result, self.samples, setup="eye_in_hand",
-                parent_frame=self.config.ee_frame, child_frame=self.config.camera_frame,
-                input_meta={"source": "hand_eye node", "count": len(self.samples)
-                            + len(self.skipped)}, skipped=self.skipped)
+        out = Path(self.config.output_dir)
+        own = self._saved_dir is not None and out.absolute() == self._saved_dir
+        try:  # written whole under a temporary name, then renamed into place
+            with atomic_output_dir(out, overwrite=self.config.overwrite_output or own,
+                                   option="parameter 'output_dir'",
+                                   hint="set overwrite_output:=true to replace it") as tmp:
+                paths = write_outputs(
+                    tmp, self.result, self.samples, setup="eye_in_hand",
+                    parent_frame=self.config.ee_frame, child_frame=self.config.camera_frame,
+                    input_meta={"source": "hand_eye node", "count": len(self.samples)
+                                + len(self.skipped)}, skipped=self.skipped)
         except (EyeInHandError, OSError) as exc:
             response.success, response.message = False, f"save failed: {exc}"
             return response
+        self._saved_dir = out.absolute()
         response.success = True
-        response.message = "wrote " + ", ".join(str(p) for p in paths)
+        response.message = "wrote " + ", ".join(str(out / p.name) for p in paths)
         return response
 
     def _srv_reset(self, request: Trigger.Request, response: Trigger.Response):

@@ -8,6 +8,10 @@ Publishes (relative names):
     ``joint_states`` (sensor_msgs/JointState) and ``ee_pose`` (geometry_msgs/PoseStamped,
     ``base_frame`` -> ``tool_frame``): ``sim`` source only, when ``sim.publish_robot_state``;
     stamped with the image stamp, i.e. the robot pose at which the pair was rendered.
+    ``/tf`` (the arm, one transform per joint, ``base_frame`` -> ... -> the world's tip link,
+    at the image stamp, as ``robot_state_publisher`` publishes it) and ``/tf_static`` (the
+    world's stereo extrinsic ``left_frame_id`` -> ``right_frame_id``, transient local):
+    ``sim`` source with ``sim.publish_tf``, when tf2_msgs is installed.
     ``diagnostics``: pairs published, read failures, frames not ready in time, source state.
 
 Sources (parameter ``source``):
@@ -44,7 +48,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.core.camera import CameraModel, StereoRig
-from eye_in_hand.errors import ConfigError, EyeInHandError
+from eye_in_hand.errors import ConfigError, EyeInHandError, InputError
+from eye_in_hand.io.images import read_image_file
 from eye_in_hand.ros.conversions import (
     make_header,
     matrix_to_pose_stamped,
@@ -102,6 +107,8 @@ NODE_PARAMETERS: tuple[Param, ...] = (
     Param("sim.supersample", 2, "sim source: sub-pixel rays per axis on edges", range=(1, 8)),
     Param("sim.publish_robot_state", True, "sim source: also publish joint_states and "
           "ee_pose at each pair's stamp (not when following joint states)"),
+    Param("sim.publish_tf", True, "sim source: also publish the arm on /tf and the stereo "
+          "extrinsic on /tf_static, as robot_state_publisher would (needs tf2_msgs)"),
     Param("sim.follow_joint_states", False, "sim source: render at the joint vector of the "
           "latest message on sim.joint_states_topic instead of the built-in trajectory"),
     Param("sim.joint_states_topic", "joint_states", "sim source: JointState topic followed "
@@ -171,9 +178,10 @@ class ImageFilesSource(FrameSource):
         self.i += 1
         imgs = []
         for path in (self.left[i], self.right[i]):
-            img = cv2.imread(path, cv2.IMREAD_COLOR)
-            if img is None:
-                raise _ReadFailure(f"cannot read image {path}")
+            try:
+                img = read_image_file(path, cv2.IMREAD_COLOR)
+            except InputError as exc:
+                raise _ReadFailure(str(exc)) from exc
             imgs.append(img)
         return _Pair(imgs[0], imgs[1], index=i)
 
@@ -351,6 +359,9 @@ class StereoCaptureNode(Node):
 
             self.pub_joints = self.create_publisher(JointState, "joint_states", 10)
             self.pub_pose = self.create_publisher(PoseStamped, "ee_pose", 10)
+        self.pub_tf = None
+        if self._world is not None and not follow and self.cfg["sim.publish_tf"]:
+            self._setup_sim_tf()
         self._queue: queue.Queue[_Pair] = queue.Queue(maxsize=self.cfg["queue_depth"])
         self._stop = threading.Event()
         self._ended = threading.Event()
@@ -484,8 +495,37 @@ class StereoCaptureNode(Node):
             self.pub_joints.publish(js)
             self.pub_pose.publish(matrix_to_pose_stamped(  # type: ignore[union-attr]
                 self._world.arm.fk(pair.q), stamp_ns=stamp_ns, frame_id=c["base_frame"]))
+        if self.pub_tf is not None and pair.q is not None:
+            self._publish_sim_tf(pair.q, stamp_ns)
         self.diag.count("pairs")
         self.diag.gauge("source_index", int(pair.index))
+
+    # -- sim TF (robot_state_publisher stand-in) ---------------------------------------------
+    def _setup_sim_tf(self) -> None:
+        """/tf for the arm and /tf_static (stereo extrinsic, sent once, latched)."""
+        from eye_in_hand.ros.tf import (TF_STATIC_TOPIC, TF_TOPIC, have_tf2_msgs,
+                                        make_tf_message, tf_qos, tf_static_pub_qos)
+
+        if not have_tf2_msgs():
+            self.get_logger().warning("tf2_msgs is not installed: no /tf published (run "
+                                      "'make venv' to build it)")
+            return
+        from tf2_msgs.msg import TFMessage
+
+        assert self._world is not None
+        self.pub_tf = self.create_publisher(TFMessage, TF_TOPIC, tf_qos())
+        self.pub_tf_static = self.create_publisher(TFMessage, TF_STATIC_TOPIC,
+                                                   tf_static_pub_qos())
+        self.pub_tf_static.publish(make_tf_message([
+            (self.cfg["left_frame_id"], self.cfg["right_frame_id"],
+             self.get_clock().now().nanoseconds, self._world.left_T_right)]))
+
+    def _publish_sim_tf(self, q: np.ndarray, stamp_ns: int) -> None:
+        from eye_in_hand.ros.tf import chain_tf_edges, make_tf_message
+
+        assert self._world is not None and self.pub_tf is not None
+        edges = chain_tf_edges(self._world.arm, q, self.cfg["base_frame"])
+        self.pub_tf.publish(make_tf_message((p, ch, stamp_ns, T) for p, ch, T in edges))
 
     def destroy_node(self) -> None:
         """Stop the worker and release the source before destroying the node."""

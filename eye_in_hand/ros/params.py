@@ -400,7 +400,7 @@ def load_config(node: Any, config_cls: type, *, prefix: str = "") -> Any:
 
 
 def params_markdown(params: Iterable[Param] | type) -> str:
-    """A Markdown table (name, type, default, constraints, description) for the README."""
+    """A Markdown table (name, type, default, constraints, description) for the manual."""
     plist = params_of(params) if isinstance(params, type) else list(params)
     lines = ["| parameter | type | default | constraints | description |",
              "|---|---|---|---|---|"]
@@ -414,7 +414,7 @@ def params_markdown(params: Iterable[Param] | type) -> str:
             constraints.append("required")
         if not p.read_only:
             constraints.append("dynamic")
-        default = "" if p.required else repr(p.default)
-        lines.append(f"| `{p.name}` | {p.type} | `{default}` | {', '.join(constraints)} | "
+        default = "–" if p.required else f"`{p.default!r}`"  # never an empty code span
+        lines.append(f"| `{p.name}` | {p.type} | {default} | {', '.join(constraints)} | "
                      f"{p.description} |")
     return "\n".join(lines)

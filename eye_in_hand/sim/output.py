@@ -34,7 +34,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-import cv2
 import numpy as np
 import yaml
 
@@ -209,7 +208,7 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
               storage: str = "mcap", render: RenderOptions = RenderOptions(),
               image_rate_hz: float = 30.0, robot_rate_hz: float = 125.0,
               hold_frames: int = 3, move_s: float = 1.2, settle_s: float = 0.25,
-              still_images_only: bool = False,
+              still_images_only: bool = False, ee_pose: bool = True,
               start_ns: int = 1_700_000_000_000_000_000,
               progress: Callable[[int, int], None] | None = None) -> BagSummary:
     """Simulate a scenario and record it as a rosbag2 bag (zstd-compressed chunks).
@@ -228,6 +227,8 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
         settle_s: calibration: the arm also rests this long before and after those frames.
         still_images_only: calibration: record only the ``hold_frames`` settled images of
             each stop (no images while moving or settling; a much smaller bag).
+        ee_pose: write ``/ee_pose``; False records the robot as a real cell does (``/tf``,
+            ``/tf_static``, ``/joint_states`` only).
         start_ns: stamp of the first robot sample.
         progress: called with (images done, images total) after each image pair.
 
@@ -298,6 +299,8 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
                 ("gt_target", "geometry_msgs/msg/PointStamped", reliable),
                 ("gt_hand_eye", "geometry_msgs/msg/TransformStamped", latched),
                 ("gt_board", "geometry_msgs/msg/PoseStamped", latched)):
+            if key == "ee_pose" and not ee_pose:
+                continue
             writer.add_topic(TOPICS[key], typ, qos=qos)
         t0 = int(stamps[0])
         writer.write(TOPICS["tf_static"], t0, m.tf([m.transform_stamped(
@@ -318,7 +321,9 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
             writer.write(TOPICS["tf"], ns, m.tf([
                 m.transform_stamped(A, ns, frames_names[i], frames_names[i + 1])
                 for i, A in enumerate(link_T)]))
-            writer.write(TOPICS["ee_pose"], ns, m.pose_stamped(arm.fk(q), ns, FRAMES["base"]))
+            if ee_pose:
+                writer.write(TOPICS["ee_pose"], ns, m.pose_stamped(arm.fk(q), ns,
+                                                                   FRAMES["base"]))
         # images
         for n_img, ns in enumerate(img_stamps):
             q, _ = _interp_q(stamps, qs, ns)
@@ -358,6 +363,8 @@ def write_dataset(world: World, out: str | Path, *, frames: int, seed: int = 0,
         InputError: ``out`` exists and is not empty (unless ``overwrite``), or frames < 1.
         KinematicsError: fewer reachable poses than asked.
     """
+    from eye_in_hand.io.images import write_image_file
+
     root = Path(out)
     if frames < 1:
         raise InputError(f"frames must be >= 1, got {frames}")
@@ -376,8 +383,7 @@ def write_dataset(world: World, out: str | Path, *, frames: int, seed: int = 0,
                              exposure=render.exposure)
         for side, img in (("left", frame.left), ("right", frame.right)):
             path = root / side / f"{i:04d}.png"
-            if not cv2.imwrite(str(path), img):
-                raise InputError(f"cannot write image {path}")
+            write_image_file(path, img)  # through bytes: any file name works
         samples.append({"left": f"left/{i:04d}.png", "right": f"right/{i:04d}.png",
                         "base_T_ee": pose_to_dict(frame.truth.base_T_ee),
                         "joint_positions": [float(v) for v in q]})

@@ -140,17 +140,23 @@ def test_camera_bad_input_writes_nothing(case: str, data_dir: Path, tmp_path: Pa
     assert not out.exists() and _leftovers(tmp_path) == []
 
 
-def test_existing_output_folder_keeps_other_files(data_dir: Path, tmp_path: Path) -> None:
+def test_existing_output_folder_refused_then_replaced_whole(data_dir: Path, tmp_path: Path,
+                                                            capsys) -> None:
     out = tmp_path / "out"
     out.mkdir()
     (out / "notes.txt").write_text("mine")
     (out / "camera.yaml").write_text("old")
-    code = main(["calibrate", "camera", "--images", str(_images(data_dir) / "left0*.jpg"),
-                 "--board", BOARD, "-o", str(out), "--no-html", "--reject-outliers"])
-    assert code == 0
-    assert (out / "notes.txt").read_text() == "mine"
+    argv = ["calibrate", "camera", "--images", str(_images(data_dir) / "left0*.jpg"),
+            "--board", BOARD, "-o", str(out), "--no-html", "--reject-outliers"]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "exists already" in err and "--overwrite" in err, err
+    assert (out / "camera.yaml").read_text() == "old"  # untouched
+    assert main(argv + ["--overwrite"]) == 0
     assert "camera_matrix" in (out / "camera.yaml").read_text()
-    assert sorted(p.name for p in out.iterdir()) == ["camera.yaml", "notes.txt", "report.json"]
+    # replaced whole: nothing of the old folder is left beside the new files
+    assert sorted(p.name for p in out.iterdir()) == ["camera.yaml", "report.json"]
+    assert _leftovers(tmp_path) == []
 
 
 def test_camera_from_compressed_bag_and_wrong_topic_type(data_dir: Path, tmp_path: Path,
@@ -198,13 +204,13 @@ def test_atomic_output_dir_leaves_nothing_on_failure(tmp_path: Path) -> None:
     out.mkdir()
     (out / "keep.txt").write_text("x")
     with pytest.raises(RuntimeError):
-        with atomic_output_dir(out) as tmp:
+        with atomic_output_dir(out, overwrite=True) as tmp:
             (tmp / "camera.yaml").write_text("partial")
             raise RuntimeError("boom")
     assert [p.name for p in out.iterdir()] == ["keep.txt"] and len(list(tmp_path.iterdir())) == 1
-    with atomic_output_dir(out) as tmp:
+    with atomic_output_dir(out, overwrite=True) as tmp:
         (tmp / "camera.yaml").write_text("done")
-    assert sorted(p.name for p in out.iterdir()) == ["camera.yaml", "keep.txt"]
+    assert sorted(p.name for p in out.iterdir()) == ["camera.yaml"]
 
 
 def test_new_output_folder_gets_normal_permissions(tmp_path: Path) -> None:

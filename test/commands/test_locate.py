@@ -75,7 +75,7 @@ def test_errors_are_one_line(scene, capsys, tmp_path):
     root, (left, right) = scene
     assert main(["locate", "--left", str(tmp_path / "none.png"), "--right", right,
                  "--calibration", str(root / "calib")]) == 1
-    assert "cannot read the image" in capsys.readouterr().err
+    assert "none.png: cannot read" in capsys.readouterr().err
     assert main(["locate", "--left", left, "--right", right, "--calibration",
                  str(tmp_path / "nowhere")]) == 1
     assert "calibration directory not found" in capsys.readouterr().err

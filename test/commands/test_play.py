@@ -65,36 +65,47 @@ def _make_bag(path: Path, ns: str, n: int = 20, spacing_ms: int = 10, *,
     return out
 
 
-def _player(ros_context, bag: Path, namespace: str | None = None, **params) -> BagPlayer:
+def _player(ros_context, bag: Path, namespace: str | None = None, *,
+            remap: dict[str, str] | None = None, **params) -> BagPlayer:
     overrides = [Parameter("bag", value=str(bag))]
     for key, value in params.items():
         if isinstance(value, list):
             overrides.append(Parameter(key, Parameter.Type.STRING_ARRAY, value))
         else:
             overrides.append(Parameter(key, value=value))
-    if namespace:
-        return BagPlayer(context=ros_context, namespace=namespace,
-                         parameter_overrides=overrides)
-    return BagPlayer(context=ros_context, parameter_overrides=overrides)
+    kwargs = {"namespace": namespace} if namespace else {}
+    if remap:
+        kwargs["cli_args"] = ["--ros-args", *[a for src, dst in remap.items()
+                                              for a in ("-r", f"{src}:={dst}")]]
+    return BagPlayer(context=ros_context, parameter_overrides=overrides, **kwargs)
 
 
-def _collector(ros_context, topics: dict[str, str]) -> tuple[Node, dict[str, list[bytes]]]:
+def _collector(ros_context, topics: dict[str, str], arrivals: list[float] | None = None
+               ) -> tuple[Node, dict[str, list[bytes]]]:
     node = Node("collector", context=ros_context)
     got: dict[str, list[bytes]] = {t: [] for t in topics}
+
+    def receive(raw: bytes, topic: str) -> None:
+        got[topic].append(raw)
+        if arrivals is not None:
+            arrivals.append(time.monotonic())
+
     for topic, msgtype in topics.items():
         # sensor-data style subscriber: best effort; receives from reliable offers too
         qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT)
         node.create_subscription(import_message_type(msgtype), topic,
-                                 lambda raw, t=topic: got[t].append(raw), qos, raw=True)
+                                 lambda raw, t=topic: receive(raw, t), qos, raw=True)
     return node, got
 
 
 def test_plays_stored_bytes_in_order_at_recorded_pace(tmp_path, ros_context, executor,
                                                       spin_until, namespace) -> None:
-    expected = _make_bag(tmp_path / "bag", namespace, n=20, spacing_ms=20)
+    expected = _make_bag(tmp_path / "bag", namespace, n=40, spacing_ms=25)
+    arrivals: list[float] = []
     collector, got = _collector(ros_context, {f"{namespace}/chatter": "std_msgs/msg/String",
-                                              f"{namespace}/image": "sensor_msgs/msg/Image"})
-    player = _player(ros_context, tmp_path / "bag", rate=2.0, wait_for_subscribers=10.0)
+                                              f"{namespace}/image": "sensor_msgs/msg/Image"},
+                                arrivals)
+    player = _player(ros_context, tmp_path / "bag", rate=4.0, wait_for_subscribers=10.0)
     executor.add_node(collector)
     executor.add_node(player)
     start = time.monotonic()
@@ -106,8 +117,13 @@ def test_plays_stored_bytes_in_order_at_recorded_pace(tmp_path, ros_context, exe
     assert player.error is None
     for topic, msgs in expected.items():
         assert got[topic] == [raw for _s, raw in msgs]  # same bytes, same order
-    # 19 gaps of 20 ms at rate 2: playback cannot be faster than the schedule
-    assert elapsed >= 19 * 0.020 / 2.0
+    # 39 gaps of 25 ms at rate 4: 0.244 s from the first message to the last. Never faster
+    # than the schedule; and not slower than twice it (rate 1 would take 0.975 s, rate 2
+    # 0.488 s): the margin absorbs scheduling delays of a loaded machine.
+    schedule = 39 * 0.025 / 4.0
+    assert elapsed >= schedule
+    span = arrivals[-1] - arrivals[0]
+    assert span < 2.0 * schedule, span
     assert player.published == {t: len(v) for t, v in expected.items()}
 
 
@@ -145,12 +161,15 @@ def test_start_offset_topics_and_clock(tmp_path, ros_context, executor, spin_unt
 
     collector, got = _collector(ros_context, {f"{namespace}/chatter": "std_msgs/msg/String"})
     clocks: list[int] = []
+    # /clock is absolute; remapped into the test's namespace so that another test run on the
+    # same DDS domain cannot feed this one its clock
+    clock_topic = f"{namespace}/clock"
     collector.create_subscription(
-        Clock, "/clock", lambda m: clocks.append(m.clock.sec * 10**9 + m.clock.nanosec),
+        Clock, clock_topic, lambda m: clocks.append(m.clock.sec * 10**9 + m.clock.nanosec),
         QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT))
     player = _player(ros_context, tmp_path / "bag", start_offset=0.1, clock=True,
                      clock_hz=200.0, topics=[f"{namespace}/chatter"],
-                     wait_for_subscribers=10.0)
+                     wait_for_subscribers=10.0, remap={"/clock": clock_topic})
     assert list(player.published) == [f"{namespace}/chatter"]
     executor.add_node(collector)
     executor.add_node(player)

@@ -76,8 +76,10 @@ def test_missing_topic_and_existing_output_are_one_line_errors(loc_bag, tmp_path
     err = capsys.readouterr().err
     assert rc == 1 and "/robot/pose" in err and "Traceback" not in err
     (tmp_path / "o2").mkdir()
+    (tmp_path / "o2" / "results.csv").write_text("earlier")
     rc = main(["process", str(bag), "--hand-eye", he, "-o", str(tmp_path / "o2"), "--quiet"])
-    assert rc == 1 and "exists" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert rc == 1 and "exists" in err and "--overwrite" in err
     rc = main(["process", str(bag), "--hand-eye", str(tmp_path / "nope.yaml"), "-o",
                str(tmp_path / "o3"), "--quiet"])
     assert rc == 1 and "nope.yaml" in capsys.readouterr().err

@@ -1,0 +1,93 @@
+"""Message classes looked up by type name, from ROS interface packages only.
+
+A bag names its message types (``sensor_msgs/msg/Image``), and so does the ROS graph. Importing
+``<pkg>.msg`` for whatever a bag names would run the ``__init__`` of any Python package that
+happens to be installed (a bag naming ``this/msg/Foo`` would import ``this``). So a type is
+imported only when:
+
+- its name matches ``^[A-Za-z][A-Za-z0-9_]*/msg/[A-Z][A-Za-z0-9_]*$`` (``pkg/Type`` is read as
+  ``pkg/msg/Type``);
+- ``pkg`` is a Python package (found without importing it) that rosidl generated: its folder
+  holds the ``<pkg>_s__rosidl_typesupport_c`` extension that ``rosidl_generator_py`` builds for
+  every interface package, and a ``msg`` subpackage.
+
+Nothing is imported before both checks pass.
+"""
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import re
+from pathlib import Path
+from typing import Any
+
+__all__ = ["MSGTYPE_PATTERN", "valid_msgtype", "interface_package_dir", "import_message_type"]
+
+#: A message type name that may be imported.
+MSGTYPE_PATTERN = re.compile(r"^[A-Za-z][A-Za-z0-9_]*/msg/[A-Z][A-Za-z0-9_]*$")
+
+
+def _normalise(msgtype: str) -> str:
+    parts = msgtype.split("/") if isinstance(msgtype, str) else []
+    if len(parts) == 2:
+        return f"{parts[0]}/msg/{parts[1]}"
+    return msgtype if isinstance(msgtype, str) else ""
+
+
+def valid_msgtype(msgtype: str) -> bool:
+    """Whether ``msgtype`` is a well-formed message type name (``pkg/msg/Type`` or ``pkg/Type``)."""
+    return bool(MSGTYPE_PATTERN.match(_normalise(msgtype)))
+
+
+def interface_package_dir(package: str) -> Path | None:
+    """The folder of the installed rosidl-generated Python package ``package``, or None.
+
+    Found with :func:`importlib.util.find_spec` on the top-level name, which locates the package
+    without running its code.
+    """
+    if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", package or ""):
+        return None
+    try:
+        spec = importlib.util.find_spec(package)
+    except (ImportError, ValueError):
+        return None
+    if spec is None or not spec.submodule_search_locations:
+        return None  # not installed, or a plain module
+    for location in spec.submodule_search_locations:
+        folder = Path(location)
+        if not (folder / "msg" / "__init__.py").is_file():
+            continue
+        if any(folder.glob(f"{package}_s__rosidl_typesupport_c*")) or any(
+                folder.glob(f"_{package}_s.ep.rosidl_typesupport_c*")):
+            return folder
+    return None
+
+
+def import_message_type(msgtype: str) -> Any:
+    """The Python message class for ``pkg/msg/Type``, or None when it is not an installed
+    ROS interface type.
+
+    Args:
+        msgtype: e.g. ``sensor_msgs/msg/Image`` (``pkg/Type`` is read as ``pkg/msg/Type``).
+
+    Returns:
+        The class (e.g. ``sensor_msgs.msg.Image``), or None when the name is malformed, the
+        package is not a rosidl interface package (nothing is imported then), or it has no such
+        message.
+    """
+    name = _normalise(msgtype)
+    if not MSGTYPE_PATTERN.match(name):
+        return None
+    package, _, type_name = name.split("/")
+    folder = interface_package_dir(package)
+    if folder is None:
+        return None
+    try:
+        module = importlib.import_module(f"{package}.msg")
+    except ImportError:
+        return None
+    cls = getattr(module, type_name, None)
+    if cls is None or not hasattr(cls, "_TYPE_SUPPORT") and not hasattr(
+            type(cls), "_TYPE_SUPPORT"):
+        return None
+    return cls
