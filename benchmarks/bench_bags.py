@@ -15,8 +15,8 @@ Figures printed:
   first 30 chunks) of the bundled localization bag (rendered without noise) and, when
   ``benchmarks/bench_localization.py`` has made it, of its 1280x720 bag with sensor noise:
   without the uncompressed size (``backports.zstd.decompress``), with it
-  (``backports.zstd.ZstdDecompressor(max_length=size)``, and ``zstandard`` when installed),
-  and the function ``eye_in_hand.io.mcap_chunks`` uses.
+  (``backports.zstd.ZstdDecompressor(max_length=size)``), and the function
+  ``eye_in_hand.io.mcap_chunks`` uses.
 
 Run ``--zstd`` for the decompression figures only.
 """
@@ -203,14 +203,6 @@ def bench_zstd(bag: Path) -> None:
     ways = {"without size (zstd.decompress)": lambda c: zstd.decompress(c.data),
             "with size (ZstdDecompressor, max_length)":
                 lambda c: zstd.ZstdDecompressor().decompress(c.data, max_length=c.size)}
-    try:
-        import zstandard
-
-        dctx = zstandard.ZstdDecompressor()
-        ways["with size (zstandard)"] = lambda c: dctx.decompress(c.data,
-                                                                  max_output_size=c.size)
-    except ImportError:
-        pass
     used = mcap_chunks._decompressor("zstd")
     ways[f"mcap_chunks ({mcap_chunks.zstd_binding()})"] = lambda c: used(c.data, c.size)
     print(f"zstd decompression of {len(chunks)} chunks of {bag} ({total / 1e6:.0f} MB out, "
