@@ -10,7 +10,15 @@ Figures printed:
   time (start + (t - t_first) / rate) and its arrival at a subscriber (median, 95th percentile,
   maximum), at rate 1 and rate 4;
 * recording: 200 images of 640x480 mono8 published back to back in the same process, written,
-  dropped, and end-to-end MB/s, for mcap and sqlite3.
+  dropped, and end-to-end MB/s, for mcap and sqlite3;
+* zstd chunk decompression (GB of output per CPU-second, best and median of 5 passes over the
+  first 30 chunks) of the bundled localization bag (rendered without noise) and, when
+  ``benchmarks/bench_localization.py`` has made it, of its 1280x720 bag with sensor noise:
+  without the uncompressed size (``backports.zstd.decompress``), with it
+  (``backports.zstd.ZstdDecompressor(max_length=size)``), and the function
+  ``eye_in_hand.io.mcap_chunks`` uses.
+
+Run ``--zstd`` for the decompression figures only.
 """
 from __future__ import annotations
 
@@ -170,7 +178,57 @@ def bench_record(tmp: Path, storage: str) -> None:
         rclpy.try_shutdown(context=context)
 
 
+def bench_zstd(bag: Path) -> None:
+    """Decompression speed of a bag's zstd chunks, per CPU-second (load-independent-ish)."""
+    import mmap
+
+    from rosbags.rosbag2 import Reader
+
+    from eye_in_hand.io import mcap_chunks
+
+    with Reader(bag) as reader:
+        storage = reader.storage.storages[0]
+        with open(storage.path, "rb") as fh:
+            view = memoryview(mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ))
+        chunks = [mcap_chunks._Chunk(c, view) for c in storage.chunks[:30]]
+    chunks = [c for c in chunks if c.compression == "zstd"]
+    if not chunks:
+        print(f"zstd decompression: {bag} has no zstd chunks")
+        return
+    total = sum(c.size for c in chunks)
+    try:
+        from compression import zstd  # type: ignore[import-not-found]
+    except ImportError:
+        from backports import zstd  # type: ignore[no-redef]
+    ways = {"without size (zstd.decompress)": lambda c: zstd.decompress(c.data),
+            "with size (ZstdDecompressor, max_length)":
+                lambda c: zstd.ZstdDecompressor().decompress(c.data, max_length=c.size)}
+    used = mcap_chunks._decompressor("zstd")
+    ways[f"mcap_chunks ({mcap_chunks.zstd_binding()})"] = lambda c: used(c.data, c.size)
+    print(f"zstd decompression of {len(chunks)} chunks of {bag} ({total / 1e6:.0f} MB out, "
+          f"compressed to {100 * sum(len(c.data) for c in chunks) / total:.0f} %):")
+    for name, fn in ways.items():
+        speeds = []
+        for _ in range(5):
+            t0 = time.process_time()
+            for c in chunks:
+                fn(c)
+            speeds.append(total / max(time.process_time() - t0, 1e-9) / 1e9)
+        speeds.sort()
+        print(f"  {name:<45} best {speeds[-1]:.2f} GB/s, median {speeds[2]:.2f} GB/s "
+              "per CPU-second")
+
+
 def main() -> None:
+    import sys
+
+    root = Path(__file__).resolve().parent.parent
+    for bag in (root / "bags" / "localization",
+                root / "build" / "bench-data" / "loc600" / "localization"):
+        if bag.exists():
+            bench_zstd(bag)
+    if "--zstd" in sys.argv[1:]:
+        return
     with tempfile.TemporaryDirectory() as tmp:
         bench_io(Path(tmp))
         bench_playback(Path(tmp), 1.0)

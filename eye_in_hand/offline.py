@@ -162,6 +162,10 @@ class ProcessResult:
     """All frames, counters, and what the bag covered.
 
     ``located_in_processes``: pairs located by worker processes (the rest in this process).
+    ``damage``: the damaged parts of the bag that were skipped (a
+    :class:`eye_in_hand.io.bags.DamageLog`: chunks, truncated tails, messages that could not
+    be read; messages of the processed topics read but not decodable are
+    ``counts['bad_messages']``).
     """
 
     frames: list[FrameResult] = field(default_factory=list)
@@ -170,6 +174,7 @@ class ProcessResult:
     duration_s: float = 0.0
     rig: StereoRig | None = None
     located_in_processes: int = 0
+    damage: Any = None
 
     def ok(self) -> list[FrameResult]:
         return [f for f in self.frames if f.status == "ok"]
@@ -189,14 +194,14 @@ _END = object()
 
 
 def _decoded(path: Path, topics: list[str], typestore: Any, errors: list[BaseException],
-             verify_crc: bool = False) -> Iterator[tuple[str, int, Any]]:
+             verify_crc: bool = False, damage: Any = None) -> Iterator[tuple[str, int, Any]]:
     """(topic, log time, message), produced on a reader thread (bounded queue).
 
     The bag is read without copies (memory-mapped MCAP) and images are decoded straight from
     their CDR bytes into views (:func:`eye_in_hand.io.cdr.image_from_cdr`); other messages go
     through the generic deserializer. A message that does not decode is handed on as its
-    exception (the consumer counts it and goes on); an unreadable bag ends the iteration with
-    the error.
+    exception (the consumer counts it and goes on); damaged parts of the bag go to ``damage``
+    (a ``DamageLog``) and are skipped; an unreadable bag ends the iteration with the error.
     """
     from eye_in_hand.io.bags import deserialize, iter_messages
     from eye_in_hand.io.cdr import image_from_cdr, is_image_type
@@ -214,7 +219,8 @@ def _decoded(path: Path, topics: list[str], typestore: Any, errors: list[BaseExc
     def reader() -> None:
         try:
             for topic, msgtype, t_ns, raw in iter_messages(path, topics, views=True,
-                                                           verify_crc=verify_crc):
+                                                           verify_crc=verify_crc,
+                                                           damage=damage):
                 if stop.is_set():
                     return
                 try:
@@ -279,7 +285,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         BagError: the bag cannot be read or lacks a required topic.
         InputError: malformed settings.
     """
-    from eye_in_hand.io.bags import bag_info, memory_mappable, require_topics, typestore_for
+    from eye_in_hand.io.bags import (DamageLog, bag_info, memory_mappable, require_topics,
+                                     typestore_for)
     from eye_in_hand.ros.conversions import header_stamp_ns, point_to_xyz, pose_to_matrix
 
     opts = options or ProcessOptions()
@@ -300,13 +307,13 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         max_age_ns=int(opts.max_pose_age_s * 1e9), jump_back_ns=int(opts.pose_jump_back_s * 1e9)))
     tf_buffer = _use_tf(localizer, opts, n_poses) if use_tf else None
     sync = ApproximateStereoSync(int(round(opts.sync_slop_s * 1e9)), opts.sync_queue_size)
-    result = ProcessResult(duration_s=info.duration_ns / 1e9, rig=rig)
+    result = ProcessResult(duration_s=info.duration_ns / 1e9, rig=rig, damage=DamageLog())
     counts = result.counts
     for key in ("pairs", "located", "localized", "no_target", "no_robot_pose", "bad_messages"):
         counts[key] = 0
     ledger = _Ledger(counts, int(opts.pose_jump_back_s * 1e9))
     if rig is None:
-        rig = _rig_from_camera_info(path, opts)
+        rig = _rig_from_camera_info(path, opts, result.damage)
         result.rig = rig
     truth: dict[int, np.ndarray] = {}
     pending: list[FrameResult] = []      # located, waiting for a robot pose after the stamp
@@ -355,7 +362,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
             pool.start_processes()     # they import and initialise while this process sets up
         typestore = typestore_for(path, {info.topics[t].msgtype for t in topics})
         errors: list[BaseException] = []
-        for topic, _t, msg in _decoded(path, topics, typestore, errors, opts.verify_crc):
+        for topic, _t, msg in _decoded(path, topics, typestore, errors, opts.verify_crc,
+                                       result.damage):
             if progress is not None:
                 progress(1)
             try:
@@ -413,6 +421,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         if frame.status == "located":
             frame.status = "ok"
     counts["ground_truth"] = len(truth)
+    counts["damaged_regions"] = len(result.damage)
+    counts["messages_lost"] = result.damage.messages_lost
     return result
 
 
@@ -501,21 +511,31 @@ class _Ledger:
         self.count("pose_buffer_resets", sum(localizer.poses.resets.values()))
 
 
-def _rig_from_camera_info(path: Path, opts: ProcessOptions) -> StereoRig:
-    """The stereo rig from the first camera_info message of each side."""
-    from eye_in_hand.io.bags import deserialize, iter_messages
+def _rig_from_camera_info(path: Path, opts: ProcessOptions, damage: Any = None) -> StereoRig:
+    """The stereo rig from the first readable camera_info message of each side (damaged and
+    undecodable ones are skipped, recorded in ``damage`` when given)."""
+    from eye_in_hand.io.bags import DamageLog, deserialize, iter_messages
     from eye_in_hand.ros.conversions import camera_info_to_model
 
     infos: dict[str, Any] = {}
+    log = DamageLog()           # the main pass reads these chunks again and records them
+    first_error: str = ""
     for topic, msgtype, t_ns, raw in iter_messages(path, [opts.left_info_topic,
-                                                          opts.right_info_topic]):
+                                                          opts.right_info_topic], damage=log):
         if topic not in infos:
             try:
                 infos[topic] = camera_info_to_model(deserialize(raw, msgtype))
-            except ConversionError as exc:
-                raise BagError(f"{path}: {topic} at {t_ns} ns: {exc}") from exc
+            except (BagError, ConversionError) as exc:
+                first_error = first_error or f"{topic} at {t_ns} ns: {exc}"
+                if damage is not None:
+                    damage.bad_message(topic, t_ns, str(exc))
         if len(infos) == 2:
             break
+    if len(infos) < 2:
+        missing = [t for t in (opts.left_info_topic, opts.right_info_topic) if t not in infos]
+        raise BagError(f"{path}: no readable camera_info on {', '.join(missing)}"
+                       + (f" (first error: {first_error})" if first_error else "")
+                       + (f"; {log.summary()}" if log else ""))
     return StereoRig.from_ros_pair(infos[opts.left_info_topic], infos[opts.right_info_topic],
                                    source=f"{path} {opts.right_info_topic}")
 
@@ -812,7 +832,8 @@ def write_results(out: str | Path, result: ProcessResult, opts: ProcessOptions |
                         *cols(f.truth_base, 3), "" if math.isnan(err) else f"{1000 * err:.6f}",
                         f.reason])
     summary = {"counts": result.counts, "bag_duration_s": result.duration_s,
-               "error": error_stats(result.frames)}
+               "error": error_stats(result.frames),
+               "damage": result.damage.to_dict() if result.damage is not None else None}
     summary_path = out / "summary.json"
     summary_path.write_text(json.dumps(summary, indent=2))
     return {"bag": out, "csv": csv_path, "summary": summary_path}

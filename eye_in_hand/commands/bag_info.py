@@ -15,6 +15,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bag", help="bag directory (metadata.yaml) or a single .mcap/.db3 file")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object instead of the human-readable table")
+    parser.add_argument("--check", action="store_true",
+                        help="read and decode every message, with chunk CRCs checked, and "
+                             "list the damaged parts (topic, time range, messages lost); "
+                             "exit status 2 when there are any")
 
 
 def _stamp(ns: int) -> str:
@@ -65,11 +69,25 @@ def format_info(info) -> str:  # noqa: ANN001 - BagInfo, imported lazily
 
 def run(args: argparse.Namespace) -> int:
     """Print the bag summary."""
-    from eye_in_hand.io.bags import bag_info
+    from eye_in_hand.io.bags import DamageLog, bag_info, check_bag
 
     info = bag_info(args.bag)
+    damage = DamageLog()
+    good = check_bag(args.bag, damage) if args.check else None
     if args.json:
-        print(json.dumps(info.to_dict(), indent=None))
+        data = info.to_dict()
+        if good is not None:
+            data["check"] = {"read": good, "damage": damage.to_dict()}
+        print(json.dumps(data, indent=None))
     else:
         print(format_info(info))
-    return 0
+        if good is not None:
+            total = sum(good.values())
+            if not damage:
+                print(f"Check:             all {total} messages read and decoded, no damage")
+            else:
+                print(f"Check:             {total} messages read and decoded; "
+                      f"{damage.summary()}")
+                for line in damage.lines(limit=50):
+                    print(f"Damaged:           {line}")
+    return 2 if damage else 0

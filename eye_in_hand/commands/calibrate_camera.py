@@ -39,6 +39,7 @@ __all__ = [
     "detect_files",
     "iter_bag_frames",
     "iter_bag_pairs",
+    "report_damage",
     "atomic_output_dir",
     "write_json",
     "progress",
@@ -148,6 +149,7 @@ class ImageSource:
     description: str
     frames: list[Frame] = field(default_factory=list)
     unmatched: int = 0
+    damage: Any = None      # eye_in_hand.io.bags.DamageLog of a bag source
 
 
 def progress(total: int | None, desc: str):
@@ -260,8 +262,13 @@ def _bag_topics(bag: Path, topics: Sequence[str]) -> dict[str, Any]:
     return dict(info.topics)
 
 
-def iter_bag_frames(bag: Path, topic: str, every: int) -> Iterator[tuple[str, int, np.ndarray]]:
+def iter_bag_frames(bag: Path, topic: str, every: int, damage: Any = None
+                    ) -> Iterator[tuple[str, int, np.ndarray]]:
     """Every ``every``-th image of ``topic``: ``(name, header_stamp_ns, image)``.
+
+    With ``damage`` (a :class:`eye_in_hand.io.bags.DamageLog`), damaged chunks and messages
+    that do not decode (a truncated image) are skipped and recorded there, naming topic and
+    stamp; without it they raise.
 
     Raises:
         BagError: the bag cannot be read, lacks the topic, or the topic is not an image topic.
@@ -270,10 +277,16 @@ def iter_bag_frames(bag: Path, topic: str, every: int) -> Iterator[tuple[str, in
     from eye_in_hand.io.bags import iter_messages
 
     _bag_topics(bag, [topic])
-    for k, (t, msgtype, log_ns, raw) in enumerate(iter_messages(bag, [topic])):
+    for k, (t, msgtype, log_ns, raw) in enumerate(iter_messages(bag, [topic], damage=damage)):
         if k % every:
             continue
-        image, stamp = _decode(msgtype, raw, t, log_ns)
+        try:
+            image, stamp = _decode(msgtype, raw, t, log_ns)
+        except (BagError, ConversionError) as exc:
+            if damage is None:
+                raise
+            damage.bad_message(t, log_ns, str(exc))
+            continue
         yield f"{t}@{stamp}", stamp, image
 
 
@@ -283,13 +296,15 @@ def bag_count(bag: Path, topic: str) -> int:
 
 
 def iter_bag_pairs(bag: Path, left_topic: str, right_topic: str, every: int,
-                   stats: dict[str, int] | None = None, max_pending: int = 64
+                   stats: dict[str, int] | None = None, max_pending: int = 64,
+                   damage: Any = None,
                    ) -> Iterator[tuple[int, tuple[str, np.ndarray], tuple[str, np.ndarray]]]:
     """Stereo pairs of a bag, matched by identical header stamps; every ``every``-th pair.
 
     Messages are decoded lazily (the raw bytes wait until a partner with the same header
     stamp arrives; at most ``max_pending`` per side). ``stats['unmatched']`` counts images
-    that found no partner.
+    that found no partner. With ``damage``, damaged chunks and images that do not decode are
+    skipped and recorded there (a pair with a damaged image is dropped); without it they raise.
 
     Yields:
         ``(stamp_ns, (left_name, left_image), (right_name, right_image))``.
@@ -307,20 +322,33 @@ def iter_bag_pairs(bag: Path, left_topic: str, right_topic: str, every: int,
     stats = stats if stats is not None else {}
     stats.setdefault("unmatched", 0)
     pair_index = 0
-    for topic, msgtype, log_ns, raw in iter_messages(bag, [left_topic, right_topic]):
+    for topic, msgtype, log_ns, raw in iter_messages(bag, [left_topic, right_topic],
+                                                     damage=damage):
         # the header stamp only: deserialising twice is cheap next to image decoding
-        stamp = header_stamp_ns(deserialize(raw, msgtype))
+        try:
+            stamp = header_stamp_ns(deserialize(raw, msgtype))
+        except (BagError, ConversionError) as exc:
+            if damage is None:
+                raise
+            damage.bad_message(topic, log_ns, str(exc))
+            continue
         other = right_topic if topic == left_topic else left_topic
         if stamp in pending[other]:
             o_type, o_raw, o_log = pending[other].pop(stamp)
             if pair_index % every == 0:
-                if topic == left_topic:
-                    li, _ = _decode(msgtype, raw, topic, log_ns)
-                    ri, _ = _decode(o_type, o_raw, other, o_log)
-                else:
-                    li, _ = _decode(o_type, o_raw, other, o_log)
-                    ri, _ = _decode(msgtype, raw, topic, log_ns)
-                yield stamp, (f"{left_topic}@{stamp}", li), (f"{right_topic}@{stamp}", ri)
+                images: dict[str, np.ndarray] = {}
+                for t, mt, r, lg in ((topic, msgtype, raw, log_ns), (other, o_type, o_raw, o_log)):
+                    try:
+                        images[t], _ = _decode(mt, r, t, lg)
+                    except (BagError, ConversionError) as exc:
+                        if damage is None:
+                            raise
+                        damage.bad_message(t, stamp, str(exc))
+                if len(images) < 2:
+                    pair_index += 1
+                    continue
+                yield stamp, (f"{left_topic}@{stamp}", images[left_topic]), \
+                    (f"{right_topic}@{stamp}", images[right_topic])
             pair_index += 1
         else:
             mine = pending[topic]
@@ -354,6 +382,18 @@ def _clean(value: Any) -> Any:
     if isinstance(value, np.bool_):
         return bool(value)
     return value
+
+
+def report_damage(damage: Any) -> dict | None:
+    """Print a bag's damage records as warnings (stderr); their dict for the report (None when
+    there is no log)."""
+    if damage is None:
+        return None
+    if damage:
+        print(f"eye-in-hand: warning: damaged bag: {damage.summary()}", file=sys.stderr)
+        for line in damage.lines():
+            print(f"eye-in-hand: warning: damaged: {line}", file=sys.stderr)
+    return damage.to_dict()
 
 
 def report_skipped(frames: Sequence[Frame], label: str) -> list[dict]:
@@ -400,11 +440,15 @@ def _gather(args: argparse.Namespace, board) -> ImageSource:
         return ImageSource("files", args.images, frames)
     if not args.left_topic:
         raise InputError("--bag needs --left-topic TOPIC (the image topic)")
+    from eye_in_hand.io.bags import DamageLog
+
     total = -(-bag_count(args.bag, args.left_topic) // args.every)
     frames = []
     size = None
+    damage = DamageLog()
     with progress(total, "camera") as bar:
-        for name, stamp, image in iter_bag_frames(args.bag, args.left_topic, args.every):
+        for name, stamp, image in iter_bag_frames(args.bag, args.left_topic, args.every,
+                                                  damage):
             shape = (image.shape[1], image.shape[0])
             if size is None:
                 size = (name, shape)
@@ -417,8 +461,10 @@ def _gather(args: argparse.Namespace, board) -> ImageSource:
             frames.append(Frame(name, det, image if not frames else None, stamp))
             bar.update(1)
     if not frames:
-        raise BagError(f"bag {args.bag}: no images on {args.left_topic}")
-    return ImageSource("bag", f"{args.bag} {args.left_topic} (every {args.every})", frames)
+        raise BagError(f"bag {args.bag}: no images on {args.left_topic}"
+                       + (f" ({damage.summary()})" if damage else ""))
+    return ImageSource("bag", f"{args.bag} {args.left_topic} (every {args.every})", frames,
+                       damage=damage)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -430,6 +476,7 @@ def run(args: argparse.Namespace) -> int:
     options = options_from_args(args)
     source = _gather(args, board)
     skipped = report_skipped(source.frames, "camera")
+    damage = report_damage(source.damage)
     names = [f.name for f in source.frames]
     cal = calibrate_camera([f.detection for f in source.frames], names, options=options,
                            reject_outliers=args.reject_outliers,
@@ -441,6 +488,8 @@ def run(args: argparse.Namespace) -> int:
     report["input"] = {"kind": source.kind, "source": source.description,
                        "images": len(source.frames), "skipped": skipped,
                        "detector": args.detector}
+    if damage is not None:
+        report["input"]["damage"] = damage
     with atomic_output_dir(args.output, overwrite=args.overwrite) as tmp:
         cal.camera.save_yaml(tmp / "camera.yaml")
         write_json(tmp / "report.json", report)
@@ -454,6 +503,8 @@ def run(args: argparse.Namespace) -> int:
     outl = [v.name for v in cal.views if v.outlier]
     print(f"camera: RMS {cal.rms_px:.4f} px over {len(cal.used_views)} views "
           f"({len(skipped)} skipped{', outliers: ' + ', '.join(outl) if outl else ''})")
+    if source.damage:
+        print(f"  damaged bag: {source.damage.summary()}")
     print(f"  fx {cam.fx:.3f}  fy {cam.fy:.3f}  cx {cam.cx:.3f}  cy {cam.cy:.3f}  "
           f"(std {cal.std['fx']:.3f} {cal.std['fy']:.3f} {cal.std['cx']:.3f} {cal.std['cy']:.3f})")
     print(f"  dist ({cam.distortion_model}) {np.array2string(cam.dist, precision=5)}")

@@ -207,12 +207,16 @@ def _load_bag(args: argparse.Namespace) -> dict[str, Any]:
     notes.append(f"bag: {found.n_images} images, {len(found.samples)} still stops, {moving} "
                  f"images with the robot moving; robot pose from {found.pose_source}")
     skipped.extend(s for s in found.skipped if "name" in s)
+    if found.damage:        # damaged chunks and unusable messages, skipped: named and counted
+        notes.append(f"damaged bag: {found.damage.summary()}")
+        notes.extend(f"damaged: {line}" for line in found.damage.lines())
     return {"samples": samples, "views": views, "setup": args.setup or "eye_in_hand",
             "skipped": skipped, "notes": notes, "ground_truth": dict(found.ground_truth),
             "input": {"type": "bag", "path": str(args.bag), "board": args.board,
                       "stereo": rig is not None, "count": len(found.samples),
                       "image_topics": dict(found.image_topics),
-                      "pose_source": found.pose_source}}
+                      "pose_source": found.pose_source,
+                      "damage": found.damage.to_dict() if found.damage is not None else None}}
 
 
 def _html(result: Any, report: dict[str, Any], path: Path) -> None:

@@ -19,7 +19,8 @@ from eye_in_hand.commands.calibrate_camera import (Frame, add_common_arguments, 
                                                    bag_count, check_common_arguments,
                                                    detect_files, expand_glob, iter_bag_pairs,
                                                    options_from_args, progress, read_image,
-                                                   report_skipped, view_entries, write_json)
+                                                   report_damage, report_skipped, view_entries,
+                                                   write_json)
 from eye_in_hand.errors import BagError, CalibrationError, InputError
 
 __all__ = ["HELP", "add_arguments", "run"]
@@ -77,13 +78,17 @@ def _gather(args: argparse.Namespace, board) -> tuple[list[Frame], list[Frame], 
         raise InputError("--bag needs --left-topic and --right-topic")
     total = -(-min(bag_count(args.bag, args.left_topic), bag_count(args.bag, args.right_topic))
               // args.every)
+    from eye_in_hand.io.bags import DamageLog
+
     left: list[Frame] = []
     right: list[Frame] = []
     stats: dict[str, int] = {}
     size = None
+    args.bag_damage = DamageLog()   # damaged chunks and images: skipped, named, counted
     with progress(total, "stereo pairs") as bar:
         for stamp, (ln, li), (rn, ri) in iter_bag_pairs(args.bag, args.left_topic,
-                                                        args.right_topic, args.every, stats):
+                                                        args.right_topic, args.every, stats,
+                                                        damage=args.bag_damage):
             shapes = ((li.shape[1], li.shape[0]), (ri.shape[1], ri.shape[0]))
             if shapes[0] != shapes[1]:
                 raise CalibrationError(f"left image {ln} is {shapes[0][0]}x{shapes[0][1]} but "
@@ -117,8 +122,11 @@ def _pair_image(args: argparse.Namespace, left: list[Frame], right: list[Frame],
         lf = expand_glob(args.left, "--left")[idx]
         rf = expand_glob(args.right, "--right")[idx]
         return (read_image(lf), read_image(rf)), corners, name
-    for k, (_stamp, (_ln, li), (_rn, ri)) in enumerate(
-            iter_bag_pairs(args.bag, args.left_topic, args.right_topic, args.every)):
+    from eye_in_hand.io.bags import DamageLog
+
+    for k, (_stamp, (_ln, li), (_rn, ri)) in enumerate(   # damage was reported in the first pass
+            iter_bag_pairs(args.bag, args.left_topic, args.right_topic, args.every,
+                           damage=DamageLog())):
         if k == idx:
             return (li, ri), corners, name
     return None, None, ""
@@ -135,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
     options = options_from_args(args)
     left, right, description, unmatched = _gather(args, board)
     skipped = report_skipped(left, "left") + report_skipped(right, "right")
+    damage = report_damage(getattr(args, "bag_damage", None))
     if unmatched:
         print(f"eye-in-hand: stereo: {unmatched} image(s) had no partner with the same header "
               "stamp and were ignored", file=sys.stderr)
@@ -159,6 +168,8 @@ def run(args: argparse.Namespace) -> int:
     report["board"] = str(board)
     report["input"] = {"source": description, "pairs": len(left), "skipped": skipped,
                        "unmatched": unmatched, "detector": args.detector}
+    if damage is not None:
+        report["input"]["damage"] = damage
     with atomic_output_dir(args.output, overwrite=args.overwrite) as tmp:
         cal.rig.save(tmp)
         write_json(tmp / "report.json", report)

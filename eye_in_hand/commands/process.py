@@ -197,6 +197,10 @@ def run(args: argparse.Namespace) -> int:
                   f"{v} {k}" for k, v in refused.items()) if refused else ""))
     for note in result.notes:
         print(f"warning: {note}", file=sys.stderr)
+    if result.damage:
+        print(f"damaged bag: {result.damage.summary()}")
+        for line in result.damage.lines():
+            print(f"warning: damaged: {line}", file=sys.stderr)
     stats = error_stats(result.frames)
     if stats is not None:
         print(f"error against {args.ground_truth_topic} over {stats['frames']} frames: "

@@ -38,7 +38,8 @@ from __future__ import annotations
 
 import heapq
 import threading
-from dataclasses import dataclass
+import zlib
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Iterable, Iterator, Literal, Mapping, Sequence
@@ -52,7 +53,10 @@ __all__ = [
     "TopicInfo",
     "BagInfo",
     "BagMessage",
+    "Damage",
+    "DamageLog",
     "bag_info",
+    "check_bag",
     "iter_messages",
     "iter_decoded",
     "memory_mappable",
@@ -187,6 +191,158 @@ class BagInfo:
 # reading
 # --------------------------------------------------------------------------------------------
 
+@dataclass(frozen=True)
+class Damage:
+    """A damaged part of a bag that was skipped while reading: a chunk (or the rest of one),
+    the tail of a truncated file, or one message.
+
+    Attributes:
+        file: the storage file (its name).
+        where: what was skipped, e.g. ``chunk at byte 1234``, ``message``, ``file tail``.
+        reason: what was wrong with it.
+        topics: topic -> number of messages lost on it, for the topics being read; empty
+            when the storage does not say (then ``messages`` is None).
+        start_ns, end_ns: log-time range of the lost messages (None: unknown).
+        messages: messages lost (None: unknown, e.g. the tail of a truncated file).
+    """
+
+    file: str
+    where: str
+    reason: str
+    topics: Mapping[str, int] = field(default_factory=dict)
+    start_ns: int | None = None
+    end_ns: int | None = None
+    messages: int | None = None
+
+    def describe(self) -> str:
+        """One line: where, which topics and times, how many messages, why."""
+        if self.start_ns is None:
+            when = "time unknown"
+        elif self.end_ns is None or self.end_ns == self.start_ns:
+            when = f"at {self.start_ns} ns" if self.end_ns is not None else \
+                f"from {self.start_ns} ns on"
+        else:
+            when = f"{self.start_ns}..{self.end_ns} ns"
+        if self.topics:
+            what = ", ".join(f"{n} on {t}" for t, n in sorted(self.topics.items()))
+            lost = f"{self.messages} message(s) lost ({what})"
+        elif self.messages is not None:
+            lost = f"{self.messages} message(s) lost"
+        else:
+            lost = "an unknown number of messages lost"
+        where = f"{self.file}: {self.where}" if self.file else self.where
+        return f"{where} ({when}) skipped, {lost}: {self.reason}"
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict (for JSON)."""
+        return {"file": self.file, "where": self.where, "reason": self.reason,
+                "topics": dict(sorted(self.topics.items())), "start_ns": self.start_ns,
+                "end_ns": self.end_ns, "messages": self.messages}
+
+
+class DamageLog:
+    """The damage records of one or more reads of a bag (thread-safe).
+
+    Pass one to :func:`iter_messages` / :func:`iter_decoded` (``damage=``): damaged chunks,
+    truncated tails and messages that cannot be read are recorded here and skipped, and the
+    rest of the bag is read on. Callers also record messages they cannot decode
+    (:meth:`bad_message`). Report with :meth:`lines` / :meth:`to_dict`.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.records: list[Damage] = []
+
+    def add(self, damage: Damage) -> None:
+        """Record one damaged region.
+
+        The same region met again (a command that reads a bag in several passes, or the
+        topics of one chunk read separately) is merged into its first record: topics are
+        united, each topic's count is the largest seen, so nothing is counted twice.
+        """
+        key = self._key(damage)
+        with self._lock:
+            for i, have in enumerate(self.records):
+                if self._key(have) != key:
+                    continue
+                topics = dict(have.topics)
+                for t, n in damage.topics.items():
+                    topics[t] = max(n, topics.get(t, 0))
+                known = have.messages is not None and damage.messages is not None
+                self.records[i] = Damage(
+                    have.file, have.where, have.reason, topics, have.start_ns, have.end_ns,
+                    sum(topics.values()) if known else None)
+                return
+            self.records.append(damage)
+
+    @staticmethod
+    def _key(d: Damage) -> tuple[Any, ...]:
+        if d.where == "message":
+            return d.file, d.where, tuple(sorted(d.topics)), d.start_ns
+        return d.file, d.where
+
+    def bad_message(self, topic: str, stamp_ns: int, reason: str, file: str = "") -> None:
+        """Record one message that was read but cannot be used (does not decode, a truncated
+        image, a non-finite pose)."""
+        self.add(Damage(file, "message", reason, {topic: 1}, stamp_ns, stamp_ns, 1))
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self.records)
+
+    def __bool__(self) -> bool:
+        return len(self) > 0
+
+    @property
+    def messages_lost(self) -> int:
+        """Messages known to be lost (damage of unknown size counts 0 here)."""
+        with self._lock:
+            return sum(d.messages or 0 for d in self.records)
+
+    @property
+    def unknown(self) -> int:
+        """Damaged regions whose number of lost messages is unknown."""
+        with self._lock:
+            return sum(1 for d in self.records if d.messages is None)
+
+    def by_topic(self) -> dict[str, int]:
+        """Topic -> messages lost on it (where known)."""
+        out: dict[str, int] = {}
+        with self._lock:
+            for d in self.records:
+                for t, n in d.topics.items():
+                    out[t] = out.get(t, 0) + n
+        return dict(sorted(out.items()))
+
+    def summary(self) -> str:
+        """One line, e.g. ``2 damaged region(s) skipped: 7 message(s) lost (...)``."""
+        topics = ", ".join(f"{n} on {t}" for t, n in self.by_topic().items())
+        text = f"{len(self)} damaged region(s) skipped: {self.messages_lost} message(s) lost"
+        if topics:
+            text += f" ({topics})"
+        if self.unknown:
+            text += f", plus an unknown number in {self.unknown} region(s)"
+        return text
+
+    def lines(self, limit: int = 20) -> list[str]:
+        """One line per record (at most ``limit``, then one line saying how many more)."""
+        with self._lock:
+            records = list(self.records)
+        out = [d.describe() for d in records[:limit]]
+        if len(records) > limit:
+            out.append(f"... and {len(records) - limit} more damaged region(s)")
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"regions", "messages_lost", "unknown_regions", "by_topic", "records"}``."""
+        with self._lock:
+            records = [d.to_dict() for d in self.records]
+        return {"regions": len(records), "messages_lost": self.messages_lost,
+                "unknown_regions": self.unknown, "by_topic": self.by_topic(),
+                "records": records}
+
+
+
 def _bag_error(path: Path, exc: BaseException, doing: str = "read") -> BagError:
     text = str(exc).strip() or type(exc).__name__
     return BagError(f"cannot {doing} bag {path}: {text}")
@@ -217,9 +373,11 @@ class _ScannedMcap:
     """An MCAP file whose summary/footer is missing (recording killed), read by a linear scan.
 
     ``rosbags`` needs the footer; ``ros2 bag`` (the mcap library) falls back to scanning. This
-    does the same: records are read in file order up to the first incomplete or invalid one;
-    messages of each chunk are sorted by log time (rosbag2 writes chunks in time order).
-    It offers the subset of the ``rosbags`` reader interface this module uses.
+    does the same: records are read in file order up to the first incomplete or invalid one
+    (the damaged tail); a chunk whose data cannot be read is skipped (its record length says
+    where the next record starts). Messages of each chunk are sorted by log time (rosbag2
+    writes chunks in time order). It offers the subset of the ``rosbags`` reader interface
+    this module uses; :attr:`damage` lists what the scan skipped.
     """
 
     compression_format = None
@@ -233,6 +391,7 @@ class _ScannedMcap:
         self.storage = self
         self.stopped_at: int | None = None
         self.stop_reason = ""
+        self.damage: list[Damage] = []
         schemas: dict[int, Any] = {}
         counts: dict[int, int] = {}
         conns: dict[int, Any] = {}
@@ -246,6 +405,8 @@ class _ScannedMcap:
                 conns[cid] = Connection(
                     cid, topic, schema.name if schema else "", get_msgdef(schema), "", 0,
                     ConnectionExtRosbag2(encoding, get_qos(meta)), self)
+            elif kind == -1:
+                self.damage.append(rec)
             elif kind == 0x05:
                 cid, stamp, _data = rec
                 counts[cid] = counts.get(cid, 0) + 1
@@ -257,9 +418,12 @@ class _ScannedMcap:
 
     @property
     def tail_note(self) -> str:
-        if self.stopped_at is None:
-            return ""
-        return f"; stopped at byte {self.stopped_at}: {self.stop_reason}"
+        text = "" if self.stopped_at is None else \
+            f"; stopped at byte {self.stopped_at}: {self.stop_reason}"
+        chunks = sum(1 for d in self.damage if d.where.startswith("chunk"))
+        if chunks:
+            text += f"; {chunks} damaged chunk(s) skipped"
+        return text
 
     @classmethod
     def try_open(cls, path: Path) -> _ScannedMcap | None:
@@ -277,7 +441,8 @@ class _ScannedMcap:
         """Nothing to release (each scan opens and closes the file)."""
 
     def _records(self) -> Iterator[tuple[int, Any]]:
-        """(opcode, parsed) for schemas, channels and messages, chunks expanded."""
+        """(opcode, parsed) for schemas, channels and messages, chunks expanded; ``(-1,
+        Damage)`` for a chunk that cannot be read and for a damaged tail."""
         import struct
 
         from rosbags.rosbag2.storage_mcap import decompress
@@ -307,16 +472,24 @@ class _ScannedMcap:
         with open(self.path, "rb") as fh:
             data = fh.read()
         pos = 8
+        last = [0]
+
+        def tail(at: int, reason: str) -> tuple[int, Any]:
+            self.stopped_at, self.stop_reason = at, reason
+            return -1, Damage(self.path.name, f"file tail from byte {at}",
+                              f"{reason} (the file ends at byte {len(data)})",
+                              start_ns=last[0] or None)
+
         while pos < len(data):
             if pos + 9 > len(data):
-                self.stopped_at, self.stop_reason = pos, "incomplete record header"
+                yield tail(pos, "incomplete record header")
                 return
             op, length = data[pos], struct.unpack_from("<Q", data, pos + 1)[0]
             if op == 0 or op > 0x0F:
-                self.stopped_at, self.stop_reason = pos, f"invalid record opcode {op}"
+                yield tail(pos, f"invalid record opcode {op}")
                 return
             if pos + 9 + length > len(data):
-                self.stopped_at, self.stop_reason = pos, "incomplete record"
+                yield tail(pos, "incomplete record")
                 return
             body = data[pos + 9:pos + 9 + length]
             pos += 9 + length
@@ -326,34 +499,56 @@ class _ScannedMcap:
                 if (rec := parse(op, body)) is not None:
                     yield rec
                 continue
+            chunk_at = pos - 9 - length
+            t0 = t1 = None
             try:  # chunk: expand its records, messages sorted by log time
-                _s, _e, size, crc = struct.unpack_from("<QQQI", body, 0)
+                t0, t1, size, crc = struct.unpack_from("<QQQI", body, 0)
                 compression, cpos = string(body, 28)
                 (n,) = struct.unpack_from("<Q", body, cpos)
                 inner = decompress(body[cpos + 8:cpos + 8 + n], compression, size, crc)
             except Exception as exc:
-                self.stopped_at, self.stop_reason = pos - 9 - length, f"bad chunk: {exc}"
-                return
+                yield -1, Damage(self.path.name, f"chunk at byte {chunk_at}",
+                                 f"{str(exc) or type(exc).__name__}", start_ns=t0, end_ns=t1)
+                continue
             ipos, msgs = 0, []
-            while ipos + 9 <= len(inner):
-                iop, ilen = inner[ipos], struct.unpack_from("<Q", inner, ipos + 1)[0]
-                rec = parse(iop, inner[ipos + 9:ipos + 9 + ilen])
-                ipos += 9 + ilen
-                if rec is not None and iop == 0x05:
-                    msgs.append(rec)
-                elif rec is not None:
-                    yield rec
+            try:
+                while ipos + 9 <= len(inner):
+                    iop, ilen = inner[ipos], struct.unpack_from("<Q", inner, ipos + 1)[0]
+                    if ipos + 9 + ilen > len(inner) or iop not in (0x03, 0x04, 0x05):
+                        raise ValueError(f"record at {ipos} of the chunk makes no sense "
+                                         f"(opcode {iop:#04x}, {ilen} bytes)")
+                    rec = parse(iop, inner[ipos + 9:ipos + 9 + ilen])
+                    ipos += 9 + ilen
+                    if rec is not None and iop == 0x05:
+                        msgs.append(rec)
+                    elif rec is not None:
+                        yield rec
+            except Exception as exc:
+                yield -1, Damage(self.path.name, f"chunk at byte {chunk_at}",
+                                 f"{str(exc) or type(exc).__name__}; the messages before it "
+                                 "are kept", start_ns=t0, end_ns=t1)
             msgs.sort(key=lambda r: r[1][1])
+            if msgs:
+                last[0] = max(last[0], msgs[-1][1][1])
             yield from msgs
 
     def messages(self, connections: Sequence[Any], start: int | None = None,
-                 stop: int | None = None) -> Iterator[tuple[Any, int, bytes]]:
+                 stop: int | None = None, on_damage: Any = None,
+                 ) -> Iterator[tuple[Any, int, bytes]]:
+        """Messages of ``connections`` in ``[start, stop)``; damage to ``on_damage``
+        (a damaged chunk without it raises :class:`BagError`; the damaged tail never does,
+        it is what scanning is for)."""
         by_id = {c.id: c for c in connections}
         lo = start if start is not None else 0
         hi = stop if stop is not None else 2**63
         for kind, rec in self._records():
             if kind == 0x05 and rec[0] in by_id and lo <= rec[1] < hi:
                 yield by_id[rec[0]], rec[1], rec[2]
+            elif kind == -1:
+                if on_damage is not None:
+                    on_damage(rec)
+                elif not rec.where.startswith("file tail"):
+                    raise BagError(f"{rec.where} of {rec.file}: {rec.reason}")
 
 
 class _OpenBag:
@@ -372,13 +567,21 @@ class _OpenBag:
                     reader: Any = Reader(target)
                     reader.open()
                 except Exception as exc:
-                    scanned = _ScannedMcap.try_open(target) if target.is_file() else None
-                    if scanned is None:
+                    # a storage file without summary (recording interrupted, file truncated):
+                    # scan it, also when it belongs to a bag directory with metadata.yaml
+                    files = [target] if target.is_file() else \
+                        sorted(f for f in target.glob("*.mcap") if f.is_file())
+                    scanned_all = [_ScannedMcap.try_open(f) for f in files]
+                    if not scanned_all or any(x is None for x in scanned_all):
                         raise
-                    reader = scanned
-                    self.notes.append(
-                        f"{target.name}: {exc} (no MCAP summary: the recording was interrupted); "
-                        f"read by scanning the file{scanned.tail_note}")
+                    for f, scanned in zip(files, scanned_all):
+                        assert scanned is not None
+                        self.readers.append(scanned)
+                        self.notes.append(
+                            f"{f.name}: {exc} (no MCAP summary: the recording was interrupted "
+                            f"or the file is truncated); read by scanning the file"
+                            f"{scanned.tail_note}")
+                    continue
                 self.readers.append(reader)
         except Exception as exc:
             self.close()
@@ -504,7 +707,8 @@ def _check_window(start_ns: int | None, end_ns: int | None) -> None:
 
 def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
                   start_ns: int | None = None, end_ns: int | None = None, *,
-                  views: bool = False, verify_crc: bool = True) -> Iterator[BagMessage]:
+                  views: bool = False, verify_crc: bool = True,
+                  damage: DamageLog | None = None) -> Iterator[BagMessage]:
     """Iterate over a bag's messages in log-time order, as raw CDR bytes.
 
     Messages of several storage files (split bags, or a directory of loose ``.mcap`` files)
@@ -523,12 +727,20 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
             instead of ``bytes``; saves copying every image.
         verify_crc: check MCAP chunk CRCs when the file has them (CRC-32 runs at about
             0.35 GB/s here: 16 ms per 1280x720 colour stereo pair).
+        damage: where damaged parts go: an MCAP chunk that cannot be read (bad index entry,
+            data that do not decompress, CRC mismatch, records that stop making sense: the
+            messages before the bad record are kept), the tail of a truncated file, a
+            per-message-compressed message that does not decompress, a storage file that
+            fails part-way (sqlite3): each becomes a :class:`Damage` record in the log, with
+            topics, log-time range and messages lost, and the rest of the bag is read on.
+            None: such damage raises :class:`BagError` (as before this option existed).
 
     Yields:
         ``(topic, msgtype, log_time_ns, raw_cdr_bytes)``.
 
     Raises:
-        BagError: the bag cannot be opened, or a message cannot be read (corrupt data).
+        BagError: the bag cannot be opened, or (without ``damage``) a part of it cannot be
+            read.
         InputError: bad time window.
     """
     _check_window(start_ns, end_ns)
@@ -548,7 +760,7 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
                 if conns:
                     streams.append(_storage_stream(part, conns, start_ns, stop,
                                                    per_message_zstd, len(streams), views,
-                                                   verify_crc))
+                                                   verify_crc, damage))
         if not streams:
             return
         merged = streams[0] if len(streams) == 1 else heapq.merge(*streams)
@@ -562,6 +774,43 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
         except Exception as exc:
             raise BagError(f"cannot read bag {bag.path} after message {index}: "
                            f"{str(exc) or type(exc).__name__}") from exc
+
+
+def check_bag(path: str | Path, damage: DamageLog) -> dict[str, int]:
+    """Read and decode every message of a bag, chunk CRCs checked: what ``bag info --check``
+    does.
+
+    Args:
+        path: a bag directory or a ``.mcap``/``.db3`` file.
+        damage: receives every damaged region and every message that does not decode
+            (images: their layout and data length are checked without copying the pixels).
+
+    Returns:
+        Topic -> number of messages read and decoded.
+
+    Raises:
+        BagError: the bag cannot be opened at all.
+    """
+    from eye_in_hand.errors import ConversionError
+    from eye_in_hand.io.cdr import image_from_cdr, is_image_type
+
+    store = typestore_for(path)
+    good: dict[str, int] = {}
+    for topic, msgtype, stamp, raw in iter_messages(path, views=True, verify_crc=True,
+                                                    damage=damage):
+        try:
+            img = image_from_cdr(raw) if is_image_type(msgtype) else None
+            if img is not None:
+                if img.height * img.step > len(img.data):
+                    raise ConversionError(f"image data: {len(img.data)} bytes, "
+                                          f"height x step needs {img.height * img.step}")
+            else:
+                deserialize(raw, msgtype, store)
+        except (BagError, ConversionError) as exc:
+            damage.bad_message(topic, stamp, str(exc))
+            continue
+        good[topic] = good.get(topic, 0) + 1
+    return good
 
 
 def memory_mappable(path: str | Path) -> bool:
@@ -582,32 +831,41 @@ def memory_mappable(path: str | Path) -> bool:
 
 
 def iter_decoded(path: str | Path, topics: Iterable[str] | None = None,
-                 start_ns: int | None = None, end_ns: int | None = None,
-                 ) -> Iterator[tuple[str, int, Any]]:
+                 start_ns: int | None = None, end_ns: int | None = None, *,
+                 damage: DamageLog | None = None) -> Iterator[tuple[str, int, Any]]:
     """Like :func:`iter_messages`, with each message decoded (for offline processing).
 
-    Types are taken from :func:`typestore_for` (the bag's own definitions, Jazzy for the rest).
+    Types are taken from :func:`typestore_for` (the bag's own definitions, Jazzy for the rest;
+    a message that its stored definition does not decode is tried with the Jazzy one).
+
+    Args:
+        damage: as :func:`iter_messages`; a message that does not decode is recorded there
+            too (:meth:`DamageLog.bad_message`, naming topic and log time) and skipped.
 
     Yields:
         ``(topic, log_time_ns, message)`` with rosbags message objects (numpy arrays for
         numeric sequences).
 
     Raises:
-        BagError: as :func:`iter_messages`, or a message that does not decode (names the topic
-            and the log time).
+        BagError: as :func:`iter_messages`, or (without ``damage``) a message that does not
+            decode (names the topic and the log time).
     """
     store = typestore_for(path)
-    for topic, msgtype, stamp, raw in iter_messages(path, topics, start_ns, end_ns):
+    for topic, msgtype, stamp, raw in iter_messages(path, topics, start_ns, end_ns,
+                                                    damage=damage):
         try:
             msg = deserialize(raw, msgtype, store)
         except BagError as exc:
-            raise BagError(f"bag {Path(path)}, topic {topic} at {stamp} ns: {exc}") from exc
+            if damage is None:
+                raise BagError(f"bag {Path(path)}, topic {topic} at {stamp} ns: {exc}") from exc
+            damage.bad_message(topic, stamp, str(exc))
+            continue
         yield topic, stamp, msg
 
 
 def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int | None,
                     per_message_zstd: bool, stream: int, views: bool = False,
-                    verify_crc: bool = True,
+                    verify_crc: bool = True, damage: DamageLog | None = None,
                     ) -> Iterator[tuple[int, int, int, str, str, bytes]]:
     """Messages of one storage file, with its own connections.
 
@@ -616,11 +874,30 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
     written as 2147483647/4294967295 in one and 9223372036/854775807 in the other, or QoS only
     in one of them) then yields nothing. Reading each storage file with its own connections
     avoids that.
+
+    Damage goes to ``damage`` (see :func:`iter_messages`); without it, it raises.
     """
     from eye_in_hand.io import mcap_chunks
 
+    name = Path(getattr(storage, "path", "")).name
+    by_id = {c.id: c for c in conns}
+
     if not per_message_zstd and mcap_chunks.supports(storage):
-        source = mcap_chunks.chunk_messages(storage, conns, start, stop, verify_crc=verify_crc)
+        def chunk_damage(cd: mcap_chunks.ChunkDamage) -> None:
+            assert damage is not None
+            topics: dict[str, int] = {}
+            for cid, n in (cd.lost or {}).items():
+                topic = by_id[cid].topic
+                topics[topic] = topics.get(topic, 0) + n
+            where = f"chunk at byte {cd.offset}"
+            reason = cd.reason[len(where) + 2:] if cd.reason.startswith(where + ": ") \
+                else cd.reason
+            damage.add(Damage(name, where, reason, topics,
+                              cd.start_ns, cd.end_ns,
+                              None if cd.lost is None else sum(topics.values())))
+
+        source = mcap_chunks.chunk_messages(storage, conns, start, stop, verify_crc=verify_crc,
+                                            on_damage=None if damage is None else chunk_damage)
         for order, (conn, stamp, view) in enumerate(source):
             yield stamp, stream, order, conn.topic, conn.msgtype, view if views else bytes(view)
         return
@@ -629,9 +906,48 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
             from compression import zstd  # type: ignore[import-not-found]  # Python >= 3.14
         except ImportError:
             from backports import zstd  # type: ignore[import-not-found,no-redef]
-    for order, (conn, stamp, raw) in enumerate(storage.messages(conns, start, stop)):
-        data = zstd.decompress(raw) if per_message_zstd else bytes(raw)
-        yield int(stamp), stream, order, conn.topic, conn.msgtype, data
+    if isinstance(storage, _ScannedMcap):
+        source: Iterator[tuple[Any, int, Any]] = storage.messages(
+            conns, start, stop, on_damage=damage.add if damage is not None else None)
+    else:
+        source = storage.messages(conns, start, stop)
+    read: dict[int, int] = {}
+    last = start
+    order = 0
+    while True:
+        try:
+            item = next(source, None)
+        except Exception as exc:
+            if damage is None:
+                raise
+            # the storage fails part-way (a corrupt sqlite3 page): the rest of the file is lost
+            lost = {c.topic: int(c.msgcount) - read.get(c.id, 0) for c in conns
+                    if start is None and stop is None and int(c.msgcount) > read.get(c.id, 0)}
+            damage.add(Damage(name, "the rest of the file",
+                              f"reading stopped after {order} message(s): "
+                              f"{str(exc) or type(exc).__name__}", lost, last, None,
+                              sum(lost.values()) if lost else None))
+            return
+        if item is None:
+            return
+        conn, stamp, raw = item
+        stamp = int(stamp)
+        last = stamp
+        read[conn.id] = read.get(conn.id, 0) + 1
+        if per_message_zstd:
+            try:
+                data = zstd.decompress(raw)
+            except Exception as exc:
+                if damage is None:
+                    raise BagError(f"{name}: {conn.topic} message at {stamp} ns does not "
+                                   f"decompress: {exc}") from exc
+                damage.bad_message(conn.topic, stamp, f"zstd data do not decompress ({exc})",
+                                   name)
+                continue
+        else:
+            data = bytes(raw)
+        yield stamp, stream, order, conn.topic, conn.msgtype, data
+        order += 1
 
 
 # --------------------------------------------------------------------------------------------
@@ -710,7 +1026,9 @@ def typestore_for(path: str | Path, msgtypes: Iterable[str] | None = None) -> An
     It holds the message definitions stored in the bag (MCAP schemas, the sqlite3
     ``message_definitions`` table of Jazzy bags) and, for every other type, the ROS 2 Jazzy
     definitions. A bag's own definition wins over Jazzy's, so bags from other distributions
-    whose types changed still decode.
+    whose types changed still decode; a stored definition that does not parse is replaced by
+    the Jazzy one when Jazzy defines the type (and :func:`deserialize` falls back to the Jazzy
+    definition for a message the stored one does not decode).
 
     Args:
         path: a bag directory or a ``.mcap``/``.db3`` file.
@@ -739,6 +1057,8 @@ def typestore_for(path: str | Path, msgtypes: Iterable[str] | None = None) -> An
                 types.update(_types_from_definition(conn.msgtype, conn.msgdef.format,
                                                     conn.msgdef.data))
             except Exception as exc:
+                if conn.msgtype in default_typestore().types:
+                    continue     # a stored definition that does not parse: Jazzy's is used
                 raise BagError(f"bag {bag.path}: cannot parse the stored definition of "
                                f"{conn.msgtype} (topic {conn.topic}): {exc}") from exc
     if wanted is None or _type_closure(types, wanted)[1]:
@@ -761,21 +1081,37 @@ def deserialize(raw: bytes | bytearray | memoryview, msgtype: str, typestore: An
     Args:
         raw: the serialized message (CDR with its 4-byte encapsulation header).
         msgtype: e.g. ``sensor_msgs/msg/Image``.
-        typestore: from :func:`typestore_for`; default: the Jazzy type store.
+        typestore: from :func:`typestore_for`; default: the Jazzy type store. When the
+            type store's definition does not decode the bytes and ROS 2 Jazzy defines the
+            type, the Jazzy definition is tried before giving up (a bag may store an old or
+            wrong definition).
 
     Returns:
         A rosbags dataclass instance (numpy arrays for numeric sequences).
 
     Raises:
-        BagError: unknown type, or bytes that do not decode as that type.
+        BagError: unknown type, or bytes that decode with neither definition.
     """
     store = typestore if typestore is not None else default_typestore()
-    if msgtype not in store.types:
+    jazzy = default_typestore()
+    if msgtype not in store.types and msgtype not in jazzy.types:
         raise BagError(f"message type {msgtype} is not known (not in ROS 2 Jazzy and not "
                        "defined by the bag); cannot decode it")
+    data = bytes(raw)
     try:
-        return store.deserialize_cdr(bytes(raw), msgtype)
+        if msgtype not in store.types:
+            raise KeyError(msgtype)
+        return store.deserialize_cdr(data, msgtype)
     except Exception as exc:
+        # the bag's stored definition may be old or wrong (a recorder with another
+        # distribution's definition): the Jazzy definition, when there is one, gets a try
+        if store is not jazzy and msgtype in jazzy.types:
+            try:
+                return jazzy.deserialize_cdr(data, msgtype)
+            except Exception:
+                pass
+            raise BagError(f"cannot decode {len(raw)} bytes as {msgtype} with the bag's "
+                           f"definition ({exc}) nor with the ROS 2 Jazzy one") from exc
         raise BagError(f"cannot decode {len(raw)} bytes as {msgtype}: {exc}") from exc
 
 
@@ -845,6 +1181,156 @@ def _to_rosbags_qos(qos: OfferedQos) -> Any:
         raise InputError(f"unknown QoS policy value {exc} in {qos}") from exc
 
 
+ROS_DISTRO = "jazzy"
+"""The distribution written bags name in ``metadata.yaml`` (the package targets ROS 2 Jazzy)."""
+
+
+class _CrcFile:
+    """A write-only file that keeps the CRC-32 of everything written through it."""
+
+    def __init__(self, fh: Any, crc: int) -> None:
+        self._fh = fh
+        self.crc = crc
+
+    def write(self, data: Any) -> int:
+        self.crc = zlib.crc32(data, self.crc)
+        return self._fh.write(data)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._fh, name)
+
+
+_WRITER_CLASS: Any = None
+
+
+def _rosbags_writer() -> Any:
+    """``rosbags.rosbag2.Writer`` whose MCAP files carry CRCs and whose metadata names the
+    distribution.
+
+    ``rosbags`` writes 0 (not computed) in every CRC field of an MCAP file and
+    ``ros_distro: rosbags`` in the metadata. Here each chunk gets the CRC-32 of its
+    uncompressed records, the data-end record the CRC-32 of the data section, and the footer
+    the CRC-32 of the summary section, as the MCAP specification defines them, so that
+    corruption can be detected (``--verify-crc``); the metadata (``metadata.yaml`` and the
+    copy inside the storage file) says ``ros_distro: jazzy``.
+    """
+    global _WRITER_CLASS
+    if _WRITER_CLASS is not None:
+        return _WRITER_CLASS
+    from io import BytesIO
+
+    from rosbags.rosbag2 import Writer
+    from rosbags.rosbag2.enums import StoragePlugin
+    from rosbags.rosbag2.storage_mcap import (McapWriter, PendingChunk, write_record,
+                                              write_string, write_uint16, write_uint32,
+                                              write_uint64)
+    from collections import defaultdict
+
+    def jazzy(metadata: str) -> str:
+        return metadata.replace("ros_distro: rosbags", f"ros_distro: {ROS_DISTRO}")
+
+    class CrcMcapWriter(McapWriter):  # type: ignore[misc,valid-type]
+        def __init__(self, path: Path, compression: Any) -> None:
+            super().__init__(path, compression)
+            self.bio.flush()
+            head = self.path.read_bytes()[:self.bio.tell()]     # magic and header record
+            self.bio = _CrcFile(self.bio, zlib.crc32(head))
+
+        def close_chunk(self) -> None:
+            # rosbags' close_chunk, with the CRC-32 of the uncompressed records
+            rec = BytesIO()
+            write_uint64(rec, self.chunk.message_start_time)
+            write_uint64(rec, self.chunk.message_end_time)
+            write_uint64(rec, self.chunk.bio.tell())
+            write_uint32(rec, zlib.crc32(self.chunk.bio.getbuffer()))
+            compressed = self.compressor(self.chunk.bio.getvalue())
+            write_string(rec, self.compression)
+            write_uint64(rec, len(compressed))
+            rec.write(compressed)
+            chunk_start = self.bio.tell()
+            write_record(self.bio, 0x06, rec)
+            chunk_end = self.bio.tell()
+            offsets: list[tuple[int, int]] = []
+            for cid, msgs in self.chunk.msgs.items():
+                offsets.append((cid, self.bio.tell()))
+                rec = BytesIO()
+                write_uint16(rec, cid)
+                write_uint32(rec, len(msgs) * 16)
+                for ts, offset in msgs:
+                    write_uint64(rec, ts)
+                    write_uint64(rec, offset)
+                write_record(self.bio, 0x07, rec)
+            rec = BytesIO()
+            write_uint64(rec, self.chunk.message_start_time)
+            write_uint64(rec, self.chunk.message_end_time)
+            write_uint64(rec, chunk_start)
+            write_uint64(rec, chunk_end - chunk_start)
+            write_uint32(rec, len(offsets) * 10)
+            for cid, offset in offsets:
+                write_uint16(rec, cid)
+                write_uint64(rec, offset)
+            write_uint64(rec, self.bio.tell() - chunk_end)
+            write_string(rec, self.compression)
+            write_uint64(rec, len(compressed))
+            write_uint64(rec, self.chunk.bio.tell())
+            self.chunks.append(rec)
+            self.chunk = PendingChunk(2**63 - 1, 0, BytesIO(), defaultdict(list))
+
+        def close(self, version: int, metadata: str) -> None:
+            if self.chunk.bio.tell():
+                self.close_chunk()
+            pos, crc = self.bio.tell(), self.bio.crc
+            super().close(version, jazzy(metadata))
+            _patch_mcap_crcs(self.path, pos, crc)
+
+    class CrcWriter(Writer):  # type: ignore[misc,valid-type]
+        STORAGE_PLUGINS = {**Writer.STORAGE_PLUGINS, StoragePlugin.MCAP: CrcMcapWriter}
+
+        def close(self) -> None:
+            storage = self.storage
+            if storage is not None and not isinstance(storage, CrcMcapWriter):
+                close = storage.close
+                storage.close = lambda version, metadata: close(version, jazzy(metadata))
+            super().close()
+            meta = Path(self.metapath)
+            if meta.is_file():
+                meta.write_text(jazzy(meta.read_text("utf8")), "utf8")
+
+    _WRITER_CLASS = CrcWriter
+    return CrcWriter
+
+
+def _patch_mcap_crcs(path: Path, pos: int, crc: int) -> None:
+    """Write the data-section and summary CRCs of a finished MCAP file.
+
+    ``crc`` is the CRC-32 of the file's first ``pos`` bytes (everything up to the end of the
+    last chunk and its message indexes); the rest of the data section (the metadata record)
+    and the summary are read back, they are small.
+    """
+    with open(path, "r+b") as fh:
+        fh.seek(0, 2)
+        size = fh.tell()
+        footer = size - 8 - 29
+        fh.seek(footer)
+        tail = fh.read(29)
+        if tail[0] != 0x02:
+            raise BagError(f"{path}: no MCAP footer where expected (byte {footer})")
+        summary_start = int.from_bytes(tail[9:17], "little")
+        data_end = (summary_start or footer) - 13
+        fh.seek(pos)
+        rest = fh.read(data_end - pos)
+        end_rec = fh.read(13)
+        if end_rec[0] != 0x0F:
+            raise BagError(f"{path}: no MCAP data-end record where expected (byte {data_end})")
+        fh.seek(data_end + 9)
+        fh.write(zlib.crc32(rest, crc).to_bytes(4, "little"))
+        if summary_start:
+            fh.seek(summary_start)
+            summary = fh.read(footer + 25 - summary_start)
+            fh.seek(footer + 25)
+            fh.write(zlib.crc32(summary).to_bytes(4, "little"))
+
+
 @dataclass
 class _Topic:
     connection: Any
@@ -882,7 +1368,6 @@ class BagWriter:
         self.path = Path(path)
         if self.path.exists():
             raise BagError(f"cannot write bag {self.path}: it exists already")
-        from rosbags.rosbag2 import Writer
         from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
         from rosbags.typesys import Stores, get_typestore
 
@@ -894,7 +1379,7 @@ class BagWriter:
         self._closed = False
         plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
         try:
-            self._writer = Writer(self.path, version=9, storage_plugin=plugin)
+            self._writer = _rosbags_writer()(self.path, version=9, storage_plugin=plugin)
             if compression == "zstd":
                 mode = CompressionMode.STORAGE if storage == "mcap" else CompressionMode.MESSAGE
                 self._writer.set_compression(mode, CompressionFormat.ZSTD)

@@ -26,7 +26,7 @@ import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 import yaml
@@ -391,6 +391,10 @@ class BagSamples:
         skipped: images not used and why (``{"stamp_ns", "reason"}``), e.g. robot moving.
         n_images: number of (reference) images in the bag.
         ground_truth: ``ee_T_cam`` when the bag has ``/ground_truth/hand_eye`` (simulator).
+        damage: the parts of the bag skipped as damaged (an
+            :class:`eye_in_hand.io.bags.DamageLog`): unreadable chunks, truncated tails, and
+            messages that do not decode, truncated images, non-finite poses (each naming
+            topic and stamp).
     """
 
     samples: tuple[BagSample, ...]
@@ -401,6 +405,7 @@ class BagSamples:
     skipped: tuple[dict[str, Any], ...]
     n_images: int
     ground_truth: Mapping[str, np.ndarray] = field(default_factory=dict)
+    damage: Any = None
 
 
 class _PoseSeries:
@@ -495,7 +500,7 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
                      use_tf: bool = False, base_frame: str = "base_link",
                      ee_frame: str = "tool0", stereo: bool | None = None,
                      still_window_s: float = 0.1, still_translation_m: float = 0.0005,
-                     still_rotation_deg: float = 0.05) -> BagSamples:
+                     still_rotation_deg: float = 0.05, damage: Any = None) -> BagSamples:
     """Find the still robot stops of a calibration recording and their images and poses.
 
     Each image (header stamp) is paired with the robot pose interpolated at that stamp (never
@@ -517,6 +522,10 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
         base_frame, ee_frame: frames of the /tf chain.
         stereo: force mono (False) or stereo (True); None: stereo when a right topic exists.
         still_window_s, still_translation_m, still_rotation_deg: the stillness test.
+        damage: a :class:`eye_in_hand.io.bags.DamageLog` to record damage in (default: a new
+            one, returned in ``BagSamples.damage``). Damaged chunks of the bag, messages that
+            do not decode, truncated images and non-finite robot poses are skipped and
+            recorded (topic, stamp, reason); the rest of the bag is used.
 
     Default pose source: ``pose_topic`` if given, else the joints, else /tf when asked, else
     ``/ee_pose`` when the bag has it, else ``/tf``.
@@ -528,7 +537,9 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
         ConfigError: missing or ambiguous topics, no pose source, broken /tf chain.
         BagError: unreadable bag.
     """
-    from eye_in_hand.io.bags import bag_info, deserialize, iter_messages, typestore_for
+    from eye_in_hand.errors import BagError, ConversionError
+    from eye_in_hand.io.bags import DamageLog, bag_info, deserialize, typestore_for
+    from eye_in_hand.io.bags import iter_messages as _iter_messages
     from eye_in_hand.ros.conversions import (camera_info_to_model, header_stamp_ns,
                                              image_to_numpy, pose_to_matrix,
                                              transform_to_matrix)
@@ -537,6 +548,20 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
     info = bag_info(path)
     topics = info.topics
     store = typestore_for(path)
+    log = damage if damage is not None else DamageLog()
+    unusable = (BagError, ConversionError, InputError, ConfigError, ValueError)
+    bad_images: dict[int, str] = {}
+
+    def iter_messages(bag: Any, wanted: list[str]) -> Iterator[tuple[str, str, int, Any]]:
+        """The bag's messages, damaged parts skipped and recorded."""
+        return _iter_messages(bag, wanted, damage=log)
+
+    def usable(topic: str, stamp_ns: int, T: Any) -> bool:
+        """Whether a robot pose is finite (else it is recorded as a bad message)."""
+        if T is not None and np.all(np.isfinite(T)):
+            return True
+        log.bad_message(topic, stamp_ns, "robot pose is not finite (NaN or inf)")
+        return False
     images = [t for t, ti in topics.items() if ti.msgtype == "sensor_msgs/msg/Image"]
     if image_topic is None:
         lefts = [t for t in images if "left" in t.split("/")]
@@ -572,32 +597,54 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
     if pose_topic is not None:
         pt = _resolve_topic(topics, pose_topic, "pose", source)
         pose_source = f"{pt} (PoseStamped)"
-        for topic, msgtype, _, raw in iter_messages(path, [pt]):
-            msg = deserialize(raw, msgtype, store)
-            series.add(header_stamp_ns(msg), pose_to_matrix(msg))
+        for topic, msgtype, log_ns, raw in iter_messages(path, [pt]):
+            try:
+                msg = deserialize(raw, msgtype, store)
+                stamp, T = header_stamp_ns(msg), pose_to_matrix(msg)
+            except unusable as exc:
+                log.bad_message(topic, log_ns, str(exc))
+                continue
+            if usable(topic, stamp, T):
+                series.add(stamp, T)
     elif joint_topic is not None:
         if kinematics is None:
             raise ConfigError("--joint-topic needs --kinematics (a DH chain)")
         jt = _resolve_topic(topics, joint_topic, "joint state", source)
         pose_source = f"{jt} (JointState) + forward kinematics"
         names = list(kinematics.joint_names)
-        for topic, msgtype, _, raw in iter_messages(path, [jt]):
-            msg = deserialize(raw, msgtype, store)
+        for topic, msgtype, log_ns, raw in iter_messages(path, [jt]):
+            try:
+                msg = deserialize(raw, msgtype, store)
+            except unusable as exc:
+                log.bad_message(topic, log_ns, str(exc))
+                continue
             pos = dict(zip(list(msg.name), np.asarray(msg.position, dtype=float)))
             missing = [n for n in names if n not in pos]
             if missing:
                 raise ConfigError(f"{source}: {jt} lacks joints {missing} of the kinematic "
                                   "chain")
-            series.add(header_stamp_ns(msg), kinematics.fk([pos[n] for n in names]))
+            q = [pos[n] for n in names]
+            if not np.all(np.isfinite(q)):
+                log.bad_message(topic, header_stamp_ns(msg), "joint positions are not finite")
+                continue
+            series.add(header_stamp_ns(msg), kinematics.fk(q))
     else:
         pose_source = f"/tf {base_frame} -> {ee_frame}"
         edges: dict[tuple[str, str], _PoseSeries] = {}
         static: dict[tuple[str, str], np.ndarray] = {}
-        for topic, msgtype, _, raw in iter_messages(path, ["/tf", "/tf_static"]):
-            msg = deserialize(raw, msgtype, store)
+        for topic, msgtype, log_ns, raw in iter_messages(path, ["/tf", "/tf_static"]):
+            try:
+                msg = deserialize(raw, msgtype, store)
+            except unusable as exc:
+                log.bad_message(topic, log_ns, str(exc))
+                continue
             for tr in msg.transforms:
                 key = (tr.header.frame_id.lstrip("/"), tr.child_frame_id.lstrip("/"))
-                T = transform_to_matrix(tr)
+                try:
+                    T = transform_to_matrix(tr)
+                except unusable as exc:
+                    log.bad_message(topic, log_ns, f"{key[0]} -> {key[1]}: {exc}")
+                    continue
                 if topic == "/tf_static":
                     static[key] = T
                 else:
@@ -622,8 +669,11 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
 
     # Image stamps of the reference view (pass 1), stillness and grouping.
     stamps: list[int] = []
-    for topic, msgtype, _, raw in iter_messages(path, [left_topic]):
-        stamps.append(_cdr_header_stamp_ns(raw))
+    for topic, msgtype, log_ns, raw in iter_messages(path, [left_topic]):
+        try:
+            stamps.append(_cdr_header_stamp_ns(raw))
+        except unusable as exc:
+            log.bad_message(topic, log_ns, str(exc))
     stamps.sort()
     half = int(round(still_window_s * 0.5e9))
     skipped: list[dict[str, Any]] = []
@@ -670,18 +720,28 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
     if "/ground_truth/hand_eye" in topics:
         wanted.append("/ground_truth/hand_eye")
     topic_view = {t: v for v, t in views.items()}
-    for topic, msgtype, _, raw in iter_messages(path, wanted):
-        if topic in info_topics:
-            if info_topics[topic] not in infos:
-                infos[info_topics[topic]] = deserialize(raw, msgtype, store)
+    for topic, msgtype, log_ns, raw in iter_messages(path, wanted):
+        try:
+            if topic in info_topics:
+                if info_topics[topic] not in infos:
+                    infos[info_topics[topic]] = deserialize(raw, msgtype, store)
+                continue
+            if topic == "/ground_truth/hand_eye":
+                truth["ee_T_cam"] = transform_to_matrix(deserialize(raw, msgtype, store))
+                continue
+            stamp = _cdr_header_stamp_ns(raw)
+        except unusable as exc:
+            log.bad_message(topic, log_ns, str(exc))
             continue
-        if topic == "/ground_truth/hand_eye":
-            truth["ee_T_cam"] = transform_to_matrix(deserialize(raw, msgtype, store))
-            continue
-        stamp = _cdr_header_stamp_ns(raw)
         if stamp in decoded:
-            msg = deserialize(raw, msgtype, store)
-            img = image_to_numpy(msg, copy=True)
+            try:
+                msg = deserialize(raw, msgtype, store)
+                img = image_to_numpy(msg, copy=True)
+            except unusable as exc:
+                log.bad_message(topic, stamp, str(exc))
+                bad_images[stamp] = f"the {topic_view[topic]} image at {stamp} ns is damaged " \
+                    f"({exc})"
+                continue
             enc = str(msg.encoding).lower()
             if enc == "rgb8":
                 img = img[..., ::-1].copy()
@@ -692,7 +752,8 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
         if set(decoded[stamp]) != set(views):
             missing = sorted(set(views) - set(decoded[stamp]))
             skipped.append({"stamp_ns": stamp, "name": name,
-                            "reason": f"no {'/'.join(missing)} image with the same stamp"})
+                            "reason": bad_images.get(
+                                stamp, f"no {'/'.join(missing)} image with the same stamp")})
             continue
         samples.append(BagSample(name, stamp, decoded[stamp], T))
     camera = rig = None
@@ -705,4 +766,4 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
             rig = StereoRig.from_ros_pair(left, right, source=f"{source}: camera_info")
     return BagSamples(samples=tuple(samples), camera=camera, rig=rig, image_topics=views,
                       pose_source=pose_source, skipped=tuple(skipped), n_images=len(stamps),
-                      ground_truth=truth)
+                      ground_truth=truth, damage=log)

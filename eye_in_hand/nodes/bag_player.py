@@ -14,7 +14,11 @@ topic, to reconcile with what the receiving nodes count), ``late_ms`` (how late 
 message went out), ``state``, ``loops``, and ``skipped_topics`` (WARN while > 0; each skipped
 topic is also logged once), ``problem: type_mismatch:<topic>`` when the bag recorded a type
 hash (metadata >= 7) that differs from the installed definition (logged once; the topic still
-plays, as with ``ros2 bag play``). A bag read error is reported at ERROR and ends playback.
+plays, as with ``ros2 bag play``). Damaged parts of the bag (a chunk that cannot be read, a
+truncated tail) are skipped and play goes on: each is logged once (file, where, topics, time
+range, messages lost) and reported at WARN as ``problem: damaged:<where>``, and the counters
+``damaged_regions`` and ``messages_lost`` count them (also in :attr:`BagPlayer.damage`). A
+bag that cannot be opened is reported at ERROR and ends playback.
 
 Like ``ros2 bag play``, the player does not wait for subscribers by default: messages published
 before DDS discovery completes are lost. ``wait_for_subscribers`` (seconds) waits until every
@@ -48,7 +52,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.errors import BagError, ConfigError, EyeInHandError
-from eye_in_hand.io.bags import BagInfo, OfferedQos, bag_info, iter_messages
+from eye_in_hand.io.bags import (BagInfo, Damage, DamageLog, OfferedQos, bag_info,
+                                 iter_messages)
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
 from eye_in_hand.ros.msgtypes import import_message_type as _import_message_type
 from eye_in_hand.ros.names import topic_name_problem
@@ -185,6 +190,7 @@ class BagPlayer(Node):
         self._threads: list[threading.Thread] = []
         self._error: BaseException | None = None
         self.published: dict[str, int] = {}
+        self.damage = _ReportedDamage(self)
         self.skipped_types: dict[str, str] = {}
         self.type_mismatches: dict[str, str] = {}
         self.loops_done = 0
@@ -197,7 +203,7 @@ class BagPlayer(Node):
             raise BagError(f"bag {self.info.path} has no topic {', '.join(unknown)}; it has: "
                            f"{', '.join(self.info.topics) or 'no topics'}")
         self.diag = NodeDiagnostics(self, hardware_id=str(self.info.path))
-        self.diag.declare_counter("published")
+        self.diag.declare_counter("published", "damaged_regions", "messages_lost")
         self._topic_pubs: dict[str, Any] = {}
         for name in wanted:
             topic = self.info.topics[name]
@@ -354,7 +360,7 @@ class BagPlayer(Node):
     def _reader(self, out: _Prefetch) -> None:
         try:
             for item in iter_messages(self.info.path, topics=list(self._topic_pubs),
-                                      start_ns=self._first_ns):
+                                      start_ns=self._first_ns, damage=self.damage):
                 if not out.put(item, len(item[3])):
                     return  # the pass ended (stop, or the publisher gave up)
             out.put(_END, 0)
@@ -384,6 +390,8 @@ class BagPlayer(Node):
             total = sum(self.published.values())
             if self.context.ok():
                 self.get_logger().info(f"published {total} message(s)")
+                if self.damage:
+                    self.get_logger().warning(f"damaged bag: {self.damage.summary()}")
             self._done.set()
 
     def _play_once(self) -> None:
@@ -417,6 +425,26 @@ class BagPlayer(Node):
         finally:
             buffer.close()
             reader.join(5.0)
+
+
+class _ReportedDamage(DamageLog):
+    """The player's damage log: each damaged region is also logged and reported once (per
+    region: a looping player meets the same damage every pass) and counted on diagnostics."""
+
+    def __init__(self, player: Any) -> None:
+        super().__init__()
+        self._player = player
+
+    def add(self, damage: Damage) -> None:
+        before = len(self)
+        super().add(damage)
+        diag = getattr(self._player, "diag", None)
+        if diag is None or len(self) == before:      # met again (a later loop): counted once
+            return
+        diag.count("damaged_regions")
+        diag.count("messages_lost", damage.messages or 0)
+        diag.report(f"damaged:{damage.file}:{damage.where}",
+                    f"damaged bag, skipped: {damage.describe()}")
 
 
 class _Prefetch:

@@ -207,3 +207,20 @@ def test_views_outlive_the_iteration(tmp_path: Path) -> None:
     arrays = [np.frombuffer(v, np.uint8) for v in views]
     assert [a.tobytes() for a in arrays] == [d for _tp, _t, d in _expected(chunks)]
     assert all(v.readonly for v in views)
+
+
+def test_zstd_chunks_decompress_with_their_size(tmp_path: Path) -> None:
+    from eye_in_hand.io import mcap_chunks
+
+    chunks = _chunks()
+    write_mcap(tmp_path / "x.mcap", chunks, compression="zstd")
+    assert _read(tmp_path / "x.mcap") == _expected(chunks)
+    try:
+        from compression import zstd  # type: ignore[import-not-found]
+    except ImportError:
+        from backports import zstd  # type: ignore[no-redef]
+    fn = mcap_chunks._decompressor("zstd")
+    data = zstd.compress(b"0123456789" * 1000)
+    assert bytes(fn(data, 10_000)) == b"0123456789" * 1000
+    with pytest.raises(ValueError, match="more than the 100 bytes"):
+        fn(data, 100)               # a size smaller than the data is never cut silently
