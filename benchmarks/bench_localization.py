@@ -328,8 +328,9 @@ def consistency(pairs: int, fresh: bool) -> dict[str, dict[str, float]]:
         if spec.is_ideal:
             opts = ProcessOptions(workers=1, robot_sigma_pos_m=0.0, robot_sigma_rot_rad=0.0)
         if he.robot_pose_noise is not None:
-            opts = ProcessOptions(workers=1, robot_sigma_pos_m=he.robot_pose_noise[0],
-                                  robot_sigma_rot_rad=he.robot_pose_noise[1])
+            noise = he.robot_pose_noise
+            opts = ProcessOptions(workers=1, robot_sigma_pos_m=noise["translation_sigma_m"],
+                                  robot_sigma_rot_rad=noise["rotation_sigma_rad"])
         res = process_bag(loc, hand_eye_T=he.transform, hand_eye_cov=he.covariance,
                           locator_config=cfg,
                           rig=StereoRig.load(calib), options=opts)
