@@ -15,12 +15,23 @@ import sys
 
 import numpy as np
 
-from eye_in_hand.commands.calibrate_camera import (Frame, add_common_arguments, atomic_output_dir,
-                                                   bag_count, check_common_arguments,
-                                                   detect_files, expand_glob, iter_bag_pairs,
-                                                   options_from_args, progress, read_image,
-                                                   report_damage, report_skipped, view_entries,
-                                                   write_json)
+from eye_in_hand.commands.calibration_inputs import (
+    Frame,
+    add_common_arguments,
+    atomic_output_dir,
+    bag_count,
+    check_common_arguments,
+    detect_files,
+    expand_glob,
+    iter_bag_pairs,
+    options_from_args,
+    progress,
+    read_image,
+    report_damage,
+    report_skipped,
+    view_entries,
+    write_json,
+)
 from eye_in_hand.errors import BagError, CalibrationError, InputError
 
 __all__ = ["HELP", "add_arguments", "run"]

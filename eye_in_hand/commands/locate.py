@@ -15,9 +15,10 @@ parameters); 2 when there is no target (the reason is printed on stderr).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
+
+from eye_in_hand.commands.common import apply_overrides
 
 HELP = "locate the target in one stereo pair from image files"
 
@@ -66,26 +67,6 @@ def _read(path: str, side: str):
     return img
 
 
-def apply_overrides(config, *, radius: float | None = None, method: str | None = None):
-    """The locator config with ``--radius`` (first target, metres) and ``--method`` applied.
-
-    Raises:
-        InputError: a radius that is not a positive number.
-    """
-    import math
-
-    from eye_in_hand.errors import InputError
-
-    if radius is not None:
-        if not (math.isfinite(radius) and radius > 0):
-            raise InputError(f"--radius: must be a positive number of metres, got {radius}")
-        targets = list(config.detector.targets)
-        targets[0] = dataclasses.replace(targets[0], radius_m=float(radius))
-        config = dataclasses.replace(
-            config, detector=dataclasses.replace(config.detector, targets=tuple(targets)))
-    if method is not None:
-        config = dataclasses.replace(config, method=method)
-    return config
 
 
 def run(args: argparse.Namespace) -> int:

@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from eye_in_hand.commands.locate import apply_overrides
+    from eye_in_hand.commands.common import apply_overrides
     from eye_in_hand.core.camera import StereoRig
     from eye_in_hand.core.locator import locator_config_from_params
     from eye_in_hand.errors import ConfigError, InputError
@@ -124,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
     if args.robot_pose == "joint_states":
         if not args.kinematics:
             raise InputError("--kinematics: required with --robot-pose joint_states")
-        from eye_in_hand.nodes.hand_eye import load_kinematics
+        from eye_in_hand.io.kinematics import load_kinematics
 
         kinematics = load_kinematics(args.kinematics, args.urdf_base_link, args.urdf_tip_link)
     if not args.task_timeout > 0:

@@ -97,7 +97,7 @@ def installed_type_hash(msgtype: str) -> str | None:
         from rosbags.typesys import Stores, get_typestore
 
         from eye_in_hand.io.bags import _types_from_definition
-        from eye_in_hand.nodes.bag_recorder import message_definition
+        from eye_in_hand.ros.msgtypes import message_definition
 
         try:
             store = get_typestore(Stores.EMPTY)
@@ -524,7 +524,7 @@ def spin_player(node: BagPlayer, executor: Any | None = None) -> int:
 
 def main(args: list[str] | None = None) -> None:
     """Console-script entry point (``ros2 run eye_in_hand bag_player --ros-args -p bag:=...``)."""
-    from eye_in_hand.nodes.bag_recorder import sigterm_as_interrupt
+    from eye_in_hand.ros.node_main import sigterm_as_interrupt
     from eye_in_hand.ros.node_main import run_with_executor
 
     sigterm_as_interrupt()

@@ -35,8 +35,6 @@ or ``eye-in-hand record -o run1 /a /b``.
 """
 from __future__ import annotations
 
-import re
-import signal
 import sys
 import threading
 import time
@@ -54,7 +52,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.errors import BagError, ConfigError, EyeInHandError
 from eye_in_hand.io.bags import STORAGES, BagWriter, OfferedQos, default_typestore
-from eye_in_hand.nodes.bag_player import import_message_type
+from eye_in_hand.ros.msgtypes import import_message_type, message_definition
+from eye_in_hand.ros.node_main import sigterm_as_interrupt
 from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
 
@@ -67,62 +66,6 @@ __all__ = [
     "sigterm_as_interrupt",
     "main",
 ]
-
-_BASE_TYPES = {
-    "boolean": "bool", "octet": "byte", "float": "float32", "double": "float64",
-    "long double": "float64",
-}
-_SEQ = re.compile(r"^sequence<(.+?)(?:,\s*(\d+))?>$")
-_ARR = re.compile(r"^(.+)\[(\d+)\]$")
-
-
-def _msg_field_type(idl: str, deps: list[str]) -> str:
-    """Translate one ``get_fields_and_field_types`` entry into ``.msg`` syntax."""
-    if m := _SEQ.match(idl):
-        inner = _msg_field_type(m.group(1), deps)
-        return f"{inner}[<={m.group(2)}]" if m.group(2) else f"{inner}[]"
-    if m := _ARR.match(idl):
-        return f"{_msg_field_type(m.group(1), deps)}[{m.group(2)}]"
-    if "/" in idl:
-        pkg, name = idl.split("/")[0], idl.split("/")[-1]
-        full = f"{pkg}/msg/{name}"
-        if full not in deps:
-            deps.append(full)
-        return f"{pkg}/{name}"
-    return _BASE_TYPES.get(idl, idl)
-
-
-def message_definition(msgtype: str) -> str:
-    """The ``.msg`` definition of an installed message type, dependencies appended.
-
-    Built from the Python class (``get_fields_and_field_types``), in the concatenated form
-    rosbag2 stores (``====`` line, ``MSG: pkg/msg/Dep``, definition). Constants and default values
-    are not included (they do not change the wire format).
-
-    Args:
-        msgtype: ``pkg/msg/Type``.
-
-    Returns:
-        The definition text.
-
-    Raises:
-        BagError: the type (or one of its field types) is not installed.
-    """
-    deps: list[str] = [msgtype]
-    parts: list[str] = []
-    i = 0
-    while i < len(deps):
-        name = deps[i]
-        cls = import_message_type(name)
-        if cls is None:
-            raise BagError(f"message type {name} (used by {msgtype}) is not installed")
-        lines = [f"{_msg_field_type(t, deps)} {field}"
-                 for field, t in cls.get_fields_and_field_types().items()]
-        text = "\n".join(lines) + "\n"
-        parts.append(text if i == 0 else f"{'=' * 80}\nMSG: {name}\n{text}")
-        i += 1
-    return "".join(parts)
-
 
 def _is_hidden(topic: str) -> bool:
     """Hidden topics (a name component starting with ``_``: service events, action internals)
@@ -425,18 +368,6 @@ class BagRecorder(Node):
     def destroy_node(self) -> None:
         self.close()
         super().destroy_node()
-
-
-def _interrupt(signum: int, frame: Any) -> None:
-    raise KeyboardInterrupt(f"signal {signum}")
-
-
-def sigterm_as_interrupt() -> None:
-    """Make SIGTERM stop the process like Ctrl-C (a ``KeyboardInterrupt``), so that ``finally``
-    blocks run and the bag is closed. Call before ``rclpy.init`` (rclpy chains to this handler;
-    without it, rclpy passes SIGTERM on to the default action, which kills the process)."""
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, _interrupt)
 
 
 def spin_recorder(node: BagRecorder, duration_s: float = 0.0, executor: Any | None = None) -> int:

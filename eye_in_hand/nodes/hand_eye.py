@@ -47,13 +47,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from geometry_msgs.msg import PointStamped, PoseStamped, PoseWithCovarianceStamped, TransformStamped
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, JointState
 from std_srvs.srv import Trigger
 
+from eye_in_hand.io.kinematics import load_kinematics
 from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.core.localization import Localizer, LocalizerConfig
 from eye_in_hand.core.transforms import rotation_angle
@@ -157,34 +157,6 @@ class HandEyeNodeConfig:
             raise ValueError("kinematics_file: required when robot_pose_source is joint_states")
         if self.mode == "calibration" and not self.calibration_dir:
             raise ValueError("calibration_dir: required in calibration mode")
-
-
-def load_kinematics(path: str, base_link: str = "base_link", tip_link: str = "tool0") -> Any:
-    """A kinematic chain from a URDF file (``*.urdf``, ``*.xml``) or a DH YAML file.
-
-    The DH YAML is the ``arm`` mapping of ``world.yaml`` (or a file with an ``arm`` key).
-
-    Raises:
-        ConfigError: the file is missing or malformed (names it).
-    """
-    from eye_in_hand.core.kinematics import DHChain, UrdfChain
-
-    p = Path(path)
-    try:
-        if p.suffix.lower() in (".urdf", ".xml"):
-            return UrdfChain.from_file(p, base_link, tip_link)
-        data = yaml.safe_load(p.read_text())
-        if isinstance(data, dict) and "arm" in data:
-            data = data["arm"]
-        if not isinstance(data, dict):
-            raise ConfigError(f"{p}: expected a DH mapping (d, a, alpha, ...)")
-        return DHChain.from_dict(data)
-    except ConfigError:
-        raise
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read kinematics file ({exc})") from exc
-    except (EyeInHandError, ValueError, KeyError, TypeError, yaml.YAMLError) as exc:
-        raise ConfigError(f"{p}: invalid kinematics file ({exc})") from exc
 
 
 @dataclass
@@ -693,7 +665,7 @@ class HandEyeNode(Node):
         return response
 
     def _srv_save(self, request: Trigger.Request, response: Trigger.Response):
-        from eye_in_hand.commands.calibrate_handeye import write_outputs
+        from eye_in_hand.report.handeye import write_outputs
         from eye_in_hand.io.atomic import atomic_output_dir
 
         if self.result is None:

@@ -21,7 +21,10 @@ import re
 from pathlib import Path
 from typing import Any
 
-__all__ = ["MSGTYPE_PATTERN", "valid_msgtype", "interface_package_dir", "import_message_type"]
+from eye_in_hand.errors import BagError
+
+__all__ = ["MSGTYPE_PATTERN", "valid_msgtype", "interface_package_dir", "import_message_type",
+           "message_definition"]
 
 #: A message type name that may be imported.
 MSGTYPE_PATTERN = re.compile(r"^[A-Za-z][A-Za-z0-9_]*/msg/[A-Z][A-Za-z0-9_]*$")
@@ -91,3 +94,59 @@ def import_message_type(msgtype: str) -> Any:
             type(cls), "_TYPE_SUPPORT"):
         return None
     return cls
+
+
+_BASE_TYPES = {
+    "boolean": "bool", "octet": "byte", "float": "float32", "double": "float64",
+    "long double": "float64",
+}
+_SEQ = re.compile(r"^sequence<(.+?)(?:,\s*(\d+))?>$")
+_ARR = re.compile(r"^(.+)\[(\d+)\]$")
+
+
+def _msg_field_type(idl: str, deps: list[str]) -> str:
+    """Translate one ``get_fields_and_field_types`` entry into ``.msg`` syntax."""
+    if m := _SEQ.match(idl):
+        inner = _msg_field_type(m.group(1), deps)
+        return f"{inner}[<={m.group(2)}]" if m.group(2) else f"{inner}[]"
+    if m := _ARR.match(idl):
+        return f"{_msg_field_type(m.group(1), deps)}[{m.group(2)}]"
+    if "/" in idl:
+        pkg, name = idl.split("/")[0], idl.split("/")[-1]
+        full = f"{pkg}/msg/{name}"
+        if full not in deps:
+            deps.append(full)
+        return f"{pkg}/{name}"
+    return _BASE_TYPES.get(idl, idl)
+
+
+def message_definition(msgtype: str) -> str:
+    """The ``.msg`` definition of an installed message type, dependencies appended.
+
+    Built from the Python class (``get_fields_and_field_types``), in the concatenated form
+    rosbag2 stores (``====`` line, ``MSG: pkg/msg/Dep``, definition). Constants and default values
+    are not included (they do not change the wire format).
+
+    Args:
+        msgtype: ``pkg/msg/Type``.
+
+    Returns:
+        The definition text.
+
+    Raises:
+        BagError: the type (or one of its field types) is not installed.
+    """
+    deps: list[str] = [msgtype]
+    parts: list[str] = []
+    i = 0
+    while i < len(deps):
+        name = deps[i]
+        cls = import_message_type(name)
+        if cls is None:
+            raise BagError(f"message type {name} (used by {msgtype}) is not installed")
+        lines = [f"{_msg_field_type(t, deps)} {field}"
+                 for field, t in cls.get_fields_and_field_types().items()]
+        text = "\n".join(lines) + "\n"
+        parts.append(text if i == 0 else f"{'=' * 80}\nMSG: {name}\n{text}")
+        i += 1
+    return "".join(parts)

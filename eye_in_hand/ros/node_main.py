@@ -1,11 +1,13 @@
 """The ``main()`` of a node: init, spin, clean shutdown on Ctrl-C, one-line start-up errors."""
 from __future__ import annotations
 
+import signal
 import sys
+import threading
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["run_node", "run_with_executor"]
+__all__ = ["run_node", "run_with_executor", "sigterm_as_interrupt"]
 
 
 def run_node(name: str, factory: Callable[[], Any], args: Sequence[str] | None = None) -> None:
@@ -65,3 +67,15 @@ def run_with_executor(factory: Callable[[], Any], spin: Callable[[Any, Any], int
         if executor is not None:
             executor.shutdown()
         rclpy.try_shutdown()
+
+
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+def sigterm_as_interrupt() -> None:
+    """Make SIGTERM stop the process like Ctrl-C (a ``KeyboardInterrupt``), so that ``finally``
+    blocks run and the bag is closed. Call before ``rclpy.init`` (rclpy chains to this handler;
+    without it, rclpy passes SIGTERM on to the default action, which kills the process)."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _interrupt)

@@ -1,0 +1,411 @@
+"""Inputs and outputs shared by ``calibrate camera`` and ``calibrate stereo``: the common
+options, image files and bag topics as board views, report entries and JSON files."""
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import os
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterator, Sequence
+
+import numpy as np
+
+from eye_in_hand.errors import BagError, CalibrationError, ConversionError, InputError
+from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
+from eye_in_hand.yamlfile import printable
+
+__all__ = [
+    "IMAGE_EXTENSIONS",
+    "add_common_arguments",
+    "options_from_args",
+    "check_common_arguments",
+    "Frame",
+    "ImageSource",
+    "progress",
+    "expand_glob",
+    "read_image",
+    "detect_files",
+    "iter_bag_frames",
+    "bag_count",
+    "iter_bag_pairs",
+    "write_json",
+    "report_damage",
+    "report_skipped",
+    "view_entries",
+    "atomic_output_dir",
+]
+
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp")
+
+
+# ------------------------------------------------------------------------------------------------
+# arguments
+# ------------------------------------------------------------------------------------------------
+def add_common_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options shared by ``calibrate camera`` and ``calibrate stereo``."""
+    parser.add_argument("--board", required=True, metavar="SPEC",
+                        help="board: chessboard:COLSxROWS:SQUARE (inner corners, square in m) or "
+                             "charuco:SQUARESXxSQUARESY:SQUARE:MARKER[:DICT][:legacy]")
+    parser.add_argument("-o", "--output", required=True, metavar="OUT_DIR", type=Path,
+                        help="output folder, written whole or not at all (must not exist, or "
+                             "give --overwrite)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace an existing OUT_DIR (whole, once the new one is complete)")
+    parser.add_argument("--bag", type=Path, metavar="BAG", help="read images from this bag")
+    parser.add_argument("--every", type=int, default=1, metavar="N",
+                        help="bag input: use every N-th frame (or stereo pair); default 1")
+    parser.add_argument("--detector", choices=("auto", "classic", "sb"), default="auto",
+                        help="chessboard detector: classic (findChessboardCorners + "
+                             "cornerSubPix), sb (findChessboardCornersSB), auto (classic, "
+                             "falling back to sb per image); default auto")
+    parser.add_argument("--no-fallback", action="store_true",
+                        help="do not try the other chessboard detector when one finds nothing")
+    parser.add_argument("--subpix-window", type=int, default=5, metavar="PX",
+                        help="half size of the cornerSubPix window (classic); default 5")
+    parser.add_argument("--rational", action="store_true",
+                        help="8-coefficient rational_polynomial distortion model")
+    parser.add_argument("--fix-k3", action="store_true", help="keep k3 = 0")
+    parser.add_argument("--zero-tangent", action="store_true", help="keep p1 = p2 = 0")
+    parser.add_argument("--fix-aspect", action="store_true", help="keep fx / fy = 1")
+    parser.add_argument("--fix-principal-point", action="store_true",
+                        help="keep (cx, cy) at the image centre")
+    parser.add_argument("--reject-outliers", action="store_true",
+                        help="drop views whose RMS is above the outlier threshold and recompute")
+    parser.add_argument("--outlier-threshold", type=float, default=None, metavar="PX",
+                        help="per-view RMS (px) above which a view is an outlier; default: "
+                             "max(2 x median, median + 4 x MAD) of the per-view RMS")
+    parser.add_argument("--min-views", type=int, default=5, metavar="N",
+                        help="fewest usable views accepted; default 5")
+    parser.add_argument("--no-html", action="store_true", help="skip report.html")
+
+
+def options_from_args(args: argparse.Namespace):
+    """The :class:`CalibrationOptions` selected on the command line."""
+    from eye_in_hand.core.calibration import CalibrationOptions
+
+    return CalibrationOptions(rational=args.rational, fix_k3=args.fix_k3,
+                              zero_tangent=args.zero_tangent, fix_aspect=args.fix_aspect,
+                              fix_principal_point=args.fix_principal_point)
+
+
+def check_common_arguments(args: argparse.Namespace) -> None:
+    """Validate values argparse cannot check; raises InputError naming the option."""
+    if args.every < 1:
+        raise InputError(f"--every must be >= 1, got {args.every}")
+    if args.subpix_window < 1:
+        raise InputError(f"--subpix-window must be >= 1, got {args.subpix_window}")
+    if args.min_views < 1:
+        raise InputError(f"--min-views must be >= 1, got {args.min_views}")
+    if args.outlier_threshold is not None and not args.outlier_threshold > 0:
+        raise InputError(f"--outlier-threshold must be > 0, got {args.outlier_threshold}")
+    globs = [getattr(args, k, None) for k in ("images", "left", "right")]
+    inputs = [args.bag] + [g if os.path.isdir(g) else os.path.dirname(g) or "."
+                           for g in globs if g]
+    # refuse now, not after the work
+    check_output_dir(args.output, overwrite=args.overwrite, inputs=inputs)
+
+
+# ------------------------------------------------------------------------------------------------
+# inputs
+# ------------------------------------------------------------------------------------------------
+@dataclass
+class Frame:
+    """One input image: its name, the detection, and (optionally) the pixels kept for the report."""
+
+    name: str
+    detection: Any
+    image: np.ndarray | None = None
+    stamp_ns: int | None = None
+
+
+@dataclass
+class ImageSource:
+    """What the frames came from, for the report."""
+
+    kind: str  # "files" or "bag"
+    description: str
+    frames: list[Frame] = field(default_factory=list)
+    unmatched: int = 0
+    damage: Any = None      # eye_in_hand.io.bags.DamageLog of a bag source
+
+
+def progress(total: int | None, desc: str):
+    """A tqdm progress bar on stderr (silent when stderr is not a terminal)."""
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="img", file=sys.stderr, disable=None,
+                dynamic_ncols=True, leave=False)
+
+
+def expand_glob(pattern: str, option: str) -> list[Path]:
+    """Files matching ``pattern`` (sorted); a folder means every image file inside it.
+
+    Raises:
+        InputError: nothing matches.
+    """
+    path = Path(pattern)
+    if path.is_dir():
+        files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS)
+    else:
+        files = sorted(Path(p) for p in glob.glob(os.path.expanduser(pattern)) if Path(p).is_file())
+    if not files:
+        shown = pattern.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+        raise InputError(f"{option} '{shown}': no image files match")
+    return files
+
+
+def read_image(path: Path) -> np.ndarray:
+    """Read an image file (any depth, colour kept).
+
+    Raises:
+        InputError: the file cannot be read or decoded.
+    """
+    from eye_in_hand.io.images import read_image_file
+
+    return read_image_file(path)
+
+
+def detect_files(files: Sequence[Path], board, args: argparse.Namespace, desc: str,
+                 keep: Callable[[int], bool] = lambda i: False) -> list[Frame]:
+    """Read every file and look for the board, with a progress bar.
+
+    Args:
+        files: image files.
+        board: the :class:`BoardSpec`.
+        args: parsed options (detector, subpix window, fallback).
+        desc: progress-bar label.
+        keep: which frame indices keep their pixels (for the report).
+
+    Raises:
+        InputError: an unreadable file.
+        CalibrationError: images of different sizes (naming two of them).
+    """
+    from eye_in_hand.core.calibration import detect_board
+
+    frames: list[Frame] = []
+    first: tuple[str, tuple[int, int]] | None = None
+    with progress(len(files), desc) as bar:
+        for i, path in enumerate(files):
+            image = read_image(path)
+            size = (int(image.shape[1]), int(image.shape[0]))
+            if first is None:
+                first = (path.name, size)
+            elif size != first[1]:
+                raise CalibrationError(
+                    f"{desc}: images differ in size: {first[0]} is {first[1][0]}x{first[1][1]}, "
+                    f"{path} is {size[0]}x{size[1]}")
+            det = detect_board(image, board, args.detector, subpix_window=args.subpix_window,
+                               fallback=not args.no_fallback)
+            # the name as text every report can hold (a non-UTF-8 byte as \xNN)
+            frames.append(Frame(printable(path.name), det, image if keep(i) else None))
+            bar.update(1)
+    return frames
+
+
+def _decode(msgtype: str, raw: bytes, topic: str, stamp: int) -> tuple[np.ndarray, int]:
+    from eye_in_hand.io.bags import deserialize
+    from eye_in_hand.ros.conversions import (compressed_to_numpy, header_stamp_ns,
+                                             image_to_numpy)
+
+    msg = deserialize(raw, msgtype)
+    try:
+        if msgtype.endswith("CompressedImage"):
+            image = compressed_to_numpy(msg)
+        else:
+            enc = str(msg.encoding).lower()
+            if enc.startswith("mono") or enc in ("8uc1", "16uc1"):
+                image = image_to_numpy(msg, copy=True)
+            elif "16" in enc:
+                image = image_to_numpy(msg, desired_encoding="bgr16", copy=True)
+            else:
+                image = image_to_numpy(msg, desired_encoding="bgr8", copy=True)
+    except ConversionError as exc:
+        raise ConversionError(f"{topic} message at log time {stamp} ns: {exc}") from exc
+    return image, header_stamp_ns(msg)
+
+
+_IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+
+
+def _bag_topics(bag: Path, topics: Sequence[str]) -> dict[str, Any]:
+    from eye_in_hand.io.bags import bag_info, require_topics
+
+    info = bag_info(bag)
+    require_topics(info, topics)
+    for t in topics:
+        if info.topics[t].msgtype not in _IMAGE_TYPES:
+            raise BagError(f"bag {bag}: topic {t} has type {info.topics[t].msgtype}, expected "
+                           "sensor_msgs/msg/Image or CompressedImage")
+    return dict(info.topics)
+
+
+def iter_bag_frames(bag: Path, topic: str, every: int, damage: Any = None
+                    ) -> Iterator[tuple[str, int, np.ndarray]]:
+    """Every ``every``-th image of ``topic``: ``(name, header_stamp_ns, image)``.
+
+    With ``damage`` (a :class:`eye_in_hand.io.bags.DamageLog`), damaged chunks and messages
+    that do not decode (a truncated image) are skipped and recorded there, naming topic and
+    stamp; without it they raise.
+
+    Raises:
+        BagError: the bag cannot be read, lacks the topic, or the topic is not an image topic.
+        ConversionError: a message cannot be decoded (naming topic and log time).
+    """
+    from eye_in_hand.io.bags import iter_messages
+
+    _bag_topics(bag, [topic])
+    for k, (t, msgtype, log_ns, raw) in enumerate(iter_messages(bag, [topic], damage=damage)):
+        if k % every:
+            continue
+        try:
+            image, stamp = _decode(msgtype, raw, t, log_ns)
+        except (BagError, ConversionError) as exc:
+            if damage is None:
+                raise
+            damage.bad_message(t, log_ns, str(exc))
+            continue
+        yield f"{t}@{stamp}", stamp, image
+
+
+def bag_count(bag: Path, topic: str) -> int:
+    """Number of messages on ``topic``."""
+    return int(_bag_topics(bag, [topic])[topic].count)
+
+
+def iter_bag_pairs(bag: Path, left_topic: str, right_topic: str, every: int,
+                   stats: dict[str, int] | None = None, max_pending: int = 64,
+                   damage: Any = None,
+                   ) -> Iterator[tuple[int, tuple[str, np.ndarray], tuple[str, np.ndarray]]]:
+    """Stereo pairs of a bag, matched by identical header stamps; every ``every``-th pair.
+
+    Messages are decoded lazily (the raw bytes wait until a partner with the same header
+    stamp arrives; at most ``max_pending`` per side). ``stats['unmatched']`` counts images
+    that found no partner. With ``damage``, damaged chunks and images that do not decode are
+    skipped and recorded there (a pair with a damaged image is dropped); without it they raise.
+
+    Yields:
+        ``(stamp_ns, (left_name, left_image), (right_name, right_image))``.
+
+    Raises:
+        BagError, ConversionError: as :func:`iter_bag_frames`.
+    """
+    from eye_in_hand.io.bags import deserialize, iter_messages
+    from eye_in_hand.ros.conversions import header_stamp_ns
+
+    if left_topic == right_topic:
+        raise InputError(f"--left-topic and --right-topic are both {left_topic}")
+    _bag_topics(bag, [left_topic, right_topic])
+    pending: dict[str, dict[int, tuple[str, bytes, int]]] = {left_topic: {}, right_topic: {}}
+    stats = stats if stats is not None else {}
+    stats.setdefault("unmatched", 0)
+    pair_index = 0
+    for topic, msgtype, log_ns, raw in iter_messages(bag, [left_topic, right_topic],
+                                                     damage=damage):
+        # the header stamp only: deserialising twice is cheap next to image decoding
+        try:
+            stamp = header_stamp_ns(deserialize(raw, msgtype))
+        except (BagError, ConversionError) as exc:
+            if damage is None:
+                raise
+            damage.bad_message(topic, log_ns, str(exc))
+            continue
+        other = right_topic if topic == left_topic else left_topic
+        if stamp in pending[other]:
+            o_type, o_raw, o_log = pending[other].pop(stamp)
+            if pair_index % every == 0:
+                images: dict[str, np.ndarray] = {}
+                for t, mt, r, lg in ((topic, msgtype, raw, log_ns), (other, o_type, o_raw, o_log)):
+                    try:
+                        images[t], _ = _decode(mt, r, t, lg)
+                    except (BagError, ConversionError) as exc:
+                        if damage is None:
+                            raise
+                        damage.bad_message(t, stamp, str(exc))
+                if len(images) < 2:
+                    pair_index += 1
+                    continue
+                yield stamp, (f"{left_topic}@{stamp}", images[left_topic]), \
+                    (f"{right_topic}@{stamp}", images[right_topic])
+            pair_index += 1
+        else:
+            mine = pending[topic]
+            mine[stamp] = (msgtype, raw, log_ns)
+            while len(mine) > max_pending:
+                mine.pop(next(iter(mine)))
+                stats["unmatched"] += 1
+    stats["unmatched"] += sum(len(p) for p in pending.values())
+
+
+# ------------------------------------------------------------------------------------------------
+# outputs
+# ------------------------------------------------------------------------------------------------
+def write_json(path: Path, data: dict) -> None:
+    """Write ``data`` as indented JSON (NaN/inf become null)."""
+    path.write_text(json.dumps(_clean(data), indent=2) + "\n", encoding="utf-8")
+
+
+def _clean(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _clean(value.tolist())
+    if isinstance(value, (np.floating, float)):
+        v = float(value)
+        return v if np.isfinite(v) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
+    return value
+
+
+def report_damage(damage: Any) -> dict | None:
+    """Print a bag's damage records as warnings (stderr); their dict for the report (None when
+    there is no log)."""
+    if damage is None:
+        return None
+    if damage:
+        print(f"eye-in-hand: warning: damaged bag: {damage.summary()}", file=sys.stderr)
+        for line in damage.lines():
+            print(f"eye-in-hand: warning: damaged: {line}", file=sys.stderr)
+    return damage.to_dict()
+
+
+def report_skipped(frames: Sequence[Frame], label: str) -> list[dict]:
+    """Print one line per image without a board on stderr; returns them for the report."""
+    skipped = []
+    for f in frames:
+        if not f.detection.found:
+            print(f"eye-in-hand: {label}: skipped {f.name}: {f.detection.reason}", file=sys.stderr)
+            skipped.append({"file": f.name, "reason": f.detection.reason})
+    return skipped
+
+
+def view_entries(frames: Sequence[Frame], cal_views: Sequence[Any]) -> list[dict]:
+    """Per-image entries for report.json: detection outcome merged with calibration results."""
+    by_name = {v.name: v for v in cal_views}
+    out = []
+    for f in frames:
+        entry: dict[str, Any] = {"file": f.name, "found": bool(f.detection.found),
+                                 "detector": f.detection.detector}
+        if not f.detection.found:
+            entry.update({"reason": f.detection.reason, "rms_px": None, "used": False,
+                          "outlier": False, "n_points": 0})
+        else:
+            v = by_name.get(f.name)
+            entry.update(v.to_dict() if v is not None else
+                         {"rms_px": None, "used": False, "outlier": False,
+                          "n_points": f.detection.n_corners, "reason": "too few corners"})
+            entry["file"] = f.name
+        out.append(entry)
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# the command
+# ------------------------------------------------------------------------------------------------

@@ -1,0 +1,173 @@
+"""The files of a hand-eye calibration: ``hand_eye.yaml``, ``report.json`` and ``report.html``.
+
+Shared by ``eye-in-hand calibrate handeye`` and the ``hand_eye`` node's ``hand_eye/save``
+service, so both write the same files.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["write_outputs"]
+
+
+def _html(result: Any, report: dict[str, Any], path: Path) -> None:
+    from eye_in_hand.report.html import HtmlReport, new_figure
+
+    rep = HtmlReport("Hand-eye calibration", f"setup {result.setup}, selected method "
+                                            f"{result.selected}")
+    rep.add_section("Result")
+    sel = report["methods"][result.selected]
+    noise = result.robot_pose_noise
+    rep.add_table([["translation (m)", " ".join(f"{v:.6f}" for v in sel["translation"])],
+                   ["quat_xyzw", " ".join(f"{v:.6f}" for v in sel["quat_xyzw"])],
+                   ["1-sigma (mm / deg)", f"{sel['std_mm']} / {sel['std_deg']}"],
+                   ["selected because", result.selection_reason],
+                   ["robot pose noise (1 sigma per axis)",
+                    "not estimated" if noise is None else
+                    f"{1000 * noise['translation_sigma_m']:.3f} mm, "
+                    f"{np.degrees(noise['rotation_sigma_rad']):.4f} deg"],
+                   ["samples used", len(result.sample_names)],
+                   ["samples rejected", ", ".join(r.name for r in result.rejected) or "none"],
+                   ["samples skipped", ", ".join(s["name"] for s in report["skipped"]) or
+                    "none"]], header=["quantity", "value"])
+    for w in report["warnings"]:
+        rep.add_status("warning", False, w)
+    rep.add_section("Method comparison")
+    rows, names = [], list(result.methods)
+    for name in names:
+        s = report["methods"][name]
+        r = s["residuals"]
+        h = s["held_out"] or {}
+        rows.append([name + (" (selected)" if name == result.selected else ""),
+                     result.selection_scores.get(name), h.get("px_rms"), h.get("mm_rms"),
+                     h.get("deg_rms"), r["axxb_rot_deg_rms"], r["axxb_trans_mm_rms"],
+                     r["board_spread_mm_rms"], r["board_spread_deg_rms"], r["reproj_px_rms"],
+                     s["std_mm"], s["std_deg"]])
+    rep.add_table(rows, header=["method", "selection score", "held-out px", "held-out mm",
+                                "held-out deg", "AX=XB rot deg", "AX=XB trans mm",
+                                "board spread mm", "board spread deg", "reproj px", "sigma mm",
+                                "sigma deg"])
+    sel_X = result.X
+    fig = new_figure(7.0, 3.2)
+    ax1, ax2 = fig.subplots(1, 2)
+    fig.subplots_adjust(wspace=0.35)
+    for i, name in enumerate(names):
+        X = result.methods[name].X
+        dmm = 1000.0 * np.linalg.norm(X[:3, 3] - sel_X[:3, 3])
+        c = np.clip((np.trace(sel_X[:3, :3].T @ X[:3, :3]) - 1) / 2, -1, 1)
+        ax1.bar(i, dmm)
+        ax2.bar(i, np.degrees(np.arccos(c)))
+    for ax, lab in ((ax1, "mm from selected"), (ax2, "deg from selected")):
+        ax.set_xticks(range(len(names)), names, rotation=45, ha="right", fontsize=8)
+        ax.set_ylabel(lab)
+    rep.add_figure(fig, "difference of each method's X from the selected one")
+    rep.add_section("Per-sample residuals")
+    m = result.methods[result.selected]
+    fig = new_figure(7.0, 3.2)
+    ax1, ax2 = fig.subplots(1, 2)
+    fig.subplots_adjust(wspace=0.35)
+    x = np.arange(len(result.sample_names))
+    ax1.bar(x, m.axxb_trans_mm, label="AX=XB trans (mm)")
+    ax1.plot(x, m.board_dev_mm, "k.", label="board dev (mm)")
+    ax1.legend(fontsize=7)
+    ax2.bar(x, m.axxb_rot_deg, label="AX=XB rot (deg)")
+    ax2.plot(x, m.board_dev_deg, "k.", label="board dev (deg)")
+    ax2.legend(fontsize=7)
+    for ax in (ax1, ax2):
+        ax.set_xticks(x, result.sample_names, rotation=90, fontsize=6)
+    rep.add_figure(fig, f"per-sample residuals ({result.selected})")
+    header = ["sample", "used", "AX=XB deg", "AX=XB mm", "board mm", "board deg",
+              "reproj px", "LOO mm", "LOO deg"]
+    rows, classes = [], []
+    for row in report["samples"]:
+        if row["used"]:
+            rows.append([row["name"], "yes", row["axxb_rot_deg"], row["axxb_trans_mm"],
+                         row["board_dev_mm"], row["board_dev_deg"], row["reproj_rms_px"],
+                         row["loo_mm"], row["loo_deg"]])
+            classes.append("")
+        else:
+            rows.append([row["name"], "rejected: " + row["reason"]] + [""] * 7)
+            classes.append("bad")
+    for s in report["skipped"]:
+        rows.append([s["name"], "skipped: " + s["reason"]] + [""] * 7)
+        classes.append("warn")
+    rep.add_table(rows, header=header, row_classes=classes)
+    rep.add_section("Board in the fixed frame")
+    from eye_in_hand.core.handeye import board_in_fixed_frame
+
+    names_used = result.sample_names
+    fig = new_figure(7.0, 3.2)
+    ax1, ax2 = fig.subplots(1, 2)
+    fig.subplots_adjust(wspace=0.35)
+    for name in names:
+        mr = result.methods[name]
+        bte = report["_bte"]
+        ctb = report["_ctb"]
+        Yi = board_in_fixed_frame(mr.X, bte, ctb, result.setup)
+        d = 1000.0 * (Yi[:, :3, 3] - mr.Y[:3, 3])
+        ax1.plot(d[:, 0], d[:, 1], ".", label=name)
+        ax2.plot(d[:, 0], d[:, 2], ".", label=name)
+    ax1.set_xlabel("x (mm)")
+    ax1.set_ylabel("y (mm)")
+    ax2.set_xlabel("x (mm)")
+    ax2.set_ylabel("z (mm)")
+    ax1.legend(fontsize=6)
+    rep.add_figure(fig, f"board origin in the fixed frame per sample minus its mean "
+                        f"({len(names_used)} samples)")
+    rep.add_section("Motion diagnostics")
+    rep.add_preformatted(json.dumps(report["diagnostics"], indent=2))
+    rep.save(path)
+
+
+def write_outputs(out: Path, result: Any, samples: list[Any], *, setup: str, parent_frame: str,
+                  child_frame: str, input_meta: dict[str, Any],
+                  skipped: list[dict[str, str]] | None = None, notes: list[str] | None = None,
+                  ground_truth: dict[str, Any] | None = None, html: bool = True) -> list[Path]:
+    """Write ``hand_eye.yaml``, ``report.json`` and (``html``) ``report.html`` into ``out``.
+
+    Shared by ``eye-in-hand calibrate handeye`` and the ``hand_eye`` node's ``hand_eye/save``
+    service, so both produce the same files.
+
+    Returns:
+        The paths written.
+    """
+    from eye_in_hand.core.transforms import transform_distance
+    from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye
+
+    skipped = list(skipped or [])
+    out.mkdir(parents=True, exist_ok=True)
+    sel = result.methods[result.selected]
+    residuals = {k: v for k, v in sel.summary()["residuals"].items()}
+    calib = HandEyeCalibration(setup=setup, parent_frame=parent_frame, child_frame=child_frame,
+                               transform=result.X, method=result.selected,
+                               covariance=result.covariance,
+                               sample_count=len(result.sample_names), residuals=residuals,
+                               robot_pose_noise=result.robot_pose_noise)
+    save_hand_eye(out / "hand_eye.yaml", calib)
+    report = result.to_report()
+    report["input"] = input_meta
+    report["skipped"] = skipped
+    report["warnings"] = list(notes or []) + report["warnings"]
+    report["frames"] = {"parent": parent_frame, "child": child_frame}
+    report["covariance_order"] = ["x", "y", "z", "rx", "ry", "rz"]
+    truth = ground_truth or {}
+    key = "ee_T_cam" if setup == "eye_in_hand" else "base_T_cam"
+    if key in truth:
+        report["ground_truth_error"] = {}
+        for name, mr in result.methods.items():
+            dt, dr = transform_distance(truth[key], mr.X)
+            report["ground_truth_error"][name] = {"mm": 1000.0 * dt,
+                                                  "deg": float(np.degrees(dr))}
+    (out / "report.json").write_text(json.dumps(report, indent=2))
+    paths = [out / "hand_eye.yaml", out / "report.json"]
+    if html:
+        used = set(result.sample_names)
+        report["_bte"] = np.stack([s.base_T_ee for s in samples if s.name in used])
+        report["_ctb"] = np.stack([s.cam_T_board for s in samples if s.name in used])
+        _html(result, report, out / "report.html")
+        paths.append(out / "report.html")
+    return paths

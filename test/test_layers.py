@@ -1,0 +1,115 @@
+"""The package's imports point down the floors of DESIGN.md and never run in a circle.
+
+Floors, top to bottom (a module may import from its own room or from a lower floor)::
+
+    4  cli, demo, commands.*
+    3  nodes.*, offline, launcher
+    2  ros.*, io.*, sim.*, report.*, workers
+    1  core.*
+    0  yamlfile, the package itself
+   -1  errors
+
+Every import counts, also one inside a function; an import under ``if TYPE_CHECKING:`` is
+for annotations only and does not. Two rooms of one floor may not import each other's modules,
+except where listed (a piece two rooms share moves down a floor); each command and each node is
+a room of its own: commands share only ``commands.common`` and ``commands.calibration_inputs``
+(and the floors below), nodes share nothing but the floors below.
+"""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+PKG = Path(__file__).resolve().parent.parent / "eye_in_hand"
+
+FLOORS = {
+    "cli": 4, "demo": 4, "commands": 4,
+    "nodes": 3, "offline": 3, "launcher": 3,
+    "ros": 2, "io": 2, "sim": 2, "report": 2, "workers": 2,
+    "core": 1,
+    "yamlfile": 0, "": 0, "errors": -1,
+}
+#: rooms of one floor that may import from another room of that floor: (importer, imported)
+SAME_FLOOR_ALLOWED = {("sim", "io"), ("io", "ros"), ("sim", "ros"), ("report", "io")}
+#: modules of ``commands`` that every command may import
+SHARED_COMMANDS = {"commands.common", "commands.calibration_inputs"}
+
+
+def _module(path: Path) -> str:
+    parts = list(path.relative_to(PKG.parent).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def _imports() -> dict[str, set[str]]:
+    modules = {_module(p): p for p in PKG.rglob("*.py")}
+    graph: dict[str, set[str]] = {m: set() for m in modules}
+    for mod, path in modules.items():
+        tree = ast.parse(path.read_text(), str(path))
+        type_only = {id(n) for block in ast.walk(tree) if isinstance(block, ast.If)
+                     and "TYPE_CHECKING" in ast.unparse(block.test) for n in ast.walk(block)}
+        for node in ast.walk(tree):
+            if id(node) in type_only:
+                continue
+            names: list[str] = []
+            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                names = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+            elif isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            for name in names:
+                # the longest known module the name refers to (from a import b: b may be one)
+                while name and name not in modules:
+                    name = name.rpartition(".")[0]
+                if name.startswith("eye_in_hand") and name != mod:
+                    graph[mod].add(name)
+    return graph
+
+
+def _room(module: str) -> tuple[str, str]:
+    """(floor key, room) of ``eye_in_hand.x.y``: commands and nodes are a room per module."""
+    parts = module.split(".")[1:]
+    top = parts[0] if parts else ""
+    if top in ("commands", "nodes") and len(parts) > 1:
+        return top, ".".join(parts[:2])
+    return top, top
+
+
+def test_every_import_points_down_or_stays_in_its_room() -> None:
+    bad = []
+    for mod, targets in _imports().items():
+        top, room = _room(mod)
+        for target in targets:
+            ttop, troom = _room(target)
+            if troom == room or (troom in SHARED_COMMANDS and top == "commands"):
+                continue
+            f, tf = FLOORS[top], FLOORS[ttop]
+            if tf < f or (tf == f and (top, ttop) in SAME_FLOOR_ALLOWED):
+                continue
+            bad.append(f"{mod} -> {target}")
+    assert not bad, "imports against the floors: " + "; ".join(sorted(bad))
+
+
+def test_no_import_circles() -> None:
+    graph = _imports()
+    cycles: list[list[str]] = []
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(m: str) -> None:
+        state[m] = 1
+        stack.append(m)
+        for t in sorted(graph[m]):
+            if state.get(t) == 1:
+                cycles.append(stack[stack.index(t):] + [t])
+            elif t not in state:
+                visit(t)
+        stack.pop()
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m)
+    # a package importing its own submodules (re-exports) is not a circle of ideas
+    real = [c for c in cycles if not all(c[0].startswith(x) or x.startswith(c[0]) for x in c)]
+    assert not real, "import circles: " + "; ".join(" -> ".join(c) for c in real)
