@@ -52,7 +52,7 @@ from scipy.spatial.transform import Rotation
 from eye_in_hand.errors import HandEyeError
 
 from .refine import _inv, _inv_stack, _start, perturb, pose_residual_scales, project_points
-from .samples import CameraView, HandEyeSample
+from .samples import CameraView, HandEyeSample, corner_blocks
 from .solvers import board_in_fixed_frame, gripper_poses
 
 __all__ = ["EivResult", "refine_errors_in_variables", "leave_one_out_steps", "predict_cam_T_board"]
@@ -139,22 +139,7 @@ class _Problem:
         self.use_corners = use_corners
         if use_corners:
             assert cameras is not None
-            views = {c.name: c for c in cameras}
-            for s in samples:
-                for ob in s.observations:
-                    if ob.camera not in views:
-                        raise HandEyeError(f"sample {s.name!r}: corners from camera "
-                                           f"{ob.camera!r}, but the rig has {sorted(views)}")
-            self.blocks = []
-            for cam in cameras:
-                obs = [(k, ob) for k, s in enumerate(samples) for ob in s.observations
-                       if ob.camera == cam.name]
-                if not obs:
-                    continue
-                idx = np.concatenate([np.full(ob.object_points.shape[0], k) for k, ob in obs])
-                obj = np.concatenate([ob.object_points for _, ob in obs])
-                img = np.concatenate([ob.image_points for _, ob in obs])
-                self.blocks.append((cam, idx, obj, img))
+            self.blocks = corner_blocks(samples, cameras)
             self.meas_rows = [np.repeat(b[1], 2) for b in self.blocks]
             self.meas_sample = np.concatenate(self.meas_rows)
             self.meas_groups = np.zeros(self.meas_sample.size, dtype=int)

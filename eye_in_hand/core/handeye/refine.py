@@ -33,7 +33,7 @@ from scipy.spatial.transform import Rotation
 
 from eye_in_hand.errors import HandEyeError
 
-from .samples import CameraView, HandEyeSample
+from .samples import CameraView, HandEyeSample, corner_blocks
 from .solvers import gripper_poses
 
 __all__ = [
@@ -204,24 +204,8 @@ def refine_reprojection(X0: np.ndarray, Y0: np.ndarray, samples: Sequence[HandEy
     if n_obs == 0:
         raise HandEyeError("reprojection refinement needs corner observations; use "
                            "refine_pose_space for pose pairs")
-    views = {c.name: c for c in cameras}
-    for s in samples:
-        for ob in s.observations:
-            if ob.camera not in views:
-                raise HandEyeError(f"sample {s.name!r}: corners from camera {ob.camera!r}, "
-                                   f"but the rig has {sorted(views)}")
+    blocks = corner_blocks(samples, cameras)   # per camera, vectorised model
     Ginv = _inv_stack(gripper_poses(np.stack([s.base_T_ee for s in samples]), setup))
-    # Per camera: every corner of every sample, with its sample index (vectorised model).
-    blocks = []
-    for cam in cameras:
-        obs = [(k, ob) for k, s in enumerate(samples) for ob in s.observations
-               if ob.camera == cam.name]
-        if not obs:
-            continue
-        idx = np.concatenate([np.full(ob.object_points.shape[0], k) for k, ob in obs])
-        obj = np.concatenate([ob.object_points for _, ob in obs])
-        img = np.concatenate([ob.image_points for _, ob in obs])
-        blocks.append((cam, idx, obj, img))
 
     def residuals(p: np.ndarray) -> np.ndarray:
         Xi = _inv(perturb(X0, p[:6]))

@@ -13,6 +13,7 @@ from eye_in_hand.errors import HandEyeError, InputError
 from .solvers import SETUPS, gripper_poses, motion_pairs
 
 __all__ = [
+    "corner_blocks",
     "CornerObservation",
     "CameraView",
     "HandEyeSample",
@@ -260,3 +261,33 @@ def motion_diagnostics(base_T_ee: np.ndarray, setup: str) -> MotionDiagnostics:
         axis_eigenvalues=(float(ev[0]), float(ev[1]), float(ev[2])),
         rotation_condition=rot_cond, translation_condition=trans_cond,
         warnings=tuple(warnings))
+
+
+def corner_blocks(samples: Sequence[HandEyeSample], cameras: Sequence[CameraView]
+                  ) -> list[tuple[CameraView, np.ndarray, np.ndarray, np.ndarray]]:
+    """Every corner of every sample, per camera, for vectorised reprojection models.
+
+    Returns:
+        One ``(camera, sample_index (N,), object_points (N, 3), image_points (N, 2))`` per
+        camera that has corners.
+
+    Raises:
+        HandEyeError: a sample has corners from a camera that ``cameras`` lacks.
+    """
+    views = {c.name: c for c in cameras}
+    for s in samples:
+        for ob in s.observations:
+            if ob.camera not in views:
+                raise HandEyeError(f"sample {s.name!r}: corners from camera {ob.camera!r}, "
+                                   f"but the rig has {sorted(views)}")
+    blocks = []
+    for cam in cameras:
+        obs = [(k, ob) for k, s in enumerate(samples) for ob in s.observations
+               if ob.camera == cam.name]
+        if not obs:
+            continue
+        idx = np.concatenate([np.full(ob.object_points.shape[0], k) for k, ob in obs])
+        obj = np.concatenate([ob.object_points for _, ob in obs])
+        img = np.concatenate([ob.image_points for _, ob in obs])
+        blocks.append((cam, idx, obj, img))
+    return blocks
