@@ -83,7 +83,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "    rhs = (m.B[:, :3, 3] @ R - m.A[:, :3, 3]).reshape(3 * K)\n",
            ("test/core/test_handeye_solvers.py",),
            "hand-eye translation solved with the transposed rotation"),
-    Mutant("scan-chunk-order", "eye_in_hand/io/bags.py",
+    Mutant("scan-chunk-order", "eye_in_hand/io/bags/reading.py",
            "            msgs.sort(key=lambda r: r[1][1])\n", "            pass\n",
            ("test/io/test_mcap_recovery_order.py", "test/io/test_bags.py"),
            "messages recovered from an interrupted MCAP file not sorted by time"),

@@ -1,0 +1,558 @@
+"""Reading bags in log-time order: opening (indexed, scanned or damaged files), ``bag_info``,
+``iter_messages``, ``check_bag``."""
+from __future__ import annotations
+
+import heapq
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Iterable, Iterator, Sequence
+
+from eye_in_hand.errors import BagError, InputError
+from eye_in_hand.io.bags.records import (
+    _STORAGE_SUFFIX,
+    BagInfo,
+    BagMessage,
+    Damage,
+    DamageLog,
+    OfferedQos,
+    TopicInfo,
+)
+
+
+def _bag_error(path: Path, exc: BaseException, doing: str = "read") -> BagError:
+    text = str(exc).strip() or type(exc).__name__
+    return BagError(f"cannot {doing} bag {path}: {text}")
+
+
+def _storage_paths(path: Path) -> list[Path]:
+    """What to hand to ``rosbags.rosbag2.Reader`` for ``path`` (one entry per reader)."""
+    if not path.exists():
+        raise BagError(f"bag {path} does not exist")
+    if path.is_dir():
+        if (path / "metadata.yaml").is_file():
+            return [path]
+        files = sorted(p for p in path.iterdir() if p.suffix in _STORAGE_SUFFIX and p.is_file())
+        if not files:
+            raise BagError(
+                f"bag {path} has no metadata.yaml and no .mcap or .db3 storage file")
+        return files
+    if path.suffix not in _STORAGE_SUFFIX:
+        raise BagError(
+            f"bag {path} is neither a bag directory nor a .mcap / .db3 storage file")
+    return [path]
+
+
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+class _ScannedMcap:
+    """An MCAP file whose summary/footer is missing (recording killed), read by a linear scan.
+
+    ``rosbags`` needs the footer; ``ros2 bag`` (the mcap library) falls back to scanning. This
+    does the same: records are read in file order up to the first incomplete or invalid one
+    (the damaged tail); a chunk whose data cannot be read is skipped (its record length says
+    where the next record starts). Messages of each chunk are sorted by log time (rosbag2
+    writes chunks in time order). It offers the subset of the ``rosbags`` reader interface
+    this module uses; :attr:`damage` lists what the scan skipped.
+    """
+
+    compression_format = None
+    compression_mode = None
+
+    def __init__(self, path: Path) -> None:
+        from rosbags.interfaces import Connection, ConnectionExtRosbag2
+        from rosbags.rosbag2.storage_mcap import Schema, get_msgdef, get_qos
+
+        self.path = path
+        self.storage = self
+        self.stopped_at: int | None = None
+        self.stop_reason = ""
+        self.damage: list[Damage] = []
+        schemas: dict[int, Any] = {}
+        counts: dict[int, int] = {}
+        conns: dict[int, Any] = {}
+        start, end, count = 2**63 - 1, 0, 0
+        for kind, rec in self._records():
+            if kind == 0x03:
+                schemas[rec[0]] = Schema(*rec)
+            elif kind == 0x04:
+                cid, schema_id, topic, encoding, meta = rec
+                schema = schemas.get(schema_id)
+                conns[cid] = Connection(
+                    cid, topic, schema.name if schema else "", get_msgdef(schema), "", 0,
+                    ConnectionExtRosbag2(encoding, get_qos(meta)), self)
+            elif kind == -1:
+                self.damage.append(rec)
+            elif kind == 0x05:
+                cid, stamp, _data = rec
+                counts[cid] = counts.get(cid, 0) + 1
+                start, end, count = min(start, stamp), max(end, stamp), count + 1
+        self.connections = [c._replace(msgcount=counts.get(c.id, 0)) for c in conns.values()]
+        self.message_count = count
+        self.start_time = start if count else 2**63 - 1
+        self.end_time = end + 1 if count else 0
+
+    @property
+    def tail_note(self) -> str:
+        text = "" if self.stopped_at is None else \
+            f"; stopped at byte {self.stopped_at}: {self.stop_reason}"
+        chunks = sum(1 for d in self.damage if d.where.startswith("chunk"))
+        if chunks:
+            text += f"; {chunks} damaged chunk(s) skipped"
+        return text
+
+    @classmethod
+    def try_open(cls, path: Path) -> _ScannedMcap | None:
+        """A scanned reader when ``path`` starts like a ros2 MCAP file, else None."""
+        if path.suffix != ".mcap":
+            return None
+        with open(path, "rb") as fh:
+            head = fh.read(64)
+        if not head.startswith(_MCAP_MAGIC) or len(head) < 18 or head[8] != 0x01:
+            return None
+        scanned = cls(path)
+        return scanned if scanned.connections else None
+
+    def close(self) -> None:
+        """Nothing to release (each scan opens and closes the file)."""
+
+    def _records(self) -> Iterator[tuple[int, Any]]:
+        """(opcode, parsed) for schemas, channels and messages, chunks expanded; ``(-1,
+        Damage)`` for a chunk that cannot be read and for a damaged tail."""
+        import struct
+
+        from rosbags.rosbag2.storage_mcap import decompress
+
+        def string(buf: bytes, pos: int) -> tuple[str, int]:
+            (n,) = struct.unpack_from("<I", buf, pos)
+            return buf[pos + 4:pos + 4 + n].decode(), pos + 4 + n
+
+        def parse(op: int, body: bytes) -> tuple[int, Any] | None:
+            if op == 0x03:
+                (sid,) = struct.unpack_from("<H", body, 0)
+                name, pos = string(body, 2)
+                enc, pos = string(body, pos)
+                (n,) = struct.unpack_from("<I", body, pos)
+                return op, (sid, name, enc, body[pos + 4:pos + 4 + n].decode())
+            if op == 0x04:
+                cid, schema_id = struct.unpack_from("<HH", body, 0)
+                topic, pos = string(body, 4)
+                enc, pos = string(body, pos)
+                (n,) = struct.unpack_from("<I", body, pos)
+                return op, (cid, schema_id, topic, enc, body[pos + 4:pos + 4 + n])
+            if op == 0x05:
+                cid, _seq, log_time, _pub = struct.unpack_from("<HIQQ", body, 0)
+                return op, (cid, log_time, body[22:])
+            return None
+
+        with open(self.path, "rb") as fh:
+            data = fh.read()
+        pos = 8
+        last = [0]
+
+        def tail(at: int, reason: str) -> tuple[int, Any]:
+            self.stopped_at, self.stop_reason = at, reason
+            return -1, Damage(self.path.name, f"file tail from byte {at}",
+                              f"{reason} (the file ends at byte {len(data)})",
+                              start_ns=last[0] or None)
+
+        while pos < len(data):
+            if pos + 9 > len(data):
+                yield tail(pos, "incomplete record header")
+                return
+            op, length = data[pos], struct.unpack_from("<Q", data, pos + 1)[0]
+            if op == 0 or op > 0x0F:
+                yield tail(pos, f"invalid record opcode {op}")
+                return
+            if pos + 9 + length > len(data):
+                yield tail(pos, "incomplete record")
+                return
+            body = data[pos + 9:pos + 9 + length]
+            pos += 9 + length
+            if op in (0x02, 0x0F):  # footer / data end: the data section is complete
+                return
+            if op != 0x06:
+                if (rec := parse(op, body)) is not None:
+                    yield rec
+                continue
+            chunk_at = pos - 9 - length
+            t0 = t1 = None
+            try:  # chunk: expand its records, messages sorted by log time
+                t0, t1, size, crc = struct.unpack_from("<QQQI", body, 0)
+                compression, cpos = string(body, 28)
+                (n,) = struct.unpack_from("<Q", body, cpos)
+                inner = decompress(body[cpos + 8:cpos + 8 + n], compression, size, crc)
+            except Exception as exc:
+                yield -1, Damage(self.path.name, f"chunk at byte {chunk_at}",
+                                 f"{str(exc) or type(exc).__name__}", start_ns=t0, end_ns=t1)
+                continue
+            ipos, msgs = 0, []
+            try:
+                while ipos + 9 <= len(inner):
+                    iop, ilen = inner[ipos], struct.unpack_from("<Q", inner, ipos + 1)[0]
+                    if ipos + 9 + ilen > len(inner) or iop not in (0x03, 0x04, 0x05):
+                        raise ValueError(f"record at {ipos} of the chunk makes no sense "
+                                         f"(opcode {iop:#04x}, {ilen} bytes)")
+                    rec = parse(iop, inner[ipos + 9:ipos + 9 + ilen])
+                    ipos += 9 + ilen
+                    if rec is not None and iop == 0x05:
+                        msgs.append(rec)
+                    elif rec is not None:
+                        yield rec
+            except Exception as exc:
+                yield -1, Damage(self.path.name, f"chunk at byte {chunk_at}",
+                                 f"{str(exc) or type(exc).__name__}; the messages before it "
+                                 "are kept", start_ns=t0, end_ns=t1)
+            msgs.sort(key=lambda r: r[1][1])
+            if msgs:
+                last[0] = max(last[0], msgs[-1][1][1])
+            yield from msgs
+
+    def messages(self, connections: Sequence[Any], start: int | None = None,
+                 stop: int | None = None, on_damage: Any = None,
+                 ) -> Iterator[tuple[Any, int, bytes]]:
+        """Messages of ``connections`` in ``[start, stop)``; damage to ``on_damage``
+        (a damaged chunk without it raises :class:`BagError`; the damaged tail never does,
+        it is what scanning is for)."""
+        by_id = {c.id: c for c in connections}
+        lo = start if start is not None else 0
+        hi = stop if stop is not None else 2**63
+        for kind, rec in self._records():
+            if kind == 0x05 and rec[0] in by_id and lo <= rec[1] < hi:
+                yield by_id[rec[0]], rec[1], rec[2]
+            elif kind == -1:
+                if on_damage is not None:
+                    on_damage(rec)
+                elif not rec.where.startswith("file tail"):
+                    raise BagError(f"{rec.where} of {rec.file}: {rec.reason}")
+
+
+class _OpenBag:
+    """The rosbags readers of one bag, opened; a context manager."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.readers: list[Any] = []
+        targets = _storage_paths(self.path)
+        from rosbags.rosbag2 import Reader
+
+        self.notes: list[str] = []
+        try:
+            for target in targets:
+                try:
+                    reader: Any = Reader(target)
+                    reader.open()
+                except Exception as exc:
+                    # a storage file without summary (recording interrupted, file truncated):
+                    # scan it, also when it belongs to a bag directory with metadata.yaml
+                    files = [target] if target.is_file() else \
+                        sorted(f for f in target.glob("*.mcap") if f.is_file())
+                    scanned_all = [_ScannedMcap.try_open(f) for f in files]
+                    if not scanned_all or any(x is None for x in scanned_all):
+                        raise
+                    for f, scanned in zip(files, scanned_all):
+                        assert scanned is not None
+                        self.readers.append(scanned)
+                        self.notes.append(
+                            f"{f.name}: {exc} (no MCAP summary: the recording was interrupted "
+                            f"or the file is truncated); read by scanning the file"
+                            f"{scanned.tail_note}")
+                    continue
+                self.readers.append(reader)
+        except Exception as exc:
+            self.close()
+            raise _bag_error(self.path, exc, "open") from exc
+
+    def close(self) -> None:
+        readers, self.readers = self.readers, []
+        for reader in readers:
+            reader.close()
+
+    def __enter__(self) -> _OpenBag:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    def connections(self) -> list[Any]:
+        return [c for r in self.readers for c in r.connections]
+
+
+def _qos_name(value: Any) -> str:
+    name = getattr(value, "name", str(value)).lower()
+    return "best_effort" if name == "best_effort" else name
+
+
+def _offered(conn: Any) -> tuple[OfferedQos, ...]:
+    profiles = getattr(conn.ext, "offered_qos_profiles", None) or []
+    return tuple(OfferedQos(reliability=_qos_name(q.reliability),
+                            durability=_qos_name(q.durability),
+                            history=_qos_name(q.history), depth=int(q.depth))
+                 for q in profiles)
+
+
+def bag_info(path: str | Path) -> BagInfo:
+    """Summarise a bag: storage, time range, and per-topic type and message count.
+
+    Args:
+        path: a bag directory (with or without ``metadata.yaml``) or a ``.mcap``/``.db3`` file.
+
+    Returns:
+        The bag's :class:`BagInfo`.
+
+    Raises:
+        BagError: the bag is missing, unreadable, corrupt, or of an unsupported format.
+    """
+    from rosbags.interfaces import MessageDefinitionFormat
+
+    with _OpenBag(path) as bag:
+        try:
+            storage_files: list[Path] = []
+            storages: set[str] = set()
+            version: int | None = None
+            compression_format = compression_mode = distro = ""
+            start, end, count = 2**63 - 1, 0, 0
+            for reader in bag.readers:
+                inner = reader.storage
+                if hasattr(inner, "storages"):  # DirectoryReader
+                    meta = _read_metadata(Path(reader.path))
+                    version = int(meta.get("version", 0))
+                    storages.add(str(meta.get("storage_identifier", "")))
+                    storage_files.extend(Path(reader.path) / Path(str(f)).name
+                                         for f in meta.get("relative_file_paths", []))
+                    distro = str(meta.get("ros_distro") or "")
+                else:
+                    storages.add(_STORAGE_SUFFIX[Path(reader.path).suffix])
+                    storage_files.append(Path(reader.path))
+                compression_format = reader.compression_format or compression_format
+                compression_mode = reader.compression_mode or compression_mode
+                if reader.message_count:
+                    start = min(start, reader.start_time)
+                    end = max(end, reader.end_time - 1)
+                    count += reader.message_count
+            topics: dict[str, TopicInfo] = {}
+            for conn in bag.connections():
+                have = topics.get(conn.topic)
+                if have is not None and have.msgtype == conn.msgtype:
+                    topics[conn.topic] = TopicInfo(
+                        have.name, have.msgtype, have.count + conn.msgcount,
+                        have.serialization_format, have.offered_qos + _offered(conn),
+                        have.type_hash or conn.digest, have.has_definition
+                        or conn.msgdef.format != MessageDefinitionFormat.NONE)
+                    continue
+                if have is not None:
+                    raise BagError(f"bag {bag.path}: topic {conn.topic} is recorded with two "
+                                   f"types, {have.msgtype} and {conn.msgtype}")
+                topics[conn.topic] = TopicInfo(
+                    conn.topic, conn.msgtype, int(conn.msgcount),
+                    getattr(conn.ext, "serialization_format", "cdr"), _offered(conn),
+                    conn.digest or "", conn.msgdef.format != MessageDefinitionFormat.NONE)
+            size = 0
+            for f in storage_files:
+                size += f.stat().st_size if f.exists() else 0
+        except BagError:
+            raise
+        except Exception as exc:
+            raise _bag_error(bag.path, exc) from exc
+    if not count:
+        start = end = 0
+    return BagInfo(
+        path=bag.path, storage="+".join(sorted(storages)), files=tuple(storage_files),
+        version=version, start_ns=start, end_ns=end, message_count=count,
+        topics=dict(sorted(topics.items())), compression_format=compression_format or "",
+        compression_mode=compression_mode or "", ros_distro=distro, size_bytes=size,
+        notes=tuple(bag.notes))
+
+
+def _read_metadata(bag_dir: Path) -> dict[str, Any]:
+    import yaml
+
+    with open(bag_dir / "metadata.yaml", encoding="utf-8") as fh:
+        data = yaml.safe_load(fh)
+    return dict(data["rosbag2_bagfile_information"])
+
+
+def _check_window(start_ns: int | None, end_ns: int | None) -> None:
+    for name, value in (("start_ns", start_ns), ("end_ns", end_ns)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int)):
+            raise InputError(f"{name} must be an int number of nanoseconds, got {value!r}")
+    if start_ns is not None and end_ns is not None and end_ns < start_ns:
+        raise InputError(f"end_ns {end_ns} is before start_ns {start_ns}")
+
+
+def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
+                  start_ns: int | None = None, end_ns: int | None = None, *,
+                  views: bool = False, verify_crc: bool = True,
+                  damage: DamageLog | None = None) -> Iterator[BagMessage]:
+    """Iterate over a bag's messages in log-time order, as raw CDR bytes.
+
+    Messages of several storage files (split bags, or a directory of loose ``.mcap`` files)
+    are merged by log time; ties keep storage order. Indexed MCAP files are memory-mapped and
+    read without copies (:mod:`eye_in_hand.io.mcap_chunks`); other storage goes through
+    ``rosbags``.
+
+    Args:
+        path: a bag directory or a ``.mcap``/``.db3`` file.
+        topics: only these topics (None: all). Topics the bag does not have are ignored;
+            use :func:`require_topics` to insist on them.
+        start_ns: only messages with log time >= start_ns.
+        end_ns: only messages with log time <= end_ns (inclusive).
+        views: yield read-only ``memoryview`` data where the storage allows (indexed MCAP:
+            views of the mapped file or of a decompressed chunk, valid after the iteration)
+            instead of ``bytes``; saves copying every image.
+        verify_crc: check MCAP chunk CRCs when the file has them (CRC-32 runs at about
+            0.35 GB/s here: 16 ms per 1280x720 colour stereo pair).
+        damage: where damaged parts go: an MCAP chunk that cannot be read (bad index entry,
+            data that do not decompress, CRC mismatch, records that stop making sense: the
+            messages before the bad record are kept), the tail of a truncated file, a
+            per-message-compressed message that does not decompress, a storage file that
+            fails part-way (sqlite3): each becomes a :class:`Damage` record in the log, with
+            topics, log-time range and messages lost, and the rest of the bag is read on.
+            None: such damage raises :class:`BagError` (as before this option existed).
+
+    Yields:
+        ``(topic, msgtype, log_time_ns, raw_cdr_bytes)``.
+
+    Raises:
+        BagError: the bag cannot be opened, or (without ``damage``) a part of it cannot be
+            read.
+        InputError: bad time window.
+    """
+    _check_window(start_ns, end_ns)
+    wanted = None if topics is None else set(topics)
+    stop = None if end_ns is None else end_ns + 1
+    with _OpenBag(path) as bag:
+        streams: list[Iterator[tuple[int, int, int, str, str, bytes]]] = []
+        for reader in bag.readers:
+            inner = reader.storage
+            if hasattr(inner, "storages"):  # a directory: read its storage files directly
+                parts = list(inner.storages)
+                per_message_zstd = inner.metadata.compression_mode == "message"
+            else:
+                parts, per_message_zstd = [inner], False
+            for part in parts:
+                conns = [c for c in part.connections if wanted is None or c.topic in wanted]
+                if conns:
+                    streams.append(_storage_stream(part, conns, start_ns, stop,
+                                                   per_message_zstd, len(streams), views,
+                                                   verify_crc, damage))
+        if not streams:
+            return
+        merged = streams[0] if len(streams) == 1 else heapq.merge(*streams)
+        index = 0
+        try:
+            for stamp, _stream, _order, topic, msgtype, raw in merged:
+                yield topic, msgtype, stamp, raw
+                index += 1
+        except BagError:
+            raise
+        except Exception as exc:
+            raise BagError(f"cannot read bag {bag.path} after message {index}: "
+                           f"{str(exc) or type(exc).__name__}") from exc
+
+
+
+
+def memory_mappable(path: str | Path) -> bool:
+    """Whether every storage file of a bag is an indexed MCAP file with uncompressed chunks,
+    i.e. whether ``iter_messages(..., views=True)`` yields views of the files themselves."""
+    from eye_in_hand.io import mcap_chunks
+
+    with _OpenBag(path) as bag:
+        for reader in bag.readers:
+            inner = reader.storage
+            if getattr(inner, "metadata", None) is not None and \
+                    getattr(inner.metadata, "compression_mode", "") == "message":
+                return False
+            for part in (list(inner.storages) if hasattr(inner, "storages") else [inner]):
+                if not mcap_chunks.supports(part) or any(c.compression for c in part.chunks):
+                    return False
+    return True
+
+
+def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int | None,
+                    per_message_zstd: bool, stream: int, views: bool = False,
+                    verify_crc: bool = True, damage: DamageLog | None = None,
+                    ) -> Iterator[tuple[int, int, int, str, str, bytes]]:
+    """Messages of one storage file, with its own connections.
+
+    ``rosbags``' directory reader matches the connections of ``metadata.yaml`` to those of the
+    storage file by topic, type *and* QoS; a bag whose two QoS copies differ in form (durations
+    written as 2147483647/4294967295 in one and 9223372036/854775807 in the other, or QoS only
+    in one of them) then yields nothing. Reading each storage file with its own connections
+    avoids that.
+
+    Damage goes to ``damage`` (see :func:`iter_messages`); without it, it raises.
+    """
+    from eye_in_hand.io import mcap_chunks
+
+    name = Path(getattr(storage, "path", "")).name
+    by_id = {c.id: c for c in conns}
+
+    if not per_message_zstd and mcap_chunks.supports(storage):
+        def chunk_damage(cd: mcap_chunks.ChunkDamage) -> None:
+            assert damage is not None
+            topics: dict[str, int] = {}
+            for cid, n in (cd.lost or {}).items():
+                topic = by_id[cid].topic
+                topics[topic] = topics.get(topic, 0) + n
+            where = f"chunk at byte {cd.offset}"
+            reason = cd.reason[len(where) + 2:] if cd.reason.startswith(where + ": ") \
+                else cd.reason
+            damage.add(Damage(name, where, reason, topics,
+                              cd.start_ns, cd.end_ns,
+                              None if cd.lost is None else sum(topics.values())))
+
+        source = mcap_chunks.chunk_messages(storage, conns, start, stop, verify_crc=verify_crc,
+                                            on_damage=None if damage is None else chunk_damage)
+        for order, (conn, stamp, view) in enumerate(source):
+            yield stamp, stream, order, conn.topic, conn.msgtype, view if views else bytes(view)
+        return
+    if per_message_zstd:
+        try:
+            from compression import zstd  # type: ignore[import-not-found]  # Python >= 3.14
+        except ImportError:
+            from backports import zstd  # type: ignore[import-not-found,no-redef]
+    if isinstance(storage, _ScannedMcap):
+        source: Iterator[tuple[Any, int, Any]] = storage.messages(
+            conns, start, stop, on_damage=damage.add if damage is not None else None)
+    else:
+        source = storage.messages(conns, start, stop)
+    read: dict[int, int] = {}
+    last = start
+    order = 0
+    while True:
+        try:
+            item = next(source, None)
+        except Exception as exc:
+            if damage is None:
+                raise
+            # the storage fails part-way (a corrupt sqlite3 page): the rest of the file is lost
+            lost = {c.topic: int(c.msgcount) - read.get(c.id, 0) for c in conns
+                    if start is None and stop is None and int(c.msgcount) > read.get(c.id, 0)}
+            damage.add(Damage(name, "the rest of the file",
+                              f"reading stopped after {order} message(s): "
+                              f"{str(exc) or type(exc).__name__}", lost, last, None,
+                              sum(lost.values()) if lost else None))
+            return
+        if item is None:
+            return
+        conn, stamp, raw = item
+        stamp = int(stamp)
+        last = stamp
+        read[conn.id] = read.get(conn.id, 0) + 1
+        if per_message_zstd:
+            try:
+                data = zstd.decompress(raw)
+            except Exception as exc:
+                if damage is None:
+                    raise BagError(f"{name}: {conn.topic} message at {stamp} ns does not "
+                                   f"decompress: {exc}") from exc
+                damage.bad_message(conn.topic, stamp, f"zstd data do not decompress ({exc})",
+                                   name)
+                continue
+        else:
+            data = bytes(raw)
+        yield stamp, stream, order, conn.topic, conn.msgtype, data
+        order += 1
