@@ -343,6 +343,8 @@ class TargetLocation:
         method: triangulation method used.
         disparity_px: rectified disparity.
         left, right: the two detections.
+        id: the target's id, stable across frames: the name for a target of one blob; the
+            blob sets of one colour give ``<name>_<k>``. Empty on construction = ``name``.
     """
 
     name: str
@@ -357,6 +359,11 @@ class TargetLocation:
     disparity_px: float
     left: Detection = field(repr=False)
     right: Detection = field(repr=False)
+    id: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.id:
+            object.__setattr__(self, "id", self.name)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict with exactly ``point_m``, ``covariance``, ``residual_px``,
@@ -395,7 +402,11 @@ class LocateResult:
         return self.get(self.first_name)
 
     def get(self, name: str) -> TargetLocation | None:
-        """The located target called ``name``, or None."""
+        """The located target whose id is ``name``, else the first one called ``name``, or
+        None."""
+        for t in self.targets:
+            if t.id == name:
+                return t
         for t in self.targets:
             if t.name == name:
                 return t
