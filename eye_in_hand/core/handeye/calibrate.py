@@ -8,8 +8,9 @@
    predicted from X solved without it, is compared with the other samples' board poses; the
    worst sample beyond ``outlier_threshold`` times the median deviation (and beyond absolute
    floors) is rejected and the test repeated;
-4. every closed form (:data:`CLOSED_FORM_METHODS`) on the kept samples; a solver that fails on
-   them is left out of the comparison with a warning;
+4. every closed form (:data:`CLOSED_FORM_METHODS`) and the per-motion-pair average
+   (``average``, :mod:`.average`) on the kept samples; a solver that fails on them is left out
+   of the comparison with a warning;
 5. two joint refinements from the best closed form (reprojection when corners are available,
    pose space otherwise): ``refined_exact`` takes the robot poses as exact (:mod:`.refine`),
    ``refined`` models their errors too and estimates both noise levels (:mod:`.eiv`);
@@ -31,6 +32,8 @@ from scipy.spatial.transform import Rotation
 from eye_in_hand.core.transforms import average_transforms, to_xyz_quat
 from eye_in_hand.errors import HandEyeError
 
+from .average import AVERAGE_SOLVERS, DEFAULT_AVERAGE_SOLVER, average_hand_eye, \
+    solve_average
 from .eiv import EivResult, refine_errors_in_variables
 from .refine import RefinementResult, refine_pose_space, refine_reprojection, \
     reprojection_errors
@@ -53,7 +56,7 @@ __all__ = [
 ]
 
 #: Every method name accepted by ``--method`` (besides ``all``).
-METHODS = (*CLOSED_FORM_METHODS, "refined_exact", "refined")
+METHODS = (*CLOSED_FORM_METHODS, "average", "refined_exact", "refined")
 
 # A reading of the poses whose AX = XB rotation residual is this many times lower than the
 # given one (which is above the floor, degrees) means the given conventions are wrong.
@@ -97,6 +100,8 @@ class MethodResult:
         covariance: (6, 6) covariance of X, order ``x y z rx ry rz``: from the Jacobian for
             the refinements, the jackknife of the leave-one-out solutions for the closed forms.
         held_out: leave-one-out prediction figures (see :mod:`.select`), or None.
+        average: for ``average``, the per-pair counts, thresholds and spread
+            (:meth:`.average.AverageResult.summary`); None for the other methods.
     """
 
     name: str
@@ -113,6 +118,7 @@ class MethodResult:
     std_deg: float = float("nan")
     covariance: np.ndarray | None = None
     held_out: HeldOut | None = None
+    average: dict[str, Any] | None = None
 
     def summary(self) -> dict[str, Any]:
         """Plain-data summary for report.json (X as translation + quat_xyzw, RMS figures)."""
@@ -139,6 +145,8 @@ class MethodResult:
         out["held_out"] = None if self.held_out is None else self.held_out.summary()
         if self.covariance is not None:
             out["covariance"] = self.covariance.tolist()
+        if self.average is not None:
+            out["average"] = self.average
         return out
 
 
@@ -300,10 +308,12 @@ def board_spread(X: np.ndarray, base_T_ee: np.ndarray, cam_T_board: np.ndarray, 
     return Y, dmm, ddeg
 
 
-def _solve(method: str, base_T_ee: np.ndarray, cam_T_board: np.ndarray, setup: str) -> np.ndarray:
+def _solve(method: str, base_T_ee: np.ndarray, cam_T_board: np.ndarray, setup: str,
+           average_solver: str = DEFAULT_AVERAGE_SOLVER) -> np.ndarray:
     m = motion_pairs(gripper_poses(base_T_ee, setup), cam_T_board)
     with np.errstate(all="ignore"):
-        X = CLOSED_FORM_METHODS[method](m)
+        X = (solve_average(m, average_solver) if method == "average"
+             else CLOSED_FORM_METHODS[method](m))
     if not np.all(np.isfinite(X)):
         raise HandEyeError(f"{method}: solution is not finite (degenerate motions)")
     return X
@@ -442,7 +452,8 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                        outlier_floor_mm: float = 1.0,
                        outlier_floor_deg: float = 0.2,
                        leave_one_out: bool = True,
-                       check_conventions: bool = True) -> HandEyeResult:
+                       check_conventions: bool = True,
+                       average_solver: str = DEFAULT_AVERAGE_SOLVER) -> HandEyeResult:
     """Solve AX = XB with every method, refine, and assess the result.
 
     Args:
@@ -464,6 +475,7 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
             3 samples) ``refined`` is selected.
         check_conventions: refuse input that fits AX = XB far better read another way (the
             other setup, or ``cam_T_board`` inverted): a wrong setup or pose direction.
+        average_solver: the per-pair solver of ``average`` (``"tsai"`` or ``"kronecker"``).
 
     Returns:
         The result; ``result.X`` is the selected method's transform.
@@ -478,6 +490,9 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
     if method != "all" and method not in METHODS:
         raise HandEyeError(f"method: expected 'all' or one of {', '.join(METHODS)}, "
                            f"got {method!r}")
+    if average_solver not in AVERAGE_SOLVERS:
+        raise HandEyeError(f"average solver: expected one of {', '.join(AVERAGE_SOLVERS)}, "
+                           f"got {average_solver!r}")
     if method in ("refined", "refined_exact") and not refine:
         raise HandEyeError(f"method {method!r} requested with refinement disabled")
     kept, warnings = validate_samples(samples)
@@ -515,9 +530,9 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
     results: dict[str, MethodResult] = {}
     held: dict[str, HeldOut] = {}
     keep_masks = [np.arange(len(kept)) != i for i in range(len(kept))]
-    for name in CLOSED_FORM_METHODS:
+    for name in (*CLOSED_FORM_METHODS, "average"):
         try:
-            X = _solve(name, bte, ctb, setup)
+            X = _solve(name, bte, ctb, setup, average_solver)
         except (HandEyeError, np.linalg.LinAlgError, ValueError) as exc:
             warnings.append(f"{name} failed on these samples and is left out of the "
                             f"comparison: {exc}")
@@ -525,12 +540,15 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
         rot, trans = axxb_residuals(X, bte, ctb, setup)
         Y, dmm, ddeg = board_spread(X, bte, ctb, setup)
         mr = MethodResult(name, X, Y, rot, trans, dmm, ddeg)
+        if name == "average":
+            mr.average = average_hand_eye(motion_pairs(gripper_poses(bte, setup), ctb),
+                                          average_solver).summary()
         if use_corners:
             assert cameras is not None
             mr.reproj_rms_px = _reproj_rms(X, Y, kept, cameras, setup)
         if loo:
             try:
-                xs = [_solve(name, bte[k], ctb[k], setup) for k in keep_masks]
+                xs = [_solve(name, bte[k], ctb[k], setup, average_solver) for k in keep_masks]
             except (HandEyeError, np.linalg.LinAlgError, ValueError) as exc:
                 warnings.append(f"leave-one-out figures of {name} unavailable: {exc}")
             else:
@@ -554,7 +572,9 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
         return float(np.sqrt(np.mean(mr.board_dev_mm ** 2)) / max(ref_mm, 1e-12)
                      + np.sqrt(np.mean(mr.board_dev_deg ** 2)) / max(ref_deg, 1e-12))
 
-    best = min(results, key=lambda k: score(results[k]))
+    # The refinements start from a classical closed form (the average when it alone solved).
+    best = min([k for k in results if k in CLOSED_FORM_METHODS] or list(results),
+               key=lambda k: score(results[k]))
     refinement: EivResult | None = None
     refinement_exact: RefinementResult | None = None
     if refine:
