@@ -9,7 +9,9 @@ whose translation and rotation-vector components are Gaussian with the given 1-s
 
 Default mode: for robot error 0, 0.2 mm / 0.02 deg and 1 mm / 0.1 deg, the median error of the
 selected result (what ``calibrate handeye`` writes), every closed form, the exact-pose refinement
-(``refined_exact``) and the errors-in-variables refinement (``refined``), in one run; OpenCV
+(``refined_exact``), the per-motion-pair average (``average``, with the package's default
+per-pair solver; ``avg_<other>`` is the same average with the other per-pair solver, on
+the same kept samples) and the errors-in-variables refinement (``refined``), in one run; OpenCV
 4.12's ``calibrateHandEye`` on the same poses (installed by this script into its own venv under
 ``build/bench-venv``, since the package's OpenCV 5 has no ``calibrateHandEye``; skipped with
 ``--no-opencv`` or when it cannot be installed); then the real eye-to-hand pose pairs of
@@ -158,10 +160,32 @@ def run_opencv(payload: list[dict]) -> dict | None:
 LEVELS = ((0.0, 0.0), (0.2, 0.02), (1.0, 0.1))
 
 
+def other_average(res, samples) -> dict[str, np.ndarray]:
+    """The per-motion-pair average with the non-default per-pair solver(s), on the samples
+    ``res`` kept (``avg_<solver>``); empty when it cannot solve them."""
+    from eye_in_hand.core.handeye import gripper_poses, motion_pairs
+    from eye_in_hand.core.handeye.average import (AVERAGE_SOLVERS, DEFAULT_AVERAGE_SOLVER,
+                                                  average_hand_eye)
+    from eye_in_hand.errors import HandEyeError
+
+    kept = [s for s in samples if s.name in set(res.sample_names)]
+    m = motion_pairs(gripper_poses(np.stack([s.base_T_ee for s in kept]), res.setup),
+                     np.stack([s.cam_T_board for s in kept]))
+    out = {}
+    for solver in AVERAGE_SOLVERS:
+        if solver != DEFAULT_AVERAGE_SOLVER:
+            try:
+                out[f"avg_{solver}"] = average_hand_eye(m, solver).X
+            except HandEyeError:
+                pass
+    return out
+
+
 def accuracy(args: argparse.Namespace) -> None:
     """Median errors per robot error level: selected, closed forms, refinements, OpenCV."""
     from eye_in_hand.core.handeye import (CLOSED_FORM_METHODS, CameraView, HandEyeSample,
                                           calibrate_hand_eye)
+    from eye_in_hand.core.handeye.average import AVERAGE_SOLVERS
     from eye_in_hand.sim import World
 
     world = World.default().with_image_size(640, 480)
@@ -189,6 +213,8 @@ def accuracy(args: argparse.Namespace) -> None:
             errs.setdefault("selected", []).append(errors(world.ee_T_cam, res.X))
             for name, mr in res.methods.items():
                 errs.setdefault(name, []).append(errors(world.ee_T_cam, mr.X))
+            for name, X in other_average(res, samples).items():
+                errs.setdefault(name, []).append(errors(world.ee_T_cam, X))
         cv_out = None if args.no_opencv else run_opencv(payload)
 
         def med(v: list[tuple[float, float]]) -> tuple[float, float]:
@@ -197,7 +223,8 @@ def accuracy(args: argparse.Namespace) -> None:
 
         print(f"robot error {mm_sig} mm / {deg_sig} deg (1 sigma per axis, per pose); selected: "
               + ", ".join(f"{k} {v}x" for k, v in sorted(picked.items())))
-        rows = ["selected", "refined", "refined_exact", *CLOSED_FORM_METHODS]
+        rows = ["selected", "refined", "refined_exact", *CLOSED_FORM_METHODS, "average",
+                *[f"avg_{k}" for k in AVERAGE_SOLVERS]]
         for name in rows:
             if name in errs:
                 d, m = med(errs[name])

@@ -15,7 +15,7 @@ from eye_in_hand.report.handeye import write_outputs
 HELP = "hand-eye calibration (AX = XB) from a dataset, pose pairs or a bag"
 
 _METHOD_CHOICES = ("all", "tsai", "park", "horaud", "daniilidis", "andreff", "kronecker",
-                   "refined_exact", "refined")
+                   "average", "refined_exact", "refined")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -69,6 +69,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="the method whose X is written to hand_eye.yaml; 'all' = the one "
                           "that best predicts the held-out samples in leave-one-out (default: "
                           "%(default)s); every method is always in report.json")
+    opt.add_argument("--average-solver", choices=("tsai", "kronecker"), default=None,
+                     help="per-pair solver of the 'average' method (X from each pair of "
+                          "motions, averaged; default: tsai)")
     opt.add_argument("--no-refine", action="store_true",
                      help="skip the joint refinements (refined, refined_exact)")
     opt.add_argument("--no-outlier-rejection", action="store_true",
@@ -220,7 +223,8 @@ def run(args: argparse.Namespace) -> int:
     result = calibrate_hand_eye(
         samples, setup, cameras=inputs["views"], method=args.method,
         refine=not args.no_refine, reject_outliers=not args.no_outlier_rejection,
-        outlier_threshold=args.outlier_threshold)
+        outlier_threshold=args.outlier_threshold,
+        **({} if args.average_solver is None else {"average_solver": args.average_solver}))
     parent = args.parent_frame or FRAMES[setup][0]
     out = Path(args.output)
     with atomic_output_dir(out, overwrite=args.overwrite) as tmp:
@@ -237,6 +241,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"selected {result.selected}: {result.selection_reason}")
     if np.isfinite(sel.std_mm):
         print(f"1-sigma uncertainty: {sel.std_mm:.3f} mm, {sel.std_deg:.4f} deg")
+    avg = result.methods["average"].average if "average" in result.methods else None
+    if avg is not None:
+        print(f"average ({avg['solver']} per pair): {avg['n_pairs_used']} pairs of motions used "
+              f"of {avg['n_pairs_candidates']}, spread {avg['spread']['rot_std_deg']:.4f} deg / "
+              f"{avg['spread']['trans_std_mm']:.3f} mm RMS")
     noise = result.robot_pose_noise
     if noise is not None:
         print(f"robot pose noise (estimated, 1 sigma per axis): "

@@ -51,6 +51,8 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
                                 "held-out deg", "AX=XB rot deg", "AX=XB trans mm",
                                 "board spread mm", "board spread deg", "reproj px", "sigma mm",
                                 "sigma deg"])
+    _html_average(rep, report)
+    _html_motion_residuals(rep, report, result.selected)
     sel_X = result.X
     fig = new_figure(7.0, 3.2)
     ax1, ax2 = fig.subplots(1, 2)
@@ -123,6 +125,63 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
     rep.save(path)
 
 
+#: Most motion rows in the HTML table (report.json always has them all).
+HTML_MOTION_ROWS = 200
+
+
+def _html_average(rep: Any, report: dict[str, Any]) -> None:
+    """The per-motion-pair average's counts and spread."""
+    avg = (report["methods"].get("average") or {}).get("average")
+    if avg is None:
+        return
+    rep.add_heading("average: X from each pair of motions, averaged")
+    sk, th, sp = avg["skipped"], avg["thresholds"], avg["spread"]
+    rep.add_table([
+        ["per-pair solver", avg["solver"]],
+        ["rotation mean", avg["rotation_mean"]],
+        ["motions / pairs of motions", f"{avg['n_motions']} / {avg['n_pairs_candidates']}"],
+        ["pairs used", avg["n_pairs_used"]],
+        [f"skipped: a robot rotation under {th['min_rotation_deg']:g} deg",
+         sk["small_rotation"]],
+        [f"skipped: rotation axes within {th['min_axis_angle_deg']:g} deg", sk["parallel_axes"]],
+        ["skipped: degenerate per-pair system", sk["degenerate"]],
+        [f"not solved (random subset of {th['max_pairs']} kept)", sk["subsampled_out"]],
+        ["spread of the per-pair solutions: rotation RMS / max (deg)",
+         f"{sp['rot_std_deg']:.4g} / {sp['rot_max_deg']:.4g}"],
+        ["spread of the per-pair solutions: translation RMS / max (mm)",
+         f"{sp['trans_std_mm']:.4g} / {sp['trans_max_mm']:.4g}"],
+    ], header=["quantity", "value"])
+
+
+def _html_motion_residuals(rep: Any, report: dict[str, Any], selected: str) -> None:
+    """Per-method summary and per-motion table of the AX = XB residuals."""
+    table = report["motion_residuals"]
+    methods = table["methods"]
+    rep.add_section("Per-motion AX = XB residuals")
+    rep.add_paragraph(f"{len(table['motions'])} motions (every pair of samples); rotation: angle "
+                      "of inv(AX) XB (deg); translation: its norm (mm); Frobenius: ||AX - XB|| "
+                      "with translations in metres.")
+    rows = []
+    for name in methods:
+        s = table["summary"][name]
+        rows.append([name + (" (selected)" if name == selected else "")]
+                    + [s[q][k] for q in ("rot_deg", "trans_mm", "frobenius")
+                       for k in ("mean", "median", "max")])
+    rep.add_table(rows, header=["method"] + [f"{q} {k}" for q in ("rot deg", "trans mm", "Frob")
+                                             for k in ("mean", "median", "max")])
+    n = len(table["motions"])
+    order = list(range(n))
+    if n > HTML_MOTION_ROWS:
+        key = table["trans_mm"][selected] if selected in table["trans_mm"] else [0.0] * n
+        order = sorted(order, key=lambda k: -key[k])[:HTML_MOTION_ROWS]
+        rep.add_paragraph(f"the {HTML_MOTION_ROWS} motions with the largest translation "
+                          f"residual of {selected} (all {n} in report.json)")
+    rows = [[f"{table['motions'][k][0]} - {table['motions'][k][1]}"]
+            + [f"{table['rot_deg'][m][k]:.3g} / {table['trans_mm'][m][k]:.3g} / "
+               f"{table['frobenius'][m][k]:.3g}" for m in methods] for k in order]
+    rep.add_table(rows, header=["motion (samples)"] + [f"{m} deg / mm / Frob" for m in methods])
+
+
 def write_outputs(out: Path, result: Any, samples: list[Any], *, setup: str, parent_frame: str,
                   child_frame: str, input_meta: dict[str, Any],
                   skipped: list[dict[str, str]] | None = None, notes: list[str] | None = None,
@@ -135,6 +194,7 @@ def write_outputs(out: Path, result: Any, samples: list[Any], *, setup: str, par
     Returns:
         The paths written.
     """
+    from eye_in_hand.core.handeye.residuals import motion_residual_table
     from eye_in_hand.core.transforms import transform_distance
     from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye
 
@@ -154,6 +214,12 @@ def write_outputs(out: Path, result: Any, samples: list[Any], *, setup: str, par
     report["warnings"] = list(notes or []) + report["warnings"]
     report["frames"] = {"parent": parent_frame, "child": child_frame}
     report["covariance_order"] = ["x", "y", "z", "rx", "ry", "rz"]
+    by_name = {s.name: s for s in samples}
+    used_samples = [by_name[name] for name in result.sample_names]
+    report["motion_residuals"] = motion_residual_table(
+        {k: v.X for k, v in result.methods.items()},
+        np.stack([s.base_T_ee for s in used_samples]),
+        np.stack([s.cam_T_board for s in used_samples]), setup, result.sample_names)
     truth = ground_truth or {}
     key = "ee_T_cam" if setup == "eye_in_hand" else "base_T_cam"
     if key in truth:

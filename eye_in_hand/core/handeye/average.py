@@ -12,7 +12,9 @@ per-pair solver, and averages the solutions:
   ``skipped_parallel_axes``), as are pairs whose per-pair system is singular
   (``skipped_degenerate``). With more usable pairs than :data:`MAX_PAIRS`, a fixed-seed random
   subset of that size is solved (``subsampled_out`` counts the rest): with all-pairs motions
-  their number grows as N^4;
+  their number grows as N^4. Beyond :data:`MAX_CANDIDATES` pairs of motions (above about 42
+  samples) only a fixed-seed random draw of that many is examined, the others count as
+  ``subsampled_out`` too;
 * **per-pair solvers**: ``"tsai"`` (Tsai-Lenz on the two motions: modified Rodrigues vectors,
   then translation by least squares) or ``"kronecker"`` (the homogeneous Kronecker / Andreff
   linear form on the two motions, 24 equations in 13 unknowns, smallest singular vector);
@@ -48,6 +50,7 @@ __all__ = [
     "MIN_ROTATION_DEG",
     "MIN_AXIS_ANGLE_DEG",
     "MAX_PAIRS",
+    "MAX_CANDIDATES",
     "MIN_PAIRS",
     "AverageResult",
     "usable_motion_pairs",
@@ -68,6 +71,8 @@ MIN_ROTATION_DEG = 5.0
 MIN_AXIS_ANGLE_DEG = 15.0
 #: Most pairs of motions solved (a fixed-seed random subset beyond it).
 MAX_PAIRS = 2000
+#: Most pairs of motions examined against the thresholds (a fixed-seed random draw beyond).
+MAX_CANDIDATES = 400_000
 #: Fewest usable pairs the average is taken over.
 MIN_PAIRS = 3
 
@@ -146,14 +151,16 @@ class AverageResult:
 
 
 def usable_motion_pairs(m: MotionPairs, *, min_rotation_deg: float = MIN_ROTATION_DEG,
-                        min_axis_angle_deg: float = MIN_AXIS_ANGLE_DEG
-                        ) -> tuple[np.ndarray, int, int]:
+                        min_axis_angle_deg: float = MIN_AXIS_ANGLE_DEG,
+                        candidates: np.ndarray | None = None) -> tuple[np.ndarray, int, int]:
     """The pairs of motions whose robot rotations are large enough and axes far enough apart.
 
     Args:
         m: the motions (K of them).
         min_rotation_deg: smallest rotation angle of each motion.
         min_axis_angle_deg: smallest angle between the two rotation axes (as lines, 0-90 deg).
+        candidates: the pairs ``(p, q)``, p < q, to examine, shape (C, 2); every pair when
+            None.
 
     Returns:
         ``(pairs (P, 2) of motion indices p < q, skipped_small_rotation,
@@ -163,7 +170,10 @@ def usable_motion_pairs(m: MotionPairs, *, min_rotation_deg: float = MIN_ROTATIO
     rv = Rotation.from_matrix(m.A[:, :3, :3]).as_rotvec()
     ang = np.linalg.norm(rv, axis=1)
     axis = rv / np.maximum(ang, 1e-300)[:, None]
-    pp, qq = np.triu_indices(K, k=1)
+    if candidates is None:
+        pp, qq = np.triu_indices(K, k=1)
+    else:
+        pp, qq = candidates[:, 0], candidates[:, 1]
     big = (ang >= np.radians(min_rotation_deg))
     small = ~(big[pp] & big[qq])
     cos = np.abs(np.einsum("ki,ki->k", axis[pp], axis[qq]))
@@ -351,12 +361,19 @@ def average_hand_eye(m: MotionPairs, solver: str = DEFAULT_AVERAGE_SOLVER, *,
                            f"{rotation!r}")
     K = len(m)
     n_cand = K * (K - 1) // 2
+    rng = np.random.default_rng(seed)
+    cand = None
+    if n_cand > MAX_CANDIDATES:
+        draw = rng.integers(0, K, size=(MAX_CANDIDATES, 2))
+        draw = np.unique(np.sort(draw[draw[:, 0] != draw[:, 1]], axis=1), axis=0)
+        cand = draw
     pairs, n_small, n_par = usable_motion_pairs(m, min_rotation_deg=min_rotation_deg,
-                                                min_axis_angle_deg=min_axis_angle_deg)
-    n_sub = 0
+                                                min_axis_angle_deg=min_axis_angle_deg,
+                                                candidates=cand)
+    n_sub = 0 if cand is None else n_cand - len(cand)
     if len(pairs) > max_pairs:
-        pick = np.sort(np.random.default_rng(seed).choice(len(pairs), max_pairs, replace=False))
-        n_sub = len(pairs) - max_pairs
+        pick = np.sort(rng.choice(len(pairs), max_pairs, replace=False))
+        n_sub += len(pairs) - max_pairs
         pairs = pairs[pick]
     Xs, ok = pair_solutions(m, pairs, solver)
     n_deg = int(np.count_nonzero(~ok))
