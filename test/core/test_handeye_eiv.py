@@ -194,5 +194,6 @@ def test_every_solver_failing_is_one_clear_error(monkeypatch) -> None:
 
     for name in list(calibrate_module.CLOSED_FORM_METHODS):
         monkeypatch.setitem(calibrate_module.CLOSED_FORM_METHODS, name, broken)
+    monkeypatch.setattr(calibrate_module, "solve_average", lambda m, solver: broken(m))
     with pytest.raises(HandEyeError, match="every closed-form solver failed"):
         calibrate_hand_eye(P.samples, cameras=P.views, check_conventions=False)

@@ -285,6 +285,8 @@ def pair_solutions(m: MotionPairs, pairs: np.ndarray, solver: str = DEFAULT_AVER
         raise HandEyeError(f"average solver: expected one of {', '.join(AVERAGE_SOLVERS)}, got "
                            f"{solver!r}")
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    if len(pairs) == 0:
+        return np.zeros((0, 4, 4)), np.zeros(0, dtype=bool)
     with np.errstate(all="ignore"):
         X, ok = _PAIR_SOLVERS[solver](m, pairs)
     ok &= np.all(np.isfinite(X.reshape(len(pairs), -1)), axis=1)
