@@ -86,8 +86,8 @@ def test_dataset_end_to_end(stereo_dataset, tmp_path: Path, capsys) -> None:
     dt, dr = transform_distance(X_true, calib.transform)
     assert dt < 0.0005 and np.degrees(dr) < 0.05, (dt, np.degrees(dr))
     assert set(report["methods"]) == set(scores) == {
-        "tsai", "park", "horaud", "daniilidis", "andreff", "kronecker", "refined_exact",
-        "refined"}
+        "tsai", "park", "horaud", "daniilidis", "andreff", "kronecker", "average",
+        "refined_exact", "refined"}
     for m in report["methods"].values():
         assert len(m["translation"]) == 3 and len(m["quat_xyzw"]) == 4
         assert m["residuals"]["reproj_px_rms"] < 1.0
@@ -115,6 +115,41 @@ def test_pairs_eye_to_hand_with_method(data_dir: Path, tmp_path: Path) -> None:
     report = json.loads((out / "report.json").read_text())
     assert report["refinement"]["space"] == "pose" and "refined" in report["methods"]
     assert not (out / "report.html").exists()
+
+
+def test_method_average_writes_x_and_the_residual_tables(tmp_path: Path, capsys) -> None:
+    """Pose pairs (eye-to-hand), ``--method average --average-solver kronecker``: hand_eye.yaml
+    has the average, report.json and report.html the pairs, the spread and the per-motion
+    residual table of every method."""
+    P = make_problem(7, setup="eye_to_hand", seed=5, noise_px=0.3)
+    pairs = tmp_path / "pairs.json"
+    pairs.write_text(json.dumps([[s.base_T_ee.tolist(), s.cam_T_board.tolist()]
+                                 for s in P.samples]))
+    out = tmp_path / "o"
+    assert main(["calibrate", "handeye", "--pairs", str(pairs), "--setup", "eye_to_hand",
+                 "--method", "average", "--average-solver", "kronecker", "--no-refine",
+                 "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "average (kronecker per pair): " in printed
+    calib = load_hand_eye(out / "hand_eye.yaml")
+    assert calib.method == "average" and calib.parent_frame == "base_link"
+    dt, dr = transform_distance(P.X, calib.transform)
+    assert dt < 0.01 and np.degrees(dr) < 0.3, (dt, np.degrees(dr))
+    report = json.loads((out / "report.json").read_text())
+    avg = report["methods"]["average"]["average"]
+    assert avg["solver"] == "kronecker" and avg["n_motions"] == 21
+    assert avg["n_pairs_used"] + sum(avg["skipped"].values()) == 21 * 20 // 2
+    assert avg["spread"]["rot_std_deg"] > 0 and avg["spread"]["trans_std_mm"] > 0
+    table = report["motion_residuals"]
+    assert table["methods"] == list(report["methods"]) and "average" in table["methods"]
+    assert table["motions"][0] == ["pair000", "pair001"] and len(table["motions"]) == 21
+    for q in ("rot_deg", "trans_mm", "frobenius"):
+        assert all(len(table[q][m]) == 21 for m in table["methods"])
+        assert set(table["summary"]["average"][q]) == {"mean", "median", "max"}
+    assert "selection" in report and "samples" in report     # the keys that were there stay
+    html = (out / "report.html").read_text()
+    assert "Per-motion AX = XB residuals" in html and "pair000 - pair001" in html
+    assert "X from each pair of motions, averaged" in html and "average deg / mm / Frob" in html
 
 
 def test_duplicate_sample_is_reported(data_dir: Path, tmp_path: Path, capsys) -> None:
