@@ -270,3 +270,22 @@ def test_every_solver_failing_includes_the_average(monkeypatch) -> None:
     monkeypatch.setattr(calibrate_module, "solve_average", broken)
     with pytest.raises(HandEyeError, match="every closed-form solver failed"):
         calibrate_hand_eye(P.samples, cameras=P.views, check_conventions=False)
+
+
+def test_degenerate_pairs_are_skipped_and_counted_never_averaged() -> None:
+    """The flange only rotates about a still point (robot motions without translation): the
+    homogeneous Kronecker form of every pair has a two-dimensional null space, so every pair
+    is degenerate and the average is an error that says so; Tsai per pair solves."""
+    rng = np.random.default_rng(3)
+    X = from_rotvec([0.1, -0.2, 0.15], [0.04, -0.06, 0.09])
+    Y = from_rotvec([np.pi, 0.0, 0.3], [0.55, 0.1, 0.02])
+    bte = np.stack([from_rotvec((Rotation.from_rotvec(rng.normal(scale=0.4, size=3))
+                                 * Rotation.from_rotvec([np.pi, 0, 0])).as_rotvec(),
+                                [0.5, 0.1, 0.45]) for _ in range(6)])
+    ctb = np.stack([invert(X) @ invert(b) @ Y for b in bte])
+    m = motion_pairs(bte, ctb)
+    res = average_hand_eye(m, "tsai")
+    assert np.max(np.abs(res.X - X)) < 1e-9 and res.skipped_degenerate == 0
+    n_usable = len(usable_motion_pairs(m)[0])
+    with pytest.raises(HandEyeError, match=rf", {n_usable} degenerate\); need at least 3"):
+        average_hand_eye(m, "kronecker")
