@@ -5,6 +5,9 @@ Pure numerics (numpy, scipy, OpenCV for projection): no rclpy, no messages.
 * :mod:`.solvers`: Tsai-Lenz, Park-Martin, Horaud-Dornaika, Daniilidis, Andreff and the
   homogeneous Kronecker linear method, for eye-in-hand (``X = ee_T_cam``) and eye-to-hand
   (``X = base_T_cam``); the formulation is documented there.
+* :mod:`.average`: the per-motion-pair average (``average``): X from every pair of motions
+  with non-parallel axes (Tsai-Lenz or Kronecker per pair), rotation and translation means.
+* :mod:`.residuals`: the per-motion AX = XB residuals of every method (report tables).
 * :mod:`.samples`: the sample types, validation and motion diagnostics.
 * :mod:`.refine`: joint nonlinear refinement of X and the board pose (reprojection or pose
   space) with the covariance of X, the robot poses taken as exact (``refined_exact``).
