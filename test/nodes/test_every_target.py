@@ -213,11 +213,12 @@ def test_two_targets_through_detect_triangulate_and_hand_eye(tmp_path, ros_conte
 class _Feed:
     """Plays detect_triangulate's part: targets/markers and targets/<id>/point_cov."""
 
-    def __init__(self, ros_context, executor, namespace, overrides):
+    def __init__(self, ros_context, executor, namespace, overrides, cli_args=None):
         self.node = HandEyeNode(context=ros_context, namespace=namespace,
                                 parameter_overrides=[Parameter(k, value=v)
-                                                     for k, v in overrides.items()])
-        self.io = Node("feed", context=ros_context, namespace=namespace)
+                                                     for k, v in overrides.items()],
+                                cli_args=cli_args)
+        self.io = Node("feed", context=ros_context, namespace=namespace, cli_args=cli_args)
         executor.add_node(self.node)
         executor.add_node(self.io)
         self.pub_markers = self.io.create_publisher(MarkerArray, "targets/markers", RESULT_QOS)
@@ -330,3 +331,80 @@ def test_dropped_targets_are_counted_by_reason(tmp_path, ros_context, executor, 
     p = feed.poses["b"][0].pose.position
     assert np.allclose([p.x, p.y, p.z], want, atol=1e-9)
     assert "no_robot_pose" in node.diag.causes and "target_no_point" in node.diag.causes
+
+
+def test_eye_to_hand_tf_one_child_frame_per_target(tmp_path, ros_context, executor, namespace,
+                                                   spin_until):
+    from eye_in_hand.ros.conversions import transform_to_matrix
+    from eye_in_hand.ros.tf import have_tf2_msgs, tf_qos, tf_static_sub_qos
+
+    if not have_tf2_msgs():
+        pytest.skip("tf2_msgs not built (make venv)")
+    from tf2_msgs.msg import TFMessage
+
+    base_T_cam = from_rotvec([2.0, 0.3, -0.4], [0.8, -0.3, 1.1])
+    remap = ["--ros-args", "-r", f"/tf:={namespace}/tf", "-r",
+             f"/tf_static:={namespace}/tf_static"]
+    feed = _Feed(ros_context, executor, namespace, {
+        "hand_eye_file": str(_hand_eye_file(tmp_path, "eye_to_hand", base_T_cam, None))},
+        cli_args=remap)
+    tf_out, static_out = [], []
+    feed.io.create_subscription(TFMessage, "/tf", tf_out.append, tf_qos())
+    feed.io.create_subscription(TFMessage, "/tf_static", static_out.append, tf_static_sub_qos())
+    assert feed.ready(executor, spin_until)
+    assert spin_until(executor, lambda: feed.node.pub_tf.get_subscription_count() > 0, 10.0)
+    pts = {"a": np.array([0.02, -0.01, 0.45]), "b": np.array([-0.1, 0.05, 0.7])}
+    feed.frame(T0, pts)
+
+    def edges():
+        return {t.child_frame_id: t for m in tf_out for t in m.transforms}
+    assert spin_until(executor, lambda: {"target_a", "target_b"} <= set(edges()), 10.0)
+    for n in "ab":
+        tr = edges()[f"target_{n}"]
+        assert tr.header.frame_id == "base_link" and header_stamp_ns(tr) == T0
+        want = base_T_cam[:3, :3] @ pts[n] + base_T_cam[:3, 3]
+        np.testing.assert_allclose(transform_to_matrix(tr)[:3, 3], want, atol=1e-12)
+    # the fixed camera hangs off the base frame on /tf_static
+    assert spin_until(executor, lambda: any(t.child_frame_id == CAM for m in static_out
+                                            for t in m.transforms), 10.0)
+    he = [t for m in static_out for t in m.transforms if t.child_frame_id == CAM][0]
+    assert he.header.frame_id == "base_link"
+    np.testing.assert_allclose(transform_to_matrix(he), base_T_cam, atol=1e-9)
+
+
+def test_detect_triangulate_refuses_ids_that_cannot_name_a_topic_and_keeps_a_bound(
+        ros_context, executor, namespace, spin_until):
+    from types import SimpleNamespace
+
+    node = DetectTriangulateNode(context=ros_context, namespace=namespace, parameter_overrides=[
+        Parameter("target_names", value=["red", "green"]), Parameter("max_targets", value=3),
+        Parameter("targets.green.lower", value=[45, 120, 70]),
+        Parameter("targets.green.upper", value=[75, 255, 255]),
+        Parameter("targets.green.radius_m", value=0.0)])
+    io = Node("io", context=ros_context, namespace=namespace)
+    executor.add_node(node)
+    executor.add_node(io)
+    markers = _collect(io, MarkerArray, "targets/markers")
+    red_1 = _collect(io, PointStamped, "targets/red_1/point")
+    assert spin_until(executor, lambda: node.count_subscribers("targets/markers") > 0, 10.0)
+
+    def loc(tid, name, x):
+        return SimpleNamespace(id=tid, name=name, point_m=np.asarray(x, float),
+                               covariance=np.eye(3) * 1e-8)
+    # the configured names have publishers from the start: red_1 is the third and last id
+    result = SimpleNamespace(targets=(
+        loc("red", "red", [0.0, 0.0, 0.5]), loc("red_1", "red", [0.1, 0.0, 0.5]),
+        loc("green", "green", [0.0, 0.1, 0.5]), loc("green_2", "green", [0.2, 0.1, 0.5]),
+        loc("9x", "red", [0.0, 0.2, 0.5]), loc("a/b", "red", [0.0, 0.3, 0.5])))
+    assert spin_until(executor, lambda: io.count_publishers("targets/red/point") > 0, 10.0)
+    node._publish_targets(result, T0, CAM)
+    c = node.diag.snapshot().counters
+    assert c["targets_located"] == 6 and c["target_points_published"] == 3
+    assert c["targets_refused"] == 3 and c["marker_frames"] == 1
+    assert {"bad_target_id", "too_many_targets"} <= set(node.diag.causes)
+    assert spin_until(executor, lambda: len(markers) == 1 and len(red_1) == 1, 10.0)
+    spheres = {m.ns: m for m in markers[0].markers[1:]}
+    assert list(spheres) == ["red", "red_1", "green"]
+    assert spheres["red_1"].color.r > 0.9 and spheres["red_1"].scale.x == pytest.approx(0.04)
+    assert spheres["green"].scale.x == pytest.approx(0.04)      # unknown radius: the default
+    assert (red_1[0].point.x, header_stamp_ns(red_1[0])) == (0.1, T0)
