@@ -408,3 +408,41 @@ def test_detect_triangulate_refuses_ids_that_cannot_name_a_topic_and_keeps_a_bou
     assert spheres["red_1"].color.r > 0.9 and spheres["red_1"].scale.x == pytest.approx(0.04)
     assert spheres["green"].scale.x == pytest.approx(0.04)      # unknown radius: the default
     assert (red_1[0].point.x, header_stamp_ns(red_1[0])) == (0.1, T0)
+
+
+def test_the_node_takes_the_eye_to_hand_file_that_calibrate_handeye_writes(
+        data_dir, tmp_path, ros_context, executor, namespace, spin_until):
+    """Real data: 12 eye-to-hand pose pairs of the bundled MoveIt set through
+    ``calibrate handeye --setup eye_to_hand``; the node reads that hand_eye.yaml as it is."""
+    import json
+
+    from eye_in_hand.cli import main
+    from eye_in_hand.io.config import load_hand_eye
+
+    pairs = tmp_path / "pairs.json"
+    data = json.loads((data_dir / "moveit_eye_to_hand" / "pose_samples.json").read_text())
+    pairs.write_text(json.dumps(data[:12]))
+    out = tmp_path / "he"
+    assert main(["calibrate", "handeye", "--pairs", str(pairs), "--setup", "eye_to_hand",
+                 "-o", str(out), "--no-html"]) == 0
+    calib = load_hand_eye(out / "hand_eye.yaml")
+    assert calib.setup == "eye_to_hand" and calib.parent_frame == "base_link"
+    feed = _Feed(ros_context, executor, namespace, {
+        "hand_eye_file": str(out / "hand_eye.yaml"), "camera_frame": calib.child_frame})
+    assert feed.node.eye_to_hand and feed.ready(executor, spin_until)
+    p_cam = np.array([0.05, 0.02, 0.8])
+    from eye_in_hand.nodes.detect_triangulate import point_cov_message
+
+    feed.pub_cov["a"].publish(point_cov_message(p_cam, np.eye(3) * 1e-8, stamp_ns=T0,
+                                                frame_id=calib.child_frame))
+    feed.pub_markers.publish(sphere_marker_array([Sphere("a", p_cam, 0.04)], stamp_ns=T0,
+                                                 frame_id=calib.child_frame))
+    assert spin_until(executor, lambda: len(feed.covs["a"]) == 1, 10.0)
+    p = feed.poses["a"][0].pose.position
+    want, want_cov = target_in_base(np.eye(4), calib.transform, p_cam, cov_cam=np.eye(3) * 1e-8,
+                                    cov_hand_eye=calib.covariance)
+    assert np.allclose([p.x, p.y, p.z], want, atol=1e-12)
+    got_cov = np.asarray(feed.covs["a"][0].pose.covariance).reshape(6, 6)[:3, :3]
+    assert np.allclose(got_cov, want_cov, rtol=1e-9, atol=1e-18)
+    if calib.covariance is not None:      # the hand-eye uncertainty is in the covariance
+        assert np.trace(got_cov) > 3e-8 * 1.01
