@@ -240,6 +240,11 @@ class HandEyeNode(Node):
 
             self.calibration = load_hand_eye(cfg.hand_eye_file)
             self.eye_to_hand = self.calibration.setup == "eye_to_hand"
+            if self.eye_to_hand and self.calibration.parent_frame != cfg.base_frame:
+                self.get_logger().warning(
+                    f"{cfg.hand_eye_file}: the eye-to-hand calibration is "
+                    f"{self.calibration.parent_frame} -> {self.calibration.child_frame}, but "
+                    f"targets are published in base_frame {cfg.base_frame!r}")
             if not self.eye_to_hand:
                 ee_T_cam, cov = self.calibration.transform, self.calibration.covariance
         # robot pose noise: hand_eye.yaml's robot_pose_noise (estimated while calibrating)
