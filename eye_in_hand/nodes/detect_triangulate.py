@@ -16,7 +16,8 @@ Publishes:
     target, ``<id>`` its :attr:`~eye_in_hand.core.locator.TargetLocation.id` (the target name
     for a one-blob target, ``<name>_<k>`` for blob sets of one colour). The publishers of the
     configured names exist from start-up; other ids get theirs when they first appear, at most
-    ``max_targets`` ids in all; an id that is not a valid topic token or over that bound is
+    ``max_targets`` ids in all; they sit next to ``targets/markers`` (a remapping of that topic
+    moves them all: ids appear at run time and cannot be remapped one by one); an id that is not a valid topic token or over that bound is
     refused (counted as ``targets_refused``, logged once).
     ``targets/markers`` (visualization_msgs/MarkerArray, RESULT_QOS): per processed pair, a
     DELETEALL then one SPHERE per published target (``ns`` = id, diameter from the target's
@@ -262,6 +263,9 @@ class DetectTriangulateNode(Node):
         self._specs = {t.name: t for t in self.config.detector.targets}
         self._pub_markers = self.create_publisher(marker_classes()[1], "targets/markers",
                                                   RESULT_QOS)
+        # targets/<id>/... live next to targets/markers, wherever a remapping put it (launch
+        # remaps it to the root namespace: dynamic ids cannot be remapped one by one)
+        self._targets_prefix = self.resolve_topic_name("targets/markers").rsplit("/", 1)[0]
         self._pub_debug = self.create_publisher(Image, "target/debug_image", SENSOR_QOS)
         self.diag = NodeDiagnostics(self, period_s=node_values["diagnostics_period_s"])
         self.diag.declare_counter("pairs", "detections", "dropped_pairs", "sync_dropped",
@@ -498,9 +502,9 @@ class DetectTriangulateNode(Node):
                 self.diag.report("too_many_targets", f"target id {tid!r}: {self._max_targets} "
                                  "ids have publishers already (max_targets): not published")
                 return None
-            pubs = (self.create_publisher(_point_type(), f"targets/{tid}/point", RESULT_QOS),
-                    self.create_publisher(_point_cov_type(), f"targets/{tid}/point_cov",
-                                          RESULT_QOS))
+            base = f"{self._targets_prefix}/{tid}"
+            pubs = (self.create_publisher(_point_type(), f"{base}/point", RESULT_QOS),
+                    self.create_publisher(_point_cov_type(), f"{base}/point_cov", RESULT_QOS))
             self._pub_targets[tid] = pubs
             return pubs
 

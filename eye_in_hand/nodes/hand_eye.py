@@ -27,7 +27,8 @@ Every target (see docs/ros.md "Every target")
     each target's point and covariance from ``targets/<id>/point_cov``; it subscribes to
     that topic when the id first appears in a frame and, every ``discovery_period_s``, for
     every ``targets/<id>/point_cov`` publisher it finds in the ROS graph (so the targets a
-    detector announces at start-up lose no frame). A frame waits up to ``max_target_wait_s``
+    detector announces at start-up lose no frame). Per-target topics sit next to their list
+    topic (``targets/markers``, ``target/poses``) and follow its remapping. A frame waits up to ``max_target_wait_s``
     for its targets' points and, eye-in-hand, for the robot pose as above; then it publishes,
     per located target, ``target/<id>/pose`` (PoseStamped) and ``target/<id>/pose_cov``
     (PoseWithCovarianceStamped), ``/tf`` ``base_frame -> <target_frame_prefix><id>``, and per
@@ -529,7 +530,10 @@ class HandEyeNode(Node):
         self._target_points: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]] = {}
         self._target_subs: dict[str, Any] = {}
         self._target_pubs: dict[str, tuple[Any, Any]] = {}
-        self._targets_prefix = self.resolve_topic_name("targets")
+        # per-target topics follow their list topic's remapping: targets/<id>/point_cov next to
+        # targets/markers, target/<id>/pose(_cov) next to target/poses
+        self._targets_prefix = self.resolve_topic_name("targets/markers").rsplit("/", 1)[0]
+        self._poses_prefix = self.resolve_topic_name("target/poses").rsplit("/", 1)[0]
         self.create_subscription(MarkerArray, "targets/markers", self._on_markers, RESULT_QOS)
         self.pub_poses = self.create_publisher(pose_array_class(), "target/poses", RESULT_QOS)
         self.pub_markers = self.create_publisher(MarkerArray, "target/markers", RESULT_QOS)
@@ -565,7 +569,7 @@ class HandEyeNode(Node):
         if len(self._target_subs) >= self.config.max_targets:
             return "too_many_targets"
         self._target_subs[tid] = self.create_subscription(
-            PoseWithCovarianceStamped, f"targets/{tid}/point_cov",
+            PoseWithCovarianceStamped, f"{self._targets_prefix}/{tid}/point_cov",
             lambda m, t=tid: self._on_target_point(t, m), RESULT_QOS)
         return None
 
@@ -671,9 +675,10 @@ class HandEyeNode(Node):
                 continue
             pubs = self._target_pubs.get(s.id)
             if pubs is None:
-                pubs = (self.create_publisher(PoseStamped, f"target/{s.id}/pose", RESULT_QOS),
-                        self.create_publisher(PoseWithCovarianceStamped,
-                                              f"target/{s.id}/pose_cov", RESULT_QOS))
+                base = f"{self._poses_prefix}/{s.id}"
+                pubs = (self.create_publisher(PoseStamped, f"{base}/pose", RESULT_QOS),
+                        self.create_publisher(PoseWithCovarianceStamped, f"{base}/pose_cov",
+                                              RESULT_QOS))
                 self._target_pubs[s.id] = pubs
             pose_msg, cov_msg = self._pose_messages(f.stamp_ns, p, cov)
             pubs[1].publish(cov_msg)

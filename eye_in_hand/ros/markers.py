@@ -17,6 +17,7 @@ missing ``visualization_msgs`` gives one clear error instead of an ImportError.
 from __future__ import annotations
 
 import colorsys
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any, Iterable, Sequence
@@ -50,6 +51,7 @@ class Sphere:
     rgba: tuple[float, float, float, float] = DEFAULT_RGBA
 
 
+@functools.lru_cache(maxsize=None)
 def marker_classes() -> tuple[Any, Any]:
     """``(Marker, MarkerArray)`` of visualization_msgs.
 
@@ -66,6 +68,7 @@ def marker_classes() -> tuple[Any, Any]:
     return marker, array
 
 
+@functools.lru_cache(maxsize=None)
 def pose_array_class() -> Any:
     """``geometry_msgs.msg.PoseArray`` (ConfigError when geometry_msgs is missing)."""
     from eye_in_hand.ros.msgtypes import import_message_type

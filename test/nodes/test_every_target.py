@@ -446,3 +446,36 @@ def test_the_node_takes_the_eye_to_hand_file_that_calibrate_handeye_writes(
     assert np.allclose(got_cov, want_cov, rtol=1e-9, atol=1e-18)
     assert calib.covariance is not None   # the hand-eye uncertainty is in the covariance
     assert np.trace(got_cov) > 3e-8 * 1.01
+
+
+def test_per_target_topics_follow_the_remapped_marker_topic_as_the_launch_lays_them_out(
+        tmp_path, ros_context, executor, namespace, spin_until):
+    """``eye-in-hand launch``: detect_triangulate in <ns>/stereo with targets/markers remapped
+    to <ns>; hand_eye in <ns>. The per-target topics (ids known only at run time) follow."""
+    from types import SimpleNamespace
+
+    detect = DetectTriangulateNode(
+        context=ros_context, namespace=f"{namespace}/stereo",
+        parameter_overrides=[Parameter("frame_id", value=CAM)],
+        cli_args=["--ros-args", "-r", f"targets/markers:={namespace}/targets/markers"])
+    feed = _Feed(ros_context, executor, namespace, {
+        "hand_eye_file": str(_hand_eye_file(tmp_path, "eye_to_hand", np.eye(4), None))})
+    executor.add_node(detect)
+    red_1 = _collect(feed.io, PoseStamped, "target/red_1/pose")
+    assert spin_until(executor, lambda: "red" in feed.node._target_subs
+                      and detect._pub_markers.get_subscription_count() > 0, 15.0)
+    assert detect.count_publishers(f"{namespace}/targets/red/point_cov") == 1
+
+    def loc(tid, x):
+        return SimpleNamespace(id=tid, name="red", point_m=np.asarray(x, float),
+                               covariance=np.eye(3) * 1e-8)
+    p = [0.1, 0.0, 0.5]
+    detect._publish_targets(SimpleNamespace(targets=(loc("red_1", p),)), T0, CAM)
+    # red_1 is new: hand_eye subscribes when the frame lists it (that frame's point is lost,
+    # counted); the next frame comes through
+    assert spin_until(executor, lambda: feed.node.diag.counter("target_refused.no_point") == 1
+                      and feed.node._target_subs.get("red_1") is not None and
+                      detect._pub_targets["red_1"][1].get_subscription_count() > 0, 15.0)
+    detect._publish_targets(SimpleNamespace(targets=(loc("red_1", p),)), T0 + PERIOD_NS, CAM)
+    assert spin_until(executor, lambda: len(red_1) == 1, 10.0)
+    assert header_stamp_ns(red_1[0]) == T0 + PERIOD_NS and red_1[0].pose.position.x == 0.1
