@@ -558,8 +558,10 @@ class HandEyeNode(Node):
                     self._subscribe_target(tid)
 
     def _subscribe_target(self, tid: str) -> str | None:
-        """Subscribe to ``targets/<tid>/point_cov`` (once); the refusal reason when ``tid``
-        names no valid topic or ``max_targets`` ids are subscribed already, else None."""
+        """Subscribe to ``targets/<tid>/point_cov`` and make the ``target/<tid>/pose(_cov)``
+        publishers (once, so that their subscribers match before the first frame); the
+        refusal reason when ``tid`` names no valid topic or ``max_targets`` ids are subscribed
+        already, else None."""
         if tid in self._target_subs:
             return None
         problem = topic_name_problem(f"targets/{tid}/point_cov") if tid and "/" not in tid \
@@ -571,6 +573,10 @@ class HandEyeNode(Node):
         self._target_subs[tid] = self.create_subscription(
             PoseWithCovarianceStamped, f"{self._targets_prefix}/{tid}/point_cov",
             lambda m, t=tid: self._on_target_point(t, m), RESULT_QOS)
+        base = f"{self._poses_prefix}/{tid}"
+        self._target_pubs[tid] = (
+            self.create_publisher(PoseStamped, f"{base}/pose", RESULT_QOS),
+            self.create_publisher(PoseWithCovarianceStamped, f"{base}/pose_cov", RESULT_QOS))
         return None
 
     def _on_target_point(self, tid: str, msg: PoseWithCovarianceStamped) -> None:
@@ -673,13 +679,7 @@ class HandEyeNode(Node):
                 self._refuse_target(s.id, "bad_point_cov", f"targets/{s.id}/point_cov at "
                                     f"{f.stamp_ns} ns: {exc}")
                 continue
-            pubs = self._target_pubs.get(s.id)
-            if pubs is None:
-                base = f"{self._poses_prefix}/{s.id}"
-                pubs = (self.create_publisher(PoseStamped, f"{base}/pose", RESULT_QOS),
-                        self.create_publisher(PoseWithCovarianceStamped, f"{base}/pose_cov",
-                                              RESULT_QOS))
-                self._target_pubs[s.id] = pubs
+            pubs = self._target_pubs[s.id]      # made with the subscription
             pose_msg, cov_msg = self._pose_messages(f.stamp_ns, p, cov)
             pubs[1].publish(cov_msg)
             pubs[0].publish(pose_msg)

@@ -122,11 +122,13 @@ def test_two_targets_through_detect_triangulate_and_hand_eye(tmp_path, ros_conte
     base_markers = _collect(io, MarkerArray, "target/markers")
     first = _collect(io, PoseStamped, "target/pose")
     first_point = _collect(io, PointStamped, "target/point")
-    # hand_eye found both per-target topics in the graph before any frame: none is lost
+    # hand_eye found both per-target topics in the graph before any frame (none is lost) and
+    # offers target/<id>/pose from then on, so its subscribers match before the first frame
     assert spin_until(executor, lambda: set(hand_eye._target_subs) == set(TARGETS)
                       and pub_l.get_subscription_count() and pub_ee.get_subscription_count()
                       and all(hand_eye.count_publishers(f"targets/{n}/point_cov") for n in
-                              TARGETS) and io.count_publishers("target/poses"), 15.0)
+                              TARGETS) and io.count_publishers("target/poses")
+                      and all(io.count_publishers(f"target/{n}/pose") for n in TARGETS), 15.0)
     frames = [BOTH, RED_ONLY, BOTH]           # green leaves the view in the middle frame
     stamps = [T0 + k * PERIOD_NS for k in range(len(frames))]
     for stamp, (left, right) in zip(stamps, frames):
