@@ -17,8 +17,9 @@ Publishes:
     for a one-blob target, ``<name>_<k>`` for blob sets of one colour). The publishers of the
     configured names exist from start-up; other ids get theirs when they first appear, at most
     ``max_targets`` ids in all; they sit next to ``targets/markers`` (a remapping of that topic
-    moves them all: ids appear at run time and cannot be remapped one by one); an id that is not a valid topic token or over that bound is
-    refused (counted as ``targets_refused``, logged once).
+    moves them all: ids appear at run time and cannot be remapped one by one). An id that is
+    not a valid topic token or over that bound is refused (counted as ``targets_refused``,
+    logged once).
     ``targets/markers`` (visualization_msgs/MarkerArray, RESULT_QOS): per processed pair, a
     DELETEALL then one SPHERE per published target (``ns`` = id, diameter from the target's
     radius, colour from its colour range), left optical frame, image stamp
@@ -88,7 +89,8 @@ from eye_in_hand.ros.conversions import (
     xyz_to_point_stamped,
 )
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
-from eye_in_hand.ros.markers import Sphere, color_range_rgba, marker_classes, sphere_marker_array
+from eye_in_hand.ros.markers import (DEFAULT_RGBA, Sphere, color_range_rgba, marker_classes,
+                                     sphere_marker_array)
 from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.params import Param, declare_params
 from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS
@@ -525,8 +527,8 @@ class DetectTriangulateNode(Node):
             diameter = (2.0 * spec.radius_m if spec is not None and spec.radius_m
                         else self._marker_diameter_m)
             rgba = (color_range_rgba(spec.color.lower, spec.color.upper, wraps=spec.color.wraps)
-                    if spec is not None else None)
-            spheres.append(Sphere(t.id, t.point_m, diameter, *(() if rgba is None else (rgba,))))
+                    if spec is not None else DEFAULT_RGBA)
+            spheres.append(Sphere(t.id, t.point_m, diameter, rgba))
         self._pub_markers.publish(sphere_marker_array(
             spheres, stamp_ns=stamp, frame_id=frame, lifetime_s=self._marker_lifetime_s))
         self.diag.count("marker_frames")

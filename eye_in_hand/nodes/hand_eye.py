@@ -28,8 +28,9 @@ Every target (see docs/ros.md "Every target")
     that topic when the id first appears in a frame and, every ``discovery_period_s``, for
     every ``targets/<id>/point_cov`` publisher it finds in the ROS graph (so the targets a
     detector announces at start-up lose no frame). Per-target topics sit next to their list
-    topic (``targets/markers``, ``target/poses``) and follow its remapping. A frame waits up to ``max_target_wait_s``
-    for its targets' points and, eye-in-hand, for the robot pose as above; then it publishes,
+    topic (``targets/markers``, ``target/poses``) and follow its remapping. A frame waits up
+    to ``max_target_wait_s`` for its targets' points and, eye-in-hand, for the robot pose as
+    above; then it publishes,
     per located target, ``target/<id>/pose`` (PoseStamped) and ``target/<id>/pose_cov``
     (PoseWithCovarianceStamped), ``/tf`` ``base_frame -> <target_frame_prefix><id>``, and per
     frame ``target/poses`` (PoseArray, base frame, image stamp, poses in the order of the

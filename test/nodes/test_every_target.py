@@ -289,6 +289,21 @@ def test_eye_to_hand_localizes_every_target_without_a_robot_pose(
         assert np.allclose(got_cov, want_cov, rtol=1e-9, atol=1e-18)
         assert header_stamp_ns(feed.poses[n][0]) == T0
     assert header_stamp_ns(feed.arrays[0]) == T0 and len(feed.arrays[0].poses) == 2
+    # the covariance is honest: simulated errors of the camera point and of base_T_cam (the
+    # rotation perturbed on the left, as hand_eye.yaml says) give NEES ~ 3 and 95 % coverage
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(12)
+    n_mc = 20000
+    got_cov = np.asarray(feed.covs["b"][0].pose.covariance).reshape(6, 6)[:3, :3]
+    p_true = R @ pts["b"] + base_T_cam[:3, 3]
+    dx = rng.multivariate_normal(np.zeros(6), cov_x, n_mc)
+    dp = rng.multivariate_normal(np.zeros(3), covs["b"], n_mc)
+    Rk = Rotation.from_rotvec(dx[:, 3:]).as_matrix() @ R             # (n, 3, 3)
+    errs = np.einsum("nij,nj->ni", Rk, pts["b"] + dp) + base_T_cam[:3, 3] + dx[:, :3] - p_true
+    nees = np.einsum("ij,jk,ik->i", errs, np.linalg.inv(got_cov), errs)
+    assert 2.85 < nees.mean() < 3.15, nees.mean()
+    assert 0.94 < np.mean(nees < 7.8147) < 0.96            # chi2(3) 95 % quantile
     p0 = feed.first[0].pose.position
     assert np.allclose([p0.x, p0.y, p0.z], R @ pts["a"] + base_T_cam[:3, 3], atol=1e-12)
     h = feed.node.diag.snapshot().counters
