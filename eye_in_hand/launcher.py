@@ -7,8 +7,10 @@ node                namespace    remappings (relative to the root namespace)
 =================== ============ ===========================================================
 stereo_capture      ``stereo``   ``ee_pose``, ``joint_states`` -> root (sim source)
 detect_triangulate  ``stereo``   ``target/point``, ``target/point_cov``,
-                                 ``target/debug_image`` -> root
-hand_eye            root         (subscribes ``target/point``, ``ee_pose`` / ``joint_states``)
+                                 ``target/debug_image``, ``targets/markers`` -> root (and
+                                 with it every ``targets/<id>/...``)
+hand_eye            root         (subscribes ``target/point``, ``targets/markers``,
+                                 ``ee_pose`` / ``joint_states``)
 =================== ============ ===========================================================
 
 Every node's ``diagnostics`` goes to the root ``diagnostics`` topic. So with the default root
@@ -62,7 +64,8 @@ NODES: tuple[NodeSpec, ...] = (
              (("ee_pose", "ee_pose"), ("joint_states", "joint_states"))),
     NodeSpec("detect_triangulate", "eye_in_hand.nodes.detect_triangulate", "stereo",
              (("target/point", "target/point"), ("target/point_cov", "target/point_cov"),
-              ("target/debug_image", "target/debug_image"))),
+              ("target/debug_image", "target/debug_image"),
+              ("targets/markers", "targets/markers"))),
     NodeSpec("hand_eye", "eye_in_hand.nodes.hand_eye", ""),
 )
 

@@ -4,7 +4,8 @@
 The same bring-up as ``eye-in-hand launch`` (eye_in_hand/launcher.py: keep the two equal):
 
 * stereo_capture      in <ns>/stereo; ee_pose, joint_states -> <ns>
-* detect_triangulate  in <ns>/stereo; target/point, target/point_cov, target/debug_image -> <ns>
+* detect_triangulate  in <ns>/stereo; target/point, target/point_cov, target/debug_image,
+                      targets/markers (and with it every targets/<id>/...) -> <ns>
 * hand_eye            in <ns>
 * every node's diagnostics -> <ns>/diagnostics
 
@@ -47,7 +48,8 @@ def _nodes(context):
              namespace=f"{root}/stereo", parameters=[params], additional_env=env,
              remappings=[("target/point", f"{root}/target/point"),
                          ("target/point_cov", f"{root}/target/point_cov"),
-                         ("target/debug_image", f"{root}/target/debug_image"), diag],
+                         ("target/debug_image", f"{root}/target/debug_image"),
+                         ("targets/markers", f"{root}/targets/markers"), diag],
              output="screen", **again),
         Node(package="eye_in_hand", executable="hand_eye", name="hand_eye", namespace=ns,
              parameters=[params], additional_env=env, remappings=[diag], output="screen",

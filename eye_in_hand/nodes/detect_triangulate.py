@@ -11,8 +11,19 @@ Publishes:
     ``target/point_cov`` (geometry_msgs/PoseWithCovarianceStamped, RESULT_QOS): the same point
     with its triangulation covariance (position block, m^2; orientation variances 1e6),
     published just before ``target/point``; ``hand_eye`` propagates it into ``target/pose_cov``.
-    ``targets/<name>/point`` (PointStamped, RESULT_QOS): every target, only when more than one
-    target is configured.
+    ``targets/<id>/point`` (PointStamped, RESULT_QOS) and ``targets/<id>/point_cov``
+    (PoseWithCovarianceStamped, RESULT_QOS, published just before the point): every located
+    target, ``<id>`` its :attr:`~eye_in_hand.core.locator.TargetLocation.id` (the target name
+    for a one-blob target, ``<name>_<k>`` for blob sets of one colour). The publishers of the
+    configured names exist from start-up; other ids get theirs when they first appear, at most
+    ``max_targets`` ids in all; they sit next to ``targets/markers`` (a remapping of that topic
+    moves them all: ids appear at run time and cannot be remapped one by one). An id that is
+    not a valid topic token or over that bound is refused (counted as ``targets_refused``,
+    logged once).
+    ``targets/markers`` (visualization_msgs/MarkerArray, RESULT_QOS): per processed pair, a
+    DELETEALL then one SPHERE per published target (``ns`` = id, diameter from the target's
+    radius, colour from its colour range), left optical frame, image stamp
+    (:mod:`eye_in_hand.ros.markers`); ``hand_eye`` reads it as the frame's list of targets.
     ``target/debug_image`` (sensor_msgs/Image bgr8, half size, left|right side by side with the
     detections drawn): only while someone subscribes, at most ``debug_image.max_rate_hz``.
     ``diagnostics`` (diagnostic_msgs/DiagnosticArray): pairs, detections, detection rate,
@@ -26,6 +37,8 @@ Every frame is accounted for on ``diagnostics`` (counters since start; see docs/
     right_frames = sync_pairs + sync_unpaired_right + sync_pending_right  (gauge)
     sync_pairs   = dropped_pairs + pairs + queued                         (gauge)
     pairs        = points_published + no_target + failed_pairs
+    targets_located = target_points_published + targets_refused
+    marker_frames   = points_published + no_target      (one targets/markers per located pair)
 
 ``points_published`` is what ``hand_eye`` should receive: its ``points`` counter is the other
 end, and the difference is lost between the nodes.
@@ -76,6 +89,9 @@ from eye_in_hand.ros.conversions import (
     xyz_to_point_stamped,
 )
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
+from eye_in_hand.ros.markers import (DEFAULT_RGBA, Sphere, color_range_rgba, marker_classes,
+                                     sphere_marker_array)
+from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.params import Param, declare_params
 from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS
 
@@ -111,6 +127,13 @@ NODE_PARAMETERS: tuple[Param, ...] = (
           "publish it", range=(0.0, 100.0)),
     Param("diagnostics_period_s", 1.0, "diagnostics publication period (s)",
           range=(0.05, 60.0)),
+    Param("max_targets", 64, "most target ids that get targets/<id>/point(_cov) publishers; "
+          "targets with further ids are refused (counted as targets_refused)",
+          range=(1, 10_000)),
+    Param("markers.lifetime_s", 1.0, "lifetime of the spheres on targets/markers (s); "
+          "0 = until the next frame's DELETEALL", range=(0.0, 3600.0)),
+    Param("markers.diameter_m", 0.04, "sphere diameter on targets/markers for a target of "
+          "unknown radius (radius_m 0)", range=(1e-4, 10.0)),
 )
 
 
@@ -232,15 +255,29 @@ class DetectTriangulateNode(Node):
         self._pub_point = self.create_publisher(_point_type(), "target/point", RESULT_QOS)
         self._pub_point_cov = self.create_publisher(_point_cov_type(), "target/point_cov",
                                                     RESULT_QOS)
-        self._pub_targets = ({n: self.create_publisher(_point_type(), f"targets/{n}/point",
-                                                       RESULT_QOS) for n in names}
-                             if len(names) > 1 else {})
+        # per-target publishers, by target id: the configured names now, others when they
+        # first appear (worker thread), at most max_targets ids
+        self._max_targets = int(node_values["max_targets"])
+        self._pub_targets: dict[str, tuple[Any, Any]] = {}
+        self._pub_targets_lock = threading.Lock()
+        self._marker_lifetime_s = float(node_values["markers.lifetime_s"])
+        self._marker_diameter_m = float(node_values["markers.diameter_m"])
+        self._specs = {t.name: t for t in self.config.detector.targets}
+        self._pub_markers = self.create_publisher(marker_classes()[1], "targets/markers",
+                                                  RESULT_QOS)
+        # targets/<id>/... live next to targets/markers, wherever a remapping put it (launch
+        # remaps it to the root namespace: dynamic ids cannot be remapped one by one)
+        self._targets_prefix = self.resolve_topic_name("targets/markers").rsplit("/", 1)[0]
         self._pub_debug = self.create_publisher(Image, "target/debug_image", SENSOR_QOS)
         self.diag = NodeDiagnostics(self, period_s=node_values["diagnostics_period_s"])
         self.diag.declare_counter("pairs", "detections", "dropped_pairs", "sync_dropped",
                                   "left_frames", "right_frames", "sync_pairs",
                                   "sync_unpaired_left", "sync_unpaired_right",
-                                  "points_published", "no_target", "failed_pairs")
+                                  "points_published", "no_target", "failed_pairs",
+                                  "targets_located", "target_points_published",
+                                  "targets_refused", "marker_frames")
+        for n in names:
+            self._target_publishers(n)
         self.diag.warn_above("processing_ms", 50.0)
         self.diag.stale_after("pairs", 5.0)  # WARN when no stereo pair arrived for 5 s
 
@@ -441,10 +478,7 @@ class DetectTriangulateNode(Node):
             self.diag.gauge("range_m", float(np.linalg.norm(first.point_m)))
         else:
             self.diag.gauge("last_miss", result.rejected.get(result.first_name, ""))
-        for t in result.targets:
-            pub = self._pub_targets.get(t.name)
-            if pub is not None:
-                pub.publish(xyz_to_point_stamped(t.point_m, stamp_ns=stamp, frame_id=frame))
+        self._publish_targets(result, stamp, frame)
         n_pairs = self.diag.counter("pairs")
         self.diag.gauge("detection_rate", self.diag.counter("detections") / max(1, n_pairs))
         try:
@@ -452,6 +486,52 @@ class DetectTriangulateNode(Node):
         except (EyeInHandError, cv2.error, ValueError) as exc:  # the point is out already
             self.diag.report("debug_image", f"target/debug_image: {exc}")
         return "points_published" if first is not None else "no_target"
+
+    def _target_publishers(self, tid: str) -> tuple[Any, Any] | None:
+        """``(point, point_cov)`` publishers of ``targets/<tid>/...``, made on first use; None
+        (reported) when ``tid`` is no valid topic token or ``max_targets`` ids have some."""
+        with self._pub_targets_lock:
+            pubs = self._pub_targets.get(tid)
+            if pubs is not None:
+                return pubs
+            problem = topic_name_problem(f"targets/{tid}/point") if tid and "/" not in tid \
+                else "empty or contains '/'"
+            if problem is not None:
+                self.diag.report("bad_target_id", f"target id {tid!r} cannot name a topic "
+                                 f"({problem}): not published")
+                return None
+            if len(self._pub_targets) >= self._max_targets:
+                self.diag.report("too_many_targets", f"target id {tid!r}: {self._max_targets} "
+                                 "ids have publishers already (max_targets): not published")
+                return None
+            base = f"{self._targets_prefix}/{tid}"
+            pubs = (self.create_publisher(_point_type(), f"{base}/point", RESULT_QOS),
+                    self.create_publisher(_point_cov_type(), f"{base}/point_cov", RESULT_QOS))
+            self._pub_targets[tid] = pubs
+            return pubs
+
+    def _publish_targets(self, result: LocateResult, stamp: int, frame: str) -> None:
+        """Every located target on its own topics, then the frame's ``targets/markers``."""
+        spheres = []
+        for t in result.targets:
+            self.diag.count("targets_located")
+            pubs = self._target_publishers(t.id)
+            if pubs is None:
+                self.diag.count("targets_refused")
+                continue
+            pubs[1].publish(point_cov_message(t.point_m, t.covariance, stamp_ns=stamp,
+                                              frame_id=frame))
+            pubs[0].publish(xyz_to_point_stamped(t.point_m, stamp_ns=stamp, frame_id=frame))
+            self.diag.count("target_points_published")
+            spec = self._specs.get(t.name)
+            diameter = (2.0 * spec.radius_m if spec is not None and spec.radius_m
+                        else self._marker_diameter_m)
+            rgba = (color_range_rgba(spec.color.lower, spec.color.upper, wraps=spec.color.wraps)
+                    if spec is not None else DEFAULT_RGBA)
+            spheres.append(Sphere(t.id, t.point_m, diameter, rgba))
+        self._pub_markers.publish(sphere_marker_array(
+            spheres, stamp_ns=stamp, frame_id=frame, lifetime_s=self._marker_lifetime_s))
+        self.diag.count("marker_frames")
 
     def _maybe_debug(self, left: np.ndarray, right: np.ndarray, result: LocateResult,
                      pair: StereoPair[Image]) -> None:

@@ -20,6 +20,32 @@ Localization mode (``mode: localization``)
     counted on ``diagnostics`` by reason (``refused.<reason>``). ``hand_eye/transform``
     (TransformStamped tool0 -> camera, transient local) is published once at start-up.
 
+Every target (see docs/ros.md "Every target")
+    ``target/point`` is the first target only. The node learns each frame's set of targets
+    from ``targets/markers`` (visualization_msgs/MarkerArray from ``detect_triangulate``: one
+    per processed image pair, one SPHERE per located target, ``ns`` = target id) and reads
+    each target's point and covariance from ``targets/<id>/point_cov``; it subscribes to
+    that topic when the id first appears in a frame and, every ``discovery_period_s``, for
+    every ``targets/<id>/point_cov`` publisher it finds in the ROS graph (so the targets a
+    detector announces at start-up lose no frame). Per-target topics sit next to their list
+    topic (``targets/markers``, ``target/poses``) and follow its remapping. A frame waits up
+    to ``max_target_wait_s`` for its targets' points and, eye-in-hand, for the robot pose as
+    above; then it publishes,
+    per located target, ``target/<id>/pose`` (PoseStamped) and ``target/<id>/pose_cov``
+    (PoseWithCovarianceStamped), ``/tf`` ``base_frame -> <target_frame_prefix><id>``, and per
+    frame ``target/poses`` (PoseArray, base frame, image stamp, poses in the order of the
+    spheres) and ``target/markers`` (MarkerArray: DELETEALL, then the spheres in the base
+    frame). Every listed target that gives no pose is counted in ``targets_rejected`` and
+    ``target_refused.<reason>``: ``target_points = target_poses_published + targets_rejected
+    + targets_pending``.
+
+Eye-to-hand (a ``hand_eye.yaml`` with ``setup: eye_to_hand``, ``base_T_cam``)
+    The camera is fixed: points go into the base frame with the calibration alone, no robot
+    pose is subscribed, buffered or waited for (``robot_pose_source`` and the pose age rules
+    do not apply), and the covariance is the camera covariance rotated into the base frame
+    plus the hand-eye covariance. The same topics are published; ``hand_eye/transform`` and
+    ``/tf_static`` give ``base_frame -> camera_frame``.
+
 TF (see docs/localization.md)
     ``robot_pose_source: tf``: the robot pose is ``base_frame -> ee_frame`` looked up at each
     image stamp in a TF buffer (:class:`eye_in_hand.core.tf.TfBuffer`) fed by ``/tf`` and
@@ -55,7 +81,7 @@ from std_srvs.srv import Trigger
 
 from eye_in_hand.io.kinematics import load_kinematics
 from eye_in_hand.ros.node_main import run_node
-from eye_in_hand.core.localization import Localizer, LocalizerConfig
+from eye_in_hand.core.localization import Localizer, LocalizerConfig, target_in_base
 from eye_in_hand.core.transforms import rotation_angle
 from eye_in_hand.errors import (ConfigError, ConversionError, EyeInHandError, InputError,
                                 LocalizationError)
@@ -63,6 +89,10 @@ from eye_in_hand.ros.conversions import (header_stamp_ns, image_to_numpy, matrix
                                          matrix_to_transform_stamped, ns_to_stamp, point_to_xyz,
                                          pose_to_matrix)
 from eye_in_hand.ros.diagnostics import NodeDiagnostics
+from eye_in_hand.ros.markers import (Sphere, marker_classes, points_to_pose_array,
+                                     pose_array_class, sphere_marker_array,
+                                     spheres_from_marker_array)
+from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.params import load_config, param
 from eye_in_hand.ros.qos import LATCHED_QOS, RESULT_QOS, SENSOR_QOS
 
@@ -134,6 +164,20 @@ class HandEyeNodeConfig:
                                         "calibration mode uses calibration_dir)")
     target_frame: str = param("target_0", "child frame id of the located target on /tf "
                               "(base_frame -> target_frame)")
+    target_frame_prefix: str = param("target_", "every target's /tf child frame is this "
+                                     "prefix + its id (base_frame -> target_<id>); empty = "
+                                     "no per-target /tf")
+    max_targets: int = param(64, "most target ids subscribed (targets/<id>/point_cov) and "
+                             "published (target/<id>/pose); further ids are refused and "
+                             "counted", range=(1, 10_000))
+    max_target_wait_s: float = param(0.2, "how long a frame of targets/markers waits for its "
+                                     "targets' targets/<id>/point_cov before the missing "
+                                     "ones are refused (s)", range=(0.0, 10.0))
+    discovery_period_s: float = param(1.0, "period of the ROS graph search for "
+                                      "targets/<id>/point_cov publishers (s)",
+                                      range=(0.05, 3600.0))
+    marker_lifetime_s: float = param(1.0, "lifetime of the spheres on target/markers (s); 0 = "
+                                     "until the next frame's DELETEALL", range=(0.0, 3600.0))
     stale_after_s: float = param(1.0, "diagnostics WARN when no robot pose or point arrived "
                                  "for this long (s)", range=(0.01, 3600.0))
     # -- calibration mode ---------------------------------------------------------------
@@ -167,6 +211,15 @@ class _Pending:
     arrived: float
 
 
+@dataclass
+class _Frame:
+    """One frame of ``targets/markers`` waiting for its targets' points and the robot pose."""
+
+    stamp_ns: int
+    spheres: list[Sphere]
+    arrived: float
+
+
 class HandEyeNode(Node):
     """See the module docstring. ``kwargs`` go to ``Node`` (context, namespace, overrides)."""
 
@@ -181,16 +234,21 @@ class HandEyeNode(Node):
             self._chain = load_kinematics(cfg.kinematics_file, cfg.urdf_base_link,
                                           cfg.urdf_tip_link)
         self.calibration = None
+        self.eye_to_hand = False       # a fixed camera: base_T_cam, no robot pose needed
         ee_T_cam = np.eye(4)
         cov = None
         if cfg.mode == "localization":
             from eye_in_hand.io.config import load_hand_eye
 
             self.calibration = load_hand_eye(cfg.hand_eye_file)
-            if self.calibration.setup != "eye_in_hand":
-                raise ConfigError(f"{cfg.hand_eye_file}: setup is {self.calibration.setup!r}; "
-                                  "this node localizes with an eye_in_hand calibration")
-            ee_T_cam, cov = self.calibration.transform, self.calibration.covariance
+            self.eye_to_hand = self.calibration.setup == "eye_to_hand"
+            if self.eye_to_hand and self.calibration.parent_frame != cfg.base_frame:
+                self.get_logger().warning(
+                    f"{cfg.hand_eye_file}: the eye-to-hand calibration is "
+                    f"{self.calibration.parent_frame} -> {self.calibration.child_frame}, but "
+                    f"targets are published in base_frame {cfg.base_frame!r}")
+            if not self.eye_to_hand:
+                ee_T_cam, cov = self.calibration.transform, self.calibration.covariance
         # robot pose noise: hand_eye.yaml's robot_pose_noise (estimated while calibrating)
         # when present, else the robot_sigma_* parameters
         sig_pos, sig_rot = cfg.robot_sigma_pos_m, cfg.robot_sigma_rot_rad
@@ -203,7 +261,9 @@ class HandEyeNode(Node):
             max_age_ns=int(cfg.max_pose_age_s * 1e9),
             jump_back_ns=int(cfg.pose_jump_back_s * 1e9)))
 
-        if cfg.robot_pose_source == "ee_pose":
+        if self.eye_to_hand:
+            pass   # the camera does not move with the robot: no robot pose is needed
+        elif cfg.robot_pose_source == "ee_pose":
             self.create_subscription(PoseStamped, "ee_pose", self._on_ee_pose, ROBOT_POSE_QOS)
         elif cfg.robot_pose_source == "tf":
             self._setup_tf_input()
@@ -211,15 +271,18 @@ class HandEyeNode(Node):
             self.create_subscription(JointState, "joint_states", self._on_joint_state,
                                      ROBOT_POSE_QOS)
         self.diag.declare_counter("robot_poses")
-        self.diag.stale_after("robot_poses", cfg.stale_after_s)
+        if not self.eye_to_hand:
+            self.diag.stale_after("robot_poses", cfg.stale_after_s)
 
         if cfg.mode == "localization":
             self._setup_localization()
         else:
             self._setup_calibration()
         self._setup_tf_output()
-        self.get_logger().info(f"{NODE_NAME} started in {cfg.mode} mode, robot pose from "
-                               f"{cfg.robot_pose_source}")
+        self.get_logger().info(
+            f"{NODE_NAME} started in {cfg.mode} mode, " + (
+                "eye-to-hand (fixed camera, no robot pose)" if self.eye_to_hand else
+                f"robot pose from {cfg.robot_pose_source}"))
 
     # -- robot pose -----------------------------------------------------------------------
     def _on_ee_pose(self, msg: PoseStamped) -> None:
@@ -295,6 +358,7 @@ class HandEyeNode(Node):
         self.diag.count("robot_poses")
         if self.config.mode == "localization":
             self._drain_pending()
+            self._drain_frames()
 
     # -- localization -----------------------------------------------------------------------
     def _setup_localization(self) -> None:
@@ -312,11 +376,12 @@ class HandEyeNode(Node):
         assert self.calibration is not None
         self.pub_transform.publish(matrix_to_transform_stamped(
             self.calibration.transform, stamp_ns=self.get_clock().now().nanoseconds,
-            frame_id=cfg.ee_frame, child_frame_id=cfg.camera_frame))
+            frame_id=self._camera_parent, child_frame_id=cfg.camera_frame))
         self.diag.declare_counter("points", "poses_published", "rejected", "refused.stale_pose",
                                   "refused.pending_overflow", "pose_buffer_resets.time_jump",
                                   "pose_buffer_resets.stream_stopped")
         self.diag.stale_after("points", cfg.stale_after_s)
+        self._setup_targets()
         from rclpy.clock import Clock, ClockType
 
         # Steady time: waiting points expire and stopped pose streams are noticed also while
@@ -368,7 +433,7 @@ class HandEyeNode(Node):
         """Whether a pending point can be processed now (or must be, its wait being over)."""
         if now - item.arrived > self.config.max_pose_wait_s:
             return True
-        if newest is None or item.stamp_ns > newest:
+        if not self.eye_to_hand and (newest is None or item.stamp_ns > newest):
             return False  # wait for a robot pose at or after the image stamp
         # Wait for the triangulation covariance when a detector publishes one.
         return item.cov is not None or self.count_publishers("target/point_cov") == 0
@@ -384,26 +449,57 @@ class HandEyeNode(Node):
         self._expire_poses()
         if self._pending:
             self._drain_pending()
+        if self._frames:
+            self._drain_frames()
         self.diag.gauge("pending", len(self._pending))
+        self.diag.gauge("targets_pending", sum(len(f.spheres) for f in self._frames))
+
+    @property
+    def _camera_parent(self) -> str:
+        """The parent frame of the camera: base_frame (eye-to-hand) or ee_frame."""
+        return self.config.base_frame if self.eye_to_hand else self.config.ee_frame
+
+    def _to_base(self, stamp_ns: int, point: np.ndarray, cov: np.ndarray | None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """A camera point (3,) and its covariance (3, 3) in the base frame.
+
+        Eye-in-hand: through the robot pose at ``stamp_ns`` (the localizer: interpolated,
+        never stale). Eye-to-hand: through ``base_T_cam`` alone; the covariance is the camera
+        covariance rotated into the base frame plus the hand-eye covariance.
+
+        Raises:
+            LocalizationError: eye-in-hand, no usable robot pose (``reason`` says why).
+            InputError: a malformed point or covariance.
+        """
+        if self.eye_to_hand:
+            assert self.calibration is not None
+            return target_in_base(np.eye(4), self.calibration.transform, point, cov_cam=cov,
+                                  cov_hand_eye=self.calibration.covariance)
+        res = self.localizer.locate(stamp_ns, point, cov, now_ns=self._now_ns())
+        return res.point_base, res.covariance
 
     def _locate(self, item: _Pending) -> None:
         try:
-            res = self.localizer.locate(item.stamp_ns, item.point, item.cov,
-                                        now_ns=self._now_ns())
+            p, cov = self._to_base(item.stamp_ns, item.point, item.cov)
         except LocalizationError as exc:
             self._refuse(exc.reason, f"no target/pose for the point at {item.stamp_ns} ns: "
                          f"{exc}", cause="no_robot_pose")
             return
-        self._publish(res.stamp_ns, res.point_base, res.covariance)
+        except InputError as exc:
+            self._refuse("bad_point_cov", f"target/point_cov at {item.stamp_ns} ns: {exc}")
+            return
+        self._publish(item.stamp_ns, p, cov)
 
-    def _publish(self, stamp_ns: int, p: np.ndarray, cov: np.ndarray) -> None:
+    def _pose_messages(self, stamp_ns: int, p: np.ndarray, cov: np.ndarray
+                       ) -> tuple[PoseStamped, PoseWithCovarianceStamped]:
+        """PoseStamped and PoseWithCovarianceStamped of a base-frame point (3,) and its
+        covariance (3, 3); orientation identity, orientation variances unknown."""
         T = np.eye(4)
         T[:3, 3] = p
         msg = PoseStamped()
         msg.header.stamp = ns_to_stamp(stamp_ns)
         msg.header.frame_id = self.config.base_frame
         msg.pose = matrix_to_pose(T)
-        self.pub_pose.publish(msg)
         cmsg = PoseWithCovarianceStamped()
         cmsg.header = msg.header
         cmsg.pose.pose = msg.pose
@@ -411,12 +507,204 @@ class HandEyeNode(Node):
         full[:3, :3] = cov
         full[3:, 3:] = np.eye(3) * UNKNOWN_ROTATION_VARIANCE
         cmsg.pose.covariance = [float(v) for v in full.ravel()]
+        return msg, cmsg
+
+    def _publish(self, stamp_ns: int, p: np.ndarray, cov: np.ndarray) -> None:
+        msg, cmsg = self._pose_messages(stamp_ns, p, cov)
+        self.pub_pose.publish(msg)
         self.pub_pose_cov.publish(cmsg)
         self._publish_target_tf(stamp_ns, p)
         self.diag.count("poses_published")
         self.diag.gauge("latency_ms", round((self.get_clock().now().nanoseconds - stamp_ns) / 1e6,
                                             3))
         self.diag.gauge("sigma_mm", round(1000.0 * float(np.sqrt(max(np.trace(cov), 0.0))), 4))
+
+    # -- every target ---------------------------------------------------------------------
+    def _setup_targets(self) -> None:
+        """``targets/markers`` in (the frame's list of targets), ``targets/<id>/point_cov`` in
+        per id, ``target/<id>/pose(_cov)``, ``target/poses`` and ``target/markers`` out."""
+        cfg = self.config
+        _, MarkerArray = marker_classes()
+        self._frames: deque[_Frame] = deque()
+        self._frames_max = 200
+        # (id, image stamp) -> (point (3,), covariance (3, 3)), in arrival order
+        self._target_points: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]] = {}
+        self._target_subs: dict[str, Any] = {}
+        self._target_pubs: dict[str, tuple[Any, Any]] = {}
+        # per-target topics follow their list topic's remapping: targets/<id>/point_cov next to
+        # targets/markers, target/<id>/pose(_cov) next to target/poses
+        self._targets_prefix = self.resolve_topic_name("targets/markers").rsplit("/", 1)[0]
+        self._poses_prefix = self.resolve_topic_name("target/poses").rsplit("/", 1)[0]
+        self.create_subscription(MarkerArray, "targets/markers", self._on_markers, RESULT_QOS)
+        self.pub_poses = self.create_publisher(pose_array_class(), "target/poses", RESULT_QOS)
+        self.pub_markers = self.create_publisher(MarkerArray, "target/markers", RESULT_QOS)
+        self.diag.declare_counter("target_frames", "target_points", "target_points_received",
+                                  "target_poses_published", "targets_rejected",
+                                  "target_frames_published", "orphan_target_points",
+                                  "target_refused.stale_pose", "target_refused.no_point")
+        from rclpy.clock import Clock, ClockType
+
+        self.create_timer(cfg.discovery_period_s, self._discover_targets,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._discover_targets()
+
+    def _discover_targets(self) -> None:
+        """Subscribe to every ``targets/<id>/point_cov`` that has a publisher in the graph."""
+        prefix, suffix = self._targets_prefix + "/", "/point_cov"
+        for name, _types in self.get_topic_names_and_types():
+            if name.startswith(prefix) and name.endswith(suffix):
+                tid = name[len(prefix):-len(suffix)]
+                if tid and "/" not in tid and tid not in self._target_subs \
+                        and self.count_publishers(name) > 0:
+                    self._subscribe_target(tid)
+
+    def _subscribe_target(self, tid: str) -> str | None:
+        """Subscribe to ``targets/<tid>/point_cov`` and make the ``target/<tid>/pose(_cov)``
+        publishers (once, so that their subscribers match before the first frame); the
+        refusal reason when ``tid`` names no valid topic or ``max_targets`` ids are subscribed
+        already, else None."""
+        if tid in self._target_subs:
+            return None
+        problem = topic_name_problem(f"targets/{tid}/point_cov") if tid and "/" not in tid \
+            else "empty or contains '/'"
+        if problem is not None:
+            return "bad_target_id"
+        if len(self._target_subs) >= self.config.max_targets:
+            return "too_many_targets"
+        self._target_subs[tid] = self.create_subscription(
+            PoseWithCovarianceStamped, f"{self._targets_prefix}/{tid}/point_cov",
+            lambda m, t=tid: self._on_target_point(t, m), RESULT_QOS)
+        base = f"{self._poses_prefix}/{tid}"
+        self._target_pubs[tid] = (
+            self.create_publisher(PoseStamped, f"{base}/pose", RESULT_QOS),
+            self.create_publisher(PoseWithCovarianceStamped, f"{base}/pose_cov", RESULT_QOS))
+        return None
+
+    def _on_target_point(self, tid: str, msg: PoseWithCovarianceStamped) -> None:
+        """A target's point and covariance (``targets/<id>/point_cov``), kept for its frame."""
+        self.diag.count("target_points_received")
+        topic = f"targets/{tid}/point_cov"
+        try:
+            stamp = header_stamp_ns(msg)
+            frame = msg.header.frame_id
+            if frame and frame.lstrip("/") != self.config.camera_frame:
+                raise InputError(f"frame {frame!r}, expected {self.config.camera_frame!r}")
+            p = point_to_xyz(msg.pose.pose.position)
+            cov = np.asarray(msg.pose.covariance, dtype=np.float64).reshape(6, 6)[:3, :3]
+            if not np.all(np.isfinite(cov)):
+                raise InputError("covariance contains NaN")
+        except (ConversionError, InputError, ValueError) as exc:
+            # its frame then misses the point and refuses the target (counted there)
+            self.diag.report("bad_target_point", f"{topic}: {exc}")
+            return
+        self._target_points[(tid, stamp)] = (p, cov)
+        while len(self._target_points) > 4000:
+            self._target_points.pop(next(iter(self._target_points)))
+            self.diag.count("orphan_target_points")
+        self._drain_frames()
+
+    def _on_markers(self, msg: Any) -> None:
+        """A frame's list of targets (``targets/markers``)."""
+        self.diag.count("target_frames")
+        try:
+            stamp, frame, spheres = spheres_from_marker_array(msg)
+        except ConversionError as exc:
+            self.diag.report("bad_markers", f"targets/markers: {exc}")
+            return
+        self.diag.count("target_points", len(spheres))
+        if frame and frame.lstrip("/") != self.config.camera_frame:
+            for s in spheres:
+                self._refuse_target(s.id, "point_frame", f"targets/markers in frame {frame!r}, "
+                                    f"expected {self.config.camera_frame!r}: ignored")
+            return
+        kept = []
+        for s in spheres:
+            reason = self._subscribe_target(s.id)
+            if reason is None:
+                kept.append(s)
+            else:
+                self._refuse_target(s.id, reason, f"target id {s.id!r}: " + (
+                    "cannot name a topic" if reason == "bad_target_id" else
+                    f"{self.config.max_targets} ids are subscribed already (max_targets)"))
+        if len(self._frames) >= self._frames_max:
+            old = self._frames.popleft()
+            for s in old.spheres:
+                self._refuse_target(s.id, "pending_overflow", f"more than {self._frames_max} "
+                                    "frames wait: the oldest was dropped")
+        self._frames.append(_Frame(stamp, kept, time.monotonic()))
+        self._drain_frames()
+
+    def _refuse_target(self, tid: str, reason: str, message: str,
+                       cause: str | None = None) -> None:
+        """Count a listed target that gives no ``target/<id>/pose``."""
+        self.diag.count("targets_rejected")
+        self.diag.count(f"target_refused.{reason}")
+        self.diag.report(cause or f"target_{reason}", message)
+
+    def _frame_ready(self, f: _Frame, newest: int | None, now: float) -> bool:
+        have_points = all((s.id, f.stamp_ns) in self._target_points for s in f.spheres)
+        if not have_points:
+            return now - f.arrived > self.config.max_target_wait_s
+        if self.eye_to_hand or not f.spheres:
+            return True
+        return (newest is not None and f.stamp_ns <= newest) \
+            or now - f.arrived > self.config.max_pose_wait_s
+
+    def _drain_frames(self) -> None:
+        if not self._frames:
+            return
+        newest = None if self.eye_to_hand else self.localizer.poses.newest_ns
+        now = time.monotonic()
+        while self._frames and self._frame_ready(self._frames[0], newest, now):
+            self._locate_frame(self._frames.popleft())     # FIFO: stamp order
+
+    def _locate_frame(self, f: _Frame) -> None:
+        """Every target of a frame into the base frame; per-target and per-frame outputs."""
+        cfg = self.config
+        located: list[tuple[Sphere, np.ndarray]] = []
+        tf_edges = []
+        for s in f.spheres:
+            data = self._target_points.pop((s.id, f.stamp_ns), None)
+            if data is None:
+                self._refuse_target(s.id, "no_point", f"targets/{s.id}/point_cov at "
+                                    f"{f.stamp_ns} ns did not arrive within "
+                                    f"{cfg.max_target_wait_s} s")
+                continue
+            try:
+                p, cov = self._to_base(f.stamp_ns, data[0], data[1])
+            except LocalizationError as exc:
+                self._refuse_target(s.id, exc.reason, f"no target/{s.id}/pose at "
+                                    f"{f.stamp_ns} ns: {exc}", cause="no_robot_pose")
+                continue
+            except InputError as exc:
+                self._refuse_target(s.id, "bad_point_cov", f"targets/{s.id}/point_cov at "
+                                    f"{f.stamp_ns} ns: {exc}")
+                continue
+            pubs = self._target_pubs[s.id]      # made with the subscription
+            pose_msg, cov_msg = self._pose_messages(f.stamp_ns, p, cov)
+            pubs[1].publish(cov_msg)
+            pubs[0].publish(pose_msg)
+            self.diag.count("target_poses_published")
+            located.append((s, p))
+            if cfg.target_frame_prefix:
+                T = np.eye(4)
+                T[:3, 3] = p
+                tf_edges.append((cfg.base_frame, cfg.target_frame_prefix + s.id, f.stamp_ns, T))
+        # points of this stamp (or older) that no frame listed are never used
+        for key in [k for k in self._target_points if k[1] <= f.stamp_ns]:
+            del self._target_points[key]
+            self.diag.count("orphan_target_points")
+        self.pub_poses.publish(points_to_pose_array([p for _, p in located],
+                                                    stamp_ns=f.stamp_ns,
+                                                    frame_id=cfg.base_frame))
+        self.pub_markers.publish(sphere_marker_array(
+            [Sphere(s.id, p, s.diameter_m, s.rgba) for s, p in located], stamp_ns=f.stamp_ns,
+            frame_id=cfg.base_frame, lifetime_s=cfg.marker_lifetime_s))
+        self.diag.count("target_frames_published")
+        if tf_edges and self.pub_tf is not None:
+            from eye_in_hand.ros.tf import make_tf_message
+
+            self.pub_tf.publish(make_tf_message(tf_edges))
 
     # -- TF in (robot_pose_source: tf) -------------------------------------------------------
     def _setup_tf_input(self) -> None:
@@ -506,7 +794,7 @@ class HandEyeNode(Node):
             return
         cfg = self.config
         if ee_T_cam is not None:
-            self._static_tf[cfg.camera_frame] = (cfg.ee_frame, np.asarray(ee_T_cam))
+            self._static_tf[cfg.camera_frame] = (self._camera_parent, np.asarray(ee_T_cam))
         if not self._static_tf:
             return
         stamp = self.get_clock().now().nanoseconds

@@ -30,6 +30,7 @@ def test_node_commands_put_topics_where_the_bags_have_them():
     cmds = {n.name: " ".join(node_command(n, "p.yaml")) for n in NODES}
     assert "__ns:=/stereo" in cmds["detect_triangulate"]
     assert "target/point:=/target/point" in cmds["detect_triangulate"]
+    assert "targets/markers:=/targets/markers" in cmds["detect_triangulate"]
     assert "ee_pose:=/ee_pose" in cmds["stereo_capture"]
     assert "__ns:=/ " in cmds["hand_eye"] + " "
     ns = " ".join(node_command(NODES[1], "p.yaml", root_namespace="/robot1"))

@@ -9,6 +9,13 @@ end every left image the player published is accounted for by the nodes' diagnos
     sync_pairs  = dropped_pairs + queued + no_target + failed_pairs + points_published
     points_published = hand_eye points + lost between the nodes
     hand_eye points  = poses_published + rejected + pending
+
+and every target (issue #12): each located target is published or refused, each marker frame
+and target point reaches ``hand_eye``, and each target it lists is located or counted:
+
+    targets_located = target_points_published + targets_refused
+    marker_frames   = points_published + no_target = hand_eye target_frames
+    target_points   = target_poses_published + targets_rejected + targets_pending
 """
 from __future__ import annotations
 
@@ -48,6 +55,16 @@ def ledger(player: BagPlayer, detect: DetectTriangulateNode, hand_eye: HandEyeNo
         "pending": len(hand_eye._pending),
         "published_ee": player.published[EE], "robot_poses": h.counters["robot_poses"],
         **{k: v for k, v in h.counters.items() if k.startswith(("refused.", "pose_buffer"))},
+        "targets_located": c["targets_located"],
+        "target_points_published": c["target_points_published"],
+        "targets_refused": c["targets_refused"], "marker_frames": c["marker_frames"],
+        "target_frames": h.counters["target_frames"],
+        "target_points": h.counters["target_points"],
+        "target_points_received": h.counters["target_points_received"],
+        "target_poses_published": h.counters["target_poses_published"],
+        "targets_rejected": h.counters["targets_rejected"],
+        "targets_pending": sum(len(f.spheres) for f in hand_eye._frames),
+        **{k: v for k, v in h.counters.items() if k.startswith("target_refused.") and v},
     }
 
 
@@ -78,6 +95,10 @@ def test_replay_at_10x_reconciles(tmp_path, ros_context, executor, namespace, sp
     assert spin_until(executor, lambda: detect.count_publishers("target/point") > 0
                       and hand_eye.count_subscribers("target/point") > 0, 10.0)
     assert spin_until(executor, lambda: detect._pub_point.get_subscription_count() > 0, 10.0)
+    # hand_eye found the per-target topic in the graph and listens to the frame lists
+    assert spin_until(executor, lambda: detect._pub_markers.get_subscription_count() > 0
+                      and all(cov.get_subscription_count() > 0
+                              for _, cov in detect._pub_targets.values()), 10.0)
     player.start()
     assert spin_until(executor, lambda: player.finished, 60.0)
 
@@ -86,6 +107,7 @@ def test_replay_at_10x_reconciles(tmp_path, ros_context, executor, namespace, sp
         return (s["queued"] == 0 and s["pending"] == 0 and s["left_frames"] == s["sync_pairs"]
                 + s["sync_unpaired_left"] + s["sync_pending_left"]
                 and s["points_published"] == s["points_received"]
+                and s["targets_pending"] == 0 and s["marker_frames"] == s["target_frames"]
                 and s["sync_pairs"] == s["dropped_pairs"] + s["no_target"] + s["failed_pairs"]
                 + s["points_published"])
 
@@ -109,3 +131,10 @@ def test_replay_at_10x_reconciles(tmp_path, ros_context, executor, namespace, sp
     # the reliable hop between the nodes loses nothing, and most frames make it through
     assert lost_between == 0
     assert s["poses_published"] > 0
+    # every target: published or refused, nothing lost between the nodes, located or counted
+    assert s["targets_located"] == s["target_points_published"] + s["targets_refused"]
+    assert s["marker_frames"] == s["points_published"] + s["no_target"] == s["target_frames"]
+    assert s["target_points_received"] == s["target_points_published"] == s["target_points"]
+    assert s["target_points"] == (s["target_poses_published"] + s["targets_rejected"]
+                                  + s["targets_pending"])
+    assert s["target_poses_published"] > 0

@@ -1,0 +1,222 @@
+"""Per-frame target lists for RViz and for other nodes: MarkerArray spheres and PoseArray.
+
+``detect_triangulate`` publishes ``targets/markers`` and ``hand_eye`` ``target/markers``: one
+``visualization_msgs/MarkerArray`` per processed frame, stamped with the image stamp, that
+starts with a ``DELETEALL`` marker (RViz forgets the spheres of earlier frames, so a target
+that left the view does not stay on screen) followed by one ``SPHERE`` marker per located
+target with ``ns`` = the target id, ``id`` = 0, ``scale`` = the sphere's diameter and a
+``lifetime`` (a display that missed the next frame still drops the sphere). ``hand_eye`` reads
+``targets/markers`` as the list of the targets of each frame (:func:`spheres_from_marker_array`).
+
+``hand_eye`` also publishes ``target/poses``: a ``geometry_msgs/PoseArray`` of the same frame,
+poses in the order of the spheres of ``target/markers``.
+
+Message classes are looked up with :func:`eye_in_hand.ros.msgtypes.import_message_type`, so a
+missing ``visualization_msgs`` gives one clear error instead of an ImportError.
+"""
+from __future__ import annotations
+
+import colorsys
+import functools
+import math
+from dataclasses import dataclass
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from eye_in_hand.errors import ConfigError, ConversionError
+
+__all__ = ["Sphere", "marker_classes", "pose_array_class", "sphere_marker_array",
+           "spheres_from_marker_array", "points_to_pose_array", "color_range_rgba",
+           "DEFAULT_RGBA"]
+
+#: Colour of a sphere whose target has no usable hue (r, g, b, a in 0..1).
+DEFAULT_RGBA = (1.0, 1.0, 1.0, 0.8)
+
+
+@dataclass(frozen=True)
+class Sphere:
+    """One target as a sphere.
+
+    Attributes:
+        id: the target id (the marker's ``ns``).
+        xyz: centre, shape (3,), metres, in the message's frame.
+        diameter_m: the sphere's diameter (metres, > 0).
+        rgba: colour, four floats in 0..1.
+    """
+
+    id: str
+    xyz: np.ndarray
+    diameter_m: float
+    rgba: tuple[float, float, float, float] = DEFAULT_RGBA
+
+
+@functools.lru_cache(maxsize=None)
+def marker_classes() -> tuple[Any, Any]:
+    """``(Marker, MarkerArray)`` of visualization_msgs.
+
+    Raises:
+        ConfigError: visualization_msgs is not installed.
+    """
+    from eye_in_hand.ros.msgtypes import import_message_type
+
+    marker = import_message_type("visualization_msgs/msg/Marker")
+    array = import_message_type("visualization_msgs/msg/MarkerArray")
+    if marker is None or array is None:
+        raise ConfigError("visualization_msgs is not installed (it comes with "
+                          "ros-jazzy-common-interfaces): no MarkerArray can be published")
+    return marker, array
+
+
+@functools.lru_cache(maxsize=None)
+def pose_array_class() -> Any:
+    """``geometry_msgs.msg.PoseArray`` (ConfigError when geometry_msgs is missing)."""
+    from eye_in_hand.ros.msgtypes import import_message_type
+
+    cls = import_message_type("geometry_msgs/msg/PoseArray")
+    if cls is None:
+        raise ConfigError("geometry_msgs is not installed: no PoseArray can be published")
+    return cls
+
+
+def color_range_rgba(lower: Sequence[int], upper: Sequence[int], *, wraps: bool | None = None,
+                     alpha: float = 0.8) -> tuple[float, float, float, float]:
+    """The display colour of an OpenCV HSV/HSI range: its middle hue at full saturation.
+
+    Args:
+        lower, upper: (h, s, v) bounds, h in 0..179 (OpenCV's half degrees); a hue range wraps
+            around 0 when ``lower[0] > upper[0]`` (red) unless ``wraps`` says otherwise.
+        alpha: the opacity.
+
+    Returns:
+        (r, g, b, a), each in 0..1.
+    """
+    lo_h, hi_h = int(lower[0]), int(upper[0])
+    wrap = lo_h > hi_h if wraps is None else wraps
+    hue = ((lo_h + hi_h + (180 if wrap else 0)) / 2.0) % 180.0
+    r, g, b = colorsys.hsv_to_rgb(hue / 180.0, 1.0, 1.0)
+    return (float(r), float(g), float(b), float(alpha))
+
+
+def _duration(seconds: float) -> Any:
+    from builtin_interfaces.msg import Duration
+
+    ns = max(0, int(round(seconds * 1e9)))
+    sec, nanosec = divmod(ns, 1_000_000_000)
+    return Duration(sec=sec, nanosec=nanosec)
+
+
+def sphere_marker_array(spheres: Iterable[Sphere], *, stamp_ns: int, frame_id: str,
+                        lifetime_s: float = 0.0) -> Any:
+    """A MarkerArray: ``DELETEALL``, then one ``SPHERE`` (``ns`` = id, ``id`` 0) per sphere.
+
+    Args:
+        spheres: the frame's targets (possibly none: the array then only clears the display).
+        stamp_ns: the image stamp (int ns), on every marker.
+        frame_id: the frame of the centres.
+        lifetime_s: how long RViz shows a sphere that no later frame replaced (0 = until
+            replaced or deleted).
+
+    Raises:
+        ConversionError: a non-finite centre, a diameter that is not positive, or two spheres
+            with one id.
+    """
+    from eye_in_hand.ros.conversions import make_header
+
+    Marker, MarkerArray = marker_classes()
+    header = make_header(stamp_ns, frame_id)
+    clear = Marker(header=header, action=Marker.DELETEALL)
+    out = [clear]
+    seen: set[str] = set()
+    for s in spheres:
+        xyz = np.asarray(s.xyz, dtype=np.float64).reshape(-1)
+        if xyz.shape != (3,) or not np.all(np.isfinite(xyz)):
+            raise ConversionError(f"sphere '{s.id}': centre must be 3 finite numbers, got {xyz}")
+        if not (math.isfinite(s.diameter_m) and s.diameter_m > 0):
+            raise ConversionError(f"sphere '{s.id}': diameter must be > 0, got {s.diameter_m}")
+        if s.id in seen:
+            raise ConversionError(f"sphere '{s.id}': two spheres with one id in a frame")
+        seen.add(s.id)
+        m = Marker(header=header, ns=s.id, id=0, type=Marker.SPHERE, action=Marker.ADD)
+        m.pose.position.x, m.pose.position.y, m.pose.position.z = (float(v) for v in xyz)
+        m.pose.orientation.w = 1.0
+        m.scale.x = m.scale.y = m.scale.z = float(s.diameter_m)
+        m.color.r, m.color.g, m.color.b, m.color.a = (float(c) for c in s.rgba)
+        m.lifetime = _duration(lifetime_s)
+        out.append(m)
+    return MarkerArray(markers=out)
+
+
+def spheres_from_marker_array(msg: Any) -> tuple[int, str, list[Sphere]]:
+    """The frame's targets from a MarkerArray written by :func:`sphere_marker_array`.
+
+    ``SPHERE`` markers with action ``ADD`` are targets; ``DELETEALL`` / ``DELETE`` markers are
+    skipped; any other marker is an error.
+
+    Returns:
+        ``(stamp_ns, frame_id, spheres)``: the stamp and frame of the markers (the array's own
+        stamp when it holds only a DELETEALL), and the spheres in message order.
+
+    Raises:
+        ConversionError: no marker at all, markers of one array with different stamps or
+            frames, an empty or repeated ``ns``, a non-finite centre or a scale that is not
+            positive (the message names the marker).
+    """
+    from eye_in_hand.ros.conversions import header_stamp_ns
+
+    markers = list(getattr(msg, "markers", []))
+    if not markers:
+        raise ConversionError("markers: empty MarkerArray (expected at least a DELETEALL)")
+    stamp = header_stamp_ns(markers[0])
+    frame = markers[0].header.frame_id
+    spheres: list[Sphere] = []
+    seen: set[str] = set()
+    for k, m in enumerate(markers):
+        where = f"markers[{k}] (ns '{m.ns}')"
+        if header_stamp_ns(m) != stamp or m.header.frame_id != frame:
+            raise ConversionError(f"{where}: stamp or frame differs from markers[0]'s")
+        if m.action in (2, 3):          # DELETE, DELETEALL
+            continue
+        if m.action != 0 or m.type != 2:   # ADD, SPHERE
+            raise ConversionError(f"{where}: expected SPHERE/ADD, got type {m.type} action "
+                                  f"{m.action}")
+        if not m.ns or m.ns in seen:
+            raise ConversionError(f"{where}: the target id (ns) is empty or repeated")
+        seen.add(m.ns)
+        xyz = np.array([m.pose.position.x, m.pose.position.y, m.pose.position.z])
+        if not np.all(np.isfinite(xyz)):
+            raise ConversionError(f"{where}: position is not finite")
+        d = float(m.scale.x)
+        if not (math.isfinite(d) and d > 0):
+            raise ConversionError(f"{where}: scale.x must be > 0, got {d}")
+        spheres.append(Sphere(m.ns, xyz, d, (float(m.color.r), float(m.color.g),
+                                             float(m.color.b), float(m.color.a))))
+    return stamp, frame, spheres
+
+
+def points_to_pose_array(points: Iterable[np.ndarray], *, stamp_ns: int, frame_id: str) -> Any:
+    """A PoseArray with one pose per point (position = the point, orientation identity).
+
+    Args:
+        points: shapes (3,), metres.
+        stamp_ns: the image stamp (int ns).
+        frame_id: the frame of the points.
+
+    Raises:
+        ConversionError: a point is not 3 finite numbers.
+    """
+    from geometry_msgs.msg import Pose
+
+    from eye_in_hand.ros.conversions import make_header
+
+    PoseArray = pose_array_class()
+    poses = []
+    for k, p in enumerate(points):
+        xyz = np.asarray(p, dtype=np.float64).reshape(-1)
+        if xyz.shape != (3,) or not np.all(np.isfinite(xyz)):
+            raise ConversionError(f"points[{k}]: expected 3 finite numbers, got {xyz}")
+        pose = Pose()
+        pose.position.x, pose.position.y, pose.position.z = (float(v) for v in xyz)
+        pose.orientation.w = 1.0
+        poses.append(pose)
+    return PoseArray(header=make_header(stamp_ns, frame_id), poses=poses)
