@@ -844,10 +844,11 @@ class StereoLocator:
 
     def _why_missing(self, tr: _Track, a: _Association, used_l: set[int],
                      used_r: set[int]) -> tuple[str, str]:
-        """The reason a known blob was not located: that of an unpaired blob near its last
+        """The reason a known blob was not located: that of the nearest unpaired blob within
+        ``missed`` gates (``tracking.gate_m`` seen at its last depth, pixels) of its last
         rectified position (left image first), else ``not_detected``."""
         z = float(tr.point_m[2]) if tr.point_m[2] > 0 else 1.0
-        gate_px = max(10.0, self._f * self.config.track_gate_m / z)
+        gate_px = max(10.0, self._f * self.config.track_gate_m / z) * max(1, tr.missed)
         for xs, used, reasons in ((a.xl, used_l, a.left_reasons),
                                   (a.xr, used_r, a.right_reasons)):
             last = tr.left_rect if xs is a.xl else tr.right_rect
