@@ -251,3 +251,19 @@ def test_first_of_a_blob_set_is_its_lowest_id():
                               (np.array([0.05, 0.0, 0.45]), 0.012, RED)]))
     assert res.first is res.targets[0] and res.first.id == "red_0"
     assert res.first_name == "red" and res.get("red") is res.first
+
+
+def test_a_small_blob_next_to_a_big_one_of_the_same_colour_is_still_its_own_detection():
+    """The full-resolution window of the small disc (margin 16 px) reaches 9 px into the big
+    one, a larger component than the disc itself: the detection must be the component that
+    covers the small disc's coarse blob, not the bigger neighbour (which drops the disc)."""
+    from eye_in_hand.core.detection import ColorDetector
+
+    img = np.full((360, 640, 3), (90, 110, 100), np.uint8)
+    cv2.circle(img, (200, 180), 100, RED, -1)
+    cv2.circle(img, (300 + 8 + 5, 180), 5, RED, -1)
+    det = ColorDetector(dataclasses.replace(config().detector, roi_margin_px=16))
+    found = det.candidates(img)["red"]
+    assert len(found) == 2
+    centres = sorted(float(d.centroid_px[0]) for d in found)
+    assert abs(centres[0] - 200) < 0.5 and abs(centres[1] - 313) < 0.5
