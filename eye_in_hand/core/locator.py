@@ -12,10 +12,19 @@ The public API shared by the ``detect_triangulate`` node, ``eye-in-hand locate``
         print(result.first.point_m, result.first.covariance)
 
 Per target: colour detection in both images (:mod:`eye_in_hand.core.detection`), left/right
-association by the epipolar constraint (rectified rows agree within ``epipolar_tol_px``, the
-disparity is positive), triangulation (:mod:`eye_in_hand.core.triangulation`), and for a sphere
-of known radius one refinement of the sphere-centre correction with the angular radius
-``asin(radius / range)`` from the triangulated range, then a second triangulation.
+association (every pair gated by the epipolar constraint: rectified rows agree within
+``epipolar_tol_px``; a positive disparity inside the plausible depths; the triangulation; for a
+sphere of known radius, its size against its range), solved as one assignment (Hungarian: most
+pairs, then least summed row difference), pairs that an equally good other assignment would
+change rejected as ``ambiguous`` and counted; triangulation
+(:mod:`eye_in_hand.core.triangulation`), and for a sphere of known radius one refinement of the
+sphere-centre correction with the angular radius ``asin(radius / range)`` from the triangulated
+range, then a second triangulation.
+
+A target with ``count`` other than 1 is a blob set: up to ``count`` blobs (0: all), each with an
+id ``<name>_<k>``: ``k`` is given at first sight; later pairs keep it for the blob nearest (3-D,
+left optical frame, within ``tracking.gate_m``) the id's last position; an id unseen for
+``tracking.max_missed`` pairs is retired and never reused (docs/detection.md).
 
 Parameters: :data:`LOCATOR_PARAMETERS` and :data:`TARGET_PARAMETERS` describe every setting
 (name, default, description, range) once; the node declares them as ROS parameters and the CLI
