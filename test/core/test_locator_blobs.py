@@ -267,3 +267,34 @@ def test_a_small_blob_next_to_a_big_one_of_the_same_colour_is_still_its_own_dete
     assert len(found) == 2
     centres = sorted(float(d.centroid_px[0]) for d in found)
     assert abs(centres[0] - 200) < 0.5 and abs(centres[1] - 313) < 0.5
+
+
+def test_the_multi_target_world_and_its_parameter_file_work_together():
+    """config/world_multi.yaml (four spheres, two the same red) on its localization orbit,
+    located with config/detect_triangulate_multi.yaml: every sphere, red ids on one sphere each.
+    Rendered at 640x360 (intrinsics scaled) to stay fast."""
+    from pathlib import Path
+
+    from eye_in_hand.core.locator import load_locator_config
+    from eye_in_hand.sim import World
+    from eye_in_hand.sim.scenarios import localization_trajectory
+
+    config_dir = Path(__file__).resolve().parents[2] / "config"
+    world = World.from_yaml(config_dir / "world_multi.yaml").with_image_size(640, 360)
+    colours = [t.color_bgr for t in world.targets]
+    assert len(world.targets) >= 4 and any(colours.count(c) == 2 for c in colours)
+    cfg = load_locator_config(config_dir / "detect_triangulate_multi.yaml")
+    assert [t.count for t in cfg.detector.targets] == [2, 1, 1]
+    loc = StereoLocator(world.rig.rectified(), cfg)
+    owner: dict[str, int] = {}
+    for k, (_, q) in enumerate(localization_trajectory(world, 0.2, 10.0, seed=0)):
+        fr = world.render(q, seed=k, noise_sigma=1.0, supersample=2)
+        assert all(0.25 < np.linalg.norm(X) < 0.65 for X in fr.truth.targets_cam)
+        res = loc.locate(fr.left, fr.right)
+        assert res.rejected == {} and [t.id for t in res.targets] == [
+            "red_0", "red_1", "green", "blue"]
+        for t in res.targets:
+            d = np.linalg.norm(fr.truth.targets_cam - t.point_m, axis=1)
+            assert d.min() < 1.5e-3
+            assert owner.setdefault(t.id, int(np.argmin(d))) == int(np.argmin(d))
+    assert sorted(owner.values()) == [0, 1, 2, 3]
