@@ -12,6 +12,12 @@ sphere anywhere in the image. RMS 3-D error against ground truth for each method
 without the sphere-centre correction, next to the stereo limit ``Z^2 sigma_d / (f B)`` where
 ``sigma_d = sqrt(2) sigma_c`` and ``sigma_c`` is the measured RMS error of the corrected centres
 per image coordinate. Targets: within 1.5x of that limit; DLT and parallax within 0.5 mm.
+
+Several targets (``--multi-frames``, 0 = skip): the multi-target world (config/world_multi.yaml:
+four 25 mm spheres, two the same red) along its localization orbit sampled at 10 Hz, located
+with config/detect_triangulate_multi.yaml (the red pair one blob set, count 2): speed per pair
+against the same floor, and per target id the RMS camera-frame error, the swaps of the red ids
+(an id on the other red sphere than at its first sight) and the ambiguous rejections.
 """
 from __future__ import annotations
 
@@ -29,7 +35,9 @@ from eye_in_hand.core.locator import StereoLocator, load_locator_config
 from eye_in_hand.core.transforms import compose, invert
 from eye_in_hand.errors import KinematicsError
 from eye_in_hand.sim import World
-from eye_in_hand.sim.scenarios import HOME_Q, camera_pose_ok, look_at
+from eye_in_hand.sim.scenarios import HOME_Q, camera_pose_ok, localization_trajectory, look_at
+
+ROOT = __import__("pathlib").Path(__file__).resolve().parent.parent
 
 # The simulator's shaded red sphere (albedo BGR 40, 40, 210, 35 % ambient): the dark side
 # reaches V ~ 70 and S ~ 110, so the range is a little wider than the node's default.
@@ -170,12 +178,91 @@ def accuracy(world: World, frames) -> None:
     print(f"  DLT vs parallax: max |difference| {max(dlt_vs_par) * 1e3:.4f} mm")
 
 
+def multi(n_frames: int, repeats: int, seed: int) -> None:
+    """Speed and per-target accuracy with four targets, two of one colour (module docs)."""
+    world = World.from_yaml(ROOT / "config" / "world_multi.yaml")
+    cfg = load_locator_config(ROOT / "config" / "detect_triangulate_multi.yaml")
+    t0 = time.perf_counter()
+    traj = localization_trajectory(world, (n_frames - 1) / 10.0, 10.0, seed=seed)
+    frames = [world.render(q, seed=seed * 1000 + i, noise_sigma=2.0, supersample=3)
+              for i, (_, q) in enumerate(traj)]
+    print(f"several targets: rendered {len(frames)} pairs of config/world_multi.yaml (orbit at "
+          f"10 Hz) in {time.perf_counter() - t0:.1f} s")
+    rig = world.rig.rectified()
+    loc = StereoLocator(rig, cfg)
+    names = [t.name for t in world.targets]
+    owner: dict[str, int] = {}
+    errs: dict[str, list[float]] = {}
+    swaps = ambiguous = 0
+    misses: dict[str, int] = {}
+    dist_err: list[float] = []
+    for fr in frames:
+        res = loc.locate(fr.left, fr.right)
+        for a in range(len(res.targets)):
+            for b in range(a + 1, len(res.targets)):
+                ta, tb = res.targets[a], res.targets[b]
+                wa = int(np.argmin(np.linalg.norm(fr.truth.targets_cam - ta.point_m, axis=1)))
+                wb = int(np.argmin(np.linalg.norm(fr.truth.targets_cam - tb.point_m, axis=1)))
+                true = float(np.linalg.norm(fr.truth.targets_cam[wa] - fr.truth.targets_cam[wb]))
+                dist_err.append(float(np.linalg.norm(ta.point_m - tb.point_m)) - true)
+        ambiguous += sum(res.ambiguous.values())
+        for key in res.rejected:
+            misses[key] = misses.get(key, 0) + 1
+        for t in res.targets:
+            d = np.linalg.norm(fr.truth.targets_cam - t.point_m, axis=1)
+            w = int(np.argmin(d))
+            if owner.setdefault(t.id, w) != w:
+                swaps += 1
+            errs.setdefault(t.id, []).append(float(d[w]))
+    for tid, e in errs.items():
+        a = np.array(e)
+        print(f"  {tid:8s} = {names[owner[tid]]:6s} located {len(a):3d}/{len(frames)}  "
+              f"RMS {float(np.sqrt(np.mean(a ** 2))) * 1e3:.3f} mm  max "
+              f"{float(a.max()) * 1e3:.3f} mm")
+    de = np.abs(np.array(dist_err))
+    print(f"  pairwise distances (camera frame, {len(de)} pairs): RMS error "
+          f"{float(np.sqrt(np.mean(de ** 2))) * 1e3:.3f} mm, max {float(de.max()) * 1e3:.3f} mm, "
+          f"within 0.5 mm {100.0 * float(np.mean(de <= 5e-4)):.1f} %")
+    print(f"  id swaps {swaps}, ambiguous blobs rejected {ambiguous}, rejections "
+          f"{misses or 'none'}")
+
+    def floor(left, right):
+        for img in (left, right):
+            cv2.inRange(cv2.cvtColor(img, cv2.COLOR_BGR2HSV), SIM_RED.lower, (179, 255, 255))
+
+    one = StereoLocator(rig, config())
+    timings = {}
+    imgs = [(f.left, f.right) for f in frames]
+    for name, fn in (("floor (cvtColor + inRange, both images)", floor),
+                     ("locate, 1 target (red, the single config)", one.locate),
+                     ("locate, 4 targets (red x2 set, green, blue)", loc.locate)):
+        best = math.inf
+        for _ in range(3):
+            t0 = time.perf_counter()
+            for k in range(repeats):
+                fn(*imgs[k % len(imgs)])
+            best = min(best, (time.perf_counter() - t0) / repeats)
+        timings[name] = best
+    fl = timings["floor (cvtColor + inRange, both images)"]
+    print(f"  speed, best of 3 x {repeats} pairs:")
+    for name, t in timings.items():
+        print(f"  {name:44s} {t * 1e3:7.3f} ms/pair  {1.0 / t:7.1f} pairs/s  "
+              f"{t / fl:5.2f} x floor")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=30, help="simulator pairs (default 30)")
     parser.add_argument("--repeats", type=int, default=100, help="timed pairs per round")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--multi-frames", type=int, default=20,
+                        help="pairs of the multi-target world (default 20; 0 = skip)")
+    parser.add_argument("--multi-only", action="store_true",
+                        help="only the several-targets part")
     args = parser.parse_args(argv)
+    if args.multi_only:
+        multi(args.multi_frames, args.repeats, args.seed)
+        return 0
     world = World.default()
     t0 = time.perf_counter()
     qs = sample_poses(world, args.frames, args.seed)
@@ -184,6 +271,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"rendered {len(frames)} stereo pairs in {time.perf_counter() - t0:.1f} s")
     speed(frames, world.rig.rectified(), args.repeats)
     accuracy(world, frames)
+    if args.multi_frames > 0:
+        multi(args.multi_frames, args.repeats, args.seed)
     return 0
 
 

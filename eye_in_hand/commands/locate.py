@@ -1,4 +1,4 @@
-"""``eye-in-hand locate``: locate the target in one stereo pair read from image files.
+"""``eye-in-hand locate``: locate the targets in one stereo pair read from image files.
 
 Example::
 
@@ -9,8 +9,12 @@ stereo geometry comes from their rectification R and projection P, the right P c
 ``-fx * B``); our ``stereo.yaml`` may be there too. Detector settings come from the node's
 parameter file (default: the built-in red sphere, as in ``config/detect_triangulate.yaml``).
 
-Exit codes: 0 with the point printed; 1 on an error (unreadable file, bad calibration or
-parameters); 2 when there is no target (the reason is printed on stderr).
+Every configured target is located (blob sets give one entry per blob, ``id`` =
+``<name>_<k>``); ``--json`` prints a JSON list with one object per located target.
+
+Exit codes: 0 with at least one target printed (those not located are listed on stderr); 1 on
+an error (unreadable file, bad calibration or parameters); 2 when no target is located (the
+reasons are printed on stderr).
 """
 from __future__ import annotations
 
@@ -20,7 +24,7 @@ import sys
 
 from eye_in_hand.commands.common import apply_overrides
 
-HELP = "locate the target in one stereo pair from image files"
+HELP = "locate the targets in one stereo pair from image files"
 
 #: Exit code when the pair was processed but holds no (acceptable) target.
 EXIT_NO_TARGET = 2
@@ -42,8 +46,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", choices=("dlt", "disparity", "optimal"),
                         help="triangulation method (overrides the parameter file)")
     parser.add_argument("--json", action="store_true",
-                        help="print one JSON object: point_m, covariance, residual_px, "
-                             "left_px, right_px")
+                        help="print a JSON list, one object per located target: name, id, "
+                             "point_m, covariance, residual_px, left_px, right_px")
 
 
 def _read(path: str, side: str):
@@ -70,7 +74,7 @@ def _read(path: str, side: str):
 
 
 def run(args: argparse.Namespace) -> int:
-    """Locate the target; print it (text or JSON). Returns the exit code."""
+    """Locate the targets; print them (text or JSON). Returns the exit code."""
     import math
 
     from eye_in_hand.core.camera import StereoRig
@@ -90,20 +94,29 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--{side}: image is {img.shape[1]}x{img.shape[0]} but the "
                              f"calibration is {cam.width}x{cam.height}")
     result = locator.locate(left, right)
-    first = result.first
-    if first is None:
-        reason = result.messages.get(result.first_name, result.rejected.get(result.first_name))
-        print(f"eye-in-hand locate: no target: {reason}", file=sys.stderr)
+    misses = [f"{key}: {result.messages.get(key, reason)}"
+              for key, reason in result.rejected.items()]
+    if not result.targets:
+        print(f"eye-in-hand locate: no target: {'; '.join(misses)}", file=sys.stderr)
         return EXIT_NO_TARGET
     if args.json:
-        print(json.dumps(first.to_dict()))
+        for line in misses:   # stdout holds only the JSON
+            print(f"eye-in-hand locate: not located: {line}", file=sys.stderr)
+        print(json.dumps([t.to_dict() for t in result.targets]))
         return 0
-    x, y, z = first.point_m
-    sx, sy, sz = (math.sqrt(first.covariance[i, i]) for i in range(3))
-    print(f"target '{first.name}' ({config.method}), left optical frame:")
-    print(f"  point_m     [{x:+.5f}, {y:+.5f}, {z:+.5f}]")
-    print(f"  sigma_mm    [{sx * 1e3:.3f}, {sy * 1e3:.3f}, {sz * 1e3:.3f}]")
-    print(f"  residual_px {first.residual_px:.3f}")
-    print(f"  left_px     [{first.left_px[0]:.3f}, {first.left_px[1]:.3f}]")
-    print(f"  right_px    [{first.right_px[0]:.3f}, {first.right_px[1]:.3f}]")
+    for t in result.targets:
+        x, y, z = t.point_m
+        sx, sy, sz = (math.sqrt(t.covariance[i, i]) for i in range(3))
+        label = f"'{t.id}'" if t.id == t.name else f"'{t.id}' (target '{t.name}')"
+        print(f"target {label} ({config.method}), left optical frame:")
+        print(f"  point_m     [{x:+.5f}, {y:+.5f}, {z:+.5f}]")
+        print(f"  sigma_mm    [{sx * 1e3:.3f}, {sy * 1e3:.3f}, {sz * 1e3:.3f}]")
+        print(f"  residual_px {t.residual_px:.3f}")
+        print(f"  left_px     [{t.left_px[0]:.3f}, {t.left_px[1]:.3f}]")
+        print(f"  right_px    [{t.right_px[0]:.3f}, {t.right_px[1]:.3f}]")
+    for key, reason in result.rejected.items():
+        print(f"not located: '{key}': {reason}")
+    ambiguous = ", ".join(f"{k}: {v}" for k, v in result.ambiguous.items())
+    if ambiguous:
+        print(f"ambiguous blobs rejected: {ambiguous}")
     return 0

@@ -81,6 +81,9 @@ SELECTIONS = ("largest", "circular", "nearest")
 
 _MAX = (179, 255, 255)
 
+#: Most blobs one target considers per image (``count: 0`` = every blob, up to this many).
+MAX_BLOBS = 200
+
 
 def bgr_to_hsi(image: np.ndarray) -> np.ndarray:
     """Convert a BGR uint8 image to HSI on OpenCV's 8-bit scales.
@@ -197,6 +200,9 @@ class TargetSpec:
         min_circularity: smallest accepted ``4 pi area / perimeter^2`` (1 for a disc; a
             pixelated disc measures about 0.85-0.9).
         is_sphere: apply the sphere-centre correction (False for a flat disc facing the camera).
+        count: how many blobs of this colour to locate: 1 (default) = one target whose id is
+            its name; N > 1 = up to the N best blobs (a blob set, ids ``<name>_<k>``); 0 = every
+            blob above ``min_area_px`` (a blob set of any size).
     """
 
     name: str
@@ -206,6 +212,12 @@ class TargetSpec:
     max_area_px: float | None = None
     min_circularity: float = 0.6
     is_sphere: bool = True
+    count: int = 1
+
+    @property
+    def is_set(self) -> bool:
+        """True for a blob set (``count`` 0 or > 1): ids ``<name>_<k>``, tracked across frames."""
+        return self.count != 1
 
     def __post_init__(self) -> None:
         if not self.name or not self.name[0].isalpha() or not all(
@@ -224,6 +236,10 @@ class TargetSpec:
         if not 0.0 <= self.min_circularity <= 1.0:
             raise InputError(f"target '{self.name}': min_circularity must be in [0, 1], "
                              f"got {self.min_circularity}")
+        if isinstance(self.count, bool) or not isinstance(self.count, (int, np.integer)) \
+                or not 0 <= self.count <= MAX_BLOBS:
+            raise InputError(f"target '{self.name}': count must be an integer in "
+                             f"[0, {MAX_BLOBS}] (0 = every blob), got {self.count!r}")
 
 
 @dataclass(frozen=True)
@@ -261,6 +277,13 @@ class DetectorConfig:
         names = [t.name for t in targets]
         if len(set(names)) != len(names):
             raise InputError(f"targets: names must be unique, got {names}")
+        for t in targets:
+            if t.is_set:
+                clash = [n for n in names if n.startswith(f"{t.name}_")
+                         and n[len(t.name) + 1:].isdigit()]
+                if clash:
+                    raise InputError(f"targets: '{clash[0]}' would clash with the ids "
+                                     f"'{t.name}_<k>' of the blob set '{t.name}'")
         object.__setattr__(self, "targets", targets)
         for key, lo, hi in (("downscale", 1, 16), ("open_px", 0, 51), ("close_px", 0, 51),
                             ("max_candidates", 1, 20), ("roi_margin_px", 0, 200)):
@@ -269,6 +292,13 @@ class DetectorConfig:
                 raise InputError(f"{key}: expected an integer in [{lo}, {hi}], got {v!r}")
         if self.selection not in SELECTIONS:
             raise InputError(f"selection: '{self.selection}' is not one of {', '.join(SELECTIONS)}")
+
+    def limit(self, target: TargetSpec) -> int:
+        """Blobs per image examined for ``target``: ``max_candidates`` for one blob, ``count +
+        max_candidates - 1`` for ``count`` N > 1, ``MAX_BLOBS`` for ``count: 0``."""
+        if target.count == 0:
+            return MAX_BLOBS
+        return min(MAX_BLOBS, target.count + self.max_candidates - 1)
 
     def target(self, name: str) -> TargetSpec:
         """The target called ``name``."""
@@ -465,7 +495,8 @@ class ColorDetector:
             image: BGR uint8, shape (H, W, 3).
             camera: the image's camera model, for the sphere-centre correction and
                 ``center_norm``; None to skip both.
-            previous: target name -> previous ``center_px`` (2,), for ``selection="nearest"``.
+            previous: target name -> previous ``center_px``, shape (2,) or (K, 2) (a blob set:
+                the nearest of them counts), for ``selection="nearest"``.
 
         Returns:
             Detections, at most one per target.
@@ -478,7 +509,8 @@ class ColorDetector:
 
     def candidates(self, image: np.ndarray, camera: CameraModel | None = None,
                    previous: Mapping[str, np.ndarray] | None = None) -> dict[str, list[Detection]]:
-        """Up to ``max_candidates`` detections per target, best first by the selection rule.
+        """Up to ``max_candidates`` detections per target (``DetectorConfig.limit`` for a blob
+        set), best first by the selection rule.
 
         Arguments and errors as :meth:`detect`. Returns a dict over every target name (empty
         lists for targets not found).
@@ -497,7 +529,8 @@ class ColorDetector:
         out: dict[str, list[Detection]] = {}
         for target in cfg.targets:
             mask = target.color.threshold(converted[target.color.space])
-            blobs = self._coarse_blobs(mask, target, sx * sy)
+            limit = cfg.limit(target)
+            blobs = self._coarse_blobs(mask, target, sx * sy, limit)
             dets: list[Detection] = []
             seen: list[tuple[int, int, int, int]] = []
             for (bx, by, bw, bh) in blobs:
@@ -505,14 +538,17 @@ class ColorDetector:
                 y0 = int(by * sy) - cfg.roi_margin_px
                 x1 = int(math.ceil((bx + bw) * sx)) + cfg.roi_margin_px
                 y1 = int(math.ceil((by + bh) * sy)) + cfg.roi_margin_px
-                blob = self._fine_blob(image, target, x0, y0, x1, y1)
+                box = (int(bx * sx), int(by * sy), int(math.ceil((bx + bw) * sx)),
+                       int(math.ceil((by + bh) * sy)))
+                blob = self._fine_blob(image, target, x0, y0, x1, y1, box)
                 if blob is None or blob.bbox in seen:
                     continue
                 seen.append(blob.bbox)
                 det = self._make_detection(target, blob, camera)
                 if det is not None:
                     dets.append(det)
-            out[target.name] = self._rank(dets, previous.get(target.name) if previous else None)
+            out[target.name] = self._rank(dets, previous.get(target.name) if previous else None,
+                                          limit)
         return out
 
     def mask(self, image: np.ndarray, target: str | None = None) -> np.ndarray:
@@ -547,8 +583,8 @@ class ColorDetector:
             mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, self._close)
         return mask
 
-    def _coarse_blobs(self, mask: np.ndarray, target: TargetSpec,
-                      pixel_area: float) -> list[tuple[int, int, int, int]]:
+    def _coarse_blobs(self, mask: np.ndarray, target: TargetSpec, pixel_area: float,
+                      limit: int) -> list[tuple[int, int, int, int]]:
         # External contours are several times cheaper than labelling the whole coarse mask.
         contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         if not contours:
@@ -564,10 +600,14 @@ class ColorDetector:
                 scored.append((area, cv2.boundingRect(c)))
         scored.sort(key=lambda a: -a[0])
         return [tuple(int(v) for v in box) for _, box in  # type: ignore[misc]
-                scored[: 2 * self.config.max_candidates]]
+                scored[: 2 * limit]]
 
     def _fine_blob(self, image: np.ndarray, target: TargetSpec, x0: int, y0: int,
-                   x1: int, y1: int) -> _Blob | None:
+                   x1: int, y1: int, box: tuple[int, int, int, int] | None = None
+                   ) -> _Blob | None:
+        """The blob of the coarse ``box`` (x0, y0, x1, y1, full-image pixels) inside the ROI:
+        the component covering most of the box (the largest when only one is there), so that a
+        neighbouring blob of the same colour reaching into the ROI is not taken instead."""
         h, w = image.shape[:2]
         for _ in range(3):  # grow the ROI when the blob reaches its edge
             x0, y0, x1, y1 = max(0, x0), max(0, y0), min(w, x1), min(h, y1)
@@ -578,6 +618,12 @@ class ColorDetector:
             if n <= 1:
                 return None
             k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+            if n > 2 and box is not None:
+                inner = labels[max(0, box[1] - y0):max(0, box[3] - y0),
+                               max(0, box[0] - x0):max(0, box[2] - x0)]
+                votes = np.bincount(inner.ravel(), minlength=n)[1:] if inner.size else None
+                if votes is not None and votes.max() > 0:
+                    k = 1 + int(np.argmax(votes))
             bx, by, bw, bh, area = (int(v) for v in stats[k])
             touches_roi = (bx == 0 and x0 > 0) or (by == 0 and y0 > 0) or \
                 (bx + bw == x1 - x0 and x1 < w) or (by + bh == y1 - y0 and y1 < h)
@@ -633,16 +679,17 @@ class ColorDetector:
                          blob.circularity, blob.bbox, alpha, ellipse_c, blob.center_sigma_px,
                          blob.edge_sigma_px, blob.shade_px)
 
-    def _rank(self, dets: list[Detection], previous: np.ndarray | None) -> list[Detection]:
+    def _rank(self, dets: list[Detection], previous: np.ndarray | None,
+              limit: int) -> list[Detection]:
         sel = self.config.selection
         if sel == "circular":
             dets.sort(key=lambda d: (-d.circularity, -d.area_px))
-        elif sel == "nearest" and previous is not None:
-            p = np.asarray(previous, dtype=np.float64).reshape(2)
-            dets.sort(key=lambda d: float(np.hypot(*(d.center_px - p))))
+        elif sel == "nearest" and previous is not None and np.size(previous):
+            p = np.asarray(previous, dtype=np.float64).reshape(-1, 2)
+            dets.sort(key=lambda d: float(np.min(np.hypot(*(d.center_px - p).T))))
         else:
             dets.sort(key=lambda d: -d.area_px)
-        return dets[: self.config.max_candidates]
+        return dets[:limit]
 
 
 def center_sigma_parts(mask: np.ndarray, grey: np.ndarray,

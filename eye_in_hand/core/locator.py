@@ -12,10 +12,19 @@ The public API shared by the ``detect_triangulate`` node, ``eye-in-hand locate``
         print(result.first.point_m, result.first.covariance)
 
 Per target: colour detection in both images (:mod:`eye_in_hand.core.detection`), left/right
-association by the epipolar constraint (rectified rows agree within ``epipolar_tol_px``, the
-disparity is positive), triangulation (:mod:`eye_in_hand.core.triangulation`), and for a sphere
-of known radius one refinement of the sphere-centre correction with the angular radius
-``asin(radius / range)`` from the triangulated range, then a second triangulation.
+association (every pair gated by the epipolar constraint: rectified rows agree within
+``epipolar_tol_px``; a positive disparity inside the plausible depths; the triangulation; for a
+sphere of known radius, its size against its range), solved as one assignment (Hungarian: most
+pairs, then least summed row difference), pairs that an equally good other assignment would
+change rejected as ``ambiguous`` and counted; triangulation
+(:mod:`eye_in_hand.core.triangulation`), and for a sphere of known radius one refinement of the
+sphere-centre correction with the angular radius ``asin(radius / range)`` from the triangulated
+range, then a second triangulation.
+
+A target with ``count`` other than 1 is a blob set: up to ``count`` blobs (0: all), each with an
+id ``<name>_<k>``: ``k`` is given at first sight; later pairs keep it for the blob nearest (3-D,
+left optical frame, within ``tracking.gate_m``) the id's last position; an id unseen for
+``tracking.max_missed`` pairs is retired and never reused (docs/detection.md).
 
 Parameters: :data:`LOCATOR_PARAMETERS` and :data:`TARGET_PARAMETERS` describe every setting
 (name, default, description, range) once; the node declares them as ROS parameters and the CLI
@@ -23,6 +32,7 @@ reads the same names from the node's parameter file (:func:`load_parameter_file`
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from dataclasses import dataclass, field
@@ -30,6 +40,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from eye_in_hand.core.camera import StereoRig
 from eye_in_hand.core.detection import (
@@ -154,6 +165,22 @@ LOCATOR_PARAMETERS: tuple[ParamSpec, ...] = (
               "this (pixels)", 0.01, 100.0),
     ParamSpec("epipolar_tol_px", 3.0, "left/right association: largest difference of the "
               "rectified rows (pixels)", 0.1, 100.0),
+    ParamSpec("min_depth_m", 0.05, "left/right association: nearest plausible depth (m); a "
+              "pair whose disparity puts it nearer is rejected (depth_range)", 0.001, 1000.0),
+    ParamSpec("max_depth_m", 100.0, "left/right association: farthest plausible depth (m); a "
+              "pair whose disparity puts it farther is rejected (depth_range)", 0.001, 1e6),
+    ParamSpec("size_tol", 1.0, "left/right association, spheres of known radius: the range "
+              "from the blob's angular size and the triangulated range agree within a factor "
+              "1 + size_tol, else the pair is rejected (size); 0 = off", 0.0, 100.0),
+    ParamSpec("ambiguity_margin_px", 1.0, "left/right association: another assignment of the "
+              "same number of pairs whose summed rectified row difference is within this of "
+              "the best makes the pairs it changes ambiguous (rejected, counted)", 0.0, 100.0),
+    ParamSpec("tracking.gate_m", 0.03, "blob sets: largest distance (m, left optical frame) "
+              "between a blob and a known blob's last position for it to keep that id",
+              1e-4, 10.0),
+    ParamSpec("tracking.max_missed", 30, "blob sets: frames an unseen blob keeps its id "
+              "reserved (and is reported as rejected); then the id is retired, never reused",
+              0, 1000000),
     ParamSpec("target_names", ["red"], "targets, in priority order; the first is published "
               "on target/point; each has parameters targets.<name>.*"),
     ParamSpec("detector.downscale", 4, "factor of the coarse detection pass (1 = threshold "
@@ -186,6 +213,9 @@ TARGET_PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("max_area_px", 0.0, "largest blob area (pixels, 0 = no limit)", 0.0, 1e8),
     ParamSpec("min_circularity", 0.6, "smallest 4 pi area / perimeter^2 (a pixelated disc "
               "measures about 0.9)", 0.0, 1.0),
+    ParamSpec("count", 1, "blobs of this colour: 1 = one target (id = name); N > 1 = up to the "
+              "N best blobs, a blob set with ids <name>_<k> stable across frames; 0 = every "
+              "blob above min_area_px (a blob set)", 0, 200),
 )
 
 _LOC = {p.name: p for p in LOCATOR_PARAMETERS}
@@ -204,6 +234,16 @@ class LocatorConfig:
             ``MIN_PIXEL_SIGMA``; ``FALLBACK_PIXEL_SIGMA`` where a detection has none.
         max_residual_px: residual gate (pixels), None for none.
         epipolar_tol_px: largest rectified row difference of an associated pair (pixels).
+        min_depth_m, max_depth_m: plausible depth range of an associated pair (metres): its
+            disparity must lie between ``f B / max_depth_m`` and ``f B / min_depth_m``.
+        size_tol: spheres of known radius: the range ``radius / sin(angular radius)`` from the
+            blob's size and the triangulated range agree within a factor ``1 + size_tol``
+            (0 = no check).
+        ambiguity_margin_px: an alternative assignment with as many pairs whose summed row
+            difference is within this (pixels) of the best makes the pairs it changes ambiguous.
+        track_gate_m: blob sets: largest distance (metres) from a known blob's last position
+            for a blob to keep that id.
+        track_max_missed: blob sets: frames an unseen blob's id stays reserved.
     """
 
     detector: DetectorConfig
@@ -211,6 +251,19 @@ class LocatorConfig:
     pixel_sigma: float = 0.0
     max_residual_px: float | None = 2.0
     epipolar_tol_px: float = 3.0
+    min_depth_m: float = 0.05
+    max_depth_m: float = 100.0
+    size_tol: float = 1.0
+    ambiguity_margin_px: float = 1.0
+    track_gate_m: float = 0.03
+    track_max_missed: int = 30
+
+    @property
+    def stateful(self) -> bool:
+        """True when a locator's result depends on earlier frames (``selection: nearest`` or
+        a blob set, whose ids are tracked): locate such a stream in order, with one locator."""
+        return self.detector.selection == "nearest" or any(
+            t.is_set for t in self.detector.targets)
 
     def __post_init__(self) -> None:
         if not isinstance(self.detector, DetectorConfig):
@@ -224,6 +277,17 @@ class LocatorConfig:
             raise InputError(f"max_residual_px: must be > 0, got {self.max_residual_px}")
         if not self.epipolar_tol_px > 0:
             raise InputError(f"epipolar_tol_px: must be > 0, got {self.epipolar_tol_px}")
+        if not 0 < self.min_depth_m < self.max_depth_m:
+            raise InputError(f"min_depth_m, max_depth_m: need 0 < min < max, got "
+                             f"{self.min_depth_m}, {self.max_depth_m}")
+        for key in ("size_tol", "ambiguity_margin_px"):
+            v = getattr(self, key)
+            if not (math.isfinite(v) and v >= 0):
+                raise InputError(f"{key}: must be >= 0, got {v}")
+        if not self.track_gate_m > 0:
+            raise InputError(f"tracking.gate_m: must be > 0, got {self.track_gate_m}")
+        if not self.track_max_missed >= 0:
+            raise InputError(f"tracking.max_missed: must be >= 0, got {self.track_max_missed}")
 
 
 def locator_config_from_params(params: Mapping[str, Any]) -> LocatorConfig:
@@ -261,7 +325,8 @@ def locator_config_from_params(params: Mapping[str, Any]) -> LocatorConfig:
             targets.append(TargetSpec(
                 name=tname, color=color, radius_m=radius if radius > 0 else None,
                 min_area_px=tget("min_area_px"), max_area_px=max_area if max_area > 0 else None,
-                min_circularity=tget("min_circularity"), is_sphere=tget("is_sphere")))
+                min_circularity=tget("min_circularity"), is_sphere=tget("is_sphere"),
+                count=tget("count")))
         except InputError as exc:
             raise ConfigError(f"parameters 'targets.{tname}.*': {exc}") from exc
     try:
@@ -275,7 +340,12 @@ def locator_config_from_params(params: Mapping[str, Any]) -> LocatorConfig:
         return LocatorConfig(detector=detector, method=get("method"),
                              pixel_sigma=get("pixel_sigma"),
                              max_residual_px=get("max_residual_px"),
-                             epipolar_tol_px=get("epipolar_tol_px"))
+                             epipolar_tol_px=get("epipolar_tol_px"),
+                             min_depth_m=get("min_depth_m"), max_depth_m=get("max_depth_m"),
+                             size_tol=get("size_tol"),
+                             ambiguity_margin_px=get("ambiguity_margin_px"),
+                             track_gate_m=get("tracking.gate_m"),
+                             track_max_missed=get("tracking.max_missed"))
     except InputError as exc:
         raise ConfigError(f"parameters: {exc}") from exc
 
@@ -366,9 +436,12 @@ class TargetLocation:
             object.__setattr__(self, "id", self.name)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict with exactly ``point_m``, ``covariance``, ``residual_px``,
-        ``left_px`` and ``right_px`` (the output of ``eye-in-hand locate --json``)."""
+        """JSON-ready dict with exactly ``name``, ``id``, ``point_m``, ``covariance``,
+        ``residual_px``, ``left_px`` and ``right_px`` (one element of ``eye-in-hand locate
+        --json``)."""
         return {
+            "name": self.name,
+            "id": self.id,
             "point_m": [float(v) for v in self.point_m],
             "covariance": [[float(v) for v in row] for row in self.covariance],
             "residual_px": float(self.residual_px),
@@ -382,23 +455,34 @@ class LocateResult:
     """The outcome for one stereo pair.
 
     Attributes:
-        targets: located targets, in configuration order (only those found).
-        rejected: target name -> reason for every target not located: ``not_detected_left``,
-            ``not_detected_right``, ``not_detected``, ``epipolar`` (no candidate pair on the
-            same rectified row), or a triangulation reason (``behind_camera``,
-            ``non_positive_disparity``, ``residual_gate``, ``not_converged``).
-        messages: target name -> a readable explanation of the rejection.
+        targets: located targets, in configuration order (only those found); the blobs of a
+            blob set in the order of their ids' ``k``.
+        rejected: key -> reason. Keys: the name of every one-blob target not located; for a
+            blob set, its name when it saw a blob it could not locate (or none at all), and
+            the id of every known blob (seen in an earlier frame, not retired) not located in
+            this one. Reasons: ``not_detected_left``, ``not_detected_right``,
+            ``not_detected``, ``epipolar`` (no candidate pair on the same rectified row),
+            ``non_positive_disparity``, ``depth_range`` (disparity outside the plausible
+            depths), ``size`` (a sphere's size disagrees with its range), ``ambiguous`` (two
+            assignments are equally good), ``over_count`` (more blobs than ``count``; this one
+            ranked lower), or a triangulation reason (``behind_camera``, ``residual_gate``,
+            ``not_converged``).
+        messages: the same keys -> a readable explanation of the rejection.
         first_name: the name of the first configured target (the one on ``target/point``).
+        ambiguous: target name -> number of its blobs (left image) rejected as ambiguous in
+            this pair (only targets with at least one).
     """
 
     targets: tuple[TargetLocation, ...]
     rejected: dict[str, str]
     messages: dict[str, str] = field(default_factory=dict)
     first_name: str = ""
+    ambiguous: dict[str, int] = field(default_factory=dict)
 
     @property
     def first(self) -> TargetLocation | None:
-        """The first configured target (``first_name``) when it was located, else None."""
+        """The first configured target (``first_name``; for a blob set its located blob of
+        lowest ``k``) when it was located, else None."""
         return self.get(self.first_name)
 
     def get(self, name: str) -> TargetLocation | None:
@@ -413,6 +497,67 @@ class LocateResult:
         return None
 
 
+#: Cost of an infeasible pair in the assignments (far above any sum of feasible costs).
+_INFEASIBLE = 1e9
+
+
+def _assign(cost: np.ndarray) -> list[tuple[int, int]]:
+    """Feasible pairs ``(row, col)`` of the assignment with the most feasible pairs and, among
+    those, the least summed cost (``cost >= _INFEASIBLE`` marks an infeasible pair)."""
+    if cost.size == 0 or not np.any(cost < _INFEASIBLE):
+        return []
+    rows, cols = linear_sum_assignment(cost)
+    return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True)
+            if cost[r, c] < _INFEASIBLE]
+
+
+def _furthest(fails: Mapping[tuple[int, int], tuple[int, str, str]],
+              pairs: Sequence[tuple[int, int]]) -> tuple[str, str]:
+    """``(reason, message)`` of the pair that passed most gates (first in ``pairs`` on a tie)."""
+    best: tuple[int, str, str] | None = None
+    for ij in pairs:
+        f = fails.get(ij)
+        if f is not None and (best is None or f[0] > best[0]):
+            best = f
+    if best is None:
+        return "ambiguous", "its possible partners are ambiguous"
+    return best[1], best[2]
+
+
+@dataclass
+class _Association:
+    """The outcome of one target's left/right association (internal)."""
+
+    cl: Sequence[Detection]
+    cr: Sequence[Detection]
+    located: list[tuple[int, int, TargetLocation]] = field(default_factory=list)
+    reason: str = ""
+    message: str = ""
+    n_ambiguous: int = 0
+    left_reasons: dict[int, tuple[str, str]] = field(default_factory=dict)
+    right_reasons: dict[int, tuple[str, str]] = field(default_factory=dict)
+    xl: list[np.ndarray] = field(default_factory=list)
+    xr: list[np.ndarray] = field(default_factory=list)
+
+
+@dataclass
+class _Track:
+    """A known blob of a blob set: id number, last point (left optical frame, metres), last
+    rectified centres (pixels), frames missed since."""
+
+    k: int
+    point_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    left_rect: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    right_rect: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    missed: int = 0
+
+
+@dataclass
+class _BlobSet:
+    tracks: list[_Track] = field(default_factory=list)
+    next_k: int = 0
+
+
 class StereoLocator:
     """Detect and triangulate the configured targets in stereo pairs.
 
@@ -420,8 +565,10 @@ class StereoLocator:
         rig: the stereo rig; rectified here (alpha 0) if it is not yet.
         config: locator settings (:func:`load_locator_config` gives the node's defaults).
 
-    The locator is stateful only for ``selection="nearest"`` (it remembers each target's last
-    centres); :meth:`reset` forgets them. Use one locator per stream.
+    The locator is stateful for ``selection="nearest"`` (it remembers each target's last
+    centres) and for blob sets (it remembers their known blobs, whose ids it keeps):
+    :meth:`reset` forgets both. Use one locator per stream, frames in order
+    (``LocatorConfig.stateful``).
     """
 
     def __init__(self, rig: StereoRig, config: LocatorConfig) -> None:
@@ -444,10 +591,18 @@ class StereoLocator:
         self._H1 = self.rig.P1[:, :3] @ self.rig.R1
         self._H2 = self.rig.P2[:, :3] @ self.rig.R2
         self._previous: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self._sets: dict[str, _BlobSet] = {}
+        k = 1 if self._vertical else 0
+        # disparity d (rectified pixels, positive in front) -> depth f B / d
+        self._disp_sign = -math.copysign(1.0, P2[k, 3])
+        self._fB = abs(float(P2[k, 3]))
+        self._f = float(self.rig.P1[k, k])
 
     def reset(self) -> None:
-        """Forget the previous detections (``selection="nearest"``)."""
+        """Forget the previous detections (``selection="nearest"``) and the blob sets' known
+        blobs (their ids start again at ``<name>_0``)."""
         self._previous.clear()
+        self._sets.clear()
 
     def locate(self, left: np.ndarray, right: np.ndarray) -> LocateResult:
         """Locate every configured target in one stereo pair.
@@ -469,22 +624,31 @@ class StereoLocator:
         found: list[TargetLocation] = []
         rejected: dict[str, str] = {}
         messages: dict[str, str] = {}
+        ambiguous: dict[str, int] = {}
         for spec in cfg.detector.targets:
             cl, cr = cands_l[spec.name], cands_r[spec.name]
-            if not cl or not cr:
-                reason = ("not_detected" if not cl and not cr else
-                          "not_detected_left" if not cl else "not_detected_right")
-                rejected[spec.name] = reason
-                messages[spec.name] = f"target '{spec.name}': {reason.replace('_', ' ')}"
+            a = self._associate(spec, cl, cr)
+            if a.n_ambiguous:
+                ambiguous[spec.name] = a.n_ambiguous
+            if not spec.is_set:
+                if not a.located:
+                    rejected[spec.name] = a.reason
+                    messages[spec.name] = f"target '{spec.name}': {a.message}"
+                    continue
+                loc = a.located[0][2]
+                found.append(loc)
+                self._previous[spec.name] = (loc.left_px, loc.right_px)
                 continue
-            loc, reason, message = self._associate(spec, cl, cr)
-            if loc is None:
-                rejected[spec.name] = reason
-                messages[spec.name] = f"target '{spec.name}': {message}"
-                continue
-            found.append(loc)
-            self._previous[spec.name] = (loc.left_px, loc.right_px)
-        return LocateResult(tuple(found), rejected, messages, cfg.detector.targets[0].name)
+            if a.reason:
+                rejected[spec.name] = a.reason
+                messages[spec.name] = f"target '{spec.name}': {a.message}"
+            located = self._track(spec, a, rejected, messages)
+            found.extend(located)
+            if located:
+                self._previous[spec.name] = (np.array([t.left_px for t in located]),
+                                             np.array([t.right_px for t in located]))
+        return LocateResult(tuple(found), rejected, messages, cfg.detector.targets[0].name,
+                            ambiguous)
 
     # -- internals -------------------------------------------------------------------------
     def _rect(self, H: np.ndarray, norm: np.ndarray) -> np.ndarray:
@@ -492,28 +656,218 @@ class StereoLocator:
         return h[:2] / h[2]
 
     def _associate(self, spec: TargetSpec, cl: Sequence[Detection], cr: Sequence[Detection]
-                   ) -> tuple[TargetLocation | None, str, str]:
-        tol = self.config.epipolar_tol_px
-        axis = 0 if self._vertical else 1
-        pairs = sorted(((i, j) for i in range(len(cl)) for j in range(len(cr))),
-                       key=lambda ij: (ij[0] + ij[1], ij[0]))
-        first_reason, first_msg = "", ""
-        for i, j in pairs:
-            dl, dr = cl[i], cr[j]
-            xl, xr = self._rect(self._H1, dl.center_norm), self._rect(self._H2, dr.center_norm)
-            gap = abs(xl[axis] - xr[axis])
-            if gap > tol:
-                if not first_reason:
-                    first_reason = "epipolar"
-                    first_msg = (f"best left/right candidates are {gap:.2f} px apart across the "
-                                 f"epipolar line (tolerance {tol:.2f} px)")
+                   ) -> _Association:
+        """Pair the target's left and right blobs (see :meth:`_gate` and the module docs).
+
+        Every pair is gated (epipolar row, disparity sign and depth range, triangulation, the
+        size of a sphere of known radius); the assignment with the most pairs and the least
+        summed row difference is solved (Hungarian, ``scipy.optimize.linear_sum_assignment``);
+        a pair is ambiguous when forbidding it still leaves an assignment with as many pairs
+        whose cost is within ``ambiguity_margin_px`` of the best: the blobs that change
+        between the two are rejected (``ambiguous``), never guessed.
+        """
+        out = _Association(cl, cr)
+        xl = [self._rect(self._H1, d.center_norm) for d in cl]
+        xr = [self._rect(self._H2, d.center_norm) for d in cr]
+        out.xl, out.xr = xl, xr
+        if not cl or not cr:
+            out.reason = ("not_detected" if not cl and not cr else
+                          "not_detected_left" if not cl else "not_detected_right")
+            out.message = out.reason.replace("_", " ")
+            out.left_reasons = {i: ("not_detected_right", "no blob in the right image")
+                                for i in range(len(cl))}
+            out.right_reasons = {j: ("not_detected_left", "no blob in the left image")
+                                 for j in range(len(cr))}
+            return out
+        n, m = len(cl), len(cr)
+        cost = np.full((n, m), _INFEASIBLE)
+        fails: dict[tuple[int, int], tuple[int, str, str]] = {}
+        locs: dict[tuple[int, int], TargetLocation] = {}
+        for i in range(n):
+            for j in range(m):
+                ok = self._gate(spec, cl[i], cr[j], xl[i], xr[j])
+                if isinstance(ok, TargetLocation):
+                    locs[i, j] = ok
+                    cost[i, j] = abs(xl[i][self._row] - xr[j][self._row])
+                else:
+                    fails[i, j] = ok
+        best = _assign(cost)
+        amb_l: set[int] = set()
+        amb_r: set[int] = set()
+        if best and self._has_alternatives(cost):
+            total = sum(cost[i, j] for i, j in best)
+            for i, j in best:
+                c2 = cost.copy()
+                c2[i, j] = _INFEASIBLE
+                alt = _assign(c2)
+                if len(alt) == len(best) and \
+                        sum(c2[a, b] for a, b in alt) - total <= self.config.ambiguity_margin_px:
+                    for a, b in set(best) ^ set(alt):
+                        amb_l.add(a)
+                        amb_r.add(b)
+        accepted = sorted((ij for ij in best if ij[0] not in amb_l and ij[1] not in amb_r),
+                          key=lambda ij: (ij[0], ij[1]))
+        keep = accepted if spec.count == 0 else accepted[:spec.count]
+        out.located = [(i, j, locs[i, j]) for i, j in keep]
+        out.n_ambiguous = len(amb_l)
+        used_l = {i for i, _ in keep}
+        used_r = {j for _, j in keep}
+        over = [ij for ij in accepted if ij not in keep]
+        for i, j in over:
+            msg = f"more than count = {spec.count} blobs located; this one ranked lower"
+            out.left_reasons[i] = ("over_count", msg)
+            out.right_reasons[j] = ("over_count", msg)
+        free_r = [j for j in range(m) if j not in used_r]
+        free_l = [i for i in range(n) if i not in used_l]
+        for i in free_l:
+            if i in out.left_reasons:
                 continue
-            try:
-                return self._triangulate(spec, dl, dr, xl, xr), "", ""
-            except Rejected as exc:
-                if not first_reason or first_reason == "epipolar":
-                    first_reason, first_msg = exc.reason, str(exc)
-        return None, first_reason, first_msg
+            if i in amb_l:
+                out.left_reasons[i] = ("ambiguous", "two left/right assignments are equally "
+                                       "good")
+            elif not free_r:
+                out.left_reasons[i] = ("not_detected_right",
+                                       "no unpaired blob in the right image")
+            else:
+                out.left_reasons[i] = _furthest(fails, [(i, j) for j in free_r])
+        for j in free_r:
+            if j in out.right_reasons:
+                continue
+            if j in amb_r:
+                out.right_reasons[j] = ("ambiguous", "two left/right assignments are equally "
+                                        "good")
+            elif not free_l:
+                out.right_reasons[j] = ("not_detected_left", "no unpaired blob in the left image")
+            else:
+                out.right_reasons[j] = _furthest(fails, [(i, j) for i in free_l])
+        # the target's (or blob set's) own reason
+        if not out.located:
+            if amb_l:
+                out.reason, out.message = "ambiguous", (
+                    f"{len(amb_l)} blob(s) could pair with more than one partner equally well "
+                    f"(rectified rows within {self.config.ambiguity_margin_px:.2f} px)")
+            else:
+                order = sorted(fails, key=lambda ij: (ij[0] + ij[1], ij[0]))
+                out.reason, out.message = _furthest(fails, order)
+        elif spec.is_set:
+            pending = [(i, out.left_reasons[i]) for i in free_l] + \
+                [(j, out.right_reasons[j]) for j in free_r]
+            pending = [p for p in pending if p[1][0] != "over_count"]
+            if amb_l:
+                out.reason, out.message = "ambiguous", (
+                    f"{len(amb_l)} blob(s) could pair with more than one partner equally well")
+            elif pending:
+                out.reason, out.message = pending[0][1]
+        return out
+
+    @staticmethod
+    def _has_alternatives(cost: np.ndarray) -> bool:
+        """False when no blob has two feasible partners (then the assignment is unique)."""
+        feasible = cost < _INFEASIBLE
+        return bool(np.any(feasible.sum(axis=0) > 1) or np.any(feasible.sum(axis=1) > 1))
+
+    @property
+    def _row(self) -> int:
+        return 0 if self._vertical else 1
+
+    def _gate(self, spec: TargetSpec, dl: Detection, dr: Detection, xl: np.ndarray,
+              xr: np.ndarray) -> TargetLocation | tuple[int, str, str]:
+        """The located pair, or ``(stage, reason, message)`` of the first gate it fails:
+        0 epipolar, 1 non_positive_disparity, 2 depth_range, 3 triangulation, 4 size."""
+        cfg = self.config
+        tol = cfg.epipolar_tol_px
+        gap = abs(xl[self._row] - xr[self._row])
+        if gap > tol:
+            return (0, "epipolar", f"best left/right candidates are {gap:.2f} px apart across "
+                    f"the epipolar line (tolerance {tol:.2f} px)")
+        axis = 1 if self._vertical else 0
+        d = ((xl[axis] - self.rig.P1[axis, 2]) - (xr[axis] - self.rig.P2[axis, 2])) \
+            * self._disp_sign
+        if not d > 0:
+            return (1, "non_positive_disparity", f"disparity {d:.3f} px is not positive")
+        depth = self._fB / d
+        if not cfg.min_depth_m <= depth <= cfg.max_depth_m:
+            return (2, "depth_range", f"disparity {d:.2f} px puts the pair at depth "
+                    f"{depth:.3f} m, outside {cfg.min_depth_m:g}-{cfg.max_depth_m:g} m")
+        try:
+            loc = self._triangulate(spec, dl, dr, xl, xr)
+        except Rejected as exc:
+            return (3, exc.reason, str(exc))
+        if cfg.size_tol > 0 and spec.radius_m is not None:
+            alphas = [a for a in (dl.angular_radius, dr.angular_radius)
+                      if math.isfinite(a) and a > 0]
+            if alphas:
+                rng_size = spec.radius_m / math.sin(float(np.mean(alphas)))
+                rng = float(np.linalg.norm(loc.point_m))
+                factor = max(rng / rng_size, rng_size / rng)
+                if factor > 1.0 + cfg.size_tol:
+                    return (4, "size", f"the blobs' size puts a sphere of radius "
+                            f"{spec.radius_m:g} m at {rng_size:.3f} m, the disparity at "
+                            f"{rng:.3f} m (factor {factor:.2f} > {1 + cfg.size_tol:.2f})")
+        return loc
+
+    def _track(self, spec: TargetSpec, a: _Association, rejected: dict[str, str],
+               messages: dict[str, str]) -> list[TargetLocation]:
+        """Give the located blobs of a blob set their ids ``<name>_<k>`` (module docs)."""
+        cfg = self.config
+        state = self._sets.setdefault(spec.name, _BlobSet())
+        tracks = state.tracks
+        pts = [loc.point_m for _, _, loc in a.located]
+        cost = np.full((len(pts), len(tracks)), _INFEASIBLE)
+        for p, pt in enumerate(pts):
+            for t, tr in enumerate(tracks):
+                dist = float(np.linalg.norm(pt - tr.point_m))
+                if dist <= cfg.track_gate_m:
+                    cost[p, t] = dist
+        match = dict(_assign(cost))
+        out: list[TargetLocation] = []
+        seen: set[int] = set()
+        for p, (i, j, loc) in enumerate(a.located):
+            if p in match:
+                tr = tracks[match[p]]
+            else:
+                tr = _Track(state.next_k)
+                state.next_k += 1
+                tracks.append(tr)
+            tr.point_m, tr.left_rect, tr.right_rect, tr.missed = \
+                loc.point_m, a.xl[i], a.xr[j], 0
+            seen.add(tr.k)
+            out.append(dataclasses.replace(loc, id=f"{spec.name}_{tr.k}"))
+        keep: list[_Track] = []
+        used_l = {i for i, _, _ in a.located}
+        used_r = {j for _, j, _ in a.located}
+        for tr in tracks:
+            if tr.k in seen:
+                keep.append(tr)
+                continue
+            tr.missed += 1
+            if tr.missed > cfg.track_max_missed:
+                continue   # retired: its id is never given to another blob
+            keep.append(tr)
+            key = f"{spec.name}_{tr.k}"
+            reason, msg = self._why_missing(tr, a, used_l, used_r)
+            rejected[key] = reason
+            messages[key] = f"target '{key}': {msg}"
+        state.tracks = sorted(keep, key=lambda t: t.k)
+        return sorted(out, key=lambda t: int(t.id.rsplit("_", 1)[1]))
+
+    def _why_missing(self, tr: _Track, a: _Association, used_l: set[int],
+                     used_r: set[int]) -> tuple[str, str]:
+        """The reason a known blob was not located: that of the nearest unpaired blob within
+        ``missed`` gates (``tracking.gate_m`` seen at its last depth, pixels) of its last
+        rectified position (left image first), else ``not_detected``."""
+        z = float(tr.point_m[2]) if tr.point_m[2] > 0 else 1.0
+        gate_px = max(10.0, self._f * self.config.track_gate_m / z) * max(1, tr.missed)
+        for xs, used, reasons in ((a.xl, used_l, a.left_reasons),
+                                  (a.xr, used_r, a.right_reasons)):
+            last = tr.left_rect if xs is a.xl else tr.right_rect
+            near = [(float(np.hypot(*(x - last))), k) for k, x in enumerate(xs)
+                    if k not in used and k in reasons]
+            near = [nk for nk in near if nk[0] <= gate_px]
+            if near:
+                return reasons[min(near)[1]]
+        return "not_detected", f"not seen near its last position ({self.config.track_max_missed}" \
+            f" frames reserve its id; missed {tr.missed})"
 
     def _pixel_cov(self, dl: Detection, dr: Detection) -> tuple[float, np.ndarray | None]:
         """``(sigma_px, pixel_cov)`` of a pair: the configured pixel sigma (``pixel_cov`` None),

@@ -43,8 +43,12 @@ def test_locate_json_has_exactly_the_documented_keys(scene, capsys):
                  str(root / "calib"), "--radius", "0.025", "--json"])
     out = capsys.readouterr().out
     assert code == 0
-    obj = json.loads(out)
-    assert list(obj) == ["point_m", "covariance", "residual_px", "left_px", "right_px"]
+    objs = json.loads(out)
+    assert isinstance(objs, list) and len(objs) == 1
+    obj = objs[0]
+    assert list(obj) == ["name", "id", "point_m", "covariance", "residual_px", "left_px",
+                         "right_px"]
+    assert obj["name"] == obj["id"] == "red"
     assert np.linalg.norm(np.array(obj["point_m"]) - X_TRUE) < 5e-4
     assert np.array(obj["covariance"]).shape == (3, 3) and obj["residual_px"] < 0.3
     rig = make_rig()
@@ -86,3 +90,36 @@ def test_errors_are_one_line(scene, capsys, tmp_path):
     assert "calibration is 800x600" in capsys.readouterr().err
     assert main(["locate", "--left", left, "--right", right, "--calibration",
                  str(root / "calib"), "--radius", "-1"]) == 1
+
+
+def test_locate_json_lists_every_target_with_its_id(tmp_path, capsys):
+    """A green sphere and a set of two red ones (count: 2): one list element per blob."""
+    rig = make_rig()
+    rig.save(tmp_path / "calib")
+    spheres = [(np.array([-0.06, 0.0, 0.45]), (30, 30, 200)),
+               (np.array([0.07, 0.02, 0.5]), (30, 30, 200)),
+               (np.array([0.0, -0.05, 0.4]), (40, 200, 40))]
+    paths = []
+    for side, cam, T in (("left", rig.left, np.eye(4)), ("right", rig.right, rig.right_T_left)):
+        img = np.full((600, 800, 3), (90, 110, 100), np.uint8)
+        for X, col in spheres:
+            render_sphere(img, cam, T[:3, :3] @ X + T[:3, 3], 0.02, col)
+        paths.append(str(tmp_path / f"{side}.png"))
+        cv2.imwrite(paths[-1], img)
+    params = tmp_path / "p.yaml"
+    params.write_text(
+        "/**/detect_triangulate:\n  ros__parameters:\n    target_names: [green, red]\n"
+        "    targets:\n      green: {lower: [45, 120, 70], upper: [75, 255, 255]}\n"
+        "      red: {count: 2}\n")
+    argv = ["locate", "--left", paths[0], "--right", paths[1], "--calibration",
+            str(tmp_path / "calib"), "--params", str(params)]
+    assert main(argv + ["--json"]) == 0
+    objs = json.loads(capsys.readouterr().out)
+    assert [(o["name"], o["id"]) for o in objs] == [("green", "green"), ("red", "red_0"),
+                                                    ("red", "red_1")]
+    for o in objs:
+        assert min(np.linalg.norm(np.array(o["point_m"]) - X) for X, _ in spheres) < 5e-4
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "target 'green'" in out and "target 'red_0' (target 'red')" in out \
+        and "'red_1'" in out and out.count("point_m") == 3

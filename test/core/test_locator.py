@@ -64,7 +64,8 @@ def test_locates_a_red_sphere_within_a_fraction_of_a_millimetre(method):
         sig = np.sqrt(np.diag(t.covariance))
         assert 1e-5 < sig[2] < 5e-3 and sig[0] < sig[2]
         d = t.to_dict()
-        assert set(d) == {"point_m", "covariance", "residual_px", "left_px", "right_px"}
+        assert list(d) == ["name", "id", "point_m", "covariance", "residual_px", "left_px",
+                           "right_px"] and d["name"] == d["id"] == "red"
         assert np.array(d["covariance"]).shape == (3, 3)
 
 
