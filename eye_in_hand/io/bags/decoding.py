@@ -6,9 +6,12 @@ import threading
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping
 
-from eye_in_hand.errors import BagError
+from rosbags.interfaces import MessageDefinitionFormat, Nodetype
+
+from eye_in_hand.errors import BagError, ConversionError
 from eye_in_hand.io.bags.reading import _OpenBag, iter_messages
 from eye_in_hand.io.bags.records import BagInfo, DamageLog
+from eye_in_hand.io.cdr import image_from_cdr, is_image_type
 
 
 _DEFAULT_STORE: Any = None
@@ -20,6 +23,7 @@ def default_typestore() -> Any:
     global _DEFAULT_STORE
     with _DEFAULT_LOCK:
         if _DEFAULT_STORE is None:
+            # local: rosbags.typesys costs ~11 ms at CLI start-up (every command loads io.bags)
             from rosbags.typesys import Stores, get_typestore
 
             _DEFAULT_STORE = get_typestore(Stores.ROS2_JAZZY)
@@ -27,7 +31,7 @@ def default_typestore() -> Any:
 
 
 def _types_from_definition(msgtype: str, fmt: Any, text: str) -> dict[str, Any]:
-    from rosbags.interfaces import MessageDefinitionFormat
+    # local: rosbags.typesys costs ~11 ms at CLI start-up (every command loads io.bags)
     from rosbags.typesys import get_types_from_idl, get_types_from_msg
 
     if fmt == MessageDefinitionFormat.MSG:
@@ -45,8 +49,6 @@ def _types_from_definition(msgtype: str, fmt: Any, text: str) -> dict[str, Any]:
 
 def _type_refs(fields: Any) -> Iterator[str]:
     """The message type names a rosbags field list refers to."""
-    from rosbags.interfaces import Nodetype
-
     def walk(node: Any) -> Iterator[str]:
         kind, detail = node
         if kind == Nodetype.NAME:
@@ -99,7 +101,7 @@ def typestore_for(path: str | Path, msgtypes: Iterable[str] | None = None) -> An
     Raises:
         BagError: the bag cannot be opened, or a stored definition cannot be parsed.
     """
-    from rosbags.interfaces import MessageDefinitionFormat
+    # local: rosbags.typesys costs ~11 ms at CLI start-up (every command loads io.bags)
     from rosbags.typesys import Stores, get_typestore
 
     wanted = None if msgtypes is None else set(msgtypes)
@@ -272,9 +274,6 @@ def check_bag(path: str | Path, damage: DamageLog) -> dict[str, int]:
     Raises:
         BagError: the bag cannot be opened at all.
     """
-    from eye_in_hand.errors import ConversionError
-    from eye_in_hand.io.cdr import image_from_cdr, is_image_type
-
     store = typestore_for(path)
     good: dict[str, int] = {}
     for topic, msgtype, stamp, raw in iter_messages(path, views=True, verify_crc=True,
