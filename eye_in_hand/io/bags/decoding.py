@@ -6,8 +6,6 @@ import threading
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping
 
-from rosbags.interfaces import MessageDefinitionFormat, Nodetype
-
 from eye_in_hand.errors import BagError, ConversionError
 from eye_in_hand.io.bags.reading import _OpenBag, iter_messages
 from eye_in_hand.io.bags.records import BagInfo, DamageLog
@@ -23,7 +21,7 @@ def default_typestore() -> Any:
     global _DEFAULT_STORE
     with _DEFAULT_LOCK:
         if _DEFAULT_STORE is None:
-            # local: rosbags.typesys costs ~11 ms at CLI start-up (every command loads io.bags)
+            # local: rosbags costs ~25 ms at CLI start-up (every command loads io.bags)
             from rosbags.typesys import Stores, get_typestore
 
             _DEFAULT_STORE = get_typestore(Stores.ROS2_JAZZY)
@@ -31,7 +29,8 @@ def default_typestore() -> Any:
 
 
 def _types_from_definition(msgtype: str, fmt: Any, text: str) -> dict[str, Any]:
-    # local: rosbags.typesys costs ~11 ms at CLI start-up (every command loads io.bags)
+    # local: rosbags costs ~25 ms at CLI start-up (every command loads io.bags)
+    from rosbags.interfaces import MessageDefinitionFormat
     from rosbags.typesys import get_types_from_idl, get_types_from_msg
 
     if fmt == MessageDefinitionFormat.MSG:
@@ -49,6 +48,9 @@ def _types_from_definition(msgtype: str, fmt: Any, text: str) -> dict[str, Any]:
 
 def _type_refs(fields: Any) -> Iterator[str]:
     """The message type names a rosbags field list refers to."""
+    # local: rosbags.interfaces costs ~14 ms at CLI start-up (every command loads io.bags)
+    from rosbags.interfaces import Nodetype
+
     def walk(node: Any) -> Iterator[str]:
         kind, detail = node
         if kind == Nodetype.NAME:
@@ -101,7 +103,8 @@ def typestore_for(path: str | Path, msgtypes: Iterable[str] | None = None) -> An
     Raises:
         BagError: the bag cannot be opened, or a stored definition cannot be parsed.
     """
-    # local: rosbags.typesys costs ~11 ms at CLI start-up (every command loads io.bags)
+    # local: rosbags costs ~25 ms at CLI start-up (every command loads io.bags)
+    from rosbags.interfaces import MessageDefinitionFormat
     from rosbags.typesys import Stores, get_typestore
 
     wanted = None if msgtypes is None else set(msgtypes)

@@ -10,9 +10,6 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, Literal, Sequence
 
-from rosbags.interfaces import (MessageDefinitionFormat, Qos, QosDurability, QosHistory,
-                               QosLiveliness, QosReliability, QosTime)
-
 from eye_in_hand.errors import BagError, InputError
 from eye_in_hand.io.bags.decoding import _types_from_definition, serialize
 from eye_in_hand.io.bags.reading import _bag_error
@@ -20,6 +17,10 @@ from eye_in_hand.io.bags.records import COMPRESSIONS, STORAGES, OfferedQos
 
 
 def _to_rosbags_qos(qos: OfferedQos) -> Any:
+    # local: rosbags costs ~25 ms at CLI start-up (every command loads io.bags)
+    from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
+                                    QosReliability, QosTime)
+
     try:
         return Qos(QosHistory[qos.history.upper()], int(qos.depth),
                    QosReliability[qos.reliability.upper()],
@@ -287,6 +288,9 @@ class BagWriter:
                         f"bag {self.path}: message type {msgtype} of topic {name} is not in "
                         "ROS 2 Jazzy; pass its definition (msgdef=...)")
                 try:
+                    # local: see _to_rosbags_qos
+                    from rosbags.interfaces import MessageDefinitionFormat
+
                     self._store.register(_types_from_definition(
                         msgtype, MessageDefinitionFormat.MSG, msgdef))
                 except Exception as exc:
