@@ -18,6 +18,7 @@ machine (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) on a domain id of its own 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import os
 import random
@@ -30,6 +31,13 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+
+from eye_in_hand.core.camera import StereoRig
+from eye_in_hand.core.transforms import transform_distance
+from eye_in_hand.io.bags import bag_info, deserialize, iter_messages
+from eye_in_hand.io.config import load_hand_eye
+from eye_in_hand.ros.conversions import (camera_info_to_model, header_stamp_ns, point_to_xyz,
+                                         transform_to_matrix)
 
 ROOT = Path(__file__).resolve().parent.parent
 BOARD = "chessboard:9x6:0.025"
@@ -61,10 +69,6 @@ def _run(cmd: list[str], env: dict[str, str], *, quiet: bool = False) -> str:
 
 
 def _ground_truth(bag: Path) -> dict[str, object]:
-    from eye_in_hand.io.bags import deserialize, iter_messages
-    from eye_in_hand.ros.conversions import (camera_info_to_model, header_stamp_ns,
-                                             point_to_xyz, transform_to_matrix)
-
     out: dict[str, object] = {"targets": {}}
     for topic, mt, _t, raw in iter_messages(bag, ["/ground_truth/hand_eye",
                                                   "/ground_truth/target",
@@ -183,8 +187,6 @@ def main(argv: Sequence[str] | None = None) -> int:
                                "    queue_depth: 30\n    method: dlt "))
     if str(calib) not in params.read_text():
         raise SystemExit("demo: could not set calibration_dir in the parameter file")
-    from eye_in_hand.io.bags import bag_info
-
     n_pairs = bag_info(loc_bag).topics[LEFT].count
     live_file = out / "live_target_pose.jsonl"
     live, launch_out = live_step(params, loc_bag, live_file, env, n_pairs)
@@ -203,10 +205,6 @@ def main(argv: Sequence[str] | None = None) -> int:
               "--quiet"), env)
 
     print("\n== 5/5 results against the bags' ground truth", flush=True)
-    from eye_in_hand.core.camera import StereoRig
-    from eye_in_hand.core.transforms import transform_distance
-    from eye_in_hand.io.config import load_hand_eye
-
     truth = _ground_truth(loc_bag)
     cal_truth = _ground_truth(cal_bag)
     rig = StereoRig.load(calib)
@@ -222,7 +220,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     live_pts = {m["header"]["stamp"]["sec"] * 10**9 + m["header"]["stamp"]["nanosec"]:
                 np.array([m["pose"]["position"][k] for k in "xyz"]) for m in live}
     offline = {}
-    import csv
     with (processed / "results.csv").open() as fh:
         for row in csv.DictReader(fh):
             if row["status"] == "ok":

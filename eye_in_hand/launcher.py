@@ -75,7 +75,7 @@ def default_params_file() -> Path:
     here = Path(__file__).resolve().parent.parent / "config" / "eye_in_hand.yaml"
     if here.is_file():
         return here
-    try:
+    try:  # local: ament_index_python is there only where the package is installed with ament
         from ament_index_python.packages import get_package_share_directory
 
         return Path(get_package_share_directory("eye_in_hand")) / "config" / "eye_in_hand.yaml"

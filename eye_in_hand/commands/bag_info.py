@@ -5,6 +5,8 @@ import argparse
 import json
 from datetime import datetime, timezone
 
+from eye_in_hand.io.bags import DamageLog, bag_info, check_bag
+
 HELP = "print a bag's storage, duration, start/end and per-topic type and count"
 
 __all__ = ["HELP", "add_arguments", "run", "format_info"]
@@ -69,8 +71,6 @@ def format_info(info) -> str:  # noqa: ANN001 - BagInfo, imported lazily
 
 def run(args: argparse.Namespace) -> int:
     """Print the bag summary."""
-    from eye_in_hand.io.bags import DamageLog, bag_info, check_bag
-
     info = bag_info(args.bag)
     damage = DamageLog()
     good = check_bag(args.bag, damage) if args.check else None

@@ -34,6 +34,7 @@ from eye_in_hand.commands.calibration_inputs import (
 )
 from eye_in_hand.errors import BagError, CalibrationError, InputError
 from eye_in_hand.io.atomic import atomic_output_dir
+from eye_in_hand.io.bags import DamageLog
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -52,6 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _gather(args: argparse.Namespace, board) -> ImageSource:
+    # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
     from eye_in_hand.core.calibration import detect_board
 
     if bool(args.images) == bool(args.bag):
@@ -62,8 +64,6 @@ def _gather(args: argparse.Namespace, board) -> ImageSource:
         return ImageSource("files", args.images, frames)
     if not args.left_topic:
         raise InputError("--bag needs --left-topic TOPIC (the image topic)")
-    from eye_in_hand.io.bags import DamageLog
-
     total = -(-bag_count(args.bag, args.left_topic) // args.every)
     frames = []
     size = None
@@ -91,6 +91,7 @@ def _gather(args: argparse.Namespace, board) -> ImageSource:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``calibrate camera``; returns the exit code."""
+    # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
     from eye_in_hand.core.calibration import BoardSpec, calibrate_camera
 
     check_common_arguments(args)
@@ -116,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
         cal.camera.save_yaml(tmp / "camera.yaml")
         write_json(tmp / "report.json", report)
         if not args.no_html:
+            # local: the report loads matplotlib (~0.6 s at CLI start-up)
             from eye_in_hand.report.calibration import camera_report
 
             sample = next((f for f in source.frames if f.image is not None), None)

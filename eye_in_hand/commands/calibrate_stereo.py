@@ -33,6 +33,7 @@ from eye_in_hand.commands.calibration_inputs import (
     write_json,
 )
 from eye_in_hand.errors import BagError, CalibrationError, InputError
+from eye_in_hand.io.bags import DamageLog
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -62,6 +63,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _gather(args: argparse.Namespace, board) -> tuple[list[Frame], list[Frame], str, int]:
+    # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
     from eye_in_hand.core.calibration import detect_board
 
     files_mode = bool(args.left or args.right)
@@ -89,8 +91,6 @@ def _gather(args: argparse.Namespace, board) -> tuple[list[Frame], list[Frame], 
         raise InputError("--bag needs --left-topic and --right-topic")
     total = -(-min(bag_count(args.bag, args.left_topic), bag_count(args.bag, args.right_topic))
               // args.every)
-    from eye_in_hand.io.bags import DamageLog
-
     left: list[Frame] = []
     right: list[Frame] = []
     stats: dict[str, int] = {}
@@ -133,8 +133,6 @@ def _pair_image(args: argparse.Namespace, left: list[Frame], right: list[Frame],
         lf = expand_glob(args.left, "--left")[idx]
         rf = expand_glob(args.right, "--right")[idx]
         return (read_image(lf), read_image(rf)), corners, name
-    from eye_in_hand.io.bags import DamageLog
-
     for k, (_stamp, (_ln, li), (_rn, ri)) in enumerate(   # damage was reported in the first pass
             iter_bag_pairs(args.bag, args.left_topic, args.right_topic, args.every,
                            damage=DamageLog())):
@@ -145,6 +143,7 @@ def _pair_image(args: argparse.Namespace, left: list[Frame], right: list[Frame],
 
 def run(args: argparse.Namespace) -> int:
     """Run ``calibrate stereo``; returns the exit code."""
+    # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
     from eye_in_hand.core.calibration import BoardSpec, calibrate_stereo
 
     check_common_arguments(args)
@@ -185,6 +184,7 @@ def run(args: argparse.Namespace) -> int:
         cal.rig.save(tmp)
         write_json(tmp / "report.json", report)
         if not args.no_html:
+            # local: the report loads matplotlib (~0.6 s at CLI start-up)
             from eye_in_hand.report.calibration import stereo_report
 
             images, corners, pair_name = _pair_image(args, left, right, cal)

@@ -9,6 +9,10 @@ import sys
 import time
 from typing import Any
 
+import yaml
+
+from eye_in_hand.errors import EyeInHandError, InputError
+
 HELP = "print a topic's messages as YAML (or JSON lines), like ros2 topic echo"
 
 __all__ = ["HELP", "add_arguments", "run", "message_to_dict"]
@@ -77,19 +81,18 @@ def _json_default(value: Any) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     """Echo until ``--count`` messages, ``--timeout`` without any, or Ctrl-C."""
-    from eye_in_hand.errors import EyeInHandError, InputError
-
     if args.count < 0:
         raise InputError(f"--count must be >= 0, got {args.count}")
     if not args.timeout >= 0:
         raise InputError(f"--timeout must be >= 0, got {args.timeout}")
     if args.truncate_length < 0:
         raise InputError(f"--truncate-length must be >= 0, got {args.truncate_length}")
+    # local: ros.names loads rclpy (~50 ms at CLI start-up)
     from eye_in_hand.ros.names import check_topic_name
 
     check_topic_name(args.topic, "echo TOPIC")
+    # local: rclpy (and the nodes on it) cost ~50-80 ms at CLI start-up
     import rclpy
-    import yaml
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.qos import QoSProfile

@@ -3,6 +3,9 @@ from __future__ import annotations
 
 import argparse
 
+from eye_in_hand.errors import InputError
+from eye_in_hand.io.bags import bag_info
+
 HELP = "publish a bag's messages over DDS at the recorded pace (like ros2 bag play)"
 
 __all__ = ["HELP", "add_arguments", "run"]
@@ -49,15 +52,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Play the bag until its end (or forever with ``--loop``); Ctrl-C stops cleanly."""
+    # local: rclpy (and the nodes on it) cost ~50-80 ms at CLI start-up
     from rclpy.parameter import Parameter
 
-    from eye_in_hand.nodes.bag_recorder import sigterm_as_interrupt
-    from eye_in_hand.ros.node_main import run_with_executor
-
-    from eye_in_hand.io.bags import bag_info
     from eye_in_hand.nodes.bag_player import BagPlayer, spin_player
-
     from eye_in_hand.ros.names import check_parameter_text
+    from eye_in_hand.ros.node_main import run_with_executor, sigterm_as_interrupt
 
     bag_info(args.bag)  # fail with one clear line before starting ROS
     check_parameter_text(str(args.bag), "BAG")
@@ -74,8 +74,6 @@ def run(args: argparse.Namespace) -> int:
     ]
     if args.wait_for_topics:
         if not args.wait_for_subscribers > 0:
-            from eye_in_hand.errors import InputError
-
             raise InputError("--wait-for-topics: needs --wait-for-subscribers S (how long to "
                              "wait)")
         overrides.append(Parameter("wait_for_topics", Parameter.Type.STRING_ARRAY,

@@ -2,6 +2,10 @@
 from __future__ import annotations
 
 import argparse
+import shutil
+
+from eye_in_hand.errors import InputError
+from eye_in_hand.io.atomic import check_output_dir
 
 HELP = "record topics into a rosbag2 bag (mcap or sqlite3), like ros2 bag record"
 
@@ -44,29 +48,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Record until ``--duration`` passes or Ctrl-C/SIGTERM; the bag is always left valid."""
-    from eye_in_hand.errors import InputError
-
     if not args.topics and not args.all:
         raise InputError("give the topics to record, or --all")
+    # local: ros.names loads rclpy (~50 ms at CLI start-up)
     from eye_in_hand.ros.names import check_parameter_text, check_topic_name
 
     check_parameter_text(str(args.output), "-o")
     for topic in args.topics:
         check_topic_name(topic, "record TOPIC")
-    from eye_in_hand.io.atomic import check_output_dir
-
     out = check_output_dir(args.output, overwrite=args.overwrite)
     if out.is_dir():  # empty, or --overwrite
-        import shutil
-
         shutil.rmtree(out)
     if not 0.01 <= args.discovery_period <= 60:
         raise InputError(f"--discovery-period must be in [0.01, 60] s, got "
                          f"{args.discovery_period}")
+    # local: rclpy (and the nodes on it) cost ~50-80 ms at CLI start-up
     from rclpy.parameter import Parameter
 
-    from eye_in_hand.nodes.bag_recorder import BagRecorder, sigterm_as_interrupt, spin_recorder
-    from eye_in_hand.ros.node_main import run_with_executor
+    from eye_in_hand.nodes.bag_recorder import BagRecorder, spin_recorder
+    from eye_in_hand.ros.node_main import run_with_executor, sigterm_as_interrupt
 
     overrides = [
         Parameter("output", value=str(args.output)),

@@ -13,6 +13,10 @@ from __future__ import annotations
 
 import argparse
 
+import numpy as np
+
+from eye_in_hand.errors import InputError
+
 HELP = "print HSV/HSI colour ranges that capture an image region (for the parameter file)"
 
 
@@ -43,12 +47,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Print the ranges. Returns the exit code."""
+    # local: OpenCV (core.detection, io.images) costs ~20 ms at CLI start-up
     import cv2
-    import numpy as np
 
     from eye_in_hand.core.detection import convert_color, range_from_samples
-    from eye_in_hand.errors import InputError
-
     from eye_in_hand.io.images import read_image_file
 
     img = read_image_file(args.image, cv2.IMREAD_COLOR)

@@ -10,9 +10,11 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from eye_in_hand.errors import InputError
+from eye_in_hand.io.atomic import atomic_write_bytes
 
 __all__ = ["read_image_file", "write_image_file", "printable_path"]
 
@@ -35,8 +37,6 @@ def read_image_file(path: str | os.PathLike[str], flags: int | None = None) -> n
     Raises:
         InputError: ``<path>: cannot read (...)`` or ``<path>: not a readable image file``.
     """
-    import cv2
-
     p = Path(path)
     try:
         data = np.fromfile(p, dtype=np.uint8)
@@ -56,10 +56,6 @@ def write_image_file(path: str | os.PathLike[str], image: np.ndarray) -> None:
         InputError: the image cannot be encoded in that format.
         OutputWriteError: the file cannot be written (full disk, permissions).
     """
-    import cv2
-
-    from eye_in_hand.io.atomic import atomic_write_bytes
-
     p = Path(path)
     if not p.suffix.isascii():
         raise InputError(f"{printable_path(p)}: not an image file extension")

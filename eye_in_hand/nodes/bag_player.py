@@ -49,14 +49,19 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosbags.interfaces import MessageDefinitionFormat
+from rosbags.typesys import Stores, get_typestore
+from rosgraph_msgs.msg import Clock
 
 from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.errors import BagError, ConfigError, EyeInHandError
-from eye_in_hand.io.bags import (BagInfo, Damage, DamageLog, OfferedQos, bag_info,
-                                 iter_messages)
+from eye_in_hand.io.bags import (BagInfo, Damage, DamageLog, OfferedQos, _types_from_definition,
+                                 bag_info, iter_messages)
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
 from eye_in_hand.ros.msgtypes import import_message_type as _import_message_type
+from eye_in_hand.ros.msgtypes import message_definition
 from eye_in_hand.ros.names import topic_name_problem
+from eye_in_hand.ros.node_main import run_with_executor, sigterm_as_interrupt
 from eye_in_hand.ros.tf import TF_STATIC_TOPIC
 
 __all__ = [
@@ -93,12 +98,6 @@ def installed_type_hash(msgtype: str) -> str | None:
     message_definition`), so it can be compared with the hash a bag recorded (metadata >= 7).
     """
     if msgtype not in _HASHES:
-        from rosbags.interfaces import MessageDefinitionFormat
-        from rosbags.typesys import Stores, get_typestore
-
-        from eye_in_hand.io.bags import _types_from_definition
-        from eye_in_hand.ros.msgtypes import message_definition
-
         try:
             store = get_typestore(Stores.EMPTY)
             store.register(_types_from_definition(
@@ -235,8 +234,6 @@ class BagPlayer(Node):
         self._clock_pub = None
         self._clock_timer = None
         if self.config.clock:
-            from rosgraph_msgs.msg import Clock
-
             self._clock_msg = Clock
             self._clock_pub = self.create_publisher(
                 Clock, "/clock", QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
@@ -524,9 +521,6 @@ def spin_player(node: BagPlayer, executor: Any | None = None) -> int:
 
 def main(args: list[str] | None = None) -> None:
     """Console-script entry point (``ros2 run eye_in_hand bag_player --ros-args -p bag:=...``)."""
-    from eye_in_hand.ros.node_main import sigterm_as_interrupt
-    from eye_in_hand.ros.node_main import run_with_executor
-
     sigterm_as_interrupt()
     use_large_data_profile()  # large images over shared memory (see ros/dds.py)
     try:

@@ -53,7 +53,7 @@ from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.errors import BagError, ConfigError, EyeInHandError
 from eye_in_hand.io.bags import STORAGES, BagWriter, OfferedQos, default_typestore
 from eye_in_hand.ros.msgtypes import import_message_type, message_definition
-from eye_in_hand.ros.node_main import sigterm_as_interrupt
+from eye_in_hand.ros.node_main import run_with_executor, sigterm_as_interrupt
 from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
 
@@ -398,8 +398,6 @@ def spin_recorder(node: BagRecorder, duration_s: float = 0.0, executor: Any | No
 
 def main(args: list[str] | None = None) -> None:
     """Console-script entry point (``ros2 run eye_in_hand bag_recorder --ros-args ...``)."""
-    from eye_in_hand.ros.node_main import run_with_executor
-
     sigterm_as_interrupt()
     use_large_data_profile()  # large images over shared memory (see ros/dds.py)
     try:

@@ -43,8 +43,10 @@ from typing import Any
 
 import cv2
 import numpy as np
+from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo, Image, JointState
 
 from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.core.camera import CameraModel, StereoRig
@@ -58,6 +60,8 @@ from eye_in_hand.ros.conversions import (
 )
 from eye_in_hand.ros.diagnostics import ERROR, WARN, NodeDiagnostics
 from eye_in_hand.ros.params import Param, declare_params
+from eye_in_hand.ros.tf import (TF_STATIC_TOPIC, TF_TOPIC, chain_tf_edges, have_tf2_msgs,
+                                make_tf_message, tf_message_class, tf_qos, tf_static_pub_qos)
 
 __all__ = ["NODE_PARAMETERS", "SOURCES", "StereoCaptureNode", "FrameSource", "main"]
 
@@ -273,6 +277,7 @@ class SimSource(FrameSource):
 
     def __init__(self, world: Any, rate_hz: float, duration_s: float, seed: int,
                  noise_sigma: float, supersample: int, *, follow: bool = False) -> None:
+        # local: the simulator loads SciPy (~0.5 s at node start-up); only source 'sim' needs it
         from eye_in_hand.sim.scenarios import localization_trajectory
 
         self.world = world
@@ -341,8 +346,6 @@ class StereoCaptureNode(Node):
             raise
         self.pub_left = self.create_publisher(_image_type(), "left/image_raw", IMAGE_PUB_QOS)
         self.pub_right = self.create_publisher(_image_type(), "right/image_raw", IMAGE_PUB_QOS)
-        from sensor_msgs.msg import CameraInfo
-
         self.pub_info_left = self.create_publisher(CameraInfo, "left/camera_info",
                                                    IMAGE_PUB_QOS)
         self.pub_info_right = self.create_publisher(CameraInfo, "right/camera_info",
@@ -350,14 +353,9 @@ class StereoCaptureNode(Node):
         self.pub_joints = self.pub_pose = None
         follow = self._world is not None and self.cfg["sim.follow_joint_states"]
         if follow:
-            from sensor_msgs.msg import JointState
-
             self.create_subscription(JointState, self.cfg["sim.joint_states_topic"],
                                      self._on_joint_state, 10)
         elif self._world is not None and self.cfg["sim.publish_robot_state"]:
-            from geometry_msgs.msg import PoseStamped
-            from sensor_msgs.msg import JointState
-
             self.pub_joints = self.create_publisher(JointState, "joint_states", 10)
             self.pub_pose = self.create_publisher(PoseStamped, "ee_pose", 10)
         self.pub_tf = None
@@ -384,6 +382,7 @@ class StereoCaptureNode(Node):
         if kind == "v4l2":
             return CaptureSource(c["v4l2.left"], c["v4l2.right"], c["side_by_side"],
                                  prefix="v4l2", width=c["v4l2.width"], height=c["v4l2.height"])
+        # local: the simulator loads SciPy (~0.5 s at node start-up); only source 'sim' needs it
         from eye_in_hand.sim.world import World
 
         world = World.from_yaml(c["sim.world"]) if c["sim.world"] else World.default()
@@ -487,10 +486,9 @@ class StereoCaptureNode(Node):
             self.diag.report("bad_frame", f"frame {pair.index}: {exc}")
             return
         if self.pub_joints is not None and pair.q is not None and self._world is not None:
-            from sensor_msgs.msg import JointState
-
             js = JointState()
             js.header = make_header(stamp_ns, "")
+            # local: the simulator (SciPy); only source 'sim' gets here
             from eye_in_hand.sim.robot_error import reported_joints
 
             # the images come from the true arm; the robot reports its encoders (with noise)
@@ -512,15 +510,11 @@ class StereoCaptureNode(Node):
     # -- sim TF (robot_state_publisher stand-in) ---------------------------------------------
     def _setup_sim_tf(self) -> None:
         """/tf for the arm and /tf_static (stereo extrinsic, sent once, latched)."""
-        from eye_in_hand.ros.tf import (TF_STATIC_TOPIC, TF_TOPIC, have_tf2_msgs,
-                                        make_tf_message, tf_qos, tf_static_pub_qos)
-
         if not have_tf2_msgs():
             self.get_logger().warning("tf2_msgs is not installed: no /tf published (run "
                                       "'make venv' to build it)")
             return
-        from tf2_msgs.msg import TFMessage
-
+        TFMessage = tf_message_class()
         assert self._world is not None
         self.pub_tf = self.create_publisher(TFMessage, TF_TOPIC, tf_qos())
         self.pub_tf_static = self.create_publisher(TFMessage, TF_STATIC_TOPIC,
@@ -530,8 +524,6 @@ class StereoCaptureNode(Node):
              self.get_clock().now().nanoseconds, self._world.left_T_right)]))
 
     def _publish_sim_tf(self, q: np.ndarray, stamp_ns: int) -> None:
-        from eye_in_hand.ros.tf import chain_tf_edges, make_tf_message
-
         assert self._world is not None and self.pub_tf is not None
         edges = chain_tf_edges(self._world.arm, q, self.cfg["base_frame"])
         self.pub_tf.publish(make_tf_message((p, ch, stamp_ns, T) for p, ch, T in edges))
@@ -546,14 +538,10 @@ class StereoCaptureNode(Node):
 
 
 def _image_type() -> Any:
-    from sensor_msgs.msg import Image
-
     return Image
 
 
 def _camera_info(model: CameraModel | None, img: np.ndarray, header: Any) -> Any:
-    from sensor_msgs.msg import CameraInfo
-
     h, w = img.shape[:2]
     if model is None:  # uncalibrated: size only, as camera drivers publish it
         info = CameraInfo()

@@ -10,7 +10,9 @@ from __future__ import annotations
 
 from typing import Any, Sequence
 
+import cv2
 import numpy as np
+from matplotlib import colormaps
 
 from eye_in_hand.report.html import HtmlReport, new_figure
 
@@ -71,8 +73,6 @@ def residual_figure(residual_sets: Sequence[tuple[str, Sequence[np.ndarray]]]):
 
 
 def _cmap(n: int):
-    from matplotlib import colormaps
-
     base = colormaps["tab20"]
     return lambda i: base(i % 20)
 
@@ -111,8 +111,6 @@ def rectified_pair_image(rig: Any, left: np.ndarray, right: np.ndarray,
         line_step: pixels between the drawn epipolar lines.
         max_width: the output is scaled down to at most this width.
     """
-    import cv2
-
     out = []
     for cam, img, corners, colour in ((rig.left, left, left_corners, (0, 0, 255)),
                                       (rig.right, right, right_corners, (255, 0, 0))):
@@ -162,8 +160,6 @@ def camera_report(cal: Any, source: Any, board: Any, sample_image: np.ndarray | 
         sample_image: one input image, shown undistorted next to the original.
         skipped: images without a board (``file``, ``reason``); default: from ``source``.
     """
-    import cv2
-
     cam = cal.camera
     if skipped is None:
         skipped = [{"file": f.name, "reason": f.detection.reason}
@@ -314,6 +310,4 @@ def stereo_report(cal: Any, names: Sequence[tuple[str, str]], board: Any, descri
 
 
 def _rvec(R: np.ndarray) -> np.ndarray:
-    import cv2
-
     return cv2.Rodrigues(np.asarray(R, dtype=np.float64))[0].ravel()

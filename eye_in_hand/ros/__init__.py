@@ -4,7 +4,10 @@ Submodules (import them directly; this package imports none of them, so that the
 :mod:`eye_in_hand.ros.conversions` works in offline processing without ROS installed):
 
 * :mod:`eye_in_hand.ros.conversions` - numpy <-> ``sensor_msgs`` / ``geometry_msgs`` messages and
-  ``CameraInfo`` <-> :class:`~eye_in_hand.core.camera.CameraModel` (no rclpy needed to decode).
+  ``CameraInfo`` <-> :class:`~eye_in_hand.core.camera.CameraModel` (no rclpy needed to decode);
+  it re-exports the per-family modules :mod:`~eye_in_hand.ros.stamps`,
+  :mod:`~eye_in_hand.ros.images`, :mod:`~eye_in_hand.ros.camera_info` and
+  :mod:`~eye_in_hand.ros.geometry` (built on :mod:`~eye_in_hand.ros.fields`).
 * :mod:`eye_in_hand.ros.qos` - ``SENSOR_QOS``, ``RESULT_QOS``, ``LATCHED_QOS``.
 * :mod:`eye_in_hand.ros.params` - declare parameters with descriptors and load them into a
   frozen config dataclass.

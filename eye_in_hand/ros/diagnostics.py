@@ -30,7 +30,11 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.clock import Clock, ClockType
+
 from eye_in_hand.errors import ConfigError
+from eye_in_hand.ros.qos import RESULT_QOS
 
 __all__ = [
     "OK",
@@ -164,10 +168,6 @@ class NodeDiagnostics:
     def __init__(self, node: Any, *, name: str | None = None, hardware_id: str = "",
                  period_s: float = 1.0, topic: str = "diagnostics", qos: Any = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
-        from diagnostic_msgs.msg import DiagnosticArray
-
-        from eye_in_hand.ros.qos import RESULT_QOS
-
         if not (math.isfinite(period_s) and period_s >= 0):
             raise ConfigError(f"diagnostics period_s: expected >= 0 s, got {period_s}")
         self._node = node
@@ -186,8 +186,6 @@ class NodeDiagnostics:
         self._pub = node.create_publisher(DiagnosticArray, topic, qos or RESULT_QOS)
         self._timer = None
         if period_s > 0:
-            from rclpy.clock import Clock, ClockType
-
             # Steady time: diagnostics keep coming while simulated time (use_sim_time) stands
             # still, which is exactly when "no frames" must be reported.
             self._timer = node.create_timer(period_s, self.publish,
@@ -342,8 +340,6 @@ class NodeDiagnostics:
 
     def build_status(self, *, advance: bool = False) -> Any:
         """A ``diagnostic_msgs.msg.DiagnosticStatus`` with the current level, message, values."""
-        from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-
         s = self.snapshot(advance=advance)
         level, message = self.evaluate(s, consume_problems=advance)
         values = []
@@ -364,8 +360,6 @@ class NodeDiagnostics:
         Returns:
             The published message.
         """
-        from diagnostic_msgs.msg import DiagnosticArray
-
         if self._pub is None:
             raise RuntimeError(f"diagnostics of {self.name}: publish() after destroy()")
         msg = DiagnosticArray()

@@ -1,6 +1,11 @@
 """ROS topic names checked with rclpy's own rules, with one-line errors that name the name."""
 from __future__ import annotations
 
+from rclpy.exceptions import InvalidTopicNameException
+from rclpy.validate_topic_name import validate_topic_name
+
+from eye_in_hand.errors import InputError
+
 __all__ = ["topic_name_problem", "check_topic_name", "check_parameter_text"]
 
 
@@ -10,9 +15,6 @@ def topic_name_problem(name: str) -> str | None:
     The rules are rcl's (``rclpy.validate_topic_name``: allowed characters, no token starting
     with a digit, no trailing ``/``, ``~`` only at the start) plus no empty token (``//``).
     """
-    from rclpy.exceptions import InvalidTopicNameException
-    from rclpy.validate_topic_name import validate_topic_name
-
     if not isinstance(name, str):
         return f"not a string ({type(name).__name__})"
     if not name.isascii():
@@ -40,8 +42,6 @@ def check_topic_name(name: str, what: str = "topic") -> str:
     Raises:
         InputError: ``<what> '<name>': not a valid topic name (<reason>)``.
     """
-    from eye_in_hand.errors import InputError
-
     problem = topic_name_problem(name)
     if problem is not None:
         shown = name.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace") \
@@ -57,8 +57,6 @@ def check_parameter_text(text: str, what: str) -> str:
     Raises:
         InputError: ``<what> '<text with \\xNN>': not UTF-8 text; ...``.
     """
-    from eye_in_hand.errors import InputError
-
     try:
         text.encode("utf-8")
     except UnicodeEncodeError as exc:

@@ -7,6 +7,12 @@ import threading
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+from eye_in_hand.errors import EyeInHandError
+from eye_in_hand.ros.dds import use_large_data_profile
+
 __all__ = ["run_node", "run_with_executor", "sigterm_as_interrupt"]
 
 
@@ -18,12 +24,6 @@ def run_node(name: str, factory: Callable[[], Any], args: Sequence[str] | None =
     :class:`~eye_in_hand.errors.EyeInHandError` while building it (a bad parameter or
     calibration file) is printed as ``<name>: error: ...`` and exits with code 1.
     """
-    import rclpy
-    from rclpy.executors import ExternalShutdownException
-
-    from eye_in_hand.errors import EyeInHandError
-    from eye_in_hand.ros.dds import use_large_data_profile
-
     use_large_data_profile()
     rclpy.init(args=args)
     node = None
@@ -49,9 +49,6 @@ def run_with_executor(factory: Callable[[], Any], spin: Callable[[Any, Any], int
 
     The executor is built first: an rclpy executor interrupted in its constructor spews on exit.
     """
-    import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-
     rclpy.init(args=args)
     node = None
     executor = None

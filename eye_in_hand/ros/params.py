@@ -40,6 +40,20 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+from rclpy.exceptions import (
+    InvalidParameterTypeException,
+    InvalidParameterValueException,
+    ParameterAlreadyDeclaredException,
+    ParameterUninitializedException,
+)
+from rclpy.parameter import Parameter
+
 from eye_in_hand.errors import ConfigError
 
 __all__ = [
@@ -193,12 +207,6 @@ class Param:
 
     def descriptor(self) -> Any:
         """The ``rcl_interfaces.msg.ParameterDescriptor`` declared for this parameter."""
-        from rcl_interfaces.msg import (
-            FloatingPointRange,
-            IntegerRange,
-            ParameterDescriptor,
-        )
-
         desc = ParameterDescriptor(description=self.description, read_only=self.read_only)
         constraints = []
         if self.range is not None:
@@ -219,8 +227,6 @@ class Param:
 
     def ros_type(self) -> Any:
         """The ``rclpy.parameter.Parameter.Type`` of this parameter."""
-        from rclpy.parameter import Parameter
-
         return {
             "bool": Parameter.Type.BOOL, "int": Parameter.Type.INTEGER,
             "float": Parameter.Type.DOUBLE, "str": Parameter.Type.STRING,
@@ -272,13 +278,6 @@ def params_of(config_cls: type) -> list[Param]:
 
 
 def _declare_one(node: Any, p: Param, full: str) -> Any:
-    from rclpy.exceptions import (
-        InvalidParameterTypeException,
-        InvalidParameterValueException,
-        ParameterAlreadyDeclaredException,
-        ParameterUninitializedException,
-    )
-
     typed_only = p.required or (p.is_array and not p.default)
     initial = p.ros_type() if typed_only else (list(p.default) if p.is_array else p.default)
     try:
@@ -352,8 +351,6 @@ def _run_time_check(dynamic: dict[str, Param]) -> Callable[[list[Any]], Any]:
     checks it does not know about, so a dynamic parameter never takes a value that start-up
     validation would have refused.
     """
-    from rcl_interfaces.msg import SetParametersResult
-
     def callback(parameters: list[Any]) -> Any:
         for parameter in parameters:
             p = dynamic.get(parameter.name)

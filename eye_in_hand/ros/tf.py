@@ -20,6 +20,8 @@ from typing import Any, Iterable
 import numpy as np
 
 from eye_in_hand.errors import ConfigError, ConversionError, InputError
+from eye_in_hand.ros.geometry import matrix_to_transform_stamped, transform_to_matrix
+from eye_in_hand.ros.stamps import header_stamp_ns
 
 __all__ = ["TF_TOPIC", "TF_STATIC_TOPIC", "TFMESSAGE_TYPE", "have_tf2_msgs", "tf_message_class",
            "tf_qos", "tf_static_pub_qos", "tf_static_sub_qos", "add_tf_message",
@@ -35,7 +37,7 @@ _MISSING = ("tf2_msgs is not installed in this Python: run 'make venv' (it build
 
 def have_tf2_msgs() -> bool:
     """Whether ``tf2_msgs.msg.TFMessage`` imports (system ROS or the venv build)."""
-    try:
+    try:  # local: whether it imports is the question (tf2_msgs has no wheel)
         from tf2_msgs.msg import TFMessage  # noqa: F401
     except ImportError:
         return False
@@ -48,7 +50,7 @@ def tf_message_class() -> Any:
     Raises:
         ConfigError: tf2_msgs is not installed (says how to get it).
     """
-    try:
+    try:  # local: tf2_msgs may be missing (no wheel), which is reported here
         from tf2_msgs.msg import TFMessage
     except ImportError as exc:
         raise ConfigError(_MISSING) from exc
@@ -57,6 +59,8 @@ def tf_message_class() -> Any:
 
 def tf_qos() -> Any:
     """QoS of ``/tf`` (tf2_ros's DynamicBroadcasterQoS / DynamicListenerQoS)."""
+    # local: rclpy is the optional [ros] extra, and offline processing imports this module
+    # (feed_tf_message) without it
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     return QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
@@ -66,6 +70,8 @@ def tf_qos() -> Any:
 
 def tf_static_pub_qos() -> Any:
     """QoS of a ``/tf_static`` publisher (tf2_ros's StaticBroadcasterQoS)."""
+    # local: rclpy is the optional [ros] extra, and offline processing imports this module
+    # (feed_tf_message) without it
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     return QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
@@ -75,6 +81,8 @@ def tf_static_pub_qos() -> Any:
 
 def tf_static_sub_qos() -> Any:
     """QoS of a ``/tf_static`` subscriber (tf2_ros's StaticListenerQoS)."""
+    # local: rclpy is the optional [ros] extra, and offline processing imports this module
+    # (feed_tf_message) without it
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     return QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
@@ -91,8 +99,6 @@ def add_tf_message(buffer: Any, msg: Any, *, static: bool) -> tuple[int, list[st
     Returns:
         ``(added, problems)``: the number added and one message per skipped transform.
     """
-    from eye_in_hand.ros.conversions import header_stamp_ns, transform_to_matrix
-
     added = 0
     problems: list[str] = []
     transforms = getattr(msg, "transforms", None)
@@ -122,8 +128,6 @@ def feed_tf_message(view: Any, msg: Any, *, static: bool, received_ns: int
     Returns:
         ``(added, problems, jumped)``: as :func:`add_tf_message`, and whether time jumped back.
     """
-    from eye_in_hand.ros.conversions import header_stamp_ns
-
     jumped = False
     if not static:
         stamps = []
@@ -147,8 +151,6 @@ def make_tf_message(transforms: Iterable[tuple[str, str, int, Any]]) -> Any:
         ConfigError: tf2_msgs is not installed.
         ConversionError: a transform is not a finite rigid transform.
     """
-    from eye_in_hand.ros.conversions import matrix_to_transform_stamped
-
     TFMessage = tf_message_class()
     return TFMessage(transforms=[
         matrix_to_transform_stamped(T, stamp_ns=int(stamp), frame_id=parent,

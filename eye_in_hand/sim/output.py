@@ -47,9 +47,12 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 import yaml
+from rosbags.typesys import Stores, get_typestore
 
 from eye_in_hand.core.transforms import to_xyz_quat
 from eye_in_hand.errors import InputError
+from eye_in_hand.io.bags import BagWriter, OfferedQos
+from eye_in_hand.io.images import write_image_file
 from eye_in_hand.sim.robot_error import reported_joints
 from eye_in_hand.sim.scenarios import (
     calibration_poses,
@@ -253,8 +256,6 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
         InputError: bad arguments. KinematicsError: no reachable scenario for this seed.
         BagError: the bag cannot be written.
     """
-    from eye_in_hand.io.bags import BagWriter, OfferedQos
-
     if frames < 1:
         raise InputError(f"frames must be >= 1, got {frames}")
     if image_rate_hz <= 0 or robot_rate_hz <= 0:
@@ -298,8 +299,6 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
     sensor_qos = (OfferedQos("reliable", "volatile", "keep_last", 5),)
     latched = (OfferedQos("reliable", "transient_local", "keep_last", 1),)
     reliable = (OfferedQos("reliable", "volatile", "keep_last", 100),)
-    from rosbags.typesys import Stores, get_typestore
-
     store = get_typestore(Stores.ROS2_JAZZY)
     writer = BagWriter(out, storage=storage, compression="zstd",  # type: ignore[arg-type]
                        typestore=store)
@@ -391,8 +390,6 @@ def write_dataset(world: World, out: str | Path, *, frames: int, seed: int = 0,
         InputError: ``out`` exists and is not empty (unless ``overwrite``), or frames < 1.
         KinematicsError: fewer reachable poses than asked.
     """
-    from eye_in_hand.io.images import write_image_file
-
     root = Path(out)
     if frames < 1:
         raise InputError(f"frames must be >= 1, got {frames}")

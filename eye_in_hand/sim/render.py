@@ -22,19 +22,17 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Any, Protocol, Sequence
 
 import cv2
 import numpy as np
 
-from eye_in_hand.core.camera import CameraModel
+from eye_in_hand.core.camera import CameraModel, StereoRig
 from eye_in_hand.core.transforms import apply, compose, invert
 from eye_in_hand.errors import InputError
 
-if TYPE_CHECKING:
-    from eye_in_hand.sim.world import World
-
 __all__ = [
+    "Scene",
     "Frame",
     "FrameTruth",
     "Renderer",
@@ -310,10 +308,52 @@ def _bilinear_wrap(tex: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return out.reshape(rows * cols, -1)[:k]
 
 
-class Renderer:
-    """Renders a :class:`~eye_in_hand.sim.world.World`; caches rays per camera (thread-safe)."""
+class Scene(Protocol):
+    """What the renderer reads of a scene (read-only); :class:`eye_in_hand.sim.world.World` is
+    one. Defined here so that the world depends on the renderer and not the other way round.
 
-    def __init__(self, world: "World") -> None:
+    ``arm`` and ``true_arm`` have ``fk(q) -> base_T_ee`` (4, 4); each of ``targets`` has
+    ``name``, ``center_base`` (3,), ``radius_m`` and ``color_bgr``; ``board`` is a
+    :class:`~eye_in_hand.core.calibration.BoardSpec`.
+    """
+
+    @property
+    def rig(self) -> StereoRig: ...
+    @property
+    def ee_T_cam(self) -> np.ndarray: ...
+    @property
+    def arm(self) -> Any: ...
+    @property
+    def true_arm(self) -> Any: ...
+    @property
+    def targets(self) -> Sequence[Any]: ...
+    @property
+    def board(self) -> Any: ...
+    @property
+    def base_T_board(self) -> np.ndarray: ...
+    @property
+    def board_margin(self) -> float: ...
+    @property
+    def table_height(self) -> float: ...
+    @property
+    def table_color_bgr(self) -> tuple[int, int, int]: ...
+    @property
+    def texture_seed(self) -> int: ...
+    @property
+    def light_dir_base(self) -> np.ndarray: ...
+    @property
+    def ambient(self) -> float: ...
+
+    def board_points(self) -> np.ndarray: ...
+
+    def target_centers_base(self) -> np.ndarray: ...
+
+
+class Renderer:
+    """Renders a :class:`Scene` (a :class:`~eye_in_hand.sim.world.World`); caches rays per
+    camera (thread-safe)."""
+
+    def __init__(self, world: Scene) -> None:
         self.world = world
         self._lock = threading.Lock()
         self._rays: dict[str, _RayCache] = {}

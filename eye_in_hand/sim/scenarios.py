@@ -16,9 +16,11 @@ import math
 from typing import Sequence
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from eye_in_hand.core.transforms import compose, invert, rotation_angle
 from eye_in_hand.errors import InputError, KinematicsError
+from eye_in_hand.sim.render import board_in_view, sphere_silhouette
 from eye_in_hand.sim.world import World
 
 __all__ = [
@@ -63,8 +65,6 @@ def camera_pose_ok(world: World, base_T_cam: np.ndarray, *, board: bool = False,
     """Whether the board (see :func:`~eye_in_hand.sim.render.board_in_view`; at least
     ``margin_px`` inside) and/or every target silhouette (``margin_px`` inside) is in both
     images, for a left camera at ``base_T_cam``."""
-    from eye_in_hand.sim.render import board_in_view, sphere_silhouette
-
     cam_T_base = invert(base_T_cam)
     W, H = world.image_size
     for cam, T in ((world.rig.left, cam_T_base),
@@ -180,8 +180,6 @@ def calibration_poses(world: World, n: int, seed: int = 0, *,
             if min(math.degrees(rotation_angle(c[:3, :3].T @ base_T_cam[:3, :3]))
                    for c in cams) < 10.0:
                 continue
-            from scipy.spatial.transform import Rotation
-
             axis = Rotation.from_matrix(R_rel).as_rotvec()
             axis /= np.linalg.norm(axis)
             if last_axis is not None and abs(float(axis @ last_axis)) > math.cos(

@@ -39,6 +39,7 @@ from eye_in_hand.core.transforms import (
     to_xyz_quat,
 )
 from eye_in_hand.errors import ConfigError, EyeInHandError, InputError
+from eye_in_hand.sim.render import Renderer
 from eye_in_hand.sim.robot_error import RobotErrorSpec, draw_true_arm
 from eye_in_hand.yamlfile import read_yaml_file
 
@@ -394,9 +395,7 @@ class World:
         """Ground truth at joint vector ``q`` without rendering (:class:`FrameTruth`)."""
         return self._renderer().truth(q)
 
-    def _renderer(self):
-        from eye_in_hand.sim.render import Renderer
-
+    def _renderer(self) -> Renderer:
         cached = self.__dict__.get("_renderer_cache")
         if cached is None:
             cached = Renderer(self)

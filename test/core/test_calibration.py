@@ -76,6 +76,7 @@ def test_mono_recovers_intrinsics() -> None:
     left, _ = _views(seed=3, n=24)
     cal = calibrate_camera(left, [f"v{i}" for i in range(24)], camera_name="left")
     cam = cal.camera
+    # focal length: measured |f/f_true - 1| max 0.0021 over seeds 0-31 (this seed 0.0006); 1.5x
     assert abs(cam.fx / K_L[0, 0] - 1) < 0.003 and abs(cam.fy / K_L[1, 1] - 1) < 0.003
     # 0.2 px per axis: the 2-D RMS is 0.2 * sqrt(2) less the fitted degrees of freedom
     assert 0.25 < cal.rms_px < 0.29
@@ -124,18 +125,21 @@ def test_stereo_bundle_recovers_rig() -> None:
     cal = calibrate_stereo(left, right, board=BOARD)
     rig = cal.rig
     true = _right_T_left()
-    assert abs(rig.baseline - np.linalg.norm(true[:3, 3])) < 0.0002
-    assert np.abs(rig.T - true[:3, 3]).max() < 0.0005
+    # measured over seeds 0-31 (n=20 views, 0.2 px noise): baseline error max 0.051 mm (this
+    # seed 0.041), T per axis max 0.26 mm (this seed), |f/f_true - 1| max 0.0013, board square
+    # max 0.060 mm; tolerances 1.5x those
+    assert abs(rig.baseline - np.linalg.norm(true[:3, 3])) < 0.00008
+    assert np.abs(rig.T - true[:3, 3]).max() < 0.0004
     angle = np.linalg.norm(cv2.Rodrigues(rig.R @ true[:3, :3].T)[0])
     assert angle < 4 * np.linalg.norm([cal.std["R.rx"], cal.std["R.ry"], cal.std["R.rz"]])
     for cam, K in ((rig.left, K_L), (rig.right, K_R)):
-        assert abs(cam.fx / K[0, 0] - 1) < 0.003 and abs(cam.fy / K[1, 1] - 1) < 0.003
+        assert abs(cam.fx / K[0, 0] - 1) < 0.002 and abs(cam.fy / K[1, 1] - 1) < 0.002
     assert 0.25 < cal.rms_px < 0.29
     q = cal.quality
     # noise floor: |dy| of two independent 0.2 px errors has mean 0.2*sqrt(2)*sqrt(2/pi) = 0.226
     floor = 0.2 * np.sqrt(2) * np.sqrt(2 / np.pi)
     assert q.rectified_dy_mean_px < 1.1 * floor and q.epipolar_error_px < 1.1 * floor
-    assert abs(q.square_measured_mean - BOARD.square) < 0.0003
+    assert abs(q.square_measured_mean - BOARD.square) < 0.00009
     assert 0 < cal.std["baseline"] < 0.0005
     # reported uncertainty covers the actual baseline error
     assert abs(rig.baseline - np.linalg.norm(true[:3, 3])) < 5 * cal.std["baseline"]
@@ -156,8 +160,10 @@ def test_stereo_bundle_uses_one_sided_views_and_matches_opencv() -> None:
     assert [v.paired for v in bundle.views[:4]] == [False, False, False, True]
     assert bundle.views[0].used and not opencv.views[0].used
     true_b = np.linalg.norm(_right_T_left()[:3, 3])
-    assert abs(bundle.rig.baseline - true_b) < 0.0003
-    assert abs(opencv.rig.baseline - true_b) < 0.0005
+    # baseline error measured over seeds 0-31 (n=14, three one-sided): bundle max 0.104 mm,
+    # OpenCV max 0.102 mm (this seed 0.059 / 0.070 mm); 1.5x margin
+    assert abs(bundle.rig.baseline - true_b) < 0.00016
+    assert abs(opencv.rig.baseline - true_b) < 0.00016
 
 
 def test_stereo_fix_intrinsics_keeps_mono_results() -> None:

@@ -58,6 +58,8 @@ def test_detect_synthetic_chessboard(detector: str) -> None:
     assert det.corners.shape == (54, 2)
     # both detectors give the canonical order (square between corners 0, 1, 9, 10 is dark)
     err = np.linalg.norm(det.corners - truth, axis=1)
+    # measured max 0.24 / 0.38 px, RMS 0.13 / 0.17 px (classic / sb; noise-free render:
+    # deterministic); 1.3x / 1.5x margin on sb
     assert err.max() < 0.5 and np.sqrt(np.mean(err ** 2)) < 0.25
 
 
@@ -77,7 +79,9 @@ def test_detection_order_follows_board_not_image(rz: float) -> None:
     for name in ("classic", "sb"):
         det = detect_board(img, board, name, fallback=False)
         assert det.found and det.meta["orientation_from_colour"]
-        assert np.abs(det.corners - truth).max() < 1.0, name
+        # measured max 0.41 px (classic) / 0.29 px (sb) over the four rotations (noise-free
+        # render: deterministic); 1.5x margin
+        assert np.abs(det.corners - truth).max() < 0.6, name
 
 
 def test_detect_reports_reason_when_missing() -> None:
@@ -104,7 +108,9 @@ def test_detect_charuco() -> None:
     # the corners lie on a homography of the board plane: check with a fitted homography
     H, _ = cv2.findHomography(det.object_points[:, :2], det.corners)
     proj = cv2.perspectiveTransform(det.object_points[None, :, :2], H)[0]
-    assert np.abs(proj - det.corners).max() < 0.5
+    # measured 0.012 px on this generated (noise-free) image; margin for OpenCV's detector
+    # changing between versions
+    assert np.abs(proj - det.corners).max() < 0.05
 
 
 def test_html_report(tmp_path) -> None:

@@ -71,6 +71,7 @@ def test_pose_space_refinement_for_pairs() -> None:
     ref_mm, ref_deg = _err(P.X, res.X)
     med_mm = np.median([_err(P.X, res.methods[m].X)[0] for m in CLOSED_FORM_METHODS])
     assert ref_mm < 1.1 * med_mm
+    # measured over seeds 0-19: max 0.64 mm, 0.12 deg (this seed 0.40 mm, 0.058 deg); 1.5x
     assert ref_mm < 1.0 and ref_deg < 0.2
 
 
@@ -168,4 +169,6 @@ def test_three_samples_work_with_warnings() -> None:
     assert any("outlier rejection skipped" in w for w in res.warnings)
     assert any("only 3 samples" in w for w in res.warnings)
     dt, dr = transform_distance(P.X, res.X)
+    # three samples are nearly degenerate: measured over seeds 0-19 max 3.9 mm, 0.31 deg (this
+    # seed 0.92 mm, 0.13 deg); 1.3x / 1.6x margin
     assert dt < 0.005 and np.degrees(dr) < 0.5

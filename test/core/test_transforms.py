@@ -272,7 +272,8 @@ def test_average_rotations_of_noisy_samples():
         samples = R @ noise
         mean = tf.average_rotations(samples)
         tf.as_rotation(mean, atol=1e-12)
-        # noise 0.01 rad per axis, 400 samples: error of the mean ~ 0.01 * sqrt(3) / 20
+        # noise 0.01 rad per axis, 400 samples: error of the mean ~ 0.01 * sqrt(3) / 20;
+        # measured max 2.1e-3 rad over seeds 0-39 x 10 rotations (this seed 1.1e-3); 1.4x margin
         assert tf.rotation_angle(R.T @ mean) < 3e-3
         # Better than a single sample on average
         single = np.mean([tf.rotation_angle(R.T @ S) for S in samples])
@@ -308,7 +309,9 @@ def test_average_transforms_of_noisy_samples():
         mean = tf.average_transforms(samples)
         assert_rigid(mean)
         dt, dr = tf.transform_distance(T, mean)
-        assert dt < 1e-3 and dr < 3e-3
+        # measured over seeds 0-39 x 10 transforms: dt max 0.40 mm, dr max 2.0e-3 rad (this
+        # seed 0.27 mm, 1.3e-3 rad); 1.5x margin
+        assert dt < 0.6e-3 and dr < 3e-3
     A = tf.from_rotvec([0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
     B = tf.from_rotvec([0.0, 0.0, 0.0], [3.0, 0.0, 0.0])
     np.testing.assert_allclose(tf.average_transforms([A, B], weights=[2.0, 1.0])[:3, 3],

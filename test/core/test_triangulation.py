@@ -71,7 +71,9 @@ def test_methods_agree_under_noise():
         a = triangulate(RIG, nl, nr, method="dlt").point
         b = triangulate(RIG, nl, nr, method="disparity").point
         c = triangulate(RIG, nl, nr, method="optimal").point
-        assert np.linalg.norm(a - b) < 1e-4 and np.linalg.norm(a - c) < 5e-4
+        # measured over seeds 0-39 x 20 draws: |dlt - disparity| max 6.0e-5 m, |dlt - optimal|
+        # max 2.7e-4 m (this seed 4.2e-5, 1.7e-4 m); 1.7x / 1.5x margin
+        assert np.linalg.norm(a - b) < 1e-4 and np.linalg.norm(a - c) < 4e-4
 
 
 @pytest.mark.parametrize("fn", METHODS)

@@ -214,12 +214,16 @@ def test_board_pose_from_images_agrees_with_ground_truth(tmp_path, world):
         # the images come from the true arm (/ground_truth/ee_pose at the image stamp) ...
         true_T = gt_true[t]
         dt, dr = transform_distance(true_T @ ee_T_cam @ cam_T_board, base_T_board)
-        assert dt < 0.5e-3 and np.degrees(dr) < 0.1
+        # measured over scenario seeds 0-7: max 0.113 mm (1.5x margin); rotation max 0.113 deg
+        # at seed 4 (one oblique view), 0.048 deg at the others, 0.023 deg at this seed
+        assert dt < 0.17e-3 and np.degrees(dr) < 0.1
         # ... the robot reports the nominal arm: /ee_pose interpolated is the recorded
         # reported ground truth, and differs from the true pose by the robot error
         dt, dr = transform_distance(reported, gt_reported[t])
         assert dt < 1e-6 and dr < 1e-6
         dt, dr = transform_distance(reported, true_T)
-        assert 0.05e-3 < dt < 1.0e-3 and 0.005 < np.degrees(dr) < 0.1
+        # the default robot error, measured over scenario seeds 0-7: 0.157-0.287 mm,
+        # 0.038-0.044 deg; bounds 1.5x outside that range
+        assert 0.1e-3 < dt < 0.45e-3 and 0.025 < np.degrees(dr) < 0.07
         checked += 1
     assert checked >= 2

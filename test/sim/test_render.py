@@ -79,8 +79,11 @@ def test_sphere_blob_centroid_matches_silhouette_centroid(world, q_at):
         centre = getattr(truth, f"center_px_{side}")[0]
         # the test is meaningful: off axis, the silhouette centroid is not the centre projection
         assert np.linalg.norm(sil - centre) > 0.3
-        assert np.linalg.norm(_moments(cov) - sil) < 0.1
-        assert np.linalg.norm(_moments((cov >= 0.5).astype(float)) - sil) < 0.1
+        # measured over this view and two other off-axis views (both cameras): coverage
+        # moments max 0.0093 px (this view 0.008), thresholded max 0.051 px (this view 0.039);
+        # 1.6x margin
+        assert np.linalg.norm(_moments(cov) - sil) < 0.015
+        assert np.linalg.norm(_moments((cov >= 0.5).astype(float)) - sil) < 0.08
 
 
 def test_chessboard_corners_match_projected_truth_1280x720(world, q_at):
@@ -99,6 +102,7 @@ def test_chessboard_corners_match_projected_truth_1280x720(world, q_at):
         corners = cv2.cornerSubPix(gray, corners, (11, 11), (-1, -1), crit).reshape(-1, 2)
         truth = getattr(frame.truth, f"board_corners_px_{side}")
         err = np.linalg.norm(corners - truth, axis=1)   # same order: origin at corner 0
+        # measured max 0.090 px, RMS 0.047 px (this view; two other views: <= 0.092, 0.042)
         assert err.max() < 0.1, err.max()
         assert np.sqrt(np.mean(err ** 2)) < 0.05
 

@@ -5,6 +5,7 @@ import re
 from dataclasses import dataclass, field
 from typing import Literal
 
+import cv2
 import numpy as np
 
 from eye_in_hand.errors import InputError
@@ -59,8 +60,6 @@ class BoardSpec:
                 raise InputError(
                     f"board: ChArUco marker side must be in (0, square={self.square}), "
                     f"got {self.marker}")
-            import cv2
-
             if not hasattr(cv2.aruco, self.dictionary):
                 raise InputError(f"board: unknown ArUco dictionary {self.dictionary!r}")
 
@@ -167,8 +166,6 @@ class BoardSpec:
         """
         if self.kind != "charuco":
             raise InputError(f"board {self}: not a ChArUco board")
-        import cv2
-
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
         board = cv2.aruco.CharucoBoard((self.cols + 1, self.rows + 1), float(self.square),
                                        float(self.marker), dictionary)
@@ -255,8 +252,6 @@ def render_board(board: BoardSpec, K: np.ndarray, dist: np.ndarray, cam_T_board:
     Raises:
         InputError: ChArUco board, bad shapes.
     """
-    import cv2
-
     if board.kind != "chessboard":
         raise InputError("render_board: only chessboards can be rendered")
     K = np.asarray(K, dtype=np.float64).reshape(3, 3)

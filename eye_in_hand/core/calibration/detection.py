@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 
+import cv2
 import numpy as np
 
 from eye_in_hand.core.calibration.board import BoardDetection, BoardSpec
@@ -13,8 +14,6 @@ DETECTORS: tuple[str, ...] = ("auto", "classic", "sb")
 
 
 def _to_gray(image: np.ndarray) -> np.ndarray:
-    import cv2
-
     arr = np.asarray(image)
     if arr.ndim == 3 and arr.shape[2] == 1:
         arr = arr[:, :, 0]
@@ -43,8 +42,6 @@ def _min_corner_spacing(corners: np.ndarray, cols: int, rows: int) -> float:
 
 def _detect_classic(gray: np.ndarray, board: BoardSpec, subpix_window: int,
                     fast_check: bool) -> np.ndarray | None:
-    import cv2
-
     flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
     if fast_check:
         flags |= cv2.CALIB_CB_FAST_CHECK
@@ -61,8 +58,6 @@ def _detect_classic(gray: np.ndarray, board: BoardSpec, subpix_window: int,
 
 
 def _detect_sb(gray: np.ndarray, board: BoardSpec) -> np.ndarray | None:
-    import cv2
-
     flags = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_NORMALIZE_IMAGE
     ok, corners = cv2.findChessboardCornersSB(gray, board.pattern_size, flags=flags)
     if not ok or corners is None:
@@ -72,8 +67,6 @@ def _detect_sb(gray: np.ndarray, board: BoardSpec) -> np.ndarray | None:
 
 def _detect_charuco(gray: np.ndarray, board: BoardSpec, min_corners: int) -> tuple[
         np.ndarray | None, np.ndarray | None, str]:
-    import cv2
-
     detector = cv2.aruco.CharucoDetector(board.charuco_board())
     corners, ids, marker_corners, _ = detector.detectBoard(gray)
     n_markers = 0 if marker_corners is None else len(marker_corners)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Sequence
 
+import cv2
 import numpy as np
 
 from eye_in_hand.core.calibration.board import BoardDetection
@@ -51,8 +52,6 @@ class CalibrationOptions:
 
     def cv_flags(self) -> int:
         """The matching ``cv2.CALIB_*`` flags."""
-        import cv2
-
         flags = 0
         if self.rational:
             flags |= cv2.CALIB_RATIONAL_MODEL
@@ -127,8 +126,6 @@ def _f(value: float) -> float | None:
 
 
 def _as_pose(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
-    import cv2
-
     T = np.eye(4)
     T[:3, :3] = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3))[0]
     T[:3, 3] = np.asarray(tvec, dtype=np.float64).reshape(3)
@@ -136,8 +133,6 @@ def _as_pose(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
 
 
 def _rvec(R: np.ndarray) -> np.ndarray:
-    import cv2
-
     return cv2.Rodrigues(np.asarray(R, dtype=np.float64))[0].reshape(3)
 
 
@@ -231,8 +226,6 @@ def _std_dict(std_intr: np.ndarray, options: CalibrationOptions) -> dict:
 
 def _mono_once(obj: list[np.ndarray], img: list[np.ndarray], size: tuple[int, int],
                options: CalibrationOptions):
-    import cv2
-
     criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12)
     try:
         rms, K, dist, rvecs, tvecs, std_intr, _std_extr, per_view = cv2.calibrateCameraExtended(
@@ -328,8 +321,6 @@ def calibrate_camera(detections: Sequence[BoardDetection], names: Sequence[str] 
 
 def _project(obj: np.ndarray, cam_T_board: np.ndarray, K: np.ndarray, dist: np.ndarray
              ) -> np.ndarray:
-    import cv2
-
     proj, _ = cv2.projectPoints(obj.reshape(-1, 1, 3), _rvec(cam_T_board[:3, :3]),
                                 cam_T_board[:3, 3].copy(), K, dist)
     return proj.reshape(-1, 2)
@@ -337,8 +328,6 @@ def _project(obj: np.ndarray, cam_T_board: np.ndarray, K: np.ndarray, dist: np.n
 
 def _residuals_free_pose(det: BoardDetection, K: np.ndarray, dist: np.ndarray
                          ) -> tuple[np.ndarray, float, np.ndarray | None]:
-    import cv2
-
     if det.n_corners < 4:
         return np.full((det.n_corners, 2), np.nan), float("nan"), None
     ok, rvec, tvec = cv2.solvePnP(det.object_points, det.corners.reshape(-1, 1, 2), K, dist,

@@ -4,6 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Sequence
 
+import cv2
 import numpy as np
 
 from eye_in_hand.core.calibration.board import BoardDetection, BoardSpec, _pair_points
@@ -54,8 +55,6 @@ def coverage(corner_sets: Sequence[np.ndarray], image_size: tuple[int, int],
         ``(fraction, counts)``: fraction in [0, 1]; counts, array, shape
         (round(H*scale), round(W*scale)), int32: how many boards cover each cell.
     """
-    import cv2
-
     w = max(1, int(round(image_size[0] * scale)))
     h = max(1, int(round(image_size[1] * scale)))
     counts = np.zeros((h, w), dtype=np.int32)
@@ -111,8 +110,6 @@ def stereo_quality(rig: StereoRig, pairs: Sequence[tuple[BoardDetection, BoardDe
     Raises:
         CalibrationError: no pair has common corners, or the rig is not rectified.
     """
-    import cv2
-
     if not rig.is_rectified:
         raise CalibrationError("stereo_quality: the rig must be rectified")
     K1, K2 = rig.left.K, rig.right.K

@@ -5,7 +5,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Sequence
 
+import cv2
 import numpy as np
+import scipy.linalg
+from scipy.sparse import csr_matrix
 
 from eye_in_hand.core.calibration.board import BoardDetection, BoardSpec, _pair_points
 from eye_in_hand.core.calibration.mono import (
@@ -23,6 +26,7 @@ from eye_in_hand.core.calibration.mono import (
 )
 from eye_in_hand.core.calibration.quality import StereoQuality, outlier_threshold, stereo_quality
 from eye_in_hand.core.camera import CameraModel, StereoRig
+from eye_in_hand.core.transforms import average_transforms
 from eye_in_hand.errors import CalibrationError, InputError
 
 
@@ -208,9 +212,6 @@ class _Bundle:
                  ) -> tuple[np.ndarray, Any, list[list[np.ndarray | None]]]:
         """Residuals (projected - observed), the sparse Jacobian (CSR, all parameters) and the
         per-view residuals (observed - projected) of each camera."""
-        import cv2
-        from scipy.sparse import csr_matrix
-
         r = np.empty(self.m)
         rows_l: list[np.ndarray] = []
         cols_l: list[np.ndarray] = []
@@ -289,8 +290,6 @@ class _Bundle:
             ``(x, covariance)``: all parameters, and the covariance over all parameters (zero
             rows/columns for fixed ones).
         """
-        import scipy.linalg
-
         x = self.x0.copy()
         free = self.free
         r, A, g = self._normal(x)
@@ -439,10 +438,6 @@ def _stereo_once(left: Sequence[BoardDetection], right: Sequence[BoardDetection]
                  board: BoardSpec | None, options: CalibrationOptions, method: str,
                  fix_intrinsics: bool, alpha: float, thr_abs: float | None, min_views: int,
                  rejected: list[int]) -> StereoCalibration:
-    import cv2
-
-    from eye_in_hand.core.transforms import average_transforms
-
     n = len(left)
     missing = BoardDetection.missing((0, 0), "", "not used")
     ldets = [left[i] if i in active else missing for i in range(n)]

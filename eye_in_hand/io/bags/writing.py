@@ -3,7 +3,9 @@ from __future__ import annotations
 
 import threading
 import zlib
+from collections import defaultdict
 from dataclasses import dataclass
+from io import BytesIO
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Literal, Sequence
@@ -15,6 +17,7 @@ from eye_in_hand.io.bags.records import COMPRESSIONS, STORAGES, OfferedQos
 
 
 def _to_rosbags_qos(qos: OfferedQos) -> Any:
+    # local: rosbags costs ~25 ms at CLI start-up (every command loads io.bags)
     from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
                                     QosReliability, QosTime)
 
@@ -63,14 +66,13 @@ def _rosbags_writer() -> Any:
     global _WRITER_CLASS
     if _WRITER_CLASS is not None:
         return _WRITER_CLASS
-    from io import BytesIO
-
+    # local: the rosbags writer (rosbag2 + storage_mcap) costs ~55 ms at CLI start-up (every
+    # command loads io.bags), and only commands that write bags need it
     from rosbags.rosbag2 import Writer
     from rosbags.rosbag2.enums import StoragePlugin
     from rosbags.rosbag2.storage_mcap import (McapWriter, PendingChunk, write_record,
                                               write_string, write_uint16, write_uint32,
                                               write_uint64)
-    from collections import defaultdict
 
     def jazzy(metadata: str) -> str:
         return metadata.replace("ros_distro: rosbags", f"ros_distro: {ROS_DISTRO}")
@@ -214,6 +216,7 @@ class BagWriter:
         self.path = Path(path)
         if self.path.exists():
             raise BagError(f"cannot write bag {self.path}: it exists already")
+        # local: rosbags.rosbag2 and rosbags.typesys cost ~50 ms at CLI start-up (see above)
         from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
         from rosbags.typesys import Stores, get_typestore
 
@@ -285,6 +288,7 @@ class BagWriter:
                         f"bag {self.path}: message type {msgtype} of topic {name} is not in "
                         "ROS 2 Jazzy; pass its definition (msgdef=...)")
                 try:
+                    # local: see _to_rosbags_qos
                     from rosbags.interfaces import MessageDefinitionFormat
 
                     self._store.register(_types_from_definition(

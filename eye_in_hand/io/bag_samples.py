@@ -1,0 +1,417 @@
+"""Calibration samples from a bag: the still robot stops of a recording, their images and the
+robot pose at each image stamp (from a pose topic, joint states + kinematics, or ``/tf``).
+"""
+from __future__ import annotations
+
+import bisect
+import os
+import struct
+from dataclasses import dataclass, field
+from typing import Any, Iterator, Mapping
+
+import numpy as np
+
+from eye_in_hand.core.camera import CameraModel, StereoRig
+from eye_in_hand.core.transforms import interpolate
+from eye_in_hand.errors import BagError, ConfigError, ConversionError, InputError
+from eye_in_hand.io.bags import DamageLog, bag_info, deserialize, typestore_for
+from eye_in_hand.io.bags import iter_messages as _iter_messages
+from eye_in_hand.ros.camera_info import camera_info_to_model
+from eye_in_hand.ros.geometry import pose_to_matrix, transform_to_matrix
+from eye_in_hand.ros.images import image_to_numpy
+from eye_in_hand.ros.stamps import header_stamp_ns
+
+__all__ = ["BagSample", "BagSamples", "read_bag_samples"]
+
+
+@dataclass(frozen=True)
+class BagSample:
+    """One still robot stop found in a bag.
+
+    Attributes:
+        name: ``stopNNN``.
+        stamp_ns: the image stamp (header) used.
+        images: decoded images by view name (``image`` mono, ``left``/``right`` stereo).
+        base_T_ee: robot pose interpolated at ``stamp_ns``, shape (4, 4).
+    """
+
+    name: str
+    stamp_ns: int
+    images: Mapping[str, np.ndarray]
+    base_T_ee: np.ndarray
+
+
+@dataclass(frozen=True)
+class BagSamples:
+    """What :func:`read_bag_samples` found.
+
+    Attributes:
+        samples: one per still robot stop.
+        camera: mono camera from the bag's camera_info (None when stereo or absent).
+        rig: stereo rig from the bag's two camera_info topics (None when mono or absent).
+        image_topics: the image topics used, by view name.
+        pose_source: description of the robot pose source.
+        skipped: images not used and why (``{"stamp_ns", "reason"}``), e.g. robot moving.
+        n_images: number of (reference) images in the bag.
+        ground_truth: ``ee_T_cam`` when the bag has ``/ground_truth/hand_eye`` (simulator).
+        damage: the parts of the bag skipped as damaged (an
+            :class:`eye_in_hand.io.bags.DamageLog`): unreadable chunks, truncated tails, and
+            messages that do not decode, truncated images, non-finite poses (each naming
+            topic and stamp).
+    """
+
+    samples: tuple[BagSample, ...]
+    camera: CameraModel | None
+    rig: StereoRig | None
+    image_topics: Mapping[str, str]
+    pose_source: str
+    skipped: tuple[dict[str, Any], ...]
+    n_images: int
+    ground_truth: Mapping[str, np.ndarray] = field(default_factory=dict)
+    damage: Any = None
+
+
+class _PoseSeries:
+    """Stamped poses of one frame pair, interpolated at a stamp (never extrapolated)."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.stamps: list[int] = []
+        self.poses: list[np.ndarray] = []
+
+    def add(self, stamp_ns: int, T: np.ndarray) -> None:
+        self.stamps.append(int(stamp_ns))
+        self.poses.append(T)
+
+    def finish(self) -> None:
+        order = np.argsort(np.asarray(self.stamps, dtype=np.int64), kind="stable")
+        self.stamps = [self.stamps[i] for i in order]
+        self.poses = [self.poses[i] for i in order]
+
+    def at(self, stamp_ns: int) -> np.ndarray | None:
+        if not self.stamps or stamp_ns < self.stamps[0] or stamp_ns > self.stamps[-1]:
+            return None
+        k = bisect.bisect_left(self.stamps, stamp_ns)
+        if self.stamps[k] == stamp_ns:
+            return self.poses[k]
+        return interpolate(stamp_ns, self.stamps[k - 1], self.poses[k - 1], self.stamps[k],
+                           self.poses[k])
+
+    def window(self, lo_ns: int, hi_ns: int) -> list[np.ndarray]:
+        a = bisect.bisect_left(self.stamps, lo_ns)
+        b = bisect.bisect_right(self.stamps, hi_ns)
+        return self.poses[a:b]
+
+
+def _cdr_header_stamp_ns(raw: bytes) -> int:
+    """The ``header.stamp`` of a CDR message whose first field is a ``std_msgs/Header``, read
+    without decoding the rest (an image's pixels are not copied)."""
+    if len(raw) < 12 or raw[1] not in (0, 1):
+        raise ConfigError("message is not plain CDR: cannot read its header stamp")
+    sec, nsec = struct.unpack("<iI" if raw[1] == 1 else ">iI", bytes(raw[4:12]))
+    return int(sec) * 1_000_000_000 + int(nsec)
+
+
+def _resolve_topic(topics: Mapping[str, Any], name: str, what: str, source: str) -> str:
+    if name in topics:
+        return name
+    suffix = "/" + name.lstrip("/")
+    matches = [t for t in topics if t.endswith(suffix)]
+    if len(matches) == 1:
+        return matches[0]
+    if not matches:
+        raise ConfigError(f"{source}: no {what} topic {name!r} (topics: {', '.join(topics)})")
+    raise ConfigError(f"{source}: {what} topic {name!r} is ambiguous: {', '.join(matches)}")
+
+
+def _info_topic(image_topic: str) -> str:
+    return image_topic.rsplit("/", 1)[0] + "/camera_info"
+
+
+def _tf_chain(edges: Mapping[tuple[str, str], _PoseSeries],
+              static: Mapping[tuple[str, str], np.ndarray], base: str, tip: str,
+              source: str) -> tuple[list[tuple[str, str]], tuple[str, str]]:
+    parent_of = {c: p for (p, c) in list(edges) + list(static)}
+    chain = []
+    frame = tip
+    while frame != base:
+        if frame not in parent_of:
+            raise ConfigError(f"{source}: /tf has no chain from {base!r} to {tip!r} (stuck at "
+                              f"{frame!r})")
+        chain.append((parent_of[frame], frame))
+        frame = parent_of[frame]
+        if len(chain) > 64:
+            raise ConfigError(f"{source}: /tf has a loop between {base!r} and {tip!r}")
+    chain.reverse()
+    dynamic = [e for e in chain if e in edges]
+    if not dynamic:
+        raise ConfigError(f"{source}: the /tf chain {base!r} -> {tip!r} is static")
+    return chain, dynamic[-1]
+
+
+def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = None,
+                     right_image_topic: str | None = None, pose_topic: str | None = None,
+                     joint_topic: str | None = None, kinematics: Any = None,
+                     use_tf: bool = False, base_frame: str = "base_link",
+                     ee_frame: str = "tool0", stereo: bool | None = None,
+                     still_window_s: float = 0.1, still_translation_m: float = 0.0005,
+                     still_rotation_deg: float = 0.05, damage: Any = None) -> BagSamples:
+    """Find the still robot stops of a calibration recording and their images and poses.
+
+    Each image (header stamp) is paired with the robot pose interpolated at that stamp (never
+    extrapolated). An image is used only when the robot is still around it: every robot pose
+    within ``still_window_s`` centred on the stamp is within ``still_translation_m`` and
+    ``still_rotation_deg`` of the interpolated pose, and robot poses exist on both sides of the
+    window. Consecutive still images at the same stop form one sample (its middle image).
+
+    Args:
+        path: the bag.
+        image_topic: (left) image topic; a suffix such as ``left/image_raw`` matches an
+            absolute topic. Default: the only image topic, or the one with ``left`` in its name.
+        right_image_topic: right image topic (stereo). Default: the left topic with ``left``
+            replaced by ``right`` when the bag has it and ``stereo`` is not False.
+        pose_topic: ``geometry_msgs/PoseStamped`` robot pose topic (``base_T_ee``).
+        joint_topic: ``sensor_msgs/JointState`` topic; needs ``kinematics``.
+        kinematics: an object with ``fk(q) -> base_T_ee`` and ``joint_names``.
+        use_tf: take the pose from ``/tf`` (+ ``/tf_static``), ``base_frame`` to ``ee_frame``.
+        base_frame, ee_frame: frames of the /tf chain.
+        stereo: force mono (False) or stereo (True); None: stereo when a right topic exists.
+        still_window_s, still_translation_m, still_rotation_deg: the stillness test.
+        damage: a :class:`eye_in_hand.io.bags.DamageLog` to record damage in (default: a new
+            one, returned in ``BagSamples.damage``). Damaged chunks of the bag, messages that
+            do not decode, truncated images and non-finite robot poses are skipped and
+            recorded (topic, stamp, reason); the rest of the bag is used.
+
+    Default pose source: ``pose_topic`` if given, else the joints, else /tf when asked, else
+    ``/ee_pose`` when the bag has it, else ``/tf``.
+
+    Returns:
+        The samples (images decoded to numpy), cameras from camera_info when present.
+
+    Raises:
+        ConfigError: missing or ambiguous topics, no pose source, broken /tf chain.
+        BagError: unreadable bag.
+    """
+    source = str(path)
+    info = bag_info(path)
+    topics = info.topics
+    store = typestore_for(path)
+    log = damage if damage is not None else DamageLog()
+    unusable = (BagError, ConversionError, InputError, ConfigError, ValueError)
+    bad_images: dict[int, str] = {}
+
+    def iter_messages(bag: Any, wanted: list[str]) -> Iterator[tuple[str, str, int, Any]]:
+        """The bag's messages, damaged parts skipped and recorded."""
+        return _iter_messages(bag, wanted, damage=log)
+
+    def usable(topic: str, stamp_ns: int, T: Any) -> bool:
+        """Whether a robot pose is finite (else it is recorded as a bad message)."""
+        if T is not None and np.all(np.isfinite(T)):
+            return True
+        log.bad_message(topic, stamp_ns, "robot pose is not finite (NaN or inf)")
+        return False
+    images = [t for t, ti in topics.items() if ti.msgtype == "sensor_msgs/msg/Image"]
+    if image_topic is None:
+        lefts = [t for t in images if "left" in t.split("/")]
+        if len(images) == 1:
+            image_topic = images[0]
+        elif len(lefts) == 1:
+            image_topic = lefts[0]
+        else:
+            raise ConfigError(f"{source}: give the image topic (image topics: "
+                              f"{', '.join(images) or 'none'})")
+    left_topic = _resolve_topic(topics, image_topic, "image", source)
+    right_topic = None
+    if stereo is not False:
+        if right_image_topic is not None:
+            right_topic = _resolve_topic(topics, right_image_topic, "right image", source)
+        elif "left" in left_topic:
+            candidate = left_topic.replace("left", "right")
+            right_topic = candidate if candidate in topics else None
+        if stereo and right_topic is None:
+            raise ConfigError(f"{source}: stereo requested but no right image topic found")
+    views = {"left": left_topic, "right": right_topic} if right_topic else {"image": left_topic}
+
+    # Robot pose source.
+    series = _PoseSeries("robot")
+    if pose_topic is None and joint_topic is None and not use_tf:
+        if "/ee_pose" in topics:
+            pose_topic = "/ee_pose"
+        elif "/tf" in topics:
+            use_tf = True
+        else:
+            raise ConfigError(f"{source}: no robot pose source: give --pose-topic, "
+                              "--joint-topic with --kinematics, or --tf")
+    if pose_topic is not None:
+        pt = _resolve_topic(topics, pose_topic, "pose", source)
+        pose_source = f"{pt} (PoseStamped)"
+        for topic, msgtype, log_ns, raw in iter_messages(path, [pt]):
+            try:
+                msg = deserialize(raw, msgtype, store)
+                stamp, T = header_stamp_ns(msg), pose_to_matrix(msg)
+            except unusable as exc:
+                log.bad_message(topic, log_ns, str(exc))
+                continue
+            if usable(topic, stamp, T):
+                series.add(stamp, T)
+    elif joint_topic is not None:
+        if kinematics is None:
+            raise ConfigError("--joint-topic needs --kinematics (a DH chain)")
+        jt = _resolve_topic(topics, joint_topic, "joint state", source)
+        pose_source = f"{jt} (JointState) + forward kinematics"
+        names = list(kinematics.joint_names)
+        for topic, msgtype, log_ns, raw in iter_messages(path, [jt]):
+            try:
+                msg = deserialize(raw, msgtype, store)
+            except unusable as exc:
+                log.bad_message(topic, log_ns, str(exc))
+                continue
+            pos = dict(zip(list(msg.name), np.asarray(msg.position, dtype=float)))
+            missing = [n for n in names if n not in pos]
+            if missing:
+                raise ConfigError(f"{source}: {jt} lacks joints {missing} of the kinematic "
+                                  "chain")
+            q = [pos[n] for n in names]
+            if not np.all(np.isfinite(q)):
+                log.bad_message(topic, header_stamp_ns(msg), "joint positions are not finite")
+                continue
+            series.add(header_stamp_ns(msg), kinematics.fk(q))
+    else:
+        pose_source = f"/tf {base_frame} -> {ee_frame}"
+        edges: dict[tuple[str, str], _PoseSeries] = {}
+        static: dict[tuple[str, str], np.ndarray] = {}
+        for topic, msgtype, log_ns, raw in iter_messages(path, ["/tf", "/tf_static"]):
+            try:
+                msg = deserialize(raw, msgtype, store)
+            except unusable as exc:
+                log.bad_message(topic, log_ns, str(exc))
+                continue
+            for tr in msg.transforms:
+                key = (tr.header.frame_id.lstrip("/"), tr.child_frame_id.lstrip("/"))
+                try:
+                    T = transform_to_matrix(tr)
+                except unusable as exc:
+                    log.bad_message(topic, log_ns, f"{key[0]} -> {key[1]}: {exc}")
+                    continue
+                if topic == "/tf_static":
+                    static[key] = T
+                else:
+                    edges.setdefault(key, _PoseSeries(f"{key[0]}->{key[1]}")).add(
+                        header_stamp_ns(tr), T)
+        for s in edges.values():
+            s.finish()
+        chain, clock = _tf_chain(edges, static, base_frame, ee_frame, source)
+        for stamp in edges[clock].stamps:
+            T = np.eye(4)
+            for e in chain:
+                part = static[e] if e not in edges else edges[e].at(stamp)
+                if part is None:
+                    T = None
+                    break
+                T = T @ part
+            if T is not None:
+                series.add(stamp, T)
+    series.finish()
+    if not series.stamps:
+        raise ConfigError(f"{source}: no robot poses from {pose_source}")
+
+    # Image stamps of the reference view (pass 1), stillness and grouping.
+    stamps: list[int] = []
+    for topic, msgtype, log_ns, raw in iter_messages(path, [left_topic]):
+        try:
+            stamps.append(_cdr_header_stamp_ns(raw))
+        except unusable as exc:
+            log.bad_message(topic, log_ns, str(exc))
+    stamps.sort()
+    half = int(round(still_window_s * 0.5e9))
+    skipped: list[dict[str, Any]] = []
+    groups: list[list[tuple[int, np.ndarray]]] = []
+    current: list[tuple[int, np.ndarray]] = []
+    rot_tol = np.radians(still_rotation_deg)
+
+    def close(Ta: np.ndarray, Tb: np.ndarray) -> bool:
+        dt = float(np.linalg.norm(Ta[:3, 3] - Tb[:3, 3]))
+        c = np.clip((np.trace(Ta[:3, :3].T @ Tb[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+        return dt <= still_translation_m and float(np.arccos(c)) <= rot_tol
+
+    for stamp in stamps:
+        T = series.at(stamp)
+        reason = ""
+        if T is None:
+            reason = "no robot pose at the image stamp (outside the robot's time range)"
+        elif series.stamps[0] > stamp - half or series.stamps[-1] < stamp + half:
+            reason = "robot poses do not cover the stillness window"
+        elif not all(close(T, P) for P in series.window(stamp - half, stamp + half)):
+            reason = "robot moving"
+        if reason:
+            skipped.append({"stamp_ns": stamp, "reason": reason})
+            if current:
+                groups.append(current)
+                current = []
+            continue
+        assert T is not None
+        if current and not close(current[0][1], T):
+            groups.append(current)
+            current = []
+        current.append((stamp, T))
+    if current:
+        groups.append(current)
+    chosen = {g[len(g) // 2][0]: (f"stop{k:03d}", g[len(g) // 2][1])
+              for k, g in enumerate(groups)}
+
+    # Pass 2: decode the chosen images (and the first camera_info of each view).
+    decoded: dict[int, dict[str, np.ndarray]] = {s: {} for s in chosen}
+    infos: dict[str, Any] = {}
+    info_topics = {_info_topic(t): v for v, t in views.items() if _info_topic(t) in topics}
+    truth: dict[str, np.ndarray] = {}
+    wanted = list(views.values()) + list(info_topics)
+    if "/ground_truth/hand_eye" in topics:
+        wanted.append("/ground_truth/hand_eye")
+    topic_view = {t: v for v, t in views.items()}
+    for topic, msgtype, log_ns, raw in iter_messages(path, wanted):
+        try:
+            if topic in info_topics:
+                if info_topics[topic] not in infos:
+                    infos[info_topics[topic]] = deserialize(raw, msgtype, store)
+                continue
+            if topic == "/ground_truth/hand_eye":
+                truth["ee_T_cam"] = transform_to_matrix(deserialize(raw, msgtype, store))
+                continue
+            stamp = _cdr_header_stamp_ns(raw)
+        except unusable as exc:
+            log.bad_message(topic, log_ns, str(exc))
+            continue
+        if stamp in decoded:
+            try:
+                msg = deserialize(raw, msgtype, store)
+                img = image_to_numpy(msg, copy=True)
+            except unusable as exc:
+                log.bad_message(topic, stamp, str(exc))
+                bad_images[stamp] = f"the {topic_view[topic]} image at {stamp} ns is damaged " \
+                    f"({exc})"
+                continue
+            enc = str(msg.encoding).lower()
+            if enc == "rgb8":
+                img = img[..., ::-1].copy()
+            decoded[stamp][topic_view[topic]] = img
+    samples = []
+    for stamp in sorted(chosen):
+        name, T = chosen[stamp]
+        if set(decoded[stamp]) != set(views):
+            missing = sorted(set(views) - set(decoded[stamp]))
+            skipped.append({"stamp_ns": stamp, "name": name,
+                            "reason": bad_images.get(
+                                stamp, f"no {'/'.join(missing)} image with the same stamp")})
+            continue
+        samples.append(BagSample(name, stamp, decoded[stamp], T))
+    camera = rig = None
+    if set(infos) == set(views):
+        if "image" in views:
+            camera = camera_info_to_model(infos["image"], name="camera")
+        else:
+            left = camera_info_to_model(infos["left"], name="left")
+            right = camera_info_to_model(infos["right"], name="right")
+            rig = StereoRig.from_ros_pair(left, right, source=f"{source}: camera_info")
+    return BagSamples(samples=tuple(samples), camera=camera, rig=rig, image_topics=views,
+                      pose_source=pose_source, skipped=tuple(skipped), n_images=len(stamps),
+                      ground_truth=truth, damage=log)

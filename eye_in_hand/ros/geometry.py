@@ -1,0 +1,184 @@
+"""Geometry messages: ``Pose``/``Transform`` (and their stamped forms) <-> 4x4 ``a_T_b``
+matrices, ``Point`` <-> xyz arrays.
+
+Readers are duck-typed (rclpy or rosbags messages) and name the bad field
+(``pose.orientation``, ``transform.translation.x`` ...) in their
+:class:`eye_in_hand.errors.ConversionError`; builders return rclpy message objects.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from eye_in_hand.core.transforms import as_transform, matrix_to_quat_xyzw, quat_xyzw_to_matrix
+from eye_in_hand.errors import ConversionError, InputError
+from eye_in_hand.ros.fields import field_path, get_field, read_float
+from eye_in_hand.ros.stamps import header_or_new
+
+__all__ = [
+    "pose_to_matrix",
+    "matrix_to_pose",
+    "matrix_to_pose_stamped",
+    "transform_to_matrix",
+    "matrix_to_transform",
+    "matrix_to_transform_stamped",
+    "point_to_xyz",
+    "xyz_to_point",
+    "xyz_to_point_stamped",
+]
+
+
+def _xyz(obj: Any, path: str) -> np.ndarray:
+    return np.array([read_float(obj, a, path) for a in ("x", "y", "z")])
+
+
+def _quat_matrix(obj: Any, path: str) -> np.ndarray:
+    q = np.array([read_float(obj, a, path) for a in ("x", "y", "z", "w")])
+    try:
+        return quat_xyzw_to_matrix(q, path)
+    except InputError as exc:
+        raise ConversionError(str(exc)) from exc
+
+
+def _checked_transform(T: Any, name: str) -> np.ndarray:
+    try:
+        return as_transform(T, name)
+    except InputError as exc:
+        raise ConversionError(str(exc)) from exc
+
+
+def pose_to_matrix(msg: Any) -> np.ndarray:
+    """4x4 transform of a ``Pose``, ``PoseStamped``, ``PoseWithCovariance(Stamped)``.
+
+    For a pose of frame ``b`` given in frame ``a`` (``header.frame_id``) this is ``a_T_b``.
+
+    Raises:
+        ConversionError: missing or non-finite fields, zero or far-from-unit quaternion
+            (the message names the field, e.g. ``pose.orientation``).
+    """
+    path = ""
+    while hasattr(msg, "pose"):
+        msg = msg.pose
+        path = field_path(path, "pose")
+    T = np.eye(4)
+    T[:3, :3] = _quat_matrix(get_field(msg, "orientation", path), field_path(path, "orientation"))
+    T[:3, 3] = _xyz(get_field(msg, "position", path), field_path(path, "position"))
+    return T
+
+
+def transform_to_matrix(msg: Any) -> np.ndarray:
+    """4x4 transform of a ``Transform`` or ``TransformStamped``.
+
+    A ``TransformStamped`` with ``header.frame_id = a`` and ``child_frame_id = b`` gives ``a_T_b``.
+
+    Raises:
+        ConversionError: missing or non-finite fields, bad quaternion (naming the field).
+    """
+    path = ""
+    if hasattr(msg, "transform"):
+        msg = msg.transform
+        path = "transform"
+    T = np.eye(4)
+    T[:3, :3] = _quat_matrix(get_field(msg, "rotation", path), field_path(path, "rotation"))
+    T[:3, 3] = _xyz(get_field(msg, "translation", path), field_path(path, "translation"))
+    return T
+
+
+def point_to_xyz(msg: Any) -> np.ndarray:
+    """(3,) float64 of a ``Point``, ``PointStamped``, ``Point32`` or ``Vector3``.
+
+    Raises:
+        ConversionError: missing or non-finite coordinates (naming the field).
+    """
+    path = ""
+    if hasattr(msg, "point"):
+        msg = msg.point
+        path = "point"
+    return _xyz(msg, path)
+
+
+def matrix_to_pose(T: Any) -> Any:
+    """A ``geometry_msgs.msg.Pose`` from a 4x4 transform (quaternion with w >= 0).
+
+    Raises:
+        ConversionError: not a finite rigid transform.
+    """
+    # local: message packages are the optional [ros] extra; decoding and offline code import
+    # this module without them
+    from geometry_msgs.msg import Point, Pose, Quaternion
+
+    arr = _checked_transform(T, "T")
+    q = matrix_to_quat_xyzw(arr[:3, :3])
+    t = arr[:3, 3]
+    return Pose(position=Point(x=float(t[0]), y=float(t[1]), z=float(t[2])),
+                orientation=Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]),
+                                       w=float(q[3])))
+
+
+def matrix_to_pose_stamped(T: Any, *, stamp_ns: int = 0, frame_id: str = "",
+                           header: Any = None) -> Any:
+    """A ``geometry_msgs.msg.PoseStamped`` from ``frame_id_T_pose`` (4x4)."""
+    # local: message packages are the optional [ros] extra; decoding and offline code import
+    # this module without them
+    from geometry_msgs.msg import PoseStamped
+
+    pose = matrix_to_pose(T)
+    return PoseStamped(header=header_or_new(header, stamp_ns, frame_id), pose=pose)
+
+
+def matrix_to_transform(T: Any) -> Any:
+    """A ``geometry_msgs.msg.Transform`` from a 4x4 transform."""
+    # local: message packages are the optional [ros] extra; decoding and offline code import
+    # this module without them
+    from geometry_msgs.msg import Quaternion, Transform, Vector3
+
+    pose = matrix_to_pose(T)
+    p, q = pose.position, pose.orientation
+    return Transform(translation=Vector3(x=p.x, y=p.y, z=p.z),
+                     rotation=Quaternion(x=q.x, y=q.y, z=q.z, w=q.w))
+
+
+def matrix_to_transform_stamped(T: Any, *, stamp_ns: int = 0, frame_id: str = "",
+                                child_frame_id: str = "", header: Any = None) -> Any:
+    """A ``geometry_msgs.msg.TransformStamped`` from ``frame_id_T_child_frame_id`` (4x4)."""
+    # local: message packages are the optional [ros] extra; decoding and offline code import
+    # this module without them
+    from geometry_msgs.msg import TransformStamped
+
+    if not isinstance(child_frame_id, str):
+        raise ConversionError(f"child_frame_id: expected a string, got {child_frame_id!r}")
+    return TransformStamped(header=header_or_new(header, stamp_ns, frame_id),
+                            child_frame_id=child_frame_id, transform=matrix_to_transform(T))
+
+
+def _checked_xyz(xyz: Any) -> np.ndarray:
+    try:
+        arr = np.asarray(xyz, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise ConversionError(f"xyz: expected 3 numbers, got {xyz!r}") from exc
+    if arr.shape != (3,):
+        raise ConversionError(f"xyz: expected 3 values, got shape {np.shape(xyz)}")
+    if not np.all(np.isfinite(arr)):
+        raise ConversionError(f"xyz: contains NaN or infinite values: {arr.tolist()}")
+    return arr
+
+
+def xyz_to_point(xyz: Any) -> Any:
+    """A ``geometry_msgs.msg.Point`` from array-like shape (3,)."""
+    # local: message packages are the optional [ros] extra; decoding and offline code import
+    # this module without them
+    from geometry_msgs.msg import Point
+
+    v = _checked_xyz(xyz)
+    return Point(x=float(v[0]), y=float(v[1]), z=float(v[2]))
+
+
+def xyz_to_point_stamped(xyz: Any, *, stamp_ns: int = 0, frame_id: str = "",
+                         header: Any = None) -> Any:
+    """A ``geometry_msgs.msg.PointStamped`` from array-like shape (3,)."""
+    # local: message packages are the optional [ros] extra; decoding and offline code import
+    # this module without them
+    from geometry_msgs.msg import PointStamped
+
+    return PointStamped(header=header_or_new(header, stamp_ns, frame_id), point=xyz_to_point(xyz))
