@@ -11,8 +11,8 @@ Written by :func:`write_results` into ``OUT`` (a rosbag2 bag with ``results.csv`
 * ``results.csv``: one row per stereo pair and target id (:data:`CSV_COLUMNS`; the ``target``
   column is the id), rows of one pair together, targets in :func:`target_order`;
 * ``summary.json``: counts and error statistics of the first target (as before), per-target
-  figures (``targets``), how located ids were matched to the ground truth (``truth_match``)
-  and the pairwise distances (``distances``, :mod:`eye_in_hand.core.distances`).
+  figures (``targets``, with how each id was matched to the ground truth) and the pairwise
+  distances (``distances``, :mod:`eye_in_hand.core.distances`).
 
 Read back by :func:`load_tracks` (a ``results.csv``, a folder holding one, or an output bag)
 for ``eye-in-hand distances``; known distances by :func:`load_known_distances`.
