@@ -296,3 +296,33 @@ def test_pairs_cover_every_combination_once(multi):
     pairs = json.loads((out / "summary.json").read_text())["distances"]
     ids = ["yellow", "red", "green", "blue"]
     assert [(p["a"], p["b"]) for p in pairs] == list(itertools.combinations(ids, 2))
+
+
+def test_a_first_target_never_seen_keeps_its_rows_and_the_others_are_localized(multi, tmp_path,
+                                                                               capsys):
+    _world, root, _out = multi
+    params = tmp_path / "params.yaml"
+    params.write_text(PARAMS.replace("[yellow, red, green, blue]", "[purple, red, green]")
+                      .replace("    targets:\n", "    targets:\n      purple: {lower: [140, 100, "
+                               "40], upper: [160, 255, 255], radius_m: 0.02}\n"))
+    out = tmp_path / "o"
+    assert main(["process", str(root / "bag"), "--hand-eye", str(root / "hand_eye.yaml"),
+                 "--params", str(params), "-o", str(out), "--quiet"]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["counts"]["located"] == 0 and s["counts"]["no_target"] == FRAMES
+    assert s["error"] is None                       # first-target figures: nothing located
+    assert s["targets"]["purple"]["located"] == 0
+    assert s["targets"]["red"]["localized"] == s["targets"]["green"]["localized"] == FRAMES
+    (rg,) = [p for p in s["distances"] if p["frames"]]
+    assert (rg["a"], rg["b"]) == ("red", "green") and abs(rg["error_mm"]) < 3.0
+    rows = list(csv.DictReader((out / "results.csv").open()))
+    assert [r["target"] for r in rows[:3]] == ["purple", "red", "green"]
+    purple = [r for r in rows if r["target"] == "purple"]
+    assert len(purple) == FRAMES and all(r["status"] == "no_target" and r["reason"]
+                                         for r in purple)
+    assert info_count(out, "/target/pose") == 0 and info_count(out, "/target/red/pose") == FRAMES
+
+
+def info_count(bag, topic: str) -> int:
+    t = bag_info(bag).topics.get(topic)
+    return 0 if t is None else t.count
