@@ -670,7 +670,10 @@ class _PairPool:
 
         self._task_timeout_s = task_timeout_s
         self._rig, self._config = rig, config
-        parallel = workers > 1 and config.detector.selection != "nearest"
+        # a locator whose results depend on earlier frames (selection nearest, tracked blob-set
+        # ids: LocatorConfig.stateful) sees the stream in order, in one thread
+        parallel = workers > 1 and not getattr(config, "stateful",
+                                               config.detector.selection == "nearest")
         self._workers = workers if parallel else 1
         self._local = threading.local()
         self._inline = StereoLocator(rig, config) if self._workers == 1 else None
