@@ -27,12 +27,18 @@ class EyeToHandLocalizer:
     Args:
         base_T_cam: shape (4, 4), the camera (left optical frame) in the base frame.
         cov_hand_eye: optional (6, 6) covariance of ``base_T_cam`` (``hand_eye.yaml`` order).
+
+    Raises:
+        InputError: a transform or covariance of the wrong shape, not finite, or (covariance)
+            not symmetric positive semi-definite.
     """
 
     def __init__(self, base_T_cam, cov_hand_eye=None) -> None:
         self.base_T_cam = as_transform(base_T_cam, "base_T_cam").copy()
         self.cov_hand_eye = None if cov_hand_eye is None else np.asarray(cov_hand_eye,
                                                                          dtype=np.float64)
+        # a malformed covariance fails here (InputError), not at the first located target
+        target_in_base(_IDENTITY, self.base_T_cam, np.zeros(3), cov_hand_eye=self.cov_hand_eye)
 
     def locate(self, stamp_ns: int, point_cam, cov_cam=None, *,
                now_ns: int | None = None) -> TargetInBase:

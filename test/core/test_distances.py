@@ -99,3 +99,4 @@ def test_table_lines():
     assert lines[0].split()[:2] == ["pair", "frames"]
     assert lines[1].startswith("a - b") and lines[1].rstrip().endswith("ground_truth")
     assert any(line.startswith("target") for line in lines) and lines[-1].startswith("c ")
+
