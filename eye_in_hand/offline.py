@@ -39,8 +39,8 @@ from eye_in_hand.core.localization import Localizer, LocalizerConfig
 from eye_in_hand.core.locator import LocatorConfig, StereoLocator
 from eye_in_hand.core.sync import ApproximateStereoSync
 from eye_in_hand.errors import BagError, ConversionError, InputError, LocalizationError
-from eye_in_hand.io.results import (TargetResult, assign_truth, error_stats, target_order,
-                                    write_results)
+from eye_in_hand.io.results import TargetResult, assign_truth, target_order
+from eye_in_hand.io.results import write_results as _write_results
 
 __all__ = ["ProcessOptions", "FrameResult", "ProcessResult", "TargetResult", "process_bag",
            "error_stats", "write_results"]
@@ -194,6 +194,16 @@ class ProcessResult:
 
     def ok(self) -> list[FrameResult]:
         return [f for f in self.frames if f.status == "ok"]
+
+
+def error_stats(frames: list[FrameResult]) -> dict[str, float] | None:
+    """RMS, p95 and max error in mm over frames with a result and ground truth (None if none)."""
+    errs = np.array([f.error_m for f in frames if math.isfinite(f.error_m)])
+    if errs.size == 0:
+        return None
+    return {"frames": int(errs.size), "rms_mm": 1000.0 * float(np.sqrt(np.mean(errs ** 2))),
+            "p95_mm": 1000.0 * float(np.percentile(errs, 95)),
+            "max_mm": 1000.0 * float(errs.max()), "mean_mm": 1000.0 * float(errs.mean())}
 
 
 _END = object()
@@ -373,8 +383,10 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
             pending.append(frame)
             flush(newest())
 
-    pool = _PairPool(rig, locator_config, opts.workers or available_cpus(),
-                     task_timeout_s=opts.task_timeout_s)
+    # a locator whose results depend on earlier frames (tracked blob-set ids,
+    # LocatorConfig.stateful where it exists) sees the stream in order, in one thread
+    pool = _PairPool(rig, locator_config, 1 if getattr(locator_config, "stateful", False)
+                     else opts.workers or available_cpus(), task_timeout_s=opts.task_timeout_s)
     try:
         if memory_mappable(path):
             pool.start_processes()     # they import and initialise while this process sets up
@@ -670,10 +682,7 @@ class _PairPool:
 
         self._task_timeout_s = task_timeout_s
         self._rig, self._config = rig, config
-        # a locator whose results depend on earlier frames (selection nearest, tracked blob-set
-        # ids: LocatorConfig.stateful) sees the stream in order, in one thread
-        parallel = workers > 1 and not getattr(config, "stateful",
-                                               config.detector.selection == "nearest")
+        parallel = workers > 1 and config.detector.selection != "nearest"
         self._workers = workers if parallel else 1
         self._local = threading.local()
         self._inline = StereoLocator(rig, config) if self._workers == 1 else None
@@ -792,3 +801,18 @@ class _PairPool:
             self._threads.shutdown(wait=True, cancel_futures=True)
         if self._procs is not None:
             self._procs.close()
+
+
+def write_results(out: str | Path, result: ProcessResult, opts: ProcessOptions | None = None,
+                  *, storage: str = "mcap", summary_extra: dict[str, Any] | None = None
+                  ) -> dict[str, Path]:
+    """Write ``OUT`` as a bag with ``OUT/results.csv`` and ``OUT/summary.json``
+    (:func:`eye_in_hand.io.results.write_results`), the first target's ``error`` statistics
+    in the summary.
+
+    Raises:
+        BagError: OUT exists or cannot be written.
+    """
+    return _write_results(out, result, opts or ProcessOptions(), storage=storage,
+                          summary_extra={"error": error_stats(result.frames),
+                                         **(summary_extra or {})})

@@ -40,7 +40,7 @@ if TYPE_CHECKING:  # annotations only: offline sits a floor above
     from eye_in_hand.offline import FrameResult, ProcessOptions, ProcessResult
 
 __all__ = ["TargetResult", "CSV_COLUMNS", "target_order", "assign_truth", "frame_tracks",
-           "summary_figures", "run_figures", "error_stats", "write_results", "load_tracks", "load_known_distances",
+           "summary_figures", "run_figures", "write_results", "load_tracks", "load_known_distances",
            "Tracks"]
 
 #: Columns of ``results.csv``: the first 21 as before per-target rows existed, then ``target``.
@@ -152,17 +152,6 @@ def assign_truth(frames: Sequence[FrameResult], truth: Mapping[int, list[np.ndar
 Tracks = dict[str, np.ndarray]
 
 
-def error_stats(frames: Sequence[Any]) -> dict[str, float] | None:
-    """RMS, p95 and max error in mm over frames (or targets) with a result and ground truth
-    (anything with an ``error_m``; None if none)."""
-    errs = np.array([f.error_m for f in frames if math.isfinite(f.error_m)])
-    if errs.size == 0:
-        return None
-    return {"frames": int(errs.size), "rms_mm": 1000.0 * float(np.sqrt(np.mean(errs ** 2))),
-            "p95_mm": 1000.0 * float(np.percentile(errs, 95)),
-            "max_mm": 1000.0 * float(errs.max()), "mean_mm": 1000.0 * float(errs.mean())}
-
-
 def frame_tracks(frames: Sequence[FrameResult], ids: Sequence[str]) -> tuple[Tracks, Tracks]:
     """Base-frame positions and ground truth per id, shape (N frames, 3), NaN where none."""
     n = len(frames)
@@ -231,7 +220,8 @@ def write_results(out: str | Path, result: ProcessResult, opts: ProcessOptions |
                   *, storage: str = "mcap", summary_extra: Mapping[str, Any] | None = None
                   ) -> dict[str, Path]:
     """Write ``OUT`` as a bag with ``OUT/results.csv`` and ``OUT/summary.json`` (module
-    docstring). ``summary_extra``: more keys for ``summary.json`` (e.g. ``distances``).
+    docstring). ``summary_extra``: more keys for ``summary.json`` (``error``, the first
+    target's error statistics; the figures of :func:`run_figures`).
 
     Raises:
         BagError: OUT exists or cannot be written.
@@ -255,7 +245,7 @@ def write_results(out: str | Path, result: ProcessResult, opts: ProcessOptions |
             for row in _rows(f, ids):
                 w.writerow(row)
     summary = {"counts": result.counts, "bag_duration_s": result.duration_s,
-               "error": error_stats(result.frames),
+               "error": None,        # the first target's statistics: the caller's
                "damage": result.damage.to_dict() if result.damage is not None else None}
     summary.update(summary_extra or {})
     summary_path = out / "summary.json"
