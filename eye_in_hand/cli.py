@@ -30,6 +30,7 @@ COMMANDS: list[tuple[str, str]] = [
     ("echo", "eye_in_hand.commands.echo"),
     # -- further commands are registered below this line --
     ("process", "eye_in_hand.commands.process"),
+    ("distances", "eye_in_hand.commands.distances"),
     ("launch", "eye_in_hand.commands.launch"),
     ("simulate", "eye_in_hand.commands.simulate"),
     ("calibrate camera", "eye_in_hand.commands.calibrate_camera"),

@@ -23,8 +23,6 @@ paths therefore give the same numbers on the same bag.
 """
 from __future__ import annotations
 
-import csv
-import json
 import math
 import queue
 import threading
@@ -36,13 +34,16 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 from eye_in_hand.core.camera import StereoRig
+from eye_in_hand.core.eye_to_hand import EyeToHandLocalizer
 from eye_in_hand.core.localization import Localizer, LocalizerConfig
 from eye_in_hand.core.locator import LocatorConfig, StereoLocator
 from eye_in_hand.core.sync import ApproximateStereoSync
 from eye_in_hand.errors import BagError, ConversionError, InputError, LocalizationError
+from eye_in_hand.io.results import TargetResult, assign_truth, target_order
+from eye_in_hand.io.results import write_results as _write_results
 
-__all__ = ["ProcessOptions", "FrameResult", "ProcessResult", "process_bag", "error_stats",
-           "write_results"]
+__all__ = ["ProcessOptions", "FrameResult", "ProcessResult", "TargetResult", "process_bag",
+           "error_stats", "write_results"]
 
 
 @dataclass(frozen=True)
@@ -76,6 +77,8 @@ class ProcessOptions:
             are located again in this process, so ``process`` never hangs.
         verify_crc: check MCAP chunk CRCs (off by default, as in the MCAP reference readers:
             CRC-32 costs about 16 ms per 1280x720 colour stereo pair here).
+        setup: ``"eye_in_hand"``, or ``"eye_to_hand"``: the hand-eye transform is
+            ``base_T_cam`` of a fixed camera; no robot topic is read.
     """
 
     left_topic: str = "/stereo/left/image_raw"
@@ -102,8 +105,11 @@ class ProcessOptions:
     workers: int | None = None
     task_timeout_s: float = 20.0
     verify_crc: bool = False
+    setup: str = "eye_in_hand"
 
     def __post_init__(self) -> None:
+        if self.setup not in ("eye_in_hand", "eye_to_hand"):
+            raise InputError(f"setup: expected eye_in_hand or eye_to_hand, got {self.setup!r}")
         if self.workers is not None and int(self.workers) < 1:
             raise InputError(f"workers: must be >= 1, got {self.workers}")
         if not self.task_timeout_s > 0:
@@ -135,6 +141,9 @@ class FrameResult:
         point_cam, cov_cam, residual_px, left_px, right_px: the triangulation (when located).
         point_base, cov_base: the base-frame result (status ok).
         truth_base: the ground-truth target at this stamp, when the bag has it.
+        targets: every located target (:class:`TargetResult`), the first target (the one of
+            the fields above) first when it was located.
+        missing: target name (or id) -> why it was not located.
     """
 
     stamp_ns: int
@@ -148,6 +157,8 @@ class FrameResult:
     point_base: np.ndarray | None = None
     cov_base: np.ndarray | None = None
     truth_base: np.ndarray | None = None
+    targets: list[TargetResult] = field(default_factory=list)
+    missing: dict[str, str] = field(default_factory=dict)
 
     @property
     def error_m(self) -> float:
@@ -166,6 +177,9 @@ class ProcessResult:
     :class:`eye_in_hand.io.bags.DamageLog`: chunks, truncated tails, messages that could not
     be read; messages of the processed topics read but not decodable are
     ``counts['bad_messages']``).
+    ``target_ids``: every target id, in :func:`eye_in_hand.io.results.target_order`;
+    ``truth_match``: id -> matched ground-truth index (:func:`eye_in_hand.io.results.
+    assign_truth`).
     """
 
     frames: list[FrameResult] = field(default_factory=list)
@@ -175,6 +189,8 @@ class ProcessResult:
     rig: StereoRig | None = None
     located_in_processes: int = 0
     damage: Any = None
+    target_ids: list[str] = field(default_factory=list)
+    truth_match: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def ok(self) -> list[FrameResult]:
         return [f for f in self.frames if f.status == "ok"]
@@ -271,7 +287,7 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
 
     Args:
         path: bag directory or ``.mcap`` file.
-        hand_eye_T: ``ee_T_cam``, shape (4, 4).
+        hand_eye_T: ``ee_T_cam``, shape (4, 4) (``base_T_cam`` with ``setup: eye_to_hand``).
         locator_config: detector/triangulation settings (``load_locator_config``).
         rig: the stereo calibration; None: built from the bag's camera_info topics.
         hand_eye_cov: optional (6, 6) covariance of ``hand_eye_T``.
@@ -292,19 +308,24 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     opts = options or ProcessOptions()
     path = Path(path)
     info = bag_info(path)
-    required = [opts.left_topic, opts.right_topic, opts.pose_topic]
+    fixed = opts.setup == "eye_to_hand"     # a fixed camera: no robot pose is read
+    required = [opts.left_topic, opts.right_topic] + ([] if fixed else [opts.pose_topic])
     require_topics(info, required + ([opts.left_info_topic, opts.right_info_topic]
                                      if rig is None else []))
     topics = list(required) + ([opts.ground_truth_topic]
                                if opts.ground_truth_topic in info.topics else [])
-    use_tf = opts.robot_pose_source == "tf"
+    use_tf = opts.robot_pose_source == "tf" and not fixed
     if use_tf and opts.tf_static_topic in info.topics:
         topics.append(opts.tf_static_topic)
-    n_poses = info.topics[opts.pose_topic].count
-    localizer = Localizer(hand_eye_T, hand_eye_cov, LocalizerConfig(
+    n_poses = 0 if fixed else info.topics[opts.pose_topic].count
+    localizer: Any = EyeToHandLocalizer(hand_eye_T, hand_eye_cov) if fixed else Localizer(
+        hand_eye_T, hand_eye_cov, LocalizerConfig(
         max_gap_ns=int(opts.max_pose_gap_s * 1e9), buffer_size=max(2, n_poses + 2),
         robot_sigma_pos_m=opts.robot_sigma_pos_m, robot_sigma_rot_rad=opts.robot_sigma_rot_rad,
         max_age_ns=int(opts.max_pose_age_s * 1e9), jump_back_ns=int(opts.pose_jump_back_s * 1e9)))
+
+    def newest() -> int | None:
+        return None if fixed else localizer.poses.newest_ns
     tf_buffer = _use_tf(localizer, opts, n_poses) if use_tf else None
     sync = ApproximateStereoSync(int(round(opts.sync_slop_s * 1e9)), opts.sync_queue_size)
     result = ProcessResult(duration_s=info.duration_ns / 1e9, rig=rig, damage=DamageLog())
@@ -315,21 +336,28 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     if rig is None:
         rig = _rig_from_camera_info(path, opts, result.damage)
         result.rig = rig
-    truth: dict[int, np.ndarray] = {}
+    truth: dict[int, list[np.ndarray]] = {}
     pending: list[FrameResult] = []      # located, waiting for a robot pose after the stamp
     joint_index: np.ndarray | None = None
 
     def finish(frame: FrameResult) -> None:
-        try:
-            res = localizer.locate(frame.stamp_ns, frame.point_cam, frame.cov_cam,
-                                   now_ns=arrived.pop(id(frame), None))
-        except LocalizationError as exc:
-            frame.status, frame.reason = "no_robot_pose", str(exc)
-            counts["no_robot_pose"] += 1
-            ledger.refused(exc.reason)
-            return
-        frame.point_base, frame.cov_base = res.point_base, res.covariance
-        counts["localized"] += 1
+        now_ns = arrived.pop(id(frame), None)
+        for target in frame.targets:     # every target; the first one also fills the frame
+            try:
+                res = localizer.locate(frame.stamp_ns, target.point_cam, target.cov_cam,
+                                       now_ns=now_ns)
+            except LocalizationError as exc:
+                target.status, target.reason = "no_robot_pose", str(exc)
+                if target is frame.targets[0] and frame.status == "located":
+                    frame.status, frame.reason = "no_robot_pose", str(exc)
+                    counts["no_robot_pose"] += 1
+                    ledger.refused(exc.reason)
+                continue
+            target.status, target.point_base, target.cov_base = "ok", res.point_base, \
+                res.covariance
+            if target is frame.targets[0] and frame.status == "located":
+                frame.point_base, frame.cov_base = res.point_base, res.covariance
+                counts["localized"] += 1
 
     def flush(newest: int | None) -> None:
         while pending and (newest is None or pending[0].stamp_ns <= newest):
@@ -350,13 +378,15 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
             note(f"stereo pair at {frame.stamp_ns} ns: {frame.reason}")
             return
         counts["located" if frame.status == "located" else "no_target"] += 1
-        if frame.status == "located":
+        if frame.targets:
             arrived[id(frame)] = t_arrival
             pending.append(frame)
-            flush(localizer.poses.newest_ns)
+            flush(newest())
 
-    pool = _PairPool(rig, locator_config, opts.workers or available_cpus(),
-                     task_timeout_s=opts.task_timeout_s)
+    # a locator whose results depend on earlier frames (tracked blob-set ids,
+    # LocatorConfig.stateful where it exists) sees the stream in order, in one thread
+    pool = _PairPool(rig, locator_config, 1 if getattr(locator_config, "stateful", False)
+                     else opts.workers or available_cpus(), task_timeout_s=opts.task_timeout_s)
     try:
         if memory_mappable(path):
             pool.start_processes()     # they import and initialise while this process sets up
@@ -390,8 +420,7 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
                     localizer.add_robot_pose(stamp, T, received_ns=_t)
                     flush(localizer.poses.newest_ns)
                 elif topic == opts.ground_truth_topic:
-                    stamp = header_stamp_ns(msg)
-                    truth.setdefault(stamp, point_to_xyz(msg.point))  # first target at a stamp
+                    truth.setdefault(header_stamp_ns(msg), []).append(point_to_xyz(msg.point))
                 elif topic in (opts.left_topic, opts.right_topic):
                     stamp = header_stamp_ns(msg)
                     left = topic == opts.left_topic
@@ -415,11 +444,13 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     counts["worker_timeouts"] = pool.timeouts        # their pairs were located again here
     counts["pairs_relocated"] = pool.relocated
     flush(None)  # end of bag: the last points are resolved (or refused) now
-    ledger.close(sync, localizer)
+    ledger.close(sync, None if fixed else localizer)
     for frame in result.frames:
-        frame.truth_base = truth.get(frame.stamp_ns)
         if frame.status == "located":
             frame.status = "ok"
+    result.target_ids = target_order(result.frames,
+                                     [t.name for t in locator_config.detector.targets])
+    result.truth_match = assign_truth(result.frames, truth, result.target_ids)
     counts["ground_truth"] = len(truth)
     counts["damaged_regions"] = len(result.damage)
     counts["messages_lost"] = result.damage.messages_lost
@@ -503,12 +534,13 @@ class _Ledger:
     def refused(self, reason: str) -> None:
         self.count(f"refused.{reason}")
 
-    def close(self, sync: ApproximateStereoSync, localizer: Localizer) -> None:
+    def close(self, sync: ApproximateStereoSync, localizer: Localizer | None) -> None:
         """End of bag: frames still waiting for a partner are unpaired; sync drops counted."""
         pl, pr = sync.pending
         self.count("unpaired_left", sync.stats.dropped_left + pl)
         self.count("unpaired_right", sync.stats.dropped_right + pr)
-        self.count("pose_buffer_resets", sum(localizer.poses.resets.values()))
+        if localizer is not None:
+            self.count("pose_buffer_resets", sum(localizer.poses.resets.values()))
 
 
 def _rig_from_camera_info(path: Path, opts: ProcessOptions, damage: Any = None) -> StereoRig:
@@ -551,12 +583,18 @@ def _locate_pair(locator: StereoLocator, stamp_ns: int, left_msg: Any,
     except (ConversionError, InputError) as exc:
         return FrameResult(stamp_ns, "bad_image", str(exc))
     first = res.first
+    targets = [TargetResult(t.id, t.name, np.asarray(t.point_m), np.asarray(t.covariance),
+                            float(t.residual_px), np.asarray(t.left_px), np.asarray(t.right_px))
+               for t in sorted(res.targets, key=lambda t: t is not first)]  # the first first
+    missing = {name: res.messages.get(name, reason) for name, reason in res.rejected.items()}
     if first is None:
         return FrameResult(stamp_ns, "no_target",
-                           res.messages.get(res.first_name, res.rejected.get(res.first_name, "")))
-    return FrameResult(stamp_ns, "located", point_cam=np.asarray(first.point_m),
-                       cov_cam=np.asarray(first.covariance), residual_px=float(first.residual_px),
-                       left_px=np.asarray(first.left_px), right_px=np.asarray(first.right_px))
+                           res.messages.get(res.first_name, res.rejected.get(res.first_name, "")),
+                           targets=targets, missing=missing)
+    t0 = targets[0]
+    return FrameResult(stamp_ns, "located", point_cam=t0.point_cam, cov_cam=t0.cov_cam,
+                       residual_px=t0.residual_px, left_px=t0.left_px, right_px=t0.right_px,
+                       targets=targets, missing=missing)
 
 
 # -- worker processes ------------------------------------------------------------------------
@@ -766,75 +804,15 @@ class _PairPool:
 
 
 def write_results(out: str | Path, result: ProcessResult, opts: ProcessOptions | None = None,
-                  *, storage: str = "mcap") -> dict[str, Path]:
-    """Write ``OUT`` as a bag (``/target/point``, ``/target/pose``, ``/target/pose_cov``) with
-    ``OUT/results.csv`` and ``OUT/summary.json`` beside the bag's files.
+                  *, storage: str = "mcap", summary_extra: dict[str, Any] | None = None
+                  ) -> dict[str, Path]:
+    """Write ``OUT`` as a bag with ``OUT/results.csv`` and ``OUT/summary.json``
+    (:func:`eye_in_hand.io.results.write_results`), the first target's ``error`` statistics
+    in the summary.
 
     Raises:
         BagError: OUT exists or cannot be written.
     """
-    from eye_in_hand.io.bags import BagWriter
-
-    opts = opts or ProcessOptions()
-    out = Path(out)
-    if out.exists():
-        raise BagError(f"{out}: output exists already (choose a new -o)")
-    with BagWriter(out, storage=storage) as writer:  # type: ignore[arg-type]
-        T = writer.typestore.types
-        writer.add_topic("/target/point", "geometry_msgs/msg/PointStamped")
-        writer.add_topic("/target/pose", "geometry_msgs/msg/PoseStamped")
-        writer.add_topic("/target/pose_cov", "geometry_msgs/msg/PoseWithCovarianceStamped")
-
-        def header(stamp: int, frame: str) -> Any:
-            return T["std_msgs/msg/Header"](
-                stamp=T["builtin_interfaces/msg/Time"](sec=stamp // 1_000_000_000,
-                                                       nanosec=stamp % 1_000_000_000),
-                frame_id=frame)
-
-        def point(p: np.ndarray) -> Any:
-            return T["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]), z=float(p[2]))
-
-        for f in result.frames:
-            if f.point_cam is None:
-                continue
-            writer.write("/target/point", f.stamp_ns, T["geometry_msgs/msg/PointStamped"](
-                header=header(f.stamp_ns, opts.camera_frame), point=point(f.point_cam)))
-            if f.point_base is None or f.cov_base is None:
-                continue
-            pose = T["geometry_msgs/msg/Pose"](
-                position=point(f.point_base),
-                orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
-            writer.write("/target/pose", f.stamp_ns, T["geometry_msgs/msg/PoseStamped"](
-                header=header(f.stamp_ns, opts.base_frame), pose=pose))
-            cov = np.zeros((6, 6))
-            cov[:3, :3] = f.cov_base
-            cov[3:, 3:] = np.eye(3) * 1e6
-            writer.write("/target/pose_cov", f.stamp_ns,
-                         T["geometry_msgs/msg/PoseWithCovarianceStamped"](
-                             header=header(f.stamp_ns, opts.base_frame),
-                             pose=T["geometry_msgs/msg/PoseWithCovariance"](
-                                 pose=pose, covariance=cov.ravel())))
-    csv_path = out / "results.csv"
-    with csv_path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["stamp_ns", "status", "x_cam", "y_cam", "z_cam", "residual_px", "left_u",
-                    "left_v", "right_u", "right_v", "x_base", "y_base", "z_base", "sigma_x_mm",
-                    "sigma_y_mm", "sigma_z_mm", "gt_x", "gt_y", "gt_z", "error_mm", "reason"])
-        for f in result.frames:
-            def cols(v: np.ndarray | None, n: int) -> list[str]:
-                return [repr(float(x)) for x in v] if v is not None else [""] * n
-            sig = ([f"{1000.0 * math.sqrt(max(f.cov_base[i, i], 0.0)):.6f}" for i in range(3)]
-                   if f.cov_base is not None else [""] * 3)
-            err = f.error_m
-            w.writerow([f.stamp_ns, f.status, *cols(f.point_cam, 3),
-                        "" if math.isnan(f.residual_px) else f"{f.residual_px:.6f}",
-                        *cols(f.left_px, 2), *cols(f.right_px, 2), *cols(f.point_base, 3), *sig,
-                        *cols(f.truth_base, 3), "" if math.isnan(err) else f"{1000 * err:.6f}",
-                        f.reason])
-    summary = {"counts": result.counts, "bag_duration_s": result.duration_s,
-               "error": error_stats(result.frames),
-               "damage": result.damage.to_dict() if result.damage is not None else None}
-    summary_path = out / "summary.json"
-    summary_path.write_text(json.dumps(summary, indent=2))
-    return {"bag": out, "csv": csv_path, "summary": summary_path}
-
+    return _write_results(out, result, opts or ProcessOptions(), storage=storage,
+                          summary_extra={"error": error_stats(result.frames),
+                                         **(summary_extra or {})})

@@ -10,6 +10,10 @@ messages, as fast as the CPU allows, and writes ``OUT`` as a rosbag2 bag with
 stereo pair) and ``OUT/summary.json``, all under a temporary name renamed into place at the
 end (an existing OUT is refused unless ``--overwrite``). When the bag carries
 ``/ground_truth/target`` it prints the base-frame error statistics (RMS, p95, max, in mm).
+Every located target is in the outputs (one CSV row per pair and target); with two or more
+targets it prints the pairwise distance table (against the ground truth, or ``--truth FILE``
+of known distances). With an eye-to-hand calibration (a fixed camera, ``base_T_cam``) no
+robot pose is read.
 """
 from __future__ import annotations
 
@@ -29,7 +33,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--overwrite", action="store_true",
                         help="replace an existing OUT (whole, once the new one is complete)")
     parser.add_argument("--hand-eye", required=True, metavar="FILE",
-                        help="hand_eye.yaml (eye_in_hand: tool0 -> left optical frame)")
+                        help="hand_eye.yaml (eye_in_hand: tool0 -> left optical frame; "
+                             "eye_to_hand: base_link -> left optical frame, no robot pose "
+                             "needed)")
+    parser.add_argument("--truth", metavar="FILE",
+                        help="YAML of known distances between targets "
+                             "(distances: [{a: ID, b: ID, m: METRES}]); the distance table's "
+                             "error is against these instead of the bag's ground truth")
     parser.add_argument("--calibration", metavar="DIR",
                         help="directory with left.yaml and right.yaml (ROS camera_calibration "
                              "files; stereo.yaml optional); default: the bag's camera_info")
@@ -106,6 +116,8 @@ def run(args: argparse.Namespace) -> int:
     from eye_in_hand.errors import ConfigError, InputError
     from eye_in_hand.io.bags import bag_info
     from eye_in_hand.io.config import load_hand_eye
+    from eye_in_hand.core.distances import distance_table
+    from eye_in_hand.io.results import load_known_distances, run_figures
     from eye_in_hand.offline import ProcessOptions, error_stats, process_bag, write_results
 
     detect = _node_params(args.params, "detect_triangulate")
@@ -116,9 +128,8 @@ def run(args: argparse.Namespace) -> int:
         radius=args.radius, method=args.method)
     calib = load_hand_eye(args.hand_eye)
     noise = calib.robot_pose_noise
-    if calib.setup != "eye_in_hand":
-        raise ConfigError(f"{args.hand_eye}: setup is {calib.setup!r}; process needs an "
-                          "eye_in_hand calibration")
+    fixed = calib.setup == "eye_to_hand"
+    known = load_known_distances(args.truth) if args.truth else []
     rig = StereoRig.load(args.calibration) if args.calibration else None
     kinematics = None
     if args.robot_pose == "joint_states":
@@ -138,7 +149,8 @@ def run(args: argparse.Namespace) -> int:
             tf_topic=args.tf_topic, tf_static_topic=args.tf_static_topic,
             ee_frame=str(args.ee_frame or hand_eye_params.get("ee_frame", calib.parent_frame)),
             ground_truth_topic=args.ground_truth_topic,
-            base_frame=str(args.base_frame or hand_eye_params.get("base_frame", "base_link")),
+            base_frame=str(args.base_frame or (calib.parent_frame if fixed else
+                                               hand_eye_params.get("base_frame", "base_link"))),
             camera_frame=calib.child_frame,
             sync_slop_s=float(detect.get("sync.slop_s", 0.005)),
             sync_queue_size=int(detect.get("sync.queue_size", 5)),
@@ -153,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
                                  float(hand_eye_params.get("robot_sigma_rot_rad",
                                                            ProcessOptions.robot_sigma_rot_rad))),
             verify_crc=args.verify_crc, workers=args.workers,
-            task_timeout_s=args.task_timeout)
+            task_timeout_s=args.task_timeout, setup=calib.setup)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{args.params}: {exc}") from exc
     from pathlib import Path
@@ -162,10 +174,11 @@ def run(args: argparse.Namespace) -> int:
 
     check_output_dir(args.output, overwrite=args.overwrite,  # refuse now, not after the work
                      inputs=[args.bag, args.hand_eye, args.calibration, args.params,
-                             args.kinematics])
+                             args.kinematics, args.truth])
     info = bag_info(args.bag)
     total = sum(info.topics[t].count for t in {opts.left_topic, opts.right_topic,
-                                               opts.pose_topic, opts.ground_truth_topic}
+                                               opts.ground_truth_topic} | (
+                    set() if fixed else {opts.pose_topic})
                 | ({opts.tf_static_topic} if opts.robot_pose_source == "tf" else set())
                 if t in info.topics)
     bar = tqdm(total=total, unit="msg", desc="processing", disable=args.quiet,
@@ -179,8 +192,11 @@ def run(args: argparse.Namespace) -> int:
         bar.close()
     wall = time.perf_counter() - t0
     # the bag, results.csv and summary.json appear together (temporary folder, then rename)
+    extra, pairs, stats_by_target, unmatched = run_figures(result, known)
+    if args.truth:
+        extra["distances_truth"] = str(args.truth)
     with atomic_output_dir(args.output, overwrite=args.overwrite, create=False) as tmp:
-        written = write_results(tmp, result, opts, storage=args.storage)
+        written = write_results(tmp, result, opts, storage=args.storage, summary_extra=extra)
     out = Path(args.output)
     paths = {"bag": out, "csv": out / written["csv"].name,
              "summary": out / written["summary"].name}
@@ -206,5 +222,15 @@ def run(args: argparse.Namespace) -> int:
         print(f"error against {args.ground_truth_topic} over {stats['frames']} frames: "
               f"RMS {stats['rms_mm']:.3f} mm, p95 {stats['p95_mm']:.3f} mm, max "
               f"{stats['max_mm']:.3f} mm")
+    if len(result.target_ids) > 1:
+        print(f"{len(result.target_ids)} targets; distances over the frames where both were "
+              "located" + (f", truth from {args.truth}" if known else
+                           ", truth from " + args.ground_truth_topic
+                           if any(p.truth_source for p in pairs) else ""))
+        for line in distance_table(pairs, stats_by_target):
+            print("  " + line)
+    for a, b, m in unmatched:
+        print(f"warning: {args.truth}: no measured distance {a} - {b} (targets located: "
+              f"{', '.join(result.target_ids)})", file=sys.stderr)
     print(f"wrote {paths['bag']} (bag), {paths['csv']}, {paths['summary']}")
     return 0

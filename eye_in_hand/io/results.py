@@ -1,0 +1,482 @@
+"""The files of ``eye-in-hand process``: every located target per frame, written and read back.
+
+Written by :func:`write_results` into ``OUT`` (a rosbag2 bag with ``results.csv`` and
+``summary.json`` beside its files):
+
+* the bag: ``/target/point`` (left optical frame), ``/target/pose``, ``/target/pose_cov``
+  (base frame) for the first configured target, as before; and for every target id
+  ``/targets/<id>/point`` (left optical frame), ``/target/<id>/pose``,
+  ``/target/<id>/pose_cov`` (base frame) and ``/target/<id>/ground_truth`` (PointStamped,
+  base frame: the true target matched to this id, when the input bag had ground truth);
+* ``results.csv``: one row per stereo pair and target id (:data:`CSV_COLUMNS`; the ``target``
+  column is the id), rows of one pair together, targets in :func:`target_order`;
+* ``summary.json``: counts and error statistics of the first target (as before), per-target
+  figures (``targets``, with how each id was matched to the ground truth) and the pairwise
+  distances (``distances``, :mod:`eye_in_hand.core.distances`).
+
+Read back by :func:`load_tracks` (a ``results.csv``, a folder holding one, or an output bag)
+for ``eye-in-hand distances``; known distances by :func:`load_known_distances`.
+
+No rclpy: messages are built with the bag writer's type store.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
+
+import numpy as np
+
+from eye_in_hand.core.distances import (PairDistance, TargetStats, apply_known_distances,
+                                        match_truth, pairwise_distances, target_stats)
+from eye_in_hand.errors import BagError, ConfigError, InputError
+from eye_in_hand.yamlfile import read_yaml_file
+
+if TYPE_CHECKING:  # annotations only: offline sits a floor above
+    from eye_in_hand.offline import FrameResult, ProcessOptions, ProcessResult
+
+__all__ = ["TargetResult", "CSV_COLUMNS", "target_order", "assign_truth", "frame_tracks",
+           "summary_figures", "run_figures", "write_results", "load_tracks", "load_known_distances",
+           "Tracks"]
+
+#: Columns of ``results.csv``: the first 21 as before per-target rows existed, then ``target``.
+CSV_COLUMNS = ["stamp_ns", "status", "x_cam", "y_cam", "z_cam", "residual_px", "left_u",
+               "left_v", "right_u", "right_v", "x_base", "y_base", "z_base", "sigma_x_mm",
+               "sigma_y_mm", "sigma_z_mm", "gt_x", "gt_y", "gt_z", "error_mm", "reason",
+               "target"]
+
+
+@dataclass
+class TargetResult:
+    """One located target in one stereo pair.
+
+    Attributes:
+        id: the target id (``TargetLocation.id``); name: its configured target name.
+        point_cam, cov_cam: shape (3,) and (3, 3), left optical frame.
+        residual_px: RMS reprojection residual; left_px, right_px: centres, shape (2,).
+        status: ``"located"``, then ``"ok"`` (in the base frame) or ``"no_robot_pose"``.
+        reason: why it is not in the base frame.
+        point_base, cov_base: the base-frame result.
+        truth_base: the matched ground-truth target at this stamp.
+    """
+
+    id: str
+    name: str
+    point_cam: np.ndarray
+    cov_cam: np.ndarray
+    residual_px: float
+    left_px: np.ndarray
+    right_px: np.ndarray
+    status: str = "located"
+    reason: str = ""
+    point_base: np.ndarray | None = None
+    cov_base: np.ndarray | None = None
+    truth_base: np.ndarray | None = None
+
+    @property
+    def error_m(self) -> float:
+        """Distance to the ground truth (m), NaN when either is missing."""
+        if self.point_base is None or self.truth_base is None:
+            return math.nan
+        return float(np.linalg.norm(self.point_base - self.truth_base))
+
+
+def _natural(text: str) -> list[Any]:
+    return [int(s) if s.isdigit() else s for s in re.split(r"(\d+)", text)]
+
+
+def target_order(frames: Sequence[FrameResult], names: Sequence[str]) -> list[str]:
+    """Every target id of a run: ids located in any frame, in the order of the configured
+    target names (then natural order: ``red_2`` before ``red_10``); a configured name never
+    located appears as its own id (so the first target always has rows)."""
+    by_name: dict[str, set[str]] = {n: set() for n in names}
+    for f in frames:
+        for t in f.targets:
+            by_name.setdefault(t.name, set()).add(t.id)
+    out: list[str] = []
+    for name, ids in by_name.items():
+        out += sorted(ids, key=_natural) if ids else [name]
+    return out
+
+
+def assign_truth(frames: Sequence[FrameResult], truth: Mapping[int, list[np.ndarray]],
+                 ids: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """Match the ground-truth targets to the located ids and set every ``truth_base``.
+
+    ``truth``: image stamp -> the true target centres at it (base frame, the simulator's
+    ``world.targets`` order). Each id's median base-frame position over the frames where it
+    was localized is matched to the median of each true target over the stamps (the
+    assignment with the smallest sum of distances, :func:`~eye_in_hand.core.distances.
+    match_truth`; no distance limit, so a gross error shows as one). Each target's
+    ``truth_base`` is then its matched true target at the frame's stamp; the frame's own
+    ``truth_base`` (the first target's, for the summary's first-target figures) is the first
+    target's match, or true target 0 when the first target was never localized.
+
+    Returns:
+        id -> ``{"truth_index": k, "distance_mm": median distance}`` for the matched ids.
+    """
+    if not truth:
+        return {}
+    k_max = max(len(v) for v in truth.values())
+    true_med = np.array([np.median([v[k] for v in truth.values() if len(v) > k], axis=0)
+                         for k in range(k_max)])
+    located: dict[str, list[np.ndarray]] = {i: [] for i in ids}
+    for f in frames:
+        for t in f.targets:
+            if t.point_base is not None:
+                located.setdefault(t.id, []).append(t.point_base)
+    med = {i: np.median(p, axis=0) for i, p in located.items() if p}
+    match = match_truth(med, true_med)
+    first = ids[0] if ids else ""
+    for f in frames:
+        at = truth.get(f.stamp_ns)
+        if at is None:
+            continue
+        for t in f.targets:
+            k = match.get(t.id)
+            t.truth_base = at[k] if k is not None and k < len(at) else None
+        if f.targets and f.status in ("located", "ok", "no_robot_pose"):
+            k0 = match.get(f.targets[0].id)     # the first target's id in this frame
+        else:
+            k0 = match.get(first, None if match else 0)
+        f.truth_base = at[k0] if k0 is not None and k0 < len(at) else None
+    return {i: {"truth_index": k, "distance_mm": 1000.0 * float(np.linalg.norm(med[i] -
+                                                                             true_med[k]))}
+            for i, k in match.items()}
+
+
+Tracks = dict[str, np.ndarray]
+
+
+def frame_tracks(frames: Sequence[FrameResult], ids: Sequence[str]) -> tuple[Tracks, Tracks]:
+    """Base-frame positions and ground truth per id, shape (N frames, 3), NaN where none."""
+    n = len(frames)
+    pos = {i: np.full((n, 3), np.nan) for i in ids}
+    true = {i: np.full((n, 3), np.nan) for i in ids}
+    for r, f in enumerate(frames):
+        for t in f.targets:
+            if t.id not in pos:
+                continue
+            if t.point_base is not None:
+                pos[t.id][r] = t.point_base
+            if t.truth_base is not None:
+                true[t.id][r] = t.truth_base
+    return pos, {i: v for i, v in true.items() if np.isfinite(v).any()}
+
+
+def summary_figures(tracks: Tracks, truth: Tracks,
+                    known: Sequence[tuple[str, str, float]] = ()
+                    ) -> tuple[list[PairDistance], list[TargetStats], list[tuple[str, str, float]]]:
+    """Pairwise distances (truth: ``known`` where given, else the ground truth) and per-target
+    figures; also the known entries that name no measured pair."""
+    pairs = pairwise_distances(tracks, truth or None)
+    unmatched: list[tuple[str, str, float]] = []
+    if known:
+        pairs, unmatched = apply_known_distances(pairs, known)
+    return pairs, target_stats(tracks, truth or None), unmatched
+
+
+def run_figures(result: ProcessResult, known: Sequence[tuple[str, str, float]] = ()
+                ) -> tuple[dict[str, Any], list[PairDistance], list[TargetStats],
+                           list[tuple[str, str, float]]]:
+    """The per-target and distance figures of a run, for ``summary.json`` and the table.
+
+    Returns:
+        ``(summary keys, pairs, per-target stats, known entries naming no measured pair)``:
+        the keys are ``targets`` (id -> ``located`` (in the camera), ``localized`` (in the
+        base frame), ``truth_frames``, ``rms_mm``, ``max_mm``, ``truth_index``,
+        ``truth_distance_mm``) and ``distances`` (one entry per pair, see
+        :meth:`~eye_in_hand.core.distances.PairDistance.to_dict`).
+    """
+    ids = list(result.target_ids)
+    tracks, truth = frame_tracks(result.frames, ids)
+    pairs, stats, unmatched = summary_figures(tracks, truth, known)
+    in_camera = {i: 0 for i in ids}
+    for f in result.frames:
+        for t in f.targets:
+            in_camera[t.id] = in_camera.get(t.id, 0) + 1
+    targets: dict[str, Any] = {}
+    for st in stats:
+        d = st.to_dict()
+        match = result.truth_match.get(st.id, {})
+        targets[st.id] = {"located": in_camera.get(st.id, 0), "localized": d.pop("located"),
+                          **d, "truth_index": match.get("truth_index"),
+                          "truth_distance_mm": match.get("distance_mm")}
+    return ({"targets": targets, "distances": [p.to_dict() for p in pairs]}, pairs, stats,
+            unmatched)
+
+
+def _topic_id(target_id: str) -> str:
+    """The id as a ROS name token (characters other than letters, digits and _ become _)."""
+    token = re.sub(r"[^A-Za-z0-9_]", "_", target_id)
+    return token if token and not token[0].isdigit() else f"t_{token}"
+
+
+def write_results(out: str | Path, result: ProcessResult, opts: ProcessOptions | None = None,
+                  *, storage: str = "mcap", summary_extra: Mapping[str, Any] | None = None
+                  ) -> dict[str, Path]:
+    """Write ``OUT`` as a bag with ``OUT/results.csv`` and ``OUT/summary.json`` (module
+    docstring). ``summary_extra``: more keys for ``summary.json`` (``error``, the first
+    target's error statistics; the figures of :func:`run_figures`).
+
+    Raises:
+        BagError: OUT exists or cannot be written.
+    """
+    from eye_in_hand.io.bags import BagWriter
+
+    out = Path(out)
+    if out.exists():
+        raise BagError(f"{out}: output exists already (choose a new -o)")
+    ids = list(result.target_ids)
+    with BagWriter(out, storage=storage) as writer:  # type: ignore[arg-type]
+        T = writer.typestore.types
+        _Topics(writer, ids).write_all(
+            T, result, getattr(opts, "camera_frame", "camera_left_optical_frame"),
+            getattr(opts, "base_frame", "base_link"))
+    csv_path = out / "results.csv"
+    with csv_path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(CSV_COLUMNS)
+        for f in result.frames:
+            for row in _rows(f, ids):
+                w.writerow(row)
+    summary = {"counts": result.counts, "bag_duration_s": result.duration_s,
+               "error": None,        # the first target's statistics: the caller's
+               "damage": result.damage.to_dict() if result.damage is not None else None}
+    summary.update(summary_extra or {})
+    summary_path = out / "summary.json"
+    summary_path.write_text(json.dumps(summary, indent=2))
+    return {"bag": out, "csv": csv_path, "summary": summary_path}
+
+
+class _Topics:
+    """The output bag's topics and messages."""
+
+    def __init__(self, writer: Any, ids: Sequence[str]) -> None:
+        self.w = writer
+        for name in ("/target/point", *(f"/targets/{_topic_id(i)}/point" for i in ids)):
+            writer.add_topic(name, "geometry_msgs/msg/PointStamped")
+        for prefix in ("/target", *(f"/target/{_topic_id(i)}" for i in ids)):
+            writer.add_topic(f"{prefix}/pose", "geometry_msgs/msg/PoseStamped")
+            writer.add_topic(f"{prefix}/pose_cov",
+                             "geometry_msgs/msg/PoseWithCovarianceStamped")
+        self.truth_added: set[str] = set()
+
+    def write_all(self, T: Any, result: ProcessResult, camera_frame: str,
+                  base_frame: str) -> None:
+        def header(stamp: int, frame: str) -> Any:
+            return T["std_msgs/msg/Header"](
+                stamp=T["builtin_interfaces/msg/Time"](sec=stamp // 1_000_000_000,
+                                                       nanosec=stamp % 1_000_000_000),
+                frame_id=frame)
+
+        def point(p: np.ndarray) -> Any:
+            return T["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]), z=float(p[2]))
+
+        def located(stamp: int, prefix: str, cam_topic: str, p_cam: np.ndarray,
+                    p_base: np.ndarray | None, c_base: np.ndarray | None) -> None:
+            self.w.write(cam_topic, stamp, T["geometry_msgs/msg/PointStamped"](
+                header=header(stamp, camera_frame), point=point(p_cam)))
+            if p_base is None or c_base is None:
+                return
+            pose = T["geometry_msgs/msg/Pose"](
+                position=point(p_base),
+                orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+            self.w.write(f"{prefix}/pose", stamp, T["geometry_msgs/msg/PoseStamped"](
+                header=header(stamp, base_frame), pose=pose))
+            cov = np.zeros((6, 6))
+            cov[:3, :3] = c_base
+            cov[3:, 3:] = np.eye(3) * 1e6
+            self.w.write(f"{prefix}/pose_cov", stamp,
+                         T["geometry_msgs/msg/PoseWithCovarianceStamped"](
+                             header=header(stamp, base_frame),
+                             pose=T["geometry_msgs/msg/PoseWithCovariance"](
+                                 pose=pose, covariance=cov.ravel())))
+
+        for f in result.frames:
+            if f.point_cam is not None:
+                located(f.stamp_ns, "/target", "/target/point", f.point_cam, f.point_base,
+                        f.cov_base)
+            for t in f.targets:
+                tid = _topic_id(t.id)
+                located(f.stamp_ns, f"/target/{tid}", f"/targets/{tid}/point", t.point_cam,
+                        t.point_base, t.cov_base)
+                if t.truth_base is not None:
+                    topic = f"/target/{tid}/ground_truth"
+                    if topic not in self.truth_added:
+                        self.w.add_topic(topic, "geometry_msgs/msg/PointStamped")
+                        self.truth_added.add(topic)
+                    self.w.write(topic, f.stamp_ns, T["geometry_msgs/msg/PointStamped"](
+                        header=header(f.stamp_ns, base_frame), point=point(t.truth_base)))
+
+
+def _rows(f: FrameResult, ids: Sequence[str]) -> list[list[Any]]:
+    """The CSV rows of one stereo pair: one per target id."""
+    def cols(v: np.ndarray | None, n: int) -> list[str]:
+        return [repr(float(x)) for x in v] if v is not None else [""] * n
+
+    by_id = {t.id: t for t in f.targets}
+    rows = []
+    for i in ids:
+        t = by_id.get(i)
+        if t is None:
+            status = "bad_image" if f.status == "bad_image" else "no_target"
+            reason = f.reason if f.status == "bad_image" else f.missing.get(
+                i, f.missing.get(i.rpartition("_")[0], ""))
+            rows.append([f.stamp_ns, status, *[""] * 18, reason, i])
+            continue
+        sig = ([f"{1000.0 * math.sqrt(max(t.cov_base[k, k], 0.0)):.6f}" for k in range(3)]
+               if t.cov_base is not None else [""] * 3)
+        err = t.error_m
+        rows.append([f.stamp_ns, t.status, *cols(t.point_cam, 3),
+                     "" if math.isnan(t.residual_px) else f"{t.residual_px:.6f}",
+                     *cols(t.left_px, 2), *cols(t.right_px, 2), *cols(t.point_base, 3), *sig,
+                     *cols(t.truth_base, 3), "" if math.isnan(err) else f"{1000 * err:.6f}",
+                     t.reason, i])
+    return rows
+
+
+# -- reading back ----------------------------------------------------------------------------
+def _float(text: str, where: str) -> float:
+    try:
+        return float(text) if text != "" else math.nan
+    except ValueError as exc:
+        raise InputError(f"{where}: not a number: {text!r}") from exc
+
+
+def _read_csv(path: Path) -> tuple[Tracks, Tracks]:
+    try:
+        fh = path.open(newline="")
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    with fh:
+        reader = csv.DictReader(fh)
+        need = {"stamp_ns", "status", "x_base", "y_base", "z_base"}
+        header = set(reader.fieldnames or ())
+        if not need <= header:
+            raise InputError(f"{path}: not a results.csv of eye-in-hand process (missing "
+                             f"columns {', '.join(sorted(need - header))})")
+        if "target" not in header:
+            raise InputError(f"{path}: no 'target' column (written before per-target rows): "
+                             "one target, no distances")
+        frames: list[dict[str, tuple[np.ndarray, np.ndarray]]] = []
+        last_stamp = None
+        for n, row in enumerate(reader, start=2):
+            where = f"{path}:{n}"
+            tid, stamp = row["target"], row["stamp_ns"]
+            if not tid:
+                raise InputError(f"{where}: empty target")
+            if not frames or stamp != last_stamp or tid in frames[-1]:
+                frames.append({})
+            last_stamp = stamp
+            p = np.array([_float(row[k], where) for k in ("x_base", "y_base", "z_base")])
+            if row["status"] != "ok":
+                p[:] = math.nan
+            g = np.array([_float(row.get(k) or "", where) for k in ("gt_x", "gt_y", "gt_z")])
+            frames[-1][tid] = (p, g)
+    return _stack(frames, str(path))
+
+
+def _stack(frames: list[dict[str, tuple[np.ndarray, np.ndarray]]],
+           source: str) -> tuple[Tracks, Tracks]:
+    ids: list[str] = []
+    for fr in frames:
+        ids += [i for i in fr if i not in ids]
+    pos = {i: np.full((len(frames), 3), np.nan) for i in ids}
+    true = {i: np.full((len(frames), 3), np.nan) for i in ids}
+    for r, fr in enumerate(frames):
+        for i, (p, g) in fr.items():
+            pos[i][r], true[i][r] = p, g
+    if not ids:
+        raise InputError(f"{source}: no results")
+    return pos, {i: v for i, v in true.items() if np.isfinite(v).any()}
+
+
+def _read_bag(path: Path) -> tuple[Tracks, Tracks]:
+    from eye_in_hand.io.bags import bag_info, deserialize, iter_messages
+
+    info = bag_info(path)
+    pat = re.compile(r"^/target/([A-Za-z0-9_]+)/(pose|ground_truth)$")
+    topics = {t: pat.match(t) for t in info.topics}
+    topics = {t: m for t, m in topics.items() if m}
+    if not any(m.group(2) == "pose" for m in topics.values()):
+        raise InputError(f"{path}: no /target/<id>/pose topics (not an output bag of "
+                         "eye-in-hand process, or written before per-target topics)")
+    by_stamp: dict[int, dict[str, list[np.ndarray]]] = {}
+    for topic, msgtype, _t, raw in iter_messages(path, list(topics)):
+        m = topics[topic]
+        msg = deserialize(raw, msgtype)
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        p = msg.pose.position if m.group(2) == "pose" else msg.point
+        entry = by_stamp.setdefault(stamp, {}).setdefault(
+            m.group(1), [np.full(3, np.nan), np.full(3, np.nan)])
+        entry[0 if m.group(2) == "pose" else 1] = np.array([p.x, p.y, p.z])
+    frames = [{i: (v[0], v[1]) for i, v in by_stamp[s].items()} for s in sorted(by_stamp)]
+    return _stack(frames, str(path))
+
+
+def load_tracks(path: str | Path) -> tuple[Tracks, Tracks, str]:
+    """Base-frame tracks and ground truth per target from a ``results.csv``, an output folder
+    of ``process`` (its ``results.csv``) or an output bag (its ``/target/<id>/pose`` and
+    ``/target/<id>/ground_truth`` topics, frames by stamp).
+
+    Returns:
+        ``(tracks, truth, what was read)``, each id -> shape (N, 3), NaN where none.
+
+    Raises:
+        InputError: missing path, not a results file or output bag, malformed rows.
+        BagError: a bag that cannot be read.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"{p}: not found")
+    if p.is_dir() and (p / "results.csv").is_file():
+        return (*_read_csv(p / "results.csv"), str(p / "results.csv"))
+    if p.is_file() and p.suffix == ".csv":
+        return (*_read_csv(p), str(p))
+    try:
+        return (*_read_bag(p), str(p))
+    except BagError as exc:
+        raise InputError(f"{p}: neither a results.csv nor a readable output bag ({exc})"
+                         ) from exc
+
+
+def load_known_distances(path: str | Path) -> list[tuple[str, str, float]]:
+    """Known distances between target centres, from YAML::
+
+        distances:
+          - {a: red, b: blue, m: 0.1234}     # target ids, metres (> 0)
+
+    Raises:
+        ConfigError: missing file, not YAML, wrong layout, a bad entry (named by index), a
+            pair given twice.
+    """
+    data = read_yaml_file(path, "known-distances file")
+    if not isinstance(data, Mapping) or not isinstance(data.get("distances"), list):
+        raise ConfigError(f"{path}: expected a mapping with a 'distances' list of "
+                          "{a: ID, b: ID, m: METRES}")
+    out: list[tuple[str, str, float]] = []
+    seen: set[frozenset[str]] = set()
+    for k, entry in enumerate(data["distances"]):
+        where = f"{path}: distances[{k}]"
+        if not isinstance(entry, Mapping) or set(entry) != {"a", "b", "m"}:
+            raise ConfigError(f"{where}: expected exactly the keys a, b, m")
+        a, b, m = entry["a"], entry["b"], entry["m"]
+        if not (isinstance(a, str) and isinstance(b, str) and a and b):
+            raise ConfigError(f"{where}: a and b must be target ids (text)")
+        if a == b:
+            raise ConfigError(f"{where}: a and b are the same target ({a})")
+        if isinstance(m, bool) or not isinstance(m, (int, float)) or not (
+                math.isfinite(m) and m > 0):
+            raise ConfigError(f"{where}: m must be a positive number of metres, got {m!r}")
+        if frozenset((a, b)) in seen:
+            raise ConfigError(f"{where}: the pair {a} - {b} is given twice")
+        seen.add(frozenset((a, b)))
+        out.append((a, b, float(m)))
+    if not out:
+        raise ConfigError(f"{path}: 'distances' is empty")
+    return out
