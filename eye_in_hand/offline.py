@@ -358,12 +358,19 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     pool = _PairPool(rig, locator_config, opts.workers or available_cpus(),
                      task_timeout_s=opts.task_timeout_s)
     try:
-        if memory_mappable(path):
+        from eye_in_hand.io.bags.chunked import decoded_in_workers, worker_readable
+
+        in_workers = pool.parallel and worker_readable(path)   # compressed chunks
+        if in_workers or memory_mappable(path):
             pool.start_processes()     # they import and initialise while this process sets up
         typestore = typestore_for(path, {info.topics[t].msgtype for t in topics})
         errors: list[BaseException] = []
-        for topic, _t, msg in _decoded(path, topics, typestore, errors, opts.verify_crc,
-                                       result.damage):
+        source = decoded_in_workers(
+            path, topics, typestore, pool.submit_chunks, verify_crc=opts.verify_crc,
+            image_topics=(opts.left_topic, opts.right_topic), damage=result.damage) \
+            if in_workers else _decoded(path, topics, typestore, errors, opts.verify_crc,
+                                        result.damage)
+        for topic, _t, msg in source:
             if progress is not None:
                 progress(1)
             try:
@@ -612,7 +619,9 @@ def _worker_locate(stamp_ns: int, left: _MappedImage, right: _MappedImage) -> Fr
 
     maps: dict[str, Any] = _WORKER["maps"]
 
-    def view(ref: _MappedImage) -> _ImageView:
+    def view(ref: Any) -> Any:
+        if not isinstance(ref, _MappedImage):
+            return ref             # an image of a compressed chunk this process opened
         mapped = maps.get(ref.path)
         if mapped is None:
             with open(ref.path, "rb") as fh:
@@ -644,8 +653,8 @@ class _PairPool:
 
         self._task_timeout_s = task_timeout_s
         self._rig, self._config = rig, config
-        parallel = workers > 1 and config.detector.selection != "nearest"
-        self._workers = workers if parallel else 1
+        self.parallel = workers > 1 and config.detector.selection != "nearest"
+        self._workers = workers if self.parallel else 1
         self._local = threading.local()
         self._inline = StereoLocator(rig, config) if self._workers == 1 else None
         self._threads = (ThreadPoolExecutor(self._workers, thread_name_prefix="locate")
@@ -682,10 +691,22 @@ class _PairPool:
     def _work(self, pair: Any) -> FrameResult:
         return _locate_pair(self._locator(), pair.stamp_ns, pair.left, pair.right)
 
+    def submit_chunks(self, group: int, fn: str, args: tuple[Any, ...]) -> Any:
+        """Open compressed chunks (:mod:`eye_in_hand.io.mcap_tasks`) on worker ``group``
+        (modulo): ``(future, worker)``, or None (no worker: the caller opens them)."""
+        return None if self._procs is None else self._procs.try_submit_to(group, fn, *args,
+                                                                          wait_s=10.0)
+
     def _to_process(self, pair: Any) -> Any:
         """A process future for the pair, or None (not mapped, or no process ready)."""
         from eye_in_hand.workers import WorkerError
 
+        owner = getattr(pair.left, "owner", None)    # an ImageRef: the worker that opened it
+        if owner is not None and self._procs is not None:
+            got = self._procs.try_submit_to(owner, "eye_in_hand.offline:_worker_locate",
+                                            pair.stamp_ns, pair.left, pair.right)
+            self.in_processes += got is not None
+            return got and got[0]
         left = _MappedImage.of(pair.left)
         right = _MappedImage.of(pair.right) if left is not None else None
         if left is None or right is None:

@@ -36,7 +36,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
-__all__ = ["supports", "chunk_messages", "file_location", "ChunkDamage", "zstd_binding"]
+__all__ = ["supports", "chunk_messages", "file_location", "ChunkDamage", "chunk_damage",
+           "zstd_binding"]
 
 _RECORD = struct.Struct("<BQ")           # opcode, record length
 _MESSAGE = struct.Struct("<HIQQ")        # channel id, sequence, log time, publish time
@@ -283,6 +284,18 @@ def _lost(info: Any, channels: dict[int, Any],
     return {cid: n for cid, n in lost.items() if n}
 
 
+def chunk_damage(info: Any, exc: BaseException, channels: dict[int, Any],
+                 kept: Sequence[tuple[int, int, int, Any, memoryview]] = ()) -> ChunkDamage:
+    """The :class:`ChunkDamage` of a chunk that failed with ``exc`` (``kept``: the messages
+    read before a bad record; ``channels``: the wanted ones, by channel id)."""
+    offset = int(info.chunk_start_offset)
+    text = str(exc) or type(exc).__name__
+    if not text.startswith("chunk at byte"):
+        text = f"chunk at byte {offset}: {text}"
+    return ChunkDamage(offset, text, int(info.message_start_time), int(info.message_end_time),
+                       _lost(info, channels, kept))
+
+
 def _may_hold(info: Any, channels: dict[int, Any]) -> bool:
     """Whether a chunk may hold messages of ``channels``: by its message index when it has one
     (a writer may leave message indexes out: ``noMessageIndex``; then every chunk is read)."""
@@ -338,14 +351,10 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
 
     def damage(info: Any, exc: BaseException,
                kept: Sequence[tuple[int, int, int, Any, memoryview]] = ()) -> None:
-        offset = int(info.chunk_start_offset)
-        text = str(exc) or type(exc).__name__
-        if not text.startswith("chunk at byte"):
-            text = f"chunk at byte {offset}: {text}"
+        record = chunk_damage(info, exc, channels, kept)
         if on_damage is None:
-            raise ValueError(text) from exc
-        on_damage(ChunkDamage(offset, text, int(info.message_start_time),
-                              int(info.message_end_time), _lost(info, channels, kept)))
+            raise ValueError(record.reason) from exc
+        on_damage(record)
 
     try:
         chunks: list[_Chunk | None] = []
