@@ -104,10 +104,16 @@ def _zstd_decompressor() -> Callable[[Any, int], Any]:
         import zstandard
 
         def decompress(data: Any, size: int) -> Any:
+            # the frame header's size is checked first: a corrupt one allocates nothing
+            framed = zstandard.frame_content_size(data)
+            if framed >= 0 and framed != size:
+                raise ValueError(f"zstd data decompress to {framed} bytes, "
+                                 + ("more than" if framed > size else "not") +
+                                 f" the {size} bytes announced")
             out = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
             if len(out) != size:
-                raise ValueError(f"zstd data decompress to {len(out)} bytes, the chunk "
-                                 f"announces {size}")
+                raise ValueError(f"zstd data decompress to {len(out)} bytes, not the {size} "
+                                 "bytes announced")
             return out
 
         return decompress
