@@ -26,7 +26,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import queue
 import threading
 from collections import deque
 from dataclasses import dataclass, field
@@ -190,69 +189,6 @@ def error_stats(frames: list[FrameResult]) -> dict[str, float] | None:
             "max_mm": 1000.0 * float(errs.max()), "mean_mm": 1000.0 * float(errs.mean())}
 
 
-_END = object()
-
-
-def _decoded(path: Path, topics: list[str], typestore: Any, errors: list[BaseException],
-             verify_crc: bool = False, damage: Any = None) -> Iterator[tuple[str, int, Any]]:
-    """(topic, log time, message), produced on a reader thread (bounded queue).
-
-    The bag is read without copies (memory-mapped MCAP) and images are decoded straight from
-    their CDR bytes into views (:func:`eye_in_hand.io.cdr.image_from_cdr`); other messages go
-    through the generic deserializer. A message that does not decode is handed on as its
-    exception (the consumer counts it and goes on); damaged parts of the bag go to ``damage``
-    (a ``DamageLog``) and are skipped; an unreadable bag ends the iteration with the error.
-    """
-    from eye_in_hand.io.bags import deserialize, iter_messages
-    from eye_in_hand.io.cdr import image_from_cdr, is_image_type
-
-    q: queue.Queue = queue.Queue(maxsize=16)
-    stop = threading.Event()
-
-    def decode(raw: Any, msgtype: str) -> Any:
-        if is_image_type(msgtype):
-            img = image_from_cdr(raw)
-            if img is not None:
-                return img
-        return deserialize(raw, msgtype, typestore)
-
-    def reader() -> None:
-        try:
-            for topic, msgtype, t_ns, raw in iter_messages(path, topics, views=True,
-                                                           verify_crc=verify_crc,
-                                                           damage=damage):
-                if stop.is_set():
-                    return
-                try:
-                    msg = decode(raw, msgtype)
-                except (BagError, ConversionError) as exc:
-                    msg = exc
-                q.put((topic, t_ns, msg))
-        except BaseException as exc:  # handed to the consumer, re-raised there
-            errors.append(exc)
-        finally:
-            q.put(_END)
-
-    th = threading.Thread(target=reader, name="bag-reader", daemon=True)
-    th.start()
-    try:
-        while True:
-            item = q.get()
-            if item is _END:
-                break
-            yield item
-    finally:
-        stop.set()
-        while th.is_alive():
-            try:
-                q.get(timeout=0.05)
-            except queue.Empty:
-                pass
-        th.join()
-    if errors:
-        raise errors[0]
-
-
 def available_cpus() -> int:
     """CPUs this process may run on (its affinity mask; the CPU count where there is none)."""
     import os
@@ -358,18 +294,16 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     pool = _PairPool(rig, locator_config, opts.workers or available_cpus(),
                      task_timeout_s=opts.task_timeout_s)
     try:
-        from eye_in_hand.io.bags.chunked import decoded_in_workers, worker_readable
+        from eye_in_hand.io.bags.streams import decoded_stream, worker_readable
 
         in_workers = pool.parallel and worker_readable(path)   # compressed chunks
         if in_workers or memory_mappable(path):
             pool.start_processes()     # they import and initialise while this process sets up
         typestore = typestore_for(path, {info.topics[t].msgtype for t in topics})
-        errors: list[BaseException] = []
-        source = decoded_in_workers(
-            path, topics, typestore, pool.submit_chunks, verify_crc=opts.verify_crc,
-            image_topics=(opts.left_topic, opts.right_topic), damage=result.damage) \
-            if in_workers else _decoded(path, topics, typestore, errors, opts.verify_crc,
-                                        result.damage)
+        source = decoded_stream(path, topics, typestore, verify_crc=opts.verify_crc,
+                                damage=result.damage, image_topics=(opts.left_topic,
+                                                                    opts.right_topic),
+                                submit=pool.submit_chunks if in_workers else None)
         for topic, _t, msg in source:
             if progress is not None:
                 progress(1)

@@ -10,7 +10,7 @@ import pytest
 from eye_in_hand.core.locator import load_locator_config
 from eye_in_hand.io import mcap_tasks
 from eye_in_hand.io.bags import BagWriter, bag_info, iter_messages
-from eye_in_hand.io.bags.chunked import worker_readable
+from eye_in_hand.io.bags.streams import worker_readable
 from eye_in_hand.offline import ProcessOptions, process_bag, write_results
 from eye_in_hand.sim import World
 from eye_in_hand.sim.output import write_bag

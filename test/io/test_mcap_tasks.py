@@ -10,7 +10,7 @@ import pytest
 
 from eye_in_hand.io import mcap_tasks
 from eye_in_hand.io.bags import BagWriter, DamageLog, default_typestore, iter_messages, serialize
-from eye_in_hand.io.bags.chunked import iter_in_workers, worker_readable
+from eye_in_hand.io.bags.streams import iter_in_workers, worker_readable
 from eye_in_hand.workers import ProcessPool
 
 T0 = 1_700_000_000_000_000_000

@@ -1,4 +1,10 @@
-"""A compressed MCAP bag read with its chunks opened by worker processes.
+"""Message streams of offline processing: a reader thread, or worker processes that open
+compressed MCAP chunks.
+
+:func:`decoded_stream` is what ``process`` reads: ``(topic, log time, message)`` in log-time
+order, images as views that are never copied, from a reader thread
+(:func:`decoded_on_thread`), or, for a compressed MCAP bag and a ``submit`` to worker
+processes, from :func:`decoded_in_workers`.
 
 :func:`worker_readable` says whether a bag is one indexed MCAP file with zstd or lz4 chunks;
 :func:`iter_in_workers` then reads it through :func:`eye_in_hand.io.mcap_tasks.worker_messages`:
@@ -9,6 +15,8 @@ processes) and other messages as CDR bytes.
 """
 from __future__ import annotations
 
+import queue
+import threading
 from pathlib import Path
 from typing import Any, Iterable, Iterator
 
@@ -16,7 +24,8 @@ from eye_in_hand.errors import BagError
 from eye_in_hand.io.bags.reading import _OpenBag, chunk_damage_record
 from eye_in_hand.io.bags.records import DamageLog
 
-__all__ = ["worker_readable", "iter_in_workers", "decoded_in_workers"]
+__all__ = ["decoded_stream", "decoded_on_thread", "worker_readable", "iter_in_workers",
+           "decoded_in_workers"]
 
 _COMPRESSIONS = ("zstd", "lz4")
 
@@ -121,3 +130,87 @@ def decoded_in_workers(path: str | Path, topics: Iterable[str], typestore: Any, 
             except (BagError, ConversionError) as exc:
                 msg = exc
         yield topic, t_ns, msg
+
+
+_END = object()
+
+
+def decoded_on_thread(path: str | Path, topics: list[str], typestore: Any,
+                      verify_crc: bool = False, damage: Any = None
+                      ) -> Iterator[tuple[str, int, Any]]:
+    """(topic, log time, message), produced on a reader thread (bounded queue).
+
+    The bag is read without copies (memory-mapped MCAP) and images are decoded straight from
+    their CDR bytes into views (:func:`eye_in_hand.io.cdr.image_from_cdr`); other messages go
+    through the generic deserializer. A message that does not decode is handed on as its
+    exception (the consumer counts it and goes on); damaged parts of the bag go to ``damage``
+    (a ``DamageLog``) and are skipped; an unreadable bag ends the iteration with the error.
+    """
+    from eye_in_hand.errors import ConversionError
+    from eye_in_hand.io.bags.decoding import deserialize
+    from eye_in_hand.io.bags.reading import iter_messages
+    from eye_in_hand.io.cdr import image_from_cdr, is_image_type
+
+    errors: list[BaseException] = []
+    q: queue.Queue = queue.Queue(maxsize=16)
+    stop = threading.Event()
+
+    def decode(raw: Any, msgtype: str) -> Any:
+        if is_image_type(msgtype):
+            img = image_from_cdr(raw)
+            if img is not None:
+                return img
+        return deserialize(raw, msgtype, typestore)
+
+    def reader() -> None:
+        try:
+            for topic, msgtype, t_ns, raw in iter_messages(path, topics, views=True,
+                                                           verify_crc=verify_crc,
+                                                           damage=damage):
+                if stop.is_set():
+                    return
+                try:
+                    msg = decode(raw, msgtype)
+                except (BagError, ConversionError) as exc:
+                    msg = exc
+                q.put((topic, t_ns, msg))
+        except BaseException as exc:  # handed to the consumer, re-raised there
+            errors.append(exc)
+        finally:
+            q.put(_END)
+
+    th = threading.Thread(target=reader, name="bag-reader", daemon=True)
+    th.start()
+    try:
+        while True:
+            item = q.get()
+            if item is _END:
+                break
+            yield item
+    finally:
+        stop.set()
+        while th.is_alive():
+            try:
+                q.get(timeout=0.05)
+            except queue.Empty:
+                pass
+        th.join()
+    if errors:
+        raise errors[0]
+
+
+def decoded_stream(path: str | Path, topics: list[str], typestore: Any, *,
+                   verify_crc: bool = False, damage: DamageLog | None = None,
+                   image_topics: tuple[str, str] = ("", ""), submit: Any = None,
+                   ) -> Iterator[tuple[str, int, Any]]:
+    """``(topic, log_time_ns, message)`` of a bag for offline processing: from worker
+    processes (:func:`decoded_in_workers`) when ``submit`` is given (the bag must be
+    :func:`worker_readable`), else from a reader thread (:func:`decoded_on_thread`).
+
+    Raises:
+        BagError: the bag cannot be read (at the point where it stops).
+    """
+    if submit is not None:
+        return decoded_in_workers(path, topics, typestore, submit, image_topics=image_topics,
+                                  verify_crc=verify_crc, damage=damage)
+    return decoded_on_thread(path, topics, typestore, verify_crc, damage)
