@@ -36,6 +36,22 @@ def bags(tmp_path_factory):
     return world, zstd, raw
 
 
+def _copy(src, dst, compression):
+    """``src`` rewritten with chunks compressed by ``compression`` ("lz4": rosbags writes zstd
+    only, so the writer's codec is swapped)."""
+    import lz4.frame
+
+    info = bag_info(src)
+    with BagWriter(dst, "mcap", "zstd") as w:
+        if compression == "lz4":
+            w._writer.storage.compression = "lz4"
+            w._writer.storage.compressor = lz4.frame.compress
+        for name, t in info.topics.items():
+            w.add_topic(name, t.msgtype)
+        for topic, _mt, stamp, data in iter_messages(src):
+            w.write(topic, stamp, data)
+
+
 def _run(world, bag, workers):
     return process_bag(bag, hand_eye_T=world.ee_T_cam, locator_config=load_locator_config(None),
                        rig=world.rig, options=ProcessOptions(workers=workers))
@@ -65,6 +81,16 @@ def test_pairs_split_over_groups_and_workers(bags, monkeypatch, tmp_path):
     split = _run(world, zstd, 2)
     assert split.located_in_processes == 7
     assert _csv(split, tmp_path / "a") == _csv(_run(world, raw, 1), tmp_path / "b")
+
+
+def test_lz4_chunks_take_the_same_path(bags, tmp_path):
+    world, _zstd, raw = bags
+    lz4 = tmp_path / "lz4"
+    _copy(raw, lz4, "lz4")
+    assert worker_readable(lz4)
+    res = _run(world, lz4, 2)
+    assert res.located_in_processes == 7 and not res.notes
+    assert _csv(res, tmp_path / "a") == _csv(_run(world, raw, 1), tmp_path / "b")
 
 
 def _chunk_of_image(mcap, k):
@@ -103,3 +129,49 @@ def test_a_damaged_chunk_is_skipped_and_counted_as_by_the_serial_reader(bags, tm
     assert in_workers.counts["damaged_regions"] == 1 and in_workers.counts["messages_lost"] >= 1
     assert in_workers.counts["pairs"] == in_workers.counts["left_frames"] == 6
     assert _csv(in_workers, tmp_path / "a") == _csv(serial, tmp_path / "b")
+
+
+def test_a_stopped_worker_costs_no_chunk_and_no_pair(bags, monkeypatch):
+    """SIGSTOP a worker before it opens its chunks: its tasks miss the deadline, its chunks
+    are opened here and its pairs located elsewhere, and every result is the same."""
+    import os
+    import signal
+    import time
+
+    from eye_in_hand.core.sync import ApproximateStereoSync
+    from eye_in_hand.io.bags import typestore_for
+    from eye_in_hand.io.bags.streams import decoded_stream
+    from eye_in_hand.offline import _PairPool
+    from eye_in_hand.ros.conversions import header_stamp_ns
+
+    world, zstd, _raw = bags
+    cfg = load_locator_config(None)
+    topics = [LEFT, "/stereo/right/image_raw"]
+
+    def located(pool, submit):
+        sync = ApproximateStereoSync(5_000_000, 5)
+        out = []
+        for topic, _t, msg in decoded_stream(zstd, topics, typestore_for(zstd), submit=submit,
+                                             image_topics=tuple(topics)):
+            push = sync.push_left if topic == LEFT else sync.push_right
+            for pair in push(header_stamp_ns(msg), msg):
+                pool.submit(pair)
+            out.extend(pool.ready())
+        out.extend(pool.ready(wait=True))
+        pool.close()
+        return out
+
+    expected = located(_PairPool(world.rig, cfg, 1), None)
+    monkeypatch.setattr(mcap_tasks, "GROUP_BYTES", 1)   # groups alternate between the workers
+    pool = _PairPool(world.rig, cfg, 2, task_timeout_s=1.0)
+    pool.start_processes()
+    assert pool._procs.wait_ready(60)
+    os.kill(pool._procs._workers[0].proc.pid, signal.SIGSTOP)
+    t0 = time.monotonic()
+    out = located(pool, pool.submit_chunks)
+    assert time.monotonic() - t0 < 30
+    assert pool.timeouts == 1 and pool.in_processes >= 1
+    assert [f.stamp_ns for f in out] == [f.stamp_ns for f in expected] and len(out) == 7
+    for a, b in zip(out, expected):
+        assert a.status == b.status == "located"
+        np.testing.assert_array_equal(a.point_cam, b.point_cam)
