@@ -138,3 +138,27 @@ def test_a_damaged_chunk_is_recorded_as_by_the_serial_reader(tmp_path):
     assert len(serial_log) == 1 and worker_log.records == serial_log.records
     assert worker_log.records[0].where == f"chunk at byte {off}"
     assert worker_log.messages_lost > 0
+
+
+@pytest.mark.parametrize("group_bytes", [1, 1 << 30])
+def test_chunks_overlapping_in_time_and_equal_times_merge_as_the_serial_reader(
+        tmp_path, monkeypatch, group_bytes):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(   # the MCAP writer of the sibling test
+        "mcap_chunks_test", Path(__file__).with_name("test_mcap_chunks.py"))
+    sibling = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(sibling)
+    T, _payload, write_mcap = sibling.T0, sibling._payload, sibling.write_mcap
+
+    monkeypatch.setattr(mcap_tasks, "GROUP_BYTES", group_bytes)
+    a = [(1, T + k * 10, _payload(f"a{k}")) for k in range(5)]
+    b = [(2, T + k * 10 + 5, _payload(f"b{k}")) for k in range(5)] + \
+        [(1, T + 40, _payload("tie"))]
+    c = [(1, T + 100 + k, _payload(f"c{k}")) for k in range(3)]
+    path = tmp_path / "x.mcap"
+    write_mcap(path, [a, b, c], compression="zstd")
+    expected = [(t, s, bytes(r)) for t, _m, s, r in iter_messages(path, verify_crc=False)]
+    got = [(t, s, bytes(p)) for t, _m, s, p in iter_in_workers(path, ["/a", "/b"], _local,
+                                                               image_topics=("", ""))]
+    assert got == expected and len(got) == 14
