@@ -47,7 +47,7 @@ __all__ = ["ChunkRef", "ImageRef", "plan_groups", "open_group", "worker_messages
 #: uncompressed records per task (a few 1280x720 stereo pairs)
 GROUP_BYTES = 12 << 20
 #: decompressed chunks a process keeps (least recently used go first)
-CACHE_BYTES = 160 << 20
+CACHE_BYTES = 96 << 20
 
 
 @dataclass(frozen=True, eq=False)
