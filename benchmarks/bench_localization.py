@@ -8,7 +8,8 @@ Prints, using only calibrations the package computes itself from a simulated cal
 * speed of offline processing against the bag's duration (x real time): ``process_bag`` (best
   of three) on the zstd-chunk bag as the simulator writes it and on an uncompressed copy
   (``ros2 bag record``'s default), and the whole ``eye-in-hand process`` command (interpreter
-  start-up, imports and output files included) on the uncompressed one;
+  start-up, imports and output files included) on both; the CPU-seconds each costs per second
+  of bag (main process and worker processes), and zstd decompression's alone;
 * live over DDS (``detect_triangulate`` and ``hand_eye`` as separate processes, fed at 30 Hz by a
   replayer process that shifts every header stamp to the present): image stamp -> target/pose
   latency p50 / p95, and frames lost (published pairs without a target/pose, and the
