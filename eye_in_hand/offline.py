@@ -296,8 +296,9 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     try:
         from eye_in_hand.io.bags.streams import decoded_stream, worker_readable
 
-        in_workers = pool.parallel and worker_readable(path)   # compressed chunks
-        if in_workers or memory_mappable(path):
+        mappable = memory_mappable(path)                       # uncompressed MCAP
+        in_workers = pool.parallel and not mappable and worker_readable(path)   # compressed
+        if in_workers or mappable:
             pool.start_processes()     # they import and initialise while this process sets up
         typestore = typestore_for(path, {info.topics[t].msgtype for t in topics})
         source = decoded_stream(path, topics, typestore, verify_crc=opts.verify_crc,
