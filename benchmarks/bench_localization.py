@@ -25,6 +25,7 @@ The world is the simulator's default, robot error included (``World.default()``)
 
 Usage: .venv/bin/python benchmarks/bench_localization.py [--pairs N (600: a 20 s bag)] [--fresh]
        .venv/bin/python benchmarks/bench_localization.py --process-only [--trials N]
+           [--compare-paths]
 (--process-only: the accuracy and speed of offline processing only, both bags in one run, with
 the CPU-seconds per second of bag of each and of zstd decompression alone: what two cores
 allow at most.)
@@ -212,6 +213,36 @@ def decompression_cpu(bag: Path, duration_s: float) -> tuple[float, float]:
             best = cpu if best is None else min(best, cpu)
     assert best is not None
     return total / best / 1e9, best / duration_s
+
+
+def compare_paths(paths: dict[str, Path], rounds: int = 2) -> None:
+    """The zstd-chunk bag read by worker processes (what ``process`` does) against the thread
+    path used before (chunks decompressed on threads of the main process, pairs located on
+    threads there), alternating, so that both see the same machine load."""
+    import eye_in_hand.io.bags.streams as streams
+    from eye_in_hand.core.camera import StereoRig
+    from eye_in_hand.core.locator import load_locator_config
+    from eye_in_hand.io.config import load_hand_eye
+    from eye_in_hand.offline import process_bag
+
+    he = load_hand_eye(paths["he"] / "hand_eye.yaml")
+    rig = StereoRig.load(paths["calib"])
+    cfg = load_locator_config(params_file(paths))
+    real = streams.worker_readable
+    try:
+        for _ in range(rounds):
+            for name, readable in (("chunks opened by worker processes", real),
+                                   ("threads (the path before)", lambda _p: False)):
+                streams.worker_readable = readable  # type: ignore[assignment]
+                cpu0, t0 = _cpu_s(), time.perf_counter()
+                res = process_bag(paths["loc"], hand_eye_T=he.transform,
+                                  hand_eye_cov=he.covariance, locator_config=cfg, rig=rig)
+                wall, cpu1 = time.perf_counter() - t0, _cpu_s()
+                cpu = (cpu1[0] - cpu0[0] + cpu1[1] - cpu0[1]) / res.duration_s
+                print(f"zstd-chunk bag, {name}: {res.duration_s / wall:.2f}x real time, "
+                      f"{cpu:.3f} CPU-s per second of bag", flush=True)
+    finally:
+        streams.worker_readable = real
 
 
 def print_speeds(speeds: dict[str, float], n: int) -> None:
@@ -444,6 +475,9 @@ def main() -> int:
                         help="only the covariance consistency (NEES) part")
     parser.add_argument("--process-only", action="store_true",
                         help="only the offline accuracy and speed part (both bags, one run)")
+    parser.add_argument("--compare-paths", action="store_true",
+                        help="also the zstd bag through worker processes against the thread "
+                             "path used before, alternating (two rounds)")
     parser.add_argument("--trials", type=int, default=3,
                         help="process_bag runs per bag, the best one counts (default 3)")
     args = parser.parse_args()
@@ -469,6 +503,8 @@ def main() -> int:
     print(f"offline accuracy ({n} pairs, 1280x720, noise 1): {errors_mm(off_pts, truth)}  "
           "(target RMS <= 2 mm)")
     print_speeds(speeds, n)
+    if args.compare_paths:
+        compare_paths(paths)
     if args.process_only:
         return 0
     live_pts, fig = live(paths)
