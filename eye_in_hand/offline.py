@@ -715,10 +715,13 @@ class _PairPool:
     _timeouts = 0
 
     def close(self) -> None:
+        from eye_in_hand.io.mcap_tasks import release
+
         if self._threads is not None:
             self._threads.shutdown(wait=True, cancel_futures=True)
         if self._procs is not None:
             self._procs.close()
+        release()          # chunks this process opened for pairs located here
 
 
 def write_results(out: str | Path, result: ProcessResult, opts: ProcessOptions | None = None,

@@ -41,7 +41,7 @@ from eye_in_hand.io.cdr import CdrHeader, CdrStamp, image_from_cdr
 from eye_in_hand.io.mcap_chunks import (ChunkDamage, _address, _Chunk, _DamagedRecords,
                                         _lost, _may_hold, _messages_of, chunk_damage)
 
-__all__ = ["ChunkRef", "ImageRef", "plan_groups", "open_group", "worker_messages",
+__all__ = ["ChunkRef", "ImageRef", "plan_groups", "open_group", "worker_messages", "release",
            "GROUP_BYTES", "CACHE_BYTES"]
 
 #: uncompressed records per task (a few 1280x720 stereo pairs)
@@ -119,7 +119,21 @@ class _Cache:
         return chunk, recs
 
 
+    def clear(self) -> None:
+        """Drop the decompressed chunks and unmap the files (views handed out stay valid)."""
+        with self._lock:
+            self._chunks.clear()
+            self._bytes = 0
+            self._files.clear()
+
+
 _CACHE = _Cache(CACHE_BYTES)
+
+
+def release() -> None:
+    """Free this process's chunk cache (the reading process calls it once its pairs are
+    located; a worker's goes with the worker)."""
+    _CACHE.clear()
 
 
 @dataclass(frozen=True, eq=False)
