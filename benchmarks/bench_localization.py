@@ -8,7 +8,8 @@ Prints, using only calibrations the package computes itself from a simulated cal
 * speed of offline processing against the bag's duration (x real time): ``process_bag`` (best
   of three) on the zstd-chunk bag as the simulator writes it and on an uncompressed copy
   (``ros2 bag record``'s default), and the whole ``eye-in-hand process`` command (interpreter
-  start-up, imports and output files included) on the uncompressed one;
+  start-up, imports and output files included) on both; the CPU-seconds each costs per second
+  of bag (main process and worker processes), and zstd decompression's alone;
 * live over DDS (``detect_triangulate`` and ``hand_eye`` as separate processes, fed at 30 Hz by a
   replayer process that shifts every header stamp to the present): image stamp -> target/pose
   latency p50 / p95, and frames lost (published pairs without a target/pose, and the
@@ -23,6 +24,11 @@ Prints, using only calibrations the package computes itself from a simulated cal
 The world is the simulator's default, robot error included (``World.default()``).
 
 Usage: .venv/bin/python benchmarks/bench_localization.py [--pairs N (600: a 20 s bag)] [--fresh]
+       .venv/bin/python benchmarks/bench_localization.py --process-only [--trials N]
+           [--compare-paths]
+(--process-only: the accuracy and speed of offline processing only, both bags in one run, with
+the CPU-seconds per second of bag of each and of zstd decompression alone: what two cores
+allow at most.)
        .venv/bin/python benchmarks/bench_localization.py --consistency-only [--nees-pairs N]
 Data is cached in build/bench-data/ (regenerate with --fresh).
 """
@@ -127,7 +133,8 @@ def errors_mm(points: dict[int, np.ndarray], truth: dict[int, np.ndarray]) -> st
             f"max {e.max():.3f} mm ({e.size} frames)")
 
 
-def offline(paths: dict[str, Path]) -> tuple[dict[int, np.ndarray], dict[str, float]]:
+def offline(paths: dict[str, Path], trials: int = 3
+            ) -> tuple[dict[int, np.ndarray], dict[str, float]]:
     from eye_in_hand.core.camera import StereoRig
     from eye_in_hand.core.locator import load_locator_config
     from eye_in_hand.io.config import load_hand_eye
@@ -140,11 +147,16 @@ def offline(paths: dict[str, Path]) -> tuple[dict[int, np.ndarray], dict[str, fl
     points: dict[int, np.ndarray] = {}
     for key in ("loc", "raw"):
         best = None
-        for _ in range(3):
+        for _ in range(trials):
+            cpu0 = _cpu_s()
             t0 = time.perf_counter()
             res = process_bag(paths[key], hand_eye_T=he.transform, hand_eye_cov=he.covariance,
                               locator_config=cfg, rig=rig)
             wall = time.perf_counter() - t0
+            cpu1 = _cpu_s()
+            if best is None or wall < best:     # CPU-seconds of the best run, per bag-second
+                speeds[key + "_cpu_main"] = (cpu1[0] - cpu0[0]) / res.duration_s
+                speeds[key + "_cpu_workers"] = (cpu1[1] - cpu0[1]) / res.duration_s
             best = wall if best is None else min(best, wall)
         speeds[key] = res.duration_s / best
         speeds[key + "_pairs_per_s"] = res.counts["pairs"] / best
@@ -152,16 +164,106 @@ def offline(paths: dict[str, Path]) -> tuple[dict[int, np.ndarray], dict[str, fl
         if key == "loc":
             points = {f.stamp_ns: f.point_base for f in res.frames if f.point_base is not None}
         duration = res.duration_s
+    speeds["zstd_gb_per_cpu_s"], speeds["zstd_cpu_per_bag_s"] = decompression_cpu(paths["loc"],
+                                                                                 duration)
     # the whole command, as a user runs it: interpreter start-up, imports, outputs included
     out = paths["calib"].parent / "process-out"
-    shutil.rmtree(out, ignore_errors=True)
-    t0 = time.perf_counter()
-    _cli("process", str(paths["raw"]), "--calibration", str(paths["calib"]), "--hand-eye",
-         str(paths["he"] / "hand_eye.yaml"), "--params", str(params_file(paths)), "-o", str(out),
-         "--quiet")
-    speeds["cli_raw"] = duration / (time.perf_counter() - t0)
+    for key in ("raw", "loc"):
+        shutil.rmtree(out, ignore_errors=True)
+        t0 = time.perf_counter()
+        _cli("process", str(paths[key]), "--calibration", str(paths["calib"]), "--hand-eye",
+             str(paths["he"] / "hand_eye.yaml"), "--params", str(params_file(paths)), "-o",
+             str(out), "--quiet")
+        speeds["cli_" + key] = duration / (time.perf_counter() - t0)
     shutil.rmtree(out, ignore_errors=True)
     return points, speeds
+
+
+def _cpu_s() -> tuple[float, float]:
+    """CPU seconds (user + system) of this process and of its finished children (the worker
+    processes, once a run has closed them)."""
+    import resource
+
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(
+        resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime, kids.ru_utime + kids.ru_stime
+
+
+def decompression_cpu(bag: Path, duration_s: float) -> tuple[float, float]:
+    """(GB of output per CPU-second, CPU-seconds per second of bag) of decompressing every
+    chunk of ``bag`` in this process, as the workers do (best of two passes)."""
+    import mmap
+
+    from eye_in_hand.io.bags.reading import _OpenBag
+    from eye_in_hand.io.mcap_chunks import _Chunk
+
+    with _OpenBag(bag) as opened:
+        storage = opened.readers[0].storage
+        storage = storage.storages[0] if hasattr(storage, "storages") else storage
+        with open(storage.path, "rb") as fh:
+            view = memoryview(mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ))
+        chunks = [_Chunk(c, view) for c in storage.chunks]
+        total = sum(c.size for c in chunks)
+        best = None
+        for _ in range(2):
+            t0 = time.process_time()
+            for c in chunks:
+                c.records(False)
+            cpu = time.process_time() - t0
+            best = cpu if best is None else min(best, cpu)
+    assert best is not None
+    return total / best / 1e9, best / duration_s
+
+
+def compare_paths(paths: dict[str, Path], rounds: int = 2) -> None:
+    """The zstd-chunk bag read by worker processes (what ``process`` does) against the thread
+    path used before (chunks decompressed on threads of the main process, pairs located on
+    threads there), alternating, so that both see the same machine load."""
+    import eye_in_hand.io.bags.streams as streams
+    from eye_in_hand.core.camera import StereoRig
+    from eye_in_hand.core.locator import load_locator_config
+    from eye_in_hand.io.config import load_hand_eye
+    from eye_in_hand.offline import process_bag
+
+    he = load_hand_eye(paths["he"] / "hand_eye.yaml")
+    rig = StereoRig.load(paths["calib"])
+    cfg = load_locator_config(params_file(paths))
+    real = streams.worker_readable
+    try:
+        for _ in range(rounds):
+            for name, readable in (("chunks opened by worker processes", real),
+                                   ("threads (the path before)", lambda _p: False)):
+                streams.worker_readable = readable  # type: ignore[assignment]
+                cpu0, t0 = _cpu_s(), time.perf_counter()
+                res = process_bag(paths["loc"], hand_eye_T=he.transform,
+                                  hand_eye_cov=he.covariance, locator_config=cfg, rig=rig)
+                wall, cpu1 = time.perf_counter() - t0, _cpu_s()
+                cpu = (cpu1[0] - cpu0[0] + cpu1[1] - cpu0[1]) / res.duration_s
+                print(f"zstd-chunk bag, {name}: {res.duration_s / wall:.2f}x real time, "
+                      f"{cpu:.3f} CPU-s per second of bag", flush=True)
+    finally:
+        streams.worker_readable = real
+
+
+def print_speeds(speeds: dict[str, float], n: int) -> None:
+    """The offline speed lines (both bags, one run)."""
+    print(f"offline speed (process_bag, {n / 30:.0f} s bag): {speeds['raw']:.1f}x real time on "
+          f"the uncompressed bag ({speeds['raw_pairs_per_s']:.0f} pairs/s, "
+          f"{100 * speeds['raw_in_processes']:.0f}% of pairs in worker processes), "
+          f"{speeds['loc']:.1f}x on the zstd-chunk bag ({speeds['loc_pairs_per_s']:.0f} pairs/s, "
+          f"{100 * speeds['loc_in_processes']:.0f}% of pairs in worker processes, "
+          f"zstd by {zstd_binding()})  (targets: >= 10x uncompressed, >= 8x zstd)")
+    print(f"zstd decompression alone (this process, every chunk of the zstd-chunk bag): "
+          f"{speeds['zstd_gb_per_cpu_s']:.2f} GB of output per CPU-second, "
+          f"{speeds['zstd_cpu_per_bag_s']:.3f} CPU-s per second of bag")
+    for key, name in (("raw", "uncompressed"), ("loc", "zstd-chunk")):
+        main, workers = speeds[key + "_cpu_main"], speeds[key + "_cpu_workers"]
+        print(f"CPU per second of bag ({name}, best run): {main:.3f} s in the main process + "
+              f"{workers:.3f} s in the workers = {main + workers:.3f} s: at most "
+              f"{2 / (main + workers):.1f}x real time on 2 otherwise idle cores")
+    print(f"offline speed (`eye-in-hand process` command, start-up and outputs included): "
+          f"{speeds['cli_raw']:.1f}x real time on the uncompressed bag, {speeds['cli_loc']:.1f}x "
+          "on the zstd-chunk bag", flush=True)
 
 
 def zstd_binding() -> str:
@@ -371,6 +473,13 @@ def main() -> int:
                         help="localization pairs of the consistency part (default 90)")
     parser.add_argument("--consistency-only", action="store_true",
                         help="only the covariance consistency (NEES) part")
+    parser.add_argument("--process-only", action="store_true",
+                        help="only the offline accuracy and speed part (both bags, one run)")
+    parser.add_argument("--compare-paths", action="store_true",
+                        help="also the zstd bag through worker processes against the thread "
+                             "path used before, alternating (two rounds)")
+    parser.add_argument("--trials", type=int, default=3,
+                        help="process_bag runs per bag, the best one counts (default 3)")
     args = parser.parse_args()
     if args.replay:
         replay(args.replay, lead_s=0.5)
@@ -389,17 +498,15 @@ def main() -> int:
     rig = StereoRig.load(paths["calib"])
     print(f"\ncalibrations computed by the package: baseline {1000 * rig.baseline:.3f} mm; "
           f"hand-eye {1000 * dt:.3f} mm / {np.degrees(dr):.4f} deg from the true mount")
-    off_pts, speeds = offline(paths)
+    off_pts, speeds = offline(paths, args.trials)
     n = len(truth)
     print(f"offline accuracy ({n} pairs, 1280x720, noise 1): {errors_mm(off_pts, truth)}  "
           "(target RMS <= 2 mm)")
-    print(f"offline speed (process_bag, {n / 30:.0f} s bag): {speeds['raw']:.1f}x real time on "
-          f"the uncompressed bag ({speeds['raw_pairs_per_s']:.0f} pairs/s, "
-          f"{100 * speeds['raw_in_processes']:.0f}% of pairs in worker processes), "
-          f"{speeds['loc']:.1f}x on the zstd-chunk bag ({speeds['loc_pairs_per_s']:.0f} pairs/s, "
-          f"zstd by {zstd_binding()})  (targets: >= 10x uncompressed, >= 8x zstd)")
-    print(f"offline speed (`eye-in-hand process` command, start-up and outputs included): "
-          f"{speeds['cli_raw']:.1f}x real time on the uncompressed bag")
+    print_speeds(speeds, n)
+    if args.compare_paths:
+        compare_paths(paths)
+    if args.process_only:
+        return 0
     live_pts, fig = live(paths)
     common = sorted(set(live_pts) & set(off_pts))
     diff = max((float(np.max(np.abs(live_pts[s] - off_pts[s]))) for s in common), default=float("nan"))

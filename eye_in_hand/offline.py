@@ -24,7 +24,6 @@ paths therefore give the same numbers on the same bag.
 from __future__ import annotations
 
 import math
-import queue
 import threading
 from collections import deque
 from dataclasses import dataclass, field
@@ -206,69 +205,6 @@ def error_stats(frames: list[FrameResult]) -> dict[str, float] | None:
             "max_mm": 1000.0 * float(errs.max()), "mean_mm": 1000.0 * float(errs.mean())}
 
 
-_END = object()
-
-
-def _decoded(path: Path, topics: list[str], typestore: Any, errors: list[BaseException],
-             verify_crc: bool = False, damage: Any = None) -> Iterator[tuple[str, int, Any]]:
-    """(topic, log time, message), produced on a reader thread (bounded queue).
-
-    The bag is read without copies (memory-mapped MCAP) and images are decoded straight from
-    their CDR bytes into views (:func:`eye_in_hand.io.cdr.image_from_cdr`); other messages go
-    through the generic deserializer. A message that does not decode is handed on as its
-    exception (the consumer counts it and goes on); damaged parts of the bag go to ``damage``
-    (a ``DamageLog``) and are skipped; an unreadable bag ends the iteration with the error.
-    """
-    from eye_in_hand.io.bags import deserialize, iter_messages
-    from eye_in_hand.io.cdr import image_from_cdr, is_image_type
-
-    q: queue.Queue = queue.Queue(maxsize=16)
-    stop = threading.Event()
-
-    def decode(raw: Any, msgtype: str) -> Any:
-        if is_image_type(msgtype):
-            img = image_from_cdr(raw)
-            if img is not None:
-                return img
-        return deserialize(raw, msgtype, typestore)
-
-    def reader() -> None:
-        try:
-            for topic, msgtype, t_ns, raw in iter_messages(path, topics, views=True,
-                                                           verify_crc=verify_crc,
-                                                           damage=damage):
-                if stop.is_set():
-                    return
-                try:
-                    msg = decode(raw, msgtype)
-                except (BagError, ConversionError) as exc:
-                    msg = exc
-                q.put((topic, t_ns, msg))
-        except BaseException as exc:  # handed to the consumer, re-raised there
-            errors.append(exc)
-        finally:
-            q.put(_END)
-
-    th = threading.Thread(target=reader, name="bag-reader", daemon=True)
-    th.start()
-    try:
-        while True:
-            item = q.get()
-            if item is _END:
-                break
-            yield item
-    finally:
-        stop.set()
-        while th.is_alive():
-            try:
-                q.get(timeout=0.05)
-            except queue.Empty:
-                pass
-        th.join()
-    if errors:
-        raise errors[0]
-
-
 def available_cpus() -> int:
     """CPUs this process may run on (its affinity mask; the CPU count where there is none)."""
     import os
@@ -388,12 +324,18 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     pool = _PairPool(rig, locator_config, 1 if getattr(locator_config, "stateful", False)
                      else opts.workers or available_cpus(), task_timeout_s=opts.task_timeout_s)
     try:
-        if memory_mappable(path):
+        from eye_in_hand.io.bags.streams import decoded_stream, worker_readable
+
+        mappable = memory_mappable(path)                       # uncompressed MCAP
+        in_workers = pool.parallel and not mappable and worker_readable(path)   # compressed
+        if in_workers or mappable:
             pool.start_processes()     # they import and initialise while this process sets up
         typestore = typestore_for(path, {info.topics[t].msgtype for t in topics})
-        errors: list[BaseException] = []
-        for topic, _t, msg in _decoded(path, topics, typestore, errors, opts.verify_crc,
-                                       result.damage):
+        source = decoded_stream(path, topics, typestore, verify_crc=opts.verify_crc,
+                                damage=result.damage, image_topics=(opts.left_topic,
+                                                                    opts.right_topic),
+                                submit=pool.submit_chunks if in_workers else None)
+        for topic, _t, msg in source:
             if progress is not None:
                 progress(1)
             try:
@@ -650,7 +592,9 @@ def _worker_locate(stamp_ns: int, left: _MappedImage, right: _MappedImage) -> Fr
 
     maps: dict[str, Any] = _WORKER["maps"]
 
-    def view(ref: _MappedImage) -> _ImageView:
+    def view(ref: Any) -> Any:
+        if not isinstance(ref, _MappedImage):
+            return ref             # an image of a compressed chunk this process opened
         mapped = maps.get(ref.path)
         if mapped is None:
             with open(ref.path, "rb") as fh:
@@ -682,8 +626,8 @@ class _PairPool:
 
         self._task_timeout_s = task_timeout_s
         self._rig, self._config = rig, config
-        parallel = workers > 1 and config.detector.selection != "nearest"
-        self._workers = workers if parallel else 1
+        self.parallel = workers > 1 and config.detector.selection != "nearest"
+        self._workers = workers if self.parallel else 1
         self._local = threading.local()
         self._inline = StereoLocator(rig, config) if self._workers == 1 else None
         self._threads = (ThreadPoolExecutor(self._workers, thread_name_prefix="locate")
@@ -720,10 +664,22 @@ class _PairPool:
     def _work(self, pair: Any) -> FrameResult:
         return _locate_pair(self._locator(), pair.stamp_ns, pair.left, pair.right)
 
+    def submit_chunks(self, group: int, fn: str, args: tuple[Any, ...]) -> Any:
+        """Open compressed chunks (:mod:`eye_in_hand.io.mcap_tasks`) on worker ``group``
+        (modulo): ``(future, worker)``, or None (no worker: the caller opens them)."""
+        return None if self._procs is None else self._procs.try_submit_to(group, fn, *args,
+                                                                          wait_s=10.0)
+
     def _to_process(self, pair: Any) -> Any:
         """A process future for the pair, or None (not mapped, or no process ready)."""
         from eye_in_hand.workers import WorkerError
 
+        owner = getattr(pair.left, "owner", None)    # an ImageRef: the worker that opened it
+        if owner is not None and self._procs is not None:
+            got = self._procs.try_submit_to(owner, "eye_in_hand.offline:_worker_locate",
+                                            pair.stamp_ns, pair.left, pair.right)
+            self.in_processes += got is not None
+            return got and got[0]
         left = _MappedImage.of(pair.left)
         right = _MappedImage.of(pair.right) if left is not None else None
         if left is None or right is None:
@@ -797,10 +753,13 @@ class _PairPool:
     _timeouts = 0
 
     def close(self) -> None:
+        from eye_in_hand.io.mcap_tasks import release
+
         if self._threads is not None:
             self._threads.shutdown(wait=True, cancel_futures=True)
         if self._procs is not None:
             self._procs.close()
+        release()          # chunks this process opened for pairs located here
 
 
 def write_results(out: str | Path, result: ProcessResult, opts: ProcessOptions | None = None,

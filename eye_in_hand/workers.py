@@ -286,6 +286,45 @@ class ProcessPool:
         worker = min(live, key=lambda w: len(w.pending))
         return worker.submit(next(self._ids), fn, args)
 
+    def wait_ready(self, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` until every worker is initialised (or dead); whether at
+        least one is ready."""
+        deadline = time.monotonic() + timeout_s
+        for w in self._workers:
+            w.ready.wait(max(0.0, deadline - time.monotonic()))
+        return self.ready()
+
+    def __len__(self) -> int:
+        return len(self._workers)
+
+    def submit_to(self, index: int, fn: str, *args: Any) -> tuple[Future[Any], int]:
+        """Run ``fn(*args)`` on worker ``index`` (modulo the pool's size) when it is ready
+        and alive, else on the least busy ready one; returns the future and the worker used.
+
+        Raises:
+            WorkerError: no worker is ready and alive, or the task cannot be sent.
+        """
+        i = index % len(self._workers)
+        w = self._workers[i]
+        if not (w.ready.is_set() and not w.dead):
+            live = [k for k, x in enumerate(self._workers) if x.ready.is_set() and not x.dead]
+            if not live:
+                raise WorkerError("no worker process is ready")
+            i = min(live, key=lambda k: len(self._workers[k].pending))
+            w = self._workers[i]
+        return w.submit(next(self._ids), fn, args), i
+
+    def try_submit_to(self, index: int, fn: str, *args: Any,
+                      wait_s: float = 0.0) -> tuple[Future[Any], int] | None:
+        """:meth:`submit_to`, first waiting up to ``wait_s`` for the workers to start; None
+        when no worker can take the task (none ready and alive, or the pipe fails)."""
+        if wait_s > 0 and not self.ready():
+            self.wait_ready(wait_s)
+        try:
+            return self.submit_to(index, fn, *args)
+        except WorkerError:
+            return None
+
     def close(self) -> None:
         """Close the workers' stdin (they exit) and wait for them."""
         self._closing.set()

@@ -43,6 +43,7 @@ THIRD_PARTY: dict[str, tuple[str, str]] = {
     "tqdm": ("tqdm", "python3-tqdm"),
     "rosbags": ("rosbags", "python3-rosbags-pip"),
     "lz4": ("lz4", "python3-lz4"),
+    "zstandard": ("zstandard", "python3-zstandard"),
     # No rosdep key of its own: rosdep's pip install of the newest rosbags brings it.
     "backports.zstd": ("backports.zstd", "python3-rosbags-pip"),
     "pytest": ("pytest", "python3-pytest"),

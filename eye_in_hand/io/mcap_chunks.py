@@ -8,7 +8,9 @@ parsed (the file's summary section) and
 * maps the file (``mmap``): a message of an uncompressed chunk is a ``memoryview`` of the file's
   pages, never copied (the page cache is read at memory speed);
 * decompresses zstd / lz4 chunks on a small thread pool a few chunks ahead of the consumer
-  (the decompressors release the GIL), each message then a view of its decompressed chunk;
+  (the decompressors release the GIL), each message then a view of its decompressed chunk
+  (offline processing has worker processes open compressed chunks instead:
+  :mod:`eye_in_hand.io.mcap_tasks`);
 * checks chunk CRCs unless told not to (``verify_crc=False``, what offline processing uses: the
   MCAP reference readers skip them by default too, and CRC-32 runs at ~0.35 GB/s here).
 
@@ -36,7 +38,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
-__all__ = ["supports", "chunk_messages", "file_location", "ChunkDamage", "zstd_binding"]
+__all__ = ["supports", "chunk_messages", "file_location", "ChunkDamage", "chunk_damage",
+           "zstd_binding"]
 
 _RECORD = struct.Struct("<BQ")           # opcode, record length
 _MESSAGE = struct.Struct("<HIQQ")        # channel id, sequence, log time, publish time
@@ -88,20 +91,40 @@ def supports(storage: Any) -> bool:
 def _zstd_decompressor() -> Callable[[Any, int], Any]:
     """zstd decompression of a whole chunk whose uncompressed size is known.
 
-    Given the size (``max_length``), the output is allocated once and filled in one pass;
-    without it the binding grows its output block by block and joins the blocks. Measured on
-    the package's own chunks (``benchmarks/bench_bags.py --zstd``): 1.9-2.0 GB/s per
-    CPU-second with the size against 0.52-0.57 without it on noise-free images, 0.59-0.65
-    against 0.31-0.35 on noisy ones. The binding is the standard library's ``compression.zstd``
-    (Python >= 3.14) or its backport ``backports.zstd`` (a declared dependency, also needed by
-    ``rosbags``); it has no call that decompresses into a caller's buffer.
+    The binding is ``zstandard`` (a declared dependency): its one-shot decompression of a
+    frame whose size is known measured 0.55-0.61 GB of output per CPU-second on the noisy
+    1280x720 chunks of ``benchmarks/bench_localization.py`` (a loaded machine), against
+    0.21-0.27 for the standard library's ``compression.zstd`` (Python >= 3.14) / its backport
+    ``backports.zstd`` given the size (``max_length``) and the same libzstd 1.5.7
+    (``benchmarks/bench_bags.py --zstd``). Those are the fallback where ``zstandard`` is
+    missing (a ROS install without the pip dependencies). Neither decompresses into a
+    caller's buffer.
     """
+    try:
+        import zstandard
+
+        def decompress(data: Any, size: int) -> Any:
+            # the frame header's size is checked first: a corrupt one allocates nothing
+            framed = zstandard.frame_content_size(data)
+            if framed >= 0 and framed != size:
+                raise ValueError(f"zstd data decompress to {framed} bytes, "
+                                 + ("more than" if framed > size else "not") +
+                                 f" the {size} bytes announced")
+            out = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+            if len(out) != size:
+                raise ValueError(f"zstd data decompress to {len(out)} bytes, not the {size} "
+                                 "bytes announced")
+            return out
+
+        return decompress
+    except ImportError:
+        pass
     try:
         from compression import zstd  # type: ignore[import-not-found]  # Python >= 3.14
     except ImportError:
         from backports import zstd  # type: ignore[import-not-found,no-redef]
 
-    def decompress(data: Any, size: int) -> Any:
+    def decompress_std(data: Any, size: int) -> Any:
         d = zstd.ZstdDecompressor()
         out = d.decompress(data, max_length=size)
         if not d.eof:
@@ -109,7 +132,7 @@ def _zstd_decompressor() -> Callable[[Any, int], Any]:
                              "or end before the frame does")
         return out
 
-    return decompress
+    return decompress_std
 
 
 _DECOMPRESSORS: dict[str, Callable[[Any, int], Any]] = {}
@@ -117,13 +140,20 @@ _DECOMPRESSORS: dict[str, Callable[[Any, int], Any]] = {}
 
 def zstd_binding() -> str:
     """Which module decompresses zstd chunks, with its version (for benchmarks and reports)."""
+    from importlib.metadata import version
+
+    try:
+        import zstandard
+
+        return f"zstandard {zstandard.__version__} (libzstd {zstandard.ZSTD_VERSION[0]}." \
+            f"{zstandard.ZSTD_VERSION[1]}.{zstandard.ZSTD_VERSION[2]})"
+    except ImportError:
+        pass
     try:
         from compression import zstd  # type: ignore[import-not-found]  # noqa: F401
 
         return "compression.zstd"
     except ImportError:
-        from importlib.metadata import version
-
         return f"backports.zstd {version('backports.zstd')}"
 
 
@@ -283,6 +313,18 @@ def _lost(info: Any, channels: dict[int, Any],
     return {cid: n for cid, n in lost.items() if n}
 
 
+def chunk_damage(info: Any, exc: BaseException, channels: dict[int, Any],
+                 kept: Sequence[tuple[int, int, int, Any, memoryview]] = ()) -> ChunkDamage:
+    """The :class:`ChunkDamage` of a chunk that failed with ``exc`` (``kept``: the messages
+    read before a bad record; ``channels``: the wanted ones, by channel id)."""
+    offset = int(info.chunk_start_offset)
+    text = str(exc) or type(exc).__name__
+    if not text.startswith("chunk at byte"):
+        text = f"chunk at byte {offset}: {text}"
+    return ChunkDamage(offset, text, int(info.message_start_time), int(info.message_end_time),
+                       _lost(info, channels, kept))
+
+
 def _may_hold(info: Any, channels: dict[int, Any]) -> bool:
     """Whether a chunk may hold messages of ``channels``: by its message index when it has one
     (a writer may leave message indexes out: ``noMessageIndex``; then every chunk is read)."""
@@ -338,14 +380,10 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
 
     def damage(info: Any, exc: BaseException,
                kept: Sequence[tuple[int, int, int, Any, memoryview]] = ()) -> None:
-        offset = int(info.chunk_start_offset)
-        text = str(exc) or type(exc).__name__
-        if not text.startswith("chunk at byte"):
-            text = f"chunk at byte {offset}: {text}"
+        record = chunk_damage(info, exc, channels, kept)
         if on_damage is None:
-            raise ValueError(text) from exc
-        on_damage(ChunkDamage(offset, text, int(info.message_start_time),
-                              int(info.message_end_time), _lost(info, channels, kept)))
+            raise ValueError(record.reason) from exc
+        on_damage(record)
 
     try:
         chunks: list[_Chunk | None] = []

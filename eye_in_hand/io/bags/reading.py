@@ -471,6 +471,20 @@ def memory_mappable(path: str | Path) -> bool:
     return True
 
 
+def chunk_damage_record(file: str, by_id: dict[int, Any], cd: Any) -> Damage:
+    """The :class:`Damage` record of an MCAP chunk that could not be read (``cd``: an
+    :class:`eye_in_hand.io.mcap_chunks.ChunkDamage`; ``by_id``: the connections read, by
+    channel id)."""
+    topics: dict[str, int] = {}
+    for cid, n in (cd.lost or {}).items():
+        topic = by_id[cid].topic
+        topics[topic] = topics.get(topic, 0) + n
+    where = f"chunk at byte {cd.offset}"
+    reason = cd.reason[len(where) + 2:] if cd.reason.startswith(where + ": ") else cd.reason
+    return Damage(file, where, reason, topics, cd.start_ns, cd.end_ns,
+                  None if cd.lost is None else sum(topics.values()))
+
+
 def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int | None,
                     per_message_zstd: bool, stream: int, views: bool = False,
                     verify_crc: bool = True, damage: DamageLog | None = None,
@@ -493,16 +507,7 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
     if not per_message_zstd and mcap_chunks.supports(storage):
         def chunk_damage(cd: mcap_chunks.ChunkDamage) -> None:
             assert damage is not None
-            topics: dict[str, int] = {}
-            for cid, n in (cd.lost or {}).items():
-                topic = by_id[cid].topic
-                topics[topic] = topics.get(topic, 0) + n
-            where = f"chunk at byte {cd.offset}"
-            reason = cd.reason[len(where) + 2:] if cd.reason.startswith(where + ": ") \
-                else cd.reason
-            damage.add(Damage(name, where, reason, topics,
-                              cd.start_ns, cd.end_ns,
-                              None if cd.lost is None else sum(topics.values())))
+            damage.add(chunk_damage_record(name, by_id, cd))
 
         source = mcap_chunks.chunk_messages(storage, conns, start, stop, verify_crc=verify_crc,
                                             on_damage=None if damage is None else chunk_damage)

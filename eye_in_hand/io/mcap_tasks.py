@@ -1,0 +1,354 @@
+"""Compressed MCAP chunks opened by worker processes: images never cross a process boundary.
+
+Decompressing a 30 Hz 1280x720 stereo bag costs more CPU than locating its targets, and one
+process decompressing everything is the bottleneck of offline processing on a compressed bag.
+Here the reading process only plans and merges; the work is done where the images are used:
+
+* the reading process (:func:`worker_messages`) reads the file's chunk index (the summary
+  section ``rosbags`` has parsed), groups consecutive chunks (:func:`plan_groups`: about
+  ``group_bytes`` of uncompressed records each, ended where the message index says the left
+  and right image topics have as many messages, so that a stereo pair rarely spans two
+  groups), and hands each group, as file offsets (:class:`ChunkRef`), to a worker process
+  a few groups ahead;
+* the worker (:func:`open_group`) maps the file, decompresses the group's chunks with their
+  known uncompressed size, keeps them in a small least-recently-used cache, and returns the
+  chunk's small messages as bytes and each image as an :class:`ImageRef`: its header, size
+  fields and where its bytes lie in the decompressed chunk;
+* the reading process merges the messages in exactly the order
+  :func:`eye_in_hand.io.mcap_chunks.chunk_messages` gives (log time, ties by chunk position,
+  then by record order), so pairing and everything after it see the same stream;
+* an image is used where its chunk was opened: ``ImageRef.data`` gives the pixels from the
+  process's cache, decompressing the chunk again when it is not there (a pair whose images lie
+  in two groups, a chunk evicted from the cache, a pair located in the reading process after a
+  worker failed). Correctness never depends on the cache, only speed.
+
+Damaged chunks are reported as :class:`eye_in_hand.io.mcap_chunks.ChunkDamage`, the same
+records (and the same messages kept before a bad record) as the serial reader.
+"""
+from __future__ import annotations
+
+import heapq
+import mmap
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterator, Sequence
+
+import numpy as np
+
+from eye_in_hand.errors import ConversionError
+from eye_in_hand.io.cdr import CdrHeader, CdrStamp, image_from_cdr
+from eye_in_hand.io.mcap_chunks import (ChunkDamage, _address, _Chunk, _DamagedRecords,
+                                        _lost, _may_hold, _messages_of, chunk_damage)
+
+__all__ = ["ChunkRef", "ImageRef", "plan_groups", "open_group", "worker_messages", "release",
+           "GROUP_BYTES", "CACHE_BYTES"]
+
+#: uncompressed records per task (a few 1280x720 stereo pairs)
+GROUP_BYTES = 12 << 20
+#: decompressed chunks a process keeps (least recently used go first)
+CACHE_BYTES = 96 << 20
+
+
+@dataclass(frozen=True, eq=False)
+class ChunkRef:
+    """A chunk of an MCAP file, as its chunk index describes it (what a worker needs to read
+    it; the attribute names are those of ``rosbags``' chunk info)."""
+
+    path: str
+    chunk_start_offset: int
+    chunk_length: int
+    message_start_time: int
+    message_end_time: int
+    compression: str
+    uncompressed_size: int
+    channel_count: dict[int, int] = field(default_factory=dict)
+    message_index_offsets: dict[int, int] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, path: str, info: Any) -> ChunkRef:
+        return cls(path, int(info.chunk_start_offset), int(info.chunk_length),
+                   int(info.message_start_time), int(info.message_end_time),
+                   str(info.compression), int(info.uncompressed_size),
+                   dict(getattr(info, "channel_count", None) or {}),
+                   dict(getattr(info, "message_index_offsets", None) or {}))
+
+
+class _Cache:
+    """This process's mapped files and decompressed chunks (thread-safe, bounded in bytes)."""
+
+    def __init__(self, capacity: int) -> None:
+        self.capacity = capacity
+        self._lock = threading.Lock()
+        self._files: dict[str, memoryview] = {}
+        self._chunks: OrderedDict[tuple[str, int], tuple[_Chunk, memoryview]] = OrderedDict()
+        self._bytes = 0
+        self.decompressed = 0                 # chunks decompressed (for tests and figures)
+
+    def file(self, path: str) -> memoryview:
+        with self._lock:
+            view = self._files.get(path)
+            if view is None:
+                with open(path, "rb") as fh:
+                    view = self._files[path] = memoryview(
+                        mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ))
+            return view
+
+    def records(self, ref: ChunkRef, verify_crc: bool) -> tuple[_Chunk, memoryview]:
+        """The chunk and its decompressed records.
+
+        Raises:
+            ValueError: the chunk cannot be read (names its byte offset).
+        """
+        key = (ref.path, ref.chunk_start_offset)
+        with self._lock:
+            hit = self._chunks.get(key)
+            if hit is not None:
+                self._chunks.move_to_end(key)
+                return hit
+        chunk = _Chunk(ref, self.file(ref.path))
+        recs = chunk.records(verify_crc)             # decompressors release the GIL
+        with self._lock:
+            self.decompressed += 1
+            if chunk.compression and key not in self._chunks:
+                self._chunks[key] = (chunk, recs)
+                self._bytes += len(recs)
+                while self._bytes > self.capacity and len(self._chunks) > 1:
+                    _k, (_c, old) = self._chunks.popitem(last=False)
+                    self._bytes -= len(old)
+        return chunk, recs
+
+
+    def clear(self) -> None:
+        """Drop the decompressed chunks and unmap the files (views handed out stay valid)."""
+        with self._lock:
+            self._chunks.clear()
+            self._bytes = 0
+            self._files.clear()
+
+
+_CACHE = _Cache(CACHE_BYTES)
+
+
+def release() -> None:
+    """Free this process's chunk cache (the reading process calls it once its pairs are
+    located; a worker's goes with the worker)."""
+    _CACHE.clear()
+
+
+@dataclass(frozen=True, eq=False)
+class ImageRef:
+    """A ``sensor_msgs/Image`` inside a chunk: the fields ``image_to_numpy`` reads, with
+    ``data`` fetched from this process's chunk cache when asked for (the chunk decompressed
+    again when it is not there).
+
+    ``owner``: the worker process that opened the chunk (None: the reading process), where
+    locating the pair costs no decompression.
+    """
+
+    chunk: ChunkRef
+    start: int                 # the message's CDR bytes in the decompressed records
+    nbytes: int
+    header: CdrHeader
+    height: int
+    width: int
+    encoding: str
+    is_bigendian: int
+    step: int
+    verify_crc: bool = False
+    owner: int | None = None
+
+    @property
+    def data(self) -> np.ndarray:
+        """The pixel bytes, a read-only ``uint8`` view (shape (n,)).
+
+        Raises:
+            ConversionError: the chunk no longer reads (changed on disk) or the message no
+                longer decodes.
+        """
+        try:
+            _chunk, recs = _CACHE.records(self.chunk, self.verify_crc)
+        except ValueError as exc:
+            raise ConversionError(f"image at chunk byte {self.chunk.chunk_start_offset}: "
+                                  f"{exc}") from exc
+        img = image_from_cdr(recs[self.start:self.start + self.nbytes])
+        if img is None:
+            raise ConversionError("image: not little-endian plain CDR")
+        return img.data
+
+    def with_owner(self, owner: int | None) -> ImageRef:
+        return ImageRef(self.chunk, self.start, self.nbytes, self.header, self.height,
+                        self.width, self.encoding, self.is_bigendian, self.step,
+                        self.verify_crc, owner)
+
+
+#: one message of a chunk as a worker returns it: (log time, index in chunk, channel id,
+#: payload); payload is bytes (a small message, or an image that is not plain CDR), an
+#: ImageRef, or a ConversionError (an image whose fields do not decode)
+Message = tuple[int, int, int, Any]
+
+
+@dataclass(frozen=True)
+class _Channel:
+    id: int
+
+
+def _open_chunk(ref: ChunkRef, channels: dict[int, bool], verify_crc: bool,
+                cache: _Cache) -> tuple[list[Message], ChunkDamage | None]:
+    wanted = {cid: _Channel(cid) for cid in channels}
+    try:
+        chunk, recs = cache.records(ref, verify_crc)
+    except Exception as exc:  # noqa: BLE001 - record, decompression, size, CRC: the chunk
+        return [], chunk_damage(ref, exc, wanted)
+    damage = None
+    try:
+        found = _messages_of(chunk, recs, wanted, 0, 2**64)
+    except _DamagedRecords as exc:
+        found = exc.kept
+        damage = chunk_damage(ref, exc, wanted, exc.kept)
+    base = _address(recs) if len(recs) else 0
+    out: list[Message] = []
+    for log_time, _offset, index, chan, view in found:
+        cid = chan.id
+        payload: Any
+        if channels[cid]:
+            try:
+                img = image_from_cdr(view)
+            except ConversionError as exc:
+                payload = exc
+            else:
+                if img is None:
+                    payload = bytes(view)
+                else:
+                    start = _address(view) - base if len(view) else 0
+                    payload = ImageRef(ref, start, len(view), img.header, img.height,
+                                       img.width, img.encoding, img.is_bigendian, img.step,
+                                       verify_crc)
+        else:
+            payload = bytes(view)
+        out.append((log_time, index, cid, payload))
+    return out, damage
+
+
+def open_group(refs: Sequence[ChunkRef], channels: dict[int, bool], verify_crc: bool = False
+               ) -> list[tuple[list[Message], ChunkDamage | None]]:
+    """Decompress and index chunks (a worker task; also run in the reading process when no
+    worker can).
+
+    Args:
+        refs: the chunks, in reading order.
+        channels: wanted channel id -> whether it carries ``sensor_msgs/Image``.
+        verify_crc: check each chunk's CRC-32.
+
+    Returns:
+        Per chunk: its wanted messages (sorted by log time, then record order) and its
+        damage (None: read whole; else the messages are those before the bad record).
+    """
+    return [_open_chunk(ref, channels, verify_crc, _CACHE) for ref in refs]
+
+
+def plan_groups(infos: Sequence[Any], group_bytes: int = GROUP_BYTES,
+                pair_channels: tuple[int, int] | None = None) -> list[list[Any]]:
+    """Consecutive chunks in groups of about ``group_bytes`` uncompressed bytes each.
+
+    A group closes once it holds ``group_bytes`` and, when ``pair_channels`` (left, right
+    image channel ids) and the chunks' message index counts are known, once its left and right
+    counts are equal, so that the images of a stereo pair rarely lie in two groups (a pair
+    that does is still read correctly: see the module docstring).
+    """
+    groups: list[list[Any]] = []
+    current: list[Any] = []
+    size = 0
+    balance = 0
+    for info in infos:
+        current.append(info)
+        size += int(info.uncompressed_size)
+        counts = getattr(info, "channel_count", None) or {}
+        if pair_channels is not None:
+            balance += int(counts.get(pair_channels[0], 0)) - int(counts.get(pair_channels[1],
+                                                                              0))
+        if size >= group_bytes and (pair_channels is None or balance == 0 or not counts
+                                    or size >= 4 * group_bytes):
+            groups.append(current)
+            current, size = [], 0
+    if current:
+        groups.append(current)
+    return groups
+
+
+#: submit(group index, function name, args) -> (future, worker index) or None (no worker)
+Submit = Callable[[int, str, tuple[Any, ...]], "tuple[Any, int] | None"]
+
+
+def worker_messages(storage: Any, connections: Sequence[Any], submit: Submit, *,
+                    image_channels: set[int], pair_channels: tuple[int, int] | None = None,
+                    verify_crc: bool = False, ahead: int = 4,
+                    group_bytes: int | None = None,
+                    on_damage: Callable[[ChunkDamage], None] | None = None,
+                    ) -> Iterator[tuple[Any, int, Any]]:
+    """``(connection, log_time_ns, payload)`` of an indexed MCAP file, in the order of
+    :func:`eye_in_hand.io.mcap_chunks.chunk_messages`, its chunks opened by ``submit``'s
+    workers (:func:`open_group`) ``ahead`` groups in advance (groups of ``group_bytes``,
+    default :data:`GROUP_BYTES`).
+
+    Payload: bytes, an :class:`ImageRef` (``owner``: the worker that opened it), or a
+    :class:`ConversionError` (an image whose fields do not decode). A group whose task fails
+    (the worker died or missed its deadline) is opened in this process.
+
+    Raises:
+        ValueError: a damaged chunk, when ``on_damage`` is None.
+    """
+    from concurrent.futures import Future
+
+    channels = {c.id: c for c in connections}
+    kinds = {cid: cid in image_channels for cid in channels}
+    infos = [c for c in storage.chunks if _may_hold(c, channels)]
+    infos.sort(key=lambda c: (c.message_start_time, c.chunk_start_offset))
+    if not infos or not channels:
+        return
+    path = str(storage.path)
+    groups = plan_groups([ChunkRef.of(path, c) for c in infos],
+                         GROUP_BYTES if group_bytes is None else group_bytes, pair_channels)
+    fn = f"{__name__}:open_group"
+    inflight: dict[int, tuple[Future[Any] | None, int | None]] = {}
+
+    def launch(g: int) -> None:
+        got = submit(g, fn, (groups[g], kinds, verify_crc))
+        inflight[g] = (got[0], got[1]) if got is not None else (None, None)
+
+    def outcome(g: int) -> tuple[list[tuple[list[Message], ChunkDamage | None]], int | None]:
+        fut, owner = inflight.pop(g)
+        if fut is not None:
+            try:
+                return fut.result(), owner
+            except Exception:  # noqa: BLE001 - the worker failed: open the group here
+                pass
+        return open_group(groups[g], kinds, verify_crc), None
+
+    def report(cd: ChunkDamage) -> None:
+        if on_damage is None:
+            raise ValueError(cd.reason)
+        on_damage(cd)
+
+    pending: list[tuple[int, int, int, int, Any]] = []
+    for g in range(min(ahead, len(groups))):
+        launch(g)
+    for g, group in enumerate(groups):
+        if g + ahead < len(groups):
+            launch(g + ahead)
+        results, owner = outcome(g)
+        for ref, (msgs, damage) in zip(group, results):
+            t0 = ref.message_start_time
+            while pending and pending[0][0] < t0:     # nothing later can come before these
+                m = heapq.heappop(pending)
+                yield channels[m[3]], m[0], m[4]
+            if damage is not None:
+                report(damage)
+            if owner is not None:
+                msgs = [(t, i, cid, p.with_owner(owner) if isinstance(p, ImageRef) else p)
+                        for t, i, cid, p in msgs]
+            for t, i, cid, p in msgs:
+                heapq.heappush(pending, (t, ref.chunk_start_offset, i, cid, p))
+    while pending:
+        m = heapq.heappop(pending)
+        yield channels[m[3]], m[0], m[4]
