@@ -599,7 +599,9 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                                     refinement.corrections, warnings, held)
                 if sols is not None:
                     held_out_sigma, _ = held_out_position_sigma(
-                        sols, kept, setup, refinement.robot_rotation_sigma_rad)
+                        sols, kept, setup, refinement.robot_rotation_sigma_rad,
+                        cameras if use_corners else None,
+                        refinement.sigmas.get("px"))
             results["refined"] = mr
             if not refinement.converged:
                 warnings.append("refined: the noise levels did not settle in "
