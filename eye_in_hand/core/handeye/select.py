@@ -151,15 +151,16 @@ def choose(held_out: dict[str, HeldOut], candidates: Sequence[str],
 def _centre_variance(s: HandEyeSample, cameras: Sequence[CameraView], px_sigma: float,
                      c: np.ndarray) -> float:
     """Trace of the covariance (m^2) of the board point ``c`` (board frame) in the camera, as
-    the sample's corners determine its board pose: ``px_sigma^2 (J^T J)^-1`` of the board
-    pose's six parameters over every camera's corners, propagated to the point."""
+    the sample's board pose ``cam_T_board`` was measured: PnP on its first observation's
+    corners (:func:`.observe.observe_sample`), ``px_sigma^2 (J^T J)^-1`` of the pose's six
+    parameters, propagated to the point."""
     views = {v.name: v for v in cameras}
     C0 = s.cam_T_board
     h = 1e-7
+    ob = s.observations[0]
 
     def corners(C: np.ndarray) -> np.ndarray:
-        return np.concatenate([_project(views[ob.camera], C, ob.object_points).ravel()
-                               for ob in s.observations])
+        return _project(views[ob.camera], C, ob.object_points).ravel()
 
     f0 = corners(C0)
     J = np.zeros((f0.size, 6))
