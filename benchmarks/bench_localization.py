@@ -18,7 +18,10 @@ Prints, using only calibrations the package computes itself from a simulated cal
   squared Mahalanobis error of the base-frame point; consistent: within [0.5, 2] x 3 = [1.5, 6])
   and the share of frames inside the 95 % ellipsoid (chi-square, 3 dof), with the simulator's
   robot error off (``--robot-error 0``) and at the realistic default, each with its own
-  calibration bag and calibrations; and the base-frame error at the realistic default.
+  calibration bag and calibrations; and the base-frame error at the realistic default, next to
+  the mean reported sigma. Robot pose sigmas as ``process`` chooses them
+  (``core.localization.robot_pose_sigmas``: the arm's stated accuracy from
+  ``config/eye_in_hand.yaml``, 0 for the ideal arm, raised by hand_eye.yaml's estimate).
 
 The world is the simulator's default, robot error included (``World.default()``).
 
