@@ -19,7 +19,10 @@ Prints, using only calibrations the package computes itself from a simulated cal
   squared Mahalanobis error of the base-frame point; consistent: within [0.5, 2] x 3 = [1.5, 6])
   and the share of frames inside the 95 % ellipsoid (chi-square, 3 dof), with the simulator's
   robot error off (``--robot-error 0``) and at the realistic default, each with its own
-  calibration bag and calibrations; and the base-frame error at the realistic default.
+  calibration bag and calibrations; and the base-frame error at the realistic default, next to
+  the mean reported sigma. Robot pose sigmas as ``process`` chooses them
+  (``core.localization.robot_pose_sigmas``: the arm's stated accuracy from
+  ``config/eye_in_hand.yaml``, 0 for the ideal arm, raised by hand_eye.yaml's estimate).
 
 The world is the simulator's default, robot error included (``World.default()``).
 
@@ -391,7 +394,8 @@ def live(paths: dict[str, Path]) -> tuple[dict[int, np.ndarray], dict[str, float
 def consistency(pairs: int, fresh: bool) -> dict[str, dict[str, float]]:
     """NEES, 95 % coverage and error of the base-frame point, robot error 0 and default."""
     from eye_in_hand.core.camera import StereoRig
-    from eye_in_hand.core.locator import load_locator_config
+    from eye_in_hand.core.localization import robot_pose_sigmas
+    from eye_in_hand.core.locator import load_locator_config, load_parameter_file
     from eye_in_hand.io.config import load_hand_eye
     from eye_in_hand.offline import ProcessOptions, process_bag
     from eye_in_hand.sim import World
@@ -399,6 +403,7 @@ def consistency(pairs: int, fresh: bool) -> dict[str, dict[str, float]]:
     from eye_in_hand.sim.robot_error import RobotErrorSpec
 
     chi2_95 = 7.8147  # chi-square, 3 dof, 95 %
+    he_params = load_parameter_file(ROOT / "config" / "eye_in_hand.yaml", "hand_eye")
     out: dict[str, dict[str, float]] = {}
     for tag, spec in (("robot error 0", RobotErrorSpec.none()),
                       ("robot error default", RobotErrorSpec.default())):
@@ -424,15 +429,16 @@ def consistency(pairs: int, fresh: bool) -> dict[str, dict[str, float]]:
                  RIGHT, "--no-html", "-o", str(he_dir))
         he = load_hand_eye(he_dir / "hand_eye.yaml")
         cfg = load_locator_config(ROOT / "config" / "eye_in_hand.yaml")  # radius 35 mm
-        # robot pose noise: hand_eye.yaml's when present; else the defaults of process, or 0
-        # for the ideal arm (its poses are exact: the honest setting there)
-        opts = ProcessOptions(workers=1)
-        if spec.is_ideal:
-            opts = ProcessOptions(workers=1, robot_sigma_pos_m=0.0, robot_sigma_rot_rad=0.0)
-        if he.robot_pose_noise is not None:
-            noise = he.robot_pose_noise
-            opts = ProcessOptions(workers=1, robot_sigma_pos_m=noise["translation_sigma_m"],
-                                  robot_sigma_rot_rad=noise["rotation_sigma_rad"])
+        # robot pose sigmas as process and the hand_eye node choose them
+        # (core.localization.robot_pose_sigmas): the arm's stated accuracy, raised to
+        # hand_eye.yaml's estimate where larger. The stated accuracy is the parameter file's
+        # (0.15 mm, 0.4 mrad: the default arm's per-axis flange error) for the default arm,
+        # and 0 for the ideal arm (its poses are exact: the honest statement there).
+        stated = (0.0, 0.0) if spec.is_ideal else (
+            float(he_params.get("robot_sigma_pos_m", ProcessOptions.robot_sigma_pos_m)),
+            float(he_params.get("robot_sigma_rot_rad", ProcessOptions.robot_sigma_rot_rad)))
+        sig = robot_pose_sigmas(*stated, he.robot_pose_noise)
+        opts = ProcessOptions(workers=1, robot_sigma_pos_m=sig[0], robot_sigma_rot_rad=sig[1])
         res = process_bag(loc, hand_eye_T=he.transform, hand_eye_cov=he.covariance,
                           locator_config=cfg,
                           rig=StereoRig.load(calib), options=opts)
@@ -456,8 +462,11 @@ def consistency(pairs: int, fresh: bool) -> dict[str, dict[str, float]]:
               f"(consistent: 1.5-6), 95 % coverage {100 * fig['coverage95']:.1f} %, error RMS "
               f"{fig['rms_mm']:.3f} mm, p95 {fig['p95_mm']:.3f} mm, max {fig['max_mm']:.3f} mm; "
               f"reported sigma (sqrt trace) mean {fig['sigma_mm']:.3f} mm; robot pose sigmas "
-              f"{opts.robot_sigma_pos_m * 1e3:.3g} mm, {opts.robot_sigma_rot_rad * 1e3:.3g} mrad"
-              f"{' (hand_eye.yaml)' if he.robot_pose_noise is not None else ''}",
+              f"{opts.robot_sigma_pos_m * 1e3:.3g} mm, {opts.robot_sigma_rot_rad * 1e3:.3g} mrad "
+              f"(stated {stated[0] * 1e3:.3g} mm, {stated[1] * 1e3:.3g} mrad; hand_eye.yaml "
+              + ("none" if he.robot_pose_noise is None else
+                 f"{he.robot_pose_noise['translation_sigma_m'] * 1e3:.3g} mm, "
+                 f"{he.robot_pose_noise['rotation_sigma_rad'] * 1e3:.3g} mrad") + ")",
               flush=True)
         out[tag] = fig
     return out
@@ -507,6 +516,15 @@ def main() -> int:
         compare_paths(paths)
     if args.process_only:
         return 0
+    bc = bag_consistency(paths)
+    print(f"target/pose_cov on this bag ({bc['frames']:.0f} frames, robot pose sigmas "
+          f"{bc['robot_sigma_pos_mm']:.3g} mm, {bc['robot_sigma_rot_mrad']:.3g} mrad): NEES "
+          f"{bc['nees']:.2f} (consistent: 1.5-6), 95 % coverage {100 * bc['coverage95']:.1f} %, "
+          f"mean sigma (sqrt trace) {bc['sigma_mm']:.3f} mm against RMS error "
+          f"{bc['rms_mm']:.3f} mm; with hand_eye.yaml's estimate alone "
+          f"({bc['estimate_only_robot_sigma_pos_mm']:.3g} mm, "
+          f"{bc['estimate_only_robot_sigma_rot_mrad']:.3g} mrad): NEES "
+          f"{bc['estimate_only_nees']:.2f}, coverage {100 * bc['estimate_only_coverage95']:.1f} %")
     live_pts, fig = live(paths)
     common = sorted(set(live_pts) & set(off_pts))
     diff = max((float(np.max(np.abs(live_pts[s] - off_pts[s]))) for s in common), default=float("nan"))
@@ -520,7 +538,8 @@ def main() -> int:
           f"waited), {fig['sync_dropped']:.0f} frames unpaired  (target: 0 lost to backlog)")
     nees = consistency(args.nees_pairs, args.fresh)
     (DATA / "bench_localization.json").write_text(json.dumps(
-        {"speeds": speeds, "live": fig, "live_vs_offline_m": diff, "consistency": nees},
+        {"speeds": speeds, "live": fig, "live_vs_offline_m": diff, "consistency": nees,
+         "bag_consistency": bc},
         indent=2))
     return 0
 

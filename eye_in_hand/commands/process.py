@@ -112,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
 
     from eye_in_hand.commands.common import apply_overrides
     from eye_in_hand.core.camera import StereoRig
+    from eye_in_hand.core.localization import robot_pose_sigmas
     from eye_in_hand.core.locator import locator_config_from_params
     from eye_in_hand.errors import ConfigError, InputError
     from eye_in_hand.io.bags import bag_info
@@ -141,6 +142,10 @@ def run(args: argparse.Namespace) -> int:
     if not args.task_timeout > 0:
         raise InputError(f"--task-timeout: must be > 0 s, got {args.task_timeout}")
     try:
+        robot_sigmas = robot_pose_sigmas(
+            float(hand_eye_params.get("robot_sigma_pos_m", ProcessOptions.robot_sigma_pos_m)),
+            float(hand_eye_params.get("robot_sigma_rot_rad", ProcessOptions.robot_sigma_rot_rad)),
+            noise)
         opts = ProcessOptions(
             left_topic=args.left_topic, right_topic=args.right_topic,
             left_info_topic=args.left_info_topic, right_info_topic=args.right_info_topic,
@@ -157,13 +162,9 @@ def run(args: argparse.Namespace) -> int:
             max_pose_gap_s=float(hand_eye_params.get("max_pose_gap_s", 0.05)),
             max_pose_age_s=float(hand_eye_params.get("max_pose_age_s", 1.0)),
             pose_jump_back_s=float(hand_eye_params.get("pose_jump_back_s", 1.0)),
-            # hand_eye.yaml's robot_pose_noise when present, else the hand_eye parameters
-            robot_sigma_pos_m=(noise["translation_sigma_m"] if noise else
-                               float(hand_eye_params.get("robot_sigma_pos_m",
-                                                         ProcessOptions.robot_sigma_pos_m))),
-            robot_sigma_rot_rad=(noise["rotation_sigma_rad"] if noise else
-                                 float(hand_eye_params.get("robot_sigma_rot_rad",
-                                                           ProcessOptions.robot_sigma_rot_rad))),
+            # the arm's stated accuracy (hand_eye parameters), raised to hand_eye.yaml's
+            # robot_pose_noise where that is larger (core.localization.robot_pose_sigmas)
+            robot_sigma_pos_m=robot_sigmas[0], robot_sigma_rot_rad=robot_sigmas[1],
             verify_crc=args.verify_crc, workers=args.workers,
             task_timeout_s=args.task_timeout, setup=calib.setup)
     except (TypeError, ValueError) as exc:

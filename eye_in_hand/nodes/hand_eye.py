@@ -81,7 +81,8 @@ from std_srvs.srv import Trigger
 
 from eye_in_hand.io.kinematics import load_kinematics
 from eye_in_hand.ros.node_main import run_node
-from eye_in_hand.core.localization import Localizer, LocalizerConfig, target_in_base
+from eye_in_hand.core.localization import (Localizer, LocalizerConfig, robot_pose_sigmas,
+                                            target_in_base)
 from eye_in_hand.core.transforms import rotation_angle
 from eye_in_hand.errors import (ConfigError, ConversionError, EyeInHandError, InputError,
                                 LocalizationError)
@@ -148,12 +149,12 @@ class HandEyeNodeConfig:
                                     range=(0.001, 3600.0))
     pose_buffer_size: int = param(4000, "robot poses kept for interpolation",
                                   range=(2, 1_000_000))
-    robot_sigma_pos_m: float = param(0.00015, "robot pose position noise per axis, 1 sigma (m); "
-                                     "hand_eye.yaml's robot_pose_noise replaces it when present",
+    robot_sigma_pos_m: float = param(0.00015, "the arm's position accuracy per axis, 1 sigma (m); "
+                                     "hand_eye.yaml's robot_pose_noise raises it when larger",
                                      range=(0.0, 1.0))
-    robot_sigma_rot_rad: float = param(0.0004, "robot pose rotation noise about the flange per "
+    robot_sigma_rot_rad: float = param(0.0004, "the arm's rotation accuracy about the flange per "
                                        "axis, 1 sigma (rad); hand_eye.yaml's robot_pose_noise "
-                                       "replaces it when present", range=(0.0, 1.0))
+                                       "raises it when larger", range=(0.0, 1.0))
     publish_tf: bool = param(True, "publish /tf_static (ee_frame -> camera_frame, camera_frame "
                              "-> right_camera_frame) and /tf (base_frame -> target_frame per "
                              "located target); needs tf2_msgs")
@@ -249,12 +250,11 @@ class HandEyeNode(Node):
                     f"targets are published in base_frame {cfg.base_frame!r}")
             if not self.eye_to_hand:
                 ee_T_cam, cov = self.calibration.transform, self.calibration.covariance
-        # robot pose noise: hand_eye.yaml's robot_pose_noise (estimated while calibrating)
-        # when present, else the robot_sigma_* parameters
-        sig_pos, sig_rot = cfg.robot_sigma_pos_m, cfg.robot_sigma_rot_rad
-        if self.calibration is not None and self.calibration.robot_pose_noise is not None:
-            noise = self.calibration.robot_pose_noise
-            sig_pos, sig_rot = noise["translation_sigma_m"], noise["rotation_sigma_rad"]
+        # robot pose noise: the arm's stated accuracy (robot_sigma_* parameters), raised to
+        # hand_eye.yaml's robot_pose_noise (estimated while calibrating) where that is larger
+        sig_pos, sig_rot = robot_pose_sigmas(
+            cfg.robot_sigma_pos_m, cfg.robot_sigma_rot_rad,
+            None if self.calibration is None else self.calibration.robot_pose_noise)
         self.localizer = Localizer(ee_T_cam, cov, LocalizerConfig(
             max_gap_ns=int(cfg.max_pose_gap_s * 1e9), buffer_size=cfg.pose_buffer_size,
             robot_sigma_pos_m=sig_pos, robot_sigma_rot_rad=sig_rot,

@@ -384,10 +384,10 @@ def test_receive_age_uses_the_simulated_clock(tmp_path, ros_context, executor, n
     assert len(rig.poses) == 1
 
 
-def test_robot_pose_noise_from_hand_eye_file_replaces_the_parameters(
+def test_robot_pose_noise_from_hand_eye_file_raises_the_parameters(
         tmp_path, ros_context, executor, namespace, spin_until):
-    """hand_eye.yaml's optional robot_pose_noise (written while calibrating) is the robot pose
-    noise propagated into target/pose_cov; the robot_sigma_* parameters only without it."""
+    """hand_eye.yaml's optional robot_pose_noise (written while calibrating) raises the robot
+    pose noise propagated into target/pose_cov above the robot_sigma_* parameters (here 0)."""
     from dataclasses import replace
 
     from eye_in_hand.io.config import load_hand_eye

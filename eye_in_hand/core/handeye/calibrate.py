@@ -41,7 +41,8 @@ from .samples import MIN_SAMPLES, CameraView, HandEyeSample, MotionDiagnostics, 
     motion_diagnostics, validate_samples
 from .solvers import CLOSED_FORM_METHODS, SETUPS, board_in_fixed_frame, gripper_poses, \
     motion_pairs
-from .select import HeldOut, choose, held_out_prediction, selection_scores
+from .select import HeldOut, choose, held_out_position_sigma, held_out_prediction, \
+    selection_scores
 
 __all__ = [
     "METHODS",
@@ -167,6 +168,8 @@ class HandEyeResult:
         refinement_exact: the exact-pose refinement (``refined_exact``), or None.
         selection_reason: why ``selected`` was chosen.
         selection_scores: the held-out score of every method (lower is better).
+        held_out_sigma_m: the per-pose position noise the held-out board positions of
+            ``refined`` show (:func:`.select.held_out_position_sigma`), or None.
     """
 
     setup: str
@@ -180,6 +183,7 @@ class HandEyeResult:
     refinement_exact: RefinementResult | None = None
     selection_reason: str = ""
     selection_scores: dict[str, float] = field(default_factory=dict)
+    held_out_sigma_m: float | None = None
 
     @property
     def X(self) -> np.ndarray:
@@ -193,11 +197,20 @@ class HandEyeResult:
 
     @property
     def robot_pose_noise(self) -> dict[str, float] | None:
-        """The robot-pose noise estimated by the errors-in-variables refinement (1 sigma per
-        axis, flange frame): ``translation_sigma_m``, ``rotation_sigma_rad``; None without it."""
+        """The robot-pose noise (1 sigma per axis, flange frame) written to hand_eye.yaml:
+        ``translation_sigma_m``, ``rotation_sigma_rad``; None without the errors-in-variables
+        refinement.
+
+        The rotation is the refinement's estimate; the translation the larger of the
+        refinement's and the per-pose position scatter of the held-out board positions
+        (``held_out_sigma_m``), which also holds what the model leaves unexplained between
+        poses (e.g. a camera calibration error seen from another distance and angle)."""
         if self.refinement is None:
             return None
-        return {"translation_sigma_m": self.refinement.robot_translation_sigma_m,
+        t = self.refinement.robot_translation_sigma_m
+        if self.held_out_sigma_m is not None:
+            t = max(t, self.held_out_sigma_m)
+        return {"translation_sigma_m": t,
                 "rotation_sigma_rad": self.refinement.robot_rotation_sigma_rad}
 
     def sample_table(self) -> list[dict[str, Any]]:
@@ -233,6 +246,7 @@ class HandEyeResult:
             "selection": {"reason": self.selection_reason,
                           "scores": dict(self.selection_scores)},
             "robot_pose_noise": self.robot_pose_noise,
+            "held_out_sigma_m": self.held_out_sigma_m,
             "refinement": None if self.refinement is None else {
                 "space": self.refinement.space, "sigma": self.refinement.sigma,
                 "noise_levels": dict(self.refinement.sigmas),
@@ -577,6 +591,7 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                key=lambda k: score(results[k]))
     refinement: EivResult | None = None
     refinement_exact: RefinementResult | None = None
+    held_out_sigma: float | None = None
     if refine:
         start = results[best]
         # Today's refinement: the robot poses taken as exact.
@@ -600,8 +615,13 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
             mr = _refined_result("refined", refinement.X, refinement.Y, refinement.covariance,
                                  kept, cameras, setup, use_corners)
             if loo:
-                _refined_loo(mr, kept, cameras, setup, refinement.sigmas,
-                             refinement.corrections, warnings, held)
+                sols = _refined_loo(mr, kept, cameras, setup, refinement.sigmas,
+                                    refinement.corrections, warnings, held)
+                if sols is not None:
+                    held_out_sigma, _ = held_out_position_sigma(
+                        sols, kept, setup, refinement.robot_rotation_sigma_rad,
+                        cameras if use_corners else None,
+                        refinement.sigmas.get("px"))
             results["refined"] = mr
             if not refinement.converged:
                 warnings.append("refined: the noise levels did not settle in "
@@ -642,7 +662,7 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                          diagnostics=diag, methods=results, selected=selected,
                          warnings=warnings, refinement=refinement,
                          refinement_exact=refinement_exact, selection_reason=reason,
-                         selection_scores=scores)
+                         selection_scores=scores, held_out_sigma_m=held_out_sigma)
 
 
 def _jackknife_covariance(xs: Sequence[np.ndarray]) -> np.ndarray:
@@ -692,7 +712,9 @@ def _exact_pose_sigmas(ref: RefinementResult, kept: Sequence[HandEyeSample], set
 def _refined_loo(mr: MethodResult, kept: Sequence[HandEyeSample],
                  cameras: Sequence[CameraView] | None, setup: str, sigmas: dict[str, float],
                  corrections: np.ndarray | None, warnings: list[str],
-                 held: dict[str, HeldOut]) -> None:
+                 held: dict[str, HeldOut]) -> list[tuple[np.ndarray, np.ndarray]] | None:
+    """Leave-one-out figures of a refinement (into ``mr`` and ``held``); returns the
+    solutions without each sample, or None when they could not be computed."""
     from .eiv import leave_one_out_steps
 
     try:
@@ -700,7 +722,7 @@ def _refined_loo(mr: MethodResult, kept: Sequence[HandEyeSample],
                                    sigmas, corrections)
     except HandEyeError as exc:
         warnings.append(f"leave-one-out figures of {mr.name} unavailable: {exc}")
-        return
+        return None
     n = len(sols)
     mr.loo_mm = np.zeros(n)
     mr.loo_deg = np.zeros(n)
@@ -708,6 +730,7 @@ def _refined_loo(mr: MethodResult, kept: Sequence[HandEyeSample],
         mr.loo_mm[i], mr.loo_deg[i] = _x_delta(Xi, mr.X)
     held[mr.name] = held_out_prediction(sols, kept, cameras, setup)
     mr.held_out = held[mr.name]
+    return sols
 
 
 def bootstrap_covariance(samples: Sequence[HandEyeSample], setup: str, *,

@@ -31,11 +31,12 @@ from typing import Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .refine import reprojection_errors
+from .refine import _project, perturb, reprojection_errors
 from .samples import CameraView, HandEyeSample
 from .solvers import board_in_fixed_frame
 
-__all__ = ["HeldOut", "held_out_prediction", "selection_scores", "choose"]
+__all__ = ["HeldOut", "held_out_prediction", "selection_scores", "choose",
+           "held_out_position_sigma"]
 
 
 @dataclass(frozen=True)
@@ -145,3 +146,98 @@ def choose(held_out: dict[str, HeldOut], candidates: Sequence[str],
     return reference, (f"{criterion}: {reference} {scores[reference]:.4g} is within the noise of "
                        f"the lowest, {best} {scores[best]:.4g} (paired over the samples, under 2 "
                        "standard errors), and its covariance models both noise sources")
+
+
+def _centre_variance(s: HandEyeSample, cameras: Sequence[CameraView], px_sigma: float,
+                     c: np.ndarray) -> float:
+    """Trace of the covariance (m^2) of the board point ``c`` (board frame) in the camera, as
+    the sample's board pose ``cam_T_board`` was measured: PnP on its first observation's
+    corners (:func:`.observe.observe_sample`), ``px_sigma^2 (J^T J)^-1`` of the pose's six
+    parameters, propagated to the point."""
+    views = {v.name: v for v in cameras}
+    C0 = s.cam_T_board
+    h = 1e-7
+    ob = s.observations[0]
+
+    def corners(C: np.ndarray) -> np.ndarray:
+        return _project(views[ob.camera], C, ob.object_points).ravel()
+
+    f0 = corners(C0)
+    J = np.zeros((f0.size, 6))
+    Jc = np.zeros((3, 6))
+    base = np.concatenate([C0[:3, 3], np.zeros(3)])
+    for j in range(6):
+        d = base.copy()
+        d[j] += h
+        C = perturb(C0, d)
+        J[:, j] = (corners(C) - f0) / h
+        Jc[:, j] = ((C[:3, :3] @ c + C[:3, 3]) - (C0[:3, :3] @ c + C0[:3, 3])) / h
+    try:
+        cov = px_sigma ** 2 * np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        return 0.0
+    return float(np.trace(Jc @ cov @ Jc.T))
+
+
+def held_out_position_sigma(solutions: Sequence[tuple[np.ndarray, np.ndarray]],
+                            samples: Sequence[HandEyeSample], setup: str,
+                            rotation_sigma_rad: float,
+                            cameras: Sequence[CameraView] | None = None,
+                            px_sigma: float | None = None) -> tuple[float, float]:
+    """Per-pose position noise (1 sigma per axis) that the held-out board positions show.
+
+    Each sample's board centre (the mean of its corners in the board frame; the board origin
+    without corners) is mapped into the fixed frame through its *reported* robot pose and the
+    solution without it, and compared with that solution's board: the error a base-frame
+    position seen by the camera makes at a pose the calibration did not use. Its mean square
+    ``m`` holds the robot's translation noise (3 ``s_t^2``), its rotation noise about the
+    flange at the centre's lever arm ``l_i`` (``2 s_r^2 |l_i|^2``), the held-out view's own
+    measurement noise of the centre (``v_i``: the trace of its covariance from the corners at
+    ``px_sigma``, as :func:`_centre_variance`; 0 without corners), and whatever else scatters
+    from pose to pose (an intrinsic or stereo calibration error seen from another distance and
+    angle). All of it but the rotation and measurement terms is given to ``s_t``::
+
+        s_t^2 = max(0, mean_i(|e_i|^2 - 2 s_r^2 |l_i|^2 - v_i)) / 3
+
+    An upper bound of the robot's own translation noise, and the honest per-pose position
+    scatter of the camera-to-base chain as the localization uses it. Like every figure
+    computed from the calibration's own data it cannot see an error common to all samples
+    (see :mod:`eye_in_hand.core.localization`).
+
+    Args:
+        solutions: ``(X, Y)`` without sample ``i``, for every sample, in order.
+        samples: the samples.
+        setup: ``"eye_in_hand"`` or ``"eye_to_hand"``.
+        rotation_sigma_rad: the robot's rotation noise about the flange, per axis (rad).
+        cameras: the rig's cameras (the centre's measurement noise is subtracted when given
+            and every sample has corners).
+        px_sigma: the corners' pixel noise (1 sigma per coordinate), with ``cameras``.
+
+    Returns:
+        ``(s_t (m), rms (m))``: the sigma and the RMS held-out centre error (norm).
+    """
+    sq = []
+    lever_sq = []
+    meas = []
+    use_corners = (bool(cameras) and px_sigma is not None
+                   and all(len(s.observations) > 0 for s in samples))
+    for (X, Y), s in zip(solutions, samples):
+        c = (np.mean(s.observations[0].object_points, axis=0) if s.observations
+             else np.zeros(3))
+        Yi = board_in_fixed_frame(X, s.base_T_ee[None], s.cam_T_board[None], setup)[0]
+        e = (Yi[:3, :3] @ c + Yi[:3, 3]) - (Y[:3, :3] @ c + Y[:3, 3])
+        sq.append(float(e @ e))
+        # the centre in the flange frame: the lever arm of a flange rotation error
+        if setup == "eye_in_hand":
+            p_fixed = Y[:3, :3] @ c + Y[:3, 3]                   # base frame
+            p_ee = s.base_T_ee[:3, :3].T @ (p_fixed - s.base_T_ee[:3, 3])
+        else:
+            p_ee = Y[:3, :3] @ c + Y[:3, 3]                      # board on the flange
+        lever_sq.append(float(p_ee @ p_ee))
+        if use_corners:
+            assert cameras is not None and px_sigma is not None
+            meas.append(_centre_variance(s, cameras, px_sigma, c))
+    m = np.asarray(sq)
+    excess = float(np.mean(m - 2.0 * rotation_sigma_rad ** 2 * np.asarray(lever_sq)
+                           - (np.asarray(meas) if meas else 0.0)))
+    return float(np.sqrt(max(0.0, excess) / 3.0)), float(np.sqrt(np.mean(m)))
