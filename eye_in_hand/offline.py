@@ -143,6 +143,9 @@ class FrameResult:
         targets: every located target (:class:`TargetResult`), the first target (the one of
             the fields above) first when it was located.
         missing: target name (or id) -> why it was not located.
+        truth_by_id: target id -> its matched ground-truth target at this stamp, for every
+            matched id, located here or not (set by :func:`eye_in_hand.io.results.
+            assign_truth`; the ``gt_*`` columns of a target's ``no_target`` rows).
     """
 
     stamp_ns: int
@@ -158,6 +161,7 @@ class FrameResult:
     truth_base: np.ndarray | None = None
     targets: list[TargetResult] = field(default_factory=list)
     missing: dict[str, str] = field(default_factory=dict)
+    truth_by_id: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def error_m(self) -> float:

@@ -114,7 +114,9 @@ def assign_truth(frames: Sequence[FrameResult], truth: Mapping[int, list[np.ndar
     match_truth`; no distance limit, so a gross error shows as one). Each target's
     ``truth_base`` is then its matched true target at the frame's stamp; the frame's own
     ``truth_base`` (the first target's, for the summary's first-target figures) is the first
-    target's match, or true target 0 when the first target was never localized.
+    target's match, or true target 0 when the first target was never localized. Every
+    matched id's true target at the stamp also goes into the frame's ``truth_by_id``, located
+    there or not (the ``gt_*`` columns of its ``no_target`` rows, as with one target before).
 
     Returns:
         id -> ``{"truth_index": k, "distance_mm": median distance}`` for the matched ids.
@@ -136,9 +138,9 @@ def assign_truth(frames: Sequence[FrameResult], truth: Mapping[int, list[np.ndar
         at = truth.get(f.stamp_ns)
         if at is None:
             continue
+        f.truth_by_id = {i: at[k] for i, k in match.items() if k < len(at)}
         for t in f.targets:
-            k = match.get(t.id)
-            t.truth_base = at[k] if k is not None and k < len(at) else None
+            t.truth_base = f.truth_by_id.get(t.id)
         if f.targets and f.status in ("located", "ok", "no_robot_pose"):
             k0 = match.get(f.targets[0].id)     # the first target's id in this frame
         else:
@@ -165,6 +167,9 @@ def frame_tracks(frames: Sequence[FrameResult], ids: Sequence[str]) -> tuple[Tra
                 pos[t.id][r] = t.point_base
             if t.truth_base is not None:
                 true[t.id][r] = t.truth_base
+        for i, g in f.truth_by_id.items():      # the truth where an id was not located
+            if i in true and not np.isfinite(true[i][r]).all():
+                true[i][r] = g
     return pos, {i: v for i, v in true.items() if np.isfinite(v).any()}
 
 
@@ -327,7 +332,12 @@ def _rows(f: FrameResult, ids: Sequence[str]) -> list[list[Any]]:
             status = "bad_image" if f.status == "bad_image" else "no_target"
             reason = f.reason if f.status == "bad_image" else f.missing.get(
                 i, f.missing.get(i.rpartition("_")[0], ""))
-            rows.append([f.stamp_ns, status, *[""] * 18, reason, i])
+            # the truth of a target not located here, when known: its match, or (one
+            # target, never localized) the frame's truth, as results.csv always had it
+            gt = f.truth_by_id.get(i)
+            if gt is None and len(ids) == 1:
+                gt = f.truth_base
+            rows.append([f.stamp_ns, status, *[""] * 14, *cols(gt, 3), "", reason, i])
             continue
         sig = ([f"{1000.0 * math.sqrt(max(t.cov_base[k, k], 0.0)):.6f}" for k in range(3)]
                if t.cov_base is not None else [""] * 3)

@@ -81,8 +81,8 @@ from std_srvs.srv import Trigger
 
 from eye_in_hand.io.kinematics import load_kinematics
 from eye_in_hand.ros.node_main import run_node
-from eye_in_hand.core.localization import (Localizer, LocalizerConfig, robot_pose_sigmas,
-                                            target_in_base)
+from eye_in_hand.core.eye_to_hand import EyeToHandLocalizer
+from eye_in_hand.core.localization import Localizer, LocalizerConfig, robot_pose_sigmas
 from eye_in_hand.core.transforms import rotation_angle
 from eye_in_hand.errors import (ConfigError, ConversionError, EyeInHandError, InputError,
                                 LocalizationError)
@@ -260,6 +260,12 @@ class HandEyeNode(Node):
             robot_sigma_pos_m=sig_pos, robot_sigma_rot_rad=sig_rot,
             max_age_ns=int(cfg.max_pose_age_s * 1e9),
             jump_back_ns=int(cfg.pose_jump_back_s * 1e9)))
+        # eye-to-hand: base_T_cam and its covariance, the same code as `process`
+        self.fixed_localizer: EyeToHandLocalizer | None = None
+        if self.eye_to_hand:
+            assert self.calibration is not None
+            self.fixed_localizer = EyeToHandLocalizer(self.calibration.transform,
+                                                      self.calibration.covariance)
 
         if self.eye_to_hand:
             pass   # the camera does not move with the robot: no robot pose is needed
@@ -471,10 +477,9 @@ class HandEyeNode(Node):
             LocalizationError: eye-in-hand, no usable robot pose (``reason`` says why).
             InputError: a malformed point or covariance.
         """
-        if self.eye_to_hand:
-            assert self.calibration is not None
-            return target_in_base(np.eye(4), self.calibration.transform, point, cov_cam=cov,
-                                  cov_hand_eye=self.calibration.covariance)
+        if self.fixed_localizer is not None:
+            res = self.fixed_localizer.locate(stamp_ns, point, cov)
+            return res.point_base, res.covariance
         res = self.localizer.locate(stamp_ns, point, cov, now_ns=self._now_ns())
         return res.point_base, res.covariance
 

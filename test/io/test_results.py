@@ -1,0 +1,84 @@
+"""results.csv rows of targets that were not located: the ground truth stays in them."""
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+
+from eye_in_hand.io.results import assign_truth, write_results
+from eye_in_hand.offline import FrameResult, ProcessResult, TargetResult
+
+T0 = 1_700_000_000_000_000_000
+TRUE = {"a": np.array([0.40, 0.10, 0.02]), "b": np.array([0.55, 0.25, 0.02])}
+
+
+def _located(tid: str, p_base: np.ndarray) -> TargetResult:
+    return TargetResult(id=tid, name=tid, point_cam=np.array([0.0, 0.0, 0.5]),
+                        cov_cam=np.eye(3) * 1e-8, residual_px=0.1, left_px=np.zeros(2),
+                        right_px=np.zeros(2), status="ok", point_base=p_base,
+                        cov_base=np.eye(3) * 1e-8)
+
+
+def _frame(k: int, located: dict[str, np.ndarray]) -> FrameResult:
+    targets = [_located(i, p) for i, p in located.items()]
+    f = FrameResult(T0 + k, "ok" if targets else "no_target", targets=targets)
+    if not targets:
+        f.reason = "no blob"
+    f.missing = {i: "no blob" for i in TRUE if i not in located}
+    return f
+
+
+def _truth(n: int, order: tuple[str, ...]) -> dict[int, list[np.ndarray]]:
+    """The simulator's ground truth: per stamp, the true centres in world order (moving by
+    1 mm per frame, so a row carries the truth of its own stamp)."""
+    return {T0 + k: [TRUE[i] + [0.001 * k, 0, 0] for i in order] for k in range(n)}
+
+
+def _rows(tmp_path, frames: list[FrameResult], ids: list[str],
+          truth: dict[int, list[np.ndarray]]) -> list[dict[str, str]]:
+    res = ProcessResult(frames=frames, counts={}, target_ids=ids)
+    res.truth_match = assign_truth(frames, truth, ids)
+    write_results(tmp_path / "out", res)
+    return list(csv.DictReader((tmp_path / "out" / "results.csv").open()))
+
+
+def _gt(row: dict[str, str]) -> np.ndarray:
+    return np.array([float(row[k]) for k in ("gt_x", "gt_y", "gt_z")])
+
+
+def test_one_target_no_target_rows_keep_the_ground_truth(tmp_path):
+    off = np.array([0.0003, 0, 0])
+    frames = [_frame(0, {"a": TRUE["a"] + off}), _frame(1, {}), _frame(2, {}),
+              _frame(3, {"a": TRUE["a"] + [0.003, 0, 0] + off})]
+    rows = _rows(tmp_path, frames, ["a"], _truth(4, ("a",)))
+    assert [r["status"] for r in rows] == ["ok", "no_target", "no_target", "ok"]
+    for k, r in enumerate(rows):
+        assert np.allclose(_gt(r), TRUE["a"] + [0.001 * k, 0, 0], atol=1e-12), k
+    assert [r["error_mm"] == "" for r in rows] == [False, True, True, False]
+    assert float(rows[0]["error_mm"]) == float(rows[3]["error_mm"])
+    assert all(r["x_base"] == "" for r in rows[1:3])
+
+
+def test_one_target_never_located_keeps_the_ground_truth(tmp_path):
+    rows = _rows(tmp_path, [_frame(0, {}), _frame(1, {})], ["a"], _truth(2, ("a",)))
+    for k, r in enumerate(rows):
+        assert r["status"] == "no_target" and r["reason"] == "no blob"
+        assert np.allclose(_gt(r), TRUE["a"] + [0.001 * k, 0, 0], atol=1e-12)
+
+
+def test_several_targets_a_missing_row_gets_its_own_matched_truth(tmp_path):
+    # truth in the order (b, a): the ids are matched by position, not by order
+    def frames() -> list[FrameResult]:
+        return [_frame(0, {"a": TRUE["a"], "b": TRUE["b"]}), _frame(1, {"a": TRUE["a"]}),
+                _frame(2, {"b": TRUE["b"] + [0.002, 0, 0]})]
+
+    rows = _rows(tmp_path, frames(), ["a", "b"], _truth(3, ("b", "a")))
+    assert [(r["target"], r["status"]) for r in rows] == [
+        ("a", "ok"), ("b", "ok"), ("a", "ok"), ("b", "no_target"), ("a", "no_target"),
+        ("b", "ok")]
+    for n, r in enumerate(rows):
+        k = n // 2
+        assert np.allclose(_gt(r), TRUE[r["target"]] + [0.001 * k, 0, 0], atol=1e-12), n
+    # a truth-less bag: the columns stay empty
+    rows = _rows(tmp_path / "none", frames(), ["a", "b"], {})
+    assert all(r["gt_x"] == "" for r in rows)
