@@ -13,7 +13,8 @@ Every import counts, also one inside a function; an import under ``if TYPE_CHECK
 for annotations only and does not. Two rooms of one floor may not import each other's modules,
 except where listed (a piece two rooms share moves down a floor); each command and each node is
 a room of its own: commands share only ``commands.common`` and ``commands.calibration_inputs``
-(and the floors below), nodes share nothing but the floors below.
+(and the floors below), nodes share nothing but the floors below. A node split into parts keeps
+them in its room (``NODE_PARTS``): ``nodes.hand_eye_targets`` belongs to ``nodes.hand_eye``.
 """
 from __future__ import annotations
 
@@ -33,6 +34,12 @@ FLOORS = {
 SAME_FLOOR_ALLOWED = {("sim", "io"), ("io", "ros"), ("sim", "ros"), ("report", "io")}
 #: modules of ``commands`` that every command may import
 SHARED_COMMANDS = {"commands.common", "commands.calibration_inputs"}
+#: modules of ``nodes`` that are parts of one node: part -> the node's module (its room)
+NODE_PARTS = {
+    "nodes.hand_eye_targets": "nodes.hand_eye",
+    "nodes.hand_eye_tf": "nodes.hand_eye",
+    "nodes.hand_eye_calibration": "nodes.hand_eye",
+}
 
 
 def _module(path: Path) -> str:
@@ -71,7 +78,8 @@ def _room(module: str) -> tuple[str, str]:
     parts = module.split(".")[1:]
     top = parts[0] if parts else ""
     if top in ("commands", "nodes") and len(parts) > 1:
-        return top, ".".join(parts[:2])
+        room = ".".join(parts[:2])
+        return top, NODE_PARTS.get(room, room)
     return top, top
 
 

@@ -74,28 +74,26 @@ from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import PointStamped, PoseStamped, PoseWithCovarianceStamped, TransformStamped
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import Image, JointState
-from std_srvs.srv import Trigger
+from sensor_msgs.msg import JointState
 
-from eye_in_hand.io.kinematics import load_kinematics
-from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.core.eye_to_hand import EyeToHandLocalizer
 from eye_in_hand.core.localization import Localizer, LocalizerConfig, robot_pose_sigmas
-from eye_in_hand.core.transforms import rotation_angle
-from eye_in_hand.errors import (ConfigError, ConversionError, EyeInHandError, InputError,
-                                LocalizationError)
-from eye_in_hand.ros.conversions import (header_stamp_ns, image_to_numpy, matrix_to_pose,
+from eye_in_hand.errors import ConversionError, EyeInHandError, InputError, LocalizationError
+from eye_in_hand.io.config import load_hand_eye
+from eye_in_hand.io.kinematics import load_kinematics
+from eye_in_hand.nodes.hand_eye_calibration import CalibrationMixin
+from eye_in_hand.nodes.hand_eye_targets import EveryTargetMixin
+from eye_in_hand.nodes.hand_eye_tf import TfMixin
+from eye_in_hand.ros.conversions import (header_stamp_ns, matrix_to_pose,
                                          matrix_to_transform_stamped, ns_to_stamp, point_to_xyz,
                                          pose_to_matrix)
 from eye_in_hand.ros.diagnostics import NodeDiagnostics
-from eye_in_hand.ros.markers import (Sphere, marker_classes, points_to_pose_array,
-                                     pose_array_class, sphere_marker_array,
-                                     spheres_from_marker_array)
-from eye_in_hand.ros.names import topic_name_problem
+from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.ros.params import load_config, param
-from eye_in_hand.ros.qos import LATCHED_QOS, RESULT_QOS, SENSOR_QOS
+from eye_in_hand.ros.qos import LATCHED_QOS, RESULT_QOS
 
 #: Robot poses: best effort (matches reliable and best-effort publishers) but a deep queue, so
 #: a burst of high-rate poses is not lost while the executor is busy.
@@ -212,17 +210,14 @@ class _Pending:
     arrived: float
 
 
-@dataclass
-class _Frame:
-    """One frame of ``targets/markers`` waiting for its targets' points and the robot pose."""
+class HandEyeNode(EveryTargetMixin, TfMixin, CalibrationMixin, Node):
+    """See the module docstring. ``kwargs`` go to ``Node`` (context, namespace, overrides).
 
-    stamp_ns: int
-    spheres: list[Sphere]
-    arrived: float
-
-
-class HandEyeNode(Node):
-    """See the module docstring. ``kwargs`` go to ``Node`` (context, namespace, overrides)."""
+    Its parts: localization and the robot pose here; every target
+    (:mod:`~eye_in_hand.nodes.hand_eye_targets`), TF in and out
+    (:mod:`~eye_in_hand.nodes.hand_eye_tf`) and calibration mode
+    (:mod:`~eye_in_hand.nodes.hand_eye_calibration`) in their own modules.
+    """
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
@@ -239,8 +234,6 @@ class HandEyeNode(Node):
         ee_T_cam = np.eye(4)
         cov = None
         if cfg.mode == "localization":
-            from eye_in_hand.io.config import load_hand_eye
-
             self.calibration = load_hand_eye(cfg.hand_eye_file)
             self.eye_to_hand = self.calibration.setup == "eye_to_hand"
             if self.eye_to_hand and self.calibration.parent_frame != cfg.base_frame:
@@ -388,8 +381,6 @@ class HandEyeNode(Node):
                                   "pose_buffer_resets.stream_stopped")
         self.diag.stale_after("points", cfg.stale_after_s)
         self._setup_targets()
-        from rclpy.clock import Clock, ClockType
-
         # Steady time: waiting points expire and stopped pose streams are noticed also while
         # simulated time (use_sim_time) stands still.
         self.create_timer(0.02, self._expire_pending,
@@ -523,475 +514,6 @@ class HandEyeNode(Node):
         self.diag.gauge("latency_ms", round((self.get_clock().now().nanoseconds - stamp_ns) / 1e6,
                                             3))
         self.diag.gauge("sigma_mm", round(1000.0 * float(np.sqrt(max(np.trace(cov), 0.0))), 4))
-
-    # -- every target ---------------------------------------------------------------------
-    def _setup_targets(self) -> None:
-        """``targets/markers`` in (the frame's list of targets), ``targets/<id>/point_cov`` in
-        per id, ``target/<id>/pose(_cov)``, ``target/poses`` and ``target/markers`` out."""
-        cfg = self.config
-        _, MarkerArray = marker_classes()
-        self._frames: deque[_Frame] = deque()
-        self._frames_max = 200
-        # (id, image stamp) -> (point (3,), covariance (3, 3)), in arrival order
-        self._target_points: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]] = {}
-        self._target_subs: dict[str, Any] = {}
-        self._target_pubs: dict[str, tuple[Any, Any]] = {}
-        # per-target topics follow their list topic's remapping: targets/<id>/point_cov next to
-        # targets/markers, target/<id>/pose(_cov) next to target/poses
-        self._targets_prefix = self.resolve_topic_name("targets/markers").rsplit("/", 1)[0]
-        self._poses_prefix = self.resolve_topic_name("target/poses").rsplit("/", 1)[0]
-        self.create_subscription(MarkerArray, "targets/markers", self._on_markers, RESULT_QOS)
-        self.pub_poses = self.create_publisher(pose_array_class(), "target/poses", RESULT_QOS)
-        self.pub_markers = self.create_publisher(MarkerArray, "target/markers", RESULT_QOS)
-        self.diag.declare_counter("target_frames", "target_points", "target_points_received",
-                                  "target_poses_published", "targets_rejected",
-                                  "target_frames_published", "orphan_target_points",
-                                  "target_refused.stale_pose", "target_refused.no_point")
-        from rclpy.clock import Clock, ClockType
-
-        self.create_timer(cfg.discovery_period_s, self._discover_targets,
-                          clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self._discover_targets()
-
-    def _discover_targets(self) -> None:
-        """Subscribe to every ``targets/<id>/point_cov`` that has a publisher in the graph."""
-        prefix, suffix = self._targets_prefix + "/", "/point_cov"
-        for name, _types in self.get_topic_names_and_types():
-            if name.startswith(prefix) and name.endswith(suffix):
-                tid = name[len(prefix):-len(suffix)]
-                if tid and "/" not in tid and tid not in self._target_subs \
-                        and self.count_publishers(name) > 0:
-                    self._subscribe_target(tid)
-
-    def _subscribe_target(self, tid: str) -> str | None:
-        """Subscribe to ``targets/<tid>/point_cov`` and make the ``target/<tid>/pose(_cov)``
-        publishers (once, so that their subscribers match before the first frame); the
-        refusal reason when ``tid`` names no valid topic or ``max_targets`` ids are subscribed
-        already, else None."""
-        if tid in self._target_subs:
-            return None
-        problem = topic_name_problem(f"targets/{tid}/point_cov") if tid and "/" not in tid \
-            else "empty or contains '/'"
-        if problem is not None:
-            return "bad_target_id"
-        if len(self._target_subs) >= self.config.max_targets:
-            return "too_many_targets"
-        self._target_subs[tid] = self.create_subscription(
-            PoseWithCovarianceStamped, f"{self._targets_prefix}/{tid}/point_cov",
-            lambda m, t=tid: self._on_target_point(t, m), RESULT_QOS)
-        base = f"{self._poses_prefix}/{tid}"
-        self._target_pubs[tid] = (
-            self.create_publisher(PoseStamped, f"{base}/pose", RESULT_QOS),
-            self.create_publisher(PoseWithCovarianceStamped, f"{base}/pose_cov", RESULT_QOS))
-        return None
-
-    def _on_target_point(self, tid: str, msg: PoseWithCovarianceStamped) -> None:
-        """A target's point and covariance (``targets/<id>/point_cov``), kept for its frame."""
-        self.diag.count("target_points_received")
-        topic = f"targets/{tid}/point_cov"
-        try:
-            stamp = header_stamp_ns(msg)
-            frame = msg.header.frame_id
-            if frame and frame.lstrip("/") != self.config.camera_frame:
-                raise InputError(f"frame {frame!r}, expected {self.config.camera_frame!r}")
-            p = point_to_xyz(msg.pose.pose.position)
-            cov = np.asarray(msg.pose.covariance, dtype=np.float64).reshape(6, 6)[:3, :3]
-            if not np.all(np.isfinite(cov)):
-                raise InputError("covariance contains NaN")
-        except (ConversionError, InputError, ValueError) as exc:
-            # its frame then misses the point and refuses the target (counted there)
-            self.diag.report("bad_target_point", f"{topic}: {exc}")
-            return
-        self._target_points[(tid, stamp)] = (p, cov)
-        while len(self._target_points) > 4000:
-            self._target_points.pop(next(iter(self._target_points)))
-            self.diag.count("orphan_target_points")
-        self._drain_frames()
-
-    def _on_markers(self, msg: Any) -> None:
-        """A frame's list of targets (``targets/markers``)."""
-        self.diag.count("target_frames")
-        try:
-            stamp, frame, spheres = spheres_from_marker_array(msg)
-        except ConversionError as exc:
-            self.diag.report("bad_markers", f"targets/markers: {exc}")
-            return
-        self.diag.count("target_points", len(spheres))
-        if frame and frame.lstrip("/") != self.config.camera_frame:
-            for s in spheres:
-                self._refuse_target(s.id, "point_frame", f"targets/markers in frame {frame!r}, "
-                                    f"expected {self.config.camera_frame!r}: ignored")
-            return
-        kept = []
-        for s in spheres:
-            reason = self._subscribe_target(s.id)
-            if reason is None:
-                kept.append(s)
-            else:
-                self._refuse_target(s.id, reason, f"target id {s.id!r}: " + (
-                    "cannot name a topic" if reason == "bad_target_id" else
-                    f"{self.config.max_targets} ids are subscribed already (max_targets)"))
-        if len(self._frames) >= self._frames_max:
-            old = self._frames.popleft()
-            for s in old.spheres:
-                self._refuse_target(s.id, "pending_overflow", f"more than {self._frames_max} "
-                                    "frames wait: the oldest was dropped")
-        self._frames.append(_Frame(stamp, kept, time.monotonic()))
-        self._drain_frames()
-
-    def _refuse_target(self, tid: str, reason: str, message: str,
-                       cause: str | None = None) -> None:
-        """Count a listed target that gives no ``target/<id>/pose``."""
-        self.diag.count("targets_rejected")
-        self.diag.count(f"target_refused.{reason}")
-        self.diag.report(cause or f"target_{reason}", message)
-
-    def _frame_ready(self, f: _Frame, newest: int | None, now: float) -> bool:
-        have_points = all((s.id, f.stamp_ns) in self._target_points for s in f.spheres)
-        if not have_points:
-            return now - f.arrived > self.config.max_target_wait_s
-        if self.eye_to_hand or not f.spheres:
-            return True
-        return (newest is not None and f.stamp_ns <= newest) \
-            or now - f.arrived > self.config.max_pose_wait_s
-
-    def _drain_frames(self) -> None:
-        if not self._frames:
-            return
-        newest = None if self.eye_to_hand else self.localizer.poses.newest_ns
-        now = time.monotonic()
-        while self._frames and self._frame_ready(self._frames[0], newest, now):
-            self._locate_frame(self._frames.popleft())     # FIFO: stamp order
-
-    def _locate_frame(self, f: _Frame) -> None:
-        """Every target of a frame into the base frame; per-target and per-frame outputs."""
-        cfg = self.config
-        located: list[tuple[Sphere, np.ndarray]] = []
-        tf_edges = []
-        for s in f.spheres:
-            data = self._target_points.pop((s.id, f.stamp_ns), None)
-            if data is None:
-                self._refuse_target(s.id, "no_point", f"targets/{s.id}/point_cov at "
-                                    f"{f.stamp_ns} ns did not arrive within "
-                                    f"{cfg.max_target_wait_s} s")
-                continue
-            try:
-                p, cov = self._to_base(f.stamp_ns, data[0], data[1])
-            except LocalizationError as exc:
-                self._refuse_target(s.id, exc.reason, f"no target/{s.id}/pose at "
-                                    f"{f.stamp_ns} ns: {exc}", cause="no_robot_pose")
-                continue
-            except InputError as exc:
-                self._refuse_target(s.id, "bad_point_cov", f"targets/{s.id}/point_cov at "
-                                    f"{f.stamp_ns} ns: {exc}")
-                continue
-            pubs = self._target_pubs[s.id]      # made with the subscription
-            pose_msg, cov_msg = self._pose_messages(f.stamp_ns, p, cov)
-            pubs[1].publish(cov_msg)
-            pubs[0].publish(pose_msg)
-            self.diag.count("target_poses_published")
-            located.append((s, p))
-            if cfg.target_frame_prefix:
-                T = np.eye(4)
-                T[:3, 3] = p
-                tf_edges.append((cfg.base_frame, cfg.target_frame_prefix + s.id, f.stamp_ns, T))
-        # points of this stamp (or older) that no frame listed are never used
-        for key in [k for k in self._target_points if k[1] <= f.stamp_ns]:
-            del self._target_points[key]
-            self.diag.count("orphan_target_points")
-        self.pub_poses.publish(points_to_pose_array([p for _, p in located],
-                                                    stamp_ns=f.stamp_ns,
-                                                    frame_id=cfg.base_frame))
-        self.pub_markers.publish(sphere_marker_array(
-            [Sphere(s.id, p, s.diameter_m, s.rgba) for s, p in located], stamp_ns=f.stamp_ns,
-            frame_id=cfg.base_frame, lifetime_s=cfg.marker_lifetime_s))
-        self.diag.count("target_frames_published")
-        if tf_edges and self.pub_tf is not None:
-            from eye_in_hand.ros.tf import make_tf_message
-
-            self.pub_tf.publish(make_tf_message(tf_edges))
-
-    # -- TF in (robot_pose_source: tf) -------------------------------------------------------
-    def _setup_tf_input(self) -> None:
-        """Robot poses from /tf + /tf_static: a TF buffer whose base_frame -> ee_frame chain
-        replaces the localizer's pose buffer (same interpolation, gap and no-extrapolation
-        rules, looked up at each image stamp)."""
-        from eye_in_hand.core.tf import TfBuffer, TfPoseView
-        from eye_in_hand.ros.tf import (TF_STATIC_TOPIC, TF_TOPIC, tf_message_class, tf_qos,
-                                        tf_static_sub_qos)
-
-        cfg = self.config
-        try:
-            TFMessage = tf_message_class()
-        except ConfigError as exc:
-            raise ConfigError(f"robot_pose_source: tf: {exc}") from exc
-        self.tf_buffer = TfBuffer(cfg.pose_buffer_size)
-        self.localizer.poses = TfPoseView(  # type: ignore[assignment]
-            self.tf_buffer, cfg.base_frame, cfg.ee_frame,
-            jump_back_ns=int(cfg.pose_jump_back_s * 1e9))
-        self.create_subscription(TFMessage, TF_TOPIC, lambda m: self._on_tf(m, False),
-                                 tf_qos())
-        self.create_subscription(TFMessage, TF_STATIC_TOPIC, lambda m: self._on_tf(m, True),
-                                 tf_static_sub_qos())
-        self.diag.declare_counter("tf_messages", "tf_rejected")
-
-    def _on_tf(self, msg: Any, static: bool) -> None:
-        from eye_in_hand.ros.tf import feed_tf_message
-
-        self.diag.count("tf_messages")
-        before = self.localizer.poses.newest_ns
-        added, problems, jumped = feed_tf_message(self.localizer.poses, msg, static=static,
-                                                  received_ns=self._now_ns())
-        if jumped:
-            self.diag.count("pose_buffer_resets.time_jump")
-            self.get_logger().info("TF time jumped back: dynamic transforms cleared, earlier "
-                                   "ones are never used again")
-        for text in problems:
-            self.diag.count("tf_rejected")
-            self.diag.report("bad_tf", f"{'/tf_static' if static else '/tf'}: {text}")
-        if added and self.localizer.poses.newest_ns != before:
-            self._after_pose()   # the chain reached a newer stamp: a robot pose
-
-    # -- TF out --------------------------------------------------------------------------------
-    def _setup_tf_output(self) -> None:
-        """Publishers of /tf_static (hand-eye, stereo extrinsic) and /tf (targets), when
-        ``publish_tf`` is on and tf2_msgs is available (else one log line says why not)."""
-        from eye_in_hand.ros.tf import (TF_STATIC_TOPIC, TF_TOPIC, have_tf2_msgs, tf_qos,
-                                        tf_static_pub_qos)
-
-        cfg = self.config
-        self.pub_tf = self.pub_tf_static = None
-        self._static_tf: dict[str, tuple[str, np.ndarray]] = {}
-        if not cfg.publish_tf:
-            return
-        if not have_tf2_msgs():
-            self.get_logger().warning("tf2_msgs is not installed: no /tf or /tf_static "
-                                      "published (run 'make venv' to build it)")
-            return
-        from tf2_msgs.msg import TFMessage
-
-        self.pub_tf = self.create_publisher(TFMessage, TF_TOPIC, tf_qos())
-        self.pub_tf_static = self.create_publisher(TFMessage, TF_STATIC_TOPIC,
-                                                   tf_static_pub_qos())
-        rig = None
-        cdir = cfg.stereo_calibration_dir or (cfg.calibration_dir if cfg.mode == "calibration"
-                                              else "")
-        if cdir and (Path(cdir) / "left.yaml").exists():
-            from eye_in_hand.core.camera import StereoRig
-
-            try:
-                rig = StereoRig.load(cdir)
-            except EyeInHandError as exc:
-                raise ConfigError(f"stereo_calibration_dir: {exc}") from exc
-        elif cfg.stereo_calibration_dir:
-            raise ConfigError(f"stereo_calibration_dir: {cdir} has no left.yaml + right.yaml")
-        if rig is not None:
-            self._static_tf[cfg.right_camera_frame] = (cfg.camera_frame,
-                                                       np.linalg.inv(rig.right_T_left))
-        self._publish_static_tf(self.calibration.transform if self.calibration is not None
-                                else None)
-
-    def _publish_static_tf(self, ee_T_cam: np.ndarray | None) -> None:
-        """(Re)publish every static transform of this node in one /tf_static message."""
-        from eye_in_hand.ros.tf import make_tf_message
-
-        if self.pub_tf_static is None:
-            return
-        cfg = self.config
-        if ee_T_cam is not None:
-            self._static_tf[cfg.camera_frame] = (self._camera_parent, np.asarray(ee_T_cam))
-        if not self._static_tf:
-            return
-        stamp = self.get_clock().now().nanoseconds
-        self.pub_tf_static.publish(make_tf_message(
-            (parent, child, stamp, T) for child, (parent, T) in self._static_tf.items()))
-
-    def _publish_target_tf(self, stamp_ns: int, p: np.ndarray) -> None:
-        """``base_frame -> target_frame`` on /tf at the image stamp (translation only)."""
-        from eye_in_hand.ros.tf import make_tf_message
-
-        if self.pub_tf is None:
-            return
-        T = np.eye(4)
-        T[:3, 3] = p
-        self.pub_tf.publish(make_tf_message(
-            [(self.config.base_frame, self.config.target_frame, stamp_ns, T)]))
-
-    # -- calibration ---------------------------------------------------------------------
-    def _setup_calibration(self) -> None:
-        from eye_in_hand.core.calibration import BoardSpec
-        from eye_in_hand.core.camera import CameraModel, StereoRig
-        from eye_in_hand.core.handeye.observe import rig_views
-
-        cfg = self.config
-        try:
-            self.board = BoardSpec.parse(cfg.board)
-        except EyeInHandError as exc:
-            raise ConfigError(f"board: {exc}") from exc
-        cdir = Path(cfg.calibration_dir)
-        if (cdir / "left.yaml").exists():
-            self.views = rig_views(rig=StereoRig.load(cdir))
-        elif (cdir / "camera.yaml").exists():
-            self.views = rig_views(camera=CameraModel.load_yaml(cdir / "camera.yaml"))
-        else:
-            raise ConfigError(f"calibration_dir: {cdir} has neither left.yaml + right.yaml "
-                              "nor camera.yaml")
-        self._images: dict[str, deque[tuple[int, Image]]] = {}
-        for view in self.views:
-            self._images[view.name] = deque(maxlen=10)
-            topic = "image_raw" if view.name == "image" else f"{view.name}/image_raw"
-            self.create_subscription(Image, topic,
-                                     lambda m, name=view.name: self._on_image(name, m),
-                                     SENSOR_QOS)
-        self.samples: list[Any] = []
-        self.skipped: list[dict[str, str]] = []
-        self.result = None
-        self._saved_dir: Path | None = None  # what hand_eye/save wrote (it may replace that)
-        for name, cb in (("capture", self._srv_capture), ("compute", self._srv_compute),
-                         ("save", self._srv_save), ("reset", self._srv_reset)):
-            self.create_service(Trigger, f"hand_eye/{name}", cb)
-        self.diag.gauge("samples", 0)
-
-    def _on_image(self, name: str, msg: Image) -> None:
-        try:
-            stamp = header_stamp_ns(msg)
-        except ConversionError as exc:
-            self.diag.report("bad_image", f"{name}/image_raw: {exc}")
-            return
-        self._images[name].append((stamp, msg))
-        self.diag.count(f"{name}_images")
-
-    def _latest_images(self) -> tuple[int, dict[str, np.ndarray]]:
-        ref = self.views[0].name
-        if not self._images[ref]:
-            raise InputError(f"no {ref} image received yet")
-        for stamp, msg in reversed(self._images[ref]):
-            images = {ref: msg}
-            for view in self.views[1:]:
-                match = [m for s, m in self._images[view.name] if s == stamp]
-                if match:
-                    images[view.name] = match[-1]
-            if len(images) == len(self.views):
-                break
-        else:
-            raise InputError("no left/right image pair with equal stamps received yet")
-        decoded = {k: image_to_numpy(m, desired_encoding="bgr8" if m.encoding not in
-                                     ("mono8", "mono16") else None) for k, m in images.items()}
-        return stamp, decoded
-
-    def _robot_still(self, stamp: int) -> tuple[np.ndarray, str]:
-        """Robot pose at ``stamp`` and '' if still, else a reason."""
-        cfg = self.config
-        gap = int(cfg.max_pose_gap_s * 1e9)
-        age = {"now_ns": self._now_ns(), "max_age_ns": int(cfg.max_pose_age_s * 1e9)}
-        T = self.localizer.poses.lookup(stamp, gap, **age)
-        w = int(cfg.still_window_s * 1e9)
-        if w > 0:
-            for s in (stamp - w, stamp + w):
-                try:
-                    Ts = self.localizer.poses.lookup(s, gap, **age)
-                except LocalizationError as exc:
-                    return T, f"cannot check that the robot is still: {exc}"
-                dt = abs(s - stamp) / 1e9
-                v = np.linalg.norm(Ts[:3, 3] - T[:3, 3]) / dt
-                wv = rotation_angle(Ts[:3, :3].T @ T[:3, :3]) / dt
-                if v > cfg.still_max_speed_m_s or wv > cfg.still_max_rot_speed_rad_s:
-                    return T, (f"the robot is moving ({1000 * v:.1f} mm/s, "
-                               f"{np.degrees(wv):.2f} deg/s): wait until it is still")
-        return T, ""
-
-    def _srv_capture(self, request: Trigger.Request, response: Trigger.Response):
-        from eye_in_hand.core.handeye.observe import observe_sample
-
-        try:
-            stamp, images = self._latest_images()
-            base_T_ee, moving = self._robot_still(stamp)
-            if moving:
-                response.success, response.message = False, f"refused: {moving}"
-                return response
-            name = f"sample_{len(self.samples) + len(self.skipped):03d}"
-            obs = observe_sample(name, images, base_T_ee, self.board, self.views)
-        except (EyeInHandError, LocalizationError) as exc:
-            response.success, response.message = False, f"capture failed: {exc}"
-            return response
-        if obs.sample is None:
-            self.skipped.append({"name": name, "reason": obs.reason})
-            response.success, response.message = False, f"{name} not taken: {obs.reason}"
-            return response
-        self.samples.append(obs.sample)
-        self._update_motion_diag()
-        notes = f" ({'; '.join(obs.notes)})" if obs.notes else ""
-        response.success = True
-        response.message = f"captured {name} at {stamp} ns: {len(self.samples)} samples{notes}"
-        return response
-
-    def _update_motion_diag(self) -> None:
-        from eye_in_hand.core.handeye import motion_diagnostics
-
-        self.diag.gauge("samples", len(self.samples))
-        if len(self.samples) >= 2:
-            try:
-                md = motion_diagnostics(np.stack([s.base_T_ee for s in self.samples]),
-                                        "eye_in_hand")
-                for k, v in md.to_dict().items():
-                    if isinstance(v, (int, float)) and not isinstance(v, bool):
-                        self.diag.gauge(f"motion.{k}", round(float(v), 4))
-            except EyeInHandError as exc:
-                self.diag.gauge("motion.problem", str(exc))
-
-    def _srv_compute(self, request: Trigger.Request, response: Trigger.Response):
-        from eye_in_hand.core.handeye import calibrate_hand_eye
-
-        try:
-            self.result = calibrate_hand_eye(self.samples, "eye_in_hand", cameras=self.views)
-        except EyeInHandError as exc:
-            response.success, response.message = False, f"compute failed: {exc}"
-            return response
-        self._publish_static_tf(self.result.X)
-        sel = self.result.methods[self.result.selected]
-        t = self.result.X[:3, 3]
-        response.success = True
-        response.message = (f"{self.result.selected} from {len(self.result.sample_names)} "
-                            f"samples: translation [{t[0]:.5f}, {t[1]:.5f}, {t[2]:.5f}] m, "
-                            f"1-sigma {sel.std_mm:.3f} mm / {sel.std_deg:.4f} deg, "
-                            f"{len(self.result.rejected)} rejected")
-        return response
-
-    def _srv_save(self, request: Trigger.Request, response: Trigger.Response):
-        from eye_in_hand.report.handeye import write_outputs
-        from eye_in_hand.io.atomic import atomic_output_dir
-
-        if self.result is None:
-            response.success, response.message = False, "nothing to save: call hand_eye/compute"
-            return response
-        out = Path(self.config.output_dir)
-        own = self._saved_dir is not None and out.absolute() == self._saved_dir
-        try:  # written whole under a temporary name, then renamed into place
-            with atomic_output_dir(out, overwrite=self.config.overwrite_output or own,
-                                   option="parameter 'output_dir'",
-                                   hint="set overwrite_output:=true to replace it") as tmp:
-                paths = write_outputs(
-                    tmp, self.result, self.samples, setup="eye_in_hand",
-                    parent_frame=self.config.ee_frame, child_frame=self.config.camera_frame,
-                    input_meta={"source": "hand_eye node", "count": len(self.samples)
-                                + len(self.skipped)}, skipped=self.skipped)
-        except (EyeInHandError, OSError) as exc:
-            response.success, response.message = False, f"save failed: {exc}"
-            return response
-        self._saved_dir = out.absolute()
-        response.success = True
-        response.message = "wrote " + ", ".join(str(out / p.name) for p in paths)
-        return response
-
-    def _srv_reset(self, request: Trigger.Request, response: Trigger.Response):
-        n = len(self.samples)
-        self.samples.clear()
-        self.skipped.clear()
-        self.result = None
-        self.diag.gauge("samples", 0)
-        response.success, response.message = True, f"forgot {n} samples"
-        return response
-
 
 def main(args: list[str] | None = None) -> None:
     """Console entry point: ``ros2 run eye_in_hand hand_eye``."""

@@ -1,0 +1,226 @@
+"""The ``hand_eye`` node's every-target outputs (docs/ros.md "Every target").
+
+:class:`EveryTargetMixin` is a part of :class:`eye_in_hand.nodes.hand_eye.HandEyeNode`: it reads
+each frame's list of targets from ``targets/markers`` and every target's point from
+``targets/<id>/point_cov``, puts each into the base frame (the node's ``_to_base``) and
+publishes ``target/<id>/pose(_cov)``, ``/tf`` ``base_frame -> <target_frame_prefix><id>``,
+``target/poses`` and ``target/markers``. It uses the node's config, diagnostics, localizer and
+``_pose_messages``; it has no state of its own outside ``_setup_targets``.
+"""
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from rclpy.clock import Clock, ClockType
+
+from eye_in_hand.errors import ConversionError, InputError, LocalizationError
+from eye_in_hand.ros.conversions import header_stamp_ns, point_to_xyz
+from eye_in_hand.ros.markers import (Sphere, marker_classes, points_to_pose_array,
+                                     pose_array_class, sphere_marker_array,
+                                     spheres_from_marker_array)
+from eye_in_hand.ros.names import topic_name_problem
+from eye_in_hand.ros.qos import RESULT_QOS
+from eye_in_hand.ros.tf import make_tf_message
+
+__all__ = ["EveryTargetMixin"]
+
+
+@dataclass
+class _Frame:
+    """One frame of ``targets/markers`` waiting for its targets' points and the robot pose."""
+
+    stamp_ns: int
+    spheres: list[Sphere]
+    arrived: float
+
+
+class EveryTargetMixin:
+    """Every-target part of the ``hand_eye`` node (mixed into a ``rclpy`` ``Node``)."""
+
+    # -- every target ---------------------------------------------------------------------
+    def _setup_targets(self) -> None:
+        """``targets/markers`` in (the frame's list of targets), ``targets/<id>/point_cov`` in
+        per id, ``target/<id>/pose(_cov)``, ``target/poses`` and ``target/markers`` out."""
+        cfg = self.config
+        _, MarkerArray = marker_classes()
+        self._frames: deque[_Frame] = deque()
+        self._frames_max = 200
+        # (id, image stamp) -> (point (3,), covariance (3, 3)), in arrival order
+        self._target_points: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]] = {}
+        self._target_subs: dict[str, Any] = {}
+        self._target_pubs: dict[str, tuple[Any, Any]] = {}
+        # per-target topics follow their list topic's remapping: targets/<id>/point_cov next to
+        # targets/markers, target/<id>/pose(_cov) next to target/poses
+        self._targets_prefix = self.resolve_topic_name("targets/markers").rsplit("/", 1)[0]
+        self._poses_prefix = self.resolve_topic_name("target/poses").rsplit("/", 1)[0]
+        self.create_subscription(MarkerArray, "targets/markers", self._on_markers, RESULT_QOS)
+        self.pub_poses = self.create_publisher(pose_array_class(), "target/poses", RESULT_QOS)
+        self.pub_markers = self.create_publisher(MarkerArray, "target/markers", RESULT_QOS)
+        self.diag.declare_counter("target_frames", "target_points", "target_points_received",
+                                  "target_poses_published", "targets_rejected",
+                                  "target_frames_published", "orphan_target_points",
+                                  "target_refused.stale_pose", "target_refused.no_point")
+        self.create_timer(cfg.discovery_period_s, self._discover_targets,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._discover_targets()
+
+    def _discover_targets(self) -> None:
+        """Subscribe to every ``targets/<id>/point_cov`` that has a publisher in the graph."""
+        prefix, suffix = self._targets_prefix + "/", "/point_cov"
+        for name, _types in self.get_topic_names_and_types():
+            if name.startswith(prefix) and name.endswith(suffix):
+                tid = name[len(prefix):-len(suffix)]
+                if tid and "/" not in tid and tid not in self._target_subs \
+                        and self.count_publishers(name) > 0:
+                    self._subscribe_target(tid)
+
+    def _subscribe_target(self, tid: str) -> str | None:
+        """Subscribe to ``targets/<tid>/point_cov`` and make the ``target/<tid>/pose(_cov)``
+        publishers (once, so that their subscribers match before the first frame); the
+        refusal reason when ``tid`` names no valid topic or ``max_targets`` ids are subscribed
+        already, else None."""
+        if tid in self._target_subs:
+            return None
+        problem = topic_name_problem(f"targets/{tid}/point_cov") if tid and "/" not in tid \
+            else "empty or contains '/'"
+        if problem is not None:
+            return "bad_target_id"
+        if len(self._target_subs) >= self.config.max_targets:
+            return "too_many_targets"
+        self._target_subs[tid] = self.create_subscription(
+            PoseWithCovarianceStamped, f"{self._targets_prefix}/{tid}/point_cov",
+            lambda m, t=tid: self._on_target_point(t, m), RESULT_QOS)
+        base = f"{self._poses_prefix}/{tid}"
+        self._target_pubs[tid] = (
+            self.create_publisher(PoseStamped, f"{base}/pose", RESULT_QOS),
+            self.create_publisher(PoseWithCovarianceStamped, f"{base}/pose_cov", RESULT_QOS))
+        return None
+
+    def _on_target_point(self, tid: str, msg: PoseWithCovarianceStamped) -> None:
+        """A target's point and covariance (``targets/<id>/point_cov``), kept for its frame."""
+        self.diag.count("target_points_received")
+        topic = f"targets/{tid}/point_cov"
+        try:
+            stamp = header_stamp_ns(msg)
+            frame = msg.header.frame_id
+            if frame and frame.lstrip("/") != self.config.camera_frame:
+                raise InputError(f"frame {frame!r}, expected {self.config.camera_frame!r}")
+            p = point_to_xyz(msg.pose.pose.position)
+            cov = np.asarray(msg.pose.covariance, dtype=np.float64).reshape(6, 6)[:3, :3]
+            if not np.all(np.isfinite(cov)):
+                raise InputError("covariance contains NaN")
+        except (ConversionError, InputError, ValueError) as exc:
+            # its frame then misses the point and refuses the target (counted there)
+            self.diag.report("bad_target_point", f"{topic}: {exc}")
+            return
+        self._target_points[(tid, stamp)] = (p, cov)
+        while len(self._target_points) > 4000:
+            self._target_points.pop(next(iter(self._target_points)))
+            self.diag.count("orphan_target_points")
+        self._drain_frames()
+
+    def _on_markers(self, msg: Any) -> None:
+        """A frame's list of targets (``targets/markers``)."""
+        self.diag.count("target_frames")
+        try:
+            stamp, frame, spheres = spheres_from_marker_array(msg)
+        except ConversionError as exc:
+            self.diag.report("bad_markers", f"targets/markers: {exc}")
+            return
+        self.diag.count("target_points", len(spheres))
+        if frame and frame.lstrip("/") != self.config.camera_frame:
+            for s in spheres:
+                self._refuse_target(s.id, "point_frame", f"targets/markers in frame {frame!r}, "
+                                    f"expected {self.config.camera_frame!r}: ignored")
+            return
+        kept = []
+        for s in spheres:
+            reason = self._subscribe_target(s.id)
+            if reason is None:
+                kept.append(s)
+            else:
+                self._refuse_target(s.id, reason, f"target id {s.id!r}: " + (
+                    "cannot name a topic" if reason == "bad_target_id" else
+                    f"{self.config.max_targets} ids are subscribed already (max_targets)"))
+        if len(self._frames) >= self._frames_max:
+            old = self._frames.popleft()
+            for s in old.spheres:
+                self._refuse_target(s.id, "pending_overflow", f"more than {self._frames_max} "
+                                    "frames wait: the oldest was dropped")
+        self._frames.append(_Frame(stamp, kept, time.monotonic()))
+        self._drain_frames()
+
+    def _refuse_target(self, tid: str, reason: str, message: str,
+                       cause: str | None = None) -> None:
+        """Count a listed target that gives no ``target/<id>/pose``."""
+        self.diag.count("targets_rejected")
+        self.diag.count(f"target_refused.{reason}")
+        self.diag.report(cause or f"target_{reason}", message)
+
+    def _frame_ready(self, f: _Frame, newest: int | None, now: float) -> bool:
+        have_points = all((s.id, f.stamp_ns) in self._target_points for s in f.spheres)
+        if not have_points:
+            return now - f.arrived > self.config.max_target_wait_s
+        if self.eye_to_hand or not f.spheres:
+            return True
+        return (newest is not None and f.stamp_ns <= newest) \
+            or now - f.arrived > self.config.max_pose_wait_s
+
+    def _drain_frames(self) -> None:
+        if not self._frames:
+            return
+        newest = None if self.eye_to_hand else self.localizer.poses.newest_ns
+        now = time.monotonic()
+        while self._frames and self._frame_ready(self._frames[0], newest, now):
+            self._locate_frame(self._frames.popleft())     # FIFO: stamp order
+
+    def _locate_frame(self, f: _Frame) -> None:
+        """Every target of a frame into the base frame; per-target and per-frame outputs."""
+        cfg = self.config
+        located: list[tuple[Sphere, np.ndarray]] = []
+        tf_edges = []
+        for s in f.spheres:
+            data = self._target_points.pop((s.id, f.stamp_ns), None)
+            if data is None:
+                self._refuse_target(s.id, "no_point", f"targets/{s.id}/point_cov at "
+                                    f"{f.stamp_ns} ns did not arrive within "
+                                    f"{cfg.max_target_wait_s} s")
+                continue
+            try:
+                p, cov = self._to_base(f.stamp_ns, data[0], data[1])
+            except LocalizationError as exc:
+                self._refuse_target(s.id, exc.reason, f"no target/{s.id}/pose at "
+                                    f"{f.stamp_ns} ns: {exc}", cause="no_robot_pose")
+                continue
+            except InputError as exc:
+                self._refuse_target(s.id, "bad_point_cov", f"targets/{s.id}/point_cov at "
+                                    f"{f.stamp_ns} ns: {exc}")
+                continue
+            pubs = self._target_pubs[s.id]      # made with the subscription
+            pose_msg, cov_msg = self._pose_messages(f.stamp_ns, p, cov)
+            pubs[1].publish(cov_msg)
+            pubs[0].publish(pose_msg)
+            self.diag.count("target_poses_published")
+            located.append((s, p))
+            if cfg.target_frame_prefix:
+                T = np.eye(4)
+                T[:3, 3] = p
+                tf_edges.append((cfg.base_frame, cfg.target_frame_prefix + s.id, f.stamp_ns, T))
+        # points of this stamp (or older) that no frame listed are never used
+        for key in [k for k in self._target_points if k[1] <= f.stamp_ns]:
+            del self._target_points[key]
+            self.diag.count("orphan_target_points")
+        self.pub_poses.publish(points_to_pose_array([p for _, p in located],
+                                                    stamp_ns=f.stamp_ns,
+                                                    frame_id=cfg.base_frame))
+        self.pub_markers.publish(sphere_marker_array(
+            [Sphere(s.id, p, s.diameter_m, s.rgba) for s, p in located], stamp_ns=f.stamp_ns,
+            frame_id=cfg.base_frame, lifetime_s=cfg.marker_lifetime_s))
+        self.diag.count("target_frames_published")
+        if tf_edges and self.pub_tf is not None:
+            self.pub_tf.publish(make_tf_message(tf_edges))

@@ -1,0 +1,118 @@
+"""The ``hand_eye`` node's TF input and output (docs/localization.md).
+
+:class:`TfMixin` is a part of :class:`eye_in_hand.nodes.hand_eye.HandEyeNode`:
+``robot_pose_source: tf`` feeds ``/tf`` and ``/tf_static`` into a
+:class:`eye_in_hand.core.tf.TfBuffer` whose ``base_frame -> ee_frame`` chain replaces the
+localizer's pose buffer; with ``publish_tf`` (and tf2_msgs installed) it publishes
+``/tf_static`` (``ee_frame -> camera_frame``, or ``base_frame -> camera_frame`` eye-to-hand, and
+``camera_frame -> right_camera_frame``) and ``/tf`` ``base_frame -> target_frame``.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from eye_in_hand.core.camera import StereoRig
+from eye_in_hand.core.tf import TfBuffer, TfPoseView
+from eye_in_hand.errors import ConfigError, EyeInHandError
+from eye_in_hand.ros import tf as ros_tf  # have_tf2_msgs, tf_message_class looked up per call
+from eye_in_hand.ros.tf import (TF_STATIC_TOPIC, TF_TOPIC, feed_tf_message, make_tf_message,
+                                tf_qos, tf_static_pub_qos, tf_static_sub_qos)
+
+__all__ = ["TfMixin"]
+
+
+class TfMixin:
+    """TF part of the ``hand_eye`` node (mixed into a ``rclpy`` ``Node``)."""
+
+    # -- TF in (robot_pose_source: tf) -------------------------------------------------------
+    def _setup_tf_input(self) -> None:
+        """Robot poses from /tf + /tf_static: a TF buffer whose base_frame -> ee_frame chain
+        replaces the localizer's pose buffer (same interpolation, gap and no-extrapolation
+        rules, looked up at each image stamp)."""
+        cfg = self.config
+        try:
+            TFMessage = ros_tf.tf_message_class()
+        except ConfigError as exc:
+            raise ConfigError(f"robot_pose_source: tf: {exc}") from exc
+        self.tf_buffer = TfBuffer(cfg.pose_buffer_size)
+        self.localizer.poses = TfPoseView(  # type: ignore[assignment]
+            self.tf_buffer, cfg.base_frame, cfg.ee_frame,
+            jump_back_ns=int(cfg.pose_jump_back_s * 1e9))
+        self.create_subscription(TFMessage, TF_TOPIC, lambda m: self._on_tf(m, False),
+                                 tf_qos())
+        self.create_subscription(TFMessage, TF_STATIC_TOPIC, lambda m: self._on_tf(m, True),
+                                 tf_static_sub_qos())
+        self.diag.declare_counter("tf_messages", "tf_rejected")
+
+    def _on_tf(self, msg: Any, static: bool) -> None:
+        self.diag.count("tf_messages")
+        before = self.localizer.poses.newest_ns
+        added, problems, jumped = feed_tf_message(self.localizer.poses, msg, static=static,
+                                                  received_ns=self._now_ns())
+        if jumped:
+            self.diag.count("pose_buffer_resets.time_jump")
+            self.get_logger().info("TF time jumped back: dynamic transforms cleared, earlier "
+                                   "ones are never used again")
+        for text in problems:
+            self.diag.count("tf_rejected")
+            self.diag.report("bad_tf", f"{'/tf_static' if static else '/tf'}: {text}")
+        if added and self.localizer.poses.newest_ns != before:
+            self._after_pose()   # the chain reached a newer stamp: a robot pose
+
+    # -- TF out --------------------------------------------------------------------------------
+    def _setup_tf_output(self) -> None:
+        """Publishers of /tf_static (hand-eye, stereo extrinsic) and /tf (targets), when
+        ``publish_tf`` is on and tf2_msgs is available (else one log line says why not)."""
+        cfg = self.config
+        self.pub_tf = self.pub_tf_static = None
+        self._static_tf: dict[str, tuple[str, np.ndarray]] = {}
+        if not cfg.publish_tf:
+            return
+        if not ros_tf.have_tf2_msgs():
+            self.get_logger().warning("tf2_msgs is not installed: no /tf or /tf_static "
+                                      "published (run 'make venv' to build it)")
+            return
+        TFMessage = ros_tf.tf_message_class()
+        self.pub_tf = self.create_publisher(TFMessage, TF_TOPIC, tf_qos())
+        self.pub_tf_static = self.create_publisher(TFMessage, TF_STATIC_TOPIC,
+                                                   tf_static_pub_qos())
+        rig = None
+        cdir = cfg.stereo_calibration_dir or (cfg.calibration_dir if cfg.mode == "calibration"
+                                              else "")
+        if cdir and (Path(cdir) / "left.yaml").exists():
+            try:
+                rig = StereoRig.load(cdir)
+            except EyeInHandError as exc:
+                raise ConfigError(f"stereo_calibration_dir: {exc}") from exc
+        elif cfg.stereo_calibration_dir:
+            raise ConfigError(f"stereo_calibration_dir: {cdir} has no left.yaml + right.yaml")
+        if rig is not None:
+            self._static_tf[cfg.right_camera_frame] = (cfg.camera_frame,
+                                                       np.linalg.inv(rig.right_T_left))
+        self._publish_static_tf(self.calibration.transform if self.calibration is not None
+                                else None)
+
+    def _publish_static_tf(self, ee_T_cam: np.ndarray | None) -> None:
+        """(Re)publish every static transform of this node in one /tf_static message."""
+        if self.pub_tf_static is None:
+            return
+        cfg = self.config
+        if ee_T_cam is not None:
+            self._static_tf[cfg.camera_frame] = (self._camera_parent, np.asarray(ee_T_cam))
+        if not self._static_tf:
+            return
+        stamp = self.get_clock().now().nanoseconds
+        self.pub_tf_static.publish(make_tf_message(
+            (parent, child, stamp, T) for child, (parent, T) in self._static_tf.items()))
+
+    def _publish_target_tf(self, stamp_ns: int, p: np.ndarray) -> None:
+        """``base_frame -> target_frame`` on /tf at the image stamp (translation only)."""
+        if self.pub_tf is None:
+            return
+        T = np.eye(4)
+        T[:3, 3] = p
+        self.pub_tf.publish(make_tf_message(
+            [(self.config.base_frame, self.config.target_frame, stamp_ns, T)]))
