@@ -64,6 +64,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from geometry_msgs.msg import PointStamped, PoseWithCovarianceStamped
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
@@ -85,6 +86,7 @@ from eye_in_hand.ros.conversions import (
     camera_info_to_model,
     header_stamp_ns,
     image_to_numpy,
+    make_header,
     numpy_to_image,
     xyz_to_point_stamped,
 )
@@ -575,8 +577,6 @@ def warm_up(locator: StereoLocator) -> None:
 
 
 def _point_cov_type() -> Any:
-    from geometry_msgs.msg import PoseWithCovarianceStamped
-
     return PoseWithCovarianceStamped
 
 
@@ -587,8 +587,6 @@ def point_cov_message(point_m: np.ndarray, covariance: np.ndarray, *, stamp_ns: 
     A PoseWithCovarianceStamped whose position is the point, orientation identity, covariance
     position block the triangulation covariance (m^2) and orientation variances 1e6 (unknown).
     """
-    from eye_in_hand.ros.conversions import make_header
-
     msg = _point_cov_type()()
     msg.header = make_header(stamp_ns, frame_id)
     p = msg.pose.pose.position
@@ -602,8 +600,6 @@ def point_cov_message(point_m: np.ndarray, covariance: np.ndarray, *, stamp_ns: 
 
 
 def _point_type() -> Any:
-    from geometry_msgs.msg import PointStamped
-
     return PointStamped
 
 
