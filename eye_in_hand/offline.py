@@ -24,12 +24,15 @@ paths therefore give the same numbers on the same bag.
 from __future__ import annotations
 
 import math
+import mmap
+import os
 import threading
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
+import cv2
 import numpy as np
 
 from eye_in_hand.core.camera import StereoRig
@@ -38,6 +41,8 @@ from eye_in_hand.core.localization import Localizer, LocalizerConfig
 from eye_in_hand.core.locator import LocatorConfig, StereoLocator
 from eye_in_hand.core.sync import ApproximateStereoSync
 from eye_in_hand.errors import BagError, ConversionError, InputError, LocalizationError
+from eye_in_hand.io.bags import (DamageLog, bag_info, deserialize, iter_messages, memory_mappable,
+                                 require_topics, typestore_for)
 from eye_in_hand.io.results import TargetResult, assign_truth, target_order
 from eye_in_hand.io.results import write_results as _write_results
 
@@ -211,8 +216,6 @@ def error_stats(frames: list[FrameResult]) -> dict[str, float] | None:
 
 def available_cpus() -> int:
     """CPUs this process may run on (its affinity mask; the CPU count where there is none)."""
-    import os
-
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):
@@ -241,8 +244,7 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         BagError: the bag cannot be read or lacks a required topic.
         InputError: malformed settings.
     """
-    from eye_in_hand.io.bags import (DamageLog, bag_info, memory_mappable, require_topics,
-                                     typestore_for)
+    # local: ros.conversions adds ~12 ms to each `process` worker's start-up (module import)
     from eye_in_hand.ros.conversions import header_stamp_ns, point_to_xyz, pose_to_matrix
 
     opts = options or ProcessOptions()
@@ -328,6 +330,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     pool = _PairPool(rig, locator_config, 1 if getattr(locator_config, "stateful", False)
                      else opts.workers or available_cpus(), task_timeout_s=opts.task_timeout_s)
     try:
+        # local: io.bags.streams loads io.mcap_chunks and io.mcap_tasks (~20 ms more at each
+        # `process` worker's start-up, which does not use them)
         from eye_in_hand.io.bags.streams import decoded_stream, worker_readable
 
         mappable = memory_mappable(path)                       # uncompressed MCAP
@@ -405,6 +409,7 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
 
 def _use_tf(localizer: Localizer, opts: ProcessOptions, n_messages: int) -> Any:
     """A TF buffer whose ``base_frame -> ee_frame`` chain becomes the localizer's robot pose."""
+    # local: core.tf adds ~3 ms to each `process` worker's start-up; only TF robot poses
     from eye_in_hand.core.tf import TfBuffer, TfPoseView
 
     view = TfPoseView(TfBuffer(max(2, n_messages + 2)), opts.base_frame, opts.ee_frame,
@@ -417,6 +422,7 @@ def _add_tf(view: Any, msg: Any, static: bool, topic: str, t_ns: int,
             counts: dict[str, int], note: Callable[[str], None]) -> None:
     """One TFMessage into the buffer (received at its log time); each bad transform counts as
     a bad message, a jump back in time as ``time_jumps``."""
+    # local: ros.tf adds ~4 ms to each `process` worker's start-up; only TF robot poses
     from eye_in_hand.ros.tf import feed_tf_message
 
     _, problems, jumped = feed_tf_message(view, msg, static=static, received_ns=t_ns)
@@ -492,7 +498,7 @@ class _Ledger:
 def _rig_from_camera_info(path: Path, opts: ProcessOptions, damage: Any = None) -> StereoRig:
     """The stereo rig from the first readable camera_info message of each side (damaged and
     undecodable ones are skipped, recorded in ``damage`` when given)."""
-    from eye_in_hand.io.bags import DamageLog, deserialize, iter_messages
+    # local: ros.conversions adds ~12 ms to each `process` worker's start-up (module import)
     from eye_in_hand.ros.conversions import camera_info_to_model
 
     infos: dict[str, Any] = {}
@@ -520,6 +526,7 @@ def _rig_from_camera_info(path: Path, opts: ProcessOptions, damage: Any = None) 
 
 def _locate_pair(locator: StereoLocator, stamp_ns: int, left_msg: Any,
                  right_msg: Any) -> FrameResult:
+    # local: ros.conversions adds ~12 ms to each `process` worker's start-up (module import)
     from eye_in_hand.ros.conversions import image_to_numpy
 
     try:
@@ -559,6 +566,7 @@ class _MappedImage:
 
     @classmethod
     def of(cls, msg: Any) -> _MappedImage | None:
+        # local: io.mcap_chunks adds ~14 ms to each `process` worker's start-up
         from eye_in_hand.io.mcap_chunks import file_location
 
         data = getattr(msg, "data", None)
@@ -584,16 +592,12 @@ _WORKER: dict[str, Any] = {}
 
 
 def _worker_init(rig: StereoRig, config: LocatorConfig) -> None:
-    import cv2
-
     cv2.setNumThreads(1)      # one process per core already: no thread pools inside
     _WORKER["locator"] = StereoLocator(rig, config)
     _WORKER["maps"] = {}
 
 
 def _worker_locate(stamp_ns: int, left: _MappedImage, right: _MappedImage) -> FrameResult:
-    import mmap
-
     maps: dict[str, Any] = _WORKER["maps"]
 
     def view(ref: Any) -> Any:
@@ -626,6 +630,7 @@ class _PairPool:
 
     def __init__(self, rig: StereoRig, config: LocatorConfig, workers: int,
                  task_timeout_s: float | None = 20.0) -> None:
+        # local: concurrent.futures costs ~3 ms at `import eye_in_hand.offline`
         from concurrent.futures import ThreadPoolExecutor
 
         self._task_timeout_s = task_timeout_s
@@ -648,6 +653,7 @@ class _PairPool:
         Does nothing when pairs are located in the calling thread."""
         if self._inline is not None or self._tried_processes:
             return
+        # local: workers costs ~11 ms at `import eye_in_hand.offline`; only a process pool
         from eye_in_hand.workers import ProcessPool
 
         self._tried_processes = True
@@ -676,7 +682,7 @@ class _PairPool:
 
     def _to_process(self, pair: Any) -> Any:
         """A process future for the pair, or None (not mapped, or no process ready)."""
-        from eye_in_hand.workers import WorkerError
+        from eye_in_hand.workers import WorkerError  # local: as ProcessPool (~11 ms)
 
         owner = getattr(pair.left, "owner", None)    # an ImageRef: the worker that opened it
         if owner is not None and self._procs is not None:
@@ -706,7 +712,7 @@ class _PairPool:
         return fut
 
     def submit(self, pair: Any) -> None:
-        from concurrent.futures import wait
+        from concurrent.futures import wait  # local: as in __init__ (~3 ms)
 
         if self._inline is not None:
             self._inflight.append((_locate_pair(self._inline, pair.stamp_ns, pair.left,
@@ -721,7 +727,7 @@ class _PairPool:
         self._inflight.append((fut, pair))
 
     def _result(self, fut: Any, pair: Any) -> FrameResult:
-        from eye_in_hand.workers import WorkerError
+        from eye_in_hand.workers import WorkerError  # local: as ProcessPool (~11 ms)
 
         try:
             return fut.result()
@@ -757,7 +763,7 @@ class _PairPool:
     _timeouts = 0
 
     def close(self) -> None:
-        from eye_in_hand.io.mcap_tasks import release
+        from eye_in_hand.io.mcap_tasks import release  # local: ~14 ms, as io.mcap_chunks
 
         if self._threads is not None:
             self._threads.shutdown(wait=True, cancel_futures=True)

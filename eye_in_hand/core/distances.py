@@ -199,6 +199,8 @@ def match_truth(positions: Mapping[str, np.ndarray], truth_points: np.ndarray, *
     Returns:
         target id -> index into ``truth_points``.
     """
+    # local: scipy.optimize costs ~0.3 s of CPU, and this module loads at CLI start-up and at
+    # every `process` worker's start (through io.results); only ground-truth matching needs it
     from scipy.optimize import linear_sum_assignment
 
     T = np.asarray(truth_points, dtype=np.float64).reshape(-1, 3)

@@ -38,6 +38,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
+import numpy as np
+
 __all__ = ["supports", "chunk_messages", "file_location", "ChunkDamage", "chunk_damage",
            "zstd_binding"]
 
@@ -53,8 +55,6 @@ _MAPPED_LOCK = threading.Lock()
 
 
 def _address(buffer: Any) -> int:
-    import numpy as np
-
     return int(np.frombuffer(buffer, dtype=np.uint8, count=1).ctypes.data) if len(buffer) else 0
 
 
@@ -62,8 +62,6 @@ def file_location(array: Any) -> tuple[str, int] | None:
     """``(path, byte offset)`` of a buffer (a numpy array or memoryview of message data) that
     lies in an MCAP file being read by :func:`chunk_messages`; None otherwise (a decompressed
     chunk, or a file whose iteration has ended)."""
-    import numpy as np
-
     arr = np.asarray(array) if not isinstance(array, memoryview) else \
         np.frombuffer(array, dtype=np.uint8)
     if arr.nbytes == 0:
@@ -100,7 +98,7 @@ def _zstd_decompressor() -> Callable[[Any, int], Any]:
     missing (a ROS install without the pip dependencies). Neither decompresses into a
     caller's buffer.
     """
-    try:
+    try:  # local: which of the optional zstd modules is installed is the question here
         import zstandard
 
         def decompress(data: Any, size: int) -> Any:
@@ -140,9 +138,10 @@ _DECOMPRESSORS: dict[str, Callable[[Any, int], Any]] = {}
 
 def zstd_binding() -> str:
     """Which module decompresses zstd chunks, with its version (for benchmarks and reports)."""
+    # local: importlib.metadata costs ~40 ms of CPU; only benchmarks and reports ask this
     from importlib.metadata import version
 
-    try:
+    try:  # local: the optional zstd modules, as in _zstd_decompressor
         import zstandard
 
         return f"zstandard {zstandard.__version__} (libzstd {zstandard.ZSTD_VERSION[0]}." \
@@ -164,7 +163,7 @@ def _decompressor(compression: str) -> Callable[[Any, int], Any]:
     if compression == "zstd":
         fn = _zstd_decompressor()
     elif compression == "lz4":
-        import lz4.frame
+        import lz4.frame  # local: an optional module, needed only for lz4 chunks
 
         def fn(data: Any, _size: int) -> Any:
             return lz4.frame.decompress(data)

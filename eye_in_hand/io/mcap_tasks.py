@@ -31,6 +31,7 @@ import heapq
 import mmap
 import threading
 from collections import OrderedDict
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterator, Sequence
 
@@ -298,8 +299,6 @@ def worker_messages(storage: Any, connections: Sequence[Any], submit: Submit, *,
     Raises:
         ValueError: a damaged chunk, when ``on_damage`` is None.
     """
-    from concurrent.futures import Future
-
     channels = {c.id: c for c in connections}
     kinds = {cid: cid in image_channels for cid in channels}
     infos = [c for c in storage.chunks if _may_hold(c, channels)]

@@ -34,6 +34,7 @@ import numpy as np
 from eye_in_hand.core.distances import (PairDistance, TargetStats, apply_known_distances,
                                         match_truth, pairwise_distances, target_stats)
 from eye_in_hand.errors import BagError, ConfigError, InputError
+from eye_in_hand.io.bags import BagWriter, bag_info, deserialize, iter_messages
 from eye_in_hand.yamlfile import read_yaml_file
 
 if TYPE_CHECKING:  # annotations only: offline sits a floor above
@@ -231,8 +232,6 @@ def write_results(out: str | Path, result: ProcessResult, opts: ProcessOptions |
     Raises:
         BagError: OUT exists or cannot be written.
     """
-    from eye_in_hand.io.bags import BagWriter
-
     out = Path(out)
     if out.exists():
         raise BagError(f"{out}: output exists already (choose a new -o)")
@@ -407,8 +406,6 @@ def _stack(frames: list[dict[str, tuple[np.ndarray, np.ndarray]]],
 
 
 def _read_bag(path: Path) -> tuple[Tracks, Tracks]:
-    from eye_in_hand.io.bags import bag_info, deserialize, iter_messages
-
     info = bag_info(path)
     pat = re.compile(r"^/target/([A-Za-z0-9_]+)/(pose|ground_truth)$")
     topics = {t: pat.match(t) for t in info.topics}

@@ -23,8 +23,12 @@ from dataclasses import dataclass
 from typing import Any, Iterable, Sequence
 
 import numpy as np
+from builtin_interfaces.msg import Duration
+from geometry_msgs.msg import Pose
 
 from eye_in_hand.errors import ConfigError, ConversionError
+from eye_in_hand.ros.conversions import header_stamp_ns, make_header
+from eye_in_hand.ros.msgtypes import import_message_type
 
 __all__ = ["Sphere", "marker_classes", "pose_array_class", "sphere_marker_array",
            "spheres_from_marker_array", "points_to_pose_array", "color_range_rgba",
@@ -58,8 +62,6 @@ def marker_classes() -> tuple[Any, Any]:
     Raises:
         ConfigError: visualization_msgs is not installed.
     """
-    from eye_in_hand.ros.msgtypes import import_message_type
-
     marker = import_message_type("visualization_msgs/msg/Marker")
     array = import_message_type("visualization_msgs/msg/MarkerArray")
     if marker is None or array is None:
@@ -71,8 +73,6 @@ def marker_classes() -> tuple[Any, Any]:
 @functools.lru_cache(maxsize=None)
 def pose_array_class() -> Any:
     """``geometry_msgs.msg.PoseArray`` (ConfigError when geometry_msgs is missing)."""
-    from eye_in_hand.ros.msgtypes import import_message_type
-
     cls = import_message_type("geometry_msgs/msg/PoseArray")
     if cls is None:
         raise ConfigError("geometry_msgs is not installed: no PoseArray can be published")
@@ -99,8 +99,6 @@ def color_range_rgba(lower: Sequence[int], upper: Sequence[int], *, wraps: bool 
 
 
 def _duration(seconds: float) -> Any:
-    from builtin_interfaces.msg import Duration
-
     ns = max(0, int(round(seconds * 1e9)))
     sec, nanosec = divmod(ns, 1_000_000_000)
     return Duration(sec=sec, nanosec=nanosec)
@@ -121,8 +119,6 @@ def sphere_marker_array(spheres: Iterable[Sphere], *, stamp_ns: int, frame_id: s
         ConversionError: a non-finite centre, a diameter that is not positive, or two spheres
             with one id.
     """
-    from eye_in_hand.ros.conversions import make_header
-
     Marker, MarkerArray = marker_classes()
     header = make_header(stamp_ns, frame_id)
     clear = Marker(header=header, action=Marker.DELETEALL)
@@ -162,8 +158,6 @@ def spheres_from_marker_array(msg: Any) -> tuple[int, str, list[Sphere]]:
             frames, an empty or repeated ``ns``, a non-finite centre or a scale that is not
             positive (the message names the marker).
     """
-    from eye_in_hand.ros.conversions import header_stamp_ns
-
     markers = list(getattr(msg, "markers", []))
     if not markers:
         raise ConversionError("markers: empty MarkerArray (expected at least a DELETEALL)")
@@ -205,10 +199,6 @@ def points_to_pose_array(points: Iterable[np.ndarray], *, stamp_ns: int, frame_i
     Raises:
         ConversionError: a point is not 3 finite numbers.
     """
-    from geometry_msgs.msg import Pose
-
-    from eye_in_hand.ros.conversions import make_header
-
     PoseArray = pose_array_class()
     poses = []
     for k, p in enumerate(points):

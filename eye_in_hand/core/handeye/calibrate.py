@@ -34,9 +34,9 @@ from eye_in_hand.errors import HandEyeError
 
 from .average import AVERAGE_SOLVERS, DEFAULT_AVERAGE_SOLVER, average_hand_eye, \
     solve_average
-from .eiv import EivResult, refine_errors_in_variables
-from .refine import RefinementResult, refine_pose_space, refine_reprojection, \
-    reprojection_errors
+from .eiv import SIGMA_FLOORS, EivResult, leave_one_out_steps, refine_errors_in_variables
+from .refine import RefinementResult, pose_residual_scales, refine_pose_space, \
+    refine_reprojection, reprojection_errors
 from .samples import MIN_SAMPLES, CameraView, HandEyeSample, MotionDiagnostics, \
     motion_diagnostics, validate_samples
 from .solvers import CLOSED_FORM_METHODS, SETUPS, board_in_fixed_frame, gripper_poses, \
@@ -696,9 +696,6 @@ def _refined_result(name: str, X: np.ndarray, Y: np.ndarray, cov: np.ndarray,
 def _exact_pose_sigmas(ref: RefinementResult, kept: Sequence[HandEyeSample], setup: str,
                        use_corners: bool) -> dict[str, float]:
     """Noise levels under which the errors-in-variables model is the exact-pose refinement."""
-    from .eiv import SIGMA_FLOORS
-    from .refine import pose_residual_scales
-
     sig = {"robot_t": SIGMA_FLOORS["robot_t"], "robot_r": SIGMA_FLOORS["robot_r"]}
     if use_corners:
         sig["px"] = max(ref.sigma, SIGMA_FLOORS["px"])
@@ -715,8 +712,6 @@ def _refined_loo(mr: MethodResult, kept: Sequence[HandEyeSample],
                  held: dict[str, HeldOut]) -> list[tuple[np.ndarray, np.ndarray]] | None:
     """Leave-one-out figures of a refinement (into ``mr`` and ``held``); returns the
     solutions without each sample, or None when they could not be computed."""
-    from .eiv import leave_one_out_steps
-
     try:
         sols = leave_one_out_steps(mr.X, mr.Y, kept, cameras if cameras else None, setup,
                                    sigmas, corrections)

@@ -9,8 +9,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Mapping
 
+import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation
 
+from eye_in_hand.core.calibration import detect_board
 from eye_in_hand.core.camera import CameraModel, StereoRig
 from eye_in_hand.errors import HandEyeError
 
@@ -65,9 +68,6 @@ def board_pose_pnp(model: Any, object_points: np.ndarray,
     Raises:
         HandEyeError: PnP failed or put the board behind the camera.
     """
-    import cv2
-    from scipy.spatial.transform import Rotation
-
     obj = np.ascontiguousarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
     img = np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 1, 2)
     K = np.asarray(model.K, dtype=np.float64)
@@ -105,8 +105,6 @@ def observe_sample(name: str, images: Mapping[str, np.ndarray], base_T_ee: np.nd
     Returns:
         The observation (``sample`` is None with a ``reason`` when unusable).
     """
-    from eye_in_hand.core.calibration import detect_board
-
     notes: list[str] = []
     observations: list[CornerObservation] = []
     cam_T_board = None

@@ -27,6 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Sequence
 
+import cv2
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
@@ -135,8 +136,6 @@ def project_points(points_cam: np.ndarray, K: np.ndarray, dist: np.ndarray) -> n
 
 
 def _project(view: CameraView, cam_T_board: np.ndarray, obj: np.ndarray) -> np.ndarray:
-    import cv2
-
     T = view.view_T_cam @ cam_T_board
     rvec = Rotation.from_matrix(T[:3, :3]).as_rotvec()
     px, _ = cv2.projectPoints(obj.reshape(-1, 1, 3), rvec, T[:3, 3].copy(),

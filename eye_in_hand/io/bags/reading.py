@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import heapq
+import struct
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Iterable, Iterator, Sequence
+
+import yaml
 
 from eye_in_hand.errors import BagError, InputError
 from eye_in_hand.io.bags.records import (
@@ -60,6 +63,8 @@ class _ScannedMcap:
     compression_mode = None
 
     def __init__(self, path: Path) -> None:
+        # local: rosbags.interfaces and rosbags.rosbag2.storage_mcap cost ~10 and ~40 ms at CLI
+        # start-up (every command loads io.bags); only damaged or unindexed MCAP files need them
         from rosbags.interfaces import Connection, ConnectionExtRosbag2
         from rosbags.rosbag2.storage_mcap import Schema, get_msgdef, get_qos
 
@@ -119,8 +124,7 @@ class _ScannedMcap:
     def _records(self) -> Iterator[tuple[int, Any]]:
         """(opcode, parsed) for schemas, channels and messages, chunks expanded; ``(-1,
         Damage)`` for a chunk that cannot be read and for a damaged tail."""
-        import struct
-
+        # local: rosbags.rosbag2.storage_mcap (~40 ms at CLI start-up), as in __init__
         from rosbags.rosbag2.storage_mcap import decompress
 
         def string(buf: bytes, pos: int) -> tuple[str, int]:
@@ -304,6 +308,8 @@ def bag_info(path: str | Path) -> BagInfo:
     Raises:
         BagError: the bag is missing, unreadable, corrupt, or of an unsupported format.
     """
+    # local: rosbags.interfaces costs ~10 ms at CLI start-up and at each `process` worker's
+    # start-up (every command loads io.bags)
     from rosbags.interfaces import MessageDefinitionFormat
 
     with _OpenBag(path) as bag:
@@ -366,8 +372,6 @@ def bag_info(path: str | Path) -> BagInfo:
 
 
 def _read_metadata(bag_dir: Path) -> dict[str, Any]:
-    import yaml
-
     with open(bag_dir / "metadata.yaml", encoding="utf-8") as fh:
         data = yaml.safe_load(fh)
     return dict(data["rosbag2_bagfile_information"])
@@ -457,6 +461,7 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
 def memory_mappable(path: str | Path) -> bool:
     """Whether every storage file of a bag is an indexed MCAP file with uncompressed chunks,
     i.e. whether ``iter_messages(..., views=True)`` yields views of the files themselves."""
+    # local: io.mcap_chunks costs ~8 ms at CLI start-up and at each `process` worker's start
     from eye_in_hand.io import mcap_chunks
 
     with _OpenBag(path) as bag:
@@ -499,6 +504,7 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
 
     Damage goes to ``damage`` (see :func:`iter_messages`); without it, it raises.
     """
+    # local: io.mcap_chunks costs ~8 ms at CLI and worker start-up (see memory_mappable)
     from eye_in_hand.io import mcap_chunks
 
     name = Path(getattr(storage, "path", "")).name
@@ -515,7 +521,7 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
             yield stamp, stream, order, conn.topic, conn.msgtype, view if views else bytes(view)
         return
     if per_message_zstd:
-        try:
+        try:  # local: an optional module, needed only for per-message zstd bags
             from compression import zstd  # type: ignore[import-not-found]  # Python >= 3.14
         except ImportError:
             from backports import zstd  # type: ignore[import-not-found,no-redef]

@@ -20,8 +20,12 @@ import threading
 from pathlib import Path
 from typing import Any, Iterable, Iterator
 
-from eye_in_hand.errors import BagError
-from eye_in_hand.io.bags.reading import _OpenBag, chunk_damage_record
+from eye_in_hand.errors import BagError, ConversionError
+from eye_in_hand.io import mcap_chunks
+from eye_in_hand.io.bags.decoding import deserialize
+from eye_in_hand.io.bags.reading import _OpenBag, chunk_damage_record, iter_messages
+from eye_in_hand.io.cdr import image_from_cdr, is_image_type
+from eye_in_hand.io.mcap_tasks import worker_messages
 from eye_in_hand.io.bags.records import DamageLog
 
 __all__ = ["decoded_stream", "decoded_on_thread", "worker_readable", "iter_in_workers",
@@ -32,8 +36,6 @@ _COMPRESSIONS = ("zstd", "lz4")
 
 def _storage(bag: _OpenBag) -> Any | None:
     """The bag's one storage file when it is an indexed MCAP file with chunk compression."""
-    from eye_in_hand.io import mcap_chunks
-
     parts: list[Any] = []
     for reader in bag.readers:
         inner = reader.storage
@@ -77,9 +79,6 @@ def iter_in_workers(path: str | Path, topics: Iterable[str], submit: Any, *,
         BagError: the bag cannot be opened or is not :func:`worker_readable`; a damaged chunk
             without ``damage``.
     """
-    from eye_in_hand.io.cdr import is_image_type
-    from eye_in_hand.io.mcap_tasks import worker_messages
-
     wanted = set(topics)
     with _OpenBag(path) as bag:
         storage = _storage(bag)
@@ -117,9 +116,6 @@ def decoded_in_workers(path: str | Path, topics: Iterable[str], typestore: Any, 
     Raises:
         BagError: as :func:`iter_in_workers`.
     """
-    from eye_in_hand.errors import ConversionError
-    from eye_in_hand.io.bags.decoding import deserialize
-
     for topic, msgtype, t_ns, payload in iter_in_workers(
             path, topics, submit, image_topics=image_topics, verify_crc=verify_crc,
             damage=damage):
@@ -146,11 +142,6 @@ def decoded_on_thread(path: str | Path, topics: list[str], typestore: Any,
     exception (the consumer counts it and goes on); damaged parts of the bag go to ``damage``
     (a ``DamageLog``) and are skipped; an unreadable bag ends the iteration with the error.
     """
-    from eye_in_hand.errors import ConversionError
-    from eye_in_hand.io.bags.decoding import deserialize
-    from eye_in_hand.io.bags.reading import iter_messages
-    from eye_in_hand.io.cdr import image_from_cdr, is_image_type
-
     errors: list[BaseException] = []
     q: queue.Queue = queue.Queue(maxsize=16)
     stop = threading.Event()
