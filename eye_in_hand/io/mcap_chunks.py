@@ -117,7 +117,7 @@ def _zstd_decompressor() -> Callable[[Any, int], Any]:
         return decompress
     except ImportError:
         pass
-    try:
+    try:  # local: the fallback zstd modules, optional as well
         from compression import zstd  # type: ignore[import-not-found]  # Python >= 3.14
     except ImportError:
         from backports import zstd  # type: ignore[import-not-found,no-redef]
