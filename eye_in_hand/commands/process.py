@@ -24,7 +24,6 @@ import time
 from pathlib import Path
 
 from eye_in_hand.commands.common import apply_overrides
-from eye_in_hand.core.distances import distance_table
 from eye_in_hand.errors import ConfigError, InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 from eye_in_hand.io.bags import bag_info
@@ -115,10 +114,12 @@ def _node_params(path: str | None, node: str) -> dict:
 def run(args: argparse.Namespace) -> int:
     """Process the bag and write the results; prints counts and error statistics."""
     # local: at CLI start-up offline costs ~115 ms (OpenCV), core.locator ~85 ms,
-    # core.camera ~40 ms, tqdm ~35 ms, io.results/core.localization/io.config ~10-20 ms each
+    # core.camera ~40 ms, tqdm ~35 ms, io.results/core.localization/io.config ~10-20 ms each,
+    # core.distances ~5 ms
     from tqdm import tqdm
 
     from eye_in_hand.core.camera import StereoRig
+    from eye_in_hand.core.distances import distance_table
     from eye_in_hand.core.localization import robot_pose_sigmas
     from eye_in_hand.core.locator import locator_config_from_params
     from eye_in_hand.io.config import load_hand_eye

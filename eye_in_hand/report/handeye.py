@@ -11,8 +11,6 @@ from typing import Any
 
 import numpy as np
 
-from eye_in_hand.core.transforms import transform_distance
-from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye
 from eye_in_hand.report.html import HtmlReport, new_figure
 
 __all__ = ["write_outputs"]
@@ -197,8 +195,11 @@ def write_outputs(out: Path, result: Any, samples: list[Any], *, setup: str, par
     Returns:
         The paths written.
     """
-    # local: core.handeye loads SciPy (~0.35 s), and this module loads at CLI start-up
+    # local: this module loads at CLI start-up, where core.handeye (SciPy) would cost ~0.35 s
+    # and core.transforms with io.config ~6 ms
     from eye_in_hand.core.handeye.residuals import motion_residual_table
+    from eye_in_hand.core.transforms import transform_distance
+    from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye
 
     skipped = list(skipped or [])
     out.mkdir(parents=True, exist_ok=True)
