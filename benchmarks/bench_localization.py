@@ -269,6 +269,46 @@ def print_speeds(speeds: dict[str, float], n: int) -> None:
           "on the zstd-chunk bag", flush=True)
 
 
+def bag_consistency(paths: dict[str, Path]) -> dict[str, float]:
+    """NEES, 95 % coverage and mean sigma of ``target/pose_cov`` over this run's localization
+    bag, robot pose sigmas as ``process`` chooses them; and with hand_eye.yaml's estimate alone
+    (the arm's stated accuracy set to 0) for comparison."""
+    from eye_in_hand.core.camera import StereoRig
+    from eye_in_hand.core.localization import robot_pose_sigmas
+    from eye_in_hand.core.locator import load_locator_config, load_parameter_file
+    from eye_in_hand.io.config import load_hand_eye
+    from eye_in_hand.offline import ProcessOptions, process_bag
+
+    he = load_hand_eye(paths["he"] / "hand_eye.yaml")
+    he_params = load_parameter_file(ROOT / "config" / "eye_in_hand.yaml", "hand_eye")
+    truth, _ = truth_of(paths["loc"])
+    out: dict[str, float] = {}
+    stated = (float(he_params.get("robot_sigma_pos_m", ProcessOptions.robot_sigma_pos_m)),
+              float(he_params.get("robot_sigma_rot_rad", ProcessOptions.robot_sigma_rot_rad)))
+    for tag, st in (("", stated), ("estimate_only_", (0.0, 0.0))):
+        sig = robot_pose_sigmas(*st, he.robot_pose_noise)
+        res = process_bag(paths["raw"], hand_eye_T=he.transform, hand_eye_cov=he.covariance,
+                          locator_config=load_locator_config(params_file(paths)),
+                          rig=StereoRig.load(paths["calib"]),
+                          options=ProcessOptions(robot_sigma_pos_m=sig[0],
+                                                 robot_sigma_rot_rad=sig[1]))
+        m2, err, tr = [], [], []
+        for f in res.frames:
+            if f.point_base is None or f.cov_base is None or f.stamp_ns not in truth:
+                continue
+            e = f.point_base - truth[f.stamp_ns]
+            m2.append(float(e @ np.linalg.solve(f.cov_base, e)))
+            err.append(float(e @ e))
+            tr.append(float(np.sqrt(np.trace(f.cov_base))))
+        a = np.asarray(m2)
+        out.update({tag + "nees": float(a.mean()), tag + "coverage95": float(np.mean(a <= 7.8147)),
+                    tag + "rms_mm": 1e3 * float(np.sqrt(np.mean(err))),
+                    tag + "sigma_mm": 1e3 * float(np.mean(tr)), tag + "frames": float(a.size),
+                    tag + "robot_sigma_pos_mm": 1e3 * sig[0],
+                    tag + "robot_sigma_rot_mrad": 1e3 * sig[1]})
+    return out
+
+
 def zstd_binding() -> str:
     """The module that decompresses zstd chunks (eye_in_hand.io.mcap_chunks picks it)."""
     from eye_in_hand.io import mcap_chunks
