@@ -74,8 +74,10 @@ __all__ = [
     "main",
 ]
 
-#: Pause after every topic has a subscriber, before the first message (wait mode only).
-DISCOVERY_SETTLE_S = 0.5
+#: Pause after every topic has a subscriber, before the first message (wait mode only): the
+#: subscribers must match the player's writers too, and on a loaded 2-core machine with nodes
+#: still starting that took more than 0.5 s (the first robot poses of a replay were lost).
+DISCOVERY_SETTLE_S = 1.5
 
 _END = object()
 _NOTHING = object()
