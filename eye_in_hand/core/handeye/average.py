@@ -41,7 +41,7 @@ from scipy.spatial.transform import Rotation
 
 from eye_in_hand.errors import HandEyeError
 
-from .solvers import MotionPairs, _kron_rotation_rows, _kron_translation_rows, _quat_wxyz, \
+from .solvers import MotionPairs, _kronecker_system, _quat_wxyz, \
     _skew
 
 __all__ = [
@@ -238,12 +238,7 @@ def _pairs_tsai(m: MotionPairs, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 def _pairs_kronecker(m: MotionPairs, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The homogeneous Kronecker form on each pair of motions; ``(X (P, 4, 4), ok (P,))``."""
-    K = len(m)
-    M = np.zeros((K, 12, 13))
-    M[:, :9, :9] = _kron_rotation_rows(m)
-    M[:, 9:, :9] = _kron_translation_rows(m)
-    M[:, 9:, 9:12] = np.eye(3) - m.A[:, :3, :3]
-    M[:, 9:, 12] = -m.A[:, :3, 3]
+    M = _kronecker_system(m)
     G = np.einsum("kji,kjl->kil", M, M)                # (K, 13, 13)
     p, q = pairs[:, 0], pairs[:, 1]
     vals, vecs = np.linalg.eigh(G[p] + G[q])

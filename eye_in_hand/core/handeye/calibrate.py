@@ -41,6 +41,7 @@ from .samples import MIN_SAMPLES, CameraView, HandEyeSample, MotionDiagnostics, 
     motion_diagnostics, validate_samples
 from .solvers import CLOSED_FORM_METHODS, SETUPS, board_in_fixed_frame, gripper_poses, \
     motion_pairs
+from .residuals import motion_residuals
 from .select import HeldOut, choose, held_out_position_sigma, held_out_prediction, \
     selection_scores
 
@@ -284,17 +285,15 @@ def axxb_residuals(X: np.ndarray, base_T_ee: np.ndarray, cam_T_board: np.ndarray
         ``(rot_deg (N,), trans_mm (N,))``.
     """
     n = base_T_ee.shape[0]
-    m = motion_pairs(gripper_poses(base_T_ee, setup), cam_T_board)
-    E = _inv_stack(m.A @ X) @ X @ m.B
-    ang = np.degrees(np.linalg.norm(Rotation.from_matrix(E[:, :3, :3]).as_rotvec(), axis=1))
-    tr = 1000.0 * np.linalg.norm(E[:, :3, 3], axis=1)
+    per_motion = motion_residuals(X, base_T_ee, cam_T_board, setup)
+    index, ang, tr = per_motion["index"], per_motion["rot_deg"], per_motion["trans_mm"]
     rot = np.zeros(n)
     trans = np.zeros(n)
     count = np.zeros(n)
     for col in (0, 1):
-        np.add.at(rot, m.index[:, col], ang ** 2)
-        np.add.at(trans, m.index[:, col], tr ** 2)
-        np.add.at(count, m.index[:, col], 1.0)
+        np.add.at(rot, index[:, col], ang ** 2)
+        np.add.at(trans, index[:, col], tr ** 2)
+        np.add.at(count, index[:, col], 1.0)
     count = np.maximum(count, 1.0)
     return np.sqrt(rot / count), np.sqrt(trans / count)
 

@@ -16,21 +16,12 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .solvers import gripper_poses, motion_pairs
+from .solvers import _inv, gripper_poses, motion_pairs
 
 __all__ = ["QUANTITIES", "motion_residuals", "motion_residual_table"]
 
 #: The residual quantities, in table order.
 QUANTITIES = ("rot_deg", "trans_mm", "frobenius")
-
-
-def _inv(T: np.ndarray) -> np.ndarray:
-    out = np.zeros_like(T)
-    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
-    out[..., :3, :3] = Rt
-    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3])
-    out[..., 3, 3] = 1.0
-    return out
 
 
 def motion_residuals(X: np.ndarray, base_T_ee: np.ndarray, cam_T_board: np.ndarray,

@@ -401,6 +401,17 @@ def solve_andreff(m: MotionPairs) -> np.ndarray:
     return _assemble(R, sol[9:])
 
 
+def _kronecker_system(m: MotionPairs) -> np.ndarray:
+    """The homogeneous Kronecker system of each motion, shape (K, 12, 13): unknowns
+    ``vec(R_X)`` (9), ``t_X`` (3) and the scale (1)."""
+    M = np.zeros((len(m), 12, 13))
+    M[:, :9, :9] = _kron_rotation_rows(m)
+    M[:, 9:, :9] = _kron_translation_rows(m)
+    M[:, 9:, 9:12] = np.eye(3) - m.A[:, :3, :3]
+    M[:, 9:, 12] = -m.A[:, :3, 3]
+    return M
+
+
 def solve_kronecker(m: MotionPairs) -> np.ndarray:
     """Homogeneous Kronecker (direct-product) linear method.
 
@@ -419,11 +430,7 @@ def solve_kronecker(m: MotionPairs) -> np.ndarray:
         X, shape (4, 4).
     """
     K = len(m)
-    M = np.zeros((K, 12, 13))
-    M[:, :9, :9] = _kron_rotation_rows(m)
-    M[:, 9:, :9] = _kron_translation_rows(m)
-    M[:, 9:, 9:12] = np.eye(3) - m.A[:, :3, :3]
-    M[:, 9:, 12] = -m.A[:, :3, 3]
+    M = _kronecker_system(m)
     v = _null_vectors(M.reshape(12 * K, 13), 1)[0]
     R, scale = _normalize_rotation_block(v[:9].reshape(3, 3))
     return _assemble(R, scale * v[9:12])
