@@ -20,7 +20,8 @@ the same kept samples) and the errors-in-variables refinement (``refined``), in 
 ``--nees N``: N datasets over robot error {0, 0.2 mm/0.02 deg, 1 mm/0.1 deg} x pixel noise
 {0.3, 1.0} px; for the selected result, the mean normalised estimation error squared (NEES,
 3 dof each for translation and rotation: 3 when the covariance is right) and how often the 95 %
-ellipsoid (translation, rotation, and the joint 6-dof one) contains the true X.
+ellipsoid (translation, rotation, and the joint 6-dof one) contains the true X; with
+``--case`` and ``--pairs`` on those inputs.
 
 ``--case stereo`` and ``--case eye_to_hand``: the same comparison on
 ``core.handeye.synthetic.make_problem`` datasets (a 640x480 camera with mild distortion, 15
@@ -311,19 +312,20 @@ def nees(args: argparse.Namespace) -> None:
     from scipy.spatial.transform import Rotation
     from scipy.stats import chi2
 
-    from eye_in_hand.core.handeye import CameraView, calibrate_hand_eye
+    from eye_in_hand.core.handeye import HandEyeSample, calibrate_hand_eye
     from eye_in_hand.sim import World
 
     world = World.default().with_image_size(640, 480)
-    views = [CameraView("left", world.rig.left)]
-    X_true = world.ee_T_cam
     cells = [(lv, px) for lv in LEVELS for px in (0.3, 1.0)]
     k3, k6 = chi2.ppf(0.95, 3), chi2.ppf(0.95, 6)
     rows = []
     for i in range(args.nees):
         (mm_sig, deg_sig), px = cells[i % len(cells)]
-        samples = make_trial(world, args.seed + 5000 + i, args.samples, px, mm_sig, deg_sig)
-        res = calibrate_hand_eye(samples, "eye_in_hand", cameras=views)
+        samples, views, setup, X_true = make_case(args.case, world, args.seed + 5000 + i,
+                                                  args.samples, px, mm_sig, deg_sig)
+        if args.pairs:
+            samples = [HandEyeSample(s.name, s.base_T_ee, s.cam_T_board) for s in samples]
+        res = calibrate_hand_eye(samples, setup, cameras=None if args.pairs else views)
         C = res.covariance
         e = np.concatenate([res.X[:3, 3] - X_true[:3, 3], Rotation.from_matrix(
             res.X[:3, :3] @ X_true[:3, :3].T).as_rotvec()])
@@ -332,7 +334,8 @@ def nees(args: argparse.Namespace) -> None:
         n6 = float(e @ np.linalg.solve(C, e))
         rows.append((i % len(cells), nt, nr, n6, res.selected))
     a = np.array([r[1:4] for r in rows])
-    print(f"uncertainty check: {len(rows)} datasets ({args.samples} samples, 640x480), robot "
+    print(f"uncertainty check ({args.case}{', pose pairs' if args.pairs else ''}): "
+          f"{len(rows)} datasets ({args.samples} samples, 640x480), robot "
           "error {0, 0.2 mm/0.02 deg, 1 mm/0.1 deg} x pixel noise {0.3, 1.0} px; covariance of "
           "the selected result")
     print(f"  mean NEES translation {a[:, 0].mean():.2f}, rotation {a[:, 1].mean():.2f} "
