@@ -27,6 +27,7 @@ __all__ = [
     "make_transform",
     "compose",
     "invert",
+    "invert_many",
     "apply",
     "from_xyz_quat",
     "to_xyz_quat",
@@ -155,6 +156,20 @@ def invert(T) -> np.ndarray:
     out = np.eye(4)
     out[:3, :3] = R.T
     out[:3, 3] = -R.T @ arr[:3, 3]
+    return out
+
+
+def invert_many(T: np.ndarray) -> np.ndarray:
+    """Rigid inverses of a stack of transforms, shape (..., 4, 4) -> (..., 4, 4).
+
+    Unlike :func:`invert` the input is not validated (a trusted float array whose rotation
+    blocks are orthonormal): for the inner loops of the solvers and refinements.
+    """
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    out = np.zeros(np.shape(T), dtype=np.result_type(T, np.float64))
+    out[..., :3, :3] = Rt
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3])
+    out[..., 3, 3] = 1.0
     return out
 
 

@@ -103,6 +103,18 @@ def test_compose_invert_identities():
         tf.invert(bad)
 
 
+def test_invert_many_of_stacks_and_single_transforms():
+    rng = np.random.default_rng(2)
+    Ts = np.stack(random_transforms(rng, 6))
+    for stack in (Ts, Ts.reshape(2, 3, 4, 4), Ts[0]):
+        inv = tf.invert_many(stack)
+        assert inv.shape == stack.shape
+        np.testing.assert_allclose(inv, np.linalg.inv(stack), atol=1e-12)
+        np.testing.assert_allclose(stack @ inv, np.broadcast_to(np.eye(4), stack.shape),
+                                   atol=1e-12)
+    np.testing.assert_allclose(tf.invert_many(Ts[0]), tf.invert(Ts[0]), atol=1e-15)
+
+
 def test_make_transform_and_apply():
     rng = np.random.default_rng(2)
     for rv in random_rotvecs(rng, N):

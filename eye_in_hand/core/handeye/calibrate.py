@@ -29,7 +29,7 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from eye_in_hand.core.transforms import average_transforms, to_xyz_quat
+from eye_in_hand.core.transforms import average_transforms, invert_many, to_xyz_quat
 from eye_in_hand.errors import HandEyeError
 
 from .average import AVERAGE_SOLVERS, DEFAULT_AVERAGE_SOLVER, average_hand_eye, \
@@ -259,15 +259,6 @@ class HandEyeResult:
         }
 
 
-def _inv_stack(T: np.ndarray) -> np.ndarray:
-    out = np.zeros_like(T)
-    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
-    out[..., :3, :3] = Rt
-    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3])
-    out[..., 3, 3] = 1.0
-    return out
-
-
 def axxb_residuals(X: np.ndarray, base_T_ee: np.ndarray, cam_T_board: np.ndarray,
                    setup: str) -> tuple[np.ndarray, np.ndarray]:
     """Per-sample AX = XB residuals: RMS over the motions (all pairs) each sample is part of.
@@ -401,7 +392,7 @@ def _check_conventions(bte: np.ndarray, ctb: np.ndarray, setup: str) -> str | No
     readings (other setup; ``cam_T_board`` inverted). Returns an error message when another
     reading fits far better, i.e. the input's conventions are almost certainly wrong."""
     other = "eye_to_hand" if setup == "eye_in_hand" else "eye_in_hand"
-    inv_ctb = _inv_stack(ctb)
+    inv_ctb = invert_many(ctb)
 
     def rot_rms(b: np.ndarray, c: np.ndarray, su: str) -> float:
         X = _solve_first(b, c, su)

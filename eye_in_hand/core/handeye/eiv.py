@@ -49,9 +49,10 @@ from typing import Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from eye_in_hand.core.transforms import invert_many
 from eye_in_hand.errors import HandEyeError
 
-from .refine import _inv, _inv_stack, _start, perturb, pose_residual_scales, project_points
+from .refine import _start, perturb, pose_residual_scales, project_points
 from .samples import CameraView, HandEyeSample, corner_blocks
 from .solvers import board_in_fixed_frame, gripper_poses
 
@@ -125,7 +126,7 @@ def predict_cam_T_board(X: np.ndarray, Y: np.ndarray, base_T_ee: np.ndarray,
                         setup: str) -> np.ndarray:
     """The board pose each robot pose predicts in the camera, ``inv(X) inv(G) Y``, (N, 4, 4)."""
     G = gripper_poses(np.asarray(base_T_ee, dtype=np.float64), setup)
-    return _inv(X) @ _inv_stack(G) @ Y
+    return invert_many(X) @ invert_many(G) @ Y
 
 
 class _Problem:
@@ -198,7 +199,7 @@ class _Problem:
         Y = perturb(self.Y0, p[6:12])
         d = self.corrections(p, sig)
         B = _corrected_poses(self.bte, d)
-        C = _inv(X) @ _inv_stack(gripper_poses(B, self.setup)) @ Y
+        C = invert_many(X) @ invert_many(gripper_poses(B, self.setup)) @ Y
         out = []
         if self.use_corners:
             for cam, idx, obj, img in self.blocks:

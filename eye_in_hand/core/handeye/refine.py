@@ -32,6 +32,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from eye_in_hand.core.transforms import invert_many
 from eye_in_hand.errors import HandEyeError
 
 from .samples import CameraView, HandEyeSample, corner_blocks
@@ -83,13 +84,6 @@ def perturb(T0: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 def _start(T: np.ndarray) -> np.ndarray:
     return np.concatenate([T[:3, 3], np.zeros(3)])
-
-
-def _inv(T: np.ndarray) -> np.ndarray:
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return out
 
 
 def _covariance(res, m: int) -> tuple[np.ndarray, float]:
@@ -164,10 +158,10 @@ def reprojection_errors(X: np.ndarray, Y: np.ndarray, samples: Sequence[HandEyeS
     """
     views = {c.name: c for c in cameras}
     G = gripper_poses(np.stack([s.base_T_ee for s in samples]), setup)
-    Xi = _inv(X)
+    Xi = invert_many(X)
     out = []
     for s, g in zip(samples, G):
-        C = Xi @ _inv(g) @ Y
+        C = Xi @ invert_many(g) @ Y
         errs = []
         for ob in s.observations:
             if ob.camera not in views:
@@ -204,10 +198,10 @@ def refine_reprojection(X0: np.ndarray, Y0: np.ndarray, samples: Sequence[HandEy
         raise HandEyeError("reprojection refinement needs corner observations; use "
                            "refine_pose_space for pose pairs")
     blocks = corner_blocks(samples, cameras)   # per camera, vectorised model
-    Ginv = _inv_stack(gripper_poses(np.stack([s.base_T_ee for s in samples]), setup))
+    Ginv = invert_many(gripper_poses(np.stack([s.base_T_ee for s in samples]), setup))
 
     def residuals(p: np.ndarray) -> np.ndarray:
-        Xi = _inv(perturb(X0, p[:6]))
+        Xi = invert_many(perturb(X0, p[:6]))
         Y = perturb(Y0, p[6:])
         C = Xi @ Ginv @ Y                                   # (N, 4, 4) cam_T_board
         out = []
@@ -225,19 +219,10 @@ def refine_reprojection(X0: np.ndarray, Y0: np.ndarray, samples: Sequence[HandEy
                             sigma, float(res.cost), int(res.nfev), "reprojection")
 
 
-def _inv_stack(T: np.ndarray) -> np.ndarray:
-    out = np.zeros_like(T)
-    Rt = np.swapaxes(T[:, :3, :3], 1, 2)
-    out[:, :3, :3] = Rt
-    out[:, :3, 3] = -np.einsum("kij,kj->ki", Rt, T[:, :3, 3])
-    out[:, 3, 3] = 1.0
-    return out
-
-
 def pose_residual_scales(X: np.ndarray, Y: np.ndarray, base_T_ee: np.ndarray,
                          cam_T_board: np.ndarray, setup: str) -> tuple[float, float]:
     """Robust noise levels (rad, m) of the measured board poses around the model prediction."""
-    r, t = _pose_errors(X, Y, _inv_stack(gripper_poses(base_T_ee, setup)), cam_T_board)
+    r, t = _pose_errors(X, Y, invert_many(gripper_poses(base_T_ee, setup)), cam_T_board)
     sr = 1.4826 * float(np.median(np.linalg.norm(r, axis=1))) / np.sqrt(3.0)
     st = 1.4826 * float(np.median(np.linalg.norm(t, axis=1))) / np.sqrt(3.0)
     return max(sr, 1e-9), max(st, 1e-9)
@@ -245,7 +230,7 @@ def pose_residual_scales(X: np.ndarray, Y: np.ndarray, base_T_ee: np.ndarray,
 
 def _pose_errors(X: np.ndarray, Y: np.ndarray, Ginv: np.ndarray,
                  C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    pred = _inv(X) @ Ginv @ Y
+    pred = invert_many(X) @ Ginv @ Y
     dR = np.einsum("kji,kjl->kil", C[:, :3, :3], pred[:, :3, :3])
     return Rotation.from_matrix(dR).as_rotvec(), pred[:, :3, 3] - C[:, :3, 3]
 
@@ -274,7 +259,7 @@ def refine_pose_space(X0: np.ndarray, Y0: np.ndarray, base_T_ee: np.ndarray,
     base_T_ee = np.asarray(base_T_ee, dtype=np.float64)
     C = np.asarray(cam_T_board, dtype=np.float64)
     sr, st = scales if scales is not None else pose_residual_scales(X0, Y0, base_T_ee, C, setup)
-    Ginv = _inv_stack(gripper_poses(base_T_ee, setup))
+    Ginv = invert_many(gripper_poses(base_T_ee, setup))
 
     def residuals(p: np.ndarray) -> np.ndarray:
         r, t = _pose_errors(perturb(X0, p[:6]), perturb(Y0, p[6:]), Ginv, C)

@@ -16,7 +16,9 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .solvers import _inv, gripper_poses, motion_pairs
+from eye_in_hand.core.transforms import invert_many
+
+from .solvers import gripper_poses, motion_pairs
 
 __all__ = ["QUANTITIES", "motion_residuals", "motion_residual_table"]
 
@@ -43,7 +45,7 @@ def motion_residuals(X: np.ndarray, base_T_ee: np.ndarray, cam_T_board: np.ndarr
                      np.asarray(cam_T_board, dtype=np.float64))
     AX = m.A @ X
     XB = X @ m.B
-    E = _inv(AX) @ XB
+    E = invert_many(AX) @ XB
     return {"index": m.index,
             "rot_deg": np.degrees(np.linalg.norm(
                 Rotation.from_matrix(E[:, :3, :3]).as_rotvec(), axis=1)),

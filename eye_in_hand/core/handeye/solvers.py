@@ -35,7 +35,7 @@ from typing import Callable
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from eye_in_hand.core.transforms import project_to_so3
+from eye_in_hand.core.transforms import invert_many, project_to_so3
 from eye_in_hand.errors import HandEyeError
 
 __all__ = [
@@ -56,18 +56,6 @@ __all__ = [
 
 #: The supported setups.
 SETUPS = ("eye_in_hand", "eye_to_hand")
-
-
-def _inv(T: np.ndarray) -> np.ndarray:
-    """Rigid inverse of (..., 4, 4) transforms (trusted input)."""
-    R = T[..., :3, :3]
-    t = T[..., :3, 3]
-    out = np.zeros_like(T)
-    Rt = np.swapaxes(R, -1, -2)
-    out[..., :3, :3] = Rt
-    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, t)
-    out[..., 3, 3] = 1.0
-    return out
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -162,7 +150,7 @@ def gripper_poses(base_T_ee: np.ndarray, setup: str) -> np.ndarray:
     if setup == "eye_in_hand":
         return np.array(base_T_ee, dtype=np.float64)
     if setup == "eye_to_hand":
-        return _inv(np.asarray(base_T_ee, dtype=np.float64))
+        return invert_many(np.asarray(base_T_ee, dtype=np.float64))
     raise HandEyeError(f"setup: expected one of {', '.join(SETUPS)}, got {setup!r}")
 
 
@@ -185,8 +173,8 @@ def motion_pairs(G: np.ndarray, C: np.ndarray, pairs: str = "all") -> MotionPair
         jj = ii + 1
     else:
         raise HandEyeError(f"pairs: expected 'all' or 'consecutive', got {pairs!r}")
-    A = _inv(G[jj]) @ G[ii]
-    B = C[jj] @ _inv(C[ii])
+    A = invert_many(G[jj]) @ G[ii]
+    B = C[jj] @ invert_many(C[ii])
     return MotionPairs(A, B, np.stack([ii, jj], axis=1))
 
 

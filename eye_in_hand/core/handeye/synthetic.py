@@ -12,7 +12,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from eye_in_hand.core.camera import CameraModel, StereoRig
-from eye_in_hand.core.transforms import from_rotvec
+from eye_in_hand.core.transforms import from_rotvec, invert_many
 
 from .observe import board_pose_pnp
 from .samples import CameraView, CornerObservation, HandEyeSample
@@ -84,13 +84,6 @@ def view_poses(n: int, rng: np.random.Generator, *, center: np.ndarray,
     return out
 
 
-def _inv(T: np.ndarray) -> np.ndarray:
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return out
-
-
 def make_problem(n: int = 15, *, setup: str = "eye_in_hand", seed: int = 0,
                  noise_px: float = 0.5, stereo: bool = False, robot_noise_mm: float = 0.0,
                  robot_noise_deg: float = 0.0, camera: CameraModel | None = None,
@@ -141,8 +134,8 @@ def make_problem(n: int = 15, *, setup: str = "eye_in_hand", seed: int = 0,
         if any(np.any(~np.isfinite(p)) or np.any(p < 10) or np.any(p[:, 0] > cam.width - 10)
                or np.any(p[:, 1] > cam.height - 10) for p in pix):
             continue
-        G = Y @ _inv(C) @ _inv(X)
-        bte = G if setup == "eye_in_hand" else _inv(G)
+        G = Y @ invert_many(C) @ invert_many(X)
+        bte = G if setup == "eye_in_hand" else invert_many(G)
         noisy = bte.copy()
         if robot_noise_mm or robot_noise_deg:
             noisy = bte @ from_rotvec(rng.normal(scale=np.radians(robot_noise_deg), size=3),
