@@ -39,7 +39,7 @@ Per-detection centre uncertainty (``Detection.center_sigma_px``, 1 sigma per ima
   0.015 was measured on the simulator's renders (least squares of the centre error on ``g``:
   0.015 on both axes; median ``|error| / |g|`` 0.016, 90th percentile 0.020; 48 stereo views
   at 1280x720, 0.3-0.6 m, one orbit).
-* ``sigma_cut``: the threshold cut (``CUT_SIGMA_PX`` = 0.025 px per axis, a stated floor; the
+* ``sigma_cut``: the threshold cut (``CUT_SIGMA_PX`` = 0.02 px per axis, a stated floor; the
   blob does not show it). An anti-aliased edge pixel is kept or dropped by the mix of target
   and background colour in it, so the cut runs a fraction of a pixel inside or outside the true
   outline by an amount that changes with the background (and the light) along the edge. A
@@ -47,15 +47,16 @@ Per-detection centre uncertainty (``Detection.center_sigma_px``, 1 sigma per ima
   ellipse's own parameters, so the edge residuals cannot see it. The same background lies
   behind the target in both images: the shift is nearly the same in both, and the stereo
   locator treats it as common to the pair (``Detection.cut_sigma_px``), which moves the point
-  sideways, not in depth. Measured on the simulator's renders (1280x720, noise 1,
+  sideways, not in depth. Measured on the simulator's renders (1280x720, noise 1, no blur;
   ``benchmarks/bench_point_cov.py``): against the exact anti-aliased coverage centroid (flat
   light, 25 views), the binary centroid's error common to the two images (``E[e_l e_r]``) is
-  0.010 px in x and 0.030 px in y, 0.022 px RMS over the axes; on the benchmark orbit (90
-  shaded views) the common error beyond the edge and shading terms is 0.035 px in y and none in
-  x, 0.025 px RMS over the axes. (The coverage centroid is within 0.004 px of the true
-  silhouette centroid and the sphere-centre correction adds at most 0.004 px: the cut is the
-  error.) Without this term the camera-frame point's sideways sigma was half its sideways error
-  (lateral NEES 5.9 for 2 dof on the benchmark orbit).
+  0.010 px in x and 0.027 px in y, 0.020 px RMS over the axes; on the benchmark orbit (90
+  shaded views) the common error beyond the shading term is 0.035 px in y and none in x (the
+  shading term exceeds it there), 0.019 px RMS over the axes. The coverage centroid is within
+  0.004 px of the true silhouette centroid and the sphere-centre correction adds about
+  0.004 px: the cut is the error. Without this term the camera-frame point's sideways sigma
+  was about half its sideways error across the shading direction (lateral NEES 5.9 for 2 dof
+  on the benchmark orbit, 2.8 with it).
 
 A detector returns detections or nothing, never a guess: blobs that fail a gate or touch the
 image border (a truncated silhouette has a biased centre) are not reported.
@@ -92,7 +93,7 @@ __all__ = [
 SHADE_GAIN = 0.015
 #: Threshold-cut term (px, 1 sigma per image axis, common to both images of a stereo pair; see
 #: the module docstring).
-CUT_SIGMA_PX = 0.025
+CUT_SIGMA_PX = 0.02
 
 #: Supported colour spaces for thresholds.
 COLOR_SPACES = ("hsv", "hsi")

@@ -28,7 +28,7 @@ def test_camera_frame_nees_is_consistent_sideways_and_in_depth():
     """The benchmark's orbit (seed 22) at 5 Hz, true rig. Without the threshold-cut term (the
     centre error common to both images that the edge fit cannot see) the lateral NEES was 5.5
     with 62 % of the views inside the 95 % ellipse (3-dof NEES 6.7): the sideways sigma was
-    about half the sideways error. With it: 3.2, lateral 2.2 (100 %), depth 1.6."""
+    about half the sideways error. With it: 3.6, lateral 2.7 (94 %), depth 1.6."""
     world = World.default().with_robot_error(RobotErrorSpec.none())
     loc = StereoLocator(world.rig.rectified(), load_locator_config(CONFIG))
     m2, lat, dep = [], [], []
