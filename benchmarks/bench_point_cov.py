@@ -135,8 +135,8 @@ def print_point(m: dict[str, np.ndarray], label: str) -> None:
           f"{100 * np.mean(m2 <= CHI2_95[3]):.1f} %; lateral NEES {lat.mean():.2f} (2 dof), "
           f"coverage {100 * np.mean(lat <= CHI2_95[2]):.1f} %; depth NEES {dep.mean():.2f} "
           f"(1 dof), coverage {100 * np.mean(dep <= CHI2_95[1]):.1f} %")
-    print(f"      lateral error RMS {np.sqrt(np.mean(el ** 2)):.4f} mm (mean {el[:, 0].mean():+.4f},"
-          f" {el[:, 1].mean():+.4f} mm), sigma {sl.min():.4f}-{sl.max():.4f} mm (RMS "
+    print(f"      lateral error RMS {np.sqrt(np.mean(el ** 2)):.4f} mm (mean "
+          f"{el[:, 0].mean():+.4f}, {el[:, 1].mean():+.4f} mm), sigma {sl.min():.4f}-{sl.max():.4f} mm (RMS "
           f"{np.sqrt(np.mean(sl ** 2)):.4f}); depth error RMS {np.sqrt(np.mean(ed ** 2)):.4f} mm "
           f"(mean {ed.mean():+.4f}), sigma RMS {np.sqrt(np.mean(sd ** 2)):.4f} mm")
 
