@@ -74,19 +74,23 @@ def render(world: World, jobs: list[tuple[np.ndarray, int]]) -> list:
 
 def measure(loc: StereoLocator, frames: list) -> dict[str, np.ndarray]:
     """Per view: pixel errors (4,), pixel covariance (4, 4), point error (3,), covariance, truth."""
-    e_px, S, e, P, truth = [], [], [], [], []
+    e_px, corr, S, e, P, truth = [], [], [], [], [], []
     for f in frames:
         t = loc.locate(f.left, f.right).first
         if t is None:
             continue
         e_px.append(np.concatenate([t.left_px - f.truth.center_px_left[0],
                                     t.right_px - f.truth.center_px_right[0]]))
+        # the sphere-centre correction's own error: the centre's error minus the centroid's
+        corr.append(e_px[-1] - np.concatenate([
+            t.left.centroid_px - f.truth.silhouette_centroid_px_left[0],
+            t.right.centroid_px - f.truth.silhouette_centroid_px_right[0]]))
         S.append(loc._pixel_cov(t.left, t.right)[1])
         e.append(t.point_m - f.truth.targets_cam[0])
         P.append(t.covariance)
         truth.append(f.truth.targets_cam[0])
     return {k: np.array(v) for k, v in
-            (("e_px", e_px), ("S", S), ("e", e), ("P", P), ("truth", truth))}
+            (("e_px", e_px), ("corr", corr), ("S", S), ("e", e), ("P", P), ("truth", truth))}
 
 
 def lateral_basis(p: np.ndarray) -> np.ndarray:
@@ -114,6 +118,13 @@ def print_pixels(m: dict[str, np.ndarray]) -> None:
           f"{cross_model[1]:.5f} px^2; beyond the shading term: x {beyond[0]:+.5f} y "
           f"{beyond[1]:+.5f} px^2, {np.sqrt(max(beyond.mean(), 0.0)):.3f} px RMS over the axes "
           f"(CUT_SIGMA_PX {detection.CUT_SIGMA_PX:g})")
+    zd = [np.array([(u @ x) / np.sqrt(u @ s_ @ u) for x, s_ in zip(e, S)])
+          for u in (np.array([1.0, 0, -1.0, 0]), np.array([0, 1.0, 0, -1.0]))]
+    c = m["corr"]
+    print(f"  left - right (what the depth sees) over the model's sigma: RMS x "
+          f"{np.sqrt(np.mean(zd[0] ** 2)):.2f} y {np.sqrt(np.mean(zd[1] ** 2)):.2f} (1 when right);"
+          f" the sphere-centre correction's own error: mean {np.abs(c.mean(axis=0)).max():.4f} px"
+          f" at most, spread {c.std(axis=0).max():.4f} px at most")
 
 
 def print_point(m: dict[str, np.ndarray], label: str) -> None:
@@ -136,9 +147,10 @@ def print_point(m: dict[str, np.ndarray], label: str) -> None:
           f"coverage {100 * np.mean(lat <= CHI2_95[2]):.1f} %; depth NEES {dep.mean():.2f} "
           f"(1 dof), coverage {100 * np.mean(dep <= CHI2_95[1]):.1f} %")
     print(f"      lateral error RMS {np.sqrt(np.mean(el ** 2)):.4f} mm (mean "
-          f"{el[:, 0].mean():+.4f}, {el[:, 1].mean():+.4f} mm), sigma {sl.min():.4f}-{sl.max():.4f} mm (RMS "
-          f"{np.sqrt(np.mean(sl ** 2)):.4f}); depth error RMS {np.sqrt(np.mean(ed ** 2)):.4f} mm "
-          f"(mean {ed.mean():+.4f}), sigma RMS {np.sqrt(np.mean(sd ** 2)):.4f} mm")
+          f"{el[:, 0].mean():+.4f}, {el[:, 1].mean():+.4f} mm), sigma {sl.min():.4f}-"
+          f"{sl.max():.4f} mm (RMS {np.sqrt(np.mean(sl ** 2)):.4f}); depth error RMS "
+          f"{np.sqrt(np.mean(ed ** 2)):.4f} mm (mean {ed.mean():+.4f}), sigma RMS "
+          f"{np.sqrt(np.mean(sd ** 2)):.4f} mm")
 
 
 def print_cut(loc: StereoLocator, world: World, views: int) -> None:
