@@ -25,7 +25,7 @@ Colour ranges use OpenCV's 8-bit conventions: hue 0..179 (degrees / 2), saturati
 (hue, saturation ``1 - min/mean``, intensity ``mean``) uses the same scales.
 
 Per-detection centre uncertainty (``Detection.center_sigma_px``, 1 sigma per image axis),
-estimated from the blob itself as ``sqrt(sigma_edge^2 + sigma_shade^2)``:
+``sqrt(sigma_edge^2 + sigma_shade^2 + sigma_cut^2)``, the first two estimated from the blob:
 
 * ``sigma_edge``: the roughness of the blob's edge. An ellipse is fitted to the outer contour;
   the radial residuals' RMS ``s`` (pixel quantisation, image noise, blur) and their correlation
@@ -39,6 +39,24 @@ estimated from the blob itself as ``sqrt(sigma_edge^2 + sigma_shade^2)``:
   0.015 was measured on the simulator's renders (least squares of the centre error on ``g``:
   0.015 on both axes; median ``|error| / |g|`` 0.016, 90th percentile 0.020; 48 stereo views
   at 1280x720, 0.3-0.6 m, one orbit).
+* ``sigma_cut``: the threshold cut (``CUT_SIGMA_PX`` = 0.02 px per axis, a stated floor; the
+  blob does not show it). An anti-aliased edge pixel is kept or dropped by the mix of target
+  and background colour in it, so the cut runs a fraction of a pixel inside or outside the true
+  outline by an amount that changes with the background (and the light) along the edge. A
+  difference between two sides moves the centroid; a shift of the whole outline is one of the
+  ellipse's own parameters, so the edge residuals cannot see it. The same background lies
+  behind the target in both images: the shift is nearly the same in both, and the stereo
+  locator treats it as common to the pair (``Detection.cut_sigma_px``), which moves the point
+  sideways, not in depth. Measured on the simulator's renders (1280x720, noise 1, no blur;
+  ``benchmarks/bench_point_cov.py``): against the exact anti-aliased coverage centroid (flat
+  light, 25 views), the binary centroid's error common to the two images (``E[e_l e_r]``) is
+  0.010 px in x and 0.027 px in y, 0.020 px RMS over the axes; on the benchmark orbit (90
+  shaded views) the common error beyond the shading term is 0.035 px in y and none in x (the
+  shading term exceeds it there), 0.019 px RMS over the axes. The coverage centroid is within
+  0.004 px of the true silhouette centroid and the sphere-centre correction adds about
+  0.004 px: the cut is the error. Without this term the camera-frame point's sideways sigma
+  was about half its sideways error across the shading direction (lateral NEES 5.9 for 2 dof
+  on the benchmark orbit, 2.8 with it).
 
 A detector returns detections or nothing, never a guess: blobs that fail a gate or touch the
 image border (a truncated silhouette has a biased centre) are not reported.
@@ -73,6 +91,9 @@ __all__ = [
 
 #: Centroid shift per pixel of brightness asymmetry of the blob (see the module docstring).
 SHADE_GAIN = 0.015
+#: Threshold-cut term (px, 1 sigma per image axis, common to both images of a stereo pair; see
+#: the module docstring).
+CUT_SIGMA_PX = 0.02
 
 #: Supported colour spaces for thresholds.
 COLOR_SPACES = ("hsv", "hsi")
@@ -329,12 +350,15 @@ class Detection:
             (the uncorrected centre; NaN unless the sphere correction ran), from which
             :func:`sphere_center_direction` recomputes the centre for a better ``alpha``.
         center_sigma_px: estimated 1-sigma error of ``center_px`` per image axis (pixels),
-            from the blob's edge roughness and shading (module docstring); NaN if the blob is
-            too small to tell.
+            from the blob's edge roughness, shading and the threshold cut (module docstring);
+            NaN if the blob is too small to tell.
         edge_sigma_px: the edge-roughness part of ``center_sigma_px`` (pixels, per axis).
         shade_px: the shading part as a vector (pixels, shape (2,)): ``SHADE_GAIN * g``, the
             1-sigma extent of the centroid's shift along the brightness asymmetry ``g`` (the
             same light shifts both images of a stereo pair alike).
+        cut_sigma_px: the threshold-cut part (pixels, per axis): ``CUT_SIGMA_PX``, common to
+            both images of a stereo pair (the same background behind the target); 0 when
+            ``center_sigma_px`` is NaN.
     """
 
     name: str
@@ -349,6 +373,7 @@ class Detection:
     center_sigma_px: float = float("nan")
     edge_sigma_px: float = float("nan")
     shade_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    cut_sigma_px: float = 0.0
 
 
 def range_from_samples(samples: np.ndarray, space: str = "hsv", *, percentile: float = 5.0,
@@ -464,6 +489,7 @@ class _Blob:
     center_sigma_px: float = float("nan")
     edge_sigma_px: float = float("nan")
     shade_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    cut_sigma_px: float = 0.0
 
 
 class ColorDetector:
@@ -652,8 +678,9 @@ class ColorDetector:
         pts = contour.reshape(-1, 2).astype(np.float64) + (x0 + bx, y0 + by)
         grey = cv2.cvtColor(roi[by:by + bh, bx:bx + bw], cv2.COLOR_BGR2GRAY)
         edge, shade = center_sigma_parts(comp, grey, contour.reshape(-1, 2).astype(np.float64))
+        cut = CUT_SIGMA_PX if math.isfinite(edge) else 0.0
         return _Blob(comp, x0, y0, float(area), float(min(circ, 1.0)), centroid, pts, bbox,
-                     math.hypot(edge, float(np.hypot(*shade))), edge, shade)
+                     math.hypot(edge, float(np.hypot(*shade)), cut), edge, shade, cut)
 
     def _make_detection(self, target: TargetSpec, blob: _Blob,
                         camera: CameraModel | None) -> Detection | None:
@@ -661,12 +688,14 @@ class ColorDetector:
             nan2 = np.full(2, np.nan)
             return Detection(target.name, blob.centroid, blob.centroid.copy(), nan2, blob.area,
                              blob.circularity, blob.bbox, center_sigma_px=blob.center_sigma_px,
-                             edge_sigma_px=blob.edge_sigma_px, shade_px=blob.shade_px)
+                             edge_sigma_px=blob.edge_sigma_px, shade_px=blob.shade_px,
+                             cut_sigma_px=blob.cut_sigma_px)
         if not (self.config.sphere_correction and target.is_sphere) or len(blob.contour) < 5:
             norm = camera.undistort_points(blob.centroid)[0]
             return Detection(target.name, blob.centroid, blob.centroid.copy(), norm, blob.area,
                              blob.circularity, blob.bbox, center_sigma_px=blob.center_sigma_px,
-                             edge_sigma_px=blob.edge_sigma_px, shade_px=blob.shade_px)
+                             edge_sigma_px=blob.edge_sigma_px, shade_px=blob.shade_px,
+                             cut_sigma_px=blob.cut_sigma_px)
         contour_norm = camera.undistort_points(blob.contour)
         ellipse_c, minor = _polygon_center_and_minor_axis(contour_norm, camera.fx)
         if ellipse_c is None:
@@ -677,7 +706,7 @@ class ColorDetector:
         center_px = camera.project(np.array([[center_norm[0], center_norm[1], 1.0]]))[0]
         return Detection(target.name, blob.centroid, center_px, center_norm, blob.area,
                          blob.circularity, blob.bbox, alpha, ellipse_c, blob.center_sigma_px,
-                         blob.edge_sigma_px, blob.shade_px)
+                         blob.edge_sigma_px, blob.shade_px, blob.cut_sigma_px)
 
     def _rank(self, dets: list[Detection], previous: np.ndarray | None,
               limit: int) -> list[Detection]:

@@ -563,14 +563,21 @@ class StereoLocator:
     def _pixel_cov(self, dl: Detection, dr: Detection) -> tuple[float, np.ndarray | None]:
         """``(sigma_px, pixel_cov)`` of a pair: the configured pixel sigma (``pixel_cov`` None),
         else the detections' own, (4, 4) over (xl, yl, xr, yr): each image's edge term plus
-        the shading shifts ``shade_px``, fully correlated between the two images (one light)."""
+        the shading shifts ``shade_px``, fully correlated between the two images (one light),
+        plus the threshold cut ``cut_sigma_px`` per axis, also alike in both images (the same
+        background behind the target; :mod:`eye_in_hand.core.detection`)."""
         if self.config.pixel_sigma > 0:
             return self.config.pixel_sigma, None
         if not (math.isfinite(dl.edge_sigma_px) and math.isfinite(dr.edge_sigma_px)):
             return FALLBACK_PIXEL_SIGMA, None
         e = [max(MIN_PIXEL_SIGMA, d.edge_sigma_px) ** 2 for d in (dl, dr)]
         v = np.concatenate([dl.shade_px, dr.shade_px])
-        return 0.0, np.diag([e[0], e[0], e[1], e[1]]) + np.outer(v, v)
+        S = np.diag([e[0], e[0], e[1], e[1]]) + np.outer(v, v)
+        for axis in (0, 1):   # the threshold cut: per image axis, alike in both images
+            u = np.zeros(4)
+            u[axis], u[2 + axis] = dl.cut_sigma_px, dr.cut_sigma_px
+            S += np.outer(u, u)
+        return 0.0, S
 
     def _point(self, left_px: np.ndarray, right_px: np.ndarray, xl: np.ndarray,
                xr: np.ndarray, pix: tuple[float, np.ndarray | None] = (FALLBACK_PIXEL_SIGMA, None)

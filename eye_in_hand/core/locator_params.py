@@ -120,7 +120,8 @@ LOCATOR_PARAMETERS: tuple[ParamSpec, ...] = (
               "(parallax on rectified coordinates) or optimal (reprojection error in both "
               "distorted images)", choices=METHODS),
     ParamSpec("pixel_sigma", 0.0, "centre noise (pixels, 1 sigma) for the covariance; 0 = "
-              "estimated per detection from the blob's edge roughness and shading",
+              "estimated per detection from the blob's edge roughness, shading and threshold "
+              "cut",
               0.0, 20.0),
     ParamSpec("max_residual_px", 2.0, "reject a point whose RMS reprojection residual exceeds "
               "this (pixels)", 0.01, 100.0),

@@ -10,8 +10,8 @@ rectified (``rig.rectified()``, or loaded from ROS calibration files), and retur
   coordinate (``J S J^T`` for the closed forms, ``(J^T J)^-1 J^T S J (J^T J)^-1`` for the
   least-squares refinement, ``S`` the pixel covariance); ``sigma_px`` is one number for all four
   coordinates or a pair ``(left, right)``, or ``pixel_cov`` gives the whole (4, 4) ``S`` (the
-  stereo locator's: per-detection edge terms plus a shading shift common to both images,
-  which moves the point sideways, not in depth).
+  stereo locator's: per-detection edge terms plus a shading shift and a threshold-cut term
+  common to both images, which move the point sideways, not in depth).
 
 Methods:
 

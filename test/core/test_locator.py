@@ -135,3 +135,28 @@ def test_bad_files_and_images(tmp_path):
     loc = StereoLocator(RIG, load_locator_config(None))
     with pytest.raises(InputError, match="disagrees"):
         loc.locate(np.zeros((480, 640, 3), np.uint8), np.zeros((480, 640, 3), np.uint8))
+
+
+def test_pixel_covariance_cut_and_shading_terms_are_common_to_both_images():
+    """The shading and threshold-cut terms move both centres alike: they add to the variance of
+    the pair's mean (the point's sideways position), not to that of the disparity (its depth)."""
+    from eye_in_hand.core.detection import CUT_SIGMA_PX, Detection
+
+    def det(edge: float, shade: tuple[float, float]) -> Detection:
+        z = np.zeros(2)
+        return Detection("t", z, z, z, 100.0, 1.0, (0, 0, 10, 10), edge_sigma_px=edge,
+                         shade_px=np.array(shade), cut_sigma_px=CUT_SIGMA_PX)
+
+    loc = StereoLocator(RIG, load_locator_config(None))
+    _, S = loc._pixel_cov(det(0.02, (0.03, 0.0)), det(0.03, (0.03, 0.0)))
+    assert CUT_SIGMA_PX > 0
+    mean_x, mean_y = np.array([0.5, 0, 0.5, 0]), np.array([0, 0.5, 0, 0.5])
+    disp_x, disp_y = np.array([1.0, 0, -1.0, 0]), np.array([0, 1.0, 0, -1.0])
+    edge = (0.02 ** 2 + 0.03 ** 2)
+    # the disparity sees the two edge terms only
+    assert disp_x @ S @ disp_x == pytest.approx(edge)
+    assert disp_y @ S @ disp_y == pytest.approx(edge)
+    # the mean sees half the edge terms plus the whole cut (both axes) and shading (along x)
+    assert mean_y @ S @ mean_y == pytest.approx(edge / 4 + CUT_SIGMA_PX ** 2)
+    assert mean_x @ S @ mean_x == pytest.approx(edge / 4 + CUT_SIGMA_PX ** 2 + 0.03 ** 2)
+    assert np.all(np.linalg.eigvalsh(S) > 0)
