@@ -11,8 +11,10 @@ Publishes:
     ``target/point_cov`` (geometry_msgs/PoseWithCovarianceStamped, RESULT_QOS): the same point
     with its triangulation covariance (position block, m^2; orientation variances 1e6),
     published just before ``target/point``; ``hand_eye`` propagates it into ``target/pose_cov``.
-    ``targets/<id>/point`` (PointStamped, RESULT_QOS) and ``targets/<id>/point_cov``
-    (PoseWithCovarianceStamped, RESULT_QOS, published just before the point): every located
+    ``targets/<id>/point`` (PointStamped) and ``targets/<id>/point_cov``
+    (PoseWithCovarianceStamped, published just before the point), both TARGET_POINT_QOS
+    (reliable, transient local, keep last 100: a subscriber made when an id first appears
+    still gets that id's first points): every located
     target, ``<id>`` its :attr:`~eye_in_hand.core.locator.TargetLocation.id` (the target name
     for a one-blob target, ``<name>_<k>`` for blob sets of one colour). The publishers of the
     configured names exist from start-up; other ids get theirs when they first appear, at most
@@ -105,7 +107,7 @@ from eye_in_hand.ros.markers import (DEFAULT_RGBA, Sphere, color_range_rgba, mar
                                      sphere_marker_array)
 from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.params import Param, declare_params
-from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS
+from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS, TARGET_POINT_QOS
 
 __all__ = ["NODE_PARAMETERS", "DetectTriangulateNode", "main"]
 
@@ -517,8 +519,9 @@ class DetectTriangulateNode(Node):
                                  "ids have publishers already (max_targets): not published")
                 return None
             base = f"{self._targets_prefix}/{tid}"
-            pubs = (self.create_publisher(_point_type(), f"{base}/point", RESULT_QOS),
-                    self.create_publisher(_point_cov_type(), f"{base}/point_cov", RESULT_QOS))
+            pubs = (self.create_publisher(_point_type(), f"{base}/point", TARGET_POINT_QOS),
+                    self.create_publisher(_point_cov_type(), f"{base}/point_cov",
+                                          TARGET_POINT_QOS))
             self._pub_targets[tid] = pubs
             return pubs
 

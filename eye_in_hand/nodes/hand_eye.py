@@ -27,7 +27,10 @@ Every target (see docs/ros.md "Every target")
     each target's point and covariance from ``targets/<id>/point_cov``; it subscribes to
     that topic when the id first appears in a frame and, every ``discovery_period_s``, for
     every ``targets/<id>/point_cov`` publisher it finds in the ROS graph (so the targets a
-    detector announces at start-up lose no frame). Per-target topics sit next to their list
+    detector announces at start-up lose no frame). The subscription is transient local
+    (``TARGET_POINT_QOS``, as detect_triangulate publishes): made when a new id first
+    appears, it still receives the points sent before it matched, so that frame is not lost.
+    Per-target topics sit next to their list
     topic (``targets/markers``, ``target/poses``) and follow its remapping. A frame waits up
     to ``max_target_wait_s`` for its targets' points and, eye-in-hand, for the robot pose as
     above; then it publishes,

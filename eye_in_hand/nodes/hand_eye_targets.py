@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rclpy.clock import Clock, ClockType
+from rclpy.qos import DurabilityPolicy
 
 from eye_in_hand.errors import ConversionError, InputError, LocalizationError
 from eye_in_hand.ros.conversions import header_stamp_ns, point_to_xyz
@@ -24,7 +25,7 @@ from eye_in_hand.ros.markers import (Sphere, marker_classes, points_to_pose_arra
                                      pose_array_class, sphere_marker_array,
                                      spheres_from_marker_array)
 from eye_in_hand.ros.names import topic_name_problem
-from eye_in_hand.ros.qos import RESULT_QOS
+from eye_in_hand.ros.qos import RESULT_QOS, TARGET_POINT_QOS
 from eye_in_hand.ros.tf import make_tf_message
 
 __all__ = ["EveryTargetMixin"]
@@ -92,14 +93,25 @@ class EveryTargetMixin:
             return "bad_target_id"
         if len(self._target_subs) >= self.config.max_targets:
             return "too_many_targets"
+        topic = f"{self._targets_prefix}/{tid}/point_cov"
         self._target_subs[tid] = self.create_subscription(
-            PoseWithCovarianceStamped, f"{self._targets_prefix}/{tid}/point_cov",
-            lambda m, t=tid: self._on_target_point(t, m), RESULT_QOS)
+            PoseWithCovarianceStamped, topic, lambda m, t=tid: self._on_target_point(t, m),
+            self._target_point_qos(topic))
         base = f"{self._poses_prefix}/{tid}"
         self._target_pubs[tid] = (
             self.create_publisher(PoseStamped, f"{base}/pose", RESULT_QOS),
             self.create_publisher(PoseWithCovarianceStamped, f"{base}/pose_cov", RESULT_QOS))
         return None
+
+    def _target_point_qos(self, topic: str) -> Any:
+        """TARGET_POINT_QOS (transient local: the points published before this subscription
+        matched still come, so a new id's first frame is not lost), or RESULT_QOS (volatile)
+        when a publisher of ``topic`` known in the graph is volatile (a detector that does not
+        keep its points: a transient-local subscription would not match it)."""
+        infos = self.get_publishers_info_by_topic(topic)
+        if any(i.qos_profile.durability != DurabilityPolicy.TRANSIENT_LOCAL for i in infos):
+            return RESULT_QOS
+        return TARGET_POINT_QOS
 
     def _on_target_point(self, tid: str, msg: PoseWithCovarianceStamped) -> None:
         """A target's point and covariance (``targets/<id>/point_cov``), kept for its frame."""
