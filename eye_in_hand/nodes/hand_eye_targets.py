@@ -214,9 +214,14 @@ class EveryTargetMixin:
                                     f"{f.stamp_ns} ns: {exc}")
                 continue
             pubs = self._target_pubs[s.id]      # made with the subscription
-            pose_msg, cov_msg = self._pose_messages(f.stamp_ns, p, cov)
-            pubs[1].publish(cov_msg)
-            pubs[0].publish(pose_msg)
+            # volatile: unsubscribed messages reach no one, now or later (not built, not sent)
+            want = (pubs[0].get_subscription_count() > 0, pubs[1].get_subscription_count() > 0)
+            if any(want):
+                pose_msg, cov_msg = self._pose_messages(f.stamp_ns, p, cov)
+                if want[1]:
+                    pubs[1].publish(cov_msg)
+                if want[0]:
+                    pubs[0].publish(pose_msg)
             self.diag.count("target_poses_published")
             located.append((s, p))
             if cfg.target_frame_prefix:
@@ -227,12 +232,14 @@ class EveryTargetMixin:
         for key in [k for k in self._target_points if k[1] <= f.stamp_ns]:
             del self._target_points[key]
             self.diag.count("orphan_target_points")
-        self.pub_poses.publish(points_to_pose_array([p for _, p in located],
-                                                    stamp_ns=f.stamp_ns,
-                                                    frame_id=cfg.base_frame))
-        self.pub_markers.publish(sphere_marker_array(
-            [Sphere(s.id, p, s.diameter_m, s.rgba) for s, p in located], stamp_ns=f.stamp_ns,
-            frame_id=cfg.base_frame, lifetime_s=cfg.marker_lifetime_s))
+        if self.pub_poses.get_subscription_count() > 0:
+            self.pub_poses.publish(points_to_pose_array([p for _, p in located],
+                                                        stamp_ns=f.stamp_ns,
+                                                        frame_id=cfg.base_frame))
+        if self.pub_markers.get_subscription_count() > 0:
+            self.pub_markers.publish(sphere_marker_array(
+                [Sphere(s.id, p, s.diameter_m, s.rgba) for s, p in located],
+                stamp_ns=f.stamp_ns, frame_id=cfg.base_frame, lifetime_s=cfg.marker_lifetime_s))
         self.diag.count("target_frames_published")
         if tf_edges and self.pub_tf is not None:
             self.pub_tf.publish(make_tf_message(tf_edges))
