@@ -26,7 +26,7 @@ from eye_in_hand.ros.markers import (Sphere, marker_classes, points_to_pose_arra
                                      spheres_from_marker_array)
 from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.qos import RESULT_QOS, TARGET_POINT_QOS
-from eye_in_hand.ros.tf import make_tf_message
+from eye_in_hand.nodes.hand_eye_tf import translation_tf_message
 
 __all__ = ["EveryTargetMixin"]
 
@@ -225,9 +225,7 @@ class EveryTargetMixin:
             self.diag.count("target_poses_published")
             located.append((s, p))
             if cfg.target_frame_prefix:
-                T = np.eye(4)
-                T[:3, 3] = p
-                tf_edges.append((cfg.base_frame, cfg.target_frame_prefix + s.id, f.stamp_ns, T))
+                tf_edges.append((cfg.base_frame, cfg.target_frame_prefix + s.id, f.stamp_ns, p))
         # points of this stamp (or older) that no frame listed are never used
         for key in [k for k in self._target_points if k[1] <= f.stamp_ns]:
             del self._target_points[key]
@@ -242,4 +240,4 @@ class EveryTargetMixin:
                 stamp_ns=f.stamp_ns, frame_id=cfg.base_frame, lifetime_s=cfg.marker_lifetime_s))
         self.diag.count("target_frames_published")
         if tf_edges and self.pub_tf is not None:
-            self.pub_tf.publish(make_tf_message(tf_edges))
+            self.pub_tf.publish(translation_tf_message(tf_edges))
