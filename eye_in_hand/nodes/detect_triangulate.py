@@ -93,9 +93,7 @@ from eye_in_hand.core.locator import (
     locator_config_from_params,
 )
 from eye_in_hand.core.sync import ApproximateStereoSync, StereoPair
-from eye_in_hand.errors import (BagError, ConfigError, ConversionError, EyeInHandError,
-                                InputError)
-from eye_in_hand.io.bags import deserialize
+from eye_in_hand.errors import ConfigError, ConversionError, EyeInHandError, InputError
 from eye_in_hand.ros.conversions import (
     camera_info_to_model,
     header_stamp_ns,
@@ -118,7 +116,6 @@ NODE_NAME = "detect_triangulate"
 #: reset), not an out-of-order frame: pairing restarts.
 TIME_JUMP_BACK_NS = 1_000_000_000
 DEFAULT_FRAME = "camera_left_optical_frame"
-IMAGE_TYPE = "sensor_msgs/msg/Image"
 #: Encodings the detector accepts (converted to bgr8); anything else is "bad_encoding".
 COLOR_ENCODINGS = ("bgr8", "rgb8", "bgra8", "rgba8", "bayer_rggb8", "bayer_bggr8",
                    "bayer_gbrg8", "bayer_grbg8", "8UC3")
@@ -179,12 +176,12 @@ class _PairQueue:
         if depth < 1:
             raise InputError(f"queue depth must be >= 1, got {depth}")
         self._cond = threading.Condition()
-        self._pairs: deque[StereoPair[Any]] = deque()
+        self._pairs: deque[StereoPair[Image]] = deque()
         self._depth = depth
         self._stop = False
         self.dropped = 0
 
-    def put(self, pair: StereoPair[Any]) -> bool:
+    def put(self, pair: StereoPair[Image]) -> bool:
         """Queue the pair; returns True when an unprocessed older pair was dropped for it."""
         with self._cond:
             dropped = len(self._pairs) >= self._depth
@@ -195,7 +192,7 @@ class _PairQueue:
             self._cond.notify()
         return dropped
 
-    def take(self, timeout_s: float) -> StereoPair[Any] | None:
+    def take(self, timeout_s: float) -> StereoPair[Image] | None:
         """The oldest waiting pair, waiting up to ``timeout_s`` for one (None: none came)."""
         with self._cond:
             if not self._pairs and not self._stop:
@@ -262,7 +259,7 @@ class DetectTriangulateNode(Node):
         self._lock = threading.Lock()
 
         slop_ns = int(round(node_values["sync.slop_s"] * 1e9))
-        self._sync: ApproximateStereoSync[Any] = ApproximateStereoSync(
+        self._sync: ApproximateStereoSync[Image] = ApproximateStereoSync(
             slop_ns, node_values["sync.queue_size"])
         self._sync_seen = (0, 0)
         self._slot = _PairQueue(node_values["queue_depth"])
@@ -304,11 +301,8 @@ class DetectTriangulateNode(Node):
                                reliability=ReliabilityPolicy.RELIABLE
                                if node_values["images.reliable"] else SENSOR_QOS.reliability,
                                durability=SENSOR_QOS.durability)
-        # raw: the CDR bytes, decoded here into a message whose pixels are a view of them
-        # (rclpy's own conversion copies each 2.7 MB image twice: ~1.5 ms of the executor
-        # thread per 1280x720 image, beside the worker on two cores)
-        self.create_subscription(Image, "left/image_raw", self._on_left, image_qos, raw=True)
-        self.create_subscription(Image, "right/image_raw", self._on_right, image_qos, raw=True)
+        self.create_subscription(Image, "left/image_raw", self._on_left, image_qos)
+        self.create_subscription(Image, "right/image_raw", self._on_right, image_qos)
         if not self._from_files:
             self.create_subscription(CameraInfo, "left/camera_info",
                                      lambda m: self._on_info("left", m), SENSOR_QOS)
@@ -323,21 +317,18 @@ class DetectTriangulateNode(Node):
             f"{node_values['calibration_dir'] or 'camera_info topics'}")
 
     # -- executor-thread callbacks (cheap) -------------------------------------------------
-    def _on_left(self, raw: bytes) -> None:
-        self._on_image(0, raw)
+    def _on_left(self, msg: Image) -> None:
+        self._on_image(0, msg)
 
-    def _on_right(self, raw: bytes) -> None:
-        self._on_image(1, raw)
+    def _on_right(self, msg: Image) -> None:
+        self._on_image(1, msg)
 
-    def _on_image(self, side: int, raw: bytes) -> None:
-        """One image, as serialized bytes (a raw subscription): decoded into a rosbags
-        ``sensor_msgs/Image`` (same fields as rclpy's; ``data`` a numpy view of ``raw``)."""
+    def _on_image(self, side: int, msg: Image) -> None:
         topic = ("left", "right")[side] + "/image_raw"
         self.diag.count(f"{('left', 'right')[side]}_frames")
         try:
-            msg = deserialize(raw, IMAGE_TYPE)
             stamp = header_stamp_ns(msg)
-        except (ConversionError, BagError) as exc:
+        except ConversionError as exc:
             self.diag.count(f"sync_unpaired_{('left', 'right')[side]}")
             self.diag.report("bad_image", f"{topic}: {exc}")
             return
@@ -457,7 +448,7 @@ class DetectTriangulateNode(Node):
                              "calibrated stereo pair: pairs are skipped")
         return self._locator
 
-    def _image(self, msg: Any, topic: str, size: tuple[int, int]) -> np.ndarray | None:
+    def _image(self, msg: Image, topic: str, size: tuple[int, int]) -> np.ndarray | None:
         if msg.encoding not in COLOR_ENCODINGS:
             self.diag.report("bad_encoding", f"{topic}: encoding '{msg.encoding}' is not a "
                              f"colour image (accepted: {', '.join(COLOR_ENCODINGS)})")
@@ -474,7 +465,7 @@ class DetectTriangulateNode(Node):
             return None
         return np.ascontiguousarray(img)
 
-    def _process(self, pair: StereoPair[Any]) -> str:
+    def _process(self, pair: StereoPair[Image]) -> str:
         """Locate and publish one pair; the ledger counter of its outcome
         (``points_published``, ``no_target`` or ``failed_pairs``)."""
         self.diag.count("pairs")
@@ -579,7 +570,7 @@ class DetectTriangulateNode(Node):
         return style
 
     def _maybe_debug(self, left: np.ndarray, right: np.ndarray, result: LocateResult,
-                     pair: StereoPair[Any]) -> None:
+                     pair: StereoPair[Image]) -> None:
         now = time.monotonic()
         if now - self._last_debug < self._debug_period or \
                 self._pub_debug.get_subscription_count() == 0:

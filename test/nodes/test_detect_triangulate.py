@@ -305,24 +305,3 @@ def test_node_process_uses_one_blas_thread():
     assert threads == run(OPENBLAS_NUM_THREADS="1")[1]   # no BLAS pool threads
     assert value == "1"
     assert run(OPENBLAS_NUM_THREADS="2")[0] == "2"       # the user's choice is kept
-
-
-def test_undecodable_image_bytes_are_counted_and_the_node_keeps_running(
-        executor, ros_context, namespace, spin_until):
-    """The images are taken as serialized bytes and decoded by the node: bytes that are no
-    Image (truncated) are a bad image of that side, counted; the next good pair is located."""
-    from rclpy.serialization import serialize_message
-
-    node, feeder = start(executor, ros_context, namespace, **{"sync.slop_s": 0.0})
-    assert pump(executor, spin_until, feeder, lambda: len(feeder.points) >= 1)
-    raw = serialize_message(numpy_to_image(LEFT, "bgr8", stamp_ns=STAMP0 - 10**9))
-    feeder.pubs["left/image_raw"].publish(raw[:40])          # header, then nothing
-    assert spin_until(executor, lambda: "bad_image" in node.diag.causes, 10.0)
-    assert "left/image_raw" in node.diag._problems.messages["bad_image"][1]
-    n = len(feeder.points)
-    assert pump(executor, spin_until, feeder, lambda: len(feeder.points) >= n + 1)
-    snap = node.diag.snapshot()
-    c = snap.counters
-    assert c["sync_unpaired_left"] >= 1
-    assert c["left_frames"] == c["sync_pairs"] + c["sync_unpaired_left"] + \
-        snap.gauges.get("sync_pending_left", 0)
