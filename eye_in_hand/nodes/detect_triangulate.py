@@ -61,9 +61,9 @@ import os
 
 # One BLAS thread in this process unless the user chose a count. OpenBLAS splits a dot product
 # of more than 10 000 elements (a blob's brightness-weighted centre) over a thread pool whose
-# idle threads spin; on two cores shared with the player and hand_eye that made a stereo pair
-# cost 37 ms of CPU instead of 10 ms and the live latency 240 ms instead of 20 ms
-# (docs/localization.md "Live latency"). OpenBLAS reads the variable when numpy loads it, so
+# idle threads spin; on two cores also busy with other jobs that made a stereo pair cost 37 ms
+# of CPU instead of 10 ms and the live latency 240 ms instead of 20 ms (docs/localization.md
+# "Live latency"). OpenBLAS reads the variable when numpy loads it, so
 # this stands before the first numpy import of the node's process.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
