@@ -33,6 +33,11 @@ Usage: .venv/bin/python benchmarks/bench_localization.py [--pairs N (600: a 20 s
 the CPU-seconds per second of bag of each and of zstd decompression alone: what two cores
 allow at most.)
        .venv/bin/python benchmarks/bench_localization.py --consistency-only [--nees-pairs N]
+       .venv/bin/python benchmarks/bench_localization.py --live-only [--live-runs N]
+(--live-only: only the live part over DDS, N runs one after the other (default 1), each with
+its latency, frames and base-frame error: about 40 s a run. The nodes come from the
+``eye_in_hand`` package Python imports, so ``PYTHONPATH=<other checkout>`` measures that
+checkout's nodes with this script and data.)
 Data is cached in build/bench-data/ (regenerate with --fresh).
 """
 from __future__ import annotations
@@ -105,10 +110,14 @@ def params_file(paths: dict[str, Path]) -> Path:
     """config/eye_in_hand.yaml with this run's calibration files: used live and offline."""
     params = paths["calib"].parent / "params.yaml"
     base = (ROOT / "config" / "eye_in_hand.yaml").read_text()
-    params.write_text(base.replace('calibration_dir: ""          # empty = use the camera_info '
+    # written aside and renamed: the cache's files may be hard links shared with other
+    # checkouts, and a write in place would change theirs
+    tmp = params.with_name(f"params.{os.getpid()}.yaml")
+    tmp.write_text(base.replace('calibration_dir: ""          # empty = use the camera_info '
                                    'topics', f'calibration_dir: "{paths["calib"]}"')
                       .replace("hand_eye_file: hand_eye.yaml",
                                f"hand_eye_file: {paths['he'] / 'hand_eye.yaml'}"))
+    tmp.replace(params)
     return params
 
 
@@ -363,6 +372,26 @@ def replay(bag: str, lead_s: float) -> None:
     rclpy.shutdown()
 
 
+def node_cpu_s(launcher_pid: int) -> dict[str, float]:
+    """CPU seconds (user + system) so far of each node process the launcher started, by node
+    name (Linux /proc; empty elsewhere)."""
+    out: dict[str, float] = {}
+    tick = os.sysconf("SC_CLK_TCK")
+    try:
+        kids = Path(f"/proc/{launcher_pid}/task/{launcher_pid}/children").read_text().split()
+    except OSError:
+        return out
+    for pid in kids:
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+            stat = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        module = next((c.decode() for c in cmd if c.startswith(b"eye_in_hand.nodes.")), pid)
+        out[str(module).rsplit(".", 1)[-1]] = (int(stat[11]) + int(stat[12])) / tick
+    return out
+
+
 def live(paths: dict[str, Path]) -> tuple[dict[int, np.ndarray], dict[str, float]]:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
@@ -375,7 +404,9 @@ def live(paths: dict[str, Path]) -> tuple[dict[int, np.ndarray], dict[str, float
     from eye_in_hand.ros.qos import RESULT_QOS
 
     env = dict(os.environ)
-    env["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(120, 200))
+    # the caller's domain when set (a shared machine), else a random one
+    env["ROS_DOMAIN_ID"] = env.get("ROS_DOMAIN_ID") or str(
+        random.SystemRandom().randint(120, 200))
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     use_large_data_profile(env)
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
@@ -410,8 +441,10 @@ def live(paths: dict[str, Path]) -> tuple[dict[int, np.ndarray], dict[str, float
     rep = subprocess.Popen([sys.executable, __file__, "--replay", str(paths["loc"])], env=env,
                            text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     offset = int(rep.stdout.readline().strip() or 0)   # type: ignore[union-attr]
+    cpu0 = node_cpu_s(launch.pid)                    # the nodes are up: start-up excluded
     rep.wait(timeout=600)
     time.sleep(3.0)                                  # last results + one diagnostics period
+    cpu1 = node_cpu_s(launch.pid)
     stop.set()
     th.join()
     import signal as _signal
@@ -428,6 +461,9 @@ def live(paths: dict[str, Path]) -> tuple[dict[int, np.ndarray], dict[str, float
                "dropped_pairs": float(det.get("dropped_pairs", "nan")),
                "sync_dropped": float(det.get("sync_dropped", "nan")),
                "queue_max": float(det.get("queue_max", "nan"))}
+    pairs = float(det.get("pairs", "nan"))
+    for name, cpu in cpu1.items():   # CPU per processed pair, replay and idle tail included
+        figures[f"cpu_ms_per_pair.{name}"] = (cpu - cpu0.get(name, 0.0)) * 1e3 / pairs
     return {stamp - offset: p for stamp, _now, p in received}, figures
 
 
@@ -512,6 +548,21 @@ def consistency(pairs: int, fresh: bool) -> dict[str, dict[str, float]]:
     return out
 
 
+def print_live(fig: dict[str, float], live_pts: dict[int, np.ndarray],
+               truth: dict[int, np.ndarray]) -> None:
+    """The live run's accuracy, latency and frame figures."""
+    print(f"live accuracy: {errors_mm(live_pts, truth)}")
+    print(f"live latency image stamp -> target/pose: p50 {fig['p50_ms']:.1f} ms, p95 "
+          f"{fig['p95_ms']:.1f} ms, max {fig['max_ms']:.1f} ms  (target p95 <= 25 ms)")
+    print(f"live frames: {fig['received']}/{len(truth)} poses received; detect_triangulate "
+          f"dropped {fig['dropped_pairs']:.0f} pairs to backlog (at most "
+          f"{fig['queue_max']:.0f} pairs waited), {fig['sync_dropped']:.0f} frames unpaired  "
+          "(target: 0 lost to backlog)")
+    cpu = {k.split(".", 1)[1]: v for k, v in fig.items() if k.startswith("cpu_ms_per_pair.")}
+    print("live CPU per processed pair: " + ", ".join(f"{k} {v:.1f} ms" for k, v in
+                                                      sorted(cpu.items())), flush=True)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -527,6 +578,10 @@ def main() -> int:
     parser.add_argument("--compare-paths", action="store_true",
                         help="also the zstd bag through worker processes against the thread "
                              "path used before, alternating (two rounds)")
+    parser.add_argument("--live-only", action="store_true",
+                        help="only the live part over DDS (latency, frames, error)")
+    parser.add_argument("--live-runs", type=int, default=1,
+                        help="live runs of --live-only, one after the other (default 1)")
     parser.add_argument("--trials", type=int, default=3,
                         help="process_bag runs per bag, the best one counts (default 3)")
     args = parser.parse_args()
@@ -538,6 +593,14 @@ def main() -> int:
         return 0
     paths = make_data(args.pairs, args.fresh)
     truth, X_true = truth_of(paths["loc"])
+    if args.live_only:
+        import eye_in_hand
+
+        print(f"nodes from {Path(eye_in_hand.__file__).parent}")
+        for _ in range(args.live_runs):
+            live_pts, fig = live(paths)
+            print_live(fig, live_pts, truth)
+        return 0
     from eye_in_hand.core.camera import StereoRig
     from eye_in_hand.core.transforms import transform_distance
     from eye_in_hand.io.config import load_hand_eye
@@ -568,14 +631,9 @@ def main() -> int:
     live_pts, fig = live(paths)
     common = sorted(set(live_pts) & set(off_pts))
     diff = max((float(np.max(np.abs(live_pts[s] - off_pts[s]))) for s in common), default=float("nan"))
-    print(f"live accuracy: {errors_mm(live_pts, truth)}")
     print(f"live vs offline: {len(common)} frames in both, largest difference {diff:.2e} m  "
           "(target <= 1e-6 m)")
-    print(f"live latency image stamp -> target/pose: p50 {fig['p50_ms']:.1f} ms, p95 "
-          f"{fig['p95_ms']:.1f} ms, max {fig['max_ms']:.1f} ms  (target p95 <= 25 ms)")
-    print(f"live frames: {fig['received']}/{n} poses received; detect_triangulate dropped "
-          f"{fig['dropped_pairs']:.0f} pairs to backlog (at most {fig['queue_max']:.0f} pairs "
-          f"waited), {fig['sync_dropped']:.0f} frames unpaired  (target: 0 lost to backlog)")
+    print_live(fig, live_pts, truth)
     nees = consistency(args.nees_pairs, args.fresh)
     (DATA / "bench_localization.json").write_text(json.dumps(
         {"speeds": speeds, "live": fig, "live_vs_offline_m": diff, "consistency": nees,

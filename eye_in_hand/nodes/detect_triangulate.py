@@ -11,8 +11,10 @@ Publishes:
     ``target/point_cov`` (geometry_msgs/PoseWithCovarianceStamped, RESULT_QOS): the same point
     with its triangulation covariance (position block, m^2; orientation variances 1e6),
     published just before ``target/point``; ``hand_eye`` propagates it into ``target/pose_cov``.
-    ``targets/<id>/point`` (PointStamped, RESULT_QOS) and ``targets/<id>/point_cov``
-    (PoseWithCovarianceStamped, RESULT_QOS, published just before the point): every located
+    ``targets/<id>/point`` (PointStamped) and ``targets/<id>/point_cov``
+    (PoseWithCovarianceStamped, published just before the point), both TARGET_POINT_QOS
+    (reliable, transient local, keep last 100: a subscriber made when an id first appears
+    still gets that id's first points): every located
     target, ``<id>`` its :attr:`~eye_in_hand.core.locator.TargetLocation.id` (the target name
     for a one-blob target, ``<name>_<k>`` for blob sets of one colour). The publishers of the
     configured names exist from start-up; other ids get theirs when they first appear, at most
@@ -55,6 +57,16 @@ unsynchronised frames, missing camera_info) is logged once per cause, counted on
 """
 from __future__ import annotations
 
+import os
+
+# One BLAS thread in this process unless the user chose a count. OpenBLAS splits a dot product
+# of more than 10 000 elements (a blob's brightness-weighted centre) over a thread pool whose
+# idle threads spin; on two cores also busy with other jobs that made a stereo pair cost 37 ms
+# of CPU instead of 10 ms and the live latency 240 ms instead of 20 ms (docs/localization.md
+# "Live latency"). OpenBLAS reads the variable when numpy loads it, so
+# this stands before the first numpy import of the node's process.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import math
 import threading
 from collections import deque
@@ -95,7 +107,7 @@ from eye_in_hand.ros.markers import (DEFAULT_RGBA, Sphere, color_range_rgba, mar
                                      sphere_marker_array)
 from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.params import Param, declare_params
-from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS
+from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS, TARGET_POINT_QOS
 
 __all__ = ["NODE_PARAMETERS", "DetectTriangulateNode", "main"]
 
@@ -265,6 +277,7 @@ class DetectTriangulateNode(Node):
         self._marker_lifetime_s = float(node_values["markers.lifetime_s"])
         self._marker_diameter_m = float(node_values["markers.diameter_m"])
         self._specs = {t.name: t for t in self.config.detector.targets}
+        self._styles: dict[str, tuple[float, tuple[float, float, float, float]]] = {}
         self._pub_markers = self.create_publisher(marker_classes()[1], "targets/markers",
                                                   RESULT_QOS)
         # targets/<id>/... live next to targets/markers, wherever a remapping put it (launch
@@ -468,19 +481,22 @@ class DetectTriangulateNode(Node):
         stamp = pair.stamp_ns
         frame = self._frame_id or pair.left.header.frame_id or DEFAULT_FRAME
         first = result.first
+        first_msgs = None
         if first is not None:
             # The covariance first: hand_eye pairs the two by stamp and waits for the point.
-            self._pub_point_cov.publish(point_cov_message(first.point_m, first.covariance,
-                                                          stamp_ns=stamp, frame_id=frame))
-            self._pub_point.publish(xyz_to_point_stamped(first.point_m, stamp_ns=stamp,
-                                                         frame_id=frame))
+            # The same two messages go to targets/<first id>/... below (built once).
+            first_msgs = (point_cov_message(first.point_m, first.covariance, stamp_ns=stamp,
+                                            frame_id=frame),
+                          xyz_to_point_stamped(first.point_m, stamp_ns=stamp, frame_id=frame))
+            self._pub_point_cov.publish(first_msgs[0])
+            self._pub_point.publish(first_msgs[1])
             self.diag.count("detections")
             self.diag.gauge("residual_px", float(first.residual_px))
             self.diag.gauge("sigma_z_mm", float(math.sqrt(first.covariance[2, 2]) * 1e3))
             self.diag.gauge("range_m", float(np.linalg.norm(first.point_m)))
         else:
             self.diag.gauge("last_miss", result.rejected.get(result.first_name, ""))
-        self._publish_targets(result, stamp, frame)
+        self._publish_targets(result, stamp, frame, first_msgs)
         n_pairs = self.diag.counter("pairs")
         self.diag.gauge("detection_rate", self.diag.counter("detections") / max(1, n_pairs))
         try:
@@ -507,13 +523,17 @@ class DetectTriangulateNode(Node):
                                  "ids have publishers already (max_targets): not published")
                 return None
             base = f"{self._targets_prefix}/{tid}"
-            pubs = (self.create_publisher(_point_type(), f"{base}/point", RESULT_QOS),
-                    self.create_publisher(_point_cov_type(), f"{base}/point_cov", RESULT_QOS))
+            pubs = (self.create_publisher(_point_type(), f"{base}/point", TARGET_POINT_QOS),
+                    self.create_publisher(_point_cov_type(), f"{base}/point_cov",
+                                          TARGET_POINT_QOS))
             self._pub_targets[tid] = pubs
             return pubs
 
-    def _publish_targets(self, result: LocateResult, stamp: int, frame: str) -> None:
-        """Every located target on its own topics, then the frame's ``targets/markers``."""
+    def _publish_targets(self, result: LocateResult, stamp: int, frame: str,
+                         first_msgs: tuple[Any, Any] | None = None) -> None:
+        """Every located target on its own topics, then the frame's ``targets/markers``.
+        ``first_msgs``: the ``(point_cov, point)`` messages already built for
+        ``result.first`` (``target/point_cov``, ``target/point``), sent again as they are."""
         spheres = []
         for t in result.targets:
             self.diag.count("targets_located")
@@ -521,19 +541,33 @@ class DetectTriangulateNode(Node):
             if pubs is None:
                 self.diag.count("targets_refused")
                 continue
-            pubs[1].publish(point_cov_message(t.point_m, t.covariance, stamp_ns=stamp,
-                                              frame_id=frame))
-            pubs[0].publish(xyz_to_point_stamped(t.point_m, stamp_ns=stamp, frame_id=frame))
+            if first_msgs is not None and t is result.first:
+                cov_msg, point_msg = first_msgs
+            else:
+                cov_msg = point_cov_message(t.point_m, t.covariance, stamp_ns=stamp,
+                                            frame_id=frame)
+                point_msg = xyz_to_point_stamped(t.point_m, stamp_ns=stamp, frame_id=frame)
+            pubs[1].publish(cov_msg)
+            pubs[0].publish(point_msg)
             self.diag.count("target_points_published")
-            spec = self._specs.get(t.name)
-            diameter = (2.0 * spec.radius_m if spec is not None and spec.radius_m
-                        else self._marker_diameter_m)
-            rgba = (color_range_rgba(spec.color.lower, spec.color.upper, wraps=spec.color.wraps)
-                    if spec is not None else DEFAULT_RGBA)
+            diameter, rgba = self._sphere_style(t.name)
             spheres.append(Sphere(t.id, t.point_m, diameter, rgba))
         self._pub_markers.publish(sphere_marker_array(
             spheres, stamp_ns=stamp, frame_id=frame, lifetime_s=self._marker_lifetime_s))
         self.diag.count("marker_frames")
+
+    def _sphere_style(self, name: str) -> tuple[float, tuple[float, float, float, float]]:
+        """Diameter (m) and RGBA of a target's sphere on ``targets/markers`` (per name, cached:
+        they depend on the configuration only)."""
+        style = self._styles.get(name)
+        if style is None:
+            spec = self._specs.get(name)
+            diameter = (2.0 * spec.radius_m if spec is not None and spec.radius_m
+                        else self._marker_diameter_m)
+            rgba = (color_range_rgba(spec.color.lower, spec.color.upper, wraps=spec.color.wraps)
+                    if spec is not None else DEFAULT_RGBA)
+            style = self._styles[name] = (diameter, rgba)
+        return style
 
     def _maybe_debug(self, left: np.ndarray, right: np.ndarray, result: LocateResult,
                      pair: StereoPair[Image]) -> None:
@@ -595,7 +629,7 @@ def point_cov_message(point_m: np.ndarray, covariance: np.ndarray, *, stamp_ns: 
     full = np.zeros((6, 6))
     full[:3, :3] = covariance
     full[3:, 3:] = np.eye(3) * 1e6
-    msg.pose.covariance = [float(v) for v in full.ravel()]
+    msg.pose.covariance = full.ravel()     # float64 (36,): taken as it is, no per-value check
     return msg
 
 

@@ -27,7 +27,10 @@ Every target (see docs/ros.md "Every target")
     each target's point and covariance from ``targets/<id>/point_cov``; it subscribes to
     that topic when the id first appears in a frame and, every ``discovery_period_s``, for
     every ``targets/<id>/point_cov`` publisher it finds in the ROS graph (so the targets a
-    detector announces at start-up lose no frame). Per-target topics sit next to their list
+    detector announces at start-up lose no frame). The subscription is transient local
+    (``TARGET_POINT_QOS``, as detect_triangulate publishes): made when a new id first
+    appears, it still receives the points sent before it matched, so that frame is not lost.
+    Per-target topics sit next to their list
     topic (``targets/markers``, ``target/poses``) and follow its remapping. A frame waits up
     to ``max_target_wait_s`` for its targets' points and, eye-in-hand, for the robot pose as
     above; then it publishes,
@@ -87,7 +90,7 @@ from eye_in_hand.io.kinematics import load_kinematics
 from eye_in_hand.nodes.hand_eye_calibration import CalibrationMixin
 from eye_in_hand.nodes.hand_eye_targets import EveryTargetMixin
 from eye_in_hand.nodes.hand_eye_tf import TfMixin
-from eye_in_hand.ros.conversions import (header_stamp_ns, matrix_to_pose,
+from eye_in_hand.ros.conversions import (header_stamp_ns,
                                          matrix_to_transform_stamped, ns_to_stamp, point_to_xyz,
                                          pose_to_matrix)
 from eye_in_hand.ros.diagnostics import NodeDiagnostics
@@ -490,25 +493,34 @@ class HandEyeNode(EveryTargetMixin, TfMixin, CalibrationMixin, Node):
                        ) -> tuple[PoseStamped, PoseWithCovarianceStamped]:
         """PoseStamped and PoseWithCovarianceStamped of a base-frame point (3,) and its
         covariance (3, 3); orientation identity, orientation variances unknown."""
-        T = np.eye(4)
-        T[:3, 3] = p
+        if not np.all(np.isfinite(p)):
+            raise ConversionError(f"base-frame point is not finite: {p}")
         msg = PoseStamped()
         msg.header.stamp = ns_to_stamp(stamp_ns)
         msg.header.frame_id = self.config.base_frame
-        msg.pose = matrix_to_pose(T)
+        pos = msg.pose.position
+        pos.x, pos.y, pos.z = float(p[0]), float(p[1]), float(p[2])
+        msg.pose.orientation.w = 1.0            # identity: the target is a point
         cmsg = PoseWithCovarianceStamped()
         cmsg.header = msg.header
         cmsg.pose.pose = msg.pose
         full = np.zeros((6, 6))
         full[:3, :3] = cov
         full[3:, 3:] = np.eye(3) * UNKNOWN_ROTATION_VARIANCE
-        cmsg.pose.covariance = [float(v) for v in full.ravel()]
+        cmsg.pose.covariance = full.ravel()   # float64 (36,): taken as it is
         return msg, cmsg
 
     def _publish(self, stamp_ns: int, p: np.ndarray, cov: np.ndarray) -> None:
-        msg, cmsg = self._pose_messages(stamp_ns, p, cov)
-        self.pub_pose.publish(msg)
-        self.pub_pose_cov.publish(cmsg)
+        # volatile topics: a message nobody subscribes to reaches no one, now or later, so it
+        # is neither built nor sent (counted all the same); /tf always goes out
+        want = (self.pub_pose.get_subscription_count() > 0,
+                self.pub_pose_cov.get_subscription_count() > 0)
+        if any(want):
+            msg, cmsg = self._pose_messages(stamp_ns, p, cov)
+            if want[0]:
+                self.pub_pose.publish(msg)
+            if want[1]:
+                self.pub_pose_cov.publish(cmsg)
         self._publish_target_tf(stamp_ns, p)
         self.diag.count("poses_published")
         self.diag.gauge("latency_ms", round((self.get_clock().now().nanoseconds - stamp_ns) / 1e6,

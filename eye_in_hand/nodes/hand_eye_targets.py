@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rclpy.clock import Clock, ClockType
+from rclpy.qos import DurabilityPolicy
 
 from eye_in_hand.errors import ConversionError, InputError, LocalizationError
 from eye_in_hand.ros.conversions import header_stamp_ns, point_to_xyz
@@ -24,8 +25,8 @@ from eye_in_hand.ros.markers import (Sphere, marker_classes, points_to_pose_arra
                                      pose_array_class, sphere_marker_array,
                                      spheres_from_marker_array)
 from eye_in_hand.ros.names import topic_name_problem
-from eye_in_hand.ros.qos import RESULT_QOS
-from eye_in_hand.ros.tf import make_tf_message
+from eye_in_hand.ros.qos import RESULT_QOS, TARGET_POINT_QOS
+from eye_in_hand.nodes.hand_eye_tf import translation_tf_message
 
 __all__ = ["EveryTargetMixin"]
 
@@ -92,14 +93,25 @@ class EveryTargetMixin:
             return "bad_target_id"
         if len(self._target_subs) >= self.config.max_targets:
             return "too_many_targets"
+        topic = f"{self._targets_prefix}/{tid}/point_cov"
         self._target_subs[tid] = self.create_subscription(
-            PoseWithCovarianceStamped, f"{self._targets_prefix}/{tid}/point_cov",
-            lambda m, t=tid: self._on_target_point(t, m), RESULT_QOS)
+            PoseWithCovarianceStamped, topic, lambda m, t=tid: self._on_target_point(t, m),
+            self._target_point_qos(topic))
         base = f"{self._poses_prefix}/{tid}"
         self._target_pubs[tid] = (
             self.create_publisher(PoseStamped, f"{base}/pose", RESULT_QOS),
             self.create_publisher(PoseWithCovarianceStamped, f"{base}/pose_cov", RESULT_QOS))
         return None
+
+    def _target_point_qos(self, topic: str) -> Any:
+        """TARGET_POINT_QOS (transient local: the points published before this subscription
+        matched still come, so a new id's first frame is not lost), or RESULT_QOS (volatile)
+        when a publisher of ``topic`` known in the graph is volatile (a detector that does not
+        keep its points: a transient-local subscription would not match it)."""
+        infos = self.get_publishers_info_by_topic(topic)
+        if any(i.qos_profile.durability != DurabilityPolicy.TRANSIENT_LOCAL for i in infos):
+            return RESULT_QOS
+        return TARGET_POINT_QOS
 
     def _on_target_point(self, tid: str, msg: PoseWithCovarianceStamped) -> None:
         """A target's point and covariance (``targets/<id>/point_cov``), kept for its frame."""
@@ -202,25 +214,30 @@ class EveryTargetMixin:
                                     f"{f.stamp_ns} ns: {exc}")
                 continue
             pubs = self._target_pubs[s.id]      # made with the subscription
-            pose_msg, cov_msg = self._pose_messages(f.stamp_ns, p, cov)
-            pubs[1].publish(cov_msg)
-            pubs[0].publish(pose_msg)
+            # volatile: unsubscribed messages reach no one, now or later (not built, not sent)
+            want = (pubs[0].get_subscription_count() > 0, pubs[1].get_subscription_count() > 0)
+            if any(want):
+                pose_msg, cov_msg = self._pose_messages(f.stamp_ns, p, cov)
+                if want[1]:
+                    pubs[1].publish(cov_msg)
+                if want[0]:
+                    pubs[0].publish(pose_msg)
             self.diag.count("target_poses_published")
             located.append((s, p))
             if cfg.target_frame_prefix:
-                T = np.eye(4)
-                T[:3, 3] = p
-                tf_edges.append((cfg.base_frame, cfg.target_frame_prefix + s.id, f.stamp_ns, T))
+                tf_edges.append((cfg.base_frame, cfg.target_frame_prefix + s.id, f.stamp_ns, p))
         # points of this stamp (or older) that no frame listed are never used
         for key in [k for k in self._target_points if k[1] <= f.stamp_ns]:
             del self._target_points[key]
             self.diag.count("orphan_target_points")
-        self.pub_poses.publish(points_to_pose_array([p for _, p in located],
-                                                    stamp_ns=f.stamp_ns,
-                                                    frame_id=cfg.base_frame))
-        self.pub_markers.publish(sphere_marker_array(
-            [Sphere(s.id, p, s.diameter_m, s.rgba) for s, p in located], stamp_ns=f.stamp_ns,
-            frame_id=cfg.base_frame, lifetime_s=cfg.marker_lifetime_s))
+        if self.pub_poses.get_subscription_count() > 0:
+            self.pub_poses.publish(points_to_pose_array([p for _, p in located],
+                                                        stamp_ns=f.stamp_ns,
+                                                        frame_id=cfg.base_frame))
+        if self.pub_markers.get_subscription_count() > 0:
+            self.pub_markers.publish(sphere_marker_array(
+                [Sphere(s.id, p, s.diameter_m, s.rgba) for s, p in located],
+                stamp_ns=f.stamp_ns, frame_id=cfg.base_frame, lifetime_s=cfg.marker_lifetime_s))
         self.diag.count("target_frames_published")
         if tf_edges and self.pub_tf is not None:
-            self.pub_tf.publish(make_tf_message(tf_edges))
+            self.pub_tf.publish(translation_tf_message(tf_edges))

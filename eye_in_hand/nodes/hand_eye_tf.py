@@ -9,6 +9,7 @@ localizer's pose buffer; with ``publish_tf`` (and tf2_msgs installed) it publish
 """
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -16,12 +17,13 @@ import numpy as np
 
 from eye_in_hand.core.camera import StereoRig
 from eye_in_hand.core.tf import TfBuffer, TfPoseView
-from eye_in_hand.errors import ConfigError, EyeInHandError
+from eye_in_hand.errors import ConfigError, ConversionError, EyeInHandError
+from eye_in_hand.ros.conversions import ns_to_stamp
 from eye_in_hand.ros import tf as ros_tf  # have_tf2_msgs, tf_message_class looked up per call
 from eye_in_hand.ros.tf import (TF_STATIC_TOPIC, TF_TOPIC, feed_tf_message, make_tf_message,
                                 tf_qos, tf_static_pub_qos, tf_static_sub_qos)
 
-__all__ = ["TfMixin"]
+__all__ = ["TfMixin", "translation_tf_message"]
 
 
 class TfMixin:
@@ -112,7 +114,33 @@ class TfMixin:
         """``base_frame -> target_frame`` on /tf at the image stamp (translation only)."""
         if self.pub_tf is None:
             return
-        T = np.eye(4)
-        T[:3, 3] = p
-        self.pub_tf.publish(make_tf_message(
-            [(self.config.base_frame, self.config.target_frame, stamp_ns, T)]))
+        self.pub_tf.publish(translation_tf_message(
+            [(self.config.base_frame, self.config.target_frame, stamp_ns, p)]))
+
+
+def translation_tf_message(edges: Iterable[tuple[str, str, int, np.ndarray]]) -> Any:
+    """A ``tf2_msgs/TFMessage`` of translation-only transforms ``(parent, child, stamp_ns,
+    translation (3,))``: rotation identity (0, 0, 0, 1). The same message as
+    :func:`eye_in_hand.ros.tf.make_tf_message` of the 4x4 transforms, built without a rotation
+    conversion (per target and frame on the live path).
+
+    Raises:
+        ConversionError: a translation is not 3 finite numbers.
+    """
+    from geometry_msgs.msg import TransformStamped
+
+    out = []
+    for parent, child, stamp, t in edges:
+        t = np.asarray(t, dtype=np.float64)
+        if t.shape != (3,) or not np.all(np.isfinite(t)):
+            raise ConversionError(f"translation of {parent} -> {child}: expected 3 finite "
+                                  f"numbers, got {t}")
+        msg = TransformStamped()
+        msg.header.stamp = ns_to_stamp(int(stamp))
+        msg.header.frame_id = parent
+        msg.child_frame_id = child
+        tr = msg.transform.translation
+        tr.x, tr.y, tr.z = float(t[0]), float(t[1]), float(t[2])
+        msg.transform.rotation.w = 1.0
+        out.append(msg)
+    return ros_tf.tf_message_class()(transforms=out)

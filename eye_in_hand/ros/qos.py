@@ -8,6 +8,9 @@ profile          reliability  durability        depth use
 ``RESULT_QOS``   reliable     volatile          100   target points/poses, diagnostics
 ``LATCHED_QOS``  reliable     transient local   1     calibration results (a late
                                                       subscriber still gets the last one)
+``TARGET_POINT_  reliable     transient local   100   ``targets/<id>/point(_cov)``: a
+QOS``                                                 subscription made when an id first
+                                                      appears still gets its first points
 =============== ============ ================= ===== ==================================
 
 A best-effort subscriber matches both reliable and best-effort publishers, so subscribing to
@@ -27,7 +30,7 @@ from rclpy.qos import (
     qos_profile_sensor_data,
 )
 
-__all__ = ["SENSOR_QOS", "RESULT_QOS", "LATCHED_QOS"]
+__all__ = ["SENSOR_QOS", "RESULT_QOS", "LATCHED_QOS", "TARGET_POINT_QOS"]
 
 #: Sensor streams (``qos_profile_sensor_data``): best effort, volatile, keep last 5.
 SENSOR_QOS: QoSProfile = QoSProfile(
@@ -52,6 +55,20 @@ RESULT_QOS: QoSProfile = QoSProfile(
 LATCHED_QOS: QoSProfile = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
     depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+
+#: Per-target points (``targets/<id>/point``, ``targets/<id>/point_cov``): RESULT_QOS kept for
+#: late subscribers (transient local, keep last 100). A publisher appears when its id is first
+#: located and publishes that frame's point at once; hand_eye subscribes when the frame's
+#: ``targets/markers`` names the id, after the point went out. Transient local delivers the
+#: points it missed (up to 100: 3 s at 30 Hz, however long matching takes on a busy machine)
+#: as soon as the subscription matches. A volatile subscriber matches it too (and gets only new
+#: points); a transient-local subscriber does not match a volatile publisher.
+TARGET_POINT_QOS: QoSProfile = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=100,
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )

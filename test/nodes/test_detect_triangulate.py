@@ -280,3 +280,28 @@ def test_point_cov_and_a_time_jump_back_resets_pairing(executor, ros_context, na
     assert pump(executor, spin_until, feeder, lambda: len(feeder.points) >= n + 2)
     assert node.diag.counter("time_jumps") >= 1
     assert "stale_stamp" not in node.diag.causes
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs Linux /proc")
+def test_node_process_uses_one_blas_thread():
+    """The node's process loads OpenBLAS with one thread (its idle pool threads spin and cost
+    the live pipeline most of a core), unless the user set OPENBLAS_NUM_THREADS."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import os, eye_in_hand.nodes.detect_triangulate, numpy, scipy.linalg; "
+            "print(os.environ.get('OPENBLAS_NUM_THREADS', 'unset'), "
+            "len(os.listdir('/proc/self/task')))")
+
+    def run(**extra):
+        env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+        env.update(extra)
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                             text=True, check=True).stdout.split()
+        return out[0], int(out[1])
+
+    value, threads = run()
+    assert threads == run(OPENBLAS_NUM_THREADS="1")[1]   # no BLAS pool threads
+    assert value == "1"
+    assert run(OPENBLAS_NUM_THREADS="2")[0] == "2"       # the user's choice is kept

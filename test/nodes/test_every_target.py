@@ -488,11 +488,67 @@ def test_per_target_topics_follow_the_remapped_marker_topic_as_the_launch_lays_t
                                covariance=np.eye(3) * 1e-8)
     p = [0.1, 0.0, 0.5]
     detect._publish_targets(SimpleNamespace(targets=(loc("red_1", p),)), T0, CAM)
-    # red_1 is new: hand_eye subscribes when the frame lists it (that frame's point is lost,
-    # counted); the next frame comes through
-    assert spin_until(executor, lambda: feed.node.diag.counter("target_refused.no_point") == 1
-                      and feed.node._target_subs.get("red_1") is not None and
-                      detect._pub_targets["red_1"][1].get_subscription_count() > 0, 15.0)
+    # red_1 is new: hand_eye subscribes when the frame lists it, under the remapped prefix,
+    # and still gets that frame's point (transient local); the next frame comes through too
+    assert spin_until(executor, lambda: feed.node._target_subs.get("red_1") is not None and
+                      detect._pub_targets["red_1"][1].get_subscription_count() > 0
+                      and len(red_1) == 1, 15.0)
     detect._publish_targets(SimpleNamespace(targets=(loc("red_1", p),)), T0 + PERIOD_NS, CAM)
-    assert spin_until(executor, lambda: len(red_1) == 1, 10.0)
-    assert header_stamp_ns(red_1[0]) == T0 + PERIOD_NS and red_1[0].pose.position.x == 0.1
+    assert spin_until(executor, lambda: len(red_1) == 2, 10.0)
+    assert [header_stamp_ns(m) for m in red_1] == [T0, T0 + PERIOD_NS]
+    assert red_1[1].pose.position.x == 0.1
+    assert feed.node.diag.counter("target_refused.no_point") == 0
+
+
+def test_first_frame_of_a_new_target_id_is_not_lost(tmp_path, ros_context, executor, namespace,
+                                                     spin_until):
+    """A blob-set id seen for the first time: detect_triangulate makes its publishers and sends
+    its point before the frame's targets/markers tells hand_eye to subscribe; the point still
+    arrives (transient local), every frame gives a pose, none twice, and points that no frame
+    lists (sent before hand_eye existed) are dropped as orphans, never located."""
+    from types import SimpleNamespace
+
+    base_T_cam = from_rotvec([2.0, 0.3, -0.4], [0.8, -0.3, 1.1])
+    detect = DetectTriangulateNode(context=ros_context, namespace=namespace, parameter_overrides=[
+        Parameter("target_names", value=["red"])])
+    io = Node("io", context=ros_context, namespace=namespace)
+    executor.add_node(detect)
+    executor.add_node(io)
+
+    def frame(stamp, ids):
+        detect._publish_targets(SimpleNamespace(targets=tuple(
+            SimpleNamespace(id=t, name="red", point_m=np.array([0.01 * k, 0.0, 0.5]),
+                            covariance=np.eye(3) * 1e-8) for k, t in enumerate(ids))),
+            stamp, CAM)
+
+    frame(T0, ["red"])                      # before hand_eye exists: nobody lists it later
+    hand_eye = HandEyeNode(context=ros_context, namespace=namespace, parameter_overrides=[
+        Parameter("hand_eye_file", value=str(_hand_eye_file(tmp_path, "eye_to_hand",
+                                                            base_T_cam, None))),
+        Parameter("max_target_wait_s", value=5.0), Parameter("discovery_period_s", value=600.0)])
+    executor.add_node(hand_eye)
+    poses = {t: _collect(io, PoseStamped, f"target/{t}/pose") for t in ("red", "red_1")}
+    arrays = _collect(io, PoseArray, "target/poses")
+    assert spin_until(executor, lambda: "red" in hand_eye._target_subs
+                      and detect._pub_markers.get_subscription_count() > 0
+                      and io.count_publishers("target/poses") > 0
+                      and io.count_publishers("target/red/pose") > 0, 15.0)
+    assert "red_1" not in hand_eye._target_subs and "red_1" not in detect._pub_targets
+    stamps = [T0 + k * PERIOD_NS for k in (1, 2, 3)]
+    frame(stamps[0], ["red", "red_1"])     # red_1 appears: publisher made, point sent at once
+    assert spin_until(executor, lambda: len(arrays) == 1, 15.0), (
+        hand_eye.diag.snapshot().counters, hand_eye.diag.causes)
+    assert spin_until(executor, lambda: io.count_publishers("target/red_1/pose") > 0, 10.0)
+    for s in stamps[1:]:
+        frame(s, ["red", "red_1"])
+        assert spin_until(executor, lambda: len(arrays) == stamps.index(s) + 1, 15.0)
+    assert spin_until(executor, lambda: all(len(poses[t]) == 3 for t in poses), 10.0), (
+        {t: len(p) for t, p in poses.items()}, hand_eye.diag.snapshot().counters)
+    spin_until(executor, lambda: False, 0.2)    # anything extra would arrive now
+    assert [len(a.poses) for a in arrays] == [2, 2, 2]
+    for t in poses:
+        assert [header_stamp_ns(p) for p in poses[t]] == stamps    # once each, in order
+    c = hand_eye.diag.snapshot().counters
+    assert c["target_refused.no_point"] == 0 and c["targets_rejected"] == 0
+    assert c["target_poses_published"] == 6
+    assert c["target_points_received"] == 7 and c["orphan_target_points"] == 1
