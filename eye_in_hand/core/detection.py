@@ -62,7 +62,7 @@ Blur (optics, focus, motion) widens the edge, and both the shading and the thres
 grow with it: the threshold picks a level set of the blurred image, which moves with the local
 contrast and curvature of the brightness by about ``blur^2``. The detector measures the blur per
 blob (``Detection.blur_px``): :func:`edge_width` reads 64 colour profiles across the contour
-(about 0.1 ms per blob), ``w`` their Gaussian-equivalent width, and the blur is
+(about 0.08 ms per blob), ``w`` their Gaussian-equivalent width, and the blur is
 ``b = sqrt(max(w^2 - BLUR_W0_PX^2, 0))``. ``BLUR_W0_PX`` = 0.65 px is ``w`` on unblurred
 renders (0.646 px mean on the benchmark orbit, 0.583 on test_nees's; the pixel footprint, the
 sensor noise of 1 grey level); with a Gaussian blur of 0.5 / 1.0 px ``b`` reads 0.48 / 1.11 px

@@ -29,7 +29,7 @@ def test_camera_frame_nees_is_consistent_sideways_and_in_depth(blur):
     """The benchmark's orbit (seed 22) at 5 Hz, true rig. Without the threshold-cut term (the
     centre error common to both images that the edge fit cannot see) the lateral NEES was 5.5
     with 62 % of the views inside the 95 % ellipse (3-dof NEES 6.7): the sideways sigma was
-    about half the sideways error. With it: 3.6, lateral 2.7 (94 %), depth 1.6.
+    about half the sideways error. With it: 3.4, lateral 2.5 (100 %), depth 1.6.
 
     Blurred by 1 px (Gaussian), the shading and threshold-cut shifts grow about fourfold and
     threefold; with those terms as measured without blur the NEES was 20.1 (lateral 16.6 with
