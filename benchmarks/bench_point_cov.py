@@ -81,7 +81,7 @@ def render(world: World, jobs: list[tuple[np.ndarray, int]], blur: float = 0.0) 
 
 def measure(loc: StereoLocator, frames: list) -> dict[str, np.ndarray]:
     """Per view: pixel errors (4,), pixel covariance (4, 4), point error (3,), covariance, truth."""
-    e_px, corr, S, e, P, truth, blur = [], [], [], [], [], [], []
+    e_px, corr, S, e, P, truth, blur, shade = [], [], [], [], [], [], [], []
     for f in frames:
         t = loc.locate(f.left, f.right).first
         if t is None:
@@ -97,9 +97,10 @@ def measure(loc: StereoLocator, frames: list) -> dict[str, np.ndarray]:
         P.append(t.covariance)
         truth.append(f.truth.targets_cam[0])
         blur.append([t.left.blur_px, t.right.blur_px])
+        shade.append(np.concatenate([t.left.shade_px, t.right.shade_px]))
     return {k: np.array(v) for k, v in
             (("e_px", e_px), ("corr", corr), ("S", S), ("e", e), ("P", P), ("truth", truth),
-             ("blur", blur))}
+             ("blur", blur), ("shade", shade))}
 
 
 def lateral_basis(p: np.ndarray) -> np.ndarray:
@@ -121,6 +122,20 @@ def print_pixels(m: dict[str, np.ndarray]) -> None:
     b = m["blur"]
     print(f"  the detector's blur estimate (Detection.blur_px): mean {b.mean():.3f} px, "
           f"{b.min():.3f}-{b.max():.3f} px")
+    # the shading gain this orbit shows: least squares of the left/right-mean error on the
+    # left/right-mean brightness asymmetry g (shade_px = SHADE_GAIN (1 + SHADE_BLUR_GAIN b^2) g)
+    grow = 1.0 + detection.SHADE_BLUR_GAIN * b ** 2
+    g = m["shade"] / (detection.SHADE_GAIN * np.repeat(grow, 2, axis=1))
+    c, gc = (e[:, :2] + e[:, 2:]) / 2, (g[:, :2] + g[:, 2:]) / 2
+    gain = float(gc.ravel() @ c.ravel()) / float(gc.ravel() @ gc.ravel())
+    b2 = float(np.mean(b ** 2))
+    implied = (gain / detection.SHADE_GAIN - 1.0) / b2 if b2 > 0.01 else float("nan")
+    res = c - detection.SHADE_GAIN * grow.mean(axis=1)[:, None] * gc
+    print(f"  shading: least-squares gain of the left/right-mean error on g {gain:.4f} "
+          f"({gain / detection.SHADE_GAIN:.2f} x SHADE_GAIN; with mean b^2 {b2:.3f}: "
+          f"SHADE_BLUR_GAIN {implied:.2f}, the model's {detection.SHADE_BLUR_GAIN:g}); the "
+          f"left/right-mean error after the model's shading term {np.sqrt(np.mean(res ** 2)):.4f}"
+          f" px RMS over the axes")
     cross = np.mean(e[:, :2] * e[:, 2:], axis=0)             # E[e_l e_r], per axis
     cross_model = np.mean(S[:, [0, 1], [2, 3]], axis=0)
     corr = [np.corrcoef(e[:, k], e[:, 2 + k])[0, 1] for k in (0, 1)]
