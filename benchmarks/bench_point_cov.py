@@ -19,11 +19,14 @@ Per orbit it prints
   split into the two directions across the line of sight (lateral, 2 dof) and along it (depth,
   1 dof), with the errors and the reported sigmas in mm;
 
-once with the per-detection covariance as the locator reports it and once with its threshold-cut
+once with the per-detection covariance as the locator reports it, once without its blur terms
+(``SHADE_BLUR_GAIN = CUT_BLUR_GAIN = 0``: the shading and threshold-cut terms as measured
+without blur, the model before the detection's blur estimate) and once with its threshold-cut
 term set to zero (``CUT_SIGMA_PX = 0``, the model before that term), for comparison.
 
-``--blur SIGMA`` renders the two orbits with a Gaussian blur (the model's ``SHADE_GAIN`` and
-``CUT_SIGMA_PX`` were measured without blur, as the bags are rendered).
+``--blur SIGMA`` renders the two orbits with a Gaussian blur (the bags are rendered without);
+the detector's blur estimate (``Detection.blur_px``, from the edge width) is printed with the
+centre errors.
 
 Then the threshold cut alone (``--cut-views``, 0 = skip): the test_nees orbit in flat light
 (ambient 1: no shading), each image rendered with its exact anti-aliased coverage map; the
@@ -78,7 +81,7 @@ def render(world: World, jobs: list[tuple[np.ndarray, int]], blur: float = 0.0) 
 
 def measure(loc: StereoLocator, frames: list) -> dict[str, np.ndarray]:
     """Per view: pixel errors (4,), pixel covariance (4, 4), point error (3,), covariance, truth."""
-    e_px, corr, S, e, P, truth = [], [], [], [], [], []
+    e_px, corr, S, e, P, truth, blur, shade = [], [], [], [], [], [], [], []
     for f in frames:
         t = loc.locate(f.left, f.right).first
         if t is None:
@@ -93,8 +96,11 @@ def measure(loc: StereoLocator, frames: list) -> dict[str, np.ndarray]:
         e.append(t.point_m - f.truth.targets_cam[0])
         P.append(t.covariance)
         truth.append(f.truth.targets_cam[0])
+        blur.append([t.left.blur_px, t.right.blur_px])
+        shade.append(np.concatenate([t.left.shade_px, t.right.shade_px]))
     return {k: np.array(v) for k, v in
-            (("e_px", e_px), ("corr", corr), ("S", S), ("e", e), ("P", P), ("truth", truth))}
+            (("e_px", e_px), ("corr", corr), ("S", S), ("e", e), ("P", P), ("truth", truth),
+             ("blur", blur), ("shade", shade))}
 
 
 def lateral_basis(p: np.ndarray) -> np.ndarray:
@@ -113,15 +119,34 @@ def print_pixels(m: dict[str, np.ndarray]) -> None:
           f"left mean {mean[0]:+.3f} {mean[1]:+.3f}, spread {std[0]:.3f} {std[1]:.3f}; "
           f"right mean {mean[2]:+.3f} {mean[3]:+.3f}, spread {std[2]:.3f} {std[3]:.3f}; "
           f"model sigma (RMS) left {sig[0]:.3f} {sig[1]:.3f}, right {sig[2]:.3f} {sig[3]:.3f}")
+    b = m["blur"]
+    print(f"  the detector's blur estimate (Detection.blur_px): mean {b.mean():.3f} px, "
+          f"{b.min():.3f}-{b.max():.3f} px")
+    # the shading gain this orbit shows: least squares of the left/right-mean error on the
+    # left/right-mean brightness asymmetry g (shade_px = SHADE_GAIN (1 + SHADE_BLUR_GAIN b^2) g)
+    grow = 1.0 + detection.SHADE_BLUR_GAIN * b ** 2
+    g = m["shade"] / (detection.SHADE_GAIN * np.repeat(grow, 2, axis=1))
+    c, gc = (e[:, :2] + e[:, 2:]) / 2, (g[:, :2] + g[:, 2:]) / 2
+    gain = float(gc.ravel() @ c.ravel()) / float(gc.ravel() @ gc.ravel())
+    b2 = float(np.mean(b ** 2))
+    implied = (gain / detection.SHADE_GAIN - 1.0) / b2 if b2 > 0.01 else float("nan")
+    res = c - detection.SHADE_GAIN * grow.mean(axis=1)[:, None] * gc
+    print(f"  shading: least-squares gain of the left/right-mean error on g {gain:.4f} "
+          f"({gain / detection.SHADE_GAIN:.2f} x SHADE_GAIN; with mean b^2 {b2:.3f}: "
+          f"SHADE_BLUR_GAIN {implied:.2f}, the model's {detection.SHADE_BLUR_GAIN:g}); the "
+          f"left/right-mean error after the model's shading term {np.sqrt(np.mean(res ** 2)):.4f}"
+          f" px RMS over the axes")
     cross = np.mean(e[:, :2] * e[:, 2:], axis=0)             # E[e_l e_r], per axis
     cross_model = np.mean(S[:, [0, 1], [2, 3]], axis=0)
     corr = [np.corrcoef(e[:, k], e[:, 2 + k])[0, 1] for k in (0, 1)]
-    beyond = cross - (cross_model - detection.CUT_SIGMA_PX ** 2)
+    cut2 = np.mean((1.0 + detection.CUT_BLUR_GAIN * b[:, 0]) *
+                   (1.0 + detection.CUT_BLUR_GAIN * b[:, 1]))
+    beyond = cross - (cross_model - cut2 * detection.CUT_SIGMA_PX ** 2)
     print(f"  common to left and right: E[e_l e_r] x {cross[0]:+.5f} y {cross[1]:+.5f} px^2 "
           f"(correlation {corr[0]:+.2f} {corr[1]:+.2f}); model {cross_model[0]:.5f} "
           f"{cross_model[1]:.5f} px^2; beyond the shading term: x {beyond[0]:+.5f} y "
           f"{beyond[1]:+.5f} px^2, {np.sqrt(max(beyond.mean(), 0.0)):.3f} px RMS over the axes "
-          f"(CUT_SIGMA_PX {detection.CUT_SIGMA_PX:g})")
+          f"(CUT_SIGMA_PX {detection.CUT_SIGMA_PX:g}, times 1 + CUT_BLUR_GAIN b)")
     zd = [np.array([(u @ x) / np.sqrt(u @ s_ @ u) for x, s_ in zip(e, S)])
           for u in (np.array([1.0, 0, -1.0, 0]), np.array([0, 1.0, 0, -1.0]))]
     c = m["corr"]
@@ -205,6 +230,7 @@ def main() -> int:
     world = World.default().with_robot_error(RobotErrorSpec.none())
     loc = StereoLocator(world.rig.rectified(), load_locator_config(CONFIG))
     cut = detection.CUT_SIGMA_PX
+    gains = detection.SHADE_BLUR_GAIN, detection.CUT_BLUR_GAIN
     for name, jobs in ((f"benchmark orbit (seed 22, {args.views} views at 30 Hz)",
                         benchmark_orbit(world, args.views) if args.views > 0 else []),
                        (f"test_nees orbit (seed 4, {args.test_views} views at 3 Hz)",
@@ -217,14 +243,18 @@ def main() -> int:
         print(f"{name}: rendered {len(frames)} pairs{blur} in "
               f"{time.perf_counter() - t0:.0f} s, "
               f"true rig, {CONFIG.name}", flush=True)
-        for c, label in ((cut, f"as reported (threshold-cut term {cut:g} px)"),
-                         (0.0, "without the threshold-cut term")):
+        for c, g, label in (
+                (cut, gains, f"as reported (threshold-cut term {cut:g} px, blur terms)"),
+                (cut, (0.0, 0.0), "without the blur terms (the unblurred model)"),
+                (0.0, (0.0, 0.0), "without the blur terms and the threshold-cut term")):
             detection.CUT_SIGMA_PX = c
+            detection.SHADE_BLUR_GAIN, detection.CUT_BLUR_GAIN = g
             try:
                 m = measure(loc, frames)
             finally:
                 detection.CUT_SIGMA_PX = cut
-            if c == cut:
+                detection.SHADE_BLUR_GAIN, detection.CUT_BLUR_GAIN = gains
+            if g == gains:
                 print_pixels(m)
             print_point(m, label)
     if args.cut_views > 0:

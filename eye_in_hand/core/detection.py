@@ -58,6 +58,34 @@ Per-detection centre uncertainty (``Detection.center_sigma_px``, 1 sigma per ima
   was about half its sideways error across the shading direction (lateral NEES 5.9 for 2 dof
   on the benchmark orbit, 2.8 with it).
 
+Blur (optics, focus, motion) widens the edge, and both the shading and the threshold-cut shifts
+grow with it: the threshold picks a level set of the blurred image, which moves with the local
+contrast and curvature of the brightness by about ``blur^2``. The detector measures the blur per
+blob (``Detection.blur_px``): :func:`edge_width` reads 64 colour profiles across the contour
+(about 0.08 ms per blob), ``w`` their Gaussian-equivalent width, and the blur is
+``b = sqrt(max(w^2 - BLUR_W0_PX^2, 0))``. ``BLUR_W0_PX`` = 0.65 px is ``w`` on unblurred
+renders (0.646 px mean on the benchmark orbit, 0.583 on test_nees's; the pixel footprint, the
+sensor noise of 1 grey level); with a Gaussian blur of 0.5 / 1.0 px ``b`` reads 0.48 / 1.11 px
+(benchmark orbit) and 0.36 / 1.04 px (test_nees orbit). The two shared terms then become
+
+* shading: ``SHADE_GAIN * (1 + SHADE_BLUR_GAIN b^2) * g``, ``SHADE_BLUR_GAIN`` = 2.3 per px^2:
+  the least squares of the left/right-mean centre error on ``g`` over both orbits at blur 0,
+  0.5 and 1 px (60 + 25 views each) with that law (2.28); per blur, the fitted gain over
+  ``SHADE_GAIN`` is 1.06 / 1.75 / 3.95 (benchmark orbit, blur 0 / 0.5 / 1) and 0.73 / 1.27 /
+  3.06 (test_nees orbit). It also carries the left-minus-right part along x that the depth
+  sees (``SHADE_GAIN * (g_l - g_r)``: 0.023 px unblurred, the left-minus-right x error 0.080 px
+  at 1 px blur);
+* threshold cut: ``CUT_SIGMA_PX * (1 + CUT_BLUR_GAIN b)``, ``CUT_BLUR_GAIN`` = 2.0 per px: the
+  left/right-mean error left after that shading term, less the edge terms' share, is 1.95 /
+  3.57 times ``CUT_SIGMA_PX`` at blur 0.5 / 1 on the benchmark orbit (2.0 and 2.3 per px of
+  ``b``) and 1.0 / 2.6 times on test_nees's (0 and 1.5 per px).
+
+Unblurred, ``b`` reads 0-0.3 px (mean 0.03 px on the benchmark orbit, 0 on test_nees's): the
+cut term grows by about 7 % on average, by up to 58 % in single views. The laws
+are fitted to the simulator's Gaussian blur of a red sphere on its backgrounds with sensor
+noise 1; ``BLUR_W0_PX`` depends on the noise and the pixel (a noisier camera reads a wider
+``w`` without blur), so on a real camera it should be re-measured on its sharpest images.
+
 A detector returns detections or nothing, never a guess: blobs that fail a gate or touch the
 image border (a truncated silhouette has a biased centre) are not reported.
 """
@@ -94,6 +122,16 @@ SHADE_GAIN = 0.015
 #: Threshold-cut term (px, 1 sigma per image axis, common to both images of a stereo pair; see
 #: the module docstring).
 CUT_SIGMA_PX = 0.02
+#: Edge width (px) that :func:`edge_width` measures on an unblurred render; the blur estimate
+#: is ``sqrt(max(w^2 - BLUR_W0_PX^2, 0))`` (see the module docstring).
+BLUR_W0_PX = 0.65
+#: Growth of the shading gain with the blur ``b``: ``SHADE_GAIN * (1 + SHADE_BLUR_GAIN b^2)``.
+SHADE_BLUR_GAIN = 2.3
+#: Growth of the threshold-cut term with the blur ``b``: ``CUT_SIGMA_PX (1 + CUT_BLUR_GAIN b)``.
+CUT_BLUR_GAIN = 2.0
+#: Half-length (px) of :func:`edge_width`'s profiles across the edge, and their number.
+_EDGE_BAND_PX = 4
+_EDGE_PROFILES = 64
 
 #: Supported colour spaces for thresholds.
 COLOR_SPACES = ("hsv", "hsi")
@@ -353,12 +391,15 @@ class Detection:
             from the blob's edge roughness, shading and the threshold cut (module docstring);
             NaN if the blob is too small to tell.
         edge_sigma_px: the edge-roughness part of ``center_sigma_px`` (pixels, per axis).
-        shade_px: the shading part as a vector (pixels, shape (2,)): ``SHADE_GAIN * g``, the
+        shade_px: the shading part as a vector (pixels, shape (2,)): ``SHADE_GAIN * g`` (grown
+            with ``blur_px``), the
             1-sigma extent of the centroid's shift along the brightness asymmetry ``g`` (the
             same light shifts both images of a stereo pair alike).
-        cut_sigma_px: the threshold-cut part (pixels, per axis): ``CUT_SIGMA_PX``, common to
-            both images of a stereo pair (the same background behind the target); 0 when
-            ``center_sigma_px`` is NaN.
+        cut_sigma_px: the threshold-cut part (pixels, per axis): ``CUT_SIGMA_PX`` (grown with
+            ``blur_px``), common to both images of a stereo pair (the same background behind
+            the target); 0 when ``center_sigma_px`` is NaN.
+        blur_px: the blur the edge shows (pixels, Gaussian sigma, 0 for a sharp edge), from
+            :func:`edge_width`; it scales the shading and threshold-cut parts.
     """
 
     name: str
@@ -374,6 +415,7 @@ class Detection:
     edge_sigma_px: float = float("nan")
     shade_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
     cut_sigma_px: float = 0.0
+    blur_px: float = 0.0
 
 
 def range_from_samples(samples: np.ndarray, space: str = "hsv", *, percentile: float = 5.0,
@@ -490,6 +532,7 @@ class _Blob:
     edge_sigma_px: float = float("nan")
     shade_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
     cut_sigma_px: float = 0.0
+    blur_px: float = 0.0
 
 
 class ColorDetector:
@@ -678,9 +721,14 @@ class ColorDetector:
         pts = contour.reshape(-1, 2).astype(np.float64) + (x0 + bx, y0 + by)
         grey = cv2.cvtColor(roi[by:by + bh, bx:bx + bw], cv2.COLOR_BGR2GRAY)
         edge, shade = center_sigma_parts(comp, grey, contour.reshape(-1, 2).astype(np.float64))
-        cut = CUT_SIGMA_PX if math.isfinite(edge) else 0.0
+        width = edge_width(roi, contour.reshape(-1, 2) + (bx, by),
+                           np.array([bx + mom["m10"] / mom["m00"], by + mom["m01"] / mom["m00"]]))
+        blur = math.sqrt(max(width * width - BLUR_W0_PX ** 2, 0.0)) if math.isfinite(width) \
+            else 0.0
+        shade = shade * (1.0 + SHADE_BLUR_GAIN * blur * blur)
+        cut = CUT_SIGMA_PX * (1.0 + CUT_BLUR_GAIN * blur) if math.isfinite(edge) else 0.0
         return _Blob(comp, x0, y0, float(area), float(min(circ, 1.0)), centroid, pts, bbox,
-                     math.hypot(edge, float(np.hypot(*shade)), cut), edge, shade, cut)
+                     math.hypot(edge, float(np.hypot(*shade)), cut), edge, shade, cut, blur)
 
     def _make_detection(self, target: TargetSpec, blob: _Blob,
                         camera: CameraModel | None) -> Detection | None:
@@ -689,13 +737,13 @@ class ColorDetector:
             return Detection(target.name, blob.centroid, blob.centroid.copy(), nan2, blob.area,
                              blob.circularity, blob.bbox, center_sigma_px=blob.center_sigma_px,
                              edge_sigma_px=blob.edge_sigma_px, shade_px=blob.shade_px,
-                             cut_sigma_px=blob.cut_sigma_px)
+                             cut_sigma_px=blob.cut_sigma_px, blur_px=blob.blur_px)
         if not (self.config.sphere_correction and target.is_sphere) or len(blob.contour) < 5:
             norm = camera.undistort_points(blob.centroid)[0]
             return Detection(target.name, blob.centroid, blob.centroid.copy(), norm, blob.area,
                              blob.circularity, blob.bbox, center_sigma_px=blob.center_sigma_px,
                              edge_sigma_px=blob.edge_sigma_px, shade_px=blob.shade_px,
-                             cut_sigma_px=blob.cut_sigma_px)
+                             cut_sigma_px=blob.cut_sigma_px, blur_px=blob.blur_px)
         contour_norm = camera.undistort_points(blob.contour)
         ellipse_c, minor = _polygon_center_and_minor_axis(contour_norm, camera.fx)
         if ellipse_c is None:
@@ -706,7 +754,7 @@ class ColorDetector:
         center_px = camera.project(np.array([[center_norm[0], center_norm[1], 1.0]]))[0]
         return Detection(target.name, blob.centroid, center_px, center_norm, blob.area,
                          blob.circularity, blob.bbox, alpha, ellipse_c, blob.center_sigma_px,
-                         blob.edge_sigma_px, blob.shade_px, blob.cut_sigma_px)
+                         blob.edge_sigma_px, blob.shade_px, blob.cut_sigma_px, blob.blur_px)
 
     def _rank(self, dets: list[Detection], previous: np.ndarray | None,
               limit: int) -> list[Detection]:
@@ -765,6 +813,50 @@ def center_sigma_parts(mask: np.ndarray, grey: np.ndarray,
         shade = np.array([float(wgt @ xs) / total - float(xs.mean()),
                           float(wgt @ ys) / total - float(ys.mean())])
     return math.sqrt(sigma_edge2), SHADE_GAIN * shade
+
+
+def edge_width(image: np.ndarray, contour: np.ndarray, center: np.ndarray) -> float:
+    """Width (px) of a blob's edge from colour profiles across its contour.
+
+    At up to ``_EDGE_PROFILES`` contour points, evenly spaced, the image is sampled along the
+    row or column nearer the outward normal (taken from ``center`` to the point; the gates keep
+    blobs round), ``2 _EDGE_BAND_PX + 2`` pixels across the edge. With ``d_j`` the colour
+    distances between neighbouring samples, each profile gives ``(sum d_j)^2 / sum d_j^2
+    / (2 sqrt(pi))`` times the cosine between the normal and the sampling axis: for a step
+    blurred by a Gaussian of sigma ``s`` this is ``s`` whatever the contrast (the profile's
+    slope integrates to the contrast, its square to ``contrast^2 / (2 sqrt(pi) s)``). The
+    mean over the profiles is returned; pixel sampling and image noise add about
+    ``BLUR_W0_PX`` in quadrature.
+
+    Args:
+        image: the pixels around the blob, shape (h, w, 3) (or (h, w)), uint8.
+        contour: the blob's outer contour in ``image``'s pixel coordinates, shape (K, 2).
+        center: the blob's centre in the same coordinates, shape (2,).
+
+    Returns:
+        the width in pixels; NaN for fewer than 12 contour points or no contrast.
+    """
+    n = len(contour)
+    if n < 12:
+        return float("nan")
+    pts = contour[np.linspace(0, n, min(n, _EDGE_PROFILES), endpoint=False).astype(int)]
+    nrm = pts - center
+    horiz = np.abs(nrm[:, 0]) >= np.abs(nrm[:, 1])
+    cos = np.abs(nrm).max(axis=1) / np.maximum(np.hypot(nrm[:, 0], nrm[:, 1]), 1e-9)
+    sign = np.where(horiz, np.sign(nrm[:, 0]), np.sign(nrm[:, 1]))
+    j = np.arange(-_EDGE_BAND_PX, _EDGE_BAND_PX + 2)
+    step = (sign[:, None] * j[None, :]).astype(np.intp)
+    h, w = image.shape[:2]
+    xs = np.clip(pts[:, :1].astype(int) + np.where(horiz[:, None], step, 0), 0, w - 1)
+    ys = np.clip(pts[:, 1:].astype(int) + np.where(horiz[:, None], 0, step), 0, h - 1)
+    prof = image[ys, xs].astype(np.float32)                  # (P, samples[, 3])
+    d = np.diff(prof, axis=1)
+    d = np.sqrt((d * d).sum(axis=2)) if d.ndim == 3 else np.abs(d)
+    s1, s2 = d.sum(axis=1), (d * d).sum(axis=1)
+    ok = s2 > 0
+    if not ok.any():
+        return float("nan")
+    return float(np.mean(s1[ok] ** 2 / s2[ok] * cos[ok])) / (2.0 * math.sqrt(math.pi))
 
 
 def _polygon_center_and_minor_axis(contour_norm: np.ndarray,

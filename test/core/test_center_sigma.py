@@ -59,3 +59,24 @@ def test_centre_sigma_grows_with_image_noise(views):
         d = det.detect(f.left, world.rig.left)
         sig.append(d[0].center_sigma_px)
     assert sig[1] > 1.2 * sig[0], sig
+
+
+def test_blur_estimate_follows_the_blur_and_grows_the_shared_terms(views):
+    """``Detection.blur_px`` reads the Gaussian blur of the render from the edge width (0 on a
+    sharp render), and the shading and threshold-cut parts grow with it."""
+    from eye_in_hand.core.detection import CUT_SIGMA_PX, ColorDetector
+
+    world = World.default()
+    t, truth = views[0]
+    det = ColorDetector(load_locator_config(CONFIG).detector)
+    est, shade, cut = [], [], []
+    for blur in (0.0, 0.5, 1.0, 1.5):
+        f = world.render(truth.q, seed=3, noise_sigma=1.0, supersample=3, blur_sigma=blur)
+        d = det.detect(f.left, world.rig.left)[0]
+        est.append(d.blur_px)
+        shade.append(float(np.hypot(*d.shade_px)))
+        cut.append(d.cut_sigma_px)
+    assert est[0] < 0.3 and abs(est[1] - 0.5) < 0.2, est
+    assert abs(est[2] - 1.0) < 0.25 and abs(est[3] - 1.5) < 0.3, est
+    assert np.all(np.diff(shade) > 0) and np.all(np.diff(cut) > 0), (shade, cut)
+    assert cut[0] < 1.2 * CUT_SIGMA_PX and cut[2] > 2.5 * CUT_SIGMA_PX, cut
