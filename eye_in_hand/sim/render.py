@@ -523,8 +523,9 @@ class Renderer:
             ok_s = hit & (t_s > 0) & (t_s < t_best)
             t_best = np.where(ok_s, t_s, t_best)
             label[ok_s] = _TARGET0 + k
-            # n . L = (t d.L - c.L) / r
-            nl = (t_s * D[:, 6] - np.float32(c @ s["light"])) / np.float32(tgt.radius_m)
+            # n . L = (t d.L - c.L) / r, on the rays that hit (t_s is inf elsewhere)
+            nl = (np.where(ok_s, t_s, np.float32(0.0)) * D[:, 6]
+                  - np.float32(c @ s["light"])) / np.float32(tgt.radius_m)
             normal_light = np.where(ok_s, nl, normal_light)
         # colours
         amb = np.float32(w.ambient)
