@@ -75,31 +75,40 @@ def sample_poses(world: World, n: int, seed: int) -> list[np.ndarray]:
     return out
 
 
-def speed(frames, rig, repeats: int) -> None:
-    loc = StereoLocator(rig, config())
-    loc_raw = StereoLocator(rig, config(correction=False))
-    loc_opt = StereoLocator(rig, config("optimal"))
-    imgs = [(f.left, f.right) for f in frames]
-    rng = SIM_RED
+def floor(left: np.ndarray, right: np.ndarray) -> None:
+    """The speed floor: cvtColor + inRange of both images."""
+    for img in (left, right):
+        cv2.inRange(cv2.cvtColor(img, cv2.COLOR_BGR2HSV), SIM_RED.lower, (179, 255, 255))
 
-    def floor(left, right):
-        for img in (left, right):
-            cv2.inRange(cv2.cvtColor(img, cv2.COLOR_BGR2HSV), rng.lower, (179, 255, 255))
 
+def best_per_pair(named_fns, imgs, repeats: int, warm_up: bool = False) -> dict[str, float]:
+    """Seconds per pair of each ``(name, fn(left, right))``: the best of three rounds of
+    ``repeats`` pairs (the machine is shared); ``warm_up`` runs two pairs first."""
     timings = {}
-    for name, fn in (("floor (cvtColor + inRange, both images)", floor),
-                     ("locate dlt + sphere correction", loc.locate),
-                     ("locate dlt, no correction", loc_raw.locate),
-                     ("locate optimal + sphere correction", loc_opt.locate)):
-        for left, right in imgs[:2]:
-            fn(left, right)  # warm up
+    for name, fn in named_fns:
+        if warm_up:
+            for left, right in imgs[:2]:
+                fn(left, right)
         best = math.inf
-        for _ in range(3):  # best of three rounds: the machine is shared
+        for _ in range(3):
             t0 = time.perf_counter()
             for k in range(repeats):
                 fn(*imgs[k % len(imgs)])
             best = min(best, (time.perf_counter() - t0) / repeats)
         timings[name] = best
+    return timings
+
+
+def speed(frames, rig, repeats: int) -> None:
+    loc = StereoLocator(rig, config())
+    loc_raw = StereoLocator(rig, config(correction=False))
+    loc_opt = StereoLocator(rig, config("optimal"))
+    imgs = [(f.left, f.right) for f in frames]
+    timings = best_per_pair((("floor (cvtColor + inRange, both images)", floor),
+                             ("locate dlt + sphere correction", loc.locate),
+                             ("locate dlt, no correction", loc_raw.locate),
+                             ("locate optimal + sphere correction", loc_opt.locate)),
+                            imgs, repeats, warm_up=True)
     fl = timings["floor (cvtColor + inRange, both images)"]
     print(f"speed, 1280x720 pairs, best of 3 x {repeats} pairs, cv2 threads "
           f"{cv2.getNumThreads()}:")
@@ -226,23 +235,12 @@ def multi(n_frames: int, repeats: int, seed: int) -> None:
     print(f"  id swaps {swaps}, ambiguous blobs rejected {ambiguous}, rejections "
           f"{misses or 'none'}")
 
-    def floor(left, right):
-        for img in (left, right):
-            cv2.inRange(cv2.cvtColor(img, cv2.COLOR_BGR2HSV), SIM_RED.lower, (179, 255, 255))
-
     one = StereoLocator(rig, config())
-    timings = {}
     imgs = [(f.left, f.right) for f in frames]
-    for name, fn in (("floor (cvtColor + inRange, both images)", floor),
-                     ("locate, 1 target (red, the single config)", one.locate),
-                     ("locate, 4 targets (red x2 set, green, blue)", loc.locate)):
-        best = math.inf
-        for _ in range(3):
-            t0 = time.perf_counter()
-            for k in range(repeats):
-                fn(*imgs[k % len(imgs)])
-            best = min(best, (time.perf_counter() - t0) / repeats)
-        timings[name] = best
+    timings = best_per_pair((("floor (cvtColor + inRange, both images)", floor),
+                             ("locate, 1 target (red, the single config)", one.locate),
+                             ("locate, 4 targets (red x2 set, green, blue)", loc.locate)),
+                            imgs, repeats)
     fl = timings["floor (cvtColor + inRange, both images)"]
     print(f"  speed, best of 3 x {repeats} pairs:")
     for name, t in timings.items():
