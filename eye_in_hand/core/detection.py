@@ -810,8 +810,11 @@ def center_sigma_parts(mask: np.ndarray, grey: np.ndarray,
     total = float(wgt.sum())
     shade = np.zeros(2)
     if total > 0:
-        shade = np.array([float(wgt @ xs) / total - float(xs.mean()),
-                          float(wgt @ ys) / total - float(ys.mean())])
+        # elementwise products summed, not ``wgt @ xs``: a dot product this long goes to
+        # OpenBLAS's thread pool, whose spinning threads cost several times the work on cores
+        # shared with other jobs
+        shade = np.array([float((wgt * xs).sum()) / total - float(xs.mean()),
+                          float((wgt * ys).sum()) / total - float(ys.mean())])
     return math.sqrt(sigma_edge2), SHADE_GAIN * shade
 
 

@@ -59,12 +59,13 @@ from __future__ import annotations
 
 import os
 
-# One BLAS thread in this process unless the user chose a count. OpenBLAS splits a dot product
-# of more than 10 000 elements (a blob's brightness-weighted centre) over a thread pool whose
-# idle threads spin; on two cores also busy with other jobs that made a stereo pair cost 37 ms
-# of CPU instead of 10 ms and the live latency 240 ms instead of 20 ms (docs/localization.md
-# "Live latency"). OpenBLAS reads the variable when numpy loads it, so
-# this stands before the first numpy import of the node's process.
+# One BLAS thread in this process unless the user chose a count. OpenBLAS splits long dot
+# products over a thread pool whose idle threads spin; on two cores also busy with other jobs
+# the blob centre's (since computed without BLAS in core.detection) made a stereo pair cost
+# 37 ms of CPU instead of 10 ms and the live latency 240 ms instead of 20 ms
+# (docs/localization.md "Live latency"); one thread keeps any other long product in the node
+# from doing the same. OpenBLAS reads the variable when numpy loads it, so this stands before
+# the first numpy import of the node's process.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import math
