@@ -3,11 +3,11 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
-TF2    := $(VENV)/.tf2_msgs
+IFACES := $(VENV)/.interfaces
 
 .PHONY: venv test demo bench mutation clean
 
-venv: $(STAMP) $(TF2)
+venv: $(STAMP) $(IFACES)
 
 # Re-installs only when the package metadata changes; otherwise a no-op.
 $(STAMP): setup.py setup.cfg package.xml
@@ -16,11 +16,13 @@ $(STAMP): setup.py setup.cfg package.xml
 	$(PY) -m pip install --quiet -e '.[ros,test]'
 	touch $(STAMP)
 
-# tf2_msgs (/tf, /tf_static) has no PyPI wheel: build it into the venv (about 30 s once; says
-# so and goes on without it where there is no compiler). See docs/development.md.
-$(TF2): $(STAMP) tools/build_tf2_msgs.py
-	$(PY) tools/build_tf2_msgs.py
-	touch $(TF2)
+# tf2_msgs (/tf, /tf_static) has no PyPI wheel, and eye_in_hand_interfaces (the calibration
+# services) is ours: build both into the venv (about 1-2 min once; says so and goes on without
+# them where there is no compiler). See docs/development.md.
+$(IFACES): $(STAMP) tools/build_interfaces.py $(wildcard eye_in_hand_interfaces/*.txt \
+           eye_in_hand_interfaces/*.xml eye_in_hand_interfaces/msg/* eye_in_hand_interfaces/srv/*)
+	$(PY) tools/build_interfaces.py
+	touch $(IFACES)
 
 test: venv
 	$(PY) -m pytest -q test

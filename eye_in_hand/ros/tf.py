@@ -8,7 +8,7 @@ transient local, keep last 1 on the publisher (one message carrying every static
 the node, re-sent whole when one changes, as ``StaticTransformBroadcaster`` does) and keep last
 100 on the subscriber, so a late subscriber still receives every node's static transforms.
 
-``tf2_msgs`` has no PyPI wheel: ``make venv`` builds it (tools/build_tf2_msgs.py). Where it is
+``tf2_msgs`` has no PyPI wheel: ``make venv`` builds it (tools/build_interfaces.py). Where it is
 missing, :func:`have_tf2_msgs` is False, the nodes publish no TF, and asking for TF input
 raises a :class:`ConfigError` that says so. Reading TF from a bag needs no ``tf2_msgs``
 (``rosbags`` decodes it): :func:`add_tf_message` is duck-typed.
