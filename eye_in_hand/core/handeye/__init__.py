@@ -14,6 +14,7 @@ Pure numerics (numpy, scipy, OpenCV for projection): no rclpy, no messages.
 * :mod:`.eiv`: the errors-in-variables refinement (``refined``): robot-pose corrections with
   noise levels estimated from the data, and its covariance.
 * :mod:`.select`: leave-one-out prediction of held-out samples and the choice of the result.
+* :mod:`.plan`: the next flange poses to take, scored by the predicted covariance of X.
 * :mod:`.calibrate`: the pipeline (:func:`calibrate_hand_eye`) with outlier rejection,
   leave-one-out figures and method-disagreement warnings.
 """
@@ -22,6 +23,7 @@ from __future__ import annotations
 from .calibrate import (FRAMES, METHODS, HandEyeResult, MethodResult, RejectedSample,
                         axxb_residuals, board_spread, bootstrap_covariance, calibrate_hand_eye)
 from .eiv import EivResult, leave_one_out_steps, refine_errors_in_variables
+from .plan import Plan, PlanConfig, Suggestion, predicted_covariance, suggest_next_poses
 from .refine import (RefinementResult, refine_pose_space, refine_reprojection,
                      reprojection_errors)
 from .samples import (MIN_SAMPLES, CameraView, CornerObservation, HandEyeSample,
@@ -42,4 +44,5 @@ __all__ = [
     "axxb_residuals", "board_spread", "bootstrap_covariance",
     "EivResult", "refine_errors_in_variables", "leave_one_out_steps",
     "HeldOut", "held_out_prediction", "selection_scores", "choose",
+    "Plan", "PlanConfig", "Suggestion", "suggest_next_poses", "predicted_covariance",
 ]
