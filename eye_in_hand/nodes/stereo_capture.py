@@ -18,7 +18,9 @@ Sources (parameter ``source``):
     ``sim``: the synthetic world (``sim.world`` YAML or the built-in one) along its
     localization trajectory (``sim.duration_s`` long, looping), rendered live; or, with
     ``sim.follow_joint_states``, at the latest joint vector received on
-    ``sim.joint_states_topic`` (e.g. from a bag or a robot driver).
+    ``sim.joint_states_topic`` (e.g. from a bag or a robot driver); a pair then carries the
+    stamp of the joint state it shows (the exposure time, as a camera stamps a frame), not
+    the time it was published, and a joint state is rendered at most once.
     ``images``: ``images.left`` / ``images.right`` folders or glob patterns, in sorted order,
     optionally looping (``images.loop``).
     ``video``: ``video.left`` and ``video.right`` files, or one side-by-side file in
@@ -50,9 +52,10 @@ from sensor_msgs.msg import CameraInfo, Image, JointState
 
 from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.core.camera import CameraModel, StereoRig
-from eye_in_hand.errors import ConfigError, EyeInHandError, InputError
+from eye_in_hand.errors import ConfigError, ConversionError, EyeInHandError, InputError
 from eye_in_hand.io.images import read_image_file
 from eye_in_hand.ros.conversions import (
+    header_stamp_ns,
     make_header,
     matrix_to_pose_stamped,
     model_to_camera_info,
@@ -124,11 +127,12 @@ NODE_PARAMETERS: tuple[Param, ...] = (
 
 
 class _Pair:
-    __slots__ = ("left", "right", "q", "index")
+    __slots__ = ("left", "right", "q", "index", "stamp_ns")
 
     def __init__(self, left: np.ndarray, right: np.ndarray, q: np.ndarray | None = None,
-                 index: int = 0) -> None:
+                 index: int = 0, stamp_ns: int | None = None) -> None:
         self.left, self.right, self.q, self.index = left, right, q, index
+        self.stamp_ns = stamp_ns   # the time of the arm state shown (None: stamp when published)
 
 
 class _ReadFailure(Exception):
@@ -284,6 +288,8 @@ class SimSource(FrameSource):
         self.follow = follow
         self._lock = threading.Lock()
         self._latest: np.ndarray | None = None
+        self._latest_stamp: int | None = None
+        self._rendered_stamp: int | None = None
         self.qs: list[np.ndarray] = []
         if not follow:
             try:
@@ -299,24 +305,31 @@ class SimSource(FrameSource):
         self.i = 0
         self.name = "sim (following joint states)" if follow else "sim"
 
-    def set_joints(self, q: np.ndarray) -> None:
-        """Follow mode: render at this joint vector from now on."""
+    def set_joints(self, q: np.ndarray, stamp_ns: int | None = None) -> None:
+        """Follow mode: render at this joint vector from now on; ``stamp_ns`` (the joint
+        state's stamp) becomes the stamp of the pair rendered from it."""
         with self._lock:
             self._latest = np.array(q, dtype=np.float64)
+            self._latest_stamp = stamp_ns
 
     def read(self) -> _Pair:
+        stamp = None
         if self.follow:
             with self._lock:
                 q = None if self._latest is None else self._latest.copy()
+                stamp = self._latest_stamp
             if q is None:
                 raise _NotReady("no joint state received yet")
+            if stamp is not None and stamp == self._rendered_stamp:
+                raise _NotReady("no new joint state since the last pair")
+            self._rendered_stamp = stamp
         else:
             q = self.qs[self.i % len(self.qs)]
         k = self.i
         self.i += 1
         frame = self.world.render(q, seed=self.seed * 1_000_003 + k,
                                   noise_sigma=self.noise_sigma, supersample=self.supersample)
-        return _Pair(frame.left, frame.right, q=q, index=k)
+        return _Pair(frame.left, frame.right, q=q, index=k, stamp_ns=stamp)
 
 
 class StereoCaptureNode(Node):
@@ -428,7 +441,11 @@ class StereoCaptureNode(Node):
         if not np.all(np.isfinite(q)):
             self.diag.report("bad_joint_state", "joint state with NaN or infinite positions")
             return
-        self.source.set_joints(q)  # type: ignore[attr-defined]
+        try:
+            stamp = header_stamp_ns(msg) or None   # an unstamped state: stamp when published
+        except ConversionError:
+            stamp = None
+        self.source.set_joints(q, stamp)  # type: ignore[attr-defined]
 
     # -- worker ---------------------------------------------------------------------------
     def _produce(self) -> None:
@@ -468,7 +485,9 @@ class StereoCaptureNode(Node):
             if not self._ended.is_set():
                 self.diag.count("not_ready")
             return
-        stamp_ns = self.get_clock().now().nanoseconds
+        # a pair shows the arm at its joint state's stamp (exposure time), not when published
+        stamp_ns = pair.stamp_ns if pair.stamp_ns is not None else \
+            self.get_clock().now().nanoseconds
         c = self.cfg
         try:
             for img, frame_id, pub, info_pub, model in (

@@ -214,3 +214,51 @@ def test_sim_source_follows_joint_states(ros_context, executor, namespace, spin_
     expected = world.render(q, noise_sigma=0.0, supersample=2)
     got = np.frombuffer(bytes(col.msgs["left"][-1].data), np.uint8).reshape(90, 160, 3)
     np.testing.assert_array_equal(got, expected.left)
+
+
+def test_followed_pair_carries_the_stamp_of_the_joint_state_it_shows(ros_context, executor,
+                                                                     namespace, spin_until):
+    """A camera stamps a frame with its exposure: a pair rendered from a joint state has that
+    state's stamp (not the publication time, which is a render later), and one state gives at
+    most one pair."""
+    from sensor_msgs.msg import JointState
+
+    from eye_in_hand.nodes.stereo_capture import StereoCaptureNode
+    from eye_in_hand.ros.conversions import header_stamp_ns, make_header
+    from eye_in_hand.sim import World
+    from eye_in_hand.sim.scenarios import localization_trajectory
+
+    node = StereoCaptureNode(context=ros_context, namespace=namespace,
+                             parameter_overrides=_params(
+                                 source="sim", rate_hz=30.0, sim__width=160, sim__height=90,
+                                 sim__follow_joint_states=True, sim__noise_sigma=0.0))
+    listener = rclpy.create_node("listener", context=ros_context)
+    col = _Collector(listener, namespace)
+    pub = listener.create_publisher(JointState, f"{namespace}/joint_states", 10)
+    executor.add_node(node)
+    executor.add_node(listener)
+    world = World.default().with_image_size(160, 90)
+    traj = localization_trajectory(world, 1.0, 10.0, seed=0)
+    sent: list[int] = []
+
+    def send() -> None:
+        k = len(sent)
+        if k >= len(traj):
+            return
+        stamp = 1_700_000_000_000_000_000 + 100_000_000 * k   # stamps far from the clock
+        js = JointState(header=make_header(stamp, ""), name=list(world.arm.joint_names),
+                        position=[float(v) for v in traj[k][1]])
+        pub.publish(js)
+        sent.append(stamp)
+
+    listener.create_timer(0.15, send)          # slower than the camera: repeats would show
+    assert spin_until(executor, lambda: len(sent) == len(traj) and len(col.msgs["left"]) >= 4,
+                      30.0)
+    spin_until(executor, lambda: False, 0.5)
+    stamps = [header_stamp_ns(m) for m in col.msgs["left"]]
+    assert set(stamps) <= set(sent)            # every pair shows a state, stamped with it
+    assert len(stamps) == len(set(stamps))     # and no state twice
+    k = sent.index(stamps[-1])
+    expected = world.render(traj[k][1], noise_sigma=0.0, supersample=2)
+    got = np.frombuffer(bytes(col.msgs["left"][-1].data), np.uint8).reshape(90, 160, 3)
+    np.testing.assert_array_equal(got, expected.left)
