@@ -87,7 +87,7 @@ from eye_in_hand.core.localization import Localizer, LocalizerConfig, robot_pose
 from eye_in_hand.errors import ConversionError, EyeInHandError, InputError, LocalizationError
 from eye_in_hand.io.config import load_hand_eye
 from eye_in_hand.io.kinematics import load_kinematics
-from eye_in_hand.nodes.hand_eye_calibration import CalibrationMixin
+from eye_in_hand.nodes.hand_eye_calibration import CalibrationMode
 from eye_in_hand.nodes.hand_eye_targets import EveryTargetMixin
 from eye_in_hand.nodes.hand_eye_tf import TfMixin
 from eye_in_hand.ros.conversions import (header_stamp_ns,
@@ -183,6 +183,10 @@ class HandEyeNodeConfig:
     stale_after_s: float = param(1.0, "diagnostics WARN when no robot pose or point arrived "
                                  "for this long (s)", range=(0.01, 3600.0))
     # -- calibration mode ---------------------------------------------------------------
+    setup: str = param("eye_in_hand", "calibration mode: eye_in_hand (camera on the flange, "
+                       "board fixed; X = ee_T_cam) or eye_to_hand (camera fixed, board on the "
+                       "flange; X = base_T_cam). Localization mode takes it from hand_eye.yaml",
+                       choices=("eye_in_hand", "eye_to_hand"))
     board: str = param("chessboard:9x6:0.025", "calibration board spec (calibration mode)")
     calibration_dir: str = param("", "directory with left.yaml + right.yaml (stereo) or "
                                  "camera.yaml (mono) for calibration mode")
@@ -195,6 +199,29 @@ class HandEyeNodeConfig:
                                        "(m/s)", range=(0.0, 10.0))
     still_max_rot_speed_rad_s: float = param(0.01, "capture: largest tool angular speed "
                                              "counted as still (rad/s)", range=(0.0, 10.0))
+    capture_timeout_s: float = param(2.0, "capture: how long a request waits for a new image "
+                                     "pair and the robot poses covering its stillness window "
+                                     "(s)", range=(0.05, 60.0))
+    duplicate_translation_m: float = param(0.005, "capture: a robot pose within this distance "
+                                           "(and duplicate_rotation_rad) of a sample's is the "
+                                           "same pose, refused (m)", range=(0.0, 1.0))
+    duplicate_rotation_rad: float = param(0.0175, "capture: see duplicate_translation_m (rad)",
+                                          range=(0.0, 3.15))
+    min_samples: int = param(10, "status: samples needed before the set can be good enough",
+                             range=(3, 1000))
+    min_rotation_deg: float = param(30.0, "status: the largest rotation between two samples "
+                                    "must reach this (deg)", range=(0.0, 180.0))
+    min_axis_diversity: float = param(0.05, "status: smallest normalised eigenvalue of the "
+                                      "motion-axis scatter needed (0: one axis, 1/3: all "
+                                      "directions)", range=(0.0, 0.34))
+    target_std_mm: float = param(0.5, "status: the set is good enough when the 1-sigma "
+                                 "translation of X is at most this (mm)", range=(0.0, 1000.0))
+    target_std_deg: float = param(0.05, "status: ... and its 1-sigma rotation at most this "
+                                  "(deg)", range=(0.0, 180.0))
+    suggest_count: int = param(3, "next poses suggested after each capture (0 = none)",
+                               range=(0, 20))
+    debug_image_rate_hz: float = param(2.0, "largest rate of ~/debug_image (only while "
+                                       "subscribed; 0 = never)", range=(0.0, 60.0))
 
     def __post_init__(self) -> None:
         if self.mode == "localization" and not self.hand_eye_file:
@@ -213,7 +240,7 @@ class _Pending:
     arrived: float
 
 
-class HandEyeNode(EveryTargetMixin, TfMixin, CalibrationMixin, Node):
+class HandEyeNode(EveryTargetMixin, TfMixin, Node):
     """See the module docstring. ``kwargs`` go to ``Node`` (context, namespace, overrides).
 
     Its parts: localization and the robot pose here; every target
@@ -227,6 +254,7 @@ class HandEyeNode(EveryTargetMixin, TfMixin, CalibrationMixin, Node):
         self.config: HandEyeNodeConfig = load_config(self, HandEyeNodeConfig)
         cfg = self.config
         self.diag = NodeDiagnostics(self, hardware_id=NODE_NAME)
+        self.calibration_mode: CalibrationMode | None = None
         self._chain = None
         self._joint_index: np.ndarray | None = None
         if cfg.robot_pose_source == "joint_states":
@@ -263,7 +291,9 @@ class HandEyeNode(EveryTargetMixin, TfMixin, CalibrationMixin, Node):
             self.fixed_localizer = EyeToHandLocalizer(self.calibration.transform,
                                                       self.calibration.covariance)
 
-        if self.eye_to_hand:
+        if cfg.mode == "calibration":
+            self.eye_to_hand = cfg.setup == "eye_to_hand"   # the flange holds the board
+        if self.eye_to_hand and cfg.mode == "localization":
             pass   # the camera does not move with the robot: no robot pose is needed
         elif cfg.robot_pose_source == "ee_pose":
             self.create_subscription(PoseStamped, "ee_pose", self._on_ee_pose, ROBOT_POSE_QOS)
@@ -273,14 +303,14 @@ class HandEyeNode(EveryTargetMixin, TfMixin, CalibrationMixin, Node):
             self.create_subscription(JointState, "joint_states", self._on_joint_state,
                                      ROBOT_POSE_QOS)
         self.diag.declare_counter("robot_poses")
-        if not self.eye_to_hand:
+        if not self.eye_to_hand or cfg.mode == "calibration":
             self.diag.stale_after("robot_poses", cfg.stale_after_s)
 
+        self._setup_tf_output()
         if cfg.mode == "localization":
             self._setup_localization()
         else:
-            self._setup_calibration()
-        self._setup_tf_output()
+            self.calibration_mode = CalibrationMode(self, self._publish_static_tf)
         self.get_logger().info(
             f"{NODE_NAME} started in {cfg.mode} mode, " + (
                 "eye-to-hand (fixed camera, no robot pose)" if self.eye_to_hand else
@@ -358,7 +388,9 @@ class HandEyeNode(EveryTargetMixin, TfMixin, CalibrationMixin, Node):
 
     def _after_pose(self) -> None:
         self.diag.count("robot_poses")
-        if self.config.mode == "localization":
+        if self.calibration_mode is not None:
+            self.calibration_mode.poll()
+        else:
             self._drain_pending()
             self._drain_frames()
 
@@ -526,6 +558,12 @@ class HandEyeNode(EveryTargetMixin, TfMixin, CalibrationMixin, Node):
         self.diag.gauge("latency_ms", round((self.get_clock().now().nanoseconds - stamp_ns) / 1e6,
                                             3))
         self.diag.gauge("sigma_mm", round(1000.0 * float(np.sqrt(max(np.trace(cov), 0.0))), 4))
+
+    def destroy_node(self) -> None:
+        if self.calibration_mode is not None:
+            self.calibration_mode.shutdown()
+        super().destroy_node()
+
 
 def main(args: list[str] | None = None) -> None:
     """Console entry point: ``ros2 run eye_in_hand hand_eye``."""

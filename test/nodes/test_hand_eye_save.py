@@ -24,16 +24,17 @@ def _node(ros_context, namespace: str, tmp_path: Path, out: Path, **extra) -> Ha
     params += [Parameter(k, value=v) for k, v in extra.items()]
     node = HandEyeNode(context=ros_context, namespace=namespace, parameter_overrides=params)
     problem = make_problem(6, seed=1)
-    node.samples = list(problem.samples)
-    node.result = calibrate_hand_eye(node.samples, "eye_in_hand", cameras=problem.views,
-                                     leave_one_out=False)
+    session = node.calibration_mode.session
+    session.add_samples(problem.samples)
+    session.result = calibrate_hand_eye(session.samples, "eye_in_hand", cameras=problem.views,
+                                        leave_one_out=False)
     return node
 
 
 def _save(node: HandEyeNode):
     from std_srvs.srv import Trigger
 
-    return node._srv_save(Trigger.Request(), Trigger.Response())
+    return node.calibration_mode._trigger_save(Trigger.Request(), Trigger.Response())
 
 
 def test_save_refuses_a_folder_it_did_not_write(ros_context, namespace, tmp_path) -> None:

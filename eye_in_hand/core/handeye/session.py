@@ -260,56 +260,89 @@ class CalibrationSession:
         return CaptureOutcome(req.id, False, reason, message)
 
     def complete(self, req: CaptureRequest) -> CaptureOutcome:
-        """Answer a request from :meth:`ready`: stillness, duplicate, board, then the sample.
+        """Answer a request from :meth:`ready`: :meth:`check`, :meth:`detect`, :meth:`commit`.
 
-        Runs the board detection (tens of ms on a 720p pair): the node calls it off the
-        executor thread.
+        The node runs the three steps apart: :meth:`check` on the executor thread as soon as
+        the request is ready (the robot poses are looked up while they are fresh), the board
+        detection (tens of ms on a 720p pair) on a worker thread, and :meth:`commit` under its
+        lock.
         """
+        base_T_ee, refused = self.check(req)
+        if refused is not None:
+            return refused
+        assert base_T_ee is not None
+        return self.commit(req, base_T_ee, self.detect(req, base_T_ee))
+
+    def check(self, req: CaptureRequest) -> tuple[np.ndarray | None, CaptureOutcome | None]:
+        """The robot pose of a ready request, or its refusal: no frame, no pose, moving,
+        duplicate. Fast (pose lookups only)."""
         cfg = self.config
         if req.frame_stamp_ns is None:
-            return self._refuse(req, "no_image", f"no image pair arrived within "
-                                f"{cfg.capture_timeout_s:g} s of the request: check the camera "
-                                "topics (left/image_raw, right/image_raw)")
+            return None, self._refuse(req, "no_image", f"no image pair arrived within "
+                                      f"{cfg.capture_timeout_s:g} s of the request: check the "
+                                      "camera topics (left/image_raw, right/image_raw)")
         stamp = req.frame_stamp_ns
         window = int(cfg.still_window_s * 1e9)
         newest = self.poses.newest_ns
         if newest is None or newest < stamp + window:
             have = "no robot pose at all" if newest is None else (
                 f"the newest is {(stamp - newest) / 1e6:.0f} ms before the image")
-            return self._refuse(req, "no_pose", f"no robot pose {cfg.still_window_s:g} s after "
-                                f"the image at {stamp} ns arrived within "
-                                f"{cfg.capture_timeout_s:g} s ({have}); check the robot pose "
-                                "topic, or raise capture_timeout_s if poses come late")
+            return None, self._refuse(
+                req, "no_pose", f"no robot pose {cfg.still_window_s:g} s after the image at "
+                f"{stamp} ns arrived within {cfg.capture_timeout_s:g} s ({have}); check the "
+                "robot pose topic, or raise capture_timeout_s if poses come late")
         try:
             base_T_ee, moving = self._still_pose(stamp)
         except LocalizationError as exc:
-            return self._refuse(req, "no_pose", f"no robot pose around the image at {stamp} "
-                                f"ns: {exc}")
+            return None, self._refuse(req, "no_pose", f"no robot pose around the image at "
+                                      f"{stamp} ns: {exc}")
         if moving:
-            return self._refuse(req, "moving", moving)
+            return None, self._refuse(req, "moving", moving)
         dup = self._duplicate_of(base_T_ee)
         if dup:
-            return self._refuse(req, "duplicate", dup)
+            return None, self._refuse(req, "duplicate", dup)
+        return base_T_ee, None
+
+    def detect(self, req: CaptureRequest, base_T_ee: np.ndarray) -> Any:
+        """Detect the board in the request's frame (no session state is read or changed).
+
+        Returns:
+            An :class:`.observe.Observation`, or an exception to report (a bad image).
+        """
         name = f"sample_{self._names:03d}"
         try:
             images = self.decode(req.frame)
-            obs = self.observe(name, images, base_T_ee, self.board, self.views)
+            return self.observe(name, images, base_T_ee, self.board, self.views)
         except EyeInHandError as exc:
-            return self._refuse(req, "error", f"{name}: {exc}", name)
+            return exc
+
+    def commit(self, req: CaptureRequest, base_T_ee: np.ndarray, obs: Any) -> CaptureOutcome:
+        """Take the detected sample (or refuse it): a duplicate is checked again, since
+        another capture may have been taken meanwhile."""
+        name = f"sample_{self._names:03d}"
+        if isinstance(obs, BaseException):
+            return self._refuse(req, "error", f"{name}: {obs}", name)
         if obs.sample is None:
             return self._refuse(req, "board_not_seen", f"{obs.reason}: make the whole board "
                                 "visible, well lit and sharp", name)
+        dup = self._duplicate_of(base_T_ee)
+        if dup:
+            return self._refuse(req, "duplicate", dup)
+        sample = obs.sample
+        if sample.name != name:     # named when detected; the next free name now
+            sample = HandEyeSample(name, sample.base_T_ee, sample.cam_T_board,
+                                   sample.observations)
         self._names += 1
-        ref = obs.sample.observations[0]
+        ref = sample.observations[0]
         _, rms = board_pose_pnp(self.views[0].model, ref.object_points, ref.image_points)
-        record = SampleRecord(obs.sample, stamp, int(sum(o.image_points.shape[0]
-                                                         for o in obs.sample.observations)),
+        record = SampleRecord(sample, req.frame_stamp_ns or 0,
+                              int(sum(o.image_points.shape[0] for o in sample.observations)),
                               rms, obs.notes)
         self.records.append(record)
         self.result = None
         n = len(self.records)
         notes = f" ({'; '.join(obs.notes)})" if obs.notes else ""
-        return CaptureOutcome(req.id, True, "", f"captured {name} at {stamp} ns: {n} "
+        return CaptureOutcome(req.id, True, "", f"captured {name} at {record.stamp_ns} ns: {n} "
                               f"sample{'s' if n != 1 else ''}{notes}", record, n - 1)
 
     def _still_pose(self, stamp: int) -> tuple[np.ndarray, str]:
@@ -351,7 +384,7 @@ class CalibrationSession:
                 return (f"this pose was already taken as {r.sample.name} ({1000 * d:.2f} mm, "
                         f"{math.degrees(a):.3f} deg away; a new pose must differ by more than "
                         f"{1000 * cfg.duplicate_translation_m:g} mm or "
-                        f"{math.degrees(cfg.duplicate_rotation_rad):g} deg): move the robot to "
+                        f"{math.degrees(cfg.duplicate_rotation_rad):.3g} deg): move the robot to "
                         "the next pose")
         return ""
 
