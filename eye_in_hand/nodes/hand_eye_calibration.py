@@ -137,8 +137,7 @@ class CalibrationMode:
             raise ConfigError(str(exc)) from exc
         self.session = CalibrationSession(
             self.session_config, self.board, self.views, node.localizer.poses, self._decode,
-            pose_kwargs=lambda: {"now_ns": node._now_ns(),
-                                 "max_age_ns": int(cfg.max_pose_age_s * 1e9)})
+            pose_kwargs=self._pose_age_rule)
         self._lock = threading.Lock()            # the session: executor thread and workers
         # captures (board detection, next poses) and computes on their own threads: a capture
         # never waits behind a compute of several seconds
@@ -192,6 +191,14 @@ class CalibrationMode:
         self.diag.gauge("samples", 0)
         self._publish_status()
 
+    def _pose_age_rule(self, req: Any) -> dict[str, int]:
+        """The receive-age rule of the capture's pose lookups: the poses may be up to
+        ``max_pose_age_s`` older than the frame's arrival (however long the capture then
+        waited for the poses after it), and none may come from the clock's future."""
+        now = self.node._now_ns()
+        waited = 0 if req.frame_received_ns is None else max(now - req.frame_received_ns, 0)
+        return {"now_ns": now, "max_age_ns": int(self.config.max_pose_age_s * 1e9) + waited}
+
     # -- frames -----------------------------------------------------------------------------
     def _on_image(self, name: str, msg: Image) -> None:
         try:
@@ -207,7 +214,7 @@ class CalibrationMode:
         if len(frame) == len(self.views):
             del self._frames[stamp]
             with self._lock:
-                self.session.add_frame(stamp, frame)
+                self.session.add_frame(stamp, frame, self.node._now_ns())
             self._maybe_debug_image(stamp, frame)
             self.poll()
 
@@ -291,7 +298,7 @@ class CalibrationMode:
 
     async def _capture(self) -> CaptureOutcome:
         with self._lock:
-            req = self.session.request_capture(time.monotonic())
+            req = self.session.request_capture(time.monotonic(), self.node._now_ns())
         fut = Future()
         self._waiters[req.id] = fut
         self.poll()

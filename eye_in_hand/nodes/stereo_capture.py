@@ -20,7 +20,10 @@ Sources (parameter ``source``):
     ``sim.follow_joint_states``, at the latest joint vector received on
     ``sim.joint_states_topic`` (e.g. from a bag or a robot driver); a pair then carries the
     stamp of the joint state it shows (the exposure time, as a camera stamps a frame), not
-    the time it was published, and a joint state is rendered at most once.
+    the time it was published, and a joint state is rendered at most once. While the joints
+    stay exactly where the last render was made (the arm stands still), that render is
+    published again at ``rate_hz`` with each new joint state's stamp, as a camera keeps
+    streaming a still scene (a render takes 0.1-1 s).
     ``images``: ``images.left`` / ``images.right`` folders or glob patterns, in sorted order,
     optionally looping (``images.loop``).
     ``video``: ``video.left`` and ``video.right`` files, or one side-by-side file in
@@ -40,6 +43,7 @@ import glob
 import os
 import queue
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -290,6 +294,9 @@ class SimSource(FrameSource):
         self._latest: np.ndarray | None = None
         self._latest_stamp: int | None = None
         self._rendered_stamp: int | None = None
+        self._cached: _Pair | None = None      # follow mode: the last render, for a still arm
+        self._cached_at = 0.0
+        self.period_s = 1.0 / rate_hz
         self.qs: list[np.ndarray] = []
         if not follow:
             try:
@@ -322,6 +329,17 @@ class SimSource(FrameSource):
                 raise _NotReady("no joint state received yet")
             if stamp is not None and stamp == self._rendered_stamp:
                 raise _NotReady("no new joint state since the last pair")
+            cached = self._cached
+            if cached is not None and cached.q is not None and np.array_equal(cached.q, q):
+                # the arm has not moved since the last render: the camera sees the same scene
+                # (a render takes ~0.1-1 s; a real camera streams on), at the camera's rate
+                now = time.monotonic()
+                if now - self._cached_at < self.period_s:
+                    raise _NotReady("next frame not due yet")
+                self._rendered_stamp, self._cached_at = stamp, now
+                k = self.i
+                self.i += 1
+                return _Pair(cached.left, cached.right, q=q, index=k, stamp_ns=stamp)
             self._rendered_stamp = stamp
         else:
             q = self.qs[self.i % len(self.qs)]
@@ -329,7 +347,10 @@ class SimSource(FrameSource):
         self.i += 1
         frame = self.world.render(q, seed=self.seed * 1_000_003 + k,
                                   noise_sigma=self.noise_sigma, supersample=self.supersample)
-        return _Pair(frame.left, frame.right, q=q, index=k, stamp_ns=stamp)
+        pair = _Pair(frame.left, frame.right, q=q, index=k, stamp_ns=stamp)
+        if self.follow:
+            self._cached, self._cached_at = pair, time.monotonic()
+        return pair
 
 
 class StereoCaptureNode(Node):

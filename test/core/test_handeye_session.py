@@ -256,3 +256,31 @@ def test_config_is_checked():
         SessionConfig(capture_timeout_s=0.0)
     with pytest.raises(InputError, match="still_window_s must be"):
         SessionConfig(still_window_s=math.nan)
+
+
+def test_a_frame_stamped_before_the_request_is_not_used():
+    """A slow camera or renderer hands in a frame exposed before the request, after it: the
+    request waits for a frame stamped after its own time."""
+    cell = Cell()
+    s = cell.session
+    cell.stream(0, 3000 * MS, 0)
+    req = s.request_capture(0.0, now_ns=2000 * MS)
+    s.add_frame(1500 * MS, {"stop": 0}, received_ns=2100 * MS)   # exposed before the request
+    assert req.frame_stamp_ns is None
+    s.add_frame(2500 * MS, {"stop": 0}, received_ns=2600 * MS)
+    assert req.frame_stamp_ns == 2500 * MS and req.frame_received_ns == 2600 * MS
+    assert s.complete(s.ready(0.1)[0]).ok
+
+
+def test_receive_age_is_measured_at_the_frame_arrival():
+    """pose_kwargs gets the request: the node measures the poses' receive age against the
+    frame's arrival, not against when a busy worker got to it."""
+    cell = Cell()
+    seen = []
+    cell.session.pose_kwargs = lambda req: seen.append(req.frame_received_ns) or {}
+    s = cell.session
+    s.request_capture(0.0, now_ns=0)
+    s.add_frame(1000 * MS, {"stop": 0}, received_ns=1050 * MS)
+    cell.stream(0, 1300 * MS, 0)
+    assert s.complete(s.ready(0.1)[0]).ok
+    assert seen and set(seen) == {1050 * MS}

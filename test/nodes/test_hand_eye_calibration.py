@@ -65,8 +65,9 @@ class _Cell:
     def show(self, q, k, *, moving=False, poses_before_ms=300, poses_after_ms=300,
              images=None, pose_lag_ms=0):
         """One image pair at a new stamp, with robot poses at 40 Hz around it."""
-        self.clock_ns += 2000 * MS
-        stamp = self.clock_ns
+        # a camera and a driver on the node's clock: the pair is exposed now
+        stamp = self.clock_ns = max(self.node.get_clock().now().nanoseconds,
+                                    self.clock_ns + 400 * MS)
         base_T_ee = self.world.arm.fk(q)
         for dt in range(-poses_before_ms, poses_after_ms + 1, 25):
             T = base_T_ee.copy()

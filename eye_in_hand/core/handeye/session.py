@@ -5,10 +5,11 @@ source and wires its answers to services and topics; a test drives it with plain
 
 Capture rule (docs/handeye.md, "Calibrating at a live cell"):
 
-1. :meth:`CalibrationSession.request_capture` remembers the newest frame stamp seen so far. The
-   request is answered from the first frame *received after it* (a newer stamp), so a capture
-   never uses an image taken before the person asked for it, whatever the clocks of camera and
-   node.
+1. :meth:`CalibrationSession.request_capture` remembers the newest frame stamp seen so far and
+   the request's time on the data clock (the node's clock: wall time, or ``/clock``). The
+   request is answered from the first frame stamped after both, so a capture never uses an
+   image taken before the person asked for it (a camera that stamps late, or a simulator that
+   renders slowly, cannot hand in an older image).
 2. That frame waits until the robot poses cover its stillness window: a pose at or after
    ``stamp + still_window_s`` must exist (poses may arrive later than images; nothing is
    extrapolated). The poses at ``stamp`` and across ``stamp +- still_window_s`` are then looked
@@ -116,10 +117,12 @@ class CaptureRequest:
 
     Attributes:
         id: request number.
-        after_ns: the frame must be newer than this stamp (the newest seen at the request).
+        after_ns: the frame must be newer than this stamp (the newest seen at the request, or
+            the request's own time on the data clock, whichever is later).
         deadline_s: steady time by which it is refused.
         frame_stamp_ns: the frame bound to it (None until one arrives).
         frame: that frame (opaque: what :meth:`CalibrationSession.add_frame` was given).
+        frame_received_ns: when that frame arrived (data clock), or None.
     """
 
     id: int
@@ -127,6 +130,7 @@ class CaptureRequest:
     deadline_s: float
     frame_stamp_ns: int | None = None
     frame: Any = None
+    frame_received_ns: int | None = None
 
 
 @dataclass(frozen=True)
@@ -190,22 +194,24 @@ class CalibrationSession:
         poses: the robot pose source.
         decode: turns a frame given to :meth:`add_frame` into images by view name; called only
             for the frame a capture uses (images are decoded once per capture, not per frame).
-        pose_kwargs: extra keyword arguments of ``poses.lookup`` (``now_ns``, ``max_age_ns``),
-            a callable returning them, called per capture.
+        pose_kwargs: extra keyword arguments of ``poses.lookup`` (``now_ns``, ``max_age_ns``):
+            a callable given the request, returning them, called per capture (the node
+            measures the poses' receive age from the frame's arrival, not from when the poses
+            after it came in).
         observe: detects the board and builds the sample (:func:`.observe.observe_sample`,
             the default; a test may give its own).
     """
 
     def __init__(self, config: SessionConfig, board: Any, views: Sequence[CameraView],
                  poses: PoseSource, decode: Callable[[Any], Mapping[str, np.ndarray]], *,
-                 pose_kwargs: Callable[[], dict[str, Any]] | None = None,
+                 pose_kwargs: Callable[[CaptureRequest], dict[str, Any]] | None = None,
                  observe: Callable[..., Any] = observe_sample) -> None:
         self.config = config
         self.board = board
         self.views = list(views)
         self.poses = poses
         self.decode = decode
-        self.pose_kwargs = pose_kwargs or (lambda: {})
+        self.pose_kwargs = pose_kwargs or (lambda req: {})
         self.observe = observe
         self.records: list[SampleRecord] = []
         self.skipped: list[tuple[str, str]] = []     # (name, reason sentence)
@@ -224,18 +230,28 @@ class CalibrationSession:
     def pending(self) -> list[CaptureRequest]:
         return list(self._requests)
 
-    def add_frame(self, stamp_ns: int, frame: Any) -> None:
-        """A new image frame (pair): binds it to every request still waiting for a frame."""
+    def add_frame(self, stamp_ns: int, frame: Any, received_ns: int | None = None) -> None:
+        """A new image frame (pair), arrived at ``received_ns`` (data clock): binds it to every
+        request still waiting for a frame."""
         if self._newest_frame_ns is None or stamp_ns > self._newest_frame_ns:
             self._newest_frame_ns = stamp_ns
         for req in self._requests:
             if req.frame_stamp_ns is None and (req.after_ns is None or stamp_ns > req.after_ns):
                 req.frame_stamp_ns, req.frame = stamp_ns, frame
+                req.frame_received_ns = received_ns
 
-    def request_capture(self, now_s: float) -> CaptureRequest:
-        """Ask for a sample from the next frame (``now_s``: steady time, seconds)."""
-        req = CaptureRequest(self._next_id, self._newest_frame_ns,
-                             now_s + self.config.capture_timeout_s)
+    def request_capture(self, now_s: float, now_ns: int | None = None) -> CaptureRequest:
+        """Ask for a sample from the next frame.
+
+        Args:
+            now_s: steady time (s): the timeout runs on it.
+            now_ns: the request's time on the data clock (the frames' stamps); None: only
+                the newest frame seen so far bounds the frame taken.
+        """
+        after = self._newest_frame_ns
+        if now_ns is not None:
+            after = now_ns if after is None else max(after, now_ns)
+        req = CaptureRequest(self._next_id, after, now_s + self.config.capture_timeout_s)
         self._next_id += 1
         self._requests.append(req)
         return req
@@ -278,9 +294,11 @@ class CalibrationSession:
         duplicate. Fast (pose lookups only)."""
         cfg = self.config
         if req.frame_stamp_ns is None:
-            return None, self._refuse(req, "no_image", f"no image pair arrived within "
-                                      f"{cfg.capture_timeout_s:g} s of the request: check the "
-                                      "camera topics (left/image_raw, right/image_raw)")
+            return None, self._refuse(
+                req, "no_image", f"no image pair stamped after the request arrived within "
+                f"{cfg.capture_timeout_s:g} s: check the camera topics (left/image_raw, "
+                "right/image_raw), and that the camera stamps with this node's clock "
+                "(use_sim_time when replaying)")
         stamp = req.frame_stamp_ns
         window = int(cfg.still_window_s * 1e9)
         newest = self.poses.newest_ns
@@ -292,7 +310,7 @@ class CalibrationSession:
                 f"{stamp} ns arrived within {cfg.capture_timeout_s:g} s ({have}); check the "
                 "robot pose topic, or raise capture_timeout_s if poses come late")
         try:
-            base_T_ee, moving = self._still_pose(stamp)
+            base_T_ee, moving = self._still_pose(req)
         except LocalizationError as exc:
             return None, self._refuse(req, "no_pose", f"no robot pose around the image at "
                                       f"{stamp} ns: {exc}")
@@ -345,7 +363,7 @@ class CalibrationSession:
         return CaptureOutcome(req.id, True, "", f"captured {name} at {record.stamp_ns} ns: {n} "
                               f"sample{'s' if n != 1 else ''}{notes}", record, n - 1)
 
-    def _still_pose(self, stamp: int) -> tuple[np.ndarray, str]:
+    def _still_pose(self, req: CaptureRequest) -> tuple[np.ndarray, str]:
         """The robot pose at ``stamp`` and '' when still over the window, else why not.
 
         Raises:
@@ -353,8 +371,10 @@ class CalibrationSession:
                 before it, stale).
         """
         cfg = self.config
+        stamp = req.frame_stamp_ns
+        assert stamp is not None
         gap = int(cfg.max_pose_gap_s * 1e9)
-        kw = self.pose_kwargs()
+        kw = self.pose_kwargs(req)
         T = self.poses.lookup(stamp, gap, **kw)
         w = cfg.still_window_s
         if w <= 0:
