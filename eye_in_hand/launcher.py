@@ -42,7 +42,8 @@ from typing import IO, Sequence
 
 from eye_in_hand.errors import ConfigError, InputError
 
-__all__ = ["NodeSpec", "NODES", "node_command", "Launcher", "default_params_file"]
+__all__ = ["NodeSpec", "NODES", "CALIBRATION_NODES", "node_command", "Launcher",
+           "default_params_file"]
 
 
 @dataclass(frozen=True)
@@ -69,18 +70,29 @@ NODES: tuple[NodeSpec, ...] = (
     NodeSpec("hand_eye", "eye_in_hand.nodes.hand_eye", ""),
 )
 
+#: Calibration mode (``eye-in-hand launch --calibrate``, ``mode:=calibration``): the camera, and
+#: hand_eye in calibration mode reading the camera's images (``stereo/left/image_raw``, ...).
+CALIBRATION_NODES: tuple[NodeSpec, ...] = (
+    NODES[0],
+    NodeSpec("hand_eye", "eye_in_hand.nodes.hand_eye", "",
+             (("left/image_raw", "stereo/left/image_raw"),
+              ("right/image_raw", "stereo/right/image_raw"),
+              ("image_raw", "stereo/left/image_raw")),
+             ("-p", "mode:=calibration")),
+)
 
-def default_params_file() -> Path:
-    """``config/eye_in_hand.yaml`` of the source tree, or of the installed share folder."""
-    here = Path(__file__).resolve().parent.parent / "config" / "eye_in_hand.yaml"
+
+def default_params_file(name: str = "eye_in_hand.yaml") -> Path:
+    """``config/<name>`` of the source tree, or of the installed share folder."""
+    here = Path(__file__).resolve().parent.parent / "config" / name
     if here.is_file():
         return here
     try:  # local: ament_index_python is there only where the package is installed with ament
         from ament_index_python.packages import get_package_share_directory
 
-        return Path(get_package_share_directory("eye_in_hand")) / "config" / "eye_in_hand.yaml"
+        return Path(get_package_share_directory("eye_in_hand")) / "config" / name
     except Exception as exc:  # noqa: BLE001 - any failure means: not installed with ament
-        raise ConfigError("cannot find config/eye_in_hand.yaml: pass --params FILE") from exc
+        raise ConfigError(f"cannot find config/{name}: pass --params FILE") from exc
 
 
 def _join(root: str, rel: str) -> str:
@@ -107,7 +119,8 @@ class Launcher:
 
     Args:
         params_file: the ROS parameter file given to every node.
-        nodes: which nodes (names from :data:`NODES`), in start order.
+        nodes: which nodes (names from :data:`NODES`, or :data:`CALIBRATION_NODES` with
+            ``calibrate``), in start order.
         root_namespace: prefix of every node's namespace.
         env: environment of the children (default: this process's).
         out: where prefixed child output goes (default: stdout).
@@ -118,13 +131,15 @@ class Launcher:
         max_restarts: restarts of one node allowed within ``restart_window_s``; one more and
             the launch stops, naming the node.
         restart_window_s: the window of ``max_restarts`` (s).
+        calibrate: calibration mode (:data:`CALIBRATION_NODES`).
     """
 
     def __init__(self, params_file: str | os.PathLike[str], nodes: Sequence[str] | None = None,
                  *, root_namespace: str = "/", env: dict[str, str] | None = None,
                  out: IO[str] | None = None, respawn: bool = True,
                  respawn_delay_s: float = 0.5, respawn_max_delay_s: float = 8.0,
-                 max_restarts: int = 5, restart_window_s: float = 60.0) -> None:
+                 max_restarts: int = 5, restart_window_s: float = 60.0,
+                 calibrate: bool = False) -> None:
         if not (respawn_delay_s >= 0 and respawn_max_delay_s >= respawn_delay_s):
             raise InputError(f"respawn delays: need 0 <= first ({respawn_delay_s}) <= max "
                              f"({respawn_max_delay_s})")
@@ -140,14 +155,15 @@ class Launcher:
         self.params_file = Path(params_file)
         if not self.params_file.is_file():
             raise ConfigError(f"{self.params_file}: parameter file not found")
-        names = [n.name for n in NODES]
+        catalogue = CALIBRATION_NODES if calibrate else NODES
+        names = [n.name for n in catalogue]
         chosen = list(nodes) if nodes is not None else names
         unknown = [n for n in chosen if n not in names]
         if unknown:
             raise InputError(f"unknown node(s) {', '.join(unknown)} (known: {', '.join(names)})")
         if not chosen:
             raise InputError("no node to launch")
-        self.specs = [s for s in NODES if s.name in chosen]
+        self.specs = [s for s in catalogue if s.name in chosen]
         self.root_namespace = root_namespace
         self.env = dict(os.environ if env is None else env)
         self.env.setdefault("PYTHONUNBUFFERED", "1")

@@ -1,5 +1,6 @@
 """ros2 launch eye_in_hand eye_in_hand.launch.py [params_file:=FILE] [namespace:=NS]
 [start_capture:=true|false] [respawn:=true|false] [respawn_delay:=S]
+[mode:=localization|calibration]
 
 The same bring-up as ``eye-in-hand launch`` (eye_in_hand/launcher.py: keep the two equal):
 
@@ -10,6 +11,11 @@ The same bring-up as ``eye-in-hand launch`` (eye_in_hand/launcher.py: keep the t
 * every node's diagnostics -> <ns>/diagnostics
 
 One parameter file (default: share/eye_in_hand/config/eye_in_hand.yaml) configures all three.
+
+``mode:=calibration`` (= ``eye-in-hand launch --calibrate``): stereo_capture, and hand_eye in
+calibration mode with ``left/image_raw``, ``right/image_raw`` (and mono ``image_raw``) remapped
+to the camera's ``<ns>/stereo/...``; no detect_triangulate. The default parameter file is then
+share/eye_in_hand/config/hand_eye_calibration.yaml. See docs/handeye.md.
 A node that exits is restarted after respawn_delay seconds (respawn:=false: it is not); unlike
 ``eye-in-hand launch``, ros2 launch has a fixed delay and no restart limit.
 """
@@ -27,6 +33,13 @@ def _nodes(context):
     ns = "/" + LaunchConfiguration("namespace").perform(context).strip("/")
     root = ns.rstrip("/")
     params = LaunchConfiguration("params_file").perform(context)
+    mode = LaunchConfiguration("mode").perform(context)
+    if mode not in ("localization", "calibration"):
+        raise RuntimeError(f"mode:={mode}: must be localization or calibration")
+    calibrate = mode == "calibration"
+    if not params:
+        params = os.path.join(get_package_share_directory("eye_in_hand"), "config",
+                              "hand_eye_calibration.yaml" if calibrate else "eye_in_hand.yaml")
     env = {}
     if not (os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE")
             or os.environ.get("FASTDDS_DEFAULT_PROFILES_FILE")):
@@ -37,7 +50,15 @@ def _nodes(context):
     respawn = LaunchConfiguration("respawn").perform(context).lower() in ("true", "1", "yes")
     delay = float(LaunchConfiguration("respawn_delay").perform(context))
     again = {"respawn": respawn, "respawn_delay": delay}
-    return [
+    camera_images = [("left/image_raw", f"{root}/stereo/left/image_raw"),
+                     ("right/image_raw", f"{root}/stereo/right/image_raw"),
+                     ("image_raw", f"{root}/stereo/left/image_raw")]
+    hand_eye = Node(package="eye_in_hand", executable="hand_eye", name="hand_eye", namespace=ns,
+                    parameters=[params, {"mode": mode}] if calibrate else [params],
+                    additional_env=env,
+                    remappings=[*camera_images, diag] if calibrate else [diag],
+                    output="screen", **again)
+    nodes = [
         Node(package="eye_in_hand", executable="stereo_capture", name="stereo_capture",
              namespace=f"{root}/stereo", parameters=[params], additional_env=env,
              remappings=[("ee_pose", f"{root}/ee_pose"),
@@ -51,18 +72,21 @@ def _nodes(context):
                          ("target/debug_image", f"{root}/target/debug_image"),
                          ("targets/markers", f"{root}/targets/markers"), diag],
              output="screen", **again),
-        Node(package="eye_in_hand", executable="hand_eye", name="hand_eye", namespace=ns,
-             parameters=[params], additional_env=env, remappings=[diag], output="screen",
-             **again),
+        hand_eye,
     ]
+    return [nodes[0], nodes[2]] if calibrate else nodes
 
 
 def generate_launch_description():
-    default_params = os.path.join(get_package_share_directory("eye_in_hand"), "config",
-                                  "eye_in_hand.yaml")
     return LaunchDescription([
-        DeclareLaunchArgument("params_file", default_value=default_params,
-                              description="ROS parameter file for the three nodes"),
+        DeclareLaunchArgument("params_file", default_value="",
+                              description="ROS parameter file for the nodes (default: "
+                              "config/eye_in_hand.yaml, or config/hand_eye_calibration.yaml "
+                              "with mode:=calibration)"),
+        DeclareLaunchArgument("mode", default_value="localization",
+                              choices=["localization", "calibration"],
+                              description="localization: the three nodes; calibration: "
+                              "stereo_capture and hand_eye in calibration mode"),
         DeclareLaunchArgument("namespace", default_value="/",
                               description="root namespace of every node and topic"),
         DeclareLaunchArgument("start_capture", default_value="true",

@@ -436,3 +436,27 @@ def test_help_does_not_import_heavy_modules():
                           timeout=60, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "", f"imported at --help time: {proc.stdout.strip()}"
+
+
+def test_rviz_config_shows_the_topics_the_nodes_publish():
+    """config/eye_in_hand.rviz is YAML and every topic it shows is one a node publishes."""
+    import yaml
+
+    root = Path(__file__).resolve().parents[1]
+    cfg = yaml.safe_load((root / "config" / "eye_in_hand.rviz").read_text())
+    topics = [d["Topic"]["Value"] for d in cfg["Visualization Manager"]["Displays"]
+              if "Topic" in d]
+    assert topics
+    sources = {
+        "/target/markers": "eye_in_hand/nodes/hand_eye_targets.py",
+        "/target/poses": "eye_in_hand/nodes/hand_eye_targets.py",
+        "/hand_eye/next_pose_markers": "eye_in_hand/nodes/hand_eye_calibration.py",
+        "/hand_eye/next_poses": "eye_in_hand/nodes/hand_eye_calibration.py",
+        "/hand_eye/debug_image": "eye_in_hand/nodes/hand_eye_calibration.py",
+        "/target/debug_image": "eye_in_hand/nodes/detect_triangulate.py",
+    }
+    for topic in topics:
+        assert topic in sources, topic
+        name = topic.split("/", 2)[2] if topic.startswith("/hand_eye/") else topic[1:]
+        text = (root / sources[topic]).read_text()
+        assert f'"{name}"' in text or f'"~/{name}"' in text, (topic, sources[topic])

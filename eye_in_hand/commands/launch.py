@@ -4,6 +4,7 @@ Example::
 
     eye-in-hand launch --params config/eye_in_hand.yaml
     eye-in-hand launch --params my.yaml --skip stereo_capture     # images come from a bag
+    eye-in-hand launch --calibrate --params my_calibration.yaml  # hand-eye at a live cell
 
 One ROS parameter file configures all three nodes (``/**/<node>:`` sections). Output lines are
 prefixed with ``[node]``; Ctrl-C is forwarded. A node that crashes is restarted after a bounded
@@ -26,6 +27,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``eye-in-hand launch``."""
     parser.add_argument("--params", metavar="FILE",
                         help="ROS parameter file for all nodes (default: config/eye_in_hand.yaml)")
+    parser.add_argument("--calibrate", action="store_true",
+                        help="hand-eye calibration at a live cell: stereo_capture and hand_eye "
+                             "in calibration mode, reading the camera's images (default "
+                             "parameter file: config/hand_eye_calibration.yaml); see "
+                             "docs/handeye.md")
     parser.add_argument("--skip", nargs="+", default=[], metavar="NODE",
                         choices=("stereo_capture", "detect_triangulate", "hand_eye"),
                         help="nodes not to start (e.g. stereo_capture when a bag is replayed)")
@@ -48,11 +54,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Start the nodes and supervise them until Ctrl-C, --duration or a node's exit."""
     # local: the launcher loads subprocess and threading (~12 ms at CLI start-up)
-    from eye_in_hand.launcher import NODES, Launcher, default_params_file
+    from eye_in_hand.launcher import CALIBRATION_NODES, NODES, Launcher, default_params_file
 
     if args.duration is not None and not args.duration > 0:
         raise InputError(f"--duration: must be positive, got {args.duration}")
-    params = args.params or default_params_file()
+    params = args.params or default_params_file(
+        "hand_eye_calibration.yaml" if args.calibrate else "eye_in_hand.yaml")
     # bad input is one line here, not a traceback from rcl in every node
     # local: ros.names loads rclpy (~50 ms at CLI start-up)
     from eye_in_hand.ros.names import check_parameter_text, topic_name_problem
@@ -66,13 +73,17 @@ def run(args: argparse.Namespace) -> int:
     if not isinstance(read_yaml_file(params, "parameter file"), dict):
         raise ConfigError(f"{printable(params)}: parameter file must map node names to "
                           "'ros__parameters'")
-    nodes = [n.name for n in NODES if n.name not in args.skip]
+    catalogue = CALIBRATION_NODES if args.calibrate else NODES
+    nodes = [n.name for n in catalogue if n.name not in args.skip]
+    if not nodes:
+        raise InputError("--skip: no node left to start")
     if not 0 <= args.respawn_delay <= 8.0:
         raise InputError(f"--respawn-delay: must be within [0, 8] s, got {args.respawn_delay}")
     if args.max_restarts < 0 or not args.restart_window > 0:
         raise InputError("--max-restarts must be >= 0 and --restart-window > 0")
     launcher = Launcher(params, nodes, root_namespace=args.namespace,
                         respawn=not args.no_respawn, respawn_delay_s=args.respawn_delay,
-                        max_restarts=args.max_restarts, restart_window_s=args.restart_window)
+                        max_restarts=args.max_restarts, restart_window_s=args.restart_window,
+                        calibrate=args.calibrate)
     print(f"eye-in-hand launch: starting {', '.join(nodes)} with {params}", flush=True)
     return launcher.run(args.duration)

@@ -505,6 +505,21 @@ class CalibrationMode:
         self.pub_next.publish(arr)
         Marker, MarkerArray = marker_classes()
         markers = [Marker(header=arr.header, action=Marker.DELETEALL)]
+        est = self._estimate
+        if est is not None:   # the board where the estimate puts it (Y: base or flange frame)
+            cfg = self.config
+            b = self.board
+            w, h = (b.cols + 1) * b.square, (b.rows + 1) * b.square
+            centre = np.eye(4)
+            centre[:3, 3] = [(b.cols - 1) * b.square / 2, (b.rows - 1) * b.square / 2, 0.002]
+            m = Marker(header=arr.header, ns="board", id=0, type=Marker.CUBE,
+                       action=Marker.ADD, pose=matrix_to_pose(est.methods[est.selected].Y
+                                                              @ centre))
+            m.header.frame_id = cfg.ee_frame if cfg.setup == "eye_to_hand" else cfg.base_frame
+            m.scale.x, m.scale.y, m.scale.z = w, h, 0.004
+            m.color.r = m.color.g = m.color.b = 0.85
+            m.color.a = 0.8
+            markers.append(m)
         for k, pose in enumerate(arr.poses):
             m = Marker(header=arr.header, ns="next_pose", id=k, type=Marker.ARROW,
                        action=Marker.ADD, pose=pose)

@@ -169,3 +169,47 @@ def test_ctrl_c_stops_every_node_cleanly(tmp_path, ros_env):
     proc.send_signal(signal.SIGINT)
     rest, _ = proc.communicate(timeout=60)
     assert proc.returncode == 0, "".join(lines) + rest
+
+
+def test_calibration_mode_commands_remap_the_camera_images():
+    from eye_in_hand.launcher import CALIBRATION_NODES
+
+    assert [n.name for n in CALIBRATION_NODES] == ["stereo_capture", "hand_eye"]
+    cmd = " ".join(node_command(CALIBRATION_NODES[1], "p.yaml", root_namespace="/cell"))
+    assert "left/image_raw:=/cell/stereo/left/image_raw" in cmd
+    assert "right/image_raw:=/cell/stereo/right/image_raw" in cmd
+    assert "image_raw:=/cell/stereo/left/image_raw" in cmd
+    assert cmd.endswith("-p mode:=calibration")       # after --params-file: it wins
+
+
+def test_launch_calibrate_starts_hand_eye_in_calibration_mode(tmp_path, ros_env, ros_context,
+                                                              executor, namespace, spin_until):
+    """`eye-in-hand launch --calibrate`: hand_eye offers the calibration services and reads
+    the camera's images under <ns>/stereo; the parameter file needs no 'mode'."""
+    from rclpy.node import Node
+    from std_srvs.srv import Trigger
+
+    from eye_in_hand.sim import World
+
+    World.default().with_image_size(320, 180).rig.save(tmp_path / "calib")
+    params = tmp_path / "cal.yaml"
+    params.write_text(f"/**/hand_eye:\n  ros__parameters:\n    calibration_dir: "
+                      f"{tmp_path / 'calib'}\n    output_dir: {tmp_path / 'out'}\n")
+    proc = subprocess.Popen([sys.executable, "-m", "eye_in_hand.cli", "launch", "--calibrate",
+                             "--params", str(params), "--skip", "stereo_capture",
+                             "--namespace", namespace, "--duration", "30"], env=ros_env,
+                            text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        probe = Node("probe", context=ros_context)
+        executor.add_node(probe)
+        client = probe.create_client(Trigger, f"{namespace}/hand_eye/reset")
+        ok = spin_until(executor, lambda: client.service_is_ready() and probe.count_subscribers(
+            f"{namespace}/stereo/left/image_raw") == 1, 25.0)
+        assert ok, "hand_eye in calibration mode did not come up"
+        fut = client.call_async(Trigger.Request())
+        assert spin_until(executor, fut.done, 10.0) and fut.result().success
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    assert "started in calibration mode" in out, out
+    assert "Traceback" not in out, out
