@@ -8,11 +8,16 @@ control cycle's time. The control cycle is a fixed
 4 ms grid: when the process is late (a busy machine), the missed cycles go out together, late,
 each with its own stamp, never leaving a gap in the stamps.
 
+``eye_to_hand``: a fixed camera watches a board carried by the flange. The camera still
+renders the world's views (what it sees depends only on where the board is relative to it),
+and ``ee_pose`` is the flange pose that holds the board there: :func:`eye_to_hand_flange` of
+the reported joints (so it carries the arm's kinematic and encoder error, as ``/tf`` would).
+
 The arm holds stop 0; each integer published on ``sim/go_to_stop`` (std_msgs/Int32) starts a
 smooth 1 s joint motion to that stop of ``calibration_poses(world, stops, seed)``, where it then
 stays. ``sim/arrived`` (std_msgs/Int32, latched) says which stop the arm stands at.
 
-Usage: python robot_driver_standin.py NAMESPACE {tf,ee_pose} STOPS SEED WIDTH HEIGHT
+Usage: python robot_driver_standin.py NAMESPACE {tf,ee_pose,eye_to_hand} STOPS SEED WIDTH HEIGHT
 """
 from __future__ import annotations
 
@@ -36,6 +41,24 @@ from eye_in_hand.sim.scenarios import calibration_poses
 
 MOVE_S = 1.0
 PERIOD_NS = 4_000_000
+#: eye_to_hand: the fixed camera (base_T_cam, the X to find) and the board on the flange.
+EYE_TO_HAND_BASE_T_CAM = ((2.3, 0.2, -0.3), (0.9, -0.2, 0.7))      # (rotvec, t)
+EYE_TO_HAND_EE_T_BOARD = ((0.1, 3.0415926535897933, 0.2), (0.01, 0.02, 0.1))
+
+
+def eye_to_hand_transforms() -> tuple[np.ndarray, np.ndarray]:
+    """``(base_T_cam, ee_T_board)`` of the eye-to-hand cell."""
+    from eye_in_hand.core.transforms import from_rotvec
+
+    return (from_rotvec(*EYE_TO_HAND_BASE_T_CAM), from_rotvec(*EYE_TO_HAND_EE_T_BOARD))
+
+
+def eye_to_hand_flange(world: World, base_T_eyecam: np.ndarray) -> np.ndarray:
+    """The flange pose that shows the fixed camera the board as the world's camera at
+    ``base_T_eyecam`` sees the world's board."""
+    base_T_cam, ee_T_board = eye_to_hand_transforms()
+    return base_T_cam @ np.linalg.inv(base_T_eyecam) @ world.base_T_board @ \
+        np.linalg.inv(ee_T_board)
 
 
 def smoothstep(s: float) -> float:
@@ -50,8 +73,9 @@ class Driver(Node):
         self.names = list(world.arm.joint_names)
         self.pub_js = self.create_publisher(JointState, "joint_states", SENSOR_QOS)
         self.pub_true = self.create_publisher(JointState, "sim/true_joint_states", 10)
+        self.eye_to_hand = robot == "eye_to_hand"
         self.pub_pose = self.create_publisher(PoseStamped, "ee_pose", SENSOR_QOS) \
-            if robot == "ee_pose" else None
+            if robot in ("ee_pose", "eye_to_hand") else None
         self.pub_tf = self.create_publisher(tf_message_class(), TF_TOPIC, tf_qos()) \
             if robot == "tf" else None
         self.pub_arrived = self.create_publisher(Int32, "sim/arrived", LATCHED_QOS)
@@ -97,8 +121,11 @@ class Driver(Node):
             edges = chain_tf_edges(self.world.arm, q_rep, "base_link")
             self.pub_tf.publish(make_tf_message((p, c, stamp, T) for p, c, T in edges))
         if self.pub_pose is not None:
-            self.pub_pose.publish(matrix_to_pose_stamped(self.world.arm.fk(q_rep),
-                                                         stamp_ns=stamp, frame_id="base_link"))
+            T = self.world.arm.fk(q_rep)
+            if self.eye_to_hand:
+                T = eye_to_hand_flange(self.world, T @ self.world.ee_T_cam)
+            self.pub_pose.publish(matrix_to_pose_stamped(T, stamp_ns=stamp,
+                                                         frame_id="base_link"))
         if still and self.arrived != self.stop:
             self.arrived = self.stop
             self.pub_arrived.publish(Int32(data=self.stop))

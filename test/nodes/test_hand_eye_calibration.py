@@ -275,3 +275,45 @@ def test_compute_leaves_the_node_responsive(cell):
     assert len(diags) > n_diag                        # diagnostics kept being published
     assert cell.spin(fut.done, 120.0)
     assert fut.result().success, fut.result().message
+
+
+def test_eye_to_hand_live(tmp_path, ros_context, executor, namespace, spin_until):
+    """setup: eye_to_hand: a fixed camera, the board on the flange. The same relative views
+    as the eye-in-hand world (the images are the world's renders), the robot reporting the
+    flange pose that holds the board there; X = base_T_cam."""
+    from eye_in_hand.core.transforms import from_rotvec, transform_distance
+    from eye_in_hand.io.config import load_hand_eye
+    from eye_in_hand.sim.scenarios import calibration_poses
+
+    c = _Cell(tmp_path, ros_context, executor, namespace, spin_until, setup="eye_to_hand",
+              capture_timeout_s=3.0)
+    base_T_cam = from_rotvec([2.3, 0.2, -0.3], [0.9, -0.2, 0.7])        # the fixed camera
+    ee_T_board = from_rotvec([0.1, np.pi - 0.1, 0.2], [0.01, 0.02, 0.1])
+    w = c.world
+
+    def flange(q):   # holds the board where the camera sees it as the world's camera at q does
+        cam_T_board = np.linalg.inv(w.base_T_cam(q)) @ w.base_T_board
+        return base_T_cam @ cam_T_board @ np.linalg.inv(ee_T_board)
+
+    for k, q in enumerate(calibration_poses(w, 7, seed=2)):
+        fut = c.call_async(c.triggers["capture"])
+        c.spin(lambda: bool(c.node.calibration_mode._waiters), 5.0)
+        stamp = max(c.node.get_clock().now().nanoseconds, c.clock_ns + 400 * MS)
+        c.clock_ns = stamp
+        T = flange(q)
+        for dt in range(-300, 301, 25):
+            c.pub_pose.publish(matrix_to_pose_stamped(T, stamp_ns=stamp + dt * MS,
+                                                      frame_id="base_link"))
+        left, right = c.render(q, k)
+        c.pub_l.publish(numpy_to_image(left, "bgr8", stamp_ns=stamp))
+        c.pub_r.publish(numpy_to_image(right, "bgr8", stamp_ns=stamp))
+        assert c.spin(fut.done, 30.0)
+        assert fut.result().success, fut.result().message
+    res = c.trigger("compute")
+    assert res.success, res.message
+    X = c.node.calibration_mode.session.result.X
+    dt, dr = transform_distance(X, base_T_cam)
+    assert dt < 1e-3 and np.degrees(dr) < 0.1, (dt, np.degrees(dr))
+    assert c.trigger("save").success
+    saved = load_hand_eye(c.out / "hand_eye.yaml")
+    assert saved.setup == "eye_to_hand" and saved.parent_frame == "base_link"

@@ -11,9 +11,12 @@ streams the rendered pair of the true arm (``sim.follow_joint_states``: each pai
 stamp of the arm state it shows). A client calls ``hand_eye/capture`` once per stop, 1 s after
 the arm arrives, then ``compute`` and ``save``. All 12 captures must be taken and X must be
 within 1 mm / 0.1 deg of the true mount, and no worse than the same stops calibrated offline.
+Three cells: eye-in-hand with the pose from ``/tf``, from ``ee_pose``, and eye-to-hand (a fixed
+camera, the board on the flange: see ``robot_driver_standin.py``).
 """
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
@@ -29,11 +32,15 @@ STOPS, SEED = 12, 4
 DWELL_S, CAPTURE_AFTER_S = 2.0, 1.0
 W, H = 640, 360
 DRIVER = Path(__file__).with_name("robot_driver_standin.py")
+sys.path.insert(0, str(DRIVER.parent))
+from robot_driver_standin import eye_to_hand_transforms  # noqa: E402
 
 
-def _offline_error(world, stops, views, board):
+def _offline_error(world, stops, views, board, setup, X_true):
     """The same stops calibrated from still images and the reported poses (the offline path
     of ``calibrate handeye``)."""
+    from robot_driver_standin import eye_to_hand_flange
+
     from eye_in_hand.core.handeye import calibrate_hand_eye
     from eye_in_hand.core.handeye.observe import observe_sample
     from eye_in_hand.core.transforms import transform_distance
@@ -44,10 +51,12 @@ def _offline_error(world, stops, views, board):
     for k, q in enumerate(stops):
         f = world.render(q, seed=1000 + k, noise_sigma=1.0, supersample=1)
         T = world.arm.fk(reported_joints(q, world.robot_error, rng))
+        if setup == "eye_to_hand":
+            T = eye_to_hand_flange(world, T @ world.ee_T_cam)
         obs = observe_sample(f"s{k}", {"left": f.left, "right": f.right}, T, board, views)
         samples.append(obs.sample)
-    res = calibrate_hand_eye(samples, "eye_in_hand", cameras=views)
-    dt, dr = transform_distance(res.X, world.ee_T_cam)
+    res = calibrate_hand_eye(samples, setup, cameras=views)
+    dt, dr = transform_distance(res.X, X_true)
     return dt, np.degrees(dr)
 
 
@@ -85,7 +94,7 @@ def cell_processes(ros_env, namespace):
             proc.communicate()
 
 
-@pytest.mark.parametrize("robot", ["tf", "ee_pose"])
+@pytest.mark.parametrize("robot", ["tf", "ee_pose", "eye_to_hand"])
 def test_calibration_at_a_live_cell(robot, tmp_path, ros_context, executor, namespace,
                                     spin_until, cell_processes):
     from std_msgs.msg import Int32
@@ -108,8 +117,11 @@ def test_calibration_at_a_live_cell(robot, tmp_path, ros_context, executor, name
     world.rig.save(tmp_path / "calib")
     stops = calibration_poses(world, STOPS, seed=SEED)
     camera, driver = cell_processes(robot)
+    setup = "eye_to_hand" if robot == "eye_to_hand" else "eye_in_hand"
+    X_true = eye_to_hand_transforms()[0] if robot == "eye_to_hand" else world.ee_T_cam
     hand_eye = HandEyeNode(context=ros_context, namespace=namespace, parameter_overrides=[
-        Parameter("mode", value="calibration"), Parameter("robot_pose_source", value=robot),
+        Parameter("mode", value="calibration"), Parameter("setup", value=setup),
+        Parameter("robot_pose_source", value="tf" if robot == "tf" else "ee_pose"),
         Parameter("calibration_dir", value=str(tmp_path / "calib")),
         Parameter("output_dir", value=str(tmp_path / "out")),
         # the simulator's first pair takes seconds to render under load
@@ -149,13 +161,13 @@ def test_calibration_at_a_live_cell(robot, tmp_path, ros_context, executor, name
     res = call("compute", 120.0)
     assert res.success, res.message
     result = hand_eye.calibration_mode.session.result
-    dt, dr = transform_distance(result.X, world.ee_T_cam)
+    dt, dr = transform_distance(result.X, X_true)
     dt_mm, dr_deg = 1000 * dt, np.degrees(dr)
     assert dt_mm < 1.0 and dr_deg < 0.1, (dt_mm, dr_deg)
     res = call("save")
     assert res.success and (tmp_path / "out" / "hand_eye.yaml").is_file(), res.message
     off_t, off_r = _offline_error(world, stops, rig_views(rig=world.rig),
-                                  BoardSpec.parse("chessboard:9x6:0.025"))
+                                  BoardSpec.parse("chessboard:9x6:0.025"), setup, X_true)
     # as good as the offline calibration of the same stops (both see the same robot error)
     assert dt_mm <= 1000 * off_t + 0.15 and dr_deg <= off_r + 0.015, (
         dt_mm, dr_deg, 1000 * off_t, off_r)
