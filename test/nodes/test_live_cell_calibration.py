@@ -32,14 +32,25 @@ STOPS, SEED = 12, 4
 DWELL_S, CAPTURE_AFTER_S = 2.0, 1.0
 W, H = 640, 360
 DRIVER = Path(__file__).with_name("robot_driver_standin.py")
-sys.path.insert(0, str(DRIVER.parent))
-from robot_driver_standin import eye_to_hand_transforms  # noqa: E402
+
+
+def _driver_module():
+    """The driver stand-in's module (it is a script run as its own process; its eye-to-hand
+    geometry is shared with the checks here)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("robot_driver_standin", DRIVER)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault(spec.name, mod)
+    spec.loader.exec_module(mod)
+    return mod
 
 
 def _offline_error(world, stops, views, board, setup, X_true):
     """The same stops calibrated from still images and the reported poses (the offline path
     of ``calibrate handeye``)."""
-    from robot_driver_standin import eye_to_hand_flange
+    eye_to_hand_flange = _driver_module().eye_to_hand_flange
 
     from eye_in_hand.core.handeye import calibrate_hand_eye
     from eye_in_hand.core.handeye.observe import observe_sample
@@ -118,7 +129,8 @@ def test_calibration_at_a_live_cell(robot, tmp_path, ros_context, executor, name
     stops = calibration_poses(world, STOPS, seed=SEED)
     camera, driver = cell_processes(robot)
     setup = "eye_to_hand" if robot == "eye_to_hand" else "eye_in_hand"
-    X_true = eye_to_hand_transforms()[0] if robot == "eye_to_hand" else world.ee_T_cam
+    X_true = _driver_module().eye_to_hand_transforms()[0] if robot == "eye_to_hand" \
+        else world.ee_T_cam
     hand_eye = HandEyeNode(context=ros_context, namespace=namespace, parameter_overrides=[
         Parameter("mode", value="calibration"), Parameter("setup", value=setup),
         Parameter("robot_pose_source", value="tf" if robot == "tf" else "ee_pose"),
