@@ -83,6 +83,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
 from eye_in_hand.core.eye_to_hand import EyeToHandLocalizer
+from eye_in_hand.core.handeye.session import SessionConfig
 from eye_in_hand.core.localization import Localizer, LocalizerConfig, robot_pose_sigmas
 from eye_in_hand.errors import ConversionError, EyeInHandError, InputError, LocalizationError
 from eye_in_hand.io.config import load_hand_eye
@@ -104,6 +105,9 @@ ROBOT_POSE_QOS = QoSProfile(depth=500, reliability=ReliabilityPolicy.BEST_EFFORT
                             history=HistoryPolicy.KEEP_LAST)
 
 __all__ = ["HandEyeNodeConfig", "HandEyeNode", "load_kinematics", "main"]
+
+#: The calibration session's rules: their defaults are the calibration-mode parameters'.
+_SESSION = SessionConfig()
 
 NODE_NAME = "hand_eye"
 #: Orientation variance written to target/pose_cov (the target is a point: orientation unknown).
@@ -193,31 +197,40 @@ class HandEyeNodeConfig:
     output_dir: str = param("hand_eye_calibration", "where hand_eye/save writes its files")
     overwrite_output: bool = param(False, "hand_eye/save may replace an output_dir that this "
                                    "node did not write itself (it always replaces its own)")
-    still_window_s: float = param(0.2, "capture: the robot must be still over +- this window "
-                                  "around the image stamp (s)", range=(0.0, 5.0))
-    still_max_speed_m_s: float = param(0.002, "capture: largest tool speed counted as still "
-                                       "(m/s)", range=(0.0, 10.0))
-    still_max_rot_speed_rad_s: float = param(0.01, "capture: largest tool angular speed "
-                                             "counted as still (rad/s)", range=(0.0, 10.0))
-    capture_timeout_s: float = param(2.0, "capture: how long a request waits for a new image "
-                                     "pair and the robot poses covering its stillness window "
-                                     "(s)", range=(0.05, 60.0))
-    duplicate_translation_m: float = param(0.005, "capture: a robot pose within this distance "
-                                           "(and duplicate_rotation_rad) of a sample's is the "
-                                           "same pose, refused (m)", range=(0.0, 1.0))
-    duplicate_rotation_rad: float = param(0.0175, "capture: see duplicate_translation_m (rad)",
-                                          range=(0.0, 3.15))
-    min_samples: int = param(10, "status: samples needed before the set can be good enough",
-                             range=(3, 1000))
-    min_rotation_deg: float = param(30.0, "status: the largest rotation between two samples "
-                                    "must reach this (deg)", range=(0.0, 180.0))
-    min_axis_diversity: float = param(0.05, "status: smallest normalised eigenvalue of the "
-                                      "motion-axis scatter needed (0: one axis, 1/3: all "
-                                      "directions)", range=(0.0, 0.34))
-    target_std_mm: float = param(0.5, "status: the set is good enough when the 1-sigma "
-                                 "translation of X is at most this (mm)", range=(0.0, 1000.0))
-    target_std_deg: float = param(0.05, "status: ... and its 1-sigma rotation at most this "
-                                  "(deg)", range=(0.0, 180.0))
+    still_window_s: float = param(
+        _SESSION.still_window_s, "capture: the robot must be still over +- this window "
+        "around the image stamp (s)", range=(0.0, 5.0))
+    still_max_speed_m_s: float = param(
+        _SESSION.still_max_speed_m_s, "capture: largest tool speed counted as still (m/s)",
+        range=(0.0, 10.0))
+    still_max_rot_speed_rad_s: float = param(
+        _SESSION.still_max_rot_speed_rad_s, "capture: largest tool angular speed counted as "
+        "still (rad/s)", range=(0.0, 10.0))
+    capture_timeout_s: float = param(
+        _SESSION.capture_timeout_s, "capture: how long a request waits for a new image pair "
+        "and the robot poses covering its stillness window (s)", range=(0.05, 60.0))
+    duplicate_translation_m: float = param(
+        _SESSION.duplicate_translation_m, "capture: a robot pose within this distance (and "
+        "duplicate_rotation_rad) of a sample's is the same pose, refused (m)",
+        range=(0.0, 1.0))
+    duplicate_rotation_rad: float = param(
+        _SESSION.duplicate_rotation_rad, "capture: see duplicate_translation_m (rad)",
+        range=(0.0, 3.15))
+    min_samples: int = param(
+        _SESSION.min_samples, "status: samples needed before the set can be good enough",
+        range=(3, 1000))
+    min_rotation_deg: float = param(
+        _SESSION.min_rotation_deg, "status: the largest rotation between two samples must "
+        "reach this (deg)", range=(0.0, 180.0))
+    min_axis_diversity: float = param(
+        _SESSION.min_axis_diversity, "status: smallest normalised eigenvalue of the "
+        "motion-axis scatter needed (0: one axis, 1/3: all directions)", range=(0.0, 0.34))
+    target_std_mm: float = param(
+        _SESSION.target_std_mm, "status: the set is good enough when the 1-sigma translation "
+        "of X is at most this (mm)", range=(0.0, 1000.0))
+    target_std_deg: float = param(
+        _SESSION.target_std_deg, "status: ... and its 1-sigma rotation at most this (deg)",
+        range=(0.0, 180.0))
     suggest_count: int = param(3, "next poses suggested after each capture (0 = none)",
                                range=(0, 20))
     debug_image_rate_hz: float = param(2.0, "largest rate of ~/debug_image (only while "

@@ -382,7 +382,8 @@ class CalibrationMode:
                 self._publish_status()
                 fut.set_result((res, ""))
             else:
-                msg = str(err) if isinstance(err, EyeInHandError) else f"{type(err).__name__}: {err}"
+                msg = str(err) if isinstance(err, EyeInHandError) else \
+                    f"{type(err).__name__}: {err}"
                 fut.set_result((None, f"compute failed: {msg}"))
 
         self._submit(lambda: self.session.compute(snap), then, self._compute_pool)
