@@ -79,7 +79,6 @@ import numpy as np
 from geometry_msgs.msg import PointStamped, PoseStamped, PoseWithCovarianceStamped, TransformStamped
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
 from eye_in_hand.core.eye_to_hand import EyeToHandLocalizer
@@ -97,12 +96,8 @@ from eye_in_hand.ros.conversions import (header_stamp_ns,
 from eye_in_hand.ros.diagnostics import NodeDiagnostics
 from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.ros.params import load_config, param
-from eye_in_hand.ros.qos import LATCHED_QOS, RESULT_QOS
+from eye_in_hand.ros.qos import LATCHED_QOS, RESULT_QOS, ROBOT_POSE_QOS
 
-#: Robot poses: best effort (matches reliable and best-effort publishers) but a deep queue, so
-#: a burst of high-rate poses is not lost while the executor is busy.
-ROBOT_POSE_QOS = QoSProfile(depth=500, reliability=ReliabilityPolicy.BEST_EFFORT,
-                            history=HistoryPolicy.KEEP_LAST)
 
 __all__ = ["HandEyeNodeConfig", "HandEyeNode", "load_kinematics", "main"]
 

@@ -20,6 +20,7 @@ from eye_in_hand.core.tf import TfBuffer, TfPoseView
 from eye_in_hand.errors import ConfigError, ConversionError, EyeInHandError
 from eye_in_hand.ros.conversions import ns_to_stamp
 from eye_in_hand.ros import tf as ros_tf  # have_tf2_msgs, tf_message_class looked up per call
+from eye_in_hand.ros.qos import ROBOT_POSE_DEPTH
 from eye_in_hand.ros.tf import (TF_STATIC_TOPIC, TF_TOPIC, feed_tf_message, make_tf_message,
                                 tf_qos, tf_static_pub_qos, tf_static_sub_qos)
 
@@ -43,8 +44,10 @@ class TfMixin:
         self.localizer.poses = TfPoseView(  # type: ignore[assignment]
             self.tf_buffer, cfg.base_frame, cfg.ee_frame,
             jump_back_ns=int(cfg.pose_jump_back_s * 1e9))
+        # as deep as the robot pose topics' queue: a burst of late /tf while the executor is
+        # busy (a capture, a slow machine) is kept, not dropped as a gap in the robot's motion
         self.create_subscription(TFMessage, TF_TOPIC, lambda m: self._on_tf(m, False),
-                                 tf_qos())
+                                 tf_qos(ROBOT_POSE_DEPTH))
         self.create_subscription(TFMessage, TF_STATIC_TOPIC, lambda m: self._on_tf(m, True),
                                  tf_static_sub_qos())
         self.diag.declare_counter("tf_messages", "tf_rejected")

@@ -11,6 +11,10 @@ profile          reliability  durability        depth use
 ``TARGET_POINT_  reliable     transient local   100   ``targets/<id>/point(_cov)``: a
 QOS``                                                 subscription made when an id first
                                                       appears still gets its first points
+``ROBOT_POSE_    best effort  volatile          500   ``ee_pose``, ``joint_states`` in
+QOS``                                                 hand_eye (``/tf`` there: reliable,
+                                                      the same depth): a burst of poses is
+                                                      kept while the executor is busy
 =============== ============ ================= ===== ==================================
 
 A best-effort subscriber matches both reliable and best-effort publishers, so subscribing to
@@ -30,7 +34,8 @@ from rclpy.qos import (
     qos_profile_sensor_data,
 )
 
-__all__ = ["SENSOR_QOS", "RESULT_QOS", "LATCHED_QOS", "TARGET_POINT_QOS"]
+__all__ = ["SENSOR_QOS", "RESULT_QOS", "LATCHED_QOS", "TARGET_POINT_QOS", "ROBOT_POSE_DEPTH",
+           "ROBOT_POSE_QOS"]
 
 #: Sensor streams (``qos_profile_sensor_data``): best effort, volatile, keep last 5.
 SENSOR_QOS: QoSProfile = QoSProfile(
@@ -72,3 +77,12 @@ TARGET_POINT_QOS: QoSProfile = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
+
+#: Queue depth of hand_eye's robot pose subscriptions (``ee_pose``, ``joint_states``, ``/tf``).
+ROBOT_POSE_DEPTH = 500
+
+#: Robot poses: best effort (matches reliable and best-effort publishers) but a deep queue, so
+#: a burst of high-rate poses is not lost while the executor is busy.
+ROBOT_POSE_QOS: QoSProfile = QoSProfile(depth=ROBOT_POSE_DEPTH,
+                                        reliability=ReliabilityPolicy.BEST_EFFORT,
+                                        history=HistoryPolicy.KEEP_LAST)

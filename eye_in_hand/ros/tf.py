@@ -57,13 +57,14 @@ def tf_message_class() -> Any:
     return TFMessage
 
 
-def tf_qos() -> Any:
-    """QoS of ``/tf`` (tf2_ros's DynamicBroadcasterQoS / DynamicListenerQoS)."""
+def tf_qos(depth: int = 100) -> Any:
+    """QoS of ``/tf`` (tf2_ros's DynamicBroadcasterQoS / DynamicListenerQoS, depth 100); a
+    subscriber that must not lose a burst of late transforms asks for a deeper queue."""
     # local: rclpy is the optional [ros] extra, and offline processing imports this module
     # (feed_tf_message) without it
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-    return QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
+    return QoSProfile(depth=depth, history=HistoryPolicy.KEEP_LAST,
                       reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE)
 
