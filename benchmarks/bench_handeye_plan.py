@@ -208,7 +208,8 @@ def main() -> int:
         d = run_strategy(cell, False, args)
         p = run_strategy(cell, True, args)
         rows.append((d, p))
-        print(f"{c:>4}  {_fmt(d):<52}  {_fmt(p):<52}  {p.fallbacks} ({p.unreachable}, {p.out_of_view})  "
+        print(f"{c:>4}  {_fmt(d):<52}  {_fmt(p):<52}  {p.fallbacks} ({p.unreachable}, "
+              f"{p.out_of_view})  "
               f"({d.seconds:.0f} s / {p.seconds:.0f} s)", flush=True)
 
     def med_n(runs: list[Run]) -> str:

@@ -25,9 +25,9 @@ looking at a point near the board centre, rolled about the optical axis within
 ``base_T_ee = Y inv(C) inv(X)``; eye-to-hand: ``base_T_ee = X C inv(Y)``) and is kept when
 every board corner projects at least ``margin_px`` inside the image of every camera (in front
 of it), and so does the board's outline one corner spacing beyond the outer corners (the
-outer squares a detector needs to see), and the flange pose is within ``max_step_m`` and ``max_step_deg`` of one reached
-sample's. Greedily, ``count`` times, the candidate with the lowest score after it is added is
-taken and its information kept for the next pick. The score (``criterion``):
+outer squares a detector needs to see), and the flange pose is within ``max_step_m`` and
+``max_step_deg`` of one reached sample's. Greedily, ``count`` times, the candidate with the
+lowest score after it is added is taken and its information kept for the next pick. The score (``criterion``):
 
 * ``"trace"`` (default): ``(std_mm / target_mm)^2 + (std_deg / target_deg)^2``, the trace of
   the X covariance with translation in mm and rotation in degrees, each divided by its target
@@ -474,7 +474,8 @@ def _candidates(kept: list[HandEyeSample], X: np.ndarray, Y: np.ndarray,
     if not out:
         raise HandEyeError(
             f"no admissible pose among {drawn} candidates: none keeps the whole board "
-            f"(its outer squares too) {cfg.margin_px:g} px inside every image within {cfg.max_tilt_deg:g} deg of tilt, "
+            f"(its outer squares too) {cfg.margin_px:g} px inside every image within "
+            f"{cfg.max_tilt_deg:g} deg of tilt, "
             f"{d_range[0]:.3f}-{d_range[1]:.3f} m and {cfg.max_step_m:g} m / "
             f"{cfg.max_step_deg:g} deg of a reached pose: relax the limits")
     return out, np.array(dists), np.array(tilts)
