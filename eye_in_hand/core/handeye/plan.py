@@ -27,7 +27,8 @@ every board corner projects at least ``margin_px`` inside the image of every cam
 of it), and so does the board's outline one corner spacing beyond the outer corners (the
 outer squares a detector needs to see), and the flange pose is within ``max_step_m`` and
 ``max_step_deg`` of one reached sample's. Greedily, ``count`` times, the candidate with the
-lowest score after it is added is taken and its information kept for the next pick. The score (``criterion``):
+lowest score after it is added is taken and its information kept for the next pick. The
+score (``criterion``):
 
 * ``"trace"`` (default): ``(std_mm / target_mm)^2 + (std_deg / target_deg)^2``, the trace of
   the X covariance with translation in mm and rotation in degrees, each divided by its target
