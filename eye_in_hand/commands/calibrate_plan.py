@@ -1,62 +1,36 @@
 """``eye-in-hand calibrate plan``: the next robot poses to take for a hand-eye calibration.
 
 Reads the same inputs as ``calibrate handeye`` (a dataset folder or a bag, with the same
-options: they are taken from that command's parser, not copied), calibrates, and prints the
-predicted 1-sigma of X now and the flange poses that would most reduce it
-(:mod:`eye_in_hand.core.handeye.plan`); ``-o FILE`` writes them as YAML.
+options, from :mod:`.calibration_inputs`), calibrates, and prints the predicted 1-sigma of X
+now and the flange poses that would most reduce it (:mod:`eye_in_hand.core.handeye.plan`);
+``-o FILE`` writes them as YAML.
 """
 from __future__ import annotations
 
 import argparse
-import copy
 import math
 import os
 import sys
 from pathlib import Path
 from typing import Any
 
+from eye_in_hand.commands.calibration_inputs import (add_handeye_calibration_arguments,
+                                                     add_handeye_input_arguments,
+                                                     load_handeye_inputs)
 from eye_in_hand.errors import HandEyeError, InputError
 from eye_in_hand.io.atomic import OutputError, OutputExistsError, atomic_write_text
 
 HELP = "suggest the next robot poses for a hand-eye calibration (dataset or bag)"
 
-# The options of ``calibrate handeye`` that choose the input and X; everything else of that
-# command (its output folder, frames, HTML) does not apply here.
-_SHARED = ("dataset", "bag", "board", "calibration", "image_topic", "right_image_topic",
-           "pose_topic", "joint_topic", "kinematics", "tf", "base_frame", "ee_frame",
-           "still_window", "still_translation", "still_rotation", "setup", "method",
-           "average_solver", "no_refine", "no_outlier_rejection", "outlier_threshold")
-_HELP_OVERRIDES = {
-    "dataset": "dataset folder with dataset.yaml (images + robot poses)",
-    "method": "the method whose X the plan starts from; 'all' = the one calibrate handeye "
-              "selects (default: %(default)s)",
-}
-
-
-def _add_shared_arguments(parser: argparse.ArgumentParser) -> None:
-    """``calibrate handeye``'s input and calibration options, in their groups."""
-    from eye_in_hand.commands import calibrate_handeye
-
-    source = argparse.ArgumentParser(add_help=False)
-    calibrate_handeye.add_arguments(source)
-    groups: dict[str, Any] = {}
-    for group in source._action_groups:
-        for action in group._group_actions:
-            if action.dest not in _SHARED:
-                continue
-            if group.title not in groups:
-                title = "input (exactly one)" if group.title.startswith("input") else group.title
-                groups[group.title] = parser.add_argument_group(title, group.description)
-            action = copy.copy(action)
-            action.help = _HELP_OVERRIDES.get(action.dest, action.help)
-            groups[group.title]._add_action(action)
-    parser.set_defaults(pairs=None)   # pose pairs have no corners: not an input here
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Register the command's options (defaults None: :class:`PlanConfig`'s, applied in
     :func:`run`, so that ``--help`` does not load the numerics)."""
-    _add_shared_arguments(parser)
+    add_handeye_input_arguments(parser, pairs=False)   # pose pairs have no corners
+    add_handeye_calibration_arguments(
+        parser.add_argument_group("calibration"),
+        method_help="the method whose X the plan starts from; 'all' = the one calibrate "
+                    "handeye selects (default: %(default)s)")
     plan = parser.add_argument_group("plan (defaults: core.handeye.plan.PlanConfig's)")
     add = plan.add_argument
     add("--count", type=int, metavar="N",
@@ -157,15 +131,14 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
     import yaml
 
-    from eye_in_hand.commands.calibrate_handeye import _load_inputs
     from eye_in_hand.core.handeye import calibrate_hand_eye, suggest_next_poses
     from eye_in_hand.core.transforms import to_xyz_quat
 
-    if bool(args.dataset) == bool(args.bag):
+    if bool(args.dataset) == bool(args.bag):                  # before any work
         raise InputError("give exactly one input: DATASET_DIR or --bag BAG")
     out = _check_output(args)                       # refuse now, not after the work
     _config(args)                                   # bad plan options fail before the work
-    inputs = _load_inputs(args)
+    inputs = load_handeye_inputs(args)
     samples, setup, views = inputs["samples"], inputs["setup"], inputs["views"]
     for note in inputs["notes"]:
         print(f"warning: {note}", file=sys.stderr)
