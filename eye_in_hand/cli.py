@@ -38,6 +38,7 @@ COMMANDS: list[tuple[str, str]] = [
     ("locate", "eye_in_hand.commands.locate"),
     ("tune-color", "eye_in_hand.commands.tune_color"),
     ("calibrate handeye", "eye_in_hand.commands.calibrate_handeye"),
+    ("calibrate plan", "eye_in_hand.commands.calibrate_plan"),
 ]
 
 GROUP_HELP = {

@@ -1,5 +1,7 @@
-"""Inputs and outputs shared by ``calibrate camera`` and ``calibrate stereo``: the common
-options, image files and bag topics as board views, report entries and JSON files."""
+"""Inputs and outputs shared by the ``calibrate`` commands: for ``calibrate camera`` and
+``calibrate stereo`` the common options, image files and bag topics as board views, report
+entries and JSON files; for ``calibrate handeye`` and ``calibrate plan`` the hand-eye input
+options and samples (dataset, pose pairs or bag)."""
 from __future__ import annotations
 
 import argparse
@@ -13,7 +15,8 @@ from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
-from eye_in_hand.errors import BagError, CalibrationError, ConversionError, InputError
+from eye_in_hand.errors import BagError, CalibrationError, ConfigError, ConversionError, \
+    InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 from eye_in_hand.io.bags import bag_info, deserialize, iter_messages, require_topics
 from eye_in_hand.ros.stamps import header_stamp_ns
@@ -38,6 +41,9 @@ __all__ = [
     "report_skipped",
     "view_entries",
     "atomic_output_dir",
+    "add_handeye_input_arguments",
+    "add_handeye_calibration_arguments",
+    "load_handeye_inputs",
 ]
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp")
@@ -402,6 +408,204 @@ def view_entries(frames: Sequence[Frame], cal_views: Sequence[Any]) -> list[dict
             entry["file"] = f.name
         out.append(entry)
     return out
+
+
+# ------------------------------------------------------------------------------------------------
+# hand-eye inputs (calibrate handeye, calibrate plan)
+# ------------------------------------------------------------------------------------------------
+_METHOD_CHOICES = ("all", "tsai", "park", "horaud", "daniilidis", "andreff", "kronecker",
+                   "average", "refined_exact", "refined")
+
+
+def add_handeye_input_arguments(parser: argparse.ArgumentParser, *, pairs: bool = True) -> None:
+    """The input options of the hand-eye commands: a dataset, pose pairs (``pairs``) or a
+    bag, and the bag's topics, robot pose source and stillness test."""
+    src = parser.add_argument_group("input (exactly one)")
+    src.add_argument("dataset", nargs="?", metavar="DATASET_DIR",
+                     help="dataset folder with dataset.yaml (images + robot poses)")
+    if pairs:
+        src.add_argument("--pairs", metavar="FILE",
+                         help="JSON list of [base_T_ee, cam_T_board] 4x4 row-major pairs "
+                              "(metres)")
+    src.add_argument("--bag", metavar="BAG", help="rosbag2 bag with images and robot poses")
+    bag = parser.add_argument_group("bag input")
+    bag.add_argument("--board", metavar="SPEC",
+                     help="board spec for --bag, e.g. chessboard:9x6:0.025")
+    bag.add_argument("--calibration", metavar="PATH",
+                     help="camera calibration for --bag: a camera YAML (mono) or a folder "
+                          "with left.yaml, right.yaml [, stereo.yaml] (stereo); default: the "
+                          "bag's camera_info")
+    bag.add_argument("--image-topic", default=None,
+                     help="image topic (left camera for stereo); a suffix such as "
+                          "left/image_raw matches /stereo/left/image_raw (default: the only "
+                          "image topic, or the one with 'left' in its name)")
+    bag.add_argument("--right-image-topic", default=None,
+                     help="right image topic for a stereo rig (default: the left topic with "
+                          "'left' replaced by 'right', when the bag has it)")
+    bag.add_argument("--pose-topic", default=None,
+                     help="geometry_msgs/PoseStamped robot pose topic (default: /ee_pose when "
+                          "the bag has it, else /tf)")
+    bag.add_argument("--joint-topic", default=None,
+                     help="sensor_msgs/JointState topic, with --kinematics")
+    bag.add_argument("--kinematics", default=None,
+                     help="kinematic chain for --joint-topic: 'ur5e', a URDF file "
+                          "(--base-frame to --ee-frame) or a DH YAML file (or a world.yaml)")
+    bag.add_argument("--tf", action="store_true",
+                     help="take the robot pose from /tf (--base-frame to --ee-frame)")
+    bag.add_argument("--base-frame", default="base_link", help="(default: %(default)s)")
+    bag.add_argument("--ee-frame", default="tool0", help="(default: %(default)s)")
+    bag.add_argument("--still-window", type=float, default=0.1, metavar="S",
+                     help="the robot must be still this long (s) around an image "
+                          "(default: %(default)s)")
+    bag.add_argument("--still-translation", type=float, default=0.0005, metavar="M",
+                     help="largest robot translation within the window, m (default: "
+                          "%(default)s)")
+    bag.add_argument("--still-rotation", type=float, default=0.05, metavar="DEG",
+                     help="largest robot rotation within the window, deg (default: "
+                          "%(default)s)")
+
+
+def add_handeye_calibration_arguments(group: Any, *, method_help: str) -> None:
+    """The hand-eye calibration options (setup, method, refinement, outlier rejection) into
+    ``group`` (a parser or an argument group)."""
+    group.add_argument("--setup", choices=("eye_in_hand", "eye_to_hand"), default=None,
+                       help="camera on the flange (X = ee_T_cam) or fixed (X = base_T_cam); "
+                            "default: the dataset's, else eye_in_hand")
+    group.add_argument("--method", choices=_METHOD_CHOICES, default="all",
+                       help=method_help)
+    group.add_argument("--average-solver", choices=("tsai", "kronecker"), default=None,
+                       help="per-pair solver of the 'average' method (X from each pair of "
+                            "motions, averaged; default: tsai)")
+    group.add_argument("--no-refine", action="store_true",
+                       help="skip the joint refinements (refined, refined_exact)")
+    group.add_argument("--no-outlier-rejection", action="store_true",
+                       help="keep every sample")
+    group.add_argument("--outlier-threshold", type=float, default=5.0, metavar="K",
+                       help="reject a sample whose leave-one-out board pose deviation exceeds K "
+                            "times the median (default: %(default)s)")
+
+
+def load_handeye_inputs(args: argparse.Namespace) -> dict[str, Any]:
+    """The samples of the hand-eye input options (:func:`add_handeye_input_arguments`).
+
+    Returns:
+        ``samples``, ``views`` (None for pose pairs), ``setup``, ``skipped`` (name and reason
+        per unusable sample), ``notes`` (warnings), ``input`` (a description for reports) and,
+        when the input has it, ``ground_truth``.
+
+    Raises:
+        InputError, ConfigError, BagError: no or several inputs, unreadable files, a bag
+            without what it needs (each naming the file and the option).
+    """
+    # local: core.handeye and core.calibration load SciPy and OpenCV (~0.45 s at CLI
+    # start-up), io.datasets ~90 ms
+    from eye_in_hand.core.calibration import BoardSpec
+    from eye_in_hand.core.handeye import HandEyeSample
+    from eye_in_hand.core.handeye.observe import observe_sample, rig_views
+    from eye_in_hand.io.datasets import load_dataset, load_pose_pairs
+
+    pairs_file = getattr(args, "pairs", None)      # None: the command takes no pose pairs
+    given = [x for x in (args.dataset, pairs_file, args.bag) if x]
+    if len(given) != 1:
+        raise InputError("give exactly one input: DATASET_DIR, "
+                         + ("--pairs FILE or " if hasattr(args, "pairs") else "")
+                         + "--bag BAG")
+    if pairs_file:
+        pairs = load_pose_pairs(pairs_file)
+        samples = [HandEyeSample(f"pair{i:03d}", a, b) for i, (a, b) in enumerate(pairs)]
+        return {"samples": samples, "views": None, "setup": args.setup or "eye_in_hand",
+                "skipped": [], "notes": [], "input": {"type": "pairs", "path": pairs_file,
+                                                      "count": len(samples)}}
+    if args.bag:
+        return _load_handeye_bag(args)
+    # local: io.images loads OpenCV (~25 ms at CLI start-up)
+    from eye_in_hand.io.images import read_image_file
+
+    ds = load_dataset(args.dataset)
+    board = BoardSpec.parse(ds.board)
+    views = rig_views(ds.camera, ds.rig)
+    samples, skipped, notes = [], [], []
+    for s in ds.samples:
+        images = {}
+        for key, path in s.images.items():
+            try:
+                img = read_image_file(path)
+            except InputError as exc:
+                raise InputError(f"sample {s.name!r}: {exc}") from exc
+            images["image" if key == "image" else key] = img
+        obs = observe_sample(s.name, images, s.base_T_ee, board, views)
+        notes.extend(obs.notes)
+        if obs.sample is None:
+            skipped.append({"name": s.name, "reason": obs.reason})
+        else:
+            samples.append(obs.sample)
+    return {"samples": samples, "views": views, "setup": args.setup or ds.setup,
+            "skipped": skipped, "notes": notes, "ground_truth": dict(ds.ground_truth),
+            "input": {"type": "dataset", "path": str(ds.root), "board": ds.board,
+                      "stereo": ds.is_stereo, "count": len(ds.samples)}}
+
+
+def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
+    """Still robot stops of a bag -> detected boards -> samples."""
+    # local: as in _load_inputs (SciPy and OpenCV, ~0.45 s at CLI start-up)
+    from eye_in_hand.core.calibration import BoardSpec
+    from eye_in_hand.core.camera import CameraModel, StereoRig
+    from eye_in_hand.core.handeye.observe import observe_sample, rig_views
+    from eye_in_hand.io.datasets import read_bag_samples
+
+    if not args.board:
+        raise ConfigError("--bag needs --board (e.g. chessboard:9x6:0.025)")
+    board = BoardSpec.parse(args.board)
+    camera = rig = None
+    if args.calibration:
+        cal = Path(args.calibration)
+        if cal.is_dir():
+            rig = StereoRig.load(cal)
+        else:
+            camera = CameraModel.load_yaml(cal)
+    # local: io.kinematics loads scipy.optimize (~0.3 s); only --kinematics needs it
+    from eye_in_hand.io.kinematics import load_kinematics
+
+    kin = (load_kinematics(args.kinematics, args.base_frame, args.ee_frame)
+           if args.kinematics else None)
+    found = read_bag_samples(
+        args.bag, image_topic=args.image_topic, right_image_topic=args.right_image_topic,
+        pose_topic=args.pose_topic, joint_topic=args.joint_topic, kinematics=kin,
+        use_tf=args.tf, base_frame=args.base_frame, ee_frame=args.ee_frame,
+        stereo=None if args.calibration is None else rig is not None,
+        still_window_s=args.still_window, still_translation_m=args.still_translation,
+        still_rotation_deg=args.still_rotation)
+    if camera is None and rig is None:
+        camera, rig = found.camera, found.rig
+        if camera is None and rig is None:
+            raise ConfigError(f"{args.bag}: no camera_info for {dict(found.image_topics)}: give "
+                              "--calibration")
+    views = rig_views(camera, rig)
+    if {v.name for v in views} != set(found.image_topics):
+        raise ConfigError(f"--calibration is {'stereo' if rig else 'mono'} but the bag's images "
+                          f"are {sorted(found.image_topics)}")
+    samples, skipped, notes = [], [], []
+    for s in found.samples:
+        obs = observe_sample(s.name, s.images, s.base_T_ee, board, views)
+        notes.extend(obs.notes)
+        if obs.sample is None:
+            skipped.append({"name": s.name, "reason": obs.reason})
+        else:
+            samples.append(obs.sample)
+    moving = sum(1 for s in found.skipped if s["reason"] == "robot moving")
+    notes.append(f"bag: {found.n_images} images, {len(found.samples)} still stops, {moving} "
+                 f"images with the robot moving; robot pose from {found.pose_source}")
+    skipped.extend(s for s in found.skipped if "name" in s)
+    if found.damage:        # damaged chunks and unusable messages, skipped: named and counted
+        notes.append(f"damaged bag: {found.damage.summary()}")
+        notes.extend(f"damaged: {line}" for line in found.damage.lines())
+    return {"samples": samples, "views": views, "setup": args.setup or "eye_in_hand",
+            "skipped": skipped, "notes": notes, "ground_truth": dict(found.ground_truth),
+            "input": {"type": "bag", "path": str(args.bag), "board": args.board,
+                      "stereo": rig is not None, "count": len(found.samples),
+                      "image_topics": dict(found.image_topics),
+                      "pose_source": found.pose_source,
+                      "damage": found.damage.to_dict() if found.damage is not None else None}}
 
 
 # ------------------------------------------------------------------------------------------------

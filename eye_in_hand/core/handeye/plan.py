@@ -24,9 +24,11 @@ looking at a point near the board centre, rolled about the optical axis within
 ``max_step_deg`` of a reached camera's roll. Each becomes a flange pose (eye-in-hand:
 ``base_T_ee = Y inv(C) inv(X)``; eye-to-hand: ``base_T_ee = X C inv(Y)``) and is kept when
 every board corner projects at least ``margin_px`` inside the image of every camera (in front
-of it) and the flange pose is within ``max_step_m`` and ``max_step_deg`` of one reached
-sample's. Greedily, ``count`` times, the candidate with the lowest score after it is added is
-taken and its information kept for the next pick. The score (``criterion``):
+of it), and so does the board's outline one corner spacing beyond the outer corners (the
+outer squares a detector needs to see), and the flange pose is within ``max_step_m`` and
+``max_step_deg`` of one reached sample's. Greedily, ``count`` times, the candidate with the
+lowest score after it is added is taken and its information kept for the next pick. The
+score (``criterion``):
 
 * ``"trace"`` (default): ``(std_mm / target_mm)^2 + (std_deg / target_deg)^2``, the trace of
   the X covariance with translation in mm and rotation in degrees, each divided by its target
@@ -84,7 +86,8 @@ class PlanConfig:
             widened by this fraction on both ends.
         max_step_m: a suggestion's flange position is within this of a reached sample's ...
         max_step_deg: ... and its flange rotation within this of that sample's.
-        margin_px: every board corner at least this far inside every image.
+        margin_px: every board corner, and the outline one corner spacing beyond the outer
+            corners, at least this far inside every image.
         candidates: admissible candidates evaluated.
         seed: random seed of the candidate draw.
         criterion: ``"trace"`` or ``"logdet"``.
@@ -298,10 +301,31 @@ def _check(samples: Sequence[HandEyeSample], X: np.ndarray, setup: str,
     return kept, X, Y, views
 
 
-def _board_points(samples: Sequence[HandEyeSample]) -> np.ndarray:
-    """Every distinct corner the samples saw, board frame, shape (M, 3)."""
+def _board_points(samples: Sequence[HandEyeSample]) -> tuple[np.ndarray, np.ndarray]:
+    """Every distinct corner the samples saw, and the board's outline, board frame.
+
+    Returns:
+        ``(corners (M, 3), outline (4, 3))``: the outline is the corners' bounding rectangle
+        in the board plane (its x-y plane when the corners lie in it, as every board of the
+        package has them; else their principal plane) widened by one corner spacing on each
+        side: the outer squares of a chessboard, which a detector needs to see.
+    """
     pts = np.concatenate([ob.object_points for s in samples for ob in s.observations])
-    return np.unique(np.round(pts, 9), axis=0)
+    pts = np.unique(np.round(pts, 9), axis=0)
+    centre = pts.mean(axis=0)
+    if np.ptp(pts[:, 2]) < 1e-9:
+        axes = np.eye(3)[:2]
+    else:
+        axes = np.linalg.svd(pts - centre)[2][:2]
+    d = np.linalg.norm(pts[:, None] - pts[None], axis=2)
+    np.fill_diagonal(d, np.inf)
+    spacing = float(np.median(d.min(axis=1)))
+    uv = (pts - centre) @ axes.T
+    lo, hi = uv.min(axis=0) - spacing, uv.max(axis=0) + spacing
+    outline = np.array([centre + u * axes[0] + v * axes[1]
+                        for u, v in ((lo[0], lo[1]), (hi[0], lo[1]), (hi[0], hi[1]),
+                                     (lo[0], hi[1]))])
+    return pts, outline
 
 
 def _basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -375,13 +399,15 @@ def _draw(kept: Sequence[HandEyeSample], X: np.ndarray, Y: np.ndarray,
 
 
 def _admissible(cand: _Candidates, kept: Sequence[HandEyeSample], views: Sequence[CameraView],
-                obj: np.ndarray, cfg: PlanConfig, d_range: tuple[float, float]) -> np.ndarray:
-    """Mask of the candidates within every limit; fills ``cand.pixels``."""
+                obj: np.ndarray, outline: np.ndarray, cfg: PlanConfig,
+                d_range: tuple[float, float]) -> np.ndarray:
+    """Mask of the candidates within every limit; fills ``cand.pixels`` (the corners')."""
     ok = (cand.tilt_deg <= cfg.max_tilt_deg) & (cand.distance >= d_range[0]) \
         & (cand.distance <= d_range[1])
+    every = np.concatenate([obj, outline])
     for v in views:
         T = v.view_T_cam @ cand.C
-        pts = np.einsum("kij,mj->kmi", T[:, :3, :3], obj) + T[:, None, :3, 3]
+        pts = np.einsum("kij,mj->kmi", T[:, :3, :3], every) + T[:, None, :3, 3]
         in_front = np.all(pts[..., 2] > _MIN_DEPTH_M, axis=1)
         safe = np.where(pts[..., 2:3] > _MIN_DEPTH_M, pts, np.array([0.0, 0.0, 1.0]))
         px = project_points(safe.reshape(-1, 3), v.model.K, v.model.dist).reshape(
@@ -391,7 +417,7 @@ def _admissible(cand: _Candidates, kept: Sequence[HandEyeSample], views: Sequenc
             & np.all((px[..., 0] >= m) & (px[..., 0] <= v.model.width - 1 - m)
                      & (px[..., 1] >= m) & (px[..., 1] <= v.model.height - 1 - m), axis=1)
         ok &= in_front & inside
-        cand.pixels.append(px)
+        cand.pixels.append(px[:, :obj.shape[0]])
     reached = np.stack([s.base_T_ee for s in kept])
     dt = np.linalg.norm(cand.B[:, None, :3, 3] - reached[None, :, :3, 3], axis=2)
     Rrel = np.einsum("nji,kjl->knil", reached[:, :3, :3], cand.B[:, :3, :3])
@@ -426,7 +452,7 @@ def candidate_poses(samples: Sequence[HandEyeSample], X: np.ndarray, setup: str,
 def _candidates(kept: list[HandEyeSample], X: np.ndarray, Y: np.ndarray,
                 views: list[CameraView], setup: str, cfg: PlanConfig
                 ) -> tuple[list[HandEyeSample], np.ndarray, np.ndarray]:
-    obj = _board_points(kept)
+    obj, outline = _board_points(kept)
     rng = np.random.default_rng(cfg.seed)
     centre = obj.mean(axis=0)
     dist = np.linalg.norm(invert_many(np.stack([s.cam_T_board for s in kept]))[:, :3, 3]
@@ -440,7 +466,7 @@ def _candidates(kept: list[HandEyeSample], X: np.ndarray, Y: np.ndarray,
     while len(out) < cfg.candidates and drawn < _MAX_DRAW_FACTOR * cfg.candidates:
         cand = _draw(kept, X, Y, views, setup, obj, cfg, rng, batch)
         drawn += batch
-        ok = np.flatnonzero(_admissible(cand, kept, views, obj, cfg, d_range))
+        ok = np.flatnonzero(_admissible(cand, kept, views, obj, outline, cfg, d_range))
         for k in ok[:cfg.candidates - len(out)]:
             obs = tuple(CornerObservation(v.name, obj, px[k]) for v, px in zip(views, cand.pixels))
             out.append(HandEyeSample(f"candidate{len(out):04d}", cand.B[k], cand.C[k], obs))
@@ -449,7 +475,8 @@ def _candidates(kept: list[HandEyeSample], X: np.ndarray, Y: np.ndarray,
     if not out:
         raise HandEyeError(
             f"no admissible pose among {drawn} candidates: none keeps the whole board "
-            f"{cfg.margin_px:g} px inside every image within {cfg.max_tilt_deg:g} deg of tilt, "
+            f"(its outer squares too) {cfg.margin_px:g} px inside every image within "
+            f"{cfg.max_tilt_deg:g} deg of tilt, "
             f"{d_range[0]:.3f}-{d_range[1]:.3f} m and {cfg.max_step_m:g} m / "
             f"{cfg.max_step_deg:g} deg of a reached pose: relax the limits")
     return out, np.array(dists), np.array(tilts)
