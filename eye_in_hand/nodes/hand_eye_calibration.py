@@ -271,10 +271,7 @@ class CalibrationMode:
             def job(req: Any = req, T: Any = base_T_ee) -> CaptureOutcome:
                 obs = self.session.detect(req, T)       # tens of ms: off the executor
                 with self._lock:
-                    out = self.session.commit(req, T, obs)
-                if out.ok:
-                    self._plan_after_capture()
-                return out
+                    return self.session.commit(req, T, obs)
 
             self._submit(job, lambda out, err, rid=req.id: self._captured(rid, out, err))
 
@@ -481,18 +478,6 @@ class CalibrationMode:
             self.diag.report("plan", f"next poses: {exc}")
             return ()
         return tuple(s.base_T_ee for s in plan.suggestions)
-
-    def _plan_after_capture(self) -> None:
-        """Suggestions for the capture's answer, with the samples now held and the newest X."""
-        X = None
-        if self._estimate is not None:
-            X = self._estimate.X
-        elif self._loaded is not None:
-            X = self._loaded[0]
-        with self._lock:
-            snap = list(self.session.samples)
-        if X is not None and len(snap) >= 3:
-            self._suggestions = self._plan(snap, X)
 
     def _pose_array(self, poses: tuple[np.ndarray, ...]) -> PoseArray:
         msg = PoseArray()
