@@ -9,7 +9,10 @@ Each sub-command lives in its own module under :mod:`eye_in_hand.commands` and p
 Command modules import heavy dependencies (rclpy, OpenCV, matplotlib) inside ``run`` so that
 ``eye-in-hand --help`` stays fast. Errors derived from :class:`eye_in_hand.errors.EyeInHandError`
 are printed as one line on stderr (``eye-in-hand: error: ...``) with exit code 1, never a traceback;
-so is any ``OSError`` that reaches the top (e.g. a full disk), with the file it names.
+so is any ``OSError`` that reaches the top (e.g. a full disk), with the file it names. Any other
+exception (a bug) is one line too, ``eye-in-hand: internal error: <Type>: <message> (run with
+--debug ...)``, exit code 70; ``--debug`` (or ``EYE_IN_HAND_DEBUG=1``) shows its traceback and
+is passed on to worker processes and launched nodes.
 """
 from __future__ import annotations
 
@@ -20,7 +23,13 @@ import sys
 from typing import Sequence
 
 from eye_in_hand import __version__
-from eye_in_hand.errors import EyeInHandError
+from eye_in_hand.errors import (
+    DEBUG_ENV,
+    EXIT_UNEXPECTED,
+    EyeInHandError,
+    debug_enabled,
+    unexpected_error_line,
+)
 
 # (words, module). Words with a space form a command group, e.g. ``calibrate camera``.
 COMMANDS: list[tuple[str, str]] = [
@@ -53,6 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Eye-in-hand stereo target localization, calibration and bag tools.",
     )
     parser.add_argument("--version", action="version", version=f"eye-in-hand {__version__}")
+    parser.add_argument("--debug", action="store_true",
+                        help="show the traceback of an unexpected error (also in worker "
+                             f"processes and launched nodes; same as {DEBUG_ENV}=1)")
     top = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     groups: dict[str, argparse._SubParsersAction] = {}
     for words, module_name in COMMANDS:
@@ -90,6 +102,43 @@ def _printable(text: str) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``eye-in-hand`` console script."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    # --debug anywhere on the line (before or after the command's name)
+    debug = "--debug" in argv[:argv.index("--")] if "--" in argv else "--debug" in argv
+    if debug:
+        import os
+
+        argv = [a for a in argv if a != "--debug"]
+        os.environ[DEBUG_ENV] = "1"   # worker processes and launched nodes inherit it
+    try:
+        return _main(argv)
+    except SystemExit:
+        raise
+    except KeyboardInterrupt:
+        print("eye-in-hand: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # stdout closed by the reader (``| head``): nothing more to say
+        _quiet_stdout()
+        return 141
+    except BaseException as exc:  # noqa: BLE001 - the top-level guard: one line, not a traceback
+        if debug or debug_enabled():
+            raise
+        print(unexpected_error_line("eye-in-hand", exc), file=sys.stderr)
+        return EXIT_UNEXPECTED
+
+
+def _quiet_stdout() -> None:
+    """Point stdout at /dev/null so that the interpreter's final flush cannot fail again."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+
+
+def _main(argv: list[str]) -> int:
     from eye_in_hand.ros.dds import use_large_data_profile
 
     use_large_data_profile()  # before any command starts rclpy (children inherit it)
@@ -105,13 +154,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except EyeInHandError as exc:
         print(f"eye-in-hand: error: {_printable(str(exc))}", file=sys.stderr)
         return 1
+    except BrokenPipeError:
+        raise
     except OSError as exc:  # a file system error not caught closer to its cause (ENOSPC, EACCES)
         where = f"{_printable(str(exc.filename))}: " if exc.filename else ""
         print(f"eye-in-hand: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("eye-in-hand: interrupted", file=sys.stderr)
-        return 130
 
 
 if __name__ == "__main__":  # pragma: no cover

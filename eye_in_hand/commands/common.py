@@ -7,7 +7,35 @@ import math
 
 from eye_in_hand.errors import InputError
 
-__all__ = ["apply_overrides"]
+__all__ = ["apply_overrides", "check_range", "MAX_WORKERS"]
+
+#: Upper bound of ``--workers`` (processes locating stereo pairs): more never helps on any
+#: machine the package targets, and each one costs about 100 MB of memory.
+MAX_WORKERS = 64
+
+
+def check_range(flag: str, value, lo: float, hi: float, unit: str = "", *,
+                lo_open: bool = False, integer: bool = False):
+    """``value`` if it is a finite number within ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``).
+
+    The documented range of a numeric flag, checked before any work: a value outside it (or
+    NaN, or infinity) is refused with one line that names the flag, the range and the value.
+
+    Raises:
+        InputError: ``--flag: must be within [lo, hi] unit, got value``.
+    """
+    if value is None:
+        return value
+    ok = isinstance(value, (int, float)) and math.isfinite(value) and (
+        (value > lo) if lo_open else (value >= lo)) and value <= hi
+    if ok and integer and int(value) != value:
+        ok = False
+    if not ok:
+        left = "(" if lo_open else "["
+        suffix = f" {unit}" if unit else ""
+        raise InputError(f"{flag}: must be {'an integer ' if integer else ''}within "
+                         f"{left}{lo:g}, {hi:g}]{suffix}, got {value}")
+    return value
 
 
 def apply_overrides(config, *, radius: float | None = None, method: str | None = None):

@@ -23,7 +23,7 @@ import sys
 import time
 from pathlib import Path
 
-from eye_in_hand.commands.common import apply_overrides
+from eye_in_hand.commands.common import MAX_WORKERS, apply_overrides, check_range
 from eye_in_hand.errors import ConfigError, InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 from eye_in_hand.io.bags import bag_info
@@ -85,12 +85,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
                         help="output bag storage (default mcap)")
     parser.add_argument("--task-timeout", type=float, default=20.0, metavar="S",
-                        help="deadline of a worker process for one stereo pair (default 20 s): "
+                        help="deadline of a worker process for one stereo pair, (0, 3600] s "
+                             "(default 20 s): "
                              "a worker that gives no result for this long (stopped, hung) is "
                              "killed and its pairs are located again in the main process")
     parser.add_argument("--workers", type=int, metavar="N",
-                        help="processes locating stereo pairs (default: one per CPU; 1 = all in "
-                             "this process)")
+                        help=f"processes locating stereo pairs, 1 to {MAX_WORKERS} (default: "
+                             "one per CPU; 1 = all in this process)")
     parser.add_argument("--verify-crc", action="store_true",
                         help="check MCAP chunk CRCs while reading (slower: CRC-32 of every image)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -116,6 +117,9 @@ def run(args: argparse.Namespace) -> int:
     # local: at CLI start-up offline costs ~115 ms (OpenCV), core.locator ~85 ms,
     # core.camera ~40 ms, tqdm ~35 ms, io.results/core.localization/io.config ~10-20 ms each,
     # core.distances ~5 ms
+    check_range("--task-timeout", args.task_timeout, 0, 3600, "s", lo_open=True)
+    check_range("--workers", args.workers, 1, MAX_WORKERS, integer=True)
+    check_range("--radius", args.radius, 0, 10, "m", lo_open=True)
     from tqdm import tqdm
 
     from eye_in_hand.core.camera import StereoRig
@@ -145,8 +149,6 @@ def run(args: argparse.Namespace) -> int:
         from eye_in_hand.io.kinematics import load_kinematics
 
         kinematics = load_kinematics(args.kinematics, args.urdf_base_link, args.urdf_tip_link)
-    if not args.task_timeout > 0:
-        raise InputError(f"--task-timeout: must be > 0 s, got {args.task_timeout}")
     try:
         robot_sigmas = robot_pose_sigmas(
             float(hand_eye_params.get("robot_sigma_pos_m", ProcessOptions.robot_sigma_pos_m)),
