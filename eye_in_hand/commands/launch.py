@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import argparse
 
-from eye_in_hand.errors import ConfigError, InputError
+from eye_in_hand.commands.common import check_range
+from eye_in_hand.errors import ConfigError
 from eye_in_hand.yamlfile import printable, read_yaml_file
 
 HELP = "start stereo_capture, detect_triangulate and hand_eye as separate processes"
@@ -50,28 +51,24 @@ def run(args: argparse.Namespace) -> int:
     # local: the launcher loads subprocess and threading (~12 ms at CLI start-up)
     from eye_in_hand.launcher import NODES, Launcher, default_params_file
 
-    if args.duration is not None and not args.duration > 0:
-        raise InputError(f"--duration: must be positive, got {args.duration}")
+    check_range("--duration", args.duration, 0, 1e7, "s", lo_open=True)
     params = args.params or default_params_file()
     # bad input is one line here, not a traceback from rcl in every node
     # local: ros.names loads rclpy (~50 ms at CLI start-up)
-    from eye_in_hand.ros.names import check_parameter_text, topic_name_problem
+    from eye_in_hand.ros.names import check_namespace, check_parameter_text
+    from eye_in_hand.ros.params import check_parameter_file
 
-    ns = "/" + args.namespace.strip("/")
-    problem = None if ns == "/" else topic_name_problem(ns)
-    if problem is not None:
-        raise InputError(f"--namespace {printable(args.namespace)!r}: not a valid namespace "
-                         f"({problem})")
+    ns = check_namespace(args.namespace)
     check_parameter_text(str(params), "--params")  # rcl takes it as UTF-8 text
     if not isinstance(read_yaml_file(params, "parameter file"), dict):
         raise ConfigError(f"{printable(params)}: parameter file must map node names to "
                           "'ros__parameters'")
+    check_parameter_file(params)  # rcl's own parser: never a crash-looping node
     nodes = [n.name for n in NODES if n.name not in args.skip]
-    if not 0 <= args.respawn_delay <= 8.0:
-        raise InputError(f"--respawn-delay: must be within [0, 8] s, got {args.respawn_delay}")
-    if args.max_restarts < 0 or not args.restart_window > 0:
-        raise InputError("--max-restarts must be >= 0 and --restart-window > 0")
-    launcher = Launcher(params, nodes, root_namespace=args.namespace,
+    check_range("--respawn-delay", args.respawn_delay, 0, 8, "s")
+    check_range("--max-restarts", args.max_restarts, 0, 1000, integer=True)
+    check_range("--restart-window", args.restart_window, 0, 86400, "s", lo_open=True)
+    launcher = Launcher(params, nodes, root_namespace=ns,
                         respawn=not args.no_respawn, respawn_delay_s=args.respawn_delay,
                         max_restarts=args.max_restarts, restart_window_s=args.restart_window)
     print(f"eye-in-hand launch: starting {', '.join(nodes)} with {params}", flush=True)
