@@ -3,13 +3,18 @@ hang, a traceback or a misreported loss. Each must end within seconds with one l
 exact loss report) and no traceback."""
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import pytest
 
 from eye_in_hand.cli import main
 
 
 def _one_line_error(err: str) -> str:
-    lines = [line for line in err.splitlines() if line.strip()]
+    """The one error line of ``err`` (progress bars aside)."""
+    lines = [line for line in err.replace("\r", "\n").splitlines()
+             if line.strip() and "%|" not in line]
     assert len(lines) == 1, err
     assert "Traceback" not in err
     assert lines[0].startswith("eye-in-hand: error: "), err
@@ -83,3 +88,57 @@ def test_launch_refuses_an_invalid_namespace(capsys, ns, reason):
     assert main(["launch", "--namespace", ns, "--duration", "1"]) == 1
     line = _one_line_error(capsys.readouterr().err)
     assert "not a valid namespace" in line and reason in line, line
+
+
+# ------------------------------------------------------------------------------------------------
+# disk full (a file-size limit, as `ulimit -f`: the system answers EFBIG where a disk says ENOSPC)
+# ------------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def small_bag(tmp_path_factory):
+    from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye
+    from eye_in_hand.sim import World
+    from eye_in_hand.sim.output import RenderOptions, write_bag
+
+    root = tmp_path_factory.mktemp("campaign")
+    world = World.default().with_image_size(320, 180)
+    write_bag(world, root / "loc", scenario="localization", frames=6, seed=1,
+              render=RenderOptions(supersample=1))
+    save_hand_eye(root / "hand_eye.yaml", HandEyeCalibration(
+        setup="eye_in_hand", parent_frame="tool0", child_frame="camera_left_optical_frame",
+        transform=world.ee_T_cam, method="ground_truth"))
+    return root / "loc", root / "hand_eye.yaml"
+
+
+def _limited(argv: list[str], limit: int) -> subprocess.CompletedProcess:
+    """``eye-in-hand ARGV`` in a child whose files may not grow beyond ``limit`` bytes."""
+    code = ("import resource, sys\n"
+            f"resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit}))\n"
+            "from eye_in_hand.cli import main\n"
+            f"sys.exit(main({argv!r}))\n")
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+
+
+@pytest.mark.parametrize("case", ["process-mcap", "process-sqlite3", "simulate"])
+def test_a_full_disk_names_the_final_output_and_keeps_the_earlier_one(small_bag, tmp_path,
+                                                                       case):
+    bag, hand_eye = small_bag
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "earlier.txt").write_text("the earlier result\n")
+    if case.startswith("process"):
+        argv = ["process", str(bag), "--hand-eye", str(hand_eye), "-o", str(out), "--quiet",
+                "--workers", "1", "--overwrite", "--storage", case.split("-")[1]]
+    else:
+        argv = ["simulate", "--scenario", "localization", "--frames", "2", "--size", "320x180",
+                "--supersample", "1", "--out", str(out), "--overwrite"]
+    proc = _limited(argv, 4096)
+    assert proc.returncode == 1, proc.stderr
+    line = _one_line_error(proc.stderr)
+    # sqlite3 does not say which of the two it met
+    reason = "database or disk is full" if case.endswith("sqlite3") else "File too large"
+    assert line.endswith(f": cannot write ({reason}); the earlier {out} is unchanged"), line
+    assert f"{out}/" in line and ".partial-" not in line and "Errno" not in line, line
+    assert (out / "earlier.txt").read_text() == "the earlier result\n"
+    assert sorted(p.name for p in out.iterdir()) == ["earlier.txt"]
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]
