@@ -142,3 +142,200 @@ def test_a_full_disk_names_the_final_output_and_keeps_the_earlier_one(small_bag,
     assert (out / "earlier.txt").read_text() == "the earlier result\n"
     assert sorted(p.name for p in out.iterdir()) == ["earlier.txt"]
     assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+# ------------------------------------------------------------------------------------------------
+# exact loss accounting
+# ------------------------------------------------------------------------------------------------
+def _summary(out) -> dict:
+    import json
+
+    return json.loads((out / "summary.json").read_text())
+
+
+def test_repeated_stamps_are_in_the_one_loss_total(small_bag, tmp_path, capsys):
+    """A replay right after a run: images whose stamp is not after their side's previous one
+    are dropped as stale_stamp, and counted in the loss total that the summary shows."""
+    from eye_in_hand.io.bags import BagWriter, bag_info, iter_messages
+
+    bag, hand_eye = small_bag
+    replay = tmp_path / "replay"
+    info = bag_info(bag)
+    repeated = 0
+    with BagWriter(replay, "mcap") as out:
+        for t in info.topics.values():
+            out.add_topic(t.name, t.msgtype)
+        for topic, _type, t_ns, raw in iter_messages(bag):
+            out.write(topic, t_ns, raw)
+            if topic == "/stereo/left/image_raw" and repeated < 3:   # sent twice
+                out.write(topic, t_ns + 1, raw)
+                repeated += 1
+    assert main(["process", str(replay), "--hand-eye", str(hand_eye), "-o", str(tmp_path / "o"),
+                 "--quiet", "--workers", "1"]) == 0
+    printed = capsys.readouterr().out
+    s = _summary(tmp_path / "o")
+    c, loss = s["counts"], s["loss"]
+    assert loss["of_which_stale_stamp"] == 3 == c["stale_stamp"]
+    assert loss["by_cause"]["unpaired_left"] == 3
+    assert loss["total"] == c["lost"] == sum(v for v in loss["by_cause"].values())
+    # every left image is a result or a loss
+    assert c["left_frames"] == c["localized"] + c["no_target"] + loss["total"]
+    assert "losses: 3 in total: 3 left and 0 right images without a partner (3 of them with " \
+           "a stamp not after the previous one: stale_stamp)" in printed
+
+
+def test_a_run_that_locates_nothing_exits_3_with_the_reasons(small_bag, tmp_path, capsys):
+    bag, hand_eye = small_bag
+    params = tmp_path / "params.yaml"
+    params.write_text("/**/detect_triangulate:\n  ros__parameters:\n    target_names: [green]\n"
+                      "    targets:\n      green:\n        color_space: hsv\n"
+                      "        lower: [55, 250, 250]\n        upper: [56, 255, 255]\n"
+                      "        radius_m: 0.035\n")
+    out = tmp_path / "o"
+    assert main(["process", str(bag), "--hand-eye", str(hand_eye), "-o", str(out), "--quiet",
+                 "--workers", "1", "--params", str(params)]) == 3
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    line = [x for x in err.splitlines() if x.startswith("eye-in-hand: error:")]
+    assert line == [f"eye-in-hand: error: nothing located in the base frame in {bag}: 6 stereo "
+                    "pairs, 6 without target"], err
+    assert _summary(out)["counts"]["localized"] == 0     # the outputs say so too
+
+
+def test_a_calibration_of_another_resolution_is_refused_before_the_work(small_bag, tmp_path,
+                                                                         capsys):
+    from eye_in_hand.sim import World
+
+    bag, hand_eye = small_bag
+    World.default().with_image_size(640, 360).rig.save(tmp_path / "calib")
+    out = tmp_path / "o"
+    assert main(["process", str(bag), "--hand-eye", str(hand_eye), "-o", str(out), "--quiet",
+                 "--calibration", str(tmp_path / "calib")]) == 1
+    line = _one_line_error(capsys.readouterr().err)
+    assert line.startswith(f"eye-in-hand: error: {tmp_path / 'calib' / 'left.yaml'}: "
+                           "image_width x image_height 640x360 disagrees with the bag's "
+                           "/stereo/left/image_raw images, 320x180"), line
+    assert not out.exists()
+    # the two files disagree with each other
+    World.default().with_image_size(320, 180).rig.save(tmp_path / "mixed")
+    (tmp_path / "mixed" / "right.yaml").write_text(
+        (tmp_path / "calib" / "right.yaml").read_text())
+    (tmp_path / "mixed" / "stereo.yaml").unlink()
+    code = main(["process", str(bag), "--hand-eye", str(hand_eye), "-o", str(out), "--quiet",
+                 "--calibration", str(tmp_path / "mixed")])
+    line = _one_line_error(capsys.readouterr().err)
+    assert code == 1 and "right.yaml" in line and "640x360" in line, line
+    assert not out.exists()
+
+
+@pytest.fixture(scope="module")
+def sqlite_bag(tmp_path_factory):
+    from eye_in_hand.sim import World
+    from eye_in_hand.sim.output import RenderOptions, write_bag
+
+    root = tmp_path_factory.mktemp("campaign_sqlite")
+    world = World.default().with_image_size(320, 180)
+    write_bag(world, root / "sq", scenario="localization", frames=12, seed=2, storage="sqlite3",
+              render=RenderOptions(supersample=1))
+    return root / "sq"
+
+
+def _corrupt_page(db, fraction: float) -> int:
+    """Overwrite one 4 KiB page at ``fraction`` of the file with random bytes."""
+    import numpy as np
+
+    size = db.stat().st_size
+    page = int(size // 4096 * fraction)
+    data = bytearray(db.read_bytes())
+    data[page * 4096:(page + 1) * 4096] = np.random.default_rng(page).integers(
+        0, 256, 4096, dtype=np.uint8).tobytes()
+    db.write_bytes(bytes(data))
+    return page
+
+
+def test_a_damaged_sqlite3_page_costs_only_its_rows(sqlite_bag, small_bag, tmp_path, capsys):
+    import shutil
+
+    _, hand_eye = small_bag
+    bag = tmp_path / "bag"
+    shutil.copytree(sqlite_bag, bag)
+    _corrupt_page(bag / "sq.db3", 0.5)
+    out = tmp_path / "o"
+    assert main(["process", str(bag), "--hand-eye", str(hand_eye), "-o", str(out), "--quiet",
+                 "--workers", "1"]) == 0
+    text = capsys.readouterr()
+    assert "Traceback" not in text.err
+    s = _summary(out)
+    c, loss = s["counts"], s["loss"]
+    # one page holds part of one image (or a few small rows): almost every pair survives
+    assert c["pairs"] >= 11 and c["localized"] >= 11, c
+    assert 0 < c["messages_lost"] <= 3 and loss["complete"]
+    assert c["left_frames"] == c["localized"] + c["no_target"] + loss["total"] - \
+        loss["by_cause"]["unpaired_right"] - loss["by_cause"]["damaged"] + \
+        sum(n for t, n in s["damage"]["by_topic"].items() if t == "/stereo/left/image_raw")
+    assert "read on past them row by row" in text.err
+
+
+def test_a_truncated_mcap_dates_its_lost_tail_from_the_cut_with_counts(small_bag, tmp_path,
+                                                                        capsys):
+    import shutil
+
+    from eye_in_hand.io.bags import DamageLog, bag_info, iter_messages
+
+    src, hand_eye = small_bag
+    bag = tmp_path / "bag"
+    shutil.copytree(src, bag)
+    mcap = next(bag.glob("*.mcap"))
+    full = {t: i.count for t, i in bag_info(src).topics.items()}
+    kept_all = [(t, s) for t, _m, s, _r in iter_messages(src)]
+    data = mcap.read_bytes()
+    mcap.write_bytes(data[:int(len(data) * 0.6)])
+    log = DamageLog()
+    got = [(t, s) for t, _m, s, _r in iter_messages(bag, damage=log)]
+    assert len(log) == 1
+    d = log.records[0]
+    assert d.where.startswith("file tail from byte")
+    lost = [m for m in kept_all if m not in set(got)]
+    # exact: the counts of metadata.yaml less what the file still has, per topic
+    by_topic: dict[str, int] = {}
+    for t, _s in lost:
+        by_topic[t] = by_topic.get(t, 0) + 1
+    assert dict(d.topics) == by_topic and d.messages == len(lost) == sum(full.values()) - len(got)
+    # the lost range starts at the cut: the first lost message, not the newest one read
+    assert d.start_ns == min(s for _t, s in lost)
+    assert d.start_ns < max(s for _t, s in got)   # the file is in write order, not time order
+    assert d.end_ns == bag_info(src).end_ns
+    assert main(["process", str(bag), "--hand-eye", str(hand_eye), "-o", str(tmp_path / "o"),
+                 "--quiet", "--workers", "1"]) in (0, 3)
+    s = _summary(tmp_path / "o")
+    read = s["damage"]["by_topic"]             # the topics process reads
+    assert read and all(by_topic[t] == n for t, n in read.items())
+    assert s["loss"]["complete"] and s["counts"]["messages_lost"] == sum(read.values())
+    assert s["loss"]["by_cause"]["damaged"] == by_topic["/stereo/left/image_raw"] + \
+        by_topic["/stereo/right/image_raw"]
+
+
+@pytest.mark.parametrize("content,reason", [
+    (b"", "is empty"),
+    (b"rosbag2_bagfile_information: [: {\n",
+     "is not valid YAML at line 1 (expected the node content, but found ':')"),
+    (b"rosbag2_bagfile_information:\n  version: 5\n  x: caf\xe9\n",
+     "is not UTF-8 text (byte 0xe9 at offset 50)"),
+    (b"just: text\n", "has no 'rosbag2_bagfile_information' mapping"),
+])
+def test_a_damaged_metadata_yaml_is_reported_and_the_bag_scanned(small_bag, tmp_path, capsys,
+                                                                   content, reason):
+    import shutil
+
+    src, hand_eye = small_bag
+    bag = tmp_path / "bag"
+    shutil.copytree(src, bag)
+    (bag / "metadata.yaml").write_bytes(content)
+    out = tmp_path / "o"
+    assert main(["process", str(bag), "--hand-eye", str(hand_eye), "-o", str(out), "--quiet",
+                 "--workers", "1"]) == 0
+    err = capsys.readouterr().err
+    assert f"warning: {bag / 'metadata.yaml'}: damaged: {reason}; ignored, the bag is read " \
+           "from its storage file(s) (loc.mcap)" in err, err
+    s = _summary(out)
+    assert s["counts"]["localized"] == 6 and any("metadata.yaml" in n for n in s["notes"])

@@ -144,4 +144,5 @@ def test_workers_option_changes_nothing_but_speed(loc_bag, tmp_path, capsys):
     capsys.readouterr()
     rc = main(["process", str(bag), "--hand-eye", he, "-o", str(tmp_path / "c"), "--quiet",
                "--workers", "0"])
-    assert rc == 1 and "workers: must be >= 1" in capsys.readouterr().err
+    assert rc == 1 and "--workers: must be an integer within [1, 64], got 0" in \
+        capsys.readouterr().err
