@@ -20,7 +20,7 @@ import argparse
 import codecs
 import importlib
 import sys
-from typing import Sequence
+from typing import NoReturn, Sequence
 
 from eye_in_hand import __version__
 from eye_in_hand.errors import (
@@ -55,9 +55,20 @@ GROUP_HELP = {
 }
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line: ``<prog>: error: <what> (see <prog>
+    --help)``, exit code 2 (argparse's own prints the whole usage first)."""
+
+    def error(self, message: str) -> NoReturn:
+        text = " ".join(_printable(message).split())
+        if len(text) > 400:
+            text = text[:400] + "..."
+        self.exit(2, f"{self.prog}: error: {text} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Build the full argument parser, importing every command module."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="eye-in-hand",
         description="Eye-in-hand stereo target localization, calibration and bag tools.",
     )
@@ -65,7 +76,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true",
                         help="show the traceback of an unexpected error (also in worker "
                              f"processes and launched nodes; same as {DEBUG_ENV}=1)")
-    top = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    top = parser.add_subparsers(dest="command", metavar="COMMAND", required=True,
+                                parser_class=_Parser)
     groups: dict[str, argparse._SubParsersAction] = {}
     for words, module_name in COMMANDS:
         module = importlib.import_module(module_name)
@@ -76,7 +88,8 @@ def build_parser() -> argparse.ArgumentParser:
             if group not in groups:
                 gparser = top.add_parser(group, help=GROUP_HELP.get(group, group))
                 groups[group] = gparser.add_subparsers(
-                    dest=f"{group}_command", metavar="SUBCOMMAND", required=True)
+                    dest=f"{group}_command", metavar="SUBCOMMAND", required=True,
+                    parser_class=_Parser)
             sub = groups[group]
         cmd = sub.add_parser(parts[-1], help=module.HELP, description=module.HELP)
         module.add_arguments(cmd)

@@ -2,12 +2,13 @@
 imports only this one of its siblings)."""
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import math
 
 from eye_in_hand.errors import InputError
 
-__all__ = ["apply_overrides", "check_range", "MAX_WORKERS"]
+__all__ = ["apply_overrides", "check_range", "bounded", "MAX_WORKERS"]
 
 #: Upper bound of ``--workers`` (processes locating stereo pairs): more never helps on any
 #: machine the package targets, and each one costs about 100 MB of memory.
@@ -54,3 +55,26 @@ def apply_overrides(config, *, radius: float | None = None, method: str | None =
     if method is not None:
         config = dataclasses.replace(config, method=method)
     return config
+
+
+def bounded(lo: float, hi: float, unit: str = "", *, integer: bool = False,
+            lo_open: bool = False):
+    """An argparse ``type=`` that accepts a number within ``[lo, hi]`` (``(lo, hi]`` with
+    ``lo_open``; an integer with ``integer``) and refuses anything else (NaN, infinity, a
+    word) at once, so the command line says ``argument --flag: must be within ...`` before
+    any work starts."""
+    def parse(text: str):
+        try:
+            value = int(text, 10) if integer else float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"expected {'an integer' if integer else 'a number'}, got {text!r}") from None
+        try:
+            check_range("", value, lo, hi, unit, lo_open=lo_open, integer=integer)
+        except InputError as exc:
+            text_range = str(exc)[2:].rsplit(", got ", 1)[0]
+            raise argparse.ArgumentTypeError(f"{text_range}, got {text}") from None
+        return value
+
+    parse.__name__ = "bounded"
+    return parse

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import argparse
 
-from eye_in_hand.commands.common import check_range
+from eye_in_hand.commands.common import bounded
 from eye_in_hand.errors import ConfigError
 from eye_in_hand.yamlfile import printable, read_yaml_file
 
@@ -32,17 +32,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="nodes not to start (e.g. stereo_capture when a bag is replayed)")
     parser.add_argument("--namespace", default="/", metavar="NS",
                         help="root namespace of every node and topic (default /)")
-    parser.add_argument("--duration", type=float, metavar="S",
-                        help="stop after S seconds (default: run until Ctrl-C)")
+    parser.add_argument("--duration", type=bounded(0, 1e7, "s", lo_open=True), metavar="S",
+                        help="stop after S seconds, (0, 1e7] (default: run until Ctrl-C)")
     parser.add_argument("--no-respawn", action="store_true",
                         help="do not restart a node that exits: stop every node instead")
-    parser.add_argument("--respawn-delay", type=float, default=0.5, metavar="S",
+    parser.add_argument("--respawn-delay", type=bounded(0, 8, "s"), default=0.5, metavar="S",
                         help="back-off before restarting a crashed node, doubled for each "
                              "further restart within the window, at most 8 s (default 0.5)")
-    parser.add_argument("--max-restarts", type=int, default=5, metavar="N",
-                        help="restarts of one node allowed within --restart-window; one more "
-                             "stops the launch (default 5)")
-    parser.add_argument("--restart-window", type=float, default=60.0, metavar="S",
+    parser.add_argument("--max-restarts", type=bounded(0, 1000, integer=True), default=5,
+                        metavar="N",
+                        help="restarts of one node allowed within --restart-window, 0 to "
+                             "1000; one more stops the launch (default 5)")
+    parser.add_argument("--restart-window", type=bounded(0, 86400, "s", lo_open=True),
+                        default=60.0, metavar="S",
                         help="window of --max-restarts in seconds (default 60)")
 
 
@@ -51,7 +53,6 @@ def run(args: argparse.Namespace) -> int:
     # local: the launcher loads subprocess and threading (~12 ms at CLI start-up)
     from eye_in_hand.launcher import NODES, Launcher, default_params_file
 
-    check_range("--duration", args.duration, 0, 1e7, "s", lo_open=True)
     params = args.params or default_params_file()
     # bad input is one line here, not a traceback from rcl in every node
     # local: ros.names loads rclpy (~50 ms at CLI start-up)
@@ -65,9 +66,6 @@ def run(args: argparse.Namespace) -> int:
                           "'ros__parameters'")
     check_parameter_file(params)  # rcl's own parser: never a crash-looping node
     nodes = [n.name for n in NODES if n.name not in args.skip]
-    check_range("--respawn-delay", args.respawn_delay, 0, 8, "s")
-    check_range("--max-restarts", args.max_restarts, 0, 1000, integer=True)
-    check_range("--restart-window", args.restart_window, 0, 86400, "s", lo_open=True)
     launcher = Launcher(params, nodes, root_namespace=ns,
                         respawn=not args.no_respawn, respawn_delay_s=args.respawn_delay,
                         max_restarts=args.max_restarts, restart_window_s=args.restart_window)

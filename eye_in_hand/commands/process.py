@@ -23,7 +23,7 @@ import sys
 import time
 from pathlib import Path
 
-from eye_in_hand.commands.common import MAX_WORKERS, apply_overrides, check_range
+from eye_in_hand.commands.common import MAX_WORKERS, apply_overrides, bounded
 from eye_in_hand.errors import ConfigError, InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 from eye_in_hand.io.bags import bag_info
@@ -55,8 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "optionally hand_eye (max_pose_gap_s, max_pose_age_s, "
                              "pose_jump_back_s, robot sigmas) sections; "
                              "default: built-in red sphere")
-    parser.add_argument("--radius", type=float, metavar="R",
-                        help="sphere radius of the first target in metres (overrides --params)")
+    parser.add_argument("--radius", type=bounded(0, 10, "m", lo_open=True), metavar="R",
+                        help="sphere radius of the first target in metres, (0, 10] "
+                             "(overrides --params)")
     parser.add_argument("--method", choices=("dlt", "disparity", "optimal"),
                         help="triangulation method (overrides --params)")
     parser.add_argument("--left-topic", default="/stereo/left/image_raw")
@@ -84,12 +85,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ground-truth-topic", default="/ground_truth/target")
     parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
                         help="output bag storage (default mcap)")
-    parser.add_argument("--task-timeout", type=float, default=20.0, metavar="S",
+    parser.add_argument("--task-timeout", type=bounded(0, 3600, "s", lo_open=True), default=20.0,
+                        metavar="S",
                         help="deadline of a worker process for one stereo pair, (0, 3600] s "
                              "(default 20 s): "
                              "a worker that gives no result for this long (stopped, hung) is "
                              "killed and its pairs are located again in the main process")
-    parser.add_argument("--workers", type=int, metavar="N",
+    parser.add_argument("--workers", type=bounded(1, MAX_WORKERS, integer=True), metavar="N",
                         help=f"processes locating stereo pairs, 1 to {MAX_WORKERS} (default: "
                              "one per CPU; 1 = all in this process)")
     parser.add_argument("--verify-crc", action="store_true",
@@ -170,9 +172,6 @@ def run(args: argparse.Namespace) -> int:
     # local: at CLI start-up offline costs ~115 ms (OpenCV), core.locator ~85 ms,
     # core.camera ~40 ms, tqdm ~35 ms, io.results/core.localization/io.config ~10-20 ms each,
     # core.distances ~5 ms
-    check_range("--task-timeout", args.task_timeout, 0, 3600, "s", lo_open=True)
-    check_range("--workers", args.workers, 1, MAX_WORKERS, integer=True)
-    check_range("--radius", args.radius, 0, 10, "m", lo_open=True)
     from tqdm import tqdm
 
     from eye_in_hand.core.camera import StereoRig
