@@ -5,7 +5,7 @@ import argparse
 import shutil
 
 from eye_in_hand.commands.common import bounded
-from eye_in_hand.errors import InputError
+from eye_in_hand.errors import BagError, InputError
 from eye_in_hand.io.atomic import check_output_dir
 
 HELP = "record topics into a rosbag2 bag (mcap or sqlite3), like ros2 bag record"
@@ -74,6 +74,28 @@ def run(args: argparse.Namespace) -> int:
     if args.topics:  # an empty list would be typed as a byte array
         overrides.append(Parameter("topics", Parameter.Type.STRING_ARRAY, list(args.topics)))
     sigterm_as_interrupt()
-    return run_with_executor(
-        lambda: BagRecorder(parameter_overrides=overrides),
-        lambda node, ex: spin_recorder(node, float(args.duration), ex), args=[])
+    try:
+        return run_with_executor(
+            lambda: BagRecorder(parameter_overrides=overrides),
+            lambda node, ex: spin_recorder(node, float(args.duration), ex), args=[])
+    except BagError as exc:
+        cause = _os_error(exc)
+        if cause is None:
+            raise
+        # a full disk or a file-size limit: the bag is written in place (so that a crash
+        # keeps what was recorded); say so, under the bag's name
+        raise BagError(f"{args.output}: cannot write ({cause.strerror or cause}); what was "
+                       f"recorded until then stays in {args.output} (a bag without its index "
+                       "is read by scanning, see docs/bags.md)") from exc
+
+
+def _os_error(exc: BaseException) -> OSError | None:
+    """The ``OSError`` behind ``exc`` (its causes), if any."""
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        if isinstance(e, OSError):
+            return e
+        e = e.__cause__ or e.__context__
+    return None

@@ -339,3 +339,62 @@ def test_a_damaged_metadata_yaml_is_reported_and_the_bag_scanned(small_bag, tmp_
            "from its storage file(s) (loc.mcap)" in err, err
     s = _summary(out)
     assert s["counts"]["localized"] == 6 and any("metadata.yaml" in n for n in s["notes"])
+
+
+# ------------------------------------------------------------------------------------------------
+# sized work: the estimate up front, refused when it cannot fit unless --force
+# ------------------------------------------------------------------------------------------------
+def test_simulate_states_its_estimate_and_refuses_what_cannot_fit(tmp_path, capsys,
+                                                                  monkeypatch):
+    import shutil
+    from collections import namedtuple
+
+    out = tmp_path / "sim"
+    argv = ["simulate", "--scenario", "localization", "--frames", "100000", "--size",
+            "16000x16000", "--out", str(out)]
+    assert main(argv) == 1
+    line = _one_line_error(capsys.readouterr().err)
+    assert line.startswith("eye-in-hand: error: simulate: 100000 stereo pairs at 16000x16000: "
+                           "about "), line
+    assert "up to 153,600,000 MB on disk" in line and "does not fit on the disk" in line
+    assert "--force" in line and not out.exists()
+    # a run that fits says what it will cost before it starts
+    assert main(["simulate", "--scenario", "localization", "--frames", "2", "--size",
+                 "64x48", "--supersample", "1", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "simulate: 2 stereo pairs at 64x48: about 1 s, up to 0 MB on disk" in err, err
+    # a disk that is full: refused, unless --force (which then runs, and succeeds here)
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda _p: usage(1 << 30, 1 << 30, 1000))
+    small = ["simulate", "--scenario", "localization", "--frames", "2", "--size", "64x48",
+             "--supersample", "1", "--out", str(tmp_path / "s2")]
+    assert main(small) == 1
+    assert "does not fit on the disk" in _one_line_error(capsys.readouterr().err)
+    assert main(small + ["--force"]) == 0
+    assert (tmp_path / "s2").is_dir()
+
+
+def test_record_on_a_full_disk_names_the_bag_and_what_it_kept(tmp_path, capsys, monkeypatch):
+    import errno
+    import os
+
+    from eye_in_hand.errors import BagError
+    from eye_in_hand.io.bags import writing
+
+    real_close = writing.BagWriter.close
+
+    def full(self):
+        real_close(self)
+        try:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        except OSError as exc:
+            raise BagError(f"cannot finish bag {self.path}: {exc}") from exc
+
+    monkeypatch.setattr(writing.BagWriter, "close", full)
+    out = tmp_path / "rec"
+    assert main(["record", "-o", str(out), "/campaign_chatter", "-d", "0.2"]) == 1
+    line = _one_line_error(capsys.readouterr().err)
+    assert line == (f"eye-in-hand: error: {out}: cannot write (No space left on device); what "
+                    f"was recorded until then stays in {out} (a bag without its index is read "
+                    "by scanning, see docs/bags.md)")
+    assert ".partial-" not in line and "Errno" not in line
