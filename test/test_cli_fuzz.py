@@ -138,3 +138,28 @@ def test_random_flag_values_end_in_one_line_within_seconds(tmp_path, ros_env):
         if not ok:
             bad.append((argv[:3], argv[-2:], code, err[-300:]))
     assert not bad, "\n".join(map(repr, bad[:20])) + f"\n({len(bad)} of {len(results)})"
+
+
+def test_the_range_table_of_the_reliability_page_is_the_parsers():
+    """docs/reliability.md lists every bounded option with the range the parser enforces."""
+    import re
+    from pathlib import Path
+
+    from eye_in_hand import cli
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "reliability.md").read_text()
+    documented = {(m[0], m[1]): m[2].strip() for m in re.findall(
+        r"^\| `([a-z -]+)` \| `(--[a-z-]+)` \| ([^|]+) \|", text, flags=re.M)}
+
+    def walk(p, words):
+        for a in p._actions:
+            if a.__class__.__name__ == "_SubParsersAction":
+                for name, sub in a.choices.items():
+                    yield from walk(sub, words + [name])
+        for a in p._actions:
+            if getattr(a.type, "range_text", None):
+                yield (" ".join(words), a.option_strings[-1]), a.type.range_text
+
+    enforced = dict(walk(cli.build_parser(), []))
+    assert len(enforced) > 30
+    assert documented == enforced

@@ -15,6 +15,11 @@ __all__ = ["apply_overrides", "check_range", "bounded", "MAX_WORKERS"]
 MAX_WORKERS = 64
 
 
+def _fmt(x: float) -> str:
+    """A range bound as written in the docs: an integral value in full, else ``%g``."""
+    return str(int(x)) if float(x).is_integer() else f"{x:g}"
+
+
 def check_range(flag: str, value, lo: float, hi: float, unit: str = "", *,
                 lo_open: bool = False, integer: bool = False):
     """``value`` if it is a finite number within ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``).
@@ -35,7 +40,7 @@ def check_range(flag: str, value, lo: float, hi: float, unit: str = "", *,
         left = "(" if lo_open else "["
         suffix = f" {unit}" if unit else ""
         raise InputError(f"{flag}: must be {'an integer ' if integer else ''}within "
-                         f"{left}{lo:g}, {hi:g}]{suffix}, got {value}")
+                         f"{left}{_fmt(lo)}, {_fmt(hi)}]{suffix}, got {value}")
     return value
 
 
@@ -77,4 +82,7 @@ def bounded(lo: float, hi: float, unit: str = "", *, integer: bool = False,
         return value
 
     parse.__name__ = "bounded"
+    parse.range_text = (  # type: ignore[attr-defined]
+        f"{'(' if lo_open else '['}{_fmt(lo)}, {_fmt(hi)}]" + (f" {unit}" if unit else "")
+        + (", integer" if integer else ""))
     return parse
