@@ -294,7 +294,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"warning: {args.truth}: no measured distance {a} - {b} (targets located: "
               f"{', '.join(result.target_ids)})", file=sys.stderr)
     print(f"wrote {paths['bag']} (bag), {paths['csv']}, {paths['summary']}")
-    if not c["localized"]:
+    if not any(t.status == "ok" for f in result.frames for t in f.targets):
         print(f"eye-in-hand: error: nothing located in the base frame in {args.bag}: "
               + _nothing_reasons(c, loss, result), file=sys.stderr)
         return EXIT_NOTHING_LOCATED
