@@ -121,9 +121,10 @@ def _limited(argv: list[str], limit: int) -> subprocess.CompletedProcess:
                           timeout=120)
 
 
-@pytest.mark.parametrize("case", ["process-mcap", "process-sqlite3", "simulate"])
+@pytest.mark.parametrize("case", ["process-mcap", "process-sqlite3", "simulate",
+                                  "calibrate-camera"])
 def test_a_full_disk_names_the_final_output_and_keeps_the_earlier_one(small_bag, tmp_path,
-                                                                       case):
+                                                                       case, data_dir):
     bag, hand_eye = small_bag
     out = tmp_path / "out"
     out.mkdir()
@@ -131,9 +132,13 @@ def test_a_full_disk_names_the_final_output_and_keeps_the_earlier_one(small_bag,
     if case.startswith("process"):
         argv = ["process", str(bag), "--hand-eye", str(hand_eye), "-o", str(out), "--quiet",
                 "--workers", "1", "--overwrite", "--storage", case.split("-")[1]]
-    else:
+    elif case == "simulate":
         argv = ["simulate", "--scenario", "localization", "--frames", "2", "--size", "320x180",
                 "--supersample", "1", "--out", str(out), "--overwrite", "--quiet"]
+    else:   # the report's plots are larger than the limit
+        argv = ["calibrate", "camera", "--images",
+                str(data_dir / "opencv_stereo_chessboard" / "left*"), "--board",
+                "chessboard:9x6:1.0", "-o", str(out), "--overwrite", "--detector", "classic"]
     proc = _limited(argv, 4096)
     assert proc.returncode == 1, proc.stderr
     line = _one_line_error(proc.stderr)
