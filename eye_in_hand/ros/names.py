@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 from rclpy.exceptions import InvalidNamespaceException, InvalidTopicNameException
-from rclpy.validate_full_topic_name import validate_full_topic_name
 from rclpy.validate_namespace import validate_namespace
 from rclpy.validate_topic_name import validate_topic_name
 
