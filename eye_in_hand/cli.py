@@ -9,7 +9,10 @@ Each sub-command lives in its own module under :mod:`eye_in_hand.commands` and p
 Command modules import heavy dependencies (rclpy, OpenCV, matplotlib) inside ``run`` so that
 ``eye-in-hand --help`` stays fast. Errors derived from :class:`eye_in_hand.errors.EyeInHandError`
 are printed as one line on stderr (``eye-in-hand: error: ...``) with exit code 1, never a traceback;
-so is any ``OSError`` that reaches the top (e.g. a full disk), with the file it names.
+so is any ``OSError`` that reaches the top (e.g. a full disk), with the file it names. Any other
+exception (a bug) is one line too, ``eye-in-hand: internal error: <Type>: <message> (run with
+--debug ...)``, exit code 70; ``--debug`` (or ``EYE_IN_HAND_DEBUG=1``) shows its traceback and
+is passed on to worker processes and launched nodes.
 """
 from __future__ import annotations
 
@@ -17,10 +20,16 @@ import argparse
 import codecs
 import importlib
 import sys
-from typing import Sequence
+from typing import NoReturn, Sequence
 
 from eye_in_hand import __version__
-from eye_in_hand.errors import EyeInHandError
+from eye_in_hand.errors import (
+    DEBUG_ENV,
+    EXIT_UNEXPECTED,
+    EyeInHandError,
+    debug_enabled,
+    unexpected_error_line,
+)
 
 # (words, module). Words with a space form a command group, e.g. ``calibrate camera``.
 COMMANDS: list[tuple[str, str]] = [
@@ -47,14 +56,29 @@ GROUP_HELP = {
 }
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line: ``<prog>: error: <what> (see <prog>
+    --help)``, exit code 2 (argparse's own prints the whole usage first)."""
+
+    def error(self, message: str) -> NoReturn:
+        text = " ".join(_printable(message).split())
+        if len(text) > 400:
+            text = text[:400] + "..."
+        self.exit(2, f"{self.prog}: error: {text} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Build the full argument parser, importing every command module."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="eye-in-hand",
         description="Eye-in-hand stereo target localization, calibration and bag tools.",
     )
     parser.add_argument("--version", action="version", version=f"eye-in-hand {__version__}")
-    top = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    parser.add_argument("--debug", action="store_true",
+                        help="show the traceback of an unexpected error (also in worker "
+                             f"processes and launched nodes; same as {DEBUG_ENV}=1)")
+    top = parser.add_subparsers(dest="command", metavar="COMMAND", required=True,
+                                parser_class=_Parser)
     groups: dict[str, argparse._SubParsersAction] = {}
     for words, module_name in COMMANDS:
         module = importlib.import_module(module_name)
@@ -65,7 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
             if group not in groups:
                 gparser = top.add_parser(group, help=GROUP_HELP.get(group, group))
                 groups[group] = gparser.add_subparsers(
-                    dest=f"{group}_command", metavar="SUBCOMMAND", required=True)
+                    dest=f"{group}_command", metavar="SUBCOMMAND", required=True,
+                    parser_class=_Parser)
             sub = groups[group]
         cmd = sub.add_parser(parts[-1], help=module.HELP, description=module.HELP)
         module.add_arguments(cmd)
@@ -91,6 +116,43 @@ def _printable(text: str) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``eye-in-hand`` console script."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    # --debug anywhere on the line (before or after the command's name)
+    debug = "--debug" in argv[:argv.index("--")] if "--" in argv else "--debug" in argv
+    if debug:
+        import os
+
+        argv = [a for a in argv if a != "--debug"]
+        os.environ[DEBUG_ENV] = "1"   # worker processes and launched nodes inherit it
+    try:
+        return _main(argv)
+    except SystemExit:
+        raise
+    except KeyboardInterrupt:
+        print("eye-in-hand: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # stdout closed by the reader (``| head``): nothing more to say
+        _quiet_stdout()
+        return 141
+    except BaseException as exc:  # noqa: BLE001 - the top-level guard: one line, not a traceback
+        if debug or debug_enabled():
+            raise
+        print(unexpected_error_line("eye-in-hand", exc), file=sys.stderr)
+        return EXIT_UNEXPECTED
+
+
+def _quiet_stdout() -> None:
+    """Point stdout at /dev/null so that the interpreter's final flush cannot fail again."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+
+
+def _main(argv: list[str]) -> int:
     from eye_in_hand.ros.dds import use_large_data_profile
 
     use_large_data_profile()  # before any command starts rclpy (children inherit it)
@@ -106,13 +168,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except EyeInHandError as exc:
         print(f"eye-in-hand: error: {_printable(str(exc))}", file=sys.stderr)
         return 1
+    except BrokenPipeError:
+        raise
     except OSError as exc:  # a file system error not caught closer to its cause (ENOSPC, EACCES)
         where = f"{_printable(str(exc.filename))}: " if exc.filename else ""
         print(f"eye-in-hand: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("eye-in-hand: interrupted", file=sys.stderr)
-        return 130
 
 
 if __name__ == "__main__":  # pragma: no cover

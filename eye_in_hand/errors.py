@@ -18,7 +18,39 @@ __all__ = [
     "HandEyeError",
     "KinematicsError",
     "LocalizationError",
+    "DEBUG_ENV",
+    "EXIT_UNEXPECTED",
+    "debug_enabled",
+    "unexpected_error_line",
 ]
+
+#: Environment variable that shows the traceback of an unexpected error (``--debug`` sets it, so
+#: worker processes and launched nodes inherit it).
+DEBUG_ENV = "EYE_IN_HAND_DEBUG"
+#: Exit code of a process stopped by an unexpected error (a bug, not bad input): EX_SOFTWARE.
+EXIT_UNEXPECTED = 70
+
+
+def debug_enabled(argv: "list[str] | tuple[str, ...] | None" = None) -> bool:
+    """Whether tracebacks are wanted: ``--debug`` among ``argv`` or ``EYE_IN_HAND_DEBUG`` set
+    to anything but ``""``/``0``."""
+    import os
+
+    if argv is not None and "--debug" in argv:
+        return True
+    return os.environ.get(DEBUG_ENV, "") not in ("", "0")
+
+
+def unexpected_error_line(prog: str, exc: BaseException) -> str:
+    """The one line an entry point prints for an unexpected exception (a bug, not bad input):
+    ``<prog>: internal error: <Type>: <message> (run with --debug for the traceback)``."""
+    text = " ".join(str(exc).split())
+    if len(text) > 300:
+        text = text[:300] + "..."
+    kind = type(exc).__name__
+    detail = f"{kind}: {text}" if text else kind
+    return (f"{prog}: internal error: {detail} (run with --debug, or {DEBUG_ENV}=1, for the "
+            "traceback)")
 
 
 class EyeInHandError(Exception):

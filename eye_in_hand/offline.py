@@ -47,6 +47,7 @@ from eye_in_hand.io.results import TargetResult, assign_truth, target_order
 from eye_in_hand.io.results import write_results as _write_results
 
 __all__ = ["ProcessOptions", "FrameResult", "ProcessResult", "TargetResult", "process_bag",
+           "loss_total",
            "error_stats", "write_results"]
 
 
@@ -197,6 +198,7 @@ class ProcessResult:
     rig: StereoRig | None = None
     located_in_processes: int = 0
     damage: Any = None
+    loss: dict[str, Any] = field(default_factory=dict)
     target_ids: list[str] = field(default_factory=list)
     truth_match: dict[str, dict[str, Any]] = field(default_factory=dict)
 
@@ -271,6 +273,7 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     tf_buffer = _use_tf(localizer, opts, n_poses) if use_tf else None
     sync = ApproximateStereoSync(int(round(opts.sync_slop_s * 1e9)), opts.sync_queue_size)
     result = ProcessResult(duration_s=info.duration_ns / 1e9, rig=rig, damage=DamageLog())
+    result.notes.extend(info.notes)   # a damaged metadata.yaml, a file read by scanning
     counts = result.counts
     for key in ("pairs", "located", "localized", "no_target", "no_robot_pose", "bad_messages"):
         counts[key] = 0
@@ -404,6 +407,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     counts["ground_truth"] = len(truth)
     counts["damaged_regions"] = len(result.damage)
     counts["messages_lost"] = result.damage.messages_lost
+    result.loss = loss_total(counts, result.damage, (opts.left_topic, opts.right_topic))
+    counts["lost"] = result.loss["total"]
     return result
 
 
@@ -491,8 +496,37 @@ class _Ledger:
         pl, pr = sync.pending
         self.count("unpaired_left", sync.stats.dropped_left + pl)
         self.count("unpaired_right", sync.stats.dropped_right + pr)
+        # of which: a stamp not after its side's previous one (a replay's repeated stamps)
+        self.count("stale_stamp", sync.stats.dropped_stale)
         if localizer is not None:
             self.count("pose_buffer_resets", sum(localizer.poses.resets.values()))
+
+
+def loss_total(counts: dict[str, int], damage: Any = None,
+               image_topics: tuple[str, ...] = ()) -> dict[str, Any]:
+    """The one loss total of a run: every input that did not become a result, by cause.
+
+    ``unpaired_left``/``unpaired_right`` (images without a partner; ``stale_stamp`` ones, a
+    stamp not after the previous image of their side, are among them and shown on their own
+    as ``of_which_stale_stamp``), ``bad_pairs`` and ``no_robot_pose`` (pairs),
+    ``bad_messages`` (other messages that do not read: an image without a valid stamp, a robot
+    pose; ``counts['bad_messages']`` less the bad pairs) and ``damaged`` (images lost in damaged
+    regions of the bag; ``None`` when a region's count is unknown). ``no_target`` (a pair
+    looked at, with no target in view) is a result, not a loss.
+    """
+    by_cause = {k: int(counts.get(k, 0)) for k in (
+        "unpaired_left", "unpaired_right", "bad_pairs", "no_robot_pose")}
+    # bad_messages counts the bad pairs too: here only the other messages that did not read
+    by_cause["bad_messages"] = int(counts.get("bad_messages", 0)) - by_cause["bad_pairs"]
+    damaged: int | None = 0
+    if damage is not None and len(damage):
+        damaged = sum(int(n) for t, n in damage.by_topic().items() if t in image_topics)
+        if getattr(damage, "unknown", 0):
+            damaged = None
+    total = sum(by_cause.values()) + (damaged or 0)
+    return {"total": total, "by_cause": {**by_cause, "damaged": damaged},
+            "of_which_stale_stamp": int(counts.get("stale_stamp", 0)),
+            "complete": damaged is not None}
 
 
 def _rig_from_camera_info(path: Path, opts: ProcessOptions, damage: Any = None) -> StereoRig:

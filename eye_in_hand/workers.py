@@ -7,7 +7,9 @@ DDS's) exist. These workers are plain ``python`` subprocesses instead: they impo
 from the same place as the parent (never from their working directory), talk to the parent over
 a private copy of their stdout and their stdin with length-prefixed pickles (anything printed to
 stdout, also by C code such as OpenCV's logger, goes to stderr), run in their own session so
-Ctrl-C is the parent's to handle, and exit when their stdin closes.
+Ctrl-C is the parent's to handle, and exit when their stdin closes. A worker whose parent died
+(killed with SIGKILL) exits quietly, never with a traceback; any other unexpected error in a
+worker is one line on its stderr (see :func:`_serve`).
 
 Usage::
 
@@ -341,6 +343,51 @@ class ProcessPool:
 
 
 def _serve() -> int:
+    """The worker's process: :func:`_serve_loop` under a top-level guard.
+
+    The parent gone (its end of a pipe closed: a ``BrokenPipeError`` or ``EOFError``, or a
+    SIGPIPE) ends the worker quietly with code 0: nobody is left to read a message. Any other
+    exception is one line on stderr, ``eye-in-hand worker <pid>: internal error: ...``, exit 70
+    (``EYE_IN_HAND_DEBUG=1``: the traceback)."""
+    from eye_in_hand.errors import EXIT_UNEXPECTED, debug_enabled, unexpected_error_line
+
+    try:
+        return _serve_loop()
+    except (BrokenPipeError, ConnectionResetError, EOFError, KeyboardInterrupt):
+        _silence()
+        return 0
+    except BaseException as exc:  # noqa: BLE001 - the top-level guard of a worker process
+        if isinstance(exc, SystemExit):
+            raise
+        if debug_enabled():
+            raise
+        if os.getppid() == 1 or _parent_gone():
+            _silence()
+            return 0
+        print(unexpected_error_line(f"eye-in-hand worker {os.getpid()}", exc),
+              file=sys.stderr, flush=True)
+        return EXIT_UNEXPECTED
+
+
+_PARENT = os.getppid()
+
+
+def _parent_gone() -> bool:
+    return os.getppid() != _PARENT
+
+
+def _silence() -> None:
+    """Send fds 1 and 2 to /dev/null, so that the interpreter's last flush of a closed pipe
+    prints nothing."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        for fd in (1, 2):
+            os.dup2(devnull, fd)
+    except OSError:
+        pass
+
+
+def _serve_loop() -> int:
     """The worker's loop: init, then calls until stdin closes."""
     import traceback
 
@@ -351,16 +398,25 @@ def _serve() -> int:
     os.dup2(2, 1)
     sys.stdout = sys.stderr
 
-    def send(obj: Any) -> None:
-        channel.write(_frame(obj))
-        channel.flush()
+    def send(frame: bytes) -> None:
+        try:
+            channel.write(frame)
+            channel.flush()
+        except BrokenPipeError:
+            # the parent is gone: drop what is buffered so that closing cannot fail again
+            try:
+                os.close(channel.fileno())
+            except OSError:
+                pass
+            channel.close = lambda: None  # type: ignore[method-assign]
+            raise
 
     try:
         _kind, init, init_args = pickle.loads(_recv_bytes(stdin))
     except EOFError:
         return 0
     _resolve(init)(*init_args)
-    send(("ready", 0, os.getpid()))
+    send(_frame(("ready", 0, os.getpid())))
     while True:
         try:
             raw = _recv_bytes(stdin)
@@ -373,8 +429,7 @@ def _serve() -> int:
             frame = _frame(("result", task, result))
         except Exception:  # noqa: BLE001 - handed to the parent with its traceback
             frame = _frame(("error", task, traceback.format_exc()))
-        channel.write(frame)
-        channel.flush()
+        send(frame)
 
 
 if __name__ == "__main__":

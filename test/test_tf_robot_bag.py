@@ -78,8 +78,10 @@ def test_process_with_tf_equals_joint_states_kinematics(tf_bag, tmp_path, capsys
     assert max(np.linalg.norm(pa[s] - pb[s]) for s in pa) < 1e-5
     # frames that the TF chain does not reach are refused, not guessed
     c = tmp_path / "c"
+    capsys.readouterr()
     assert main(["process", str(bag), "--hand-eye", he, "-o", str(c), "--quiet",
-                 "--robot-pose", "tf", "--ee-frame", "flange"]) == 0
+                 "--robot-pose", "tf", "--ee-frame", "flange"]) == 3   # nothing located
+    assert "nothing located in the base frame" in capsys.readouterr().err
     counts = json.loads((c / "summary.json").read_text())["counts"]
     assert counts["localized"] == 0 and counts["no_robot_pose"] == 10
 

@@ -32,6 +32,7 @@ from eye_in_hand.commands.calibration_inputs import (
     view_entries,
     write_json,
 )
+from eye_in_hand.commands.common import bounded
 from eye_in_hand.errors import BagError, CalibrationError, InputError
 from eye_in_hand.io.bags import DamageLog
 
@@ -48,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--left-topic", metavar="TOPIC", help="bag input: left image topic")
     parser.add_argument("--right-topic", metavar="TOPIC", help="bag input: right image topic")
     add_common_arguments(parser)
-    parser.add_argument("--alpha", type=float, default=0.0,
+    parser.add_argument("--alpha", type=bounded(0, 1), default=0.0,
                         help="rectification free scaling: 0 keeps only valid pixels, 1 keeps "
                              "every source pixel; default 0")
     parser.add_argument("--fix-intrinsics", action="store_true",
@@ -147,8 +148,6 @@ def run(args: argparse.Namespace) -> int:
     from eye_in_hand.core.calibration import BoardSpec, calibrate_stereo
 
     check_common_arguments(args)
-    if not 0.0 <= args.alpha <= 1.0:
-        raise InputError(f"--alpha must be in [0, 1], got {args.alpha}")
     board = BoardSpec.parse(args.board)
     options = options_from_args(args)
     left, right, description, unmatched = _gather(args, board)

@@ -15,6 +15,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
+from eye_in_hand.commands.common import bounded
 from eye_in_hand.errors import BagError, CalibrationError, ConfigError, ConversionError, \
     InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
@@ -63,7 +64,7 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--overwrite", action="store_true",
                         help="replace an existing OUT_DIR (whole, once the new one is complete)")
     parser.add_argument("--bag", type=Path, metavar="BAG", help="read images from this bag")
-    parser.add_argument("--every", type=int, default=1, metavar="N",
+    parser.add_argument("--every", type=bounded(1, 1e6, integer=True), default=1, metavar="N",
                         help="bag input: use every N-th frame (or stereo pair); default 1")
     parser.add_argument("--detector", choices=("auto", "classic", "sb"), default="auto",
                         help="chessboard detector: classic (findChessboardCorners + "
@@ -71,7 +72,8 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
                              "falling back to sb per image); default auto")
     parser.add_argument("--no-fallback", action="store_true",
                         help="do not try the other chessboard detector when one finds nothing")
-    parser.add_argument("--subpix-window", type=int, default=5, metavar="PX",
+    parser.add_argument("--subpix-window", type=bounded(1, 50, "px", integer=True), default=5,
+                        metavar="PX",
                         help="half size of the cornerSubPix window (classic); default 5")
     parser.add_argument("--rational", action="store_true",
                         help="8-coefficient rational_polynomial distortion model")
@@ -82,10 +84,12 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
                         help="keep (cx, cy) at the image centre")
     parser.add_argument("--reject-outliers", action="store_true",
                         help="drop views whose RMS is above the outlier threshold and recompute")
-    parser.add_argument("--outlier-threshold", type=float, default=None, metavar="PX",
+    parser.add_argument("--outlier-threshold", type=bounded(0, 1000, "px", lo_open=True),
+                        default=None, metavar="PX",
                         help="per-view RMS (px) above which a view is an outlier; default: "
                              "max(2 x median, median + 4 x MAD) of the per-view RMS")
-    parser.add_argument("--min-views", type=int, default=5, metavar="N",
+    parser.add_argument("--min-views", type=bounded(1, 10000, integer=True), default=5,
+                        metavar="N",
                         help="fewest usable views accepted; default 5")
     parser.add_argument("--no-html", action="store_true", help="skip report.html")
 

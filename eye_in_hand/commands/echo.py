@@ -11,6 +11,7 @@ from typing import Any
 
 import yaml
 
+from eye_in_hand.commands.common import bounded
 from eye_in_hand.errors import EyeInHandError, InputError
 
 HELP = "print a topic's messages as YAML (or JSON lines), like ros2 topic echo"
@@ -24,15 +25,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("msgtype", nargs="?", default=None,
                         help="message type, e.g. std_msgs/msg/String (default: the type the "
                              "topic is advertised with; the command waits for it to appear)")
-    parser.add_argument("-n", "--count", type=int, default=0, metavar="N",
-                        help="exit after N messages (default 0: until Ctrl-C)")
-    parser.add_argument("-t", "--timeout", type=float, default=0.0, metavar="S",
-                        help="exit with an error when no message arrived within S seconds "
-                             "(default 0: wait forever)")
+    parser.add_argument("-n", "--count", type=bounded(0, 1e9, integer=True), default=0,
+                        metavar="N",
+                        help="exit after N messages, 0 to 1e9 (default 0: until Ctrl-C)")
+    parser.add_argument("-t", "--timeout", type=bounded(0, 86400, "s"), default=0.0, metavar="S",
+                        help="exit with an error when no message arrived within S seconds, "
+                             "0 to 86400 (default 0: wait forever)")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object per message and line instead of YAML")
-    parser.add_argument("--truncate-length", type=int, default=128, metavar="N",
-                        help="print at most N items of arrays and N characters of strings "
+    parser.add_argument("--truncate-length", type=bounded(0, 1e6, integer=True), default=128,
+                        metavar="N",
+                        help="print at most N items of arrays and N characters of strings, "
+                             "0 to 1e6 "
                              "(default 128, as ros2 topic echo; 0: everything)")
 
 

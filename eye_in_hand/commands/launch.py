@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 
+from eye_in_hand.commands.common import bounded
 from eye_in_hand.errors import ConfigError, InputError
 from eye_in_hand.yamlfile import printable, read_yaml_file
 
@@ -37,17 +38,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="nodes not to start (e.g. stereo_capture when a bag is replayed)")
     parser.add_argument("--namespace", default="/", metavar="NS",
                         help="root namespace of every node and topic (default /)")
-    parser.add_argument("--duration", type=float, metavar="S",
-                        help="stop after S seconds (default: run until Ctrl-C)")
+    parser.add_argument("--duration", type=bounded(0, 1e7, "s", lo_open=True), metavar="S",
+                        help="stop after S seconds, (0, 1e7] (default: run until Ctrl-C)")
     parser.add_argument("--no-respawn", action="store_true",
                         help="do not restart a node that exits: stop every node instead")
-    parser.add_argument("--respawn-delay", type=float, default=0.5, metavar="S",
+    parser.add_argument("--respawn-delay", type=bounded(0, 8, "s"), default=0.5, metavar="S",
                         help="back-off before restarting a crashed node, doubled for each "
                              "further restart within the window, at most 8 s (default 0.5)")
-    parser.add_argument("--max-restarts", type=int, default=5, metavar="N",
-                        help="restarts of one node allowed within --restart-window; one more "
-                             "stops the launch (default 5)")
-    parser.add_argument("--restart-window", type=float, default=60.0, metavar="S",
+    parser.add_argument("--max-restarts", type=bounded(0, 1000, integer=True), default=5,
+                        metavar="N",
+                        help="restarts of one node allowed within --restart-window, 0 to "
+                             "1000; one more stops the launch (default 5)")
+    parser.add_argument("--restart-window", type=bounded(0, 86400, "s", lo_open=True),
+                        default=60.0, metavar="S",
                         help="window of --max-restarts in seconds (default 60)")
 
 
@@ -56,32 +59,24 @@ def run(args: argparse.Namespace) -> int:
     # local: the launcher loads subprocess and threading (~12 ms at CLI start-up)
     from eye_in_hand.launcher import CALIBRATION_NODES, NODES, Launcher, default_params_file
 
-    if args.duration is not None and not args.duration > 0:
-        raise InputError(f"--duration: must be positive, got {args.duration}")
     params = args.params or default_params_file(
         "hand_eye_calibration.yaml" if args.calibrate else "eye_in_hand.yaml")
     # bad input is one line here, not a traceback from rcl in every node
     # local: ros.names loads rclpy (~50 ms at CLI start-up)
-    from eye_in_hand.ros.names import check_parameter_text, topic_name_problem
+    from eye_in_hand.ros.names import check_namespace, check_parameter_text
+    from eye_in_hand.ros.params import check_parameter_file
 
-    ns = "/" + args.namespace.strip("/")
-    problem = None if ns == "/" else topic_name_problem(ns)
-    if problem is not None:
-        raise InputError(f"--namespace {printable(args.namespace)!r}: not a valid namespace "
-                         f"({problem})")
+    ns = check_namespace(args.namespace)
     check_parameter_text(str(params), "--params")  # rcl takes it as UTF-8 text
     if not isinstance(read_yaml_file(params, "parameter file"), dict):
         raise ConfigError(f"{printable(params)}: parameter file must map node names to "
                           "'ros__parameters'")
+    check_parameter_file(params)  # rcl's own parser: never a crash-looping node
     catalogue = CALIBRATION_NODES if args.calibrate else NODES
     nodes = [n.name for n in catalogue if n.name not in args.skip]
     if not nodes:
         raise InputError("--skip: no node left to start")
-    if not 0 <= args.respawn_delay <= 8.0:
-        raise InputError(f"--respawn-delay: must be within [0, 8] s, got {args.respawn_delay}")
-    if args.max_restarts < 0 or not args.restart_window > 0:
-        raise InputError("--max-restarts must be >= 0 and --restart-window > 0")
-    launcher = Launcher(params, nodes, root_namespace=args.namespace,
+    launcher = Launcher(params, nodes, root_namespace=ns,
                         respawn=not args.no_respawn, respawn_delay_s=args.respawn_delay,
                         max_restarts=args.max_restarts, restart_window_s=args.restart_window,
                         calibrate=args.calibrate)

@@ -25,7 +25,7 @@ import sys
 
 import numpy as np
 
-from eye_in_hand.commands.common import apply_overrides
+from eye_in_hand.commands.common import apply_overrides, bounded
 from eye_in_hand.errors import ConfigError, InputError
 
 HELP = "locate the targets in one stereo pair from image files"
@@ -44,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--params", metavar="FILE",
                         help="the detect_triangulate parameter file (default: built-in red "
                              "sphere)")
-    parser.add_argument("--radius", type=float, metavar="R",
+    parser.add_argument("--radius", type=bounded(0, 10, "m", lo_open=True), metavar="R",
                         help="sphere radius of the first target in metres (overrides the "
                              "parameter file)")
     parser.add_argument("--method", choices=("dlt", "disparity", "optimal"),

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 
+from eye_in_hand.commands.common import bounded
 from eye_in_hand.errors import InputError
 from eye_in_hand.io.bags import bag_info
 
@@ -11,37 +12,28 @@ HELP = "publish a bag's messages over DDS at the recorded pace (like ros2 bag pl
 __all__ = ["HELP", "add_arguments", "run"]
 
 
-def _positive(text: str) -> float:
-    value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return value
-
-
-def _non_negative(text: str) -> float:
-    value = float(text)
-    if not value >= 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return value
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``eye-in-hand play``."""
     parser.add_argument("bag", help="bag directory (metadata.yaml) or a single .mcap/.db3 file")
-    parser.add_argument("-r", "--rate", type=_positive, default=1.0,
-                        help="playback speed factor (default 1.0; 2.0 plays twice as fast)")
+    parser.add_argument("-r", "--rate", type=bounded(0, 1000, lo_open=True), default=1.0,
+                        help="playback speed factor, (0, 1000] (default 1.0; 2.0 plays twice "
+                             "as fast)")
     parser.add_argument("-l", "--loop", action="store_true", help="restart at the end, forever")
     parser.add_argument("--clock", action="store_true",
                         help="publish /clock (rosgraph_msgs/Clock) with the bag time, for nodes "
                              "with use_sim_time")
-    parser.add_argument("--clock-hz", type=_positive, default=40.0, metavar="HZ",
-                        help="/clock publishing frequency (default 40, as ros2 bag play)")
+    parser.add_argument("--clock-hz", type=bounded(0, 1000, "Hz", lo_open=True), default=40.0,
+                        metavar="HZ",
+                        help="/clock publishing frequency, (0, 1000] Hz (default 40, as ros2 "
+                             "bag play)")
     parser.add_argument("--topics", nargs="+", default=[], metavar="TOPIC",
                         help="play only these topics (default: all)")
-    parser.add_argument("--start-offset", type=_non_negative, default=0.0, metavar="S",
-                        help="start S seconds into the bag (default 0)")
-    parser.add_argument("--wait-for-subscribers", type=_non_negative, default=0.0, metavar="S",
-                        help="before the first message, wait up to S seconds until every "
+    parser.add_argument("--start-offset", type=bounded(0, 1e7, "s"), default=0.0, metavar="S",
+                        help="start S seconds into the bag, 0 to 1e7 (default 0)")
+    parser.add_argument("--wait-for-subscribers", type=bounded(0, 3600, "s"), default=0.0,
+                        metavar="S",
+                        help="before the first message, wait up to S seconds (0 to 3600) "
+                             "until every "
                              "topic has a subscriber (default 0: do not wait, like ros2 bag "
                              "play; messages sent before discovery completes are lost)")
     parser.add_argument("--wait-for-topics", nargs="+", default=[], metavar="TOPIC",

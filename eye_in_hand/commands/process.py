@@ -23,7 +23,7 @@ import sys
 import time
 from pathlib import Path
 
-from eye_in_hand.commands.common import apply_overrides
+from eye_in_hand.commands.common import MAX_WORKERS, apply_overrides, bounded
 from eye_in_hand.errors import ConfigError, InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 from eye_in_hand.io.bags import bag_info
@@ -55,8 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "optionally hand_eye (max_pose_gap_s, max_pose_age_s, "
                              "pose_jump_back_s, robot sigmas) sections; "
                              "default: built-in red sphere")
-    parser.add_argument("--radius", type=float, metavar="R",
-                        help="sphere radius of the first target in metres (overrides --params)")
+    parser.add_argument("--radius", type=bounded(0, 10, "m", lo_open=True), metavar="R",
+                        help="sphere radius of the first target in metres, (0, 10] "
+                             "(overrides --params)")
     parser.add_argument("--method", choices=("dlt", "disparity", "optimal"),
                         help="triangulation method (overrides --params)")
     parser.add_argument("--left-topic", default="/stereo/left/image_raw")
@@ -84,16 +85,71 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ground-truth-topic", default="/ground_truth/target")
     parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
                         help="output bag storage (default mcap)")
-    parser.add_argument("--task-timeout", type=float, default=20.0, metavar="S",
-                        help="deadline of a worker process for one stereo pair (default 20 s): "
+    parser.add_argument("--task-timeout", type=bounded(0, 3600, "s", lo_open=True), default=20.0,
+                        metavar="S",
+                        help="deadline of a worker process for one stereo pair, (0, 3600] s "
+                             "(default 20 s): "
                              "a worker that gives no result for this long (stopped, hung) is "
                              "killed and its pairs are located again in the main process")
-    parser.add_argument("--workers", type=int, metavar="N",
-                        help="processes locating stereo pairs (default: one per CPU; 1 = all in "
-                             "this process)")
+    parser.add_argument("--workers", type=bounded(1, MAX_WORKERS, integer=True), metavar="N",
+                        help=f"processes locating stereo pairs, 1 to {MAX_WORKERS} (default: "
+                             "one per CPU; 1 = all in this process)")
     parser.add_argument("--verify-crc", action="store_true",
                         help="check MCAP chunk CRCs while reading (slower: CRC-32 of every image)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _image_size(raw: bytes) -> tuple[int, int] | None:
+    """(width, height) of a CDR ``sensor_msgs/Image`` without decoding its pixels."""
+    import struct
+
+    try:
+        little = raw[1] == 1
+        fmt = "<" if little else ">"
+        pos = 4 + 8                                   # encapsulation, header stamp
+        (n,) = struct.unpack_from(fmt + "I", raw, pos)
+        pos += 4 + n
+        pos += -(pos - 4) % 4                         # CDR alignment (from after encapsulation)
+        height, width = struct.unpack_from(fmt + "II", raw, pos)
+    except (struct.error, IndexError):
+        return None
+    return int(width), int(height)
+
+
+def check_calibration_against_bag(rig, calibration: str, bag: str,
+                                  sides: dict[str, str]) -> None:
+    """Refuse a calibration whose image sizes disagree with each other or with the bag's first
+    image on each side (an Image topic), naming the file and the fields.
+
+    Raises:
+        ConfigError: ``DIR/left.yaml: image_width x image_height 640x360 ...``.
+    """
+    from eye_in_hand.io.bags import DamageLog, iter_messages
+
+    models = {"left": rig.left, "right": rig.right}
+    if rig.left.size != rig.right.size:
+        raise ConfigError(
+            f"{Path(calibration) / 'right.yaml'}: image_width x image_height "
+            f"{rig.right.width}x{rig.right.height} disagrees with left.yaml's "
+            f"{rig.left.width}x{rig.left.height}")
+    seen: set[str] = set()
+    for topic, msgtype, t_ns, raw in iter_messages(bag, list(sides), damage=DamageLog()):
+        if topic in seen or msgtype != "sensor_msgs/msg/Image":
+            continue
+        size = _image_size(bytes(raw[:4096]))
+        if size is None:
+            continue
+        seen.add(topic)
+        side = sides[topic]
+        model = models[side]
+        if size != (model.width, model.height):
+            raise ConfigError(
+                f"{Path(calibration) / f'{side}.yaml'}: image_width x image_height "
+                f"{model.width}x{model.height} disagrees with the bag's {topic} images, "
+                f"{size[0]}x{size[1]} (first image at {t_ns} ns): a calibration of another "
+                "camera or resolution")
+        if len(seen) == len(sides):
+            return
 
 
 def _node_params(path: str | None, node: str) -> dict:
@@ -145,8 +201,6 @@ def run(args: argparse.Namespace) -> int:
         from eye_in_hand.io.kinematics import load_kinematics
 
         kinematics = load_kinematics(args.kinematics, args.urdf_base_link, args.urdf_tip_link)
-    if not args.task_timeout > 0:
-        raise InputError(f"--task-timeout: must be > 0 s, got {args.task_timeout}")
     try:
         robot_sigmas = robot_pose_sigmas(
             float(hand_eye_params.get("robot_sigma_pos_m", ProcessOptions.robot_sigma_pos_m)),
@@ -179,6 +233,9 @@ def run(args: argparse.Namespace) -> int:
                      inputs=[args.bag, args.hand_eye, args.calibration, args.params,
                              args.kinematics, args.truth])
     info = bag_info(args.bag)
+    if rig is not None:   # before the work: a calibration of another camera locates nothing
+        check_calibration_against_bag(rig, args.calibration, args.bag,
+                                      {opts.left_topic: "left", opts.right_topic: "right"})
     total = sum(info.topics[t].count for t in {opts.left_topic, opts.right_topic,
                                                opts.ground_truth_topic} | (
                     set() if fixed else {opts.pose_topic})
@@ -198,6 +255,8 @@ def run(args: argparse.Namespace) -> int:
     extra, pairs, stats_by_target, unmatched = run_figures(result, known)
     if args.truth:
         extra["distances_truth"] = str(args.truth)
+    extra["loss"] = result.loss
+    extra["notes"] = list(result.notes)
     with atomic_output_dir(args.output, overwrite=args.overwrite, create=False) as tmp:
         written = write_results(tmp, result, opts, storage=args.storage, summary_extra=extra)
     out = Path(args.output)
@@ -210,10 +269,9 @@ def run(args: argparse.Namespace) -> int:
           f"without target, {c['no_robot_pose']} without robot pose, {c['bad_messages']} bad "
           "messages")
     refused = {k[len("refused."):]: v for k, v in c.items() if k.startswith("refused.") and v}
-    if c.get("unpaired_left") or c.get("unpaired_right") or refused:
-        print(f"losses: {c.get('unpaired_left', 0)} left and {c.get('unpaired_right', 0)} right "
-              "images without a partner" + (", robot pose refused: " + ", ".join(
-                  f"{v} {k}" for k, v in refused.items()) if refused else ""))
+    loss = result.loss
+    if loss.get("total") or not loss.get("complete", True):
+        print(_loss_line(loss, refused))
     for note in result.notes:
         print(f"warning: {note}", file=sys.stderr)
     if result.damage:
@@ -236,4 +294,51 @@ def run(args: argparse.Namespace) -> int:
         print(f"warning: {args.truth}: no measured distance {a} - {b} (targets located: "
               f"{', '.join(result.target_ids)})", file=sys.stderr)
     print(f"wrote {paths['bag']} (bag), {paths['csv']}, {paths['summary']}")
+    if not any(t.status == "ok" for f in result.frames for t in f.targets):
+        print(f"eye-in-hand: error: nothing located in the base frame in {args.bag}: "
+              + _nothing_reasons(c, loss, result), file=sys.stderr)
+        return EXIT_NOTHING_LOCATED
     return 0
+
+
+#: Exit code of a ``process`` run that wrote its outputs but located no target in the base
+#: frame (the reasons are on stderr and in summary.json).
+EXIT_NOTHING_LOCATED = 3
+
+
+def _loss_line(loss: dict, refused: dict[str, int]) -> str:
+    """``losses: N in total: ...``, every cause of the loss total with its count."""
+    b = loss["by_cause"]
+    parts = [f"{b['unpaired_left']} left and {b['unpaired_right']} right images without a "
+             "partner" + (f" ({loss['of_which_stale_stamp']} of them with a stamp not after "
+                          "the previous one: stale_stamp)" if loss["of_which_stale_stamp"]
+                          else "")]
+    if b["bad_pairs"]:
+        parts.append(f"{b['bad_pairs']} pairs that could not be used")
+    if b["no_robot_pose"]:
+        parts.append(f"{b['no_robot_pose']} pairs without robot pose" + (
+            " (" + ", ".join(f"{v} {k}" for k, v in refused.items()) + ")" if refused else ""))
+    if b["bad_messages"]:
+        parts.append(f"{b['bad_messages']} other messages that could not be read")
+    if b["damaged"] is None:
+        parts.append("an unknown number of images in damaged regions of the bag")
+    elif b["damaged"]:
+        parts.append(f"{b['damaged']} images in damaged regions of the bag")
+    total = f"{loss['total']}" + ("" if loss.get("complete", True) else " or more")
+    return f"losses: {total} in total: " + "; ".join(parts)
+
+
+def _nothing_reasons(c: dict, loss: dict, result) -> str:
+    """Why nothing was located, from the counters and the first note."""
+    reasons = [f"{c['pairs']} stereo pairs"]
+    for key, text in (("no_target", "without target"), ("no_robot_pose", "without robot pose"),
+                      ("bad_pairs", "that could not be used")):
+        if c.get(key):
+            reasons.append(f"{c[key]} {text}")
+    if loss.get("total"):
+        reasons.append(f"{loss['total']} inputs lost")
+    if c.get("located") and not c.get("localized"):
+        reasons.append("targets were seen but no robot pose could place them")
+    if result.notes:
+        reasons.append(f"first note: {result.notes[0]}")
+    return ", ".join(reasons)

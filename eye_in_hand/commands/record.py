@@ -4,19 +4,13 @@ from __future__ import annotations
 import argparse
 import shutil
 
-from eye_in_hand.errors import InputError
+from eye_in_hand.commands.common import bounded
+from eye_in_hand.errors import BagError, InputError
 from eye_in_hand.io.atomic import check_output_dir
 
 HELP = "record topics into a rosbag2 bag (mcap or sqlite3), like ros2 bag record"
 
 __all__ = ["HELP", "add_arguments", "run"]
-
-
-def _non_negative(text: str) -> float:
-    value = float(text)
-    if not value >= 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,13 +31,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--compression", choices=("none", "zstd"), default="none",
                         help="zstd: compressed MCAP chunks (mcap) or per-message zstd "
                              "(sqlite3); default none")
-    parser.add_argument("-d", "--duration", type=_non_negative, default=0.0, metavar="S",
-                        help="stop after S seconds (default 0: until Ctrl-C / SIGTERM)")
-    parser.add_argument("--max-cache-mb", type=float, default=512.0, metavar="MIB",
+    parser.add_argument("-d", "--duration", type=bounded(0, 1e7, "s"), default=0.0, metavar="S",
+                        help="stop after S seconds, 0 to 1e7 (default 0: until Ctrl-C / "
+                             "SIGTERM)")
+    parser.add_argument("--max-cache-mb", type=bounded(1, 65536, "MiB"), default=512.0,
+                        metavar="MIB",
                         help="MiB of received messages that may wait for the disk before new "
-                             "ones are dropped (default 512)")
-    parser.add_argument("--discovery-period", type=float, default=0.2, metavar="S",
-                        help="seconds between polls for new topics (default 0.2)")
+                             "ones are dropped, 1 to 65536 (default 512)")
+    parser.add_argument("--discovery-period", type=bounded(0.01, 60, "s"), default=0.2,
+                        metavar="S",
+                        help="seconds between polls for new topics, 0.01 to 60 (default 0.2)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -59,9 +56,6 @@ def run(args: argparse.Namespace) -> int:
     out = check_output_dir(args.output, overwrite=args.overwrite)
     if out.is_dir():  # empty, or --overwrite
         shutil.rmtree(out)
-    if not 0.01 <= args.discovery_period <= 60:
-        raise InputError(f"--discovery-period must be in [0.01, 60] s, got "
-                         f"{args.discovery_period}")
     # local: rclpy (and the nodes on it) cost ~50-80 ms at CLI start-up
     from rclpy.parameter import Parameter
 
@@ -80,6 +74,28 @@ def run(args: argparse.Namespace) -> int:
     if args.topics:  # an empty list would be typed as a byte array
         overrides.append(Parameter("topics", Parameter.Type.STRING_ARRAY, list(args.topics)))
     sigterm_as_interrupt()
-    return run_with_executor(
-        lambda: BagRecorder(parameter_overrides=overrides),
-        lambda node, ex: spin_recorder(node, float(args.duration), ex), args=[])
+    try:
+        return run_with_executor(
+            lambda: BagRecorder(parameter_overrides=overrides),
+            lambda node, ex: spin_recorder(node, float(args.duration), ex), args=[])
+    except BagError as exc:
+        cause = _os_error(exc)
+        if cause is None:
+            raise
+        # a full disk or a file-size limit: the bag is written in place (so that a crash
+        # keeps what was recorded); say so, under the bag's name
+        raise BagError(f"{args.output}: cannot write ({cause.strerror or cause}); what was "
+                       f"recorded until then stays in {args.output} (a bag without its index "
+                       "is read by scanning, see docs/bags.md)") from exc
+
+
+def _os_error(exc: BaseException) -> OSError | None:
+    """The ``OSError`` behind ``exc`` (its causes), if any."""
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        if isinstance(e, OSError):
+            return e
+        e = e.__cause__ or e.__context__
+    return None

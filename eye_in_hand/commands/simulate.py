@@ -6,6 +6,7 @@ import re
 import sys
 from pathlib import Path
 
+from eye_in_hand.commands.common import bounded
 from eye_in_hand.errors import InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 
@@ -14,11 +15,79 @@ HELP = "simulate the eye-in-hand world: write a bag or a calibration dataset wit
 _DEFAULT_FRAMES = {"calibration": 16, "localization": 90}
 
 
+#: the largest image side ``--size`` accepts (pixels)
+MAX_SIDE = 16384
+
+
 def _size(text: str) -> tuple[int, int]:
     m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
-    if not m or int(m.group(1)) < 16 or int(m.group(2)) < 16:
-        raise argparse.ArgumentTypeError(f"expected WxH with W, H >= 16, got {text!r}")
+    if not m or not (16 <= int(m.group(1)) <= MAX_SIDE and 16 <= int(m.group(2)) <= MAX_SIDE):
+        raise argparse.ArgumentTypeError(f"expected WxH with W, H within [16, {MAX_SIDE}], "
+                                         f"got {text!r}")
     return int(m.group(1)), int(m.group(2))
+
+
+# The cost model of the estimate printed before the work (measured on the reference machine
+# under load: 30 pairs at 1280x720, supersample 3: 72 s, 90 MB, 366 MB peak; at 320x180: 15 s)
+_S_PER_PAIR = 0.3           # fixed cost of one stereo pair (s)
+_S_PER_MPX = 2.3            # per megapixel of one image (s)
+_MEMORY_BASE = 200 << 20    # the interpreter, SciPy, OpenCV (bytes)
+_MEMORY_PER_PX = 200        # per pixel of one image, rendering buffers (bytes)
+
+
+def _pairs(args: argparse.Namespace, frames: int) -> int:
+    """Stereo pairs the run writes (a calibration bag films the moves between its poses)."""
+    if args.scenario == "localization" or args.format == "dataset" or args.still_images_only:
+        return frames * (1 if args.scenario == "localization" or args.format == "dataset"
+                         else args.hold_frames)
+    return frames * (args.hold_frames + int((args.move_s + 2 * args.settle_s) * 30) + 1)
+
+
+def _available_memory() -> int | None:
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def estimate(args: argparse.Namespace, frames: int, size: tuple[int, int]) -> str:
+    """The run's estimated time, disk and memory, as one line; refuses (``InputError``) a run
+    that cannot fit on the disk or in memory, unless ``--force``."""
+    import shutil
+
+    pairs = _pairs(args, frames)
+    px = size[0] * size[1]
+    seconds = pairs * (_S_PER_PAIR + _S_PER_MPX * px / 1e6)
+    disk = pairs * 2 * px * 3               # uncompressed images: the upper bound
+    memory = _MEMORY_BASE + _MEMORY_PER_PX * px
+    parent = Path(args.out).absolute().parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    free = shutil.disk_usage(parent).free
+    avail = _available_memory()
+    line = (f"simulate: {pairs} stereo pairs at {size[0]}x{size[1]}: about "
+            f"{_duration(seconds)}, up to {disk / 1e6:,.0f} MB on disk ({free / 1e6:,.0f} MB "
+            f"free), about {memory / 1e6:,.0f} MB of memory")
+    if not args.force:
+        if disk > free:
+            raise InputError(f"{line}: does not fit on the disk of {parent} (give --force to "
+                             "try anyway, or fewer --frames or a smaller --size)")
+        if avail is not None and memory > avail:
+            raise InputError(f"{line}: does not fit in the {avail / 1e6:,.0f} MB of free memory "
+                             "(give --force to try anyway, or a smaller --size)")
+    return line
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:,.1f} h"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -32,11 +101,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "give --overwrite")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace an existing --out (whole, once the new one is complete)")
-    parser.add_argument("--frames", type=int, default=None,
-                        help="calibration: number of still poses (default 16); localization: "
-                             "number of stereo pairs at 30 Hz (default 90)")
-    parser.add_argument("--seed", type=int, default=0,
-                        help="seed of poses, trajectory and sensor noise (default 0)")
+    parser.add_argument("--frames", type=bounded(1, 100000, integer=True), default=None,
+                        help="1 to 100000; calibration: number of still poses (default 16); "
+                             "localization: number of stereo pairs at 30 Hz (default 90)")
+    parser.add_argument("--seed", type=bounded(0, 2**32 - 1, integer=True), default=0,
+                        help="seed of poses, trajectory and sensor noise, 0 to 2^32-1 "
+                             "(default 0)")
     parser.add_argument("--size", type=_size, default=None, metavar="WxH",
                         help="image size; intrinsics scale with it (default: the world's, "
                              "1280x720)")
@@ -54,29 +124,35 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "joint_offset_sigma_rad, encoder_sigma_rad, time_offset_s, seed), "
                              "e.g. 1,time_offset_s=0.004 (default: the world's robot_error, "
                              "the realistic default)")
-    parser.add_argument("--noise", type=float, default=1.0,
-                        help="sensor noise sigma in grey levels (default 1.0; 0 = none)")
-    parser.add_argument("--blur", type=float, default=0.0,
-                        help="Gaussian blur sigma in pixels (default 0)")
-    parser.add_argument("--exposure", type=float, default=1.0,
-                        help="exposure gain (default 1.0)")
-    parser.add_argument("--supersample", type=int, default=3,
-                        help="sub-pixel rays per axis on edge pixels (default 3)")
-    parser.add_argument("--hold-frames", type=int, default=3,
-                        help="calibration bag: image periods of the settled part of each stop "
-                             "(default 3)")
-    parser.add_argument("--settle-s", type=float, default=0.25,
+    parser.add_argument("--noise", type=bounded(0, 255), default=1.0,
+                        help="sensor noise sigma in grey levels, 0 to 255 (default 1.0; 0 = "
+                             "none)")
+    parser.add_argument("--blur", type=bounded(0, 50, "px"), default=0.0,
+                        help="Gaussian blur sigma in pixels, 0 to 50 (default 0)")
+    parser.add_argument("--exposure", type=bounded(0, 100, lo_open=True), default=1.0,
+                        help="exposure gain, (0, 100] (default 1.0)")
+    parser.add_argument("--supersample", type=bounded(1, 8, integer=True), default=3,
+                        help="sub-pixel rays per axis on edge pixels, 1 to 8 (default 3)")
+    parser.add_argument("--hold-frames", type=bounded(1, 1000, integer=True), default=3,
+                        help="calibration bag: image periods of the settled part of each stop, "
+                             "1 to 1000 (default 3)")
+    parser.add_argument("--settle-s", type=bounded(0, 60, "s"), default=0.25,
                         help="calibration bag: the arm also rests this long before and after "
-                             "those frames (default 0.25 s)")
-    parser.add_argument("--move-s", type=float, default=1.2,
-                        help="calibration bag: seconds per move between poses (default 1.2)")
+                             "those frames, 0 to 60 s (default 0.25 s)")
+    parser.add_argument("--move-s", type=bounded(0, 60, "s", lo_open=True), default=1.2,
+                        help="calibration bag: seconds per move between poses, (0, 60] "
+                             "(default 1.2)")
     parser.add_argument("--still-images-only", action="store_true",
                         help="calibration bag: record only the --hold-frames settled images of "
                              "each stop (robot topics stay continuous); much smaller bags")
     parser.add_argument("--no-ee-pose", action="store_true",
                         help="bag: record the robot as a real cell does, /tf, /tf_static and "
                              "/joint_states without /ee_pose")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--force", action="store_true",
+                        help="start even when the estimate says the run does not fit on the "
+                             "disk or in memory")
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress bar and no estimate")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -89,14 +165,6 @@ def run(args: argparse.Namespace) -> int:
     from eye_in_hand.sim.world import World
 
     frames = args.frames if args.frames is not None else _DEFAULT_FRAMES[args.scenario]
-    if frames < 1:
-        raise InputError(f"--frames must be >= 1, got {frames}")
-    if args.noise < 0 or args.blur < 0 or args.exposure <= 0:
-        raise InputError("--noise and --blur must be >= 0 and --exposure > 0")
-    if not 1 <= args.supersample <= 8:
-        raise InputError(f"--supersample must be in 1..8, got {args.supersample}")
-    if args.hold_frames < 1 or args.move_s <= 0 or args.settle_s < 0:
-        raise InputError("--hold-frames must be >= 1, --move-s > 0 and --settle-s >= 0")
     check_output_dir(args.out, overwrite=args.overwrite, option="--out", inputs=[args.world])
     if args.format == "dataset" and args.scenario != "calibration":
         raise InputError("--format dataset needs --scenario calibration")
@@ -106,6 +174,9 @@ def run(args: argparse.Namespace) -> int:
     if args.robot_error is not None:
         world = world.with_robot_error(RobotErrorSpec.parse(args.robot_error,
                                                             world.robot_error))
+    line = estimate(args, frames, world.image_size)   # refuses what cannot fit
+    if not args.quiet:
+        print(line, file=sys.stderr, flush=True)
     render = RenderOptions(noise_sigma=args.noise, supersample=args.supersample,
                            blur_sigma=args.blur, exposure=args.exposure)
     bar = None

@@ -15,6 +15,7 @@ import argparse
 
 import numpy as np
 
+from eye_in_hand.commands.common import bounded
 from eye_in_hand.errors import InputError
 
 HELP = "print HSV/HSI colour ranges that capture an image region (for the parameter file)"
@@ -39,8 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--space", choices=("hsv", "hsi", "both"), default="both",
                         help="colour space(s) to print (default: both)")
     parser.add_argument("--name", default="red", help="target name in the printed block")
-    parser.add_argument("--percentile", type=float, default=5.0, metavar="P",
-                        help="ranges span the P..100-P percentiles of the region (default 5)")
+    parser.add_argument("--percentile", type=bounded(0, 49), default=5.0, metavar="P",
+                        help="ranges span the P..100-P percentiles of the region, 0 to 49 "
+                             "(default 5)")
     parser.add_argument("--margin", default="4,20,20", metavar="H,S,V",
                         help="widening on each side, 8-bit units (default 4,20,20)")
 

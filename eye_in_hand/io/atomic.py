@@ -334,8 +334,40 @@ def atomic_output_dir(out: str | os.PathLike[str], *, overwrite: bool = False,
         _commit(staged, out, overwrite, option, hint)
     except (OSError, OutputWriteError) as exc:
         raise _write_error(exc, out, existed, staged) from exc
+    except Exception as exc:
+        # a writer that wrapped the system's error in its own (a bag writer's BagError, a
+        # database's "disk is full"): still the file under its final name and what was kept
+        cause = _write_cause(exc, staged)
+        if cause is None:
+            raise
+        raise _write_error(cause, out, existed, staged) from exc
     finally:
         _remove(root)
+
+
+#: sqlite3's words for a full disk or a file-size limit (it reports no errno)
+_SQLITE_FULL = ("database or disk is full", "disk i/o error")
+
+
+def _write_cause(exc: BaseException, staged: Path) -> OSError | None:
+    """The ``OSError`` behind a writer's own exception, when it concerns the staged folder
+    (its file is in it, or it names no file); a full sqlite3 database as ``ENOSPC``."""
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        if isinstance(e, OSError):
+            name = getattr(e, "filename", None)
+            if name is None:
+                return e
+            with contextlib.suppress(ValueError):
+                Path(os.fspath(name)).absolute().relative_to(staged.absolute())
+                return e
+            return None
+        if type(e).__module__ == "sqlite3" and any(w in str(e).lower() for w in _SQLITE_FULL):
+            return OSError(errno.ENOSPC, "database or disk is full")
+        e = e.__cause__ or e.__context__
+    return None
 
 
 @contextlib.contextmanager

@@ -61,7 +61,7 @@ from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
 from eye_in_hand.ros.msgtypes import import_message_type as _import_message_type
 from eye_in_hand.ros.msgtypes import message_definition
 from eye_in_hand.ros.names import topic_name_problem
-from eye_in_hand.ros.node_main import run_with_executor, sigterm_as_interrupt
+from eye_in_hand.ros.node_main import guard, run_with_executor, sigterm_as_interrupt
 from eye_in_hand.ros.tf import TF_STATIC_TOPIC
 
 __all__ = [
@@ -525,12 +525,8 @@ def main(args: list[str] | None = None) -> None:
     """Console-script entry point (``ros2 run eye_in_hand bag_player --ros-args -p bag:=...``)."""
     sigterm_as_interrupt()
     use_large_data_profile()  # large images over shared memory (see ros/dds.py)
-    try:
-        code = run_with_executor(BagPlayer, spin_player, args)
-    except EyeInHandError as exc:
-        print(f"bag_player: error: {exc}", file=sys.stderr)
-        code = 1
-    sys.exit(code)
+    sys.exit(guard("bag_player", lambda: run_with_executor(BagPlayer, spin_player, args),
+                   args))
 
 if __name__ == "__main__":
     main()

@@ -50,10 +50,10 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from eye_in_hand.ros.dds import use_large_data_profile
-from eye_in_hand.errors import BagError, ConfigError, EyeInHandError
+from eye_in_hand.errors import BagError, ConfigError
 from eye_in_hand.io.bags import STORAGES, BagWriter, OfferedQos, default_typestore
 from eye_in_hand.ros.msgtypes import import_message_type, message_definition
-from eye_in_hand.ros.node_main import run_with_executor, sigterm_as_interrupt
+from eye_in_hand.ros.node_main import guard, run_with_executor, sigterm_as_interrupt
 from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
 
@@ -400,13 +400,8 @@ def main(args: list[str] | None = None) -> None:
     """Console-script entry point (``ros2 run eye_in_hand bag_recorder --ros-args ...``)."""
     sigterm_as_interrupt()
     use_large_data_profile()  # large images over shared memory (see ros/dds.py)
-    try:
-        code = run_with_executor(BagRecorder,
-                                 lambda node, ex: spin_recorder(node, node.duration, ex), args)
-    except EyeInHandError as exc:
-        print(f"bag_recorder: error: {exc}", file=sys.stderr)
-        code = 1
-    sys.exit(code)
+    sys.exit(guard("bag_recorder", lambda: run_with_executor(
+        BagRecorder, lambda node, ex: spin_recorder(node, node.duration, ex), args), args))
 
 if __name__ == "__main__":
     main()

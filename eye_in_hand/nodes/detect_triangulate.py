@@ -38,6 +38,9 @@ Every frame is accounted for on ``diagnostics`` (counters since start; see docs/
     left_frames  = sync_pairs + sync_unpaired_left  + sync_pending_left   (gauge)
     right_frames = sync_pairs + sync_unpaired_right + sync_pending_right  (gauge)
     sync_pairs   = dropped_pairs + pairs + queued                         (gauge)
+    frames_lost  = sync_unpaired_left + sync_unpaired_right + dropped_pairs + failed_pairs
+                   (gauge: the one loss total; sync_stale of the unpaired had a stamp not
+                   after their side's previous one, e.g. a replay right after a run)
     pairs        = points_published + no_target + failed_pairs
     targets_located = target_points_published + targets_refused
     marker_frames   = points_published + no_target      (one targets/markers per located pair)
@@ -385,11 +388,17 @@ class DetectTriangulateNode(Node):
             self.diag.count("sync_unpaired_right", right)
 
     def _ledger_gauges(self) -> None:
-        """What is still in flight, so the counters reconcile at any moment."""
+        """What is still in flight, so the counters reconcile at any moment; and the one loss
+        total, ``frames_lost``: images without a partner (``stale_stamp`` ones among them,
+        also counted on their own as ``sync_stale``), pairs dropped from the queue and pairs
+        that failed."""
         pending = self._sync.pending
         self.diag.gauge("sync_pending_left", pending[0])
         self.diag.gauge("sync_pending_right", pending[1])
         self.diag.gauge("queued", len(self._slot))
+        self.diag.gauge("sync_stale", self._sync.stats.dropped_stale)
+        self.diag.gauge("frames_lost", sum(self.diag.counter(k) for k in (
+            "sync_unpaired_left", "sync_unpaired_right", "dropped_pairs", "failed_pairs")))
 
     def _on_info(self, side: str, msg: CameraInfo) -> None:
         with self._lock:

@@ -1,4 +1,10 @@
-"""The ``main()`` of a node: init, spin, clean shutdown on Ctrl-C, one-line start-up errors."""
+"""The ``main()`` of a node: init, spin, clean shutdown on Ctrl-C, one-line errors.
+
+Every node's ``main`` runs under :func:`guard`: an :class:`~eye_in_hand.errors.EyeInHandError`
+is ``<node>: error: ...`` (exit 1), an ``RCLError`` from rcl (a bad ``--ros-args`` value or
+parameter file) ``<node>: error: rcl: ...`` (exit 1), and any other exception ``<node>: internal
+error: ...`` (exit 70); ``--debug`` among the node's own arguments or ``EYE_IN_HAND_DEBUG=1``
+shows the traceback instead."""
 from __future__ import annotations
 
 import signal
@@ -10,10 +16,46 @@ from typing import Any
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
-from eye_in_hand.errors import EyeInHandError
+from eye_in_hand.errors import (
+    EXIT_UNEXPECTED,
+    EyeInHandError,
+    debug_enabled,
+    unexpected_error_line,
+)
 from eye_in_hand.ros.dds import use_large_data_profile
 
-__all__ = ["run_node", "run_with_executor", "sigterm_as_interrupt"]
+__all__ = ["guard", "run_node", "run_with_executor", "sigterm_as_interrupt"]
+
+
+def _own_args(args: Sequence[str] | None) -> list[str]:
+    argv = list(sys.argv[1:] if args is None else args)
+    return argv[:argv.index("--ros-args")] if "--ros-args" in argv else argv
+
+
+def guard(name: str, body: Callable[[], Any], args: Sequence[str] | None = None) -> int:
+    """Run ``body()`` and return its exit code (``None`` is 0), turning every exception into
+    one line on stderr and an exit code: 1 for an ``EyeInHandError`` or an rcl error, 70 for
+    anything else. With ``--debug`` in ``args`` (before ``--ros-args``) or ``EYE_IN_HAND_DEBUG``
+    set, an unexpected exception propagates with its traceback."""
+    try:
+        code = body()
+        return int(code or 0)
+    except SystemExit as exc:
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    except KeyboardInterrupt:
+        return 0
+    except EyeInHandError as exc:
+        print(f"{name}: error: {exc}", file=sys.stderr, flush=True)
+        return 1
+    except Exception as exc:  # noqa: BLE001 - the top-level guard of a node process
+        if debug_enabled(_own_args(args)):
+            raise
+        if type(exc).__module__.startswith("rclpy") and "RCL" in type(exc).__name__:
+            reason = " ".join(str(exc).split())
+            print(f"{name}: error: rcl: {reason}", file=sys.stderr, flush=True)
+            return 1
+        print(unexpected_error_line(name, exc), file=sys.stderr, flush=True)
+        return EXIT_UNEXPECTED
 
 
 def run_node(name: str, factory: Callable[[], Any], args: Sequence[str] | None = None) -> None:
@@ -22,23 +64,26 @@ def run_node(name: str, factory: Callable[[], Any], args: Sequence[str] | None =
     Sets the large-data DDS profile (:mod:`eye_in_hand.ros.dds`), initialises rclpy, builds the
     node with ``factory()`` and spins it. Ctrl-C and external shutdown end it cleanly; an
     :class:`~eye_in_hand.errors.EyeInHandError` while building it (a bad parameter or
-    calibration file) is printed as ``<name>: error: ...`` and exits with code 1.
+    calibration file) is printed as ``<name>: error: ...`` and exits with code 1; any other
+    exception is one line as well (:func:`guard`).
     """
-    use_large_data_profile()
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = factory()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except EyeInHandError as exc:
-        print(f"{name}: error: {exc}", file=sys.stderr, flush=True)
-        raise SystemExit(1) from exc
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    def body() -> None:
+        use_large_data_profile()
+        rclpy.init(args=args)
+        node = None
+        try:
+            node = factory()
+            rclpy.spin(node)
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        finally:
+            if node is not None:
+                node.destroy_node()
+            rclpy.try_shutdown()
+
+    code = guard(name, body, args)
+    if code:
+        raise SystemExit(code)
 
 
 def run_with_executor(factory: Callable[[], Any], spin: Callable[[Any, Any], int],

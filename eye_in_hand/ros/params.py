@@ -64,6 +64,7 @@ __all__ = [
     "declare_params",
     "load_config",
     "params_markdown",
+    "check_parameter_file",
 ]
 
 #: Parameter type names accepted by :class:`Param` (``type=``).
@@ -415,3 +416,27 @@ def params_markdown(params: Iterable[Param] | type) -> str:
         lines.append(f"| `{p.name}` | {p.type} | {default} | {', '.join(constraints)} | "
                      f"{p.description} |")
     return "\n".join(lines)
+
+
+def check_parameter_file(path: Any) -> None:
+    """Check a ROS parameter file with rcl's own parser (``rcl_yaml_param_parser``), the one
+    every node runs on ``--params-file`` at start-up, without starting a node.
+
+    rcl is stricter than YAML: no anchors or aliases, no value beside ``ros__parameters``,
+    homogeneous arrays, no nested sequences. A file it refuses would stop every node in
+    ``rclpy.init`` (and make a supervisor restart them again and again), so it is refused here.
+
+    Raises:
+        ConfigError: ``<file>: rcl cannot parse this parameter file: <rcl's reason>``.
+    """
+    from rclpy.utilities import remove_ros_args
+
+    try:
+        remove_ros_args(["check", "--ros-args", "--params-file", str(path)])
+    except Exception as exc:  # noqa: BLE001 - rclpy's RCLInvalidROSArgsError, one line here
+        text = " ".join(str(exc).split())
+        marker = "Error: "
+        reason = text[text.index(marker) + len(marker):] if marker in text else text
+        reason = re.sub(r",? at /\S+:\d+", "", reason).strip().rstrip(",")
+        shown = str(path).encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+        raise ConfigError(f"{shown}: rcl cannot parse this parameter file: {reason}") from exc

@@ -116,8 +116,18 @@ def test_stereo_bad_input_writes_nothing(case: str, data_dir: Path, tmp_path: Pa
         expect = "left images are 640x480"
     elif case == "few":
         extra, expect = ["--min-views", "7"], "only 6 pair(s) with the board in both images"
-    elif case == "alpha":
-        extra, expect = ["--alpha", "1.5"], "--alpha must be in [0, 1]"
+    elif case == "alpha":   # refused by the option's range, before the images are read
+        extra = ["--alpha", "1.5"]
+        with pytest.raises(SystemExit) as exit_info:
+            main(["calibrate", "stereo", "--left", str(lefts / "*"), "--right",
+                  str(rights / "*"), "--board", BOARD, "-o", str(tmp_path / "rig")] + extra)
+        assert exit_info.value.code == 2
+        err = capsys.readouterr().err
+        assert err.splitlines() == ["eye-in-hand calibrate stereo: error: argument --alpha: "
+                                    "must be within [0, 1], got 1.5 (see eye-in-hand calibrate "
+                                    "stereo --help)"]
+        assert not (tmp_path / "rig").exists()
+        return
     else:
         extra, expect = ["--left-topic", "/a"], "either --left GLOB --right GLOB or --bag"
     out = tmp_path / "rig"

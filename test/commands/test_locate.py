@@ -88,8 +88,11 @@ def test_errors_are_one_line(scene, capsys, tmp_path):
     assert main(["locate", "--left", str(small), "--right", right, "--calibration",
                  str(root / "calib")]) == 1
     assert "calibration is 800x600" in capsys.readouterr().err
-    assert main(["locate", "--left", left, "--right", right, "--calibration",
-                 str(root / "calib"), "--radius", "-1"]) == 1
+    with pytest.raises(SystemExit) as exit_info:   # refused by the option's range, at once
+        main(["locate", "--left", left, "--right", right, "--calibration",
+              str(root / "calib"), "--radius", "-1"])
+    assert exit_info.value.code == 2
+    assert "argument --radius: must be within (0, 10] m, got -1" in capsys.readouterr().err
 
 
 def test_locate_json_lists_every_target_with_its_id(tmp_path, capsys):

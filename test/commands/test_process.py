@@ -142,6 +142,9 @@ def test_workers_option_changes_nothing_but_speed(loc_bag, tmp_path, capsys):
     rb = list(csv.DictReader((b / "results.csv").open()))
     assert ra == rb
     capsys.readouterr()
-    rc = main(["process", str(bag), "--hand-eye", he, "-o", str(tmp_path / "c"), "--quiet",
-               "--workers", "0"])
-    assert rc == 1 and "workers: must be >= 1" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:   # the option's range, before any work
+        main(["process", str(bag), "--hand-eye", he, "-o", str(tmp_path / "c"), "--quiet",
+              "--workers", "0"])
+    assert exit_info.value.code == 2
+    assert "argument --workers: must be an integer within [1, 64], got 0" in \
+        capsys.readouterr().err

@@ -154,6 +154,18 @@ def test_truncated_file_in_a_bag_directory_loses_only_its_tail(tmp_path: Path) -
     got = [(t, s, r) for t, _m, s, r in iter_messages(tmp_path / "bag", damage=log)]
     assert 0 < len(got) < len(sent) and got == [m for m in sent[:len(got)]]
     assert len(log) == 1 and log.records[0].where.startswith("file tail from byte")
+    # metadata.yaml has the per-topic counts: the lost tail is counted exactly
+    lost = sent[len(got):]
+    assert log.records[0].messages == len(lost) and log.unknown == 0
+    assert dict(log.records[0].topics) == {t: sum(1 for m in lost if m[0] == t)
+                                           for t in {m[0] for m in lost}}
+    assert log.records[0].start_ns == lost[0][1]          # from the cut
+    assert "counts from metadata.yaml" in log.records[0].describe()
+    # a bare file has no counts: unknown, and said so
+    bare = tmp_path / "bare.mcap"
+    bare.write_bytes(mcap.read_bytes())
+    log = DamageLog()
+    assert len(list(iter_messages(bare, damage=log))) == len(got)
     assert log.records[0].messages is None and log.unknown == 1
     assert "unknown number" in log.records[0].describe()
 

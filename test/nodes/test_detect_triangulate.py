@@ -305,3 +305,20 @@ def test_node_process_uses_one_blas_thread():
     assert threads == run(OPENBLAS_NUM_THREADS="1")[1]   # no BLAS pool threads
     assert value == "1"
     assert run(OPENBLAS_NUM_THREADS="2")[0] == "2"       # the user's choice is kept
+
+
+def test_stale_stamps_are_in_the_one_loss_total(executor, ros_context, namespace, spin_until):
+    """A replay right after a run repeats stamps: those images are dropped as stale_stamp and
+    counted in ``frames_lost`` (the loss total on diagnostics), not only warned about."""
+    node, feeder = start(executor, ros_context, namespace, **{"sync.slop_s": 0.0})
+    assert pump(executor, spin_until, feeder, lambda: len(feeder.points) >= 2)
+    feeder.k -= 2                      # the next two pairs repeat stamps already seen
+    n = node.diag.counter("sync_unpaired_left")
+    assert pump(executor, spin_until, feeder,
+                lambda: node.diag.counter("sync_unpaired_left") >= n + 2)
+    assert node.diag.counter("time_jumps") == 0 and "stale_stamp" in node.diag.causes
+    spin_until(executor, lambda: node.diag.snapshot().gauges.get("sync_stale", 0) >= 2, 5.0)
+    gauges = node.diag.snapshot().gauges
+    lost_now = sum(node.diag.counter(k) for k in ("sync_unpaired_left", "sync_unpaired_right",
+                                                   "dropped_pairs", "failed_pairs"))
+    assert 2 <= gauges["sync_stale"] <= gauges["frames_lost"] <= lost_now

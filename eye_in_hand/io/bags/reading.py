@@ -27,17 +27,59 @@ def _bag_error(path: Path, exc: BaseException, doing: str = "read") -> BagError:
     return BagError(f"cannot {doing} bag {path}: {text}")
 
 
-def _storage_paths(path: Path) -> list[Path]:
-    """What to hand to ``rosbags.rosbag2.Reader`` for ``path`` (one entry per reader)."""
+def metadata_problem(bag_dir: Path) -> str | None:
+    """Why ``bag_dir/metadata.yaml`` cannot be used (empty, not UTF-8, not YAML, not a
+    rosbag2 metadata mapping), or None when it can."""
+    try:
+        raw = (bag_dir / "metadata.yaml").read_bytes()
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror or exc})"
+    if not raw.strip():
+        return "is empty"
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        return f"is not UTF-8 text (byte {raw[exc.start]:#04x} at offset {exc.start})"
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        return f"is not valid YAML{where} ({getattr(exc, 'problem', None) or 'parse error'})"
+    info = data.get("rosbag2_bagfile_information") if isinstance(data, dict) else None
+    if not isinstance(info, dict):
+        return "has no 'rosbag2_bagfile_information' mapping"
+    files = info.get("relative_file_paths")
+    if not isinstance(files, list) or not files or not all(isinstance(f, str) for f in files):
+        return "has no list of storage files ('relative_file_paths')"
+    if not isinstance(info.get("storage_identifier"), str) or \
+            not isinstance(info.get("topics_with_message_count", []), list):
+        return "has no storage identifier or topic list"
+    return None
+
+
+def _storage_paths(path: Path, notes: list[str] | None = None) -> list[Path]:
+    """What to hand to ``rosbags.rosbag2.Reader`` for ``path`` (one entry per reader).
+
+    A bag directory whose ``metadata.yaml`` is damaged is read by its storage files, as one
+    without it, with a note (in ``notes``) that says what was wrong."""
     if not path.exists():
         raise BagError(f"bag {path} does not exist")
     if path.is_dir():
-        if (path / "metadata.yaml").is_file():
+        meta = path / "metadata.yaml"
+        problem = metadata_problem(path) if meta.is_file() else None
+        if meta.is_file() and problem is None:
             return [path]
         files = sorted(p for p in path.iterdir() if p.suffix in _STORAGE_SUFFIX and p.is_file())
         if not files:
             raise BagError(
-                f"bag {path} has no metadata.yaml and no .mcap or .db3 storage file")
+                f"bag {path} has no metadata.yaml and no .mcap or .db3 storage file"
+                if problem is None else
+                f"bag {path}: metadata.yaml {problem}, and there is no .mcap or .db3 storage "
+                "file to read instead")
+        if problem is not None and notes is not None:
+            notes.append(f"{meta}: damaged: {problem}; ignored, the bag is read from its "
+                         f"storage file(s) ({', '.join(f.name for f in files)})")
         return files
     if path.suffix not in _STORAGE_SUFFIX:
         raise BagError(
@@ -70,6 +112,10 @@ class _ScannedMcap:
 
         self.path = path
         self.storage = self
+        #: per-topic counts and end time stated by the bag's metadata.yaml (None: not known);
+        #: they give the size and the end of a lost tail
+        self.expected: dict[str, int] | None = None
+        self.expected_end: int | None = None
         self.stopped_at: int | None = None
         self.stop_reason = ""
         self.damage: list[Damage] = []
@@ -156,9 +202,16 @@ class _ScannedMcap:
 
         def tail(at: int, reason: str) -> tuple[int, Any]:
             self.stopped_at, self.stop_reason = at, reason
+            # the lost range starts at the cut: the first message time of the chunk that was
+            # cut (its header survived), else just after the last message read
+            # (the file is in write order, not in time order: an early chunk may hold a whole
+            # run's small messages, so the newest message read is not the cut)
+            cut = last[0] + 1 if last[0] else None
+            if data[at] == 0x06 and at + 9 + 16 <= len(data):
+                cut = struct.unpack_from("<Q", data, at + 9)[0]
             return -1, Damage(self.path.name, f"file tail from byte {at}",
                               f"{reason} (the file ends at byte {len(data)})",
-                              start_ns=last[0] or None)
+                              start_ns=cut, end_ns=self.expected_end)
 
         while pos < len(data):
             if pos + 9 > len(data):
@@ -177,6 +230,8 @@ class _ScannedMcap:
                 return
             if op != 0x06:
                 if (rec := parse(op, body)) is not None:
+                    if op == 0x05:
+                        last[0] = rec[1][1]
                     yield rec
                 continue
             chunk_at = pos - 9 - length
@@ -209,7 +264,7 @@ class _ScannedMcap:
                                  "are kept", start_ns=t0, end_ns=t1)
             msgs.sort(key=lambda r: r[1][1])
             if msgs:
-                last[0] = max(last[0], msgs[-1][1][1])
+                last[0] = msgs[-1][1][1]   # the end of the chunk read last
             yield from msgs
 
     def messages(self, connections: Sequence[Any], start: int | None = None,
@@ -225,10 +280,34 @@ class _ScannedMcap:
             if kind == 0x05 and rec[0] in by_id and lo <= rec[1] < hi:
                 yield by_id[rec[0]], rec[1], rec[2]
             elif kind == -1:
+                if rec.where.startswith("file tail"):
+                    rec = self._tail_with_counts(rec, connections, start, stop)
                 if on_damage is not None:
                     on_damage(rec)
                 elif not rec.where.startswith("file tail"):
                     raise BagError(f"{rec.where} of {rec.file}: {rec.reason}")
+
+
+    def _tail_with_counts(self, rec: Damage, connections: Sequence[Any], start: int | None,
+                          stop: int | None) -> Damage:
+        """The lost tail with its per-topic counts: what metadata.yaml says each topic holds,
+        less what the file still has (for the topics read; without a time window, where
+        the counts apply)."""
+        if self.expected is None or start is not None or stop is not None:
+            return rec
+        seen: dict[str, int] = {}
+        for c in self.connections:
+            seen[c.topic] = seen.get(c.topic, 0) + int(c.msgcount)
+        topics = {}
+        for topic in {c.topic for c in connections}:
+            if topic in self.expected:
+                lost = self.expected[topic] - seen.get(topic, 0)
+                if lost > 0:
+                    topics[topic] = lost
+        end = rec.end_ns if rec.end_ns is None or rec.start_ns is None or \
+            rec.end_ns >= rec.start_ns else None
+        return Damage(rec.file, rec.where, rec.reason + "; counts from metadata.yaml",
+                      topics, rec.start_ns, end, sum(topics.values()))
 
 
 class _OpenBag:
@@ -237,10 +316,10 @@ class _OpenBag:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self.readers: list[Any] = []
-        targets = _storage_paths(self.path)
+        self.notes: list[str] = []
+        targets = _storage_paths(self.path, self.notes)
         from rosbags.rosbag2 import Reader
 
-        self.notes: list[str] = []
         try:
             for target in targets:
                 try:
@@ -254,8 +333,11 @@ class _OpenBag:
                     scanned_all = [_ScannedMcap.try_open(f) for f in files]
                     if not scanned_all or any(x is None for x in scanned_all):
                         raise
+                    expected = _expected_counts(target) if len(files) == 1 else None
                     for f, scanned in zip(files, scanned_all):
                         assert scanned is not None
+                        if expected is not None:
+                            scanned.expected, scanned.expected_end = expected
                         self.readers.append(scanned)
                         self.notes.append(
                             f"{f.name}: {exc} (no MCAP summary: the recording was interrupted "
@@ -369,6 +451,27 @@ def bag_info(path: str | Path) -> BagInfo:
         topics=dict(sorted(topics.items())), compression_format=compression_format or "",
         compression_mode=compression_mode or "", ros_distro=distro, size_bytes=size,
         notes=tuple(bag.notes))
+
+
+def _expected_counts(target: Path) -> tuple[dict[str, int], int | None] | None:
+    """Per-topic message counts and the end time (ns) that ``metadata.yaml`` of the bag
+    directory ``target`` states, when it is usable and describes one storage file; else
+    None."""
+    if not target.is_dir() or metadata_problem(target) is not None:
+        return None
+    try:
+        meta = _read_metadata(target)
+        if len(meta.get("relative_file_paths") or []) != 1:
+            return None
+        counts = {str(t["topic_metadata"]["name"]): int(t["message_count"])
+                  for t in meta.get("topics_with_message_count") or []}
+        start = meta.get("starting_time", {}).get("nanoseconds_since_epoch")
+        duration = meta.get("duration", {}).get("nanoseconds")
+        end = int(start) + int(duration) if start is not None and duration is not None \
+            else None
+    except (KeyError, TypeError, ValueError, AttributeError):
+        return None
+    return counts, end
 
 
 def _read_metadata(bag_dir: Path) -> dict[str, Any]:
@@ -532,6 +635,8 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
         source = storage.messages(conns, start, stop)
     read: dict[int, int] = {}
     last = start
+    at_last = 0          # messages read so far with log time ``last``
+    reading_on = False   # past a damaged sqlite3 page
     order = 0
     while True:
         try:
@@ -539,7 +644,13 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
         except Exception as exc:
             if damage is None:
                 raise
-            # the storage fails part-way (a corrupt sqlite3 page): the rest of the file is lost
+            if getattr(storage, "dbconn", None) is not None and not reading_on:
+                # a damaged sqlite3 page: read on past it, row by row; it costs only its rows
+                reading_on = True
+                source = _sqlite_read_on(storage, conns, start, stop, last, at_last, read,
+                                         damage, name, exc)
+                continue
+            # the storage fails part-way: the rest of the file is lost
             lost = {c.topic: int(c.msgcount) - read.get(c.id, 0) for c in conns
                     if start is None and stop is None and int(c.msgcount) > read.get(c.id, 0)}
             damage.add(Damage(name, "the rest of the file",
@@ -551,6 +662,7 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
             return
         conn, stamp, raw = item
         stamp = int(stamp)
+        at_last = at_last + 1 if stamp == last else 1
         last = stamp
         read[conn.id] = read.get(conn.id, 0) + 1
         if per_message_zstd:
@@ -567,3 +679,75 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
             data = bytes(raw)
         yield stamp, stream, order, conn.topic, conn.msgtype, data
         order += 1
+
+
+def _sqlite_read_on(storage: Any, conns: list[Any], start: int | None, stop: int | None,
+                    last: int | None, at_last: int, read: dict[int, int],
+                    damage: DamageLog, name: str, first_error: BaseException,
+                    ) -> Iterator[tuple[Any, int, bytes]]:
+    """The rest of a sqlite3 storage file whose time-ordered read failed on a damaged page.
+
+    Rows are looked up by their id (the table's B-tree key), in blocks, and one by one in a
+    block that fails: a damaged page then costs only the rows stored on it. The rows still
+    to come (log time after ``last``; at ``last``, after the ``at_last`` already read) are
+    read in log-time order. What could not be read becomes one :class:`Damage` record with
+    its per-topic count: the topic's count in the file's topic table less the messages read.
+    """
+    db = storage.dbconn
+    by_id = {c.id: c for c in conns}
+
+    def rows(sql: str, args: tuple[Any, ...]) -> list[tuple[Any, ...]] | None:
+        try:
+            return list(db.execute(sql, args))
+        except Exception:  # noqa: BLE001 - a damaged page: the caller narrows it down
+            return None
+
+    top = rows("SELECT max(id) FROM messages", ())
+    expected = sum(int(c.msgcount) for c in getattr(storage, "connections", conns))
+    hi_id = max(int(top[0][0]) if top and top[0][0] is not None else 0, expected)
+    found: list[tuple[int, int, int]] = []    # (log time, row id, topic id)
+    unreadable = 0
+    block = 256
+    for lo_id in range(1, hi_id + 1, block):
+        span = (lo_id, min(hi_id, lo_id + block - 1))
+        got = rows("SELECT id, topic_id, timestamp FROM messages WHERE id BETWEEN ? AND ?",
+                   span)
+        if got is None:
+            got = []
+            for rid in range(span[0], span[1] + 1):
+                one = rows("SELECT id, topic_id, timestamp FROM messages WHERE id = ?",
+                           (rid,))
+                if one is None:
+                    unreadable += 1
+                else:
+                    got.extend(one)
+        for rid, tid, stamp in got:
+            if tid in by_id and (start is None or stamp >= start) and \
+                    (stop is None or stamp < stop):
+                found.append((int(stamp), int(rid), int(tid)))
+    found.sort()
+    skip = at_last
+    damaged_stamps: list[int] = []
+    for stamp, rid, tid in found:
+        if last is not None and stamp < last:
+            continue
+        if last is not None and stamp == last and skip > 0:
+            skip -= 1
+            continue
+        data = rows("SELECT data FROM messages WHERE id = ?", (rid,))
+        if not data:
+            damaged_stamps.append(stamp)
+            continue
+        yield by_id[tid], stamp, bytes(data[0][0])    # the caller counts it in ``read``
+    windowed = start is not None or stop is not None
+    lost = {c.topic: int(c.msgcount) - read.get(c.id, 0) for c in conns
+            if not windowed and int(c.msgcount) > read.get(c.id, 0)}
+    if lost or damaged_stamps or unreadable:
+        known = not windowed
+        damage.add(Damage(
+            name, "damaged pages",
+            f"{str(first_error) or type(first_error).__name__}; read on past them row by row "
+            f"({unreadable} row(s) unreadable, {len(damaged_stamps)} with unreadable data)",
+            lost, min(damaged_stamps) if damaged_stamps else last,
+            max(damaged_stamps) if damaged_stamps else None,
+            sum(lost.values()) if known else None))
