@@ -28,7 +28,7 @@ NEVER_VALID = {"nan", "inf", "-inf", "1e308", "-1e308"}
 #: commands whose numeric options are checked after their inputs (their ranges are still
 #: refused in one line, but a missing input is named first): ``calibrate handeye``'s
 #: ``--still-*`` and ``--outlier-threshold`` options
-CHECKED_LATER = {"calibrate handeye"}
+CHECKED_LATER = {"calibrate handeye", "calibrate plan"}
 
 #: the inputs of each command: absent, so that a value that passes its check cannot start work
 BASE = {
@@ -49,6 +49,7 @@ BASE = {
                "{tmp}/nocal"],
     "tune-color": ["tune-color", "{tmp}/no.png", "--roi", "1,1,2,2"],
     "calibrate handeye": ["calibrate", "handeye", "{tmp}/no_dataset", "-o", "{tmp}/he"],
+    "calibrate plan": ["calibrate", "plan", "{tmp}/no_dataset"],
 }
 
 CHILD = textwrap.dedent("""
@@ -163,3 +164,18 @@ def test_the_range_table_of_the_reliability_page_is_the_parsers():
     enforced = dict(walk(cli.build_parser(), []))
     assert len(enforced) > 30
     assert documented == enforced
+
+
+def test_every_command_is_fuzzed():
+    """A new command joins BASE (its absent inputs), so the fuzz covers its flags too."""
+    from eye_in_hand import cli
+
+    def leaves(parser, words=()):
+        subs = [a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction"]
+        if not subs:
+            yield " ".join(words)
+            return
+        for name, sub in subs[0].choices.items():
+            yield from leaves(sub, words + (name,))
+
+    assert sorted(leaves(cli.build_parser())) == sorted(BASE)
