@@ -76,7 +76,9 @@ class Driver(Node):
         self.eye_to_hand = robot == "eye_to_hand"
         self.pub_pose = self.create_publisher(PoseStamped, "ee_pose", SENSOR_QOS) \
             if robot in ("ee_pose", "eye_to_hand") else None
-        self.pub_tf = self.create_publisher(tf_message_class(), TF_TOPIC, tf_qos()) \
+        # a deep history: a reliable keep-last writer overwrites what a busy subscriber has not
+        # acknowledged yet, which would show as a gap in the robot's motion
+        self.pub_tf = self.create_publisher(tf_message_class(), TF_TOPIC, tf_qos(500)) \
             if robot == "tf" else None
         self.pub_arrived = self.create_publisher(Int32, "sim/arrived", LATCHED_QOS)
         self.create_subscription(Int32, "sim/go_to_stop", self._go, 10)
