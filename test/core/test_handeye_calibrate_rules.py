@@ -1,0 +1,35 @@
+"""core.handeye.calibrate: the outlier rule's absolute floors.
+
+A sample is rejected only when its leave-one-out board deviation is beyond
+``outlier_threshold`` times the median *and* beyond an absolute floor (``outlier_floor_mm``
+or ``outlier_floor_deg``): on very clean data a sample 0.6 mm off (7 medians) is
+many medians away but still a good sample.
+"""
+from __future__ import annotations
+
+from eye_in_hand.core.handeye import HandEyeSample, calibrate_hand_eye
+from eye_in_hand.core.handeye.synthetic import make_problem
+from eye_in_hand.core.transforms import from_rotvec
+
+
+def _clean_with_one_offset():
+    P = make_problem(12, seed=91, noise_px=0.01)
+    samples = list(P.samples)
+    s = samples[3]
+    samples[3] = HandEyeSample(s.name, s.base_T_ee @ from_rotvec([0.0, 0.0, 0.0],
+                                                                  [6e-4, 0.0, 0.0]),
+                               s.cam_T_board, s.observations)
+    return samples, s.name
+
+
+def test_a_deviation_under_both_floors_is_kept() -> None:
+    samples, name = _clean_with_one_offset()
+    res = calibrate_hand_eye(samples, refine=False, leave_one_out=False)
+    assert res.rejected == [] and name in res.sample_names
+
+
+def test_the_same_deviation_over_a_lower_floor_is_rejected() -> None:
+    samples, name = _clean_with_one_offset()
+    res = calibrate_hand_eye(samples, refine=False, leave_one_out=False,
+                             outlier_floor_mm=0.3, outlier_floor_deg=0.1)
+    assert [r.name for r in res.rejected] == [name], res.rejected
