@@ -45,6 +45,8 @@ PKG = "eye_in_hand/"
 #: mutants run. Cheapest and most direct tests first (``-x`` stops at the first failure).
 TESTS: dict[str, tuple[str, ...]] = {
     "core/transforms.py": ("test/core/test_transforms.py", "test/core/test_sync.py"),
+    "core/camera.py": ("test/core/test_camera.py",),
+    "core/kinematics.py": ("test/core/test_kinematics.py",),
     "core/sync.py": ("test/core/test_sync_rules.py", "test/core/test_sync.py"),
     "core/tf.py": ("test/core/test_tf_staleness.py", "test/core/test_tf.py"),
     "core/triangulation.py": ("test/core/test_triangulation_covariance.py",
@@ -76,6 +78,10 @@ TESTS: dict[str, tuple[str, ...]] = {
     "io/cdr.py": ("test/io/test_cdr.py",),
     "io/atomic.py": ("test/io/test_atomic.py",),
     "io/config.py": ("test/io/test_config_handeye.py",),
+    "io/datasets.py": ("test/io/test_datasets_handeye.py",),
+    "nodes/bag_recorder.py": (
+        "test/commands/test_record.py::test_write_queue_drops_over_budget_and_drains_after_close",
+        "test/commands/test_record.py"),
     "nodes/bag_player.py": ("test/commands/test_play.py",),
     "nodes/hand_eye.py": ("test/nodes/test_hand_eye.py",),
     "nodes/detect_triangulate.py": ("test/nodes/test_detect_triangulate.py",),
@@ -111,6 +117,17 @@ MUTANTS: tuple[Mutant, ...] = (
       "    out[:3, 3] = (1.0 - s) * A[:3, 3] + s * B[:3, 3]\n",
       "    out[:3, 3] = s * A[:3, 3] + (1.0 - s) * B[:3, 3]\n",
       "translation interpolation weights swapped"),
+    # -- core/camera.py, core/kinematics.py
+    M("camera-behind", "core/camera.py",
+      "        ok = pts[:, 2] > 0\n", "        ok = pts[:, 2] != 0\n",
+      "points behind the camera projected (mirrored) instead of NaN"),
+    M("camera-rectify-rotation", "core/camera.py",
+      "cv2.undistortPoints(pts, self.K, self.dist, None, self.R, self.P[:3, :3],",
+      "cv2.undistortPoints(pts, self.K, self.dist, None, None, self.P[:3, :3],",
+      "rectified pixels without the rectification rotation"),
+    M("kinematics-dh-alpha", "core/kinematics.py",
+      "        [st, ct * ca, -ct * sa, a * st],\n", "        [st, ct * ca, ct * sa, a * st],\n",
+      "the DH link twist's sign flipped in one entry"),
     # -- core/sync.py
     M("sync-tie-rule", "core/sync.py",
       "            if gap <= abs(a2 - b):\n", "            if gap < abs(a2 - b):\n",
@@ -351,7 +368,14 @@ MUTANTS: tuple[Mutant, ...] = (
     M("config-quaternion-norm", "io/config.py",
       "    if abs(norm - 1.0) > _QUAT_NORM_TOL:\n", "    if False:\n",
       "hand_eye.yaml with a non-unit quaternion accepted"),
+    M("datasets-quaternion-norm", "io/datasets.py",
+      "    if abs(norm - 1.0) > 1e-4:\n", "    if False:\n",
+      "a dataset pose with a non-unit quaternion silently normalised"),
     # -- nodes/ and the offline path
+    M("recorder-one-message-fits", "nodes/bag_recorder.py",
+      "            if self.closed or (not force and self._items\n",
+      "            if self.closed or (not force\n",
+      "a single message larger than the write budget is dropped"),
     M("player-rate", "nodes/bag_player.py",
       "            rate = self.config.rate\n", "            rate = 1.0\n",
       "bag player ignores --rate"),
