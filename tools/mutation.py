@@ -17,6 +17,7 @@ Usage::
     make mutation                          # every mutant, 2 workers
     .venv/bin/python tools/mutation.py -k select -v
     .venv/bin/python tools/mutation.py --list   # the table and stale mutants, no tests run
+    .venv/bin/python tools/mutation.py --baseline   # each module's tests pass unmutated
 
 Prints one line per mutant, the score (caught / live mutants) and the wall time. Exit status
 1 when a mutant survives or is stale, so CI (``.ci/run``) insists on a full score.
@@ -286,10 +287,10 @@ MUTANTS: tuple[Mutant, ...] = (
       "    xd = x * radial + p1 * x * y + p2 * (r2 + 2 * x * x)\n",
       "the tangential distortion term of x halved"),
     M("refine-covariance-block", "core/handeye/refine.py",
-      "    return RefinementResult(perturb(X0, res.x[:6]), perturb(Y0, res.x[6:]), cov[:6, :6], cov,"
-      "\n                            sigma, float(res.cost), int(res.nfev), \"reprojection\")",
-      "    return RefinementResult(perturb(X0, res.x[:6]), perturb(Y0, res.x[6:]), cov[6:, 6:], cov,"
-      "\n                            sigma, float(res.cost), int(res.nfev), \"reprojection\")",
+      'cov[:6, :6], cov,\n                            sigma, float(res.cost), int(res.nfev), '
+      '"reprojection")',
+      'cov[6:, 6:], cov,\n                            sigma, float(res.cost), int(res.nfev), '
+      '"reprojection")',
       "the reprojection refinement reports the board's covariance as X's"),
     # -- core/handeye/eiv.py
     M("eiv-redundancy", "core/handeye/eiv.py",
@@ -363,7 +364,8 @@ MUTANTS: tuple[Mutant, ...] = (
       "image height and width swapped when decoding CDR"),
     M("atomic-overwrite-mixes", "io/atomic.py",
       "    elif _exchange(staged, out):\n        _remove(staged)  # now the old folder\n",
-      "    elif True:\n        for f in staged.iterdir():\n            os.replace(f, out / f.name)\n",
+      "    elif True:\n        for f in staged.iterdir():\n"
+      "            os.replace(f, out / f.name)\n",
       "--overwrite merges the new files into the old folder instead of replacing it whole"),
     M("config-quaternion-norm", "io/config.py",
       "    if abs(norm - 1.0) > _QUAT_NORM_TOL:\n", "    if False:\n",
@@ -448,6 +450,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--list", action="store_true",
                         help="print the table (mutant, module, tests) and stale mutants only")
     parser.add_argument("--timeout", type=float, default=600.0, help="per mutant, seconds")
+    parser.add_argument("--baseline", action="store_true",
+                        help="first run every chosen module's tests unmutated in the copies: "
+                             "a set that fails there would make its mutants look caught")
     args = parser.parse_args(argv)
     t_start = time.monotonic()
     names = [m.name for m in MUTANTS]
@@ -475,8 +480,14 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[str, bool] = {}
     lock = threading.Lock()
     todo: queue.Queue[Mutant] = queue.Queue()
-    for m in live:
-        todo.put(m)
+    if args.baseline:
+        # the same machinery with an empty mutation of each module's first mutant
+        for module in dict.fromkeys(m.module for m in live):
+            first = next(m for m in live if m.module == module)
+            todo.put(Mutant(f"baseline:{module}", module, first.old, first.old, "no change"))
+    else:
+        for m in live:
+            todo.put(m)
 
     def worker(tree: Path) -> None:
         while True:
@@ -492,6 +503,11 @@ def main(argv: list[str] | None = None) -> int:
             finally:
                 path.write_text(original)
             with lock:
+                if m.name.startswith("baseline:"):
+                    results[m.name] = passed
+                    print(f"{'passes  ' if passed else 'FAILS   '} {m.name} ({secs:.0f} s)",
+                          flush=True)
+                    continue
                 results[m.name] = passed
                 label = "SURVIVED" if passed else "caught  "
                 print(f"{label} {m.name} ({secs:.0f} s)"
@@ -509,6 +525,12 @@ def main(argv: list[str] | None = None) -> int:
         for t in threads:
             while t.is_alive():
                 t.join(0.5)
+    if args.baseline:
+        failing = sorted(n for n, ok in results.items() if not ok)
+        print(f"baseline: {len(results) - len(failing)}/{len(results)} test sets pass unmutated"
+              + (f"; failing: {', '.join(failing)}" if failing else "")
+              + f" ({time.monotonic() - t_start:.0f} s, {len(trees)} workers)")
+        return 0 if not failing else 1
     survived = [n for n in names if results.get(n)]
     caught = sum(1 for v in results.values() if not v)
     print(f"mutation score: {caught}/{len(results)} caught"

@@ -1,4 +1,4 @@
-"""core.handeye.calibrate: the outlier rule's absolute floors.
+"""core.handeye.calibrate: the outlier rule's absolute floors, the jackknife spread.
 
 A sample is rejected only when its leave-one-out board deviation is beyond
 ``outlier_threshold`` times the median *and* beyond an absolute floor (``outlier_floor_mm``
@@ -6,6 +6,9 @@ or ``outlier_floor_deg``): on very clean data a sample 0.6 mm off (7 medians) is
 many medians away but still a good sample.
 """
 from __future__ import annotations
+
+import numpy as np
+import pytest
 
 from eye_in_hand.core.handeye import HandEyeSample, calibrate_hand_eye
 from eye_in_hand.core.handeye.synthetic import make_problem
@@ -33,3 +36,18 @@ def test_the_same_deviation_over_a_lower_floor_is_rejected() -> None:
     res = calibrate_hand_eye(samples, refine=False, leave_one_out=False,
                              outlier_floor_mm=0.3, outlier_floor_deg=0.1)
     assert [r.name for r in res.rejected] == [name], res.rejected
+
+
+def test_jackknife_sigma_is_the_trace_of_the_jackknife_covariance() -> None:
+    """A closed form's ``std_mm`` is the jackknife spread of its leave-one-out translations,
+    ``sqrt((n - 1) / n * sum |t_i - mean|^2)``: the root of the trace of the translation block
+    of its (jackknife) covariance."""
+    P = make_problem(10, seed=93, noise_px=0.5)
+    res = calibrate_hand_eye(P.samples, refine=False)
+    closed = [m for m in ("tsai", "park", "daniilidis") if m in res.methods]
+    assert closed, sorted(res.methods)
+    for name in closed:
+        mr = res.methods[name]
+        want = 1000.0 * np.sqrt(np.trace(mr.covariance[:3, :3]))
+        assert mr.std_mm == pytest.approx(want, rel=1e-9), name
+        assert 0.01 < mr.std_mm < 20.0, (name, mr.std_mm)
