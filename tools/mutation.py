@@ -274,6 +274,13 @@ MUTANTS: tuple[Mutant, ...] = (
       "    trans_dev = 1000.0 * np.linalg.norm(Xs[:, :3, 3] - t, axis=1)\n",
       "    trans_dev = np.linalg.norm(Xs[:, :3, 3] - t, axis=1)\n",
       "the per-pair translation spread reported in metres as millimetres"),
+    M("average-mean-translation", "core/handeye/average.py",
+      "    t = Xs[:, :3, 3].mean(axis=0)\n", "    t = np.median(Xs[:, :3, 3], axis=0)\n",
+      "the averaged translation is the per-pair median, not the documented mean"),
+    M("average-reflection", "core/handeye/average.py",
+      "    D = np.diag([1.0, 1.0, 1.0 if np.linalg.det(U @ Vt) > 0 else -1.0])\n",
+      "    D = np.eye(3)\n",
+      "the chordal mean returns a reflection when the summed rotations have det < 0"),
     # -- core/handeye/refine.py
     M("refine-residual-variance", "core/handeye/refine.py",
       "    s2 = 2.0 * float(res.cost) / dof\n", "    s2 = float(res.cost) / dof\n",
@@ -292,6 +299,10 @@ MUTANTS: tuple[Mutant, ...] = (
       'cov[6:, 6:], cov,\n                            sigma, float(res.cost), int(res.nfev), '
       '"reprojection")',
       "the reprojection refinement reports the board's covariance as X's"),
+    M("refine-pose-scales", "core/handeye/refine.py",
+      "        return np.concatenate([r / sr, t / st], axis=1).ravel()\n",
+      "        return np.concatenate([r / st, t / sr], axis=1).ravel()\n",
+      "pose-space residuals divided by each other's noise scale"),
     # -- core/handeye/eiv.py
     M("eiv-redundancy", "core/handeye/eiv.py",
       "            r_g = float(rows.sum() - h[rows].sum())\n",
@@ -332,6 +343,9 @@ MUTANTS: tuple[Mutant, ...] = (
       "                           - (np.asarray(meas) if meas else 0.0)))\n",
       "                           ))\n",
       "the held-out view's own measurement noise counted as robot noise"),
+    M("select-pose-score", "core/handeye/select.py",
+      "np.hypot(h.mm / ref_mm, h.deg / ref_deg)", "(h.mm / ref_mm + h.deg / ref_deg)",
+      "the pose score adds the normalised mm and deg errors instead of combining in quadrature"),
     # -- core/handeye/calibrate.py
     M("calibrate-held-out-noise", "core/handeye/calibrate.py",
       "            t = max(t, self.held_out_sigma_m)\n", "            pass\n",
@@ -343,6 +357,10 @@ MUTANTS: tuple[Mutant, ...] = (
     M("calibrate-jackknife", "core/handeye/calibrate.py",
       "    f = (n - 1) / n\n", "    f = 1.0 / n\n",
       "the jackknife spread without its (n - 1) / n factor (standard error understated)"),
+    M("calibrate-rotation-noise", "core/handeye/calibrate.py",
+      '                "rotation_sigma_rad": self.refinement.robot_rotation_sigma_rad}\n',
+      '                "rotation_sigma_rad": self.refinement.robot_translation_sigma_m}\n',
+      "hand_eye.yaml's rotation noise written from the translation estimate"),
     # -- io/
     M("scan-chunk-order", "io/bags/reading.py",
       "            msgs.sort(key=lambda r: r[1][1])\n", "            pass\n",

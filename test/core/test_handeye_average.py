@@ -305,3 +305,17 @@ def test_spread_is_each_pair_solution_against_the_mean_in_mm_and_deg() -> None:
     np.testing.assert_allclose(res.rot_dev_deg, dev_deg, rtol=1e-9, atol=1e-12)
     assert res.trans_std_mm == pytest.approx(np.sqrt(np.mean(dev_mm ** 2)), rel=1e-12)
     assert 0.05 < res.trans_std_mm < 50.0     # millimetres of a 0.5 px problem, not metres
+    # X's translation is the arithmetic mean of the per-pair translations (not a median)
+    np.testing.assert_allclose(res.X[:3, 3], res.solutions[:, :3, 3].mean(axis=0), rtol=1e-12)
+    assert np.max(np.abs(np.median(res.solutions[:, :3, 3], axis=0) - res.X[:3, 3])) > 1e-7
+
+
+def test_chordal_mean_is_a_rotation_when_the_summed_matrix_has_a_negative_determinant() -> None:
+    """Half turns about x, y and z sum to nearly -I (determinant < 0): the SVD projection must
+    flip the last singular direction to stay in SO(3), not return a reflection."""
+    R = Rotation.from_rotvec(np.array([[np.pi, 0, 0], [0, np.pi, 0], [0, 0, np.pi]])
+                             + np.array([[0, 0.05, 0], [0.02, 0, 0], [0, 0.03, 0]])).as_matrix()
+    assert np.linalg.det(R.sum(axis=0)) < 0
+    M = rotation_mean(R)
+    np.testing.assert_allclose(M @ M.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(M) == pytest.approx(1.0, abs=1e-12)

@@ -51,3 +51,16 @@ def test_jackknife_sigma_is_the_trace_of_the_jackknife_covariance() -> None:
         want = 1000.0 * np.sqrt(np.trace(mr.covariance[:3, :3]))
         assert mr.std_mm == pytest.approx(want, rel=1e-9), name
         assert 0.01 < mr.std_mm < 20.0, (name, mr.std_mm)
+
+
+def test_written_robot_noise_takes_each_component_from_its_estimate() -> None:
+    """hand_eye.yaml's robot_pose_noise: the rotation is the errors-in-variables estimate of
+    the rotation noise; the translation the larger of its translation estimate and the
+    held-out scatter (None here: no leave-one-out)."""
+    P = make_problem(10, seed=94, noise_px=0.3, robot_noise_mm=0.5, robot_noise_deg=0.1)
+    res = calibrate_hand_eye(P.samples, leave_one_out=False)
+    ref = res.refinement
+    assert ref is not None and res.held_out_sigma_m is None
+    assert res.robot_pose_noise == {"translation_sigma_m": ref.robot_translation_sigma_m,
+                                    "rotation_sigma_rad": ref.robot_rotation_sigma_rad}
+    assert ref.robot_rotation_sigma_rad != pytest.approx(ref.robot_translation_sigma_m, rel=0.2)

@@ -51,3 +51,18 @@ def test_pose_space_covariance_is_x_block() -> None:
     ctb = np.stack([s.cam_T_board for s in P.samples])
     res = refine_pose_space(P.X, P.Y, bte, ctb, "eye_in_hand")
     np.testing.assert_allclose(res.covariance, res.covariance_full[:6, :6], atol=0)
+
+
+def test_pose_space_residuals_are_normalised_by_their_own_scales() -> None:
+    """Board poses with 1 mrad of rotation noise and 0.1 mm of translation noise, refined with
+    those scales: the normalised residuals have unit spread (sigma about 1), each component
+    divided by its own scale."""
+    P = make_problem(30, seed=25, noise_px=0.0)
+    rng = np.random.default_rng(3)
+    s_r, s_t = 1e-3, 1e-4
+    ctb = P.true_cam_T_board.copy()
+    for C in ctb:
+        C[:3, :3] = C[:3, :3] @ Rotation.from_rotvec(rng.normal(scale=s_r, size=3)).as_matrix()
+        C[:3, 3] += rng.normal(scale=s_t, size=3)
+    res = refine_pose_space(P.X, P.Y, P.true_base_T_ee, ctb, "eye_in_hand", scales=(s_r, s_t))
+    assert res.sigma == pytest.approx(1.0, rel=0.2), res.sigma

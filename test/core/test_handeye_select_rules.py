@@ -101,3 +101,21 @@ def test_held_out_sigma_subtracts_the_rotation_term_at_the_flange_lever_arm(setu
         p = P.Y[:3, :3] @ c + P.Y[:3, 3]
         from_flange = np.mean([np.sum((p - s.base_T_ee[:3, 3]) ** 2) for s in P.samples])
         assert p @ p > 1.15 * from_flange, (p @ p, from_flange)
+
+
+def test_pose_score_without_corners_is_the_rms_of_both_normalised_errors() -> None:
+    """Without corners, each sample's held-out error is its board deviation in millimetres and
+    in degrees, each divided by the median over the methods of its RMS, combined in quadrature;
+    the score is the RMS of that over the samples."""
+    from eye_in_hand.core.handeye.select import selection_scores
+
+    rng = np.random.default_rng(8)
+    held = {k: HeldOut(None, rng.uniform(0.2, 2.0, N) * s_mm, rng.uniform(0.01, 0.1, N) * s_dg)
+            for k, s_mm, s_dg in (("a", 1.0, 1.0), ("b", 1.5, 0.7), ("c", 0.8, 2.0))}
+    ref_mm = np.median([np.sqrt(np.mean(h.mm ** 2)) for h in held.values()])
+    ref_deg = np.median([np.sqrt(np.mean(h.deg ** 2)) for h in held.values()])
+    scores, criterion = selection_scores(held)
+    assert "mm and deg" in criterion
+    for k, h in held.items():
+        want = np.sqrt(np.mean((h.mm / ref_mm) ** 2 + (h.deg / ref_deg) ** 2))
+        assert scores[k] == pytest.approx(want, rel=1e-12), k
