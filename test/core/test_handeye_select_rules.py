@@ -119,3 +119,30 @@ def test_pose_score_without_corners_is_the_rms_of_both_normalised_errors() -> No
     for k, h in held.items():
         want = np.sqrt(np.mean((h.mm / ref_mm) ** 2 + (h.deg / ref_deg) ** 2))
         assert scores[k] == pytest.approx(want, rel=1e-12), k
+
+
+def test_held_out_board_errors_are_in_mm_and_degrees() -> None:
+    """Exact board poses and a solution whose board is turned 0.01 rad about its own z axis
+    (origin unmoved): every held-out sample is 0.573 degrees and 0 mm off."""
+    from eye_in_hand.core.handeye.select import held_out_prediction
+
+    P = make_problem(6, seed=612, noise_px=0.0)
+    Y = P.Y @ from_rotvec([0.0, 0.0, 0.01])
+    h = held_out_prediction([(P.X, Y)] * 6, P.samples, None, "eye_in_hand")
+    np.testing.assert_allclose(h.deg, np.degrees(0.01), rtol=1e-6)
+    np.testing.assert_allclose(h.mm, 0.0, atol=1e-9)
+    assert h.px is None
+
+
+def test_held_out_sigma_subtracts_the_measurement_variance_in_px_squared() -> None:
+    """The centre's measurement variance ``v_i`` grows with the square of the corner noise:
+    with ``s_0`` the sigma without it, ``s_0^2 - s^2`` at 2 px_sigma is 4 times that at
+    px_sigma."""
+    P = make_problem(8, seed=613, noise_px=0.3)
+    rng = np.random.default_rng(6)
+    sols = [(P.X, P.Y @ from_rotvec(rng.normal(scale=1e-3, size=3),
+                                    rng.normal(scale=1e-3, size=3))) for _ in P.samples]
+    s = [held_out_position_sigma(sols, P.samples, "eye_in_hand", 0.0, P.views, px)[0]
+         for px in (0.0, 0.1, 0.2)]
+    assert s[2] > 0
+    assert (s[0] ** 2 - s[2] ** 2) == pytest.approx(4 * (s[0] ** 2 - s[1] ** 2), rel=1e-6)

@@ -317,3 +317,22 @@ def test_a_blob_missed_in_separate_single_frames_keeps_its_id():
         got = {t.id: t.point_m for t in res.targets}
         assert set(got) == set(ids), got                                     # B as itself
         assert np.linalg.norm(got[b_id] - XB) < 2e-3 and res.rejected == {}
+
+
+def test_a_blob_that_jumps_beyond_the_gate_gets_a_new_id():
+    """tracking.gate_m (0.03 m) is the largest step a blob keeps its id over: a blob 5 cm from
+    its last position is a new blob (its old id is reported missing), one 2 cm away is not."""
+    loc = StereoLocator(RIG, config())
+    XA, XB = np.array([-0.08, 0.0, 0.45]), np.array([0.05, 0.0, 0.45])
+    res = loc.locate(*render([(XA, 0.012, RED), (XB, 0.012, RED)]))
+    ids = {t.id: t.point_m for t in res.targets}
+    b_id = min(ids, key=lambda i: np.linalg.norm(ids[i] - XB))
+    XB2 = XB + [0.02, 0.0, 0.0]
+    res = loc.locate(*render([(XA, 0.012, RED), (XB2, 0.012, RED)], seed=1))
+    assert {t.id for t in res.targets} == set(ids) and res.rejected == {}
+    XB3 = XB2 + [0.05, 0.0, 0.0]
+    res = loc.locate(*render([(XA, 0.012, RED), (XB3, 0.012, RED)], seed=2))
+    got = {t.id: t.point_m for t in res.targets}
+    assert b_id not in got and "red_2" in got, got
+    assert np.linalg.norm(got["red_2"] - XB3) < 2e-3
+    assert res.rejected == {b_id: "not_detected"}
