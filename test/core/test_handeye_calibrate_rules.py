@@ -64,3 +64,18 @@ def test_written_robot_noise_takes_each_component_from_its_estimate() -> None:
     assert res.robot_pose_noise == {"translation_sigma_m": ref.robot_translation_sigma_m,
                                     "rotation_sigma_rad": ref.robot_rotation_sigma_rad}
     assert ref.robot_rotation_sigma_rad != pytest.approx(ref.robot_translation_sigma_m, rel=0.2)
+
+
+def test_a_rotation_only_outlier_is_rejected() -> None:
+    """The outlier score is the larger of the millimetre and the degree deviations (each over
+    its median): a board pose turned 1 degree about the board's own origin moves no position
+    but is rejected for its rotation."""
+    P = make_problem(12, seed=91, noise_px=0.01)
+    samples = list(P.samples)
+    s = samples[5]
+    samples[5] = HandEyeSample(s.name, s.base_T_ee,
+                               s.cam_T_board @ from_rotvec([0.0, np.radians(1.0), 0.0]),
+                               s.observations)
+    res = calibrate_hand_eye(samples, refine=False, leave_one_out=False)
+    assert [r.name for r in res.rejected] == [s.name], res.rejected
+    assert "deg" in res.rejected[0].reason
