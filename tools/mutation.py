@@ -1,177 +1,587 @@
-"""Mutation testing of the core, io and offline layers: plant known bugs, see which the tests catch.
+"""Mutation testing: plant known bugs in core/, io/, nodes/ and the offline path, one at a time.
 
 Each mutant is a small, realistic bug (a frame left unrotated, a tie rule flipped, a sort
-removed, a term dropped): one exact text replacement in one source file, and the test files
-that ought to catch it. For each mutant the file is changed, those tests run (``pytest -x``),
-and the file is restored, whatever happens (also on Ctrl-C). A mutant is *caught* when the tests
-fail, *survives* when they pass, and is *stale* when its text is no longer in the file (the code
-moved on: update the mutant).
+removed, a term dropped, a standard error taken for a standard deviation): one exact text
+replacement of (usually) one line in one source file. :data:`TESTS` maps every mutated module
+to its own test files, once; a mutant runs only those (``pytest -x``), so the whole table
+stays fast. A mutant is *caught* when the tests fail, *survives* when they pass, and is
+*stale* when its text is no longer (once) in the file: the code moved on, so update the
+mutant's text (keep it to the one line the bug is on, so re-anchoring stays easy).
+
+Mutants are planted in private copies of the source tree (one per worker, under a temporary
+directory, put first on the tests' import path), never in the working tree: a run can be
+interrupted or run beside an editor. ``-j`` runs mutants on that many workers (default 2).
 
 Usage::
 
-    make mutation                        # every mutant
-    .venv/bin/python tools/mutation.py -k sync -v
+    make mutation                          # every mutant, 2 workers
+    .venv/bin/python tools/mutation.py -k select -v
+    .venv/bin/python tools/mutation.py --list   # the table and stale mutants, no tests run
+    .venv/bin/python tools/mutation.py --baseline   # each module's tests pass unmutated
 
-Prints one line per mutant and the score (caught / live mutants). Exit status 1 when a mutant
-survives or is stale, so a release check can insist on a full score.
+Prints one line per mutant, the score (caught / live mutants) and the wall time. Exit status
+1 when a mutant survives or is stale, so CI (``.ci/run``) insists on a full score.
+
+The habit: a new module, or a new rule in an old one, lands in the same commit as its
+planted-bug entries here (and its module's row of :data:`TESTS`); see docs/development.md.
 """
 from __future__ import annotations
 
 import argparse
 import os
+import queue
+import shutil
 import subprocess
 import sys
+import tempfile
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+PKG = "eye_in_hand/"
+
+#: Each mutated module (path under eye_in_hand/) and its own tests: the only tests its
+#: mutants run. Cheapest and most direct tests first (``-x`` stops at the first failure).
+TESTS: dict[str, tuple[str, ...]] = {
+    "core/transforms.py": ("test/core/test_transforms.py", "test/core/test_sync.py"),
+    "core/camera.py": ("test/core/test_camera.py",),
+    "core/kinematics.py": ("test/core/test_kinematics.py",),
+    "core/sync.py": ("test/core/test_sync_rules.py", "test/core/test_sync.py"),
+    "core/tf.py": ("test/core/test_tf_staleness.py", "test/core/test_tf.py"),
+    "core/triangulation.py": ("test/core/test_triangulation_covariance.py",
+                              "test/core/test_triangulation.py"),
+    "core/detection.py": ("test/core/test_center_sigma_edge.py",
+                          "test/core/test_center_sigma_blur_law.py",
+                          "test/core/test_detection_minor_axis.py",
+                          "test/core/test_detection.py"),
+    "core/locator.py": ("test/core/test_locator_blobs.py", "test/core/test_locator.py"),
+    "core/localization.py": ("test/core/test_localization_sources.py",
+                             "test/core/test_localization.py",
+                             "test/core/test_localization_robot_error.py"),
+    "core/eye_to_hand.py": ("test/core/test_eye_to_hand.py",),
+    "core/distances.py": ("test/core/test_distances.py",),
+    "core/handeye/solvers.py": ("test/core/test_handeye_solvers.py",),
+    "core/handeye/average.py": ("test/core/test_handeye_average.py",),
+    "core/handeye/refine.py": ("test/core/test_handeye_refine_rules.py",
+                               "test/core/test_handeye_refine.py"),
+    "core/handeye/eiv.py": ("test/core/test_handeye_eiv_rules.py", "test/core/test_handeye_eiv.py"),
+    "core/handeye/select.py": ("test/core/test_handeye_select_rules.py",
+                               "test/core/test_handeye_held_out_noise.py",
+                               "test/core/test_handeye_eiv.py"),
+    "core/handeye/calibrate.py": ("test/core/test_handeye_calibrate_rules.py",
+                                  "test/core/test_handeye_held_out_noise.py",
+                                  "test/core/test_handeye_refine.py",
+                                  "test/core/test_handeye_eiv.py"),
+    "io/bags/reading.py": ("test/io/test_mcap_recovery_order.py", "test/io/test_bags.py"),
+    "io/bags/writing.py": ("test/io/test_bags.py",),
+    "io/mcap_chunks.py": ("test/io/test_mcap_recovery_order.py", "test/io/test_mcap_chunks.py"),
+    "io/cdr.py": ("test/io/test_cdr.py",),
+    "io/atomic.py": ("test/io/test_atomic.py",),
+    "io/config.py": ("test/io/test_config_handeye.py",),
+    "io/datasets.py": ("test/io/test_datasets_handeye.py",),
+    "nodes/bag_recorder.py": (
+        "test/commands/test_record.py::test_write_queue_drops_over_budget_and_drains_after_close",
+        "test/commands/test_record.py"),
+    "nodes/bag_player.py": ("test/commands/test_play.py",),
+    "nodes/hand_eye.py": ("test/nodes/test_hand_eye.py",),
+    "nodes/detect_triangulate.py": ("test/nodes/test_detect_triangulate.py",),
+    "offline.py": ("test/test_offline.py",),
+}
 
 
 @dataclass(frozen=True)
 class Mutant:
     name: str
-    path: str          # relative to the repository root
+    module: str        # path under eye_in_hand/, a key of TESTS
     old: str           # exact text, must occur exactly once
     new: str
-    tests: tuple[str, ...]
     what: str
 
+    @property
+    def path(self) -> str:
+        return PKG + self.module
+
+    @property
+    def tests(self) -> tuple[str, ...]:
+        return TESTS[self.module]
+
+
+M = Mutant
 
 MUTANTS: tuple[Mutant, ...] = (
-    Mutant("triangulation-frame", "eye_in_hand/core/triangulation.py",
-           "    cov = R1.T @ cov_rect @ R1\n", "    cov = cov_rect\n",
-           ("test/core/test_triangulation_covariance.py", "test/core/test_triangulation.py"),
-           "covariance left in the rectified frame instead of the left optical frame"),
-    Mutant("triangulation-rectification-jacobian", "eye_in_hand/core/triangulation.py",
-           "    return out[0], out[1], J\n", "    return out[0], out[1], np.eye(4)\n",
-           ("test/core/test_triangulation_covariance.py",),
-           "pixel noise not propagated through the rectification"),
-    Mutant("sync-tie-rule", "eye_in_hand/core/sync.py",
-           "            if gap <= abs(a2 - b):\n", "            if gap < abs(a2 - b):\n",
-           ("test/core/test_sync_rules.py", "test/core/test_sync.py"),
-           "stereo pairing tie goes to the later frame"),
-    Mutant("sync-repeated-stamp", "eye_in_hand/core/sync.py",
-           "if last_side is not None and stamp <= last_side:",
-           "if last_side is not None and stamp < last_side:",
-           ("test/core/test_sync_rules.py", "test/core/test_sync.py"),
-           "a repeated stamp on one side is queued instead of dropped"),
-    Mutant("detection-half-pixel", "eye_in_hand/core/detection.py",
-           "    minor = 2.0 * math.sqrt(max(lam_min, 0.0)) + 0.5\n",
-           "    minor = 2.0 * math.sqrt(max(lam_min, 0.0))\n",
-           ("test/core/test_detection_minor_axis.py", "test/core/test_detection.py"),
-           "half-pixel edge term of the silhouette's minor axis dropped"),
-    Mutant("slerp-shorter-arc", "eye_in_hand/core/transforms.py",
-           "    if sum(a * b for a, b in zip(q0, q1)) < 0.0:\n", "    if False:\n",
-           ("test/core/test_transforms.py", "test/core/test_sync.py"),
-           "pose interpolation takes the longer arc when quaternion signs differ"),
-    Mutant("lerp-weights", "eye_in_hand/core/transforms.py",
-           "    out[:3, 3] = (1.0 - s) * A[:3, 3] + s * B[:3, 3]\n",
-           "    out[:3, 3] = s * A[:3, 3] + (1.0 - s) * B[:3, 3]\n",
-           ("test/core/test_transforms.py", "test/core/test_sync.py"),
-           "translation interpolation weights swapped"),
-    Mutant("localization-handeye-jacobian", "eye_in_hand/core/localization.py",
-           "J = Rb @ np.hstack([np.eye(3), -_skew(q)])", "J = Rb @ np.hstack([np.eye(3), _skew(q)])",
-           ("test/core/test_localization_sources.py", "test/core/test_localization.py"),
-           "sign of the hand-eye rotation term in the base-frame covariance"),
-    Mutant("localization-robot-rotation", "eye_in_hand/core/localization.py",
-           "        cov += robot_sigma_rot_rad ** 2 * (J @ J.T)\n", "        pass\n",
-           ("test/core/test_localization_sources.py", "test/core/test_localization.py"),
-           "robot rotation uncertainty left out of the base-frame covariance"),
-    Mutant("handeye-translation", "eye_in_hand/core/handeye/solvers.py",
-           "    rhs = (m.B[:, :3, 3] @ R.T - m.A[:, :3, 3]).reshape(3 * K)\n",
-           "    rhs = (m.B[:, :3, 3] @ R - m.A[:, :3, 3]).reshape(3 * K)\n",
-           ("test/core/test_handeye_solvers.py",),
-           "hand-eye translation solved with the transposed rotation"),
-    Mutant("scan-chunk-order", "eye_in_hand/io/bags/reading.py",
-           "            msgs.sort(key=lambda r: r[1][1])\n", "            pass\n",
-           ("test/io/test_mcap_recovery_order.py", "test/io/test_bags.py"),
-           "messages recovered from an interrupted MCAP file not sorted by time"),
-    Mutant("mcap-chunk-order", "eye_in_hand/io/mcap_chunks.py",
-           "    infos.sort(key=lambda c: (c.message_start_time, c.chunk_start_offset))\n",
-           "    infos.sort(key=lambda c: c.chunk_start_offset)\n",
-           ("test/io/test_mcap_recovery_order.py", "test/io/test_mcap_chunks.py"),
-           "MCAP chunks read in file order instead of time order"),
-    Mutant("cdr-height-width", "eye_in_hand/io/cdr.py",
-           "    height, width = _HW.unpack_from(body, pos)\n",
-           "    width, height = _HW.unpack_from(body, pos)\n",
-           ("test/io/test_cdr.py",),
-           "image height and width swapped when decoding CDR"),
-    Mutant("player-rate", "eye_in_hand/nodes/bag_player.py",
-           "            rate = self.config.rate\n", "            rate = 1.0\n",
-           ("test/commands/test_play.py",),
-           "bag player ignores --rate"),
-    Mutant("pose-receive-age", "eye_in_hand/core/sync.py",
-           "        if now - oldest > max_age_ns:\n", "        if False:\n",
-           ("test/core/test_sync.py",),
-           "a robot pose received long ago is used (stale pose)"),
-    Mutant("tf-receive-age", "eye_in_hand/core/tf.py",
-           "        self._receipts.check_age(stamp_ns, now_ns, max_age_ns)\n", "",
-           ("test/core/test_tf_staleness.py", "test/core/test_tf.py"),
-           "the TF robot pose skips the receive-age rule"),
-    Mutant("tf-interpolation", "eye_in_hand/core/tf.py",
-           "        return self.history.lookup(stamp_ns, max_gap_ns)\n",
-           "        return self.history.lookup(self.history.newest_ns, max_gap_ns)\n",
-           ("test/core/test_tf.py",),
-           "a TF edge answers with its newest sample instead of interpolating at the stamp"),
-    Mutant("offline-unpaired-count", "eye_in_hand/offline.py",
-           '        self.count("unpaired_left", sync.stats.dropped_left + pl)\n',
-           '        self.count("unpaired_left", pl)\n',
-           ("test/test_offline.py",),
-           "left images dropped by the stereo pairing missing from the loss ledger"),
-    Mutant("atomic-overwrite-mixes", "eye_in_hand/io/atomic.py",
-           "    elif _exchange(staged, out):\n        _remove(staged)  # now the old folder\n",
-           "    elif True:\n        for f in staged.iterdir():\n            os.replace(f, out / f.name)\n",
-           ("test/io/test_atomic.py",),
-           "--overwrite merges the new files into the old folder instead of replacing it whole"),
+    # -- core/transforms.py
+    M("slerp-shorter-arc", "core/transforms.py",
+      "    if sum(a * b for a, b in zip(q0, q1)) < 0.0:\n", "    if False:\n",
+      "pose interpolation takes the longer arc when quaternion signs differ"),
+    M("lerp-weights", "core/transforms.py",
+      "    out[:3, 3] = (1.0 - s) * A[:3, 3] + s * B[:3, 3]\n",
+      "    out[:3, 3] = s * A[:3, 3] + (1.0 - s) * B[:3, 3]\n",
+      "translation interpolation weights swapped"),
+    # -- core/camera.py, core/kinematics.py
+    M("camera-behind", "core/camera.py",
+      "        ok = pts[:, 2] > 0\n", "        ok = pts[:, 2] != 0\n",
+      "points behind the camera projected (mirrored) instead of NaN"),
+    M("camera-rectify-rotation", "core/camera.py",
+      "cv2.undistortPoints(pts, self.K, self.dist, None, self.R, self.P[:3, :3],",
+      "cv2.undistortPoints(pts, self.K, self.dist, None, None, self.P[:3, :3],",
+      "rectified pixels without the rectification rotation"),
+    M("kinematics-dh-alpha", "core/kinematics.py",
+      "        [st, ct * ca, -ct * sa, a * st],\n", "        [st, ct * ca, ct * sa, a * st],\n",
+      "the DH link twist's sign flipped in one entry"),
+    # -- core/sync.py
+    M("sync-tie-rule", "core/sync.py",
+      "            if gap <= abs(a2 - b):\n", "            if gap < abs(a2 - b):\n",
+      "stereo pairing tie goes to the later frame"),
+    M("sync-repeated-stamp", "core/sync.py",
+      "if last_side is not None and stamp <= last_side:",
+      "if last_side is not None and stamp < last_side:",
+      "a repeated stamp on one side is queued instead of dropped"),
+    M("pose-receive-age", "core/sync.py",
+      "        if now - oldest > max_age_ns:\n", "        if False:\n",
+      "a robot pose received long ago is used (stale pose)"),
+    M("pose-gap-limit", "core/sync.py",
+      "        if s1 - s0 > gap_limit:\n", "        if s1 - s0 > 2 * gap_limit:\n",
+      "robot poses bracketing an image stamp accepted across twice the gap limit"),
+    # -- core/tf.py
+    M("tf-receive-age", "core/tf.py",
+      "        self._receipts.check_age(stamp_ns, now_ns, max_age_ns)\n", "",
+      "the TF robot pose skips the receive-age rule"),
+    M("tf-interpolation", "core/tf.py",
+      "        return self.history.lookup(stamp_ns, max_gap_ns)\n",
+      "        return self.history.lookup(self.history.newest_ns, max_gap_ns)\n",
+      "a TF edge answers with its newest sample instead of interpolating at the stamp"),
+    M("tf-newest-target-side", "core/tf.py",
+      "        for child in up_t[:-1] + up_s[:-1]:\n            n = self._edges[child].newest_ns()",
+      "        for child in up_s[:-1]:\n            n = self._edges[child].newest_ns()",
+      "newest_ns ignores the dynamic edges on the target frame's side of the chain"),
+    M("tf-oldest", "core/tf.py",
+      "                oldest = max(oldest, o)\n", "                oldest = min(oldest, o)\n",
+      "oldest_ns of a chain is its oldest edge's instead of the latest start"),
+    # -- core/triangulation.py
+    M("triangulation-frame", "core/triangulation.py",
+      "    cov = R1.T @ cov_rect @ R1\n", "    cov = cov_rect\n",
+      "covariance left in the rectified frame instead of the left optical frame"),
+    M("triangulation-rectification-jacobian", "core/triangulation.py",
+      "    return out[0], out[1], J\n", "    return out[0], out[1], np.eye(4)\n",
+      "pixel noise not propagated through the rectification"),
+    M("triangulation-dlt-row-scale", "core/triangulation.py",
+      "    w = np.array([P1[2] @ h, P1[2] @ h, P2[2] @ h, P2[2] @ h]) * scale\n",
+      "    w = np.array([P1[2] @ h, P1[2] @ h, P2[2] @ h, P2[2] @ h])\n",
+      "the DLT Jacobian ignores the unit-norm row scaling"),
+    M("triangulation-parallax-row", "core/triangulation.py",
+      "np.array([0.0, 0.5 * Z / fy, 0.0, 0.5 * Z / fy])",
+      "np.array([0.0, Z / fy, 0.0, 0.0])",
+      "the parallax Y uses the left row only in its Jacobian (the point averages both rows)"),
+    # -- core/detection.py
+    M("detection-half-pixel", "core/detection.py",
+      "    minor = 2.0 * math.sqrt(max(lam_min, 0.0)) + 0.5\n",
+      "    minor = 2.0 * math.sqrt(max(lam_min, 0.0))\n",
+      "half-pixel edge term of the silhouette's minor axis dropped"),
+    M("detection-shade-blur-law", "core/detection.py",
+      "        shade = shade * (1.0 + SHADE_BLUR_GAIN * blur * blur)\n",
+      "        shade = shade * (1.0 + SHADE_BLUR_GAIN * blur)\n",
+      "the shading term of the centre sigma grows with the blur b instead of b^2"),
+    M("detection-cut-blur-law", "core/detection.py",
+      "cut = CUT_SIGMA_PX * (1.0 + CUT_BLUR_GAIN * blur)",
+      "cut = CUT_SIGMA_PX * (1.0 + CUT_BLUR_GAIN * blur * blur)",
+      "the threshold-cut term grows with b^2 instead of b"),
+    M("detection-blur-floor", "core/detection.py",
+      "max(width * width - BLUR_W0_PX ** 2, 0.0)", "max(width * width, 0.0)",
+      "the unblurred edge width is not subtracted from the blur estimate"),
+    M("detection-edge-tau", "core/detection.py",
+      "            tau += 2.0 * float(ac[k])\n", "            tau += float(ac[k])\n",
+      "the edge term's correlation time counts each lag once, not on both sides"),
+    M("detection-edge-variance", "core/detection.py",
+      "    sigma_edge2 = var * 2.0 * tau / n\n", "    sigma_edge2 = var * tau / n\n",
+      "the edge term s sqrt(2 tau / N) without its factor 2"),
+    # -- core/locator.py
+    M("locator-missed-reset", "core/locator.py",
+      "                loc.point_m, a.xl[i], a.xr[j], 0\n",
+      "                loc.point_m, a.xl[i], a.xr[j], tr.missed\n",
+      "a re-seen blob keeps its missed count (separate single misses retire its id)"),
+    M("locator-retire", "core/locator.py",
+      "            if tr.missed > cfg.track_max_missed:\n",
+      "            if tr.missed >= cfg.track_max_missed:\n",
+      "a blob's id retires one frame before tracking.max_missed misses"),
+    M("locator-shared-shading", "core/locator.py",
+      "        S = np.diag([e[0], e[0], e[1], e[1]]) + np.outer(v, v)\n",
+      "        S = np.diag([e[0], e[0], e[1], e[1]]) + np.diag(v * v)\n",
+      "the shading shift treated as independent in the two images, not shared"),
+    M("locator-epipolar-sign", "core/locator.py",
+      "        gap = abs(xl[self._row] - xr[self._row])\n",
+      "        gap = xl[self._row] - xr[self._row]\n",
+      "a right candidate below the left one's row passes the epipolar gate at any distance"),
+    M("locator-track-gate", "core/locator.py",
+      "                if dist <= cfg.track_gate_m:\n",
+      "                if dist <= 3 * cfg.track_gate_m:\n",
+      "a blob keeps its id over steps of three times tracking.gate_m"),
+    # -- core/localization.py
+    M("localization-handeye-jacobian", "core/localization.py",
+      "J = Rb @ np.hstack([np.eye(3), -_skew(q)])", "J = Rb @ np.hstack([np.eye(3), _skew(q)])",
+      "sign of the hand-eye rotation term in the base-frame covariance"),
+    M("localization-robot-rotation", "core/localization.py",
+      "        cov += robot_sigma_rot_rad ** 2 * (J @ J.T)\n", "        pass\n",
+      "robot rotation uncertainty left out of the base-frame covariance"),
+    M("localization-robot-position-variance", "core/localization.py",
+      "        cov += robot_sigma_pos_m ** 2 * np.eye(3)\n",
+      "        cov += robot_sigma_pos_m * np.eye(3)\n",
+      "the robot position sigma added as a variance unsquared"),
+    M("localization-stated-floor", "core/localization.py",
+      '        pos = max(pos, float(estimated["translation_sigma_m"]))\n',
+      '        pos = float(estimated["translation_sigma_m"])\n',
+      "the calibration's estimate replaces the arm's stated accuracy instead of raising it"),
+    # -- core/eye_to_hand.py
+    M("eye-to-hand-arguments", "core/eye_to_hand.py",
+      "target_in_base(_IDENTITY, self.base_T_cam, point_cam,",
+      "target_in_base(self.base_T_cam, _IDENTITY, point_cam,",
+      "the camera mount passed as the robot pose (mount covariance rotated by it)"),
+    M("eye-to-hand-mount-covariance", "core/eye_to_hand.py",
+      "                                cov_hand_eye=self.cov_hand_eye)\n",
+      "                                cov_hand_eye=None)\n",
+      "the camera mount's covariance left out of located targets"),
+    # -- core/distances.py
+    M("distances-std-ddof", "core/distances.py",
+      "            std = float(d[ok].std(ddof=1)) if n >= 2 else math.nan\n",
+      "            std = float(d[ok].std()) if n >= 2 else math.nan\n",
+      "the distance scatter as a population (ddof 0) instead of a sample standard deviation"),
+    M("distances-known-sign", "core/distances.py",
+      "            err = 1000.0 * (p.mean_m - m) if p.frames else math.nan\n",
+      "            err = 1000.0 * (m - p.mean_m) if p.frames else math.nan\n",
+      "the error against a known distance has its sign flipped"),
+    M("distances-rms", "core/distances.py",
+      "1000.0 * float(np.sqrt(np.mean(e ** 2))) if e.size else math.nan,",
+      "1000.0 * float(np.mean(e)) if e.size else math.nan,",
+      "a target's position error against the truth as a mean, not the documented RMS"),
+    M("distances-truth-frames", "core/distances.py",
+      "truth_m=float(dt[both].mean()),", "truth_m=float(np.nanmean(dt)),",
+      "a pair's true distance averaged over all frames, not those where both were located"),
+    # -- core/handeye/solvers.py
+    M("handeye-translation", "core/handeye/solvers.py",
+      "    rhs = (m.B[:, :3, 3] @ R.T - m.A[:, :3, 3]).reshape(3 * K)\n",
+      "    rhs = (m.B[:, :3, 3] @ R - m.A[:, :3, 3]).reshape(3 * K)\n",
+      "hand-eye translation solved with the transposed rotation"),
+    M("handeye-motion-order", "core/handeye/solvers.py",
+      "    A = invert_many(G[jj]) @ G[ii]\n", "    A = G[jj] @ invert_many(G[ii])\n",
+      "robot motions taken in the base frame instead of the flange frame"),
+    M("handeye-park-transpose", "core/handeye/solvers.py",
+      "    H = a.T @ b  # sum a b^T = M^T\n", "    H = b.T @ a\n",
+      "Park-Martin returns the transposed rotation"),
+    M("handeye-eye-to-hand-poses", "core/handeye/solvers.py",
+      "        return invert_many(np.asarray(base_T_ee, dtype=np.float64))\n",
+      "        return np.array(base_T_ee, dtype=np.float64)\n",
+      "eye-to-hand robot poses not inverted"),
+    # -- core/handeye/average.py
+    M("average-axes-as-lines", "core/handeye/average.py",
+      '    cos = np.abs(np.einsum("ki,ki->k", axis[pp], axis[qq]))\n',
+      '    cos = np.einsum("ki,ki->k", axis[pp], axis[qq])\n',
+      "anti-parallel rotation axes count as far apart (axes compared as vectors, not lines)"),
+    M("average-small-rotation", "core/handeye/average.py",
+      "    small = ~(big[pp] & big[qq])\n", "    small = ~(big[pp] | big[qq])\n",
+      "a pair of motions is used when only one of its rotations is large enough"),
+    M("average-pair-translation", "core/handeye/average.py",
+      '    rhs_p = np.einsum("kij,kj->ki", R, m.B[p, :3, 3]) - m.A[p, :3, 3]\n',
+      '    rhs_p = np.einsum("kji,kj->ki", R, m.B[p, :3, 3]) - m.A[p, :3, 3]\n',
+      "the per-pair translation uses the transposed rotation for the first motion"),
+    M("average-spread-units", "core/handeye/average.py",
+      "    trans_dev = 1000.0 * np.linalg.norm(Xs[:, :3, 3] - t, axis=1)\n",
+      "    trans_dev = np.linalg.norm(Xs[:, :3, 3] - t, axis=1)\n",
+      "the per-pair translation spread reported in metres as millimetres"),
+    M("average-mean-translation", "core/handeye/average.py",
+      "    t = Xs[:, :3, 3].mean(axis=0)\n", "    t = np.median(Xs[:, :3, 3], axis=0)\n",
+      "the averaged translation is the per-pair median, not the documented mean"),
+    M("average-reflection", "core/handeye/average.py",
+      "    D = np.diag([1.0, 1.0, 1.0 if np.linalg.det(U @ Vt) > 0 else -1.0])\n",
+      "    D = np.eye(3)\n",
+      "the chordal mean returns a reflection when the summed rotations have det < 0"),
+    # -- core/handeye/refine.py
+    M("refine-residual-variance", "core/handeye/refine.py",
+      "    s2 = 2.0 * float(res.cost) / dof\n", "    s2 = float(res.cost) / dof\n",
+      "the residual variance from the cost without its factor 2 (covariance halved)"),
+    M("refine-perturbation-side", "core/handeye/refine.py",
+      "    T[:3, :3] = Rotation.from_rotvec(p[3:6]).as_matrix() @ T0[:3, :3]\n",
+      "    T[:3, :3] = T0[:3, :3] @ Rotation.from_rotvec(p[3:6]).as_matrix()\n",
+      "the rotation perturbation on the right (child frame), not the documented left"),
+    M("refine-tangential", "core/handeye/refine.py",
+      "    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)\n",
+      "    xd = x * radial + p1 * x * y + p2 * (r2 + 2 * x * x)\n",
+      "the tangential distortion term of x halved"),
+    M("refine-covariance-block", "core/handeye/refine.py",
+      'cov[:6, :6], cov,\n                            sigma, float(res.cost), int(res.nfev), '
+      '"reprojection")',
+      'cov[6:, 6:], cov,\n                            sigma, float(res.cost), int(res.nfev), '
+      '"reprojection")',
+      "the reprojection refinement reports the board's covariance as X's"),
+    M("refine-pose-scales", "core/handeye/refine.py",
+      "        return np.concatenate([r / sr, t / st], axis=1).ravel()\n",
+      "        return np.concatenate([r / st, t / sr], axis=1).ravel()\n",
+      "pose-space residuals divided by each other's noise scale"),
+    # -- core/handeye/eiv.py
+    M("eiv-redundancy", "core/handeye/eiv.py",
+      "            r_g = float(rows.sum() - h[rows].sum())\n",
+      "            r_g = float(rows.sum())\n",
+      "noise levels from the residuals over their row count, not their redundancy"),
+    M("eiv-correction-side", "core/handeye/eiv.py",
+      "    return bte @ D\n", "    return D @ bte\n",
+      "robot-pose corrections applied in the base frame instead of the flange frame"),
+    M("eiv-covariance-block", "core/handeye/eiv.py",
+      "    return EivResult(X=X, Y=Y, covariance=cov[:6, :6], covariance_full=cov,\n",
+      "    return EivResult(X=X, Y=Y, covariance=cov[6:, 6:], covariance_full=cov,\n",
+      "the errors-in-variables result reports the board's covariance as X's"),
+    M("eiv-hat-cross-term", "core/handeye/eiv.py",
+      '              + 2.0 * np.einsum("ki,kij,kj->k", Jg, Cgu[k], Ju)\n',
+      '              + np.einsum("ki,kij,kj->k", Jg, Cgu[k], Ju)\n',
+      "the hat matrix's cross term counted once instead of twice"),
+    # -- core/handeye/select.py
+    M("select-standard-error", "core/handeye/select.py",
+      '    se = float(np.std(d, ddof=1) / np.sqrt(d.size)) if d.size > 1 else float("inf")\n',
+      '    se = float(np.std(d, ddof=1)) if d.size > 1 else float("inf")\n',
+      "the paired comparison divides by the standard deviation, not the standard error"),
+    M("select-margin", "core/handeye/select.py",
+      "    if float(np.mean(d)) < -2.0 * se:\n", "    if float(np.mean(d)) < -1.0 * se:\n",
+      "another method replaces refined at 1 standard error instead of 2"),
+    M("select-lever-arm", "core/handeye/select.py",
+      "            p_ee = s.base_T_ee[:3, :3].T @ (p_fixed - s.base_T_ee[:3, 3])\n",
+      "            p_ee = s.base_T_ee[:3, :3].T @ p_fixed\n",
+      "the flange position dropped from the lever arm of the robot rotation noise"),
+    M("select-rotation-term", "core/handeye/select.py",
+      "    excess = float(np.mean(m - 2.0 * rotation_sigma_rad ** 2 * np.asarray(lever_sq)\n",
+      "    excess = float(np.mean(m - 3.0 * rotation_sigma_rad ** 2 * np.asarray(lever_sq)\n",
+      "the rotation noise's share of the held-out scatter counted over 3 axes, not 2"),
+    M("select-per-axis", "core/handeye/select.py",
+      "    return float(np.sqrt(max(0.0, excess) / 3.0)), float(np.sqrt(np.mean(m)))\n",
+      "    return float(np.sqrt(max(0.0, excess))), float(np.sqrt(np.mean(m)))\n",
+      "the held-out position sigma as a 3-D norm, not per axis"),
+    M("select-measurement-noise", "core/handeye/select.py",
+      "                           - (np.asarray(meas) if meas else 0.0)))\n",
+      "                           ))\n",
+      "the held-out view's own measurement noise counted as robot noise"),
+    M("select-pose-score", "core/handeye/select.py",
+      "np.hypot(h.mm / ref_mm, h.deg / ref_deg)", "(h.mm / ref_mm + h.deg / ref_deg)",
+      "the pose score adds the normalised mm and deg errors instead of combining in quadrature"),
+    M("select-held-out-degrees", "core/handeye/select.py",
+      "        deg[i] = float(np.degrees(np.linalg.norm(\n",
+      "        deg[i] = float((np.linalg.norm(\n",
+      "the held-out board rotation error reported in radians as degrees"),
+    M("select-centre-variance", "core/handeye/select.py",
+      "        cov = px_sigma ** 2 * np.linalg.inv(J.T @ J)\n",
+      "        cov = px_sigma * np.linalg.inv(J.T @ J)\n",
+      "the centre's measurement covariance scaled by px_sigma, not px_sigma^2"),
+    # -- core/handeye/calibrate.py
+    M("calibrate-held-out-noise", "core/handeye/calibrate.py",
+      "            t = max(t, self.held_out_sigma_m)\n", "            pass\n",
+      "hand_eye.yaml's translation noise ignores the held-out position scatter"),
+    M("calibrate-outlier-floors", "core/handeye/calibrate.py",
+      "        bad = (score > threshold) & ((dmm > floor_mm) | (ddeg > floor_deg))\n",
+      "        bad = score > threshold\n",
+      "samples within the absolute floors rejected as outliers (relative test only)"),
+    M("calibrate-outlier-rotation", "core/handeye/calibrate.py",
+      "        score = np.maximum(dmm / med_mm, ddeg / med_deg)\n",
+      "        score = dmm / med_mm\n",
+      "the outlier score ignores the rotation deviation"),
+    M("calibrate-jackknife", "core/handeye/calibrate.py",
+      "    f = (n - 1) / n\n", "    f = 1.0 / n\n",
+      "the jackknife spread without its (n - 1) / n factor (standard error understated)"),
+    M("calibrate-rotation-noise", "core/handeye/calibrate.py",
+      '                "rotation_sigma_rad": self.refinement.robot_rotation_sigma_rad}\n',
+      '                "rotation_sigma_rad": self.refinement.robot_translation_sigma_m}\n',
+      "hand_eye.yaml's rotation noise written from the translation estimate"),
+    # -- io/
+    M("scan-chunk-order", "io/bags/reading.py",
+      "            msgs.sort(key=lambda r: r[1][1])\n", "            pass\n",
+      "messages recovered from an interrupted MCAP file not sorted by time"),
+    M("read-end-inclusive", "io/bags/reading.py",
+      "    stop = None if end_ns is None else end_ns + 1\n",
+      "    stop = None if end_ns is None else end_ns\n",
+      "a message stamped exactly end_ns left out of a time window (documented inclusive)"),
+    M("write-negative-stamp", "io/bags/writing.py",
+      "not isinstance(stamp_ns, int) or stamp_ns < 0:", "not isinstance(stamp_ns, int):",
+      "a negative log time written into a bag"),
+    M("mcap-chunk-order", "io/mcap_chunks.py",
+      "    infos.sort(key=lambda c: (c.message_start_time, c.chunk_start_offset))\n",
+      "    infos.sort(key=lambda c: c.chunk_start_offset)\n",
+      "MCAP chunks read in file order instead of time order"),
+    M("cdr-height-width", "io/cdr.py",
+      "    height, width = _HW.unpack_from(body, pos)\n",
+      "    width, height = _HW.unpack_from(body, pos)\n",
+      "image height and width swapped when decoding CDR"),
+    M("atomic-overwrite-mixes", "io/atomic.py",
+      "    elif _exchange(staged, out):\n        _remove(staged)  # now the old folder\n",
+      "    elif True:\n        for f in staged.iterdir():\n"
+      "            os.replace(f, out / f.name)\n",
+      "--overwrite merges the new files into the old folder instead of replacing it whole"),
+    M("config-quaternion-norm", "io/config.py",
+      "    if abs(norm - 1.0) > _QUAT_NORM_TOL:\n", "    if False:\n",
+      "hand_eye.yaml with a non-unit quaternion accepted"),
+    M("datasets-quaternion-norm", "io/datasets.py",
+      "    if abs(norm - 1.0) > 1e-4:\n", "    if False:\n",
+      "a dataset pose with a non-unit quaternion silently normalised"),
+    # -- nodes/ and the offline path
+    M("recorder-one-message-fits", "nodes/bag_recorder.py",
+      "            if self.closed or (not force and self._items\n",
+      "            if self.closed or (not force\n",
+      "a single message larger than the write budget is dropped"),
+    M("player-rate", "nodes/bag_player.py",
+      "            rate = self.config.rate\n", "            rate = 1.0\n",
+      "bag player ignores --rate"),
+    M("hand-eye-waits-for-pose", "nodes/hand_eye.py",
+      "(newest is None or item.stamp_ns > newest):", "newest is None:",
+      "a point is located before a robot pose at or after its stamp arrived"),
+    M("hand-eye-file-noise", "nodes/hand_eye.py",
+      "            None if self.calibration is None else self.calibration.robot_pose_noise)\n",
+      "            None)\n",
+      "the hand_eye node ignores hand_eye.yaml's robot_pose_noise"),
+    M("detect-queue-depth", "nodes/detect_triangulate.py",
+      "            dropped = len(self._pairs) >= self._depth\n",
+      "            dropped = len(self._pairs) > self._depth\n",
+      "the pair queue holds one pair more than queue_depth"),
+    M("offline-unpaired-count", "offline.py",
+      '        self.count("unpaired_left", sync.stats.dropped_left + pl)\n',
+      '        self.count("unpaired_left", pl)\n',
+      "left images dropped by the stereo pairing missing from the loss ledger"),
 )
 
+#: Left out of the workers' copies of the tree (symlinked when ``_LINKED``).
+_SKIP = {".git", ".venv", "build", "install", "log", ".pytest_cache", "__pycache__",
+         ".mypy_cache", ".ruff_cache", ".coverage"}
+_LINKED = {"bags"}
 
-def _run_tests(tests: tuple[str, ...], timeout_s: float) -> tuple[bool, float]:
-    """Run the tests; (passed, seconds)."""
+
+def _copy_tree(dest: Path) -> None:
+    """A private copy of the source tree (the package, tests, data, configs) at ``dest``."""
+    dest.mkdir(parents=True)
+    for entry in ROOT.iterdir():
+        if entry.name in _SKIP:
+            continue
+        if entry.name in _LINKED:
+            (dest / entry.name).symlink_to(entry)
+        elif entry.is_dir():
+            shutil.copytree(entry, dest / entry.name,
+                            ignore=shutil.ignore_patterns(*_SKIP), symlinks=True)
+        else:
+            shutil.copy2(entry, dest / entry.name)
+
+
+def _run_tests(tree: Path, tests: tuple[str, ...], timeout_s: float) -> tuple[bool, float]:
+    """Run the tests of the copy at ``tree`` against its package; (passed, seconds)."""
     t0 = time.monotonic()
+    env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1",
+           "PYTHONPATH": os.pathsep.join([str(tree)] + ([os.environ["PYTHONPATH"]]
+                                                       if os.environ.get("PYTHONPATH")
+                                                       else []))}
     try:
         proc = subprocess.run([sys.executable, "-m", "pytest", "-x", "-q", "-p",
-                               "no:cacheprovider", *tests], cwd=ROOT, stdout=subprocess.DEVNULL,
-                              stderr=subprocess.DEVNULL, timeout=timeout_s,
-                              env={**os.environ, "PYTHONDONTWRITEBYTECODE": "1"})
+                               "no:cacheprovider", *tests], cwd=tree, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL, timeout=timeout_s, env=env)
         passed = proc.returncode == 0
     except subprocess.TimeoutExpired:
         passed = False  # a mutant that hangs the tests is caught (by the time-out)
     return passed, time.monotonic() - t0
 
 
+def _stale(m: Mutant) -> bool:
+    return (ROOT / m.path).read_text().count(m.old) != 1
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("-k", default="", help="only mutants whose name contains this")
+    parser.add_argument("-k", default="",
+                        help="only mutants whose name or module contains this (several: "
+                             "comma-separated, any of them)")
     parser.add_argument("-v", action="store_true", help="say what each mutant does")
+    parser.add_argument("-j", type=int, default=2, help="workers (default 2)")
+    parser.add_argument("--list", action="store_true",
+                        help="print the table (mutant, module, tests) and stale mutants only")
     parser.add_argument("--timeout", type=float, default=600.0, help="per mutant, seconds")
+    parser.add_argument("--baseline", action="store_true",
+                        help="first run every chosen module's tests unmutated in the copies: "
+                             "a set that fails there would make its mutants look caught")
     args = parser.parse_args(argv)
-    caught = survived = stale = 0
-    for m in MUTANTS:
-        if args.k not in m.name:
-            continue
-        path = ROOT / m.path
-        original = path.read_text()
-        if original.count(m.old) != 1:
+    t_start = time.monotonic()
+    names = [m.name for m in MUTANTS]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    missing = sorted({m.module for m in MUTANTS} - set(TESTS))
+    if dup or missing:
+        print(f"bad mutant table: duplicate names {dup}, modules without tests {missing}")
+        return 2
+    keys = args.k.split(",")
+    chosen = [m for m in MUTANTS if any(k in m.name or k in m.module for k in keys)]
+    live = []
+    stale = 0
+    for m in chosen:
+        if _stale(m):
             stale += 1
             print(f"STALE    {m.name}: its text is not (once) in {m.path}", flush=True)
-            continue
-        try:
-            path.write_text(original.replace(m.old, m.new))
-            passed, secs = _run_tests(m.tests, args.timeout)
-        finally:
-            path.write_text(original)
-        if passed:
-            survived += 1
         else:
-            caught += 1
-        label = "SURVIVED" if passed else "caught  "
-        print(f"{label} {m.name} ({secs:.0f} s)" + (f": {m.what}" if args.v or passed else ""),
-              flush=True)
-    live = caught + survived
-    print(f"mutation score: {caught}/{live} caught" + (f", {stale} stale" if stale else ""))
-    return 0 if survived == 0 and stale == 0 else 1
+            live.append(m)
+    if args.list:
+        for m in live:
+            print(f"{m.name:38s} {m.module:28s} {' '.join(Path(t).name for t in m.tests)}")
+        print(f"{len(live)} live mutants in {len({m.module for m in live})} modules"
+              + (f", {stale} stale" if stale else ""))
+        return 0 if stale == 0 else 1
+    results: dict[str, bool] = {}
+    lock = threading.Lock()
+    todo: queue.Queue[Mutant] = queue.Queue()
+    if args.baseline:
+        # the same machinery with an empty mutation of each module's first mutant
+        for module in dict.fromkeys(m.module for m in live):
+            first = next(m for m in live if m.module == module)
+            todo.put(Mutant(f"baseline:{module}", module, first.old, first.old, "no change"))
+    else:
+        for m in live:
+            todo.put(m)
+
+    def worker(tree: Path) -> None:
+        while True:
+            try:
+                m = todo.get_nowait()
+            except queue.Empty:
+                return
+            path = tree / m.path
+            original = path.read_text()
+            try:
+                path.write_text(original.replace(m.old, m.new))
+                passed, secs = _run_tests(tree, m.tests, args.timeout)
+            finally:
+                path.write_text(original)
+            with lock:
+                if m.name.startswith("baseline:"):
+                    results[m.name] = passed
+                    print(f"{'passes  ' if passed else 'FAILS   '} {m.name} ({secs:.0f} s)",
+                          flush=True)
+                    continue
+                results[m.name] = passed
+                label = "SURVIVED" if passed else "caught  "
+                print(f"{label} {m.name} ({secs:.0f} s)"
+                      + (f": {m.what}" if args.v or passed else ""), flush=True)
+
+    with tempfile.TemporaryDirectory(prefix="eye_in_hand-mutation-") as tmp:
+        trees = []
+        for k in range(max(1, min(args.j, len(live)))):
+            tree = Path(tmp) / f"w{k}"
+            _copy_tree(tree)
+            trees.append(tree)
+        threads = [threading.Thread(target=worker, args=(t,), daemon=True) for t in trees]
+        for t in threads:
+            t.start()
+        for t in threads:
+            while t.is_alive():
+                t.join(0.5)
+    if args.baseline:
+        failing = sorted(n for n, ok in results.items() if not ok)
+        print(f"baseline: {len(results) - len(failing)}/{len(results)} test sets pass unmutated"
+              + (f"; failing: {', '.join(failing)}" if failing else "")
+              + f" ({time.monotonic() - t_start:.0f} s, {len(trees)} workers)")
+        return 0 if not failing else 1
+    survived = [n for n in names if results.get(n)]
+    caught = sum(1 for v in results.values() if not v)
+    print(f"mutation score: {caught}/{len(results)} caught"
+          + (f", {stale} stale" if stale else "")
+          + (f"; survived: {', '.join(survived)}" if survived else "")
+          + f" ({time.monotonic() - t_start:.0f} s, {len(trees)} workers)")
+    return 0 if not survived and stale == 0 else 1
 
 
 if __name__ == "__main__":

@@ -100,3 +100,19 @@ def test_table_lines():
     assert lines[1].startswith("a - b") and lines[1].rstrip().endswith("ground_truth")
     assert any(line.startswith("target") for line in lines) and lines[-1].startswith("c ")
 
+
+
+def test_truth_distance_is_averaged_over_the_frames_both_were_located():
+    """Moving targets: the true distance changes from frame to frame, and a pair's truth and
+    error are taken over exactly the frames in which both targets were located."""
+    n = 20
+    k = np.arange(n)[:, None]
+    truth = {"a": np.hstack([0.01 * k, np.zeros((n, 2))]), "b": np.tile([0.3, 0.0, 0.0], (n, 1))}
+    tracks = {key: v + 1e-4 for key, v in truth.items()}
+    tracks["a"][[0, 1, 2]] = np.nan                    # a missing while the truth is far
+    (ab,) = pairwise_distances(tracks, truth)
+    true_d = np.abs(0.3 - 0.01 * np.arange(n))
+    assert ab.frames == n - 3
+    assert ab.truth_m == pytest.approx(true_d[3:].mean(), abs=1e-12)
+    assert ab.truth_m != pytest.approx(true_d.mean(), abs=1e-4)
+    assert ab.error_mm == pytest.approx(0.0, abs=1e-9)

@@ -289,3 +289,33 @@ def test_degenerate_pairs_are_skipped_and_counted_never_averaged() -> None:
     n_usable = len(usable_motion_pairs(m)[0])
     with pytest.raises(HandEyeError, match=rf", {n_usable} degenerate\); need at least 3"):
         average_hand_eye(m, "kronecker")
+
+
+def test_spread_is_each_pair_solution_against_the_mean_in_mm_and_deg() -> None:
+    """``trans_dev_mm`` / ``rot_dev_deg``: each per-pair solution's distance from the averaged
+    X, millimetres and degrees; the RMS figures are their RMS."""
+    P = make_problem(10, seed=71, noise_px=0.5)
+    bte = np.stack([s.base_T_ee for s in P.samples])
+    ctb = np.stack([s.cam_T_board for s in P.samples])
+    res = average_hand_eye(motion_pairs(gripper_poses(bte, "eye_in_hand"), ctb))
+    dev_mm = 1000.0 * np.linalg.norm(res.solutions[:, :3, 3] - res.X[:3, 3], axis=1)
+    dev_deg = np.degrees(np.linalg.norm(Rotation.from_matrix(
+        np.einsum("ji,kjl->kil", res.X[:3, :3], res.solutions[:, :3, :3])).as_rotvec(), axis=1))
+    np.testing.assert_allclose(res.trans_dev_mm, dev_mm, rtol=1e-12)
+    np.testing.assert_allclose(res.rot_dev_deg, dev_deg, rtol=1e-9, atol=1e-12)
+    assert res.trans_std_mm == pytest.approx(np.sqrt(np.mean(dev_mm ** 2)), rel=1e-12)
+    assert 0.05 < res.trans_std_mm < 50.0     # millimetres of a 0.5 px problem, not metres
+    # X's translation is the arithmetic mean of the per-pair translations (not a median)
+    np.testing.assert_allclose(res.X[:3, 3], res.solutions[:, :3, 3].mean(axis=0), rtol=1e-12)
+    assert np.max(np.abs(np.median(res.solutions[:, :3, 3], axis=0) - res.X[:3, 3])) > 1e-7
+
+
+def test_chordal_mean_is_a_rotation_when_the_summed_matrix_has_a_negative_determinant() -> None:
+    """Half turns about x, y and z sum to nearly -I (determinant < 0): the SVD projection must
+    flip the last singular direction to stay in SO(3), not return a reflection."""
+    R = Rotation.from_rotvec(np.array([[np.pi, 0, 0], [0, np.pi, 0], [0, 0, np.pi]])
+                             + np.array([[0, 0.05, 0], [0.02, 0, 0], [0, 0.03, 0]])).as_matrix()
+    assert np.linalg.det(R.sum(axis=0)) < 0
+    M = rotation_mean(R)
+    np.testing.assert_allclose(M @ M.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(M) == pytest.approx(1.0, abs=1e-12)

@@ -298,3 +298,41 @@ def test_the_multi_target_world_and_its_parameter_file_work_together():
             assert d.min() < 1.5e-3
             assert owner.setdefault(t.id, int(np.argmin(d))) == int(np.argmin(d))
     assert sorted(owner.values()) == [0, 1, 2, 3]
+
+
+def test_a_blob_missed_in_separate_single_frames_keeps_its_id():
+    """``tracking.max_missed`` counts consecutive misses: a blob seen again starts from 0, so
+    three single-frame misses separated by frames where it is seen (more misses in total than
+    max_missed = 2) never retire its id."""
+    loc = StereoLocator(RIG, config(**{"tracking.max_missed": 2}))
+    XA, XB = np.array([-0.05, 0.0, 0.45]), np.array([0.05, 0.0, 0.45])
+    res = loc.locate(*render([(XA, 0.012, RED), (XB, 0.012, RED)]))
+    ids = {t.id: t.point_m for t in res.targets}
+    b_id = min(ids, key=lambda i: np.linalg.norm(ids[i] - XB))
+    for k in range(3):
+        res = loc.locate(*render([(XA, 0.012, RED)], seed=2 * k + 1))        # B missed once
+        assert res.rejected == {b_id: "not_detected"}
+        assert res.messages[b_id].endswith("missed 1)"), res.messages[b_id]
+        res = loc.locate(*render([(XA, 0.012, RED), (XB, 0.012, RED)], seed=2 * k + 2))
+        got = {t.id: t.point_m for t in res.targets}
+        assert set(got) == set(ids), got                                     # B as itself
+        assert np.linalg.norm(got[b_id] - XB) < 2e-3 and res.rejected == {}
+
+
+def test_a_blob_that_jumps_beyond_the_gate_gets_a_new_id():
+    """tracking.gate_m (0.03 m) is the largest step a blob keeps its id over: a blob 5 cm from
+    its last position is a new blob (its old id is reported missing), one 2 cm away is not."""
+    loc = StereoLocator(RIG, config())
+    XA, XB = np.array([-0.08, 0.0, 0.45]), np.array([0.05, 0.0, 0.45])
+    res = loc.locate(*render([(XA, 0.012, RED), (XB, 0.012, RED)]))
+    ids = {t.id: t.point_m for t in res.targets}
+    b_id = min(ids, key=lambda i: np.linalg.norm(ids[i] - XB))
+    XB2 = XB + [0.02, 0.0, 0.0]
+    res = loc.locate(*render([(XA, 0.012, RED), (XB2, 0.012, RED)], seed=1))
+    assert {t.id for t in res.targets} == set(ids) and res.rejected == {}
+    XB3 = XB2 + [0.05, 0.0, 0.0]
+    res = loc.locate(*render([(XA, 0.012, RED), (XB3, 0.012, RED)], seed=2))
+    got = {t.id: t.point_m for t in res.targets}
+    assert b_id not in got and "red_2" in got, got
+    assert np.linalg.norm(got["red_2"] - XB3) < 2e-3
+    assert res.rejected == {b_id: "not_detected"}

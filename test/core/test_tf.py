@@ -200,3 +200,32 @@ def test_pose_view_drives_a_localizer_like_a_pose_buffer():
         loc.locate(31 * MS, p_cam)
     with pytest.raises(InputError, match="come from TF"):
         loc.add_robot_pose(40 * MS, np.eye(4))
+
+
+def test_newest_ns_covers_moving_frames_on_both_sides_of_the_chain():
+    """A mobile manipulator: ``map -> odom -> base_link`` (the base moves) and the arm under
+    it; a camera stand ``map -> stand -> camera`` that also moves (a pan unit). A lookup
+    ``camera <- tool0`` walks the target's side (camera, stand) and the source's side (tool0
+    ... base_link, odom) up to ``map``: its newest stamp is the slowest dynamic edge on either
+    side, and a lookup just past it on the target's side fails (no extrapolation)."""
+    buf = TfBuffer()
+    _arm(buf, [0, 10 * MS, 20 * MS, 30 * MS], TOOL)
+    for s in (0, 10 * MS, 20 * MS, 30 * MS, 40 * MS):
+        buf.set_transform("map", "odom", s, _joint(0.01 * s / MS, t=(0.1, 0.0, 0.0)))
+        buf.set_transform("odom", "base_link", s, _joint(0.0, t=(0.001 * s / MS, 0.0, 0.0)))
+    buf.set_transform("map", "stand", 0, _joint(0.0, t=(2.0, 0.0, 1.0)), static=True)
+    for s in (0, 10 * MS, 15 * MS):                      # the pan unit lags
+        buf.set_transform("stand", "camera", s, _joint(0.02 * s / MS, (0, 1, 0), (0, 0, 0.1)))
+    # target side slowest (15 ms), then the arm (30 ms), then the base (40 ms)
+    assert buf.newest_ns("camera", "tool0") == 15 * MS
+    assert buf.newest_ns("tool0", "camera") == 15 * MS
+    assert buf.newest_ns("stand", "tool0") == 30 * MS
+    assert buf.newest_ns("map", "base_link") == 40 * MS
+    assert buf.newest_ns("base_link", "map") == 40 * MS    # the moving edges on the target side
+    assert buf.oldest_ns("camera", "tool0") == 0
+    buf.lookup("camera", "tool0", 15 * MS, GAP)
+    with pytest.raises(LocalizationError, match="stand -> camera"):
+        buf.lookup("camera", "tool0", 16 * MS, GAP)
+    # a view from the moving camera: the localizer waits for what newest_ns says
+    view = TfPoseView(buf, "camera", "tool0")
+    assert view.newest_ns == 15 * MS

@@ -84,6 +84,19 @@ def test_topic_and_time_filters(tmp_path: Path) -> None:
         list(iter_messages(tmp_path / "bag", start_ns=hi, end_ns=lo))
 
 
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_time_window_includes_both_ends(tmp_path: Path, storage: str) -> None:
+    """start_ns and end_ns are both inclusive: a window from one message's stamp to another's
+    holds both, and a window of one stamp holds exactly its message."""
+    expected = _write_sample(tmp_path / "bag", storage)
+    lo, hi = expected[3][1], expected[11][1]
+    got = [(t, s, r) for t, _m, s, r in iter_messages(tmp_path / "bag", start_ns=lo, end_ns=hi)]
+    assert got == expected[3:12]
+    one = list(iter_messages(tmp_path / "bag", start_ns=hi, end_ns=hi))
+    assert [(t, s, r) for t, _m, s, r in one] == [expected[11]]
+    assert list(iter_messages(tmp_path / "bag", start_ns=hi + 1, end_ns=hi + 1)) == []
+
+
 def test_single_mcap_file_and_directory_without_metadata(tmp_path: Path) -> None:
     expected = _write_sample(tmp_path / "bag", "mcap", "zstd")
     mcap = tmp_path / "bag" / "bag.mcap"
