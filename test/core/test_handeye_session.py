@@ -284,3 +284,24 @@ def test_receive_age_is_measured_at_the_frame_arrival():
     cell.stream(0, 1300 * MS, 0)
     assert s.complete(s.ready(0.1)[0]).ok
     assert seen and set(seen) == {1050 * MS}
+
+
+def test_a_pose_that_only_rotates_or_only_moves_is_new():
+    """Duplicate means close in position *and* rotation: a pure tilt at the same flange
+    position, or a pure shift at the same orientation, is a new pose."""
+    cell = Cell()
+    s = cell.session
+    T0 = cell.pose(0)
+    tilted = T0 @ from_rotvec([0.0, 0.0, np.radians(10.0)], [0.0, 0.0, 0.0])   # same position
+    shifted = T0.copy()
+    shifted[0, 3] += 0.02                                                        # same rotation
+    t = 1000 * MS
+    for T in (T0, tilted, shifted, T0 @ from_rotvec([0, 0, np.radians(0.3)], [0.001, 0, 0])):
+        s.request_capture(0.0)
+        s.add_frame(t, {"stop": 0})
+        for k in range(-80, 81):
+            cell.poses.add(t + k * 4 * MS, T)
+        out = s.complete(s.ready(0.1)[0])
+        t += 2000 * MS
+    assert [r.reason for r in [out]] == ["duplicate"]       # the last: 1 mm and 0.3 deg away
+    assert len(s.records) == 3
