@@ -112,6 +112,8 @@ def main() -> None:
     ap.add_argument("--k", type=int, default=6, help="number of folds (default 6)")
     ap.add_argument("--detector", default="auto", help="board detector (default auto)")
     ap.add_argument("--no-opencv", action="store_true", help="skip OpenCV 4.12")
+    ap.add_argument("--robot-model", default="systematic", choices=("per_pose", "systematic"),
+                    help="calibrate_hand_eye's robot_model (default systematic)")
     args = ap.parse_args()
 
     samples, views, dets = make_samples(args.detector)
@@ -136,10 +138,12 @@ def main() -> None:
             for name, X in cv_sols[f].items():
                 sols[name] = (X, average_transforms(board_in_fixed_frame(X, bte, ctb,
                                                                          "eye_in_hand")))
-        res = calibrate_hand_eye(train, "eye_in_hand", cameras=views)
+        res = calibrate_hand_eye(train, "eye_in_hand", cameras=views,
+                                 robot_model=args.robot_model)
         for name, mr in res.methods.items():
-            sols[f"pkg_{name}"] = (mr.X, mr.Y)
-        sols["selected"] = (res.X, res.methods[res.selected].Y)
+            sols[f"pkg_{name}"] = ((mr.X, mr.Y, res.systematic.correct)
+                                   if name == "refined_systematic" else (mr.X, mr.Y))
+        sols["selected"] = (res.X, res.methods[res.selected].Y, res.correct_robot_pose)
         return sols, {"selected": res.selected, "warnings": res.warnings}
 
     folds = kfold_held_out(samples, fit, k=args.k, cameras=views)

@@ -17,7 +17,7 @@ on a real robot; these figures are what can be measured.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -114,10 +114,10 @@ def classic_fit(solver: Callable[[Any], np.ndarray], samples: Sequence[HandEyeSa
     return X, average_transforms(board_in_fixed_frame(X, bte, ctb, setup))
 
 
-#: training samples -> ``({method: (X, Y)}, info)``; ``info`` may give ``selected``,
-#: ``warnings`` and ``extra`` for the fold's :class:`FoldResult`.
-FitFn = Callable[[list[HandEyeSample]],
-                 tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict[str, Any]]]
+#: training samples -> ``({method: (X, Y) or (X, Y, correct)}, info)``; ``correct`` maps a
+#: reported robot pose (4, 4) to the one X is used with (a robot error model); ``info`` may
+#: give ``selected``, ``warnings`` and ``extra`` for the fold's :class:`FoldResult`.
+FitFn = Callable[[list[HandEyeSample]], tuple[dict[str, tuple], dict[str, Any]]]
 
 
 def kfold_held_out(samples: Sequence[HandEyeSample], fit: FitFn, *, k: int = 6,
@@ -146,7 +146,11 @@ def kfold_held_out(samples: Sequence[HandEyeSample], fit: FitFn, *, k: int = 6,
         fr.selected = str(info.get("selected", ""))
         fr.warnings = list(info.get("warnings", []))
         fr.extra = dict(info.get("extra", {}))
-        for name, (X, Y) in sols.items():
-            fr.errors[name] = [predict_view(X, Y, s, cameras, setup) for s in test]
+        for name, sol in sols.items():
+            X, Y = sol[0], sol[1]
+            correct = sol[2] if len(sol) > 2 else None
+            fr.errors[name] = [predict_view(
+                X, Y, s if correct is None else replace(s, base_T_ee=correct(s.base_T_ee)),
+                cameras, setup) for s in test]
         out.append(fr)
     return out

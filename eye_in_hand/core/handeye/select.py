@@ -10,9 +10,11 @@ then predicts what sample ``i`` measured from its *reported* robot pose:
   without the sample (mm, deg).
 
 This is the error a calibration makes where it is used: predicting where something seen by the
-camera is in the robot's frame, from a robot pose as the robot reports it. The score is the RMS
-held-out corner error when every sample has corners, else the held-out board error in the fixed
-frame, millimetres and degrees each divided by their median over the methods and summed.
+camera is in the robot's frame, from a robot pose as the robot reports it. Each sample's error
+is the held-out corner error (px, when every sample has corners) and the held-out board
+position in the fixed frame (mm), each divided by its median RMS over the methods (its own
+noise scale), combined as the root of their sum of squares; without corners, the board
+position (mm) and orientation (deg) likewise. The score is the RMS over the samples.
 
 The method with the lowest score is written, unless the errors-in-variables refinement
 (``refined``, the one whose covariance accounts for both noise sources) predicts the held-out
@@ -94,11 +96,14 @@ def held_out_prediction(solutions: Sequence[tuple[np.ndarray, np.ndarray]],
 
 def _per_sample(held_out: dict[str, HeldOut]) -> tuple[dict[str, np.ndarray], str]:
     """Each method's per-sample held-out error (the quantity whose RMS is the score)."""
-    if held_out and all(h.px is not None for h in held_out.values()):
-        return ({k: np.asarray(h.px) for k, h in held_out.items()},
-                "held-out corner RMS (px)")
     ref_mm = max(float(np.median([np.sqrt(np.mean(h.mm ** 2)) for h in held_out.values()])),
                  1e-12)
+    if held_out and all(h.px is not None for h in held_out.values()):
+        ref_px = max(float(np.median([np.sqrt(np.mean(np.asarray(h.px) ** 2))
+                                      for h in held_out.values()])), 1e-12)
+        return ({k: np.hypot(np.asarray(h.px) / ref_px, h.mm / ref_mm)
+                 for k, h in held_out.items()},
+                "held-out corners (px) and board position (mm), each over its median RMS")
     ref_deg = max(float(np.median([np.sqrt(np.mean(h.deg ** 2)) for h in held_out.values()])),
                   1e-12)
     return ({k: np.hypot(h.mm / ref_mm, h.deg / ref_deg) for k, h in held_out.items()},
