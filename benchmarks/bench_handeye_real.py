@@ -173,7 +173,7 @@ def main() -> None:
           + "  (" + ", ".join(f"{k} {v}/{args.k}" for k, v in
                              Counter(f.selected for f in folds).most_common()) + ")")
     conv = [w for f in folds for w in f.warnings
-            if "settle" in w or "converge" in w or "fall back" in w]
+            if "settle" in w or "converge" in w or "diverged" in w]
     print(f"convergence warnings: {len(conv)} in {args.k} folds"
           + "".join(f"\n  {w}" for w in conv))
 

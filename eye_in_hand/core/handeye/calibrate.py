@@ -505,8 +505,8 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
         average_solver: the per-pair solver of ``average`` (``"tsai"`` or ``"kronecker"``).
         robot_model: ``"per_pose"`` or ``"systematic"`` (:data:`ROBOT_MODELS`): with
             ``systematic``, ``refined_systematic`` (a pose-dependent robot error fitted with X,
-            :mod:`.systematic`) is a candidate of the selection; when selected, X is to be used
-            with :meth:`HandEyeResult.correct_robot_pose`. It is computed and listed either way.
+            :mod:`.systematic`) is computed and is a candidate of the selection; when selected,
+            X is to be used with :meth:`HandEyeResult.correct_robot_pose`.
 
     Returns:
         The result; ``result.X`` is the selected method's transform.
@@ -646,25 +646,34 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
             results["refined"] = mr
             if not refinement.converged:
                 warnings.append("refined: the noise levels did not settle in "
-                                f"{refinement.iterations} iterations")
-        systematic = _systematic(start.X, start.Y, kept, cameras, setup, use_corners, loo,
-                                 warnings, held, results)
-    scores, _ = selection_scores(held) if held else ({}, "")
+                                f"{refinement.iterations} iterations: left out of the "
+                                "selection (its covariance cannot be trusted), "
+                                "refined_exact takes its place")
+        if robot_model == "systematic" or method == "refined_systematic":
+            systematic = _systematic(start.X, start.Y, kept, cameras, setup, use_corners, loo,
+                                     warnings, held, results)
+    combine = robot_model == "systematic"
+    scores, _ = selection_scores(held, combine) if held else ({}, "")
+    refined_ok = refinement is not None and refinement.converged
     # refined_exact is listed with its figures but not a candidate when the errors-in-variables
     # refinement ran: its covariance ignores the robot-pose noise (with exact poses the two
     # coincide), so the written uncertainty could not be trusted.
+    # When the errors-in-variables refinement did not converge it is left out and the
+    # exact-pose refinement, the next method, takes its place.
     candidates = {k: v for k, v in scores.items()
-                  if not (k == "refined_exact" and "refined" in scores)
-                  and not (k == "refined_systematic" and robot_model != "systematic")}
+                  if not (k == "refined_exact" and "refined" in scores and refined_ok)
+                  and not (k == "refined_systematic" and robot_model != "systematic")
+                  and not (k == "refined" and not refined_ok)}
     if method != "all":
         selected, reason = method, f"forced by --method {method}"
         if method not in results:
             raise HandEyeError(f"method {method!r} failed on these samples: "
                                + "; ".join(w for w in warnings if w.startswith(method)))
     elif candidates:
-        selected, reason = choose(held, list(candidates),
-                                  reference="refined_systematic"
-                                  if "refined_systematic" in candidates else "refined")
+        reference = ("refined_systematic" if "refined_systematic" in candidates
+                     else "refined" if "refined" in candidates else "refined_exact")
+        selected, reason = choose(held, list(candidates), reference=reference,
+                                  combine=combine)
     else:
         selected = "refined" if "refined" in results else best
         reason = ("no leave-one-out figures (leave-one-out off or too few samples): "

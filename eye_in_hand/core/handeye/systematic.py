@@ -38,7 +38,6 @@ from scipy.spatial.transform import Rotation
 from eye_in_hand.core.transforms import invert_many
 from eye_in_hand.errors import HandEyeError
 
-from .refine import perturb
 
 __all__ = ["LEVELS", "SystematicResult", "fit_systematic", "refine_systematic",
            "leave_one_out_systematic"]
@@ -53,20 +52,67 @@ _SIGMA_FLOOR_R = np.radians(0.001)
 _SIGMA_FLOOR_T = 1e-5
 
 
+def _exp_rot(w: np.ndarray) -> np.ndarray:
+    """Rodrigues' formula, rotation vectors (N, 3) -> matrices (N, 3, 3) (plain numpy: this
+    runs inside the least-squares residual, where scipy's Rotation overhead dominates)."""
+    th2 = np.sum(w * w, axis=1)
+    th = np.sqrt(th2)
+    small = th < 1e-6
+    safe = np.where(small, 1.0, th)
+    a = np.where(small, 1.0 - th2 / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
+    K = np.zeros((w.shape[0], 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
+    return np.eye(3) + a[:, None, None] * K + b[:, None, None] * (K @ K)
+
+
+def _log_rot(R: np.ndarray) -> np.ndarray:
+    """Rotation matrices (N, 3, 3) -> rotation vectors (N, 3); scipy near a half turn."""
+    c = np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    th = np.arccos(c)
+    v = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]],
+                 axis=1)
+    small = th < 1e-6
+    f = np.where(small, 0.5 + th * th / 12.0, th / (2.0 * np.sin(np.where(small, 1.0, th))))
+    out = f[:, None] * v
+    big = th > 3.0
+    if np.any(big):
+        out[big] = Rotation.from_matrix(R[big]).as_rotvec()
+    return out
+
+
 def _se3(v: np.ndarray) -> np.ndarray:
-    """``[exp(v[3:]) | v[:3]]`` for (..., 6) -> (..., 4, 4)."""
-    v = np.asarray(v, dtype=np.float64)
-    T = np.zeros(v.shape[:-1] + (4, 4))
-    T[..., :3, :3] = Rotation.from_rotvec(v[..., 3:].reshape(-1, 3)).as_matrix().reshape(
-        v.shape[:-1] + (3, 3))
-    T[..., :3, 3] = v[..., :3]
-    T[..., 3, 3] = 1.0
+    """``[exp(v[3:]) | v[:3]]`` for (N, 6) -> (N, 4, 4)."""
+    v = np.asarray(v, dtype=np.float64).reshape(-1, 6)
+    T = np.zeros((v.shape[0], 4, 4))
+    T[:, :3, :3] = _exp_rot(v[:, 3:])
+    T[:, :3, 3] = v[:, :3]
+    T[:, 3, 3] = 1.0
+    return T
+
+
+def _inv(T: np.ndarray) -> np.ndarray:
+    """Inverse of rigid transforms (N, 4, 4) or (4, 4)."""
+    R = np.swapaxes(T[..., :3, :3], -1, -2)
+    out = np.zeros_like(T)
+    out[..., :3, :3] = R
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", R, T[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def _perturb(T0: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """``[exp([dr]x) R0 | t]`` from ``p = [t (3), dr (3)]`` (as :func:`.refine.perturb`)."""
+    T = np.eye(4)
+    T[:3, :3] = _exp_rot(p[None, 3:6])[0] @ T0[:3, :3]
+    T[:3, 3] = p[:3]
     return T
 
 
 def _log(T: np.ndarray) -> np.ndarray:
     """``[t, rotvec]`` of (N, 4, 4) -> (N, 6)."""
-    return np.concatenate([T[:, :3, 3], Rotation.from_matrix(T[:, :3, :3]).as_rotvec()], axis=1)
+    return np.concatenate([T[:, :3, 3], _log_rot(T[:, :3, :3])], axis=1)
 
 
 @dataclass
@@ -97,6 +143,8 @@ class SystematicResult:
     level_scores: dict[float, float] = field(default_factory=dict)
     nfev: int = 0
     converged: bool = True
+    # the solution's parameters, whitened residuals, Jacobian and parameter unpacker
+    _state: tuple | None = field(default=None, repr=False, compare=False)
 
     def correction(self, base_T_ee: np.ndarray) -> np.ndarray:
         """The modelled error ``[A_t r | A_r r]`` of each reported pose, shape (N, 6)."""
@@ -143,12 +191,12 @@ def _fit_once(X0: np.ndarray, Y0: np.ndarray, bte: np.ndarray, ctb: np.ndarray, 
               level: float, R_ref: np.ndarray, s_t: float, s_r: float):
     n_sys = 18 if level > 0 else 0
     r = _features(R_ref, bte)
-    Cinv = invert_many(ctb)
+    Cinv = _inv(ctb)
     w = np.array([1 / s_t] * 3 + [1 / s_r] * 3)
 
     def unpack(p: np.ndarray):
-        X = perturb(X0, p[:6])
-        Y = perturb(Y0, p[6:12])
+        X = _perturb(X0, p[:6])
+        Y = _perturb(Y0, p[6:12])
         A_r = p[12:21].reshape(3, 3) if n_sys else np.zeros((3, 3))
         A_t = p[21:30].reshape(3, 3) if n_sys else np.zeros((3, 3))
         return X, Y, A_r, A_t
@@ -158,10 +206,10 @@ def _fit_once(X0: np.ndarray, Y0: np.ndarray, bte: np.ndarray, ctb: np.ndarray, 
         corr = np.concatenate([r @ A_t.T, r @ A_r.T], axis=1)
         true = bte @ _se3(corr)
         if setup == "eye_in_hand":
-            implied = Y @ Cinv @ np.linalg.inv(X)
+            implied = Y @ Cinv @ _inv(X)
         else:
-            implied = X @ ctb @ np.linalg.inv(Y)
-        e = _log(invert_many(true) @ implied) * w
+            implied = X @ ctb @ _inv(Y)
+        e = _log(_inv(true) @ implied) * w
         out = [e.ravel()]
         if n_sys:
             out.append(p[12:] / level)
@@ -172,7 +220,38 @@ def _fit_once(X0: np.ndarray, Y0: np.ndarray, bte: np.ndarray, ctb: np.ndarray, 
         res = least_squares(residual, p0, x_scale="jac", method="lm")
     if not np.all(np.isfinite(res.x)):
         raise HandEyeError("refined_systematic: the fit diverged")
-    return res, unpack
+    return res, unpack, residual
+
+
+def _jacobian(residual, p: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    """Central-difference Jacobian of ``residual`` at ``p``."""
+    cols = []
+    for j in range(p.size):
+        d = np.zeros_like(p)
+        d[j] = h
+        cols.append((residual(p + d) - residual(p - d)) / (2.0 * h))
+    return np.stack(cols, axis=1)
+
+
+def _loo_steps(state: tuple, n: int) -> tuple[list[np.ndarray], np.ndarray]:
+    """Leave-one-out parameters by one Gauss-Newton step from the full solution, and each
+    left-out sample's predicted whitened error (n, 6) (exact for a linear model).
+
+    Without sample ``i`` the normal equations lose ``J_i^T J_i`` and, as ``J^T r = 0`` at the
+    solution, the gradient becomes ``-J_i^T r_i``: ``dp_i = (J^T J - J_i^T J_i)^-1 J_i^T r_i``,
+    and the held-out error is ``r_i + J_i dp_i``."""
+    p, r, J, _ = state
+    A = J.T @ J
+    params, errs = [], np.zeros((n, 6))
+    for i in range(n):
+        Ji, ri = J[6 * i:6 * i + 6], r[6 * i:6 * i + 6]
+        try:
+            dp = np.linalg.solve(A - Ji.T @ Ji, Ji.T @ ri)
+        except np.linalg.LinAlgError:
+            dp = np.linalg.lstsq(A - Ji.T @ Ji, Ji.T @ ri, rcond=None)[0]
+        params.append(p + dp)
+        errs[i] = ri + Ji @ dp
+    return params, errs
 
 
 def fit_systematic(X0: np.ndarray, Y0: np.ndarray, base_T_ee: np.ndarray,
@@ -202,17 +281,17 @@ def fit_systematic(X0: np.ndarray, Y0: np.ndarray, base_T_ee: np.ndarray,
     n = bte.shape[0]
     if sigmas is None:
         # first pass: translation in metres against rotation in radians at 1 m lever
-        res, unpack = _fit_once(X0, Y0, bte, ctb, setup, level, R_ref, 1.0, 1.0)
+        res, _, _ = _fit_once(X0, Y0, bte, ctb, setup, level, R_ref, 1.0, 1.0)
         m = res.fun[:6 * n].reshape(n, 6)
         p = 12 + (18 if level > 0 else 0)
         dof = max(6 * n - p, 1) / (6 * n)
         s_t = max(float(np.sqrt(np.mean(m[:, :3] ** 2) / dof)), _SIGMA_FLOOR_T)
         s_r = max(float(np.sqrt(np.mean(m[:, 3:] ** 2) / dof)), _SIGMA_FLOOR_R)
         sigmas = {"robot_t": s_t, "robot_r": s_r}
-    res, unpack = _fit_once(X0, Y0, bte, ctb, setup, level, R_ref, sigmas["robot_t"],
-                            sigmas["robot_r"])
+    res, unpack, residual = _fit_once(X0, Y0, bte, ctb, setup, level, R_ref,
+                                      sigmas["robot_t"], sigmas["robot_r"])
     X, Y, A_r, A_t = unpack(res.x)
-    J = res.jac
+    J = _jacobian(residual, res.x)
     m_res = res.fun.size
     dof = max(m_res - res.x.size, 1)
     s2 = float(2.0 * res.cost / dof)
@@ -223,7 +302,8 @@ def fit_systematic(X0: np.ndarray, Y0: np.ndarray, base_T_ee: np.ndarray,
     cov = cov_full[:6, :6]
     return SystematicResult(X, Y, A_r, A_t, R_ref, float(level), dict(sigmas),
                             0.5 * (cov + cov.T), nfev=int(res.nfev),
-                            converged=bool(res.status > 0))
+                            converged=bool(res.status > 0),
+                            _state=(res.x.copy(), residual(res.x), J, unpack))
 
 
 def _held_out_pose_error(fit: SystematicResult, bte: np.ndarray, ctb: np.ndarray,
@@ -238,18 +318,27 @@ def _held_out_pose_error(fit: SystematicResult, bte: np.ndarray, ctb: np.ndarray
 
 def leave_one_out_systematic(fit: SystematicResult, base_T_ee: np.ndarray,
                              cam_T_board: np.ndarray, setup: str,
-                             level: float | None = None) -> list[SystematicResult]:
+                             exact: bool = False) -> list[SystematicResult]:
     """The fit without each sample in turn (same level, noise levels and reference
-    orientation), started from ``fit``."""
+    orientation): one Gauss-Newton step from ``fit`` (:func:`_loo_steps`), or with ``exact``
+    a full fit started from it."""
     bte = np.asarray(base_T_ee, dtype=np.float64)
     ctb = np.asarray(cam_T_board, dtype=np.float64)
-    lv = fit.level if level is None else level
     n = bte.shape[0]
+    if exact or fit._state is None:
+        out = []
+        for i in range(n):
+            keep = np.arange(n) != i
+            out.append(fit_systematic(fit.X, fit.Y, bte[keep], ctb[keep], setup, fit.level,
+                                      R_ref=fit.R_ref, sigmas=fit.sigmas))
+        return out
+    params, _ = _loo_steps(fit._state, n)
+    unpack = fit._state[3]
     out = []
-    for i in range(n):
-        keep = np.arange(n) != i
-        out.append(fit_systematic(fit.X, fit.Y, bte[keep], ctb[keep], setup, lv,
-                                  R_ref=fit.R_ref, sigmas=fit.sigmas))
+    for p in params:
+        X, Y, A_r, A_t = unpack(p)
+        out.append(SystematicResult(X, Y, A_r, A_t, fit.R_ref, fit.level, dict(fit.sigmas),
+                                    fit.covariance))
     return out
 
 
@@ -258,7 +347,8 @@ def refine_systematic(X0: np.ndarray, Y0: np.ndarray, base_T_ee: np.ndarray,
                       levels: Sequence[float] = LEVELS) -> SystematicResult:
     """Fit the model at the prior level that best predicts the held-out samples.
 
-    Each level is fitted without each sample in turn; the held-out sample's whitened pose error
+    Each level is fitted once; its leave-one-out solutions are one Gauss-Newton step from it
+    (:func:`_loo_steps`), and the held-out sample's whitened pose error
     (under the noise levels of the level-0 fit, so that every level is scored on one scale) is
     the score (RMS). The lowest-scoring level is fitted on all samples.
 
@@ -283,16 +373,17 @@ def refine_systematic(X0: np.ndarray, Y0: np.ndarray, base_T_ee: np.ndarray,
         return base
     sig = base.sigmas
     scores: dict[float, float] = {}
+    fits: dict[float, SystematicResult] = {}
     for lv in levels:
-        sq = []
-        for i in range(n):
-            keep = np.arange(n) != i
-            f = fit_systematic(base.X, base.Y, bte[keep], ctb[keep], setup, float(lv),
-                               R_ref=base.R_ref, sigmas=sig)
-            f.sigmas = sig
-            sq.append(_held_out_pose_error(f, bte[i:i + 1], ctb[i:i + 1], setup))
-        scores[float(lv)] = float(np.sqrt(np.mean(np.square(sq))))
+        f = base if float(lv) == 0.0 else fit_systematic(base.X, base.Y, bte, ctb, setup,
+                                                          float(lv), R_ref=base.R_ref,
+                                                          sigmas=sig)
+        assert f._state is not None
+        _, errs = _loo_steps(f._state, n)
+        fits[float(lv)] = f
+        scores[float(lv)] = float(np.sqrt(np.mean(errs ** 2)))
     best = min(scores, key=lambda k: scores[k])
+    # the chosen level's noise levels re-estimated from its own residuals
     out = base if best == 0.0 else fit_systematic(base.X, base.Y, bte, ctb, setup, best,
                                                   R_ref=base.R_ref)
     out.level_scores = scores
