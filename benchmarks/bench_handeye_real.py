@@ -26,7 +26,8 @@ covariance.
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_handeye_real.py [--k 6] [--detector charuco] [--no-opencv]
+    .venv/bin/python benchmarks/bench_handeye_real.py [--k 6] [--refine saddle|none]
+        [--robot-model systematic|per_pose] [--no-opencv]
 """
 from __future__ import annotations
 
@@ -67,7 +68,7 @@ def load_capture(data: Path = DATA):
     return board, cam, images, offsets, poses
 
 
-def make_samples(detector: str = "auto", data: Path = DATA):
+def make_samples(detector: str = "auto", data: Path = DATA, refine: str = "saddle"):
     """The capture's hand-eye samples (board detected in every image, PnP pose), the views and
     the detections."""
     from eye_in_hand.core.calibration import detect_board
@@ -77,7 +78,7 @@ def make_samples(detector: str = "auto", data: Path = DATA):
     board, cam, images, offsets, poses = load_capture(data)
     samples, dets = [], []
     for i, (img, off, pose) in enumerate(zip(images, offsets, poses)):
-        det = detect_board(img, board, detector)
+        det = detect_board(img, board, detector, refine=refine)
         if not det.found:
             raise SystemExit(f"image {i:03d}: board not found ({det.reason})")
         px = det.corners + off
@@ -111,16 +112,25 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--k", type=int, default=6, help="number of folds (default 6)")
     ap.add_argument("--detector", default="auto", help="board detector (default auto)")
+    ap.add_argument("--refine", default="saddle", choices=("saddle", "none"),
+                    help="corner refinement (default saddle; none: the detector's corners)")
     ap.add_argument("--no-opencv", action="store_true", help="skip OpenCV 4.12")
     ap.add_argument("--robot-model", default="systematic", choices=("per_pose", "systematic"),
                     help="calibrate_hand_eye's robot_model (default systematic)")
     args = ap.parse_args()
 
-    samples, views, dets = make_samples(args.detector)
+    samples, views, dets = make_samples(args.detector, refine=args.refine)
     n_corners = [d.n_corners for d in dets]
+    from eye_in_hand.core.handeye.observe import board_pose_pnp
+    pnp = [board_pose_pnp(views[0].model, s.observations[0].object_points,
+                          s.observations[0].image_points)[1] for s in samples]
+    sig = [d.meta.get("sigma_px", float("nan")) for d in dets]
     print(f"Franka + RealSense ChArUco capture: {len(samples)} views, {sum(n_corners)} corners "
           f"({min(n_corners)}-{max(n_corners)} per view), detector {args.detector!r}, "
           f"{args.k}-fold held-out prediction")
+    print(f"corners: refinement {args.refine!r}, PnP residual {np.sqrt(np.mean(np.square(pnp))):.3f} "
+          f"px RMS over the views, corner sigma (median per view) "
+          f"{np.nanmin(sig):.3f}-{np.nanmax(sig):.3f} px")
     folds_idx = fold_indices(len(samples), args.k)
     trains = [[s for i, s in enumerate(samples) if i not in set(idx.tolist())]
               for idx in folds_idx]
