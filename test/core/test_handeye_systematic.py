@@ -109,6 +109,10 @@ def test_calibrate_selects_the_systematic_model_only_when_asked() -> None:
     assert res.systematic is not None and res.systematic.level > 0
     report = res.to_report()
     assert report["robot_model"] == "systematic" and report["systematic"]["level"] > 0
+    b = report["error_budget"]
+    assert b["robot_systematic_mm"] > 0.5 and b["largest"] in ("camera_mm", "robot_mm",
+                                                               "estimate_mm")
+    assert default.to_report()["error_budget"]["robot_systematic_mm"] is None
     cor = res.correct_robot_pose(samples[0].base_T_ee)
     assert not np.allclose(cor, samples[0].base_T_ee)
     with pytest.raises(HandEyeError, match="robot model"):

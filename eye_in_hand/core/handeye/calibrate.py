@@ -45,6 +45,7 @@ from .residuals import motion_residuals
 from .select import HeldOut, choose, held_out_position_sigma, held_out_prediction, \
     selection_scores
 from .systematic import SystematicResult, leave_one_out_systematic, refine_systematic
+from .budget import error_budget
 
 __all__ = [
     "METHODS",
@@ -182,6 +183,8 @@ class HandEyeResult:
         systematic: the systematic robot error model fit (``refined_systematic``,
             :mod:`.systematic`), or None when it was not run.
         robot_model: the robot error model of the selection (:data:`ROBOT_MODELS`).
+        error_budget: where the held-out error comes from (:func:`.budget.error_budget`),
+            or None without leave-one-out figures.
     """
 
     setup: str
@@ -198,6 +201,7 @@ class HandEyeResult:
     held_out_sigma_m: float | None = None
     systematic: SystematicResult | None = None
     robot_model: str = "per_pose"
+    error_budget: dict[str, Any] | None = None
 
     @property
     def X(self) -> np.ndarray:
@@ -269,6 +273,7 @@ class HandEyeResult:
             "robot_pose_noise": self.robot_pose_noise,
             "held_out_sigma_m": self.held_out_sigma_m,
             "robot_model": self.robot_model,
+            "error_budget": self.error_budget,
             "systematic": None if self.systematic is None else self.systematic.summary(),
             "refinement": None if self.refinement is None else {
                 "space": self.refinement.space, "sigma": self.refinement.sigma,
@@ -693,12 +698,21 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                 f"methods disagree: {name} differs from {selected} by {dmm:.2f} mm / "
                 f"{ddeg:.3f} deg, beyond 3 sigma of their uncertainties ({lim_mm:.2f} mm / "
                 f"{lim_deg:.3f} deg): check for bad samples or unmodelled errors")
+    budget = None
+    if sel.held_out is not None:
+        used = kept
+        if selected == "refined_systematic" and systematic is not None:
+            used = [replace(s, base_T_ee=b) for s, b in zip(kept, systematic.correct(bte))]
+        budget = error_budget(used, cameras if use_corners else None, setup, sel.Y,
+                              sel.board_dev_mm, sel.held_out.mm,
+                              None if systematic is None else systematic.correction(bte))
     return HandEyeResult(setup=setup, sample_names=[s.name for s in kept], rejected=rejected,
                          diagnostics=diag, methods=results, selected=selected,
                          warnings=warnings, refinement=refinement,
                          refinement_exact=refinement_exact, selection_reason=reason,
                          selection_scores=scores, held_out_sigma_m=held_out_sigma,
-                         systematic=systematic, robot_model=robot_model)
+                         systematic=systematic, robot_model=robot_model,
+                         error_budget=budget)
 
 
 def _systematic(X0: np.ndarray, Y0: np.ndarray, kept: Sequence[HandEyeSample],
