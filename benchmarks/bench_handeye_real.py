@@ -129,8 +129,9 @@ def main() -> None:
           f"({min(n_corners)}-{max(n_corners)} per view), detector {args.detector!r}, "
           f"{args.k}-fold held-out prediction")
     print(f"corners: refinement {args.refine!r}, PnP residual {np.sqrt(np.mean(np.square(pnp))):.3f} "
-          f"px RMS over the views, corner sigma (median per view) "
-          f"{np.nanmin(sig):.3f}-{np.nanmax(sig):.3f} px")
+          f"px RMS over the views"
+          + (f", corner sigma (median per view) {np.nanmin(sig):.3f}-{np.nanmax(sig):.3f} px"
+             if np.any(np.isfinite(sig)) else ""))
     folds_idx = fold_indices(len(samples), args.k)
     trains = [[s for i, s in enumerate(samples) if i not in set(idx.tolist())]
               for idx in folds_idx]
@@ -154,7 +155,8 @@ def main() -> None:
             sols[f"pkg_{name}"] = ((mr.X, mr.Y, res.systematic.correct)
                                    if name == "refined_systematic" else (mr.X, mr.Y))
         sols["selected"] = (res.X, res.methods[res.selected].Y, res.correct_robot_pose)
-        return sols, {"selected": res.selected, "warnings": res.warnings}
+        return sols, {"selected": res.selected, "warnings": res.warnings,
+                      "extra": {"systematic": res.systematic}}
 
     folds = kfold_held_out(samples, fit, k=args.k, cameras=views)
     methods = list(folds[0].errors)
@@ -182,6 +184,19 @@ def main() -> None:
     print("selected per fold: " + ", ".join(f.selected for f in folds)
           + "  (" + ", ".join(f"{k} {v}/{args.k}" for k, v in
                              Counter(f.selected for f in folds).most_common()) + ")")
+    by_name = {s.name: s for s in samples}
+    nees = []
+    for f in folds:
+        fit_s = f.extra.get("systematic")
+        if fit_s is not None:
+            held = [by_name[n] for n in f.held_out]
+            nees.extend(fit_s.held_out_nees(np.stack([s.base_T_ee for s in held]),
+                                            np.stack([s.cam_T_board for s in held]),
+                                            "eye_in_hand").tolist())
+    if nees:
+        print(f"refined_systematic uncertainty on the held-out views: mean NEES "
+              f"{np.mean(nees):.2f} over {len(nees)} views (6 dof: 6 when right; "
+              f"{np.mean(nees) / 6:.2f}x dof), median {np.median(nees):.2f}")
     conv = [w for f in folds for w in f.warnings
             if "settle" in w or "converge" in w or "diverged" in w]
     print(f"convergence warnings: {len(conv)} in {args.k} folds"

@@ -158,6 +158,39 @@ class SystematicResult:
         out = b @ _se3(self.correction(b))
         return out[0] if one else out
 
+    def held_out_nees(self, base_T_ee: np.ndarray, cam_T_board: np.ndarray,
+                      setup: str) -> np.ndarray:
+        """Normalised error of samples this fit did not use (6 dof each; its mean is 6 when
+        the model's uncertainty is right).
+
+        The sample's pose error (flange frame, whitened by the noise levels) is compared with
+        its predicted covariance ``s^2 (I + J_new (J^T J)^-1 J_new^T)``: the per-pose noise
+        plus the uncertainty of X, Y and the systematic term propagated to the new pose
+        (``s^2`` the fit's residual variance, ``J`` its Jacobian, ``J_new`` the new sample's).
+
+        Args:
+            base_T_ee, cam_T_board: the new samples' poses, shape (M, 4, 4) each.
+            setup: ``"eye_in_hand"`` or ``"eye_to_hand"``.
+
+        Returns:
+            shape (M,).
+        """
+        if self._state is None:
+            raise HandEyeError("held_out_nees: this fit has no Jacobian (a leave-one-out step)")
+        p, _, J, _, X0, Y0, s2 = self._state
+        bte = np.asarray(base_T_ee, dtype=np.float64).reshape(-1, 4, 4)
+        ctb = np.asarray(cam_T_board, dtype=np.float64).reshape(-1, 4, 4)
+        Ainv = np.linalg.pinv(J.T @ J)
+        out = np.zeros(bte.shape[0])
+        for k in range(bte.shape[0]):
+            f, _ = _residual_fn(X0, Y0, bte[k:k + 1], ctb[k:k + 1], setup, self.level,
+                                self.R_ref, self.sigmas["robot_t"], self.sigmas["robot_r"])
+            e = f(p)[:6]
+            Jn = _jacobian(lambda q: f(q)[:6], p)
+            S = s2 * (np.eye(6) + Jn @ Ainv @ Jn.T)
+            out[k] = float(e @ np.linalg.solve(S, e))
+        return out
+
     def summary(self) -> dict[str, object]:
         """Plain data for report.json."""
         return {"level": self.level, "A_r": self.A_r.tolist(), "A_t_m_per_rad": self.A_t.tolist(),
@@ -189,6 +222,19 @@ def _mean_rotation(base_T_ee: np.ndarray) -> np.ndarray:
 
 def _fit_once(X0: np.ndarray, Y0: np.ndarray, bte: np.ndarray, ctb: np.ndarray, setup: str,
               level: float, R_ref: np.ndarray, s_t: float, s_r: float):
+    residual, unpack = _residual_fn(X0, Y0, bte, ctb, setup, level, R_ref, s_t, s_r)
+    n_sys = 18 if level > 0 else 0
+    p0 = np.concatenate([X0[:3, 3], np.zeros(3), Y0[:3, 3], np.zeros(3), np.zeros(n_sys)])
+    with np.errstate(all="ignore"):
+        res = least_squares(residual, p0, x_scale="jac", method="lm")
+    if not np.all(np.isfinite(res.x)):
+        raise HandEyeError("refined_systematic: the fit diverged")
+    return res, unpack, residual
+
+
+def _residual_fn(X0: np.ndarray, Y0: np.ndarray, bte: np.ndarray, ctb: np.ndarray, setup: str,
+                 level: float, R_ref: np.ndarray, s_t: float, s_r: float):
+    """The whitened residual (6 per sample, then the prior rows) and the parameter unpacker."""
     n_sys = 18 if level > 0 else 0
     r = _features(R_ref, bte)
     Cinv = _inv(ctb)
@@ -215,12 +261,7 @@ def _fit_once(X0: np.ndarray, Y0: np.ndarray, bte: np.ndarray, ctb: np.ndarray, 
             out.append(p[12:] / level)
         return np.concatenate(out)
 
-    p0 = np.concatenate([X0[:3, 3], np.zeros(3), Y0[:3, 3], np.zeros(3), np.zeros(n_sys)])
-    with np.errstate(all="ignore"):
-        res = least_squares(residual, p0, x_scale="jac", method="lm")
-    if not np.all(np.isfinite(res.x)):
-        raise HandEyeError("refined_systematic: the fit diverged")
-    return res, unpack, residual
+    return residual, unpack
 
 
 def _jacobian(residual, p: np.ndarray, h: float = 1e-6) -> np.ndarray:
@@ -240,7 +281,7 @@ def _loo_steps(state: tuple, n: int) -> tuple[list[np.ndarray], np.ndarray]:
     Without sample ``i`` the normal equations lose ``J_i^T J_i`` and, as ``J^T r = 0`` at the
     solution, the gradient becomes ``-J_i^T r_i``: ``dp_i = (J^T J - J_i^T J_i)^-1 J_i^T r_i``,
     and the held-out error is ``r_i + J_i dp_i``."""
-    p, r, J, _ = state
+    p, r, J = state[0], state[1], state[2]
     A = J.T @ J
     params, errs = [], np.zeros((n, 6))
     for i in range(n):
@@ -303,7 +344,7 @@ def fit_systematic(X0: np.ndarray, Y0: np.ndarray, base_T_ee: np.ndarray,
     return SystematicResult(X, Y, A_r, A_t, R_ref, float(level), dict(sigmas),
                             0.5 * (cov + cov.T), nfev=int(res.nfev),
                             converged=bool(res.status > 0),
-                            _state=(res.x.copy(), residual(res.x), J, unpack))
+                            _state=(res.x.copy(), residual(res.x), J, unpack, X0, Y0, s2))
 
 
 def _held_out_pose_error(fit: SystematicResult, bte: np.ndarray, ctb: np.ndarray,
