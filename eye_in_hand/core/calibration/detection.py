@@ -51,39 +51,58 @@ def refine_saddle(gray: np.ndarray, corners: np.ndarray, *, half: int = _SADDLE_
         ``(corners (N, 2), sigma (N,))``: the refined corners and each one's 1-sigma
         uncertainty per axis in px (``sqrt(trace(cov) / 2)``; NaN where the input was kept).
     """
-    g = cv2.GaussianBlur(gray.astype(np.float32), (0, 0), blur)
+    pts = np.asarray(corners, dtype=np.float64)
+    n = pts.shape[0]
+    sigma = np.full(n, np.nan)
+    if n == 0:
+        return pts.copy(), sigma
+    # blur only the region around the corners (plus the window and the blur's reach)
+    pad = half + int(np.ceil(4 * blur)) + 3
+    h_img, w_img = gray.shape[:2]
+    x0 = max(int(np.floor(pts[:, 0].min())) - pad, 0)
+    y0 = max(int(np.floor(pts[:, 1].min())) - pad, 0)
+    x1 = min(int(np.ceil(pts[:, 0].max())) + pad + 1, w_img)
+    y1 = min(int(np.ceil(pts[:, 1].max())) + pad + 1, h_img)
+    g = cv2.GaussianBlur(gray[y0:y1, x0:x1].astype(np.float32), (0, 0), blur)
     yy, xx = np.mgrid[-half:half + 1, -half:half + 1].astype(np.float64)
     x, y = xx.ravel(), yy.ravel()
     A = np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)], axis=1)
     pinv = np.linalg.pinv(A)
     AtA_inv = np.linalg.inv(A.T @ A)
-    out = np.asarray(corners, dtype=np.float64).copy()
-    sigma = np.full(out.shape[0], np.nan)
-    for k, p in enumerate(out):
-        q = p.copy()
-        ok = False
-        cov_s = None
-        for _ in range(3):
-            w = cv2.remap(g, (xx + q[0]).astype(np.float32), (yy + q[1]).astype(np.float32),
-                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).ravel()
-            coef = pinv @ w.astype(np.float64)
-            a, b, c, d, e = coef[:5]
-            H = np.array([[2 * a, b], [b, 2 * c]])
-            if np.linalg.det(H) >= 0:
-                ok = False
-                break
-            Hi = np.linalg.inv(H)
-            step = -Hi @ np.array([d, e])
-            q = q + step
-            res = w - A @ coef
-            v = float(res @ res) / max(A.shape[0] - 6, 1)
-            cov_s = Hi @ (v * AtA_inv[3:5, 3:5]) @ Hi.T
-            ok = True
-            if float(np.linalg.norm(step)) < 1e-3:
-                break
-        if ok and cov_s is not None and float(np.linalg.norm(q - p)) <= max_shift:
-            out[k] = q
-            sigma[k] = float(np.sqrt(max(np.trace(cov_s), 0.0) / 2.0))
+    k = 2 * half + 1
+    q = pts - (x0, y0)
+    active = np.ones(n, dtype=bool)
+    cov = np.full((n, 2, 2), np.nan)
+    for _ in range(3):
+        # every corner's window sampled in one remap: (n k) x k maps
+        mx = (xx[None] + q[:, 0, None, None]).reshape(n * k, k).astype(np.float32)
+        my = (yy[None] + q[:, 1, None, None]).reshape(n * k, k).astype(np.float32)
+        W = cv2.remap(g, mx, my, cv2.INTER_LINEAR,
+                      borderMode=cv2.BORDER_REPLICATE).reshape(n, k * k).astype(np.float64)
+        coef = W @ pinv.T                                  # (n, 6)
+        a, b, c, d, e = (coef[:, j] for j in range(5))
+        det = 4 * a * c - b * b                            # det of [[2a, b], [b, 2c]]
+        ok = active & (det < 0)
+        safe = np.where(ok, det, -1.0)
+        # H^-1 = [[2c, -b], [-b, 2a]] / det
+        Hi = np.stack([np.stack([2 * c, -b], axis=1), np.stack([-b, 2 * a], axis=1)],
+                      axis=1) / safe[:, None, None]
+        step = -np.einsum("nij,nj->ni", Hi, np.stack([d, e], axis=1))
+        res = W - coef @ A.T
+        v = np.sum(res * res, axis=1) / max(A.shape[0] - 6, 1)
+        cg = v[:, None, None] * AtA_inv[3:5, 3:5][None]
+        cov_new = Hi @ cg @ np.swapaxes(Hi, 1, 2)
+        q[ok] += step[ok]
+        cov[ok] = cov_new[ok]
+        active = ok & (np.linalg.norm(step, axis=1) >= 1e-3)
+        cov[~ok & np.isnan(cov[:, 0, 0])] = np.nan
+        if not np.any(active):
+            break
+    out = q + (x0, y0)
+    moved = np.linalg.norm(out - pts, axis=1)
+    good = np.isfinite(cov[:, 0, 0]) & (moved <= max_shift)
+    out[~good] = pts[~good]
+    sigma[good] = np.sqrt(np.maximum(np.trace(cov[good], axis1=1, axis2=2), 0.0) / 2.0)
     return out, sigma
 
 
