@@ -101,7 +101,7 @@ def test_dataset_end_to_end(stereo_dataset, tmp_path: Path, capsys) -> None:
     b = report["error_budget"]
     assert "Error budget" in html and "error budget (held-out board position" in printed.out
     parts = sum(b[k] ** 2 for k in ("camera_mm", "robot_mm", "estimate_mm"))
-    assert parts == pytest.approx(max(b["held_out_mm"] ** 2, parts), rel=1e-3)
+    assert b["estimate_mm"] == 0.0 or parts == pytest.approx(b["held_out_mm"] ** 2, rel=1e-3)
 
 
 def test_pairs_eye_to_hand_with_method(data_dir: Path, tmp_path: Path) -> None:

@@ -113,6 +113,13 @@ def test_calibrate_selects_the_systematic_model_only_when_asked() -> None:
     assert b["robot_systematic_mm"] > 0.5 and b["largest"] in ("camera_mm", "robot_mm",
                                                                "estimate_mm")
     assert default.to_report()["error_budget"]["robot_systematic_mm"] is None
+    for bud in (b, default.error_budget):          # the parts add up to the held-out error
+        parts = sum(bud[k] ** 2 for k in ("robot_mm", "estimate_mm"))  # no corners: no camera
+        assert bud["camera_mm"] is None
+        # parts add to the held-out total, unless the in-sample scatter alone exceeds it
+        assert bud["estimate_mm"] == 0.0 or parts == pytest.approx(bud["held_out_mm"] ** 2,
+                                                                   rel=1e-3)
+        assert bud["robot_mm"] > 0.0
     cor = res.correct_robot_pose(samples[0].base_T_ee)
     assert not np.allclose(cor, samples[0].base_T_ee)
     with pytest.raises(HandEyeError, match="robot model"):
