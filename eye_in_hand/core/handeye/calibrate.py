@@ -651,32 +651,25 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
             results["refined"] = mr
             if not refinement.converged:
                 warnings.append("refined: the noise levels did not settle in "
-                                f"{refinement.iterations} iterations: left out of the "
-                                "selection (its covariance cannot be trusted), "
-                                "refined_exact takes its place")
+                                f"{refinement.iterations} iterations")
         if robot_model == "systematic" or method == "refined_systematic":
             systematic = _systematic(start.X, start.Y, kept, cameras, setup, use_corners, loo,
                                      warnings, held, results)
     combine = robot_model == "systematic"
     scores, _ = selection_scores(held, combine) if held else ({}, "")
-    refined_ok = refinement is not None and refinement.converged
     # refined_exact is listed with its figures but not a candidate when the errors-in-variables
     # refinement ran: its covariance ignores the robot-pose noise (with exact poses the two
     # coincide), so the written uncertainty could not be trusted.
-    # When the errors-in-variables refinement did not converge it is left out and the
-    # exact-pose refinement, the next method, takes its place.
     candidates = {k: v for k, v in scores.items()
-                  if not (k == "refined_exact" and "refined" in scores and refined_ok)
-                  and not (k == "refined_systematic" and robot_model != "systematic")
-                  and not (k == "refined" and not refined_ok)}
+                  if not (k == "refined_exact" and "refined" in scores)
+                  and not (k == "refined_systematic" and robot_model != "systematic")}
     if method != "all":
         selected, reason = method, f"forced by --method {method}"
         if method not in results:
             raise HandEyeError(f"method {method!r} failed on these samples: "
                                + "; ".join(w for w in warnings if w.startswith(method)))
     elif candidates:
-        reference = ("refined_systematic" if "refined_systematic" in candidates
-                     else "refined" if "refined" in candidates else "refined_exact")
+        reference = "refined_systematic" if "refined_systematic" in candidates else "refined"
         selected, reason = choose(held, list(candidates), reference=reference,
                                   combine=combine)
     else:
