@@ -42,7 +42,7 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "test" / "data" / "franka_eye_in_hand"
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(ROOT))
 
 CLASSIC = ("tsai", "park", "horaud", "daniilidis", "andreff")
 
@@ -90,13 +90,14 @@ def make_samples(detector: str = "auto", data: Path = DATA, refine: str = "saddl
 
 
 def opencv_solutions(train_sets) -> list[dict[str, np.ndarray]] | None:
-    """OpenCV 4.12's five methods on every training set, or None."""
-    import bench_handeye
+    """OpenCV 4.12's five methods on every training set, or None (through the sibling
+    benchmark bench_handeye.py, which installs and runs it)."""
+    from benchmarks.bench_handeye import run_opencv
 
     payload = [{"base_T_ee": np.stack([s.base_T_ee for s in t]).tolist(),
                 "cam_T_board": np.stack([s.cam_T_board for s in t]).tolist()}
                for t in train_sets]
-    out = bench_handeye.run_opencv(payload)
+    out = run_opencv(payload)
     if out is None:
         return None
     print(f"OpenCV {out['version']} calibrateHandEye on the same detections and folds")
