@@ -90,6 +90,13 @@ def run(args: argparse.Namespace) -> int:
         print(f"robot pose noise (estimated, 1 sigma per axis): "
               f"{1000 * noise['translation_sigma_m']:.3f} mm, "
               f"{np.degrees(noise['rotation_sigma_rad']):.4f} deg")
+    budget = result.error_budget
+    if budget is not None:
+        parts = ", ".join(f"{k[:-3].replace('_', ' ')} {budget[k]:.2f}"
+                          for k in ("camera_mm", "robot_mm", "estimate_mm")
+                          if budget.get(k) is not None)
+        print(f"error budget (held-out board position {budget['held_out_mm']:.2f} mm RMS): "
+              f"{parts} mm; {budget['advice']}")
     rejected = {f"sample {r.name!r} rejected: {r.reason}" for r in result.rejected}
     for r in result.rejected:
         print(f"rejected sample {r.name!r}: {r.reason}")

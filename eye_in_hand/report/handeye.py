@@ -36,6 +36,7 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
                     "none"]], header=["quantity", "value"])
     for w in report["warnings"]:
         rep.add_status("warning", False, w)
+    _html_budget(rep, report)
     rep.add_section("Method comparison")
     rows, names = [], list(result.methods)
     for name in names:
@@ -128,6 +129,22 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
 
 #: Most motion rows in the HTML table (report.json always has them all).
 HTML_MOTION_ROWS = 200
+
+
+def _html_budget(rep: Any, report: dict[str, Any]) -> None:
+    """The error budget table (:mod:`eye_in_hand.core.handeye.budget`), when computed."""
+    b = report.get("error_budget")
+    if not b:
+        return
+    rep.add_section("Error budget (held-out board position, mm RMS)")
+    label = {"camera_mm": "camera (corners, intrinsics within a view)",
+             "robot_mm": "robot and per-pose scatter",
+             "estimate_mm": "the estimate (X, Y, robot model) at unseen poses",
+             "held_out_mm": "held-out total",
+             "robot_systematic_mm": "pose-dependent robot error found by the systematic model"}
+    rows = [[label[k], b[k]] for k in label if b.get(k) is not None]
+    rows.append(["largest part", f"{b['largest']}: {b['advice']}"])
+    rep.add_table(rows, header=["part", "mm"])
 
 
 def _html_average(rep: Any, report: dict[str, Any]) -> None:

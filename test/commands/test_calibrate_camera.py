@@ -64,7 +64,9 @@ def test_camera_from_files(data_dir: Path, tmp_path: Path, capsys) -> None:
     assert sorted(p.name for p in out.iterdir()) == ["camera.yaml", "report.html", "report.json"]
     report = json.loads((out / "report.json").read_text())
     cam = report["camera"]
-    assert abs(cam["rms_px"] - 0.196334638034) < 0.01
+    # OpenCV's recipe fits these images at 0.1963 px; the default saddle-point corners at 0.1668
+    # (test/core/test_calibration_opencv_data.py checks both)
+    assert abs(cam["rms_px"] - 0.1668) < 0.01
     assert np.array(cam["K"]).shape == (3, 3) and len(cam["dist"]) == 5
     views = report["views"]
     assert len(views) == 14 and sum(v["used"] for v in views) == 13

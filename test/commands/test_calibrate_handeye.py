@@ -97,6 +97,11 @@ def test_dataset_end_to_end(stereo_dataset, tmp_path: Path, capsys) -> None:
     assert report["ground_truth_error"]["refined"]["mm"] < 0.5
     html = (out / "report.html").read_text()
     assert html.count("<img") >= 3 and "Method comparison" in html and "0010" in html
+    # the error budget: in report.json, the HTML report and the summary; its parts add up
+    b = report["error_budget"]
+    assert "Error budget" in html and "error budget (held-out board position" in printed.out
+    parts = sum(b[k] ** 2 for k in ("camera_mm", "robot_mm", "estimate_mm"))
+    assert b["estimate_mm"] == 0.0 or parts == pytest.approx(b["held_out_mm"] ** 2, rel=1e-3)
 
 
 def test_pairs_eye_to_hand_with_method(data_dir: Path, tmp_path: Path) -> None:

@@ -25,12 +25,17 @@ def detections() -> dict:
     files = sorted(folder.glob("left*.jpg"))
     assert len(files) == 13
     out: dict = {"names": [f.name for f in files]}
+    # the detectors' own corners ("classic", "sb": OpenCV's recipe) and the default saddle
+    # refinement ("classic_saddle", "sb_saddle")
     for det in ("classic", "sb"):
-        out[det] = ([detect_board(cv2.imread(str(f), cv2.IMREAD_GRAYSCALE), BOARD, det,
-                                  fallback=False) for f in files],
-                    [detect_board(cv2.imread(str(f).replace("left", "right"),
-                                             cv2.IMREAD_GRAYSCALE), BOARD, det, fallback=False)
-                     for f in files] if det == "classic" else [])
+        for refine in ("none", "saddle"):
+            key = det if refine == "none" else f"{det}_saddle"
+            out[key] = ([detect_board(cv2.imread(str(f), cv2.IMREAD_GRAYSCALE), BOARD, det,
+                                      fallback=False, refine=refine) for f in files],
+                        [detect_board(cv2.imread(str(f).replace("left", "right"),
+                                                 cv2.IMREAD_GRAYSCALE), BOARD, det,
+                                      fallback=False, refine=refine)
+                         for f in files] if det == "classic" else [])
     return out
 
 
@@ -51,8 +56,22 @@ def test_classic_detector_is_more_accurate_than_sb(detections) -> None:
     assert classic.rms_px < sb.rms_px
 
 
+def test_saddle_refinement_lowers_the_calibration_rms(detections) -> None:
+    """The default corner refinement (saddle point) on OpenCV's real images: the camera
+    calibration fits at 0.167 px RMS where OpenCV's own recipe fits at 0.196 px; the SB
+    detector's corners improve likewise."""
+    plain = calibrate_camera(detections["classic"][0])
+    saddle = calibrate_camera(detections["classic_saddle"][0])
+    assert saddle.rms_px < 0.9 * plain.rms_px
+    sb = calibrate_camera([d for d in detections["sb"][0] if d.found])
+    sb_saddle = calibrate_camera([d for d in detections["sb_saddle"][0] if d.found])
+    assert sb_saddle.rms_px < 0.9 * sb.rms_px
+    sig = np.concatenate([d.meta["corner_sigma_px"] for d in detections["classic_saddle"][0]])
+    assert np.mean(np.isfinite(sig)) > 0.95 and 0.005 < np.nanmedian(sig) < 0.2
+
+
 def test_stereo_matches_published_figures(detections) -> None:
-    left, right = detections["classic"]
+    left, right = detections["classic_saddle"]
     names = detections["names"]
     cal = calibrate_stereo(left, right, names, [n.replace("left", "right") for n in names],
                            board=BOARD)

@@ -23,7 +23,7 @@
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 import numpy as np
@@ -44,9 +44,12 @@ from .solvers import CLOSED_FORM_METHODS, SETUPS, board_in_fixed_frame, gripper_
 from .residuals import motion_residuals
 from .select import HeldOut, choose, held_out_position_sigma, held_out_prediction, \
     selection_scores
+from .systematic import SystematicResult, leave_one_out_systematic, refine_systematic
+from .budget import error_budget
 
 __all__ = [
     "METHODS",
+    "ROBOT_MODELS",
     "FRAMES",
     "MethodResult",
     "RejectedSample",
@@ -58,7 +61,13 @@ __all__ = [
 ]
 
 #: Every method name accepted by ``--method`` (besides ``all``).
-METHODS = (*CLOSED_FORM_METHODS, "average", "refined_exact", "refined")
+METHODS = (*CLOSED_FORM_METHODS, "average", "refined_exact", "refined", "refined_systematic")
+
+#: The robot error models ``calibrate_hand_eye`` accepts: ``per_pose`` (independent noise per
+#: pose; the result's X is used with the robot's reported poses), ``systematic`` (the
+#: ``refined_systematic`` model is a candidate too: its X holds only with the robot poses
+#: corrected by :meth:`HandEyeResult.correct_robot_pose`).
+ROBOT_MODELS = ("per_pose", "systematic")
 
 # A reading of the poses whose AX = XB rotation residual is this many times lower than the
 # given one (which is above the floor, degrees) means the given conventions are wrong.
@@ -171,6 +180,11 @@ class HandEyeResult:
         selection_scores: the held-out score of every method (lower is better).
         held_out_sigma_m: the per-pose position noise the held-out board positions of
             ``refined`` show (:func:`.select.held_out_position_sigma`), or None.
+        systematic: the systematic robot error model fit (``refined_systematic``,
+            :mod:`.systematic`), or None when it was not run.
+        robot_model: the robot error model of the selection (:data:`ROBOT_MODELS`).
+        error_budget: where the held-out error comes from (:func:`.budget.error_budget`),
+            or None without leave-one-out figures.
     """
 
     setup: str
@@ -185,6 +199,9 @@ class HandEyeResult:
     selection_reason: str = ""
     selection_scores: dict[str, float] = field(default_factory=dict)
     held_out_sigma_m: float | None = None
+    systematic: SystematicResult | None = None
+    robot_model: str = "per_pose"
+    error_budget: dict[str, Any] | None = None
 
     @property
     def X(self) -> np.ndarray:
@@ -213,6 +230,13 @@ class HandEyeResult:
             t = max(t, self.held_out_sigma_m)
         return {"translation_sigma_m": t,
                 "rotation_sigma_rad": self.refinement.robot_rotation_sigma_rad}
+
+    def correct_robot_pose(self, base_T_ee: np.ndarray) -> np.ndarray:
+        """The robot pose(s) (4, 4) or (N, 4, 4) the selected X is to be used with: corrected
+        by the systematic error model when ``refined_systematic`` is selected, else as given."""
+        if self.selected == "refined_systematic" and self.systematic is not None:
+            return self.systematic.correct(base_T_ee)
+        return np.asarray(base_T_ee, dtype=np.float64)
 
     def sample_table(self) -> list[dict[str, Any]]:
         """Per-sample rows for the selected method (report.json ``samples``)."""
@@ -248,6 +272,9 @@ class HandEyeResult:
                           "scores": dict(self.selection_scores)},
             "robot_pose_noise": self.robot_pose_noise,
             "held_out_sigma_m": self.held_out_sigma_m,
+            "robot_model": self.robot_model,
+            "error_budget": self.error_budget,
+            "systematic": None if self.systematic is None else self.systematic.summary(),
             "refinement": None if self.refinement is None else {
                 "space": self.refinement.space, "sigma": self.refinement.sigma,
                 "noise_levels": dict(self.refinement.sigmas),
@@ -457,7 +484,8 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                        outlier_floor_deg: float = 0.2,
                        leave_one_out: bool = True,
                        check_conventions: bool = True,
-                       average_solver: str = DEFAULT_AVERAGE_SOLVER) -> HandEyeResult:
+                       average_solver: str = DEFAULT_AVERAGE_SOLVER,
+                       robot_model: str = "per_pose") -> HandEyeResult:
     """Solve AX = XB with every method, refine, and assess the result.
 
     Args:
@@ -480,6 +508,10 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
         check_conventions: refuse input that fits AX = XB far better read another way (the
             other setup, or ``cam_T_board`` inverted): a wrong setup or pose direction.
         average_solver: the per-pair solver of ``average`` (``"tsai"`` or ``"kronecker"``).
+        robot_model: ``"per_pose"`` or ``"systematic"`` (:data:`ROBOT_MODELS`): with
+            ``systematic``, ``refined_systematic`` (a pose-dependent robot error fitted with X,
+            :mod:`.systematic`) is computed and is a candidate of the selection; when selected,
+            X is to be used with :meth:`HandEyeResult.correct_robot_pose`.
 
     Returns:
         The result; ``result.X`` is the selected method's transform.
@@ -497,7 +529,10 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
     if average_solver not in AVERAGE_SOLVERS:
         raise HandEyeError(f"average solver: expected one of {', '.join(AVERAGE_SOLVERS)}, "
                            f"got {average_solver!r}")
-    if method in ("refined", "refined_exact") and not refine:
+    if robot_model not in ROBOT_MODELS:
+        raise HandEyeError(f"robot model: expected one of {', '.join(ROBOT_MODELS)}, "
+                           f"got {robot_model!r}")
+    if method in ("refined", "refined_exact", "refined_systematic") and not refine:
         raise HandEyeError(f"method {method!r} requested with refinement disabled")
     kept, warnings = validate_samples(samples)
     if len(kept) < MIN_SAMPLES:
@@ -581,6 +616,7 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                key=lambda k: score(results[k]))
     refinement: EivResult | None = None
     refinement_exact: RefinementResult | None = None
+    systematic: SystematicResult | None = None
     held_out_sigma: float | None = None
     if refine:
         start = results[best]
@@ -616,19 +652,26 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
             if not refinement.converged:
                 warnings.append("refined: the noise levels did not settle in "
                                 f"{refinement.iterations} iterations")
-    scores, _ = selection_scores(held) if held else ({}, "")
+        if robot_model == "systematic" or method == "refined_systematic":
+            systematic = _systematic(start.X, start.Y, kept, cameras, setup, use_corners, loo,
+                                     warnings, held, results)
+    combine = robot_model == "systematic"
+    scores, _ = selection_scores(held, combine) if held else ({}, "")
     # refined_exact is listed with its figures but not a candidate when the errors-in-variables
     # refinement ran: its covariance ignores the robot-pose noise (with exact poses the two
     # coincide), so the written uncertainty could not be trusted.
     candidates = {k: v for k, v in scores.items()
-                  if not (k == "refined_exact" and "refined" in scores)}
+                  if not (k == "refined_exact" and "refined" in scores)
+                  and not (k == "refined_systematic" and robot_model != "systematic")}
     if method != "all":
         selected, reason = method, f"forced by --method {method}"
         if method not in results:
             raise HandEyeError(f"method {method!r} failed on these samples: "
                                + "; ".join(w for w in warnings if w.startswith(method)))
     elif candidates:
-        selected, reason = choose(held, list(candidates))
+        reference = "refined_systematic" if "refined_systematic" in candidates else "refined"
+        selected, reason = choose(held, list(candidates), reference=reference,
+                                  combine=combine)
     else:
         selected = "refined" if "refined" in results else best
         reason = ("no leave-one-out figures (leave-one-out off or too few samples): "
@@ -648,11 +691,58 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                 f"methods disagree: {name} differs from {selected} by {dmm:.2f} mm / "
                 f"{ddeg:.3f} deg, beyond 3 sigma of their uncertainties ({lim_mm:.2f} mm / "
                 f"{lim_deg:.3f} deg): check for bad samples or unmodelled errors")
+    budget = None
+    if sel.held_out is not None:
+        used = kept
+        if selected == "refined_systematic" and systematic is not None:
+            used = [replace(s, base_T_ee=b) for s, b in zip(kept, systematic.correct(bte))]
+        budget = error_budget(used, cameras if use_corners else None, setup, sel.Y,
+                              sel.board_dev_mm, sel.held_out.mm,
+                              None if systematic is None else systematic.correction(bte))
     return HandEyeResult(setup=setup, sample_names=[s.name for s in kept], rejected=rejected,
                          diagnostics=diag, methods=results, selected=selected,
                          warnings=warnings, refinement=refinement,
                          refinement_exact=refinement_exact, selection_reason=reason,
-                         selection_scores=scores, held_out_sigma_m=held_out_sigma)
+                         selection_scores=scores, held_out_sigma_m=held_out_sigma,
+                         systematic=systematic, robot_model=robot_model,
+                         error_budget=budget)
+
+
+def _systematic(X0: np.ndarray, Y0: np.ndarray, kept: Sequence[HandEyeSample],
+                cameras: Sequence[CameraView] | None, setup: str, use_corners: bool, loo: bool,
+                warnings: list[str], held: dict[str, HeldOut],
+                results: dict[str, MethodResult]) -> SystematicResult | None:
+    """The systematic robot error refinement (``refined_systematic``) and its leave-one-out
+    figures, each held-out sample predicted from its pose corrected by the model fitted
+    without it; None (with a warning) when it fails."""
+    bte = np.stack([s.base_T_ee for s in kept])
+    ctb = np.stack([s.cam_T_board for s in kept])
+    try:
+        fit = refine_systematic(X0, Y0, bte, ctb, setup)
+    except HandEyeError as exc:
+        warnings.append(f"refined_systematic failed and is left out of the comparison: {exc}")
+        return None
+    # Figures against the corrected poses: the model's X holds with them.
+    corrected = [replace(s, base_T_ee=b) for s, b in zip(kept, fit.correct(bte))]
+    mr = _refined_result("refined_systematic", fit.X, fit.Y, fit.covariance, corrected,
+                         cameras, setup, use_corners)
+    if loo:
+        try:
+            sols = leave_one_out_systematic(fit, bte, ctb, setup)
+        except HandEyeError as exc:
+            warnings.append(f"leave-one-out figures of refined_systematic unavailable: {exc}")
+        else:
+            mr.loo_mm = np.zeros(len(sols))
+            mr.loo_deg = np.zeros(len(sols))
+            for i, f in enumerate(sols):
+                mr.loo_mm[i], mr.loo_deg[i] = _x_delta(f.X, fit.X)
+            held_samples = [replace(s, base_T_ee=f.correct(s.base_T_ee))
+                            for s, f in zip(kept, sols)]
+            held["refined_systematic"] = held_out_prediction(
+                [(f.X, f.Y) for f in sols], held_samples, cameras, setup)
+            mr.held_out = held["refined_systematic"]
+    results["refined_systematic"] = mr
+    return fit
 
 
 def _jackknife_covariance(xs: Sequence[np.ndarray]) -> np.ndarray:

@@ -278,7 +278,7 @@ def refine_errors_in_variables(X0: np.ndarray, Y0: np.ndarray,
                                samples: Sequence[HandEyeSample],
                                cameras: Sequence[CameraView] | None, setup: str, *,
                                sigmas: dict[str, float] | None = None,
-                               estimate: bool = True, max_iter: int = 40) -> EivResult:
+                               estimate: bool = True, max_iter: int = 100) -> EivResult:
     """Refine X and Y with per-sample robot-pose corrections and estimated noise levels.
 
     Args:
@@ -291,7 +291,8 @@ def refine_errors_in_variables(X0: np.ndarray, Y0: np.ndarray,
         sigmas: start (or, with ``estimate=False``, fixed) noise levels by group name (see
             :class:`EivResult`); estimated from the start solution when None.
         estimate: estimate the noise levels (variance components); False keeps ``sigmas``.
-        max_iter: iterations (Gauss-Newton step + variance-component update).
+        max_iter: iterations (Gauss-Newton step + variance-component update); on the real
+            Franka capture the levels settle in 19-61 iterations (a 40 cap stopped 3 of 6 folds).
 
     Returns:
         The result.

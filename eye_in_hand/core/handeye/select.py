@@ -10,9 +10,12 @@ then predicts what sample ``i`` measured from its *reported* robot pose:
   without the sample (mm, deg).
 
 This is the error a calibration makes where it is used: predicting where something seen by the
-camera is in the robot's frame, from a robot pose as the robot reports it. The score is the RMS
-held-out corner error when every sample has corners, else the held-out board error in the fixed
-frame, millimetres and degrees each divided by their median over the methods and summed.
+camera is in the robot's frame, from a robot pose as the robot reports it. Each sample's error
+is the held-out corner error (px) when every sample has corners, else the held-out board
+position (mm) and orientation (deg) in the fixed frame, each divided by its median RMS over the
+methods (its own noise scale), combined as the root of their sum of squares. With
+``combine=True`` (the systematic robot model) the corner error and the board position are
+combined that way. The score is the RMS over the samples.
 
 The method with the lowest score is written, unless the errors-in-variables refinement
 (``refined``, the one whose covariance accounts for both noise sources) predicts the held-out
@@ -92,45 +95,56 @@ def held_out_prediction(solutions: Sequence[tuple[np.ndarray, np.ndarray]],
     return HeldOut(px, mm, deg)
 
 
-def _per_sample(held_out: dict[str, HeldOut]) -> tuple[dict[str, np.ndarray], str]:
+def _per_sample(held_out: dict[str, HeldOut],
+                combine: bool = False) -> tuple[dict[str, np.ndarray], str]:
     """Each method's per-sample held-out error (the quantity whose RMS is the score)."""
-    if held_out and all(h.px is not None for h in held_out.values()):
-        return ({k: np.asarray(h.px) for k, h in held_out.items()},
-                "held-out corner RMS (px)")
     ref_mm = max(float(np.median([np.sqrt(np.mean(h.mm ** 2)) for h in held_out.values()])),
                  1e-12)
+    corners = bool(held_out) and all(h.px is not None for h in held_out.values())
+    if corners and not combine:
+        return ({k: np.asarray(h.px) for k, h in held_out.items()},
+                "held-out corner RMS (px)")
+    if corners:
+        ref_px = max(float(np.median([np.sqrt(np.mean(np.asarray(h.px) ** 2))
+                                      for h in held_out.values()])), 1e-12)
+        return ({k: np.hypot(np.asarray(h.px) / ref_px, h.mm / ref_mm)
+                 for k, h in held_out.items()},
+                "held-out corners (px) and board position (mm), each over its median RMS")
     ref_deg = max(float(np.median([np.sqrt(np.mean(h.deg ** 2)) for h in held_out.values()])),
                   1e-12)
     return ({k: np.hypot(h.mm / ref_mm, h.deg / ref_deg) for k, h in held_out.items()},
             "held-out board pose in the fixed frame (mm and deg, each over its median RMS)")
 
 
-def selection_scores(held_out: dict[str, HeldOut]) -> tuple[dict[str, float], str]:
+def selection_scores(held_out: dict[str, HeldOut],
+                     combine: bool = False) -> tuple[dict[str, float], str]:
     """The selection score of every method (lower is better) and what it measures.
 
     Args:
         held_out: the held-out figures by method.
+        combine: score corners (px) and board position (mm) together (module docstring).
 
     Returns:
         ``(scores, criterion)``: the RMS over the samples of each method's held-out error.
     """
-    per, criterion = _per_sample(held_out)
+    per, criterion = _per_sample(held_out, combine)
     return {k: float(np.sqrt(np.mean(v ** 2))) for k, v in per.items()}, criterion
 
 
 def choose(held_out: dict[str, HeldOut], candidates: Sequence[str],
-           reference: str = "refined") -> tuple[str, str]:
+           reference: str = "refined", combine: bool = False) -> tuple[str, str]:
     """Pick the result among ``candidates`` (see the module docstring for the rule).
 
     Args:
         held_out: the held-out figures by method.
         candidates: the methods that may be written.
         reference: the method kept unless another predicts significantly better.
+        combine: score corners (px) and board position (mm) together (module docstring).
 
     Returns:
         ``(method, reason)``.
     """
-    per, criterion = _per_sample(held_out)
+    per, criterion = _per_sample(held_out, combine)
     scores = {k: float(np.sqrt(np.mean(per[k] ** 2))) for k in candidates}
     best = min(scores, key=lambda k: scores[k])
     others = ", ".join(f"{k} {v:.4g}" for k, v in sorted(scores.items(),
