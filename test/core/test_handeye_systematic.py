@@ -199,3 +199,16 @@ def test_predict_view_is_zero_for_a_consistent_sample(franka) -> None:
     v = predict_view(X, Y, s, views, "eye_in_hand")
     assert np.max(v.mm) < 1e-9
     assert v.px.shape == (s.observations[0].image_points.shape[0],)
+
+
+def test_error_budget_parts_with_corners_add_in_squares() -> None:
+    """With corners the camera's part is measured, and camera, robot and estimate add in
+    squares to the held-out error (the robot's part is the in-sample scatter less the camera)."""
+    from eye_in_hand.core.handeye.synthetic import make_problem
+
+    prob = make_problem(12, seed=3, noise_px=0.5, robot_noise_mm=0.5, robot_noise_deg=0.05)
+    b = calibrate_hand_eye(prob.samples, cameras=prob.views).error_budget
+    assert b["camera_mm"] is not None and b["camera_mm"] > 0
+    total = b["camera_mm"] ** 2 + b["robot_mm"] ** 2 + b["estimate_mm"] ** 2
+    assert b["estimate_mm"] > 0, b
+    assert total == pytest.approx(b["held_out_mm"] ** 2, rel=2e-3), b
