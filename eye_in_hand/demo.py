@@ -34,6 +34,7 @@ import numpy as np
 
 from eye_in_hand.core.camera import StereoRig
 from eye_in_hand.core.transforms import transform_distance
+from eye_in_hand.errors import EXIT_UNEXPECTED, debug_enabled, unexpected_error_line
 from eye_in_hand.io.bags import bag_info, deserialize, iter_messages
 from eye_in_hand.io.config import load_hand_eye
 from eye_in_hand.ros.conversions import (camera_info_to_model, header_stamp_ns, point_to_xyz,
@@ -236,5 +237,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0 if live_pts else 1
 
 
+def guarded_main(argv: Sequence[str] | None = None) -> int:
+    """``main`` behind the top-level guard every entry point has: an unexpected error is one
+    line and exit 70 (``--debug`` or ``EYE_IN_HAND_DEBUG=1``: the traceback)."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in args
+    if debug:
+        args.remove("--debug")
+    try:
+        return main(args)
+    except (SystemExit, KeyboardInterrupt):
+        raise
+    except BaseException as exc:  # noqa: BLE001 - the top-level guard: one line, not a traceback
+        if debug or debug_enabled():
+            raise
+        print(unexpected_error_line("python -m eye_in_hand.demo", exc), file=sys.stderr)
+        return EXIT_UNEXPECTED
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(guarded_main())

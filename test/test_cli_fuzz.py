@@ -26,9 +26,9 @@ VALUES = ["nan", "inf", "-inf", "-1", "0", "1e308", "-1e308", "100000000", "0.5"
 NEVER_VALID = {"nan", "inf", "-inf", "1e308", "-1e308"}
 
 #: commands whose numeric options are checked after their inputs (their ranges are still
-#: refused in one line, but a missing input is named first): ``calibrate handeye``'s
-#: ``--still-*`` and ``--outlier-threshold`` options
-CHECKED_LATER = {"calibrate handeye", "calibrate plan"}
+#: refused in one line, but a missing input is named first): none since every option of
+#: ``calibrate handeye`` and ``calibrate plan`` has its range at parse time
+CHECKED_LATER: set[str] = set()
 
 #: the inputs of each command: absent, so that a value that passes its check cannot start work
 BASE = {

@@ -173,3 +173,16 @@ def test_workers_exit_quietly_when_their_parent_is_killed(ros_env, tmp_path):
     assert not any(_alive(p) for p in pids), "a worker outlived its parent"
     text = err.read_text()
     assert "Traceback" not in text and "Error" not in text, text
+
+
+def test_the_demo_turns_a_planted_exception_into_one_line(monkeypatch, capsys):
+    from eye_in_hand import demo
+
+    monkeypatch.setattr(demo, "main", lambda argv=None: _boom())
+    monkeypatch.delenv("EYE_IN_HAND_DEBUG", raising=False)
+    assert demo.guarded_main([]) == 70
+    err = capsys.readouterr().err
+    assert err.startswith("python -m eye_in_hand.demo: internal error: ZeroDivisionError")
+    assert err.count("\n") == 1 and "Traceback" not in err
+    with pytest.raises(ZeroDivisionError):
+        demo.guarded_main(["--debug"])

@@ -17,6 +17,7 @@ from typing import Any
 from eye_in_hand.commands.calibration_inputs import (add_handeye_calibration_arguments,
                                                      add_handeye_input_arguments,
                                                      load_handeye_inputs)
+from eye_in_hand.commands.common import bounded
 from eye_in_hand.errors import HandEyeError, InputError
 from eye_in_hand.io.atomic import OutputError, OutputExistsError, atomic_write_text
 
@@ -33,35 +34,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                     "handeye selects (default: %(default)s)")
     plan = parser.add_argument_group("plan (defaults: core.handeye.plan.PlanConfig's)")
     add = plan.add_argument
-    add("--count", type=int, metavar="N",
+    add("--count", type=bounded(1, 20, integer=True), metavar="N",
         help="suggestions, each assuming the earlier ones are taken (default 3)")
-    add("--noise-px", type=float, metavar="PX",
+    add("--noise-px", type=bounded(0, 100, "px", lo_open=True), metavar="PX",
         help="corner noise, 1 sigma per coordinate (default: the refinement's estimate, else "
              "0.5)")
-    add("--robot-sigma-mm", type=float, metavar="MM",
+    add("--robot-sigma-mm", type=bounded(0, 100, "mm"), metavar="MM",
         help="robot flange position noise, 1 sigma per axis (default 0.2)")
-    add("--robot-sigma-deg", type=float, metavar="DEG",
+    add("--robot-sigma-deg", type=bounded(0, 10, "deg"), metavar="DEG",
         help="robot flange rotation noise, 1 sigma per axis (default 0.0229, i.e. 0.4 mrad)")
-    add("--max-tilt", type=float, metavar="DEG",
+    add("--max-tilt", type=bounded(0, 89.9, "deg", lo_open=True), metavar="DEG",
         help="largest angle between the optical axis and the board normal (default 45)")
-    add("--distance-margin", type=float, metavar="F",
+    add("--distance-margin", type=bounded(0, 0.99), metavar="F",
         help="camera-board distance within the reached range +- this fraction (default 0.2)")
-    add("--max-step", type=float, metavar="M",
+    add("--max-step", type=bounded(0, 10, "m", lo_open=True), metavar="M",
         help="a suggestion's flange position within this of a reached pose (default 0.15)")
-    add("--max-step-deg", type=float, metavar="DEG",
+    add("--max-step-deg", type=bounded(0, 180, "deg", lo_open=True), metavar="DEG",
         help="... and its flange rotation within this of that pose (default 45)")
-    add("--margin-px", type=float, metavar="PX",
+    add("--margin-px", type=bounded(0, 10000, "px"), metavar="PX",
         help="every board corner, and the outer squares, this far inside every image "
              "(default 20)")
-    add("--candidates", type=int, metavar="N",
+    add("--candidates", type=bounded(1, 100000, integer=True), metavar="N",
         help="admissible candidate poses scored (default 500)")
-    add("--seed", type=int, help="random seed of the candidates (default 0)")
-    add("--criterion", metavar="NAME",
+    add("--seed", type=bounded(0, 2147483647, integer=True),
+        help="random seed of the candidates (default 0)")
+    add("--criterion", choices=("trace", "logdet"), default=None,
         help="trace: (std_mm / target_mm)^2 + (std_deg / target_deg)^2; logdet: log det of "
              "the covariance of X (default trace)")
-    add("--target-mm", type=float, metavar="MM",
+    add("--target-mm", type=bounded(0, 1000, "mm", lo_open=True), metavar="MM",
         help="translation weight of the trace criterion (default 0.3)")
-    add("--target-deg", type=float, metavar="DEG",
+    add("--target-deg", type=bounded(0, 180, "deg", lo_open=True), metavar="DEG",
         help="rotation weight of the trace criterion (default 0.03)")
     parser.add_argument("-o", "--output", metavar="FILE", default=None,
                         help="write the plan as YAML (must not exist, or give --overwrite)")

@@ -458,13 +458,15 @@ def add_handeye_input_arguments(parser: argparse.ArgumentParser, *, pairs: bool 
                      help="take the robot pose from /tf (--base-frame to --ee-frame)")
     bag.add_argument("--base-frame", default="base_link", help="(default: %(default)s)")
     bag.add_argument("--ee-frame", default="tool0", help="(default: %(default)s)")
-    bag.add_argument("--still-window", type=float, default=0.1, metavar="S",
+    bag.add_argument("--still-window", type=bounded(0, 10, "s"), default=0.1, metavar="S",
                      help="the robot must be still this long (s) around an image "
                           "(default: %(default)s)")
-    bag.add_argument("--still-translation", type=float, default=0.0005, metavar="M",
+    bag.add_argument("--still-translation", type=bounded(0, 1, "m"), default=0.0005,
+                     metavar="M",
                      help="largest robot translation within the window, m (default: "
                           "%(default)s)")
-    bag.add_argument("--still-rotation", type=float, default=0.05, metavar="DEG",
+    bag.add_argument("--still-rotation", type=bounded(0, 180, "deg"), default=0.05,
+                     metavar="DEG",
                      help="largest robot rotation within the window, deg (default: "
                           "%(default)s)")
 
@@ -484,7 +486,8 @@ def add_handeye_calibration_arguments(group: Any, *, method_help: str) -> None:
                        help="skip the joint refinements (refined, refined_exact)")
     group.add_argument("--no-outlier-rejection", action="store_true",
                        help="keep every sample")
-    group.add_argument("--outlier-threshold", type=float, default=5.0, metavar="K",
+    group.add_argument("--outlier-threshold", type=bounded(0, 1000, lo_open=True), default=5.0,
+                       metavar="K",
                        help="reject a sample whose leave-one-out board pose deviation exceeds K "
                             "times the median (default: %(default)s)")
 
