@@ -103,8 +103,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "disk")
 
 
-def _image_size(raw: bytes) -> tuple[int, int] | None:
-    """(width, height) of a CDR ``sensor_msgs/Image`` without decoding its pixels."""
+def _image_head(raw: bytes) -> tuple[int, int, str] | None:
+    """(width, height, frame_id) of a CDR ``sensor_msgs/Image`` without decoding its pixels."""
     import struct
 
     try:
@@ -112,18 +112,25 @@ def _image_size(raw: bytes) -> tuple[int, int] | None:
         fmt = "<" if little else ">"
         pos = 4 + 8                                   # encapsulation, header stamp
         (n,) = struct.unpack_from(fmt + "I", raw, pos)
+        frame = bytes(raw[pos + 4:pos + 4 + n]).rstrip(b"\0").decode("utf-8", "replace")
         pos += 4 + n
         pos += -(pos - 4) % 4                         # CDR alignment (from after encapsulation)
         height, width = struct.unpack_from(fmt + "II", raw, pos)
     except (struct.error, IndexError):
         return None
-    return int(width), int(height)
+    return int(width), int(height), frame
 
 
 def check_calibration_against_bag(rig, calibration: str, bag: str,
-                                  sides: dict[str, str]) -> None:
+                                  sides: dict[str, str], *, hand_eye_file: str = "",
+                                  camera_frame: str = "") -> list[str]:
     """Refuse a calibration whose image sizes disagree with each other or with the bag's first
     image on each side (an Image topic), naming the file and the fields.
+
+    Returns:
+        Warnings: the bag's left images in another frame than ``camera_frame`` (hand_eye.yaml's
+        child frame): the numbers are the same offline, but the live ``hand_eye`` node, whose
+        ``camera_frame`` is that frame, would refuse the points of such a camera.
 
     Raises:
         ConfigError: ``DIR/left.yaml: image_width x image_height 640x360 ...``.
@@ -137,15 +144,22 @@ def check_calibration_against_bag(rig, calibration: str, bag: str,
             f"{rig.right.width}x{rig.right.height} disagrees with left.yaml's "
             f"{rig.left.width}x{rig.left.height}")
     seen: set[str] = set()
+    notes: list[str] = []
     for topic, msgtype, t_ns, raw in iter_messages(bag, list(sides), damage=DamageLog()):
         if topic in seen or msgtype != "sensor_msgs/msg/Image":
             continue
-        size = _image_size(bytes(raw[:4096]))
-        if size is None:
+        head = _image_head(bytes(raw[:4096]))
+        if head is None:
             continue
+        size, frame = head[:2], head[2]
         seen.add(topic)
         side = sides[topic]
         model = models[side]
+        if side == "left" and camera_frame and frame and frame.lstrip("/") != camera_frame:
+            notes.append(f"{hand_eye_file}: child_frame {camera_frame!r} is not the frame of "
+                         f"the bag's {topic} images ({frame!r}): the numbers are the same "
+                         "here, but the live hand_eye node (camera_frame) would refuse that "
+                         "camera's points; check that the calibration is of this camera")
         if size != (model.width, model.height):
             raise ConfigError(
                 f"{Path(calibration) / f'{side}.yaml'}: image_width x image_height "
@@ -153,7 +167,8 @@ def check_calibration_against_bag(rig, calibration: str, bag: str,
                 f"{size[0]}x{size[1]} (first image at {t_ns} ns): a calibration of another "
                 "camera or resolution")
         if len(seen) == len(sides):
-            return
+            break
+    return notes
 
 
 def _node_params(path: str | None, node: str) -> dict:
@@ -265,8 +280,11 @@ def run(args: argparse.Namespace) -> int:
                              args.kinematics, args.truth])
     info = bag_info(args.bag)
     if rig is not None:   # before the work: a calibration of another camera locates nothing
-        check_calibration_against_bag(rig, args.calibration, args.bag,
-                                      {opts.left_topic: "left", opts.right_topic: "right"})
+        for note in check_calibration_against_bag(
+                rig, args.calibration, args.bag,
+                {opts.left_topic: "left", opts.right_topic: "right"},
+                hand_eye_file=str(args.hand_eye), camera_frame=calib.child_frame):
+            print(f"warning: {note}", file=sys.stderr)
     line = estimate(info.topics[opts.left_topic].count if opts.left_topic in info.topics
                     else 0, Path(args.output), force=args.force)
     if not args.quiet:

@@ -405,3 +405,31 @@ def test_record_on_a_full_disk_names_the_bag_and_what_it_kept(tmp_path, capsys, 
                     f"was recorded until then stays in {out} (a bag without its index is read "
                     "by scanning, see docs/bags.md)")
     assert ".partial-" not in line and "Errno" not in line
+
+
+def test_a_hand_eye_file_of_another_camera_frame_is_named(small_bag, tmp_path, capsys):
+    """hand_eye.yaml's child frame is not the frame of the bag's left images: a warning that
+    names the file and both frames (offline numbers are unaffected, the live node would refuse
+    the points); the same frame gives none."""
+    import yaml
+
+    from eye_in_hand.sim import World
+
+    bag, hand_eye = small_bag
+    World.default().with_image_size(320, 180).rig.save(tmp_path / "calib")
+    other = tmp_path / "hand_eye_other.yaml"
+    data = yaml.safe_load(hand_eye.read_text())
+    data["child_frame"] = "camera_color_optical_frame"
+    other.write_text(yaml.safe_dump(data))
+    for he, warned in ((other, True), (hand_eye, False)):
+        out = tmp_path / f"o_{warned}"
+        main(["process", str(bag), "--hand-eye", str(he), "-o", str(out), "--quiet",
+              "--calibration", str(tmp_path / "calib")])
+        err = capsys.readouterr().err
+        lines = [x for x in err.splitlines() if "child_frame" in x]
+        if warned:
+            assert len(lines) == 1 and lines[0].startswith(f"warning: {other}: child_frame "
+                                                           "'camera_color_optical_frame'"), err
+            assert "'camera_left_optical_frame'" in lines[0]
+        else:
+            assert not lines, err
