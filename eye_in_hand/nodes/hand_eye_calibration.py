@@ -156,11 +156,14 @@ class CalibrationMode:
         self._refresh_gen = 0
         self._saved_dir: Path | None = None   # what save wrote (it may replace that)
 
+        resolved = []
         for view in self.views:
             topic = "image_raw" if view.name == "image" else f"{view.name}/image_raw"
-            node.create_subscription(Image, topic,
-                                     lambda m, name=view.name: self._on_image(name, m),
-                                     SENSOR_QOS)
+            sub = node.create_subscription(Image, topic,
+                                           lambda m, name=view.name: self._on_image(name, m),
+                                           SENSOR_QOS)
+            resolved.append(sub.topic_name)
+        self.session.image_topics = ", ".join(resolved)   # refusals name the real topics
         group = ReentrantCallbackGroup()   # coroutines: one may wait while others run
         for name, cb in (("capture", self._trigger_capture), ("compute", self._trigger_compute),
                          ("save", self._trigger_save), ("reset", self._trigger_reset)):

@@ -165,6 +165,8 @@ def test_no_image_after_the_request_times_out(tmp_path, ros_context, executor, n
     c = _Cell(tmp_path, ros_context, executor, namespace, spin_until, capture_timeout_s=0.3)
     res = c.trigger("capture")
     assert not res.success and "refused (no_image)" in res.message
+    # the refusal names the topics as resolved (namespace, remapping)
+    assert f"{namespace}/left/image_raw, {namespace}/right/image_raw" in res.message
 
 
 def test_typed_services_status_and_debug_image(cell):

@@ -213,6 +213,9 @@ class CalibrationSession:
         self.decode = decode
         self.pose_kwargs = pose_kwargs or (lambda req: {})
         self.observe = observe
+        #: the image topics, as refusals name them (the node sets its resolved names)
+        self.image_topics = ", ".join("image_raw" if v.name == "image" else
+                                      f"{v.name}/image_raw" for v in self.views)
         self.records: list[SampleRecord] = []
         self.skipped: list[tuple[str, str]] = []     # (name, reason sentence)
         self.result: HandEyeResult | None = None
@@ -296,9 +299,9 @@ class CalibrationSession:
         if req.frame_stamp_ns is None:
             return None, self._refuse(
                 req, "no_image", f"no image pair stamped after the request arrived within "
-                f"{cfg.capture_timeout_s:g} s: check the camera topics (left/image_raw, "
-                "right/image_raw), and that the camera stamps with this node's clock "
-                "(use_sim_time when replaying)")
+                f"{cfg.capture_timeout_s:g} s: check the camera topics ({self.image_topics}), "
+                "and that the camera stamps with this node's clock (use_sim_time when "
+                "replaying)")
         stamp = req.frame_stamp_ns
         window = int(cfg.still_window_s * 1e9)
         newest = self.poses.newest_ns
