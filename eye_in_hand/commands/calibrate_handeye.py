@@ -11,8 +11,7 @@ import numpy as np
 
 from eye_in_hand.commands.calibration_inputs import (add_handeye_calibration_arguments,
                                                      add_handeye_input_arguments,
-                                                     load_handeye_inputs)
-from eye_in_hand.errors import HandEyeError
+                                                     solve_handeye_inputs)
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 from eye_in_hand.report.handeye import write_outputs
 
@@ -43,27 +42,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the calibration and write hand_eye.yaml, report.json and report.html."""
     # local: core.handeye loads SciPy (~0.45 s at CLI start-up); core.transforms ~3 ms
-    from eye_in_hand.core.handeye import FRAMES, calibrate_hand_eye
+    from eye_in_hand.core.handeye import FRAMES
     from eye_in_hand.core.transforms import matrix_to_quat_xyzw
 
     check_output_dir(args.output, overwrite=args.overwrite,  # refuse now, not after the work
                      inputs=[args.dataset, args.pairs, args.bag, args.calibration,
                              args.kinematics])
-    inputs = load_handeye_inputs(args)
+    inputs, result = solve_handeye_inputs(args)
     samples = inputs["samples"]
     setup = inputs["setup"]
-    for note in inputs["notes"]:
-        print(f"warning: {note}", file=sys.stderr)
-    for s in inputs["skipped"]:
-        print(f"warning: sample {s['name']!r} skipped: {s['reason']}", file=sys.stderr)
-    if len(samples) < 3:
-        raise HandEyeError(f"only {len(samples)} usable samples (of {inputs['input']['count']};"
-                           f" {len(inputs['skipped'])} skipped): need at least 3")
-    result = calibrate_hand_eye(
-        samples, setup, cameras=inputs["views"], method=args.method,
-        refine=not args.no_refine, reject_outliers=not args.no_outlier_rejection,
-        outlier_threshold=args.outlier_threshold,
-        **({} if args.average_solver is None else {"average_solver": args.average_solver}))
     parent = args.parent_frame or FRAMES[setup][0]
     out = Path(args.output)
     with atomic_output_dir(out, overwrite=args.overwrite) as tmp:

@@ -16,9 +16,9 @@ from typing import Any
 
 from eye_in_hand.commands.calibration_inputs import (add_handeye_calibration_arguments,
                                                      add_handeye_input_arguments,
-                                                     load_handeye_inputs)
+                                                     solve_handeye_inputs)
 from eye_in_hand.commands.common import bounded
-from eye_in_hand.errors import HandEyeError, InputError
+from eye_in_hand.errors import InputError
 from eye_in_hand.io.atomic import OutputError, OutputExistsError, atomic_write_text
 
 HELP = "suggest the next robot poses for a hand-eye calibration (dataset or bag)"
@@ -133,27 +133,15 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
     import yaml
 
-    from eye_in_hand.core.handeye import calibrate_hand_eye, suggest_next_poses
+    from eye_in_hand.core.handeye import suggest_next_poses
     from eye_in_hand.core.transforms import to_xyz_quat
 
     if bool(args.dataset) == bool(args.bag):                  # before any work
         raise InputError("give exactly one input: DATASET_DIR or --bag BAG")
     out = _check_output(args)                       # refuse now, not after the work
     _config(args)                                   # bad plan options fail before the work
-    inputs = load_handeye_inputs(args)
+    inputs, result = solve_handeye_inputs(args)
     samples, setup, views = inputs["samples"], inputs["setup"], inputs["views"]
-    for note in inputs["notes"]:
-        print(f"warning: {note}", file=sys.stderr)
-    for s in inputs["skipped"]:
-        print(f"warning: sample {s['name']!r} skipped: {s['reason']}", file=sys.stderr)
-    if len(samples) < 3:
-        raise HandEyeError(f"only {len(samples)} usable samples (of {inputs['input']['count']};"
-                           f" {len(inputs['skipped'])} skipped): need at least 3")
-    result = calibrate_hand_eye(
-        samples, setup, cameras=views, method=args.method, refine=not args.no_refine,
-        reject_outliers=not args.no_outlier_rejection,
-        outlier_threshold=args.outlier_threshold,
-        **({} if args.average_solver is None else {"average_solver": args.average_solver}))
     sel = result.methods[result.selected]
     estimate = None
     if args.noise_px is None and result.refinement is not None:

@@ -17,7 +17,7 @@ import numpy as np
 
 from eye_in_hand.commands.common import bounded
 from eye_in_hand.errors import BagError, CalibrationError, ConfigError, ConversionError, \
-    InputError
+    HandEyeError, InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 from eye_in_hand.io.bags import bag_info, deserialize, iter_messages, require_topics
 from eye_in_hand.ros.stamps import header_stamp_ns
@@ -490,6 +490,38 @@ def add_handeye_calibration_arguments(group: Any, *, method_help: str) -> None:
                        metavar="K",
                        help="reject a sample whose leave-one-out board pose deviation exceeds K "
                             "times the median (default: %(default)s)")
+
+
+def solve_handeye_inputs(args: argparse.Namespace) -> tuple[dict[str, Any], Any]:
+    """Load the hand-eye inputs (:func:`load_handeye_inputs`), print their warnings, and solve
+    with the calibration options (:func:`add_handeye_calibration_arguments`): what
+    ``calibrate handeye`` and ``calibrate plan`` both start from.
+
+    Returns:
+        ``(inputs, result)``: the inputs' dict and the
+        :class:`eye_in_hand.core.handeye.HandEyeResult`.
+
+    Raises:
+        HandEyeError: fewer than 3 usable samples, or the solvers' own refusals.
+    """
+    # local: core.handeye loads SciPy (~0.35 s at CLI start-up)
+    from eye_in_hand.core.handeye import calibrate_hand_eye
+
+    inputs = load_handeye_inputs(args)
+    samples = inputs["samples"]
+    for note in inputs["notes"]:
+        print(f"warning: {note}", file=sys.stderr)
+    for s in inputs["skipped"]:
+        print(f"warning: sample {s['name']!r} skipped: {s['reason']}", file=sys.stderr)
+    if len(samples) < 3:
+        raise HandEyeError(f"only {len(samples)} usable samples (of {inputs['input']['count']};"
+                           f" {len(inputs['skipped'])} skipped): need at least 3")
+    result = calibrate_hand_eye(
+        samples, inputs["setup"], cameras=inputs["views"], method=args.method,
+        refine=not args.no_refine, reject_outliers=not args.no_outlier_rejection,
+        outlier_threshold=args.outlier_threshold,
+        **({} if args.average_solver is None else {"average_solver": args.average_solver}))
+    return inputs, result
 
 
 def load_handeye_inputs(args: argparse.Namespace) -> dict[str, Any]:
