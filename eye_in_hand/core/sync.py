@@ -15,6 +15,8 @@ Two independent tools, both pure Python/numpy (no rclpy), stamps as int nanoseco
   poses older than a receive age (``max_age_ns``), and the buffer clears itself when stamps or
   the receive clock jump backwards (a bag replayed again, simulated time reset) or when the
   stream stops (:meth:`PoseBuffer.expire`): never a pose from a stale stream.
+* :class:`InputWaits` decides when a wait for a robot pose (or a target's point) is over on a
+  consumer that may fall behind: never while the awaited messages may still sit in its queue.
 """
 from __future__ import annotations
 
@@ -33,6 +35,7 @@ __all__ = [
     "SyncStats",
     "ApproximateStereoSync",
     "PoseBuffer",
+    "InputWaits",
 ]
 
 T = TypeVar("T")
@@ -483,3 +486,62 @@ class PoseBuffer:
                 f"apart, over the limit of {gap_limit / 1e6:.3f} ms", reason="pose_gap")
         self._check_age(stamp, (i - 1, i), now_ns, max_age_ns)
         return interpolate_unchecked(stamp, s0, self._poses[i - 1], s1, self._poses[i])
+
+
+class InputWaits:
+    """When a wait for inputs is over, on a consumer that may fall behind its inputs.
+
+    A point waits up to ``pose_wait_s`` for a robot pose newer than its stamp, and a frame of
+    targets up to ``point_wait_s`` for its targets' points, measured on a monotonic clock from
+    the point's (frame's) arrival. On a busy machine a wait can run out while the very messages
+    it waits for sit in the subscription's queue: an executor that fell behind runs the timer
+    that checks the waits before the callbacks of what arrived meanwhile, and the point was
+    refused with its robot pose already received. So a wait that ran out ends only at a
+    :meth:`tick` that follows an earlier tick at which some wait had run out, with no message of
+    that kind (a robot pose; a target's point) arriving in between: the executor has then had a
+    turn at every message waiting for it. A stream that keeps coming without ever covering the
+    stamp holds a wait at most ``cap_s`` (default: twice the wait plus 0.5 s).
+
+    Pure bookkeeping: the consumer calls :meth:`pose_arrived` / :meth:`point_arrived` for each
+    message, :meth:`tick` from its periodic check, and asks :meth:`pose_wait_over` /
+    :meth:`point_wait_over` with the time an item has waited.
+    """
+
+    def __init__(self, pose_wait_s: float, point_wait_s: float) -> None:
+        self.pose_wait_s = float(pose_wait_s)
+        self.point_wait_s = float(point_wait_s)
+        self._seq = {"pose": 0, "point": 0}
+        self._mark: dict[str, int | None] = {"pose": None, "point": None}
+        self._over = {"pose": False, "point": False}
+
+    def pose_arrived(self) -> None:
+        self._arrived("pose")
+
+    def point_arrived(self) -> None:
+        self._arrived("point")
+
+    def _arrived(self, kind: str) -> None:
+        self._seq[kind] += 1
+        self._over[kind] = False
+
+    def tick(self, longest_wait_s: float) -> None:
+        """The periodic check; ``longest_wait_s``: how long the oldest waiting item has waited
+        (0 when none waits)."""
+        for kind, limit in (("pose", self.pose_wait_s), ("point", self.point_wait_s)):
+            if longest_wait_s <= limit:
+                self._mark[kind], self._over[kind] = None, False
+            elif self._mark[kind] == self._seq[kind]:
+                self._over[kind] = True     # a whole turn passed with nothing of this kind
+            else:
+                self._mark[kind], self._over[kind] = self._seq[kind], False
+
+    def _wait_over(self, kind: str, limit: float, waited_s: float) -> bool:
+        return waited_s > limit and (self._over[kind] or waited_s > 2.0 * limit + 0.5)
+
+    def pose_wait_over(self, waited_s: float) -> bool:
+        """Whether an item that waited ``waited_s`` for a robot pose waits no longer."""
+        return self._wait_over("pose", self.pose_wait_s, waited_s)
+
+    def point_wait_over(self, waited_s: float) -> bool:
+        """Whether a frame that waited ``waited_s`` for its targets' points waits no longer."""
+        return self._wait_over("point", self.point_wait_s, waited_s)
