@@ -45,6 +45,7 @@ from eye_in_hand.io.bags import (DamageLog, bag_info, deserialize, iter_messages
                                  require_topics, typestore_for)
 from eye_in_hand.io.results import TargetResult, assign_truth, target_order
 from eye_in_hand.io.results import write_results as _write_results
+from eye_in_hand.ros.outputs import OutputSettings
 
 __all__ = ["ProcessOptions", "FrameResult", "ProcessResult", "TargetResult", "process_bag",
            "loss_total",
@@ -84,6 +85,9 @@ class ProcessOptions:
             CRC-32 costs about 16 ms per 1280x720 colour stereo pair here).
         setup: ``"eye_in_hand"``, or ``"eye_to_hand"``: the hand-eye transform is
             ``base_T_cam`` of a fixed camera; no robot topic is read.
+        outputs: what the live nodes' parameters decide about the output messages (their
+            frames, markers and transforms), so that the output bag holds the messages the
+            live nodes would publish (:class:`eye_in_hand.ros.outputs.OutputSettings`).
     """
 
     left_topic: str = "/stereo/left/image_raw"
@@ -111,6 +115,7 @@ class ProcessOptions:
     task_timeout_s: float = 20.0
     verify_crc: bool = False
     setup: str = "eye_in_hand"
+    outputs: OutputSettings = field(default_factory=OutputSettings)
 
     def __post_init__(self) -> None:
         if self.setup not in ("eye_in_hand", "eye_to_hand"):

@@ -186,6 +186,38 @@ def _node_params(path: str | None, node: str) -> dict:
         raise
 
 
+def output_settings(detect: dict, hand_eye: dict, config, calib, *, camera_parent: str):
+    """The live nodes' output settings from their parameters (defaults: the nodes'), so that
+    the output bag holds the messages they would publish: markers (lifetimes, each target's
+    sphere), /tf names, /tf_static (the hand-eye transform, and the stereo extrinsic of
+    hand_eye's ``stereo_calibration_dir``)."""
+    # local: the builders' module and core.camera, only when processing
+    import numpy as np
+
+    from eye_in_hand.core.camera import StereoRig
+    from eye_in_hand.ros.markers import sphere_style
+    from eye_in_hand.ros.outputs import (MARKER_DIAMETER_M, MARKER_LIFETIME_S,
+                                         RIGHT_CAMERA_FRAME, TARGET_FRAME_PREFIX,
+                                         OutputSettings)
+
+    diameter = float(detect.get("markers.diameter_m", MARKER_DIAMETER_M))
+    styles = {t.name: sphere_style(t.radius_m, t.color, diameter)
+              for t in config.detector.targets}
+    stereo_dir = str(hand_eye.get("stereo_calibration_dir", ""))
+    stereo_T = (np.linalg.inv(StereoRig.load(stereo_dir).right_T_left) if stereo_dir
+                else None)
+    return OutputSettings(
+        target_frame_prefix=str(hand_eye.get("target_frame_prefix", TARGET_FRAME_PREFIX)),
+        target_frame=str(hand_eye.get("target_frame", "")),
+        publish_tf=bool(hand_eye.get("publish_tf", True)),
+        right_camera_frame=str(hand_eye.get("right_camera_frame", RIGHT_CAMERA_FRAME)),
+        camera_markers_lifetime_s=float(detect.get("markers.lifetime_s", MARKER_LIFETIME_S)),
+        target_markers_lifetime_s=float(hand_eye.get("marker_lifetime_s", MARKER_LIFETIME_S)),
+        styles=styles, default_style=(diameter, sphere_style(None, None, diameter)[1]),
+        camera_parent=camera_parent,
+        hand_eye_T=calib.transform, stereo_T=stereo_T)
+
+
 # The cost model of the estimate printed before the work (measured here: a 20 s 640x480 bag of
 # 600 pairs took 2.6-3.0 s with two workers, a 1280x720 zstd one ~5 s; outputs ~2.5 KB a pair)
 _START_S = 1.5              # interpreter, imports and worker start-up (s)
@@ -247,6 +279,7 @@ def run(args: argparse.Namespace) -> int:
         from eye_in_hand.io.kinematics import load_kinematics
 
         kinematics = load_kinematics(args.kinematics, args.urdf_base_link, args.urdf_tip_link)
+    ee_frame = str(args.ee_frame or hand_eye_params.get("ee_frame", calib.parent_frame))
     try:
         robot_sigmas = robot_pose_sigmas(
             float(hand_eye_params.get("robot_sigma_pos_m", ProcessOptions.robot_sigma_pos_m)),
@@ -258,7 +291,7 @@ def run(args: argparse.Namespace) -> int:
             robot_pose_source=args.robot_pose, ee_pose_topic=args.ee_pose_topic,
             joint_states_topic=args.joint_states_topic, kinematics=kinematics,
             tf_topic=args.tf_topic, tf_static_topic=args.tf_static_topic,
-            ee_frame=str(args.ee_frame or hand_eye_params.get("ee_frame", calib.parent_frame)),
+            ee_frame=ee_frame,
             ground_truth_topic=args.ground_truth_topic,
             base_frame=str(args.base_frame or (calib.parent_frame if fixed else
                                                hand_eye_params.get("base_frame", "base_link"))),
@@ -272,7 +305,9 @@ def run(args: argparse.Namespace) -> int:
             # robot_pose_noise where that is larger (core.localization.robot_pose_sigmas)
             robot_sigma_pos_m=robot_sigmas[0], robot_sigma_rot_rad=robot_sigmas[1],
             verify_crc=args.verify_crc, workers=args.workers,
-            task_timeout_s=args.task_timeout, setup=calib.setup)
+            task_timeout_s=args.task_timeout, setup=calib.setup,
+            outputs=output_settings(detect, hand_eye_params, config, calib,
+                                    camera_parent=calib.parent_frame if fixed else ee_frame))
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{args.params}: {exc}") from exc
     check_output_dir(args.output, overwrite=args.overwrite,  # refuse now, not after the work

@@ -3,11 +3,15 @@
 Written by :func:`write_results` into ``OUT`` (a rosbag2 bag with ``results.csv`` and
 ``summary.json`` beside its files):
 
-* the bag: ``/target/point`` (left optical frame), ``/target/pose``, ``/target/pose_cov``
-  (base frame) for the first configured target, as before; and for every target id
-  ``/targets/<id>/point`` (left optical frame), ``/target/<id>/pose``,
-  ``/target/<id>/pose_cov`` (base frame) and ``/target/<id>/ground_truth`` (PointStamped,
-  base frame: the true target matched to this id, when the input bag had ground truth);
+* the bag: the messages the live ``detect_triangulate`` and ``hand_eye`` nodes publish for the
+  same frames, with the same frames and stamps, built by the nodes' own builders
+  (:mod:`eye_in_hand.ros.outputs`): ``/target/point``, ``/target/point_cov``,
+  ``/targets/markers``, ``/targets/<id>/point(_cov)`` (left optical frame), ``/target/pose``,
+  ``/target/pose_cov``, ``/target/<id>/pose(_cov)``, ``/target/poses``, ``/target/markers``,
+  ``/tf`` (``base_frame -> target_<id>``) (base frame), ``/hand_eye/transform`` and
+  ``/tf_static`` (at the first frame); and, offline only, ``/target/<id>/ground_truth``
+  (PointStamped, base frame: the true target matched to this id, when the input bag had
+  ground truth);
 * ``results.csv``: one row per stereo pair and target id (:data:`CSV_COLUMNS`; the ``target``
   column is the id), rows of one pair together, targets in :func:`target_order`;
 * ``summary.json``: counts and error statistics of the first target (as before), per-target
@@ -17,11 +21,13 @@ Written by :func:`write_results` into ``OUT`` (a rosbag2 bag with ``results.csv`
 Read back by :func:`load_tracks` (a ``results.csv``, a folder holding one, or an output bag)
 for ``eye-in-hand distances``; known distances by :func:`load_known_distances`.
 
-No rclpy: messages are built with the bag writer's type store.
+No rclpy: messages are built with the bag writer's type store
+(:class:`eye_in_hand.ros.outputs.RosbagsTypes`).
 """
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 import re
@@ -35,12 +41,17 @@ from eye_in_hand.core.distances import (PairDistance, TargetStats, apply_known_d
                                         match_truth, pairwise_distances, target_stats)
 from eye_in_hand.errors import BagError, ConfigError, InputError
 from eye_in_hand.io.bags import BagWriter, bag_info, deserialize, iter_messages
+from eye_in_hand.ros.outputs import (OutputSettings, RosbagsTypes, Sphere, point_stamped,
+                                     pose_array, pose_stamped, pose_with_covariance,
+                                     sphere_markers, tf_message, transform_stamped,
+                                     translation_tf_message)
 from eye_in_hand.yamlfile import read_yaml_file
 
 if TYPE_CHECKING:  # annotations only: offline sits a floor above
     from eye_in_hand.offline import FrameResult, ProcessOptions, ProcessResult
 
-__all__ = ["TargetResult", "CSV_COLUMNS", "target_order", "assign_truth", "frame_tracks",
+__all__ = ["TargetResult", "CSV_COLUMNS", "OFFLINE_ONLY", "output_messages", "compare_outputs",
+           "target_order", "assign_truth", "frame_tracks",
            "summary_figures", "run_figures", "write_results", "load_tracks", "load_known_distances",
            "Tracks"]
 
@@ -237,9 +248,8 @@ def write_results(out: str | Path, result: ProcessResult, opts: ProcessOptions |
         raise BagError(f"{out}: output exists already (choose a new -o)")
     ids = list(result.target_ids)
     with BagWriter(out, storage=storage) as writer:  # type: ignore[arg-type]
-        T = writer.typestore.types
-        _Topics(writer, ids).write_all(
-            T, result, getattr(opts, "camera_frame", "camera_left_optical_frame"),
+        _Topics(writer, getattr(opts, "outputs", None) or OutputSettings()).write_all(
+            result, getattr(opts, "camera_frame", "camera_left_optical_frame"),
             getattr(opts, "base_frame", "base_link"))
     csv_path = out / "results.csv"
     with csv_path.open("w", newline="") as fh:
@@ -257,65 +267,116 @@ def write_results(out: str | Path, result: ProcessResult, opts: ProcessOptions |
     return {"bag": out, "csv": csv_path, "summary": summary_path}
 
 
+#: Topic -> message type of the output bag (per-target topics: ``{id}`` in the name).
+_FRAME_TOPICS = {
+    "/target/point": "geometry_msgs/msg/PointStamped",
+    "/target/point_cov": "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "/targets/markers": "visualization_msgs/msg/MarkerArray",
+    "/targets/{id}/point": "geometry_msgs/msg/PointStamped",
+    "/targets/{id}/point_cov": "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "/target/pose": "geometry_msgs/msg/PoseStamped",
+    "/target/pose_cov": "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "/target/{id}/pose": "geometry_msgs/msg/PoseStamped",
+    "/target/{id}/pose_cov": "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "/target/poses": "geometry_msgs/msg/PoseArray",
+    "/target/markers": "visualization_msgs/msg/MarkerArray",
+    "/hand_eye/transform": "geometry_msgs/msg/TransformStamped",
+    "/tf": "tf2_msgs/msg/TFMessage",
+    "/tf_static": "tf2_msgs/msg/TFMessage",
+    "/target/{id}/ground_truth": "geometry_msgs/msg/PointStamped",
+}
+
+
 class _Topics:
-    """The output bag's topics and messages."""
+    """The output bag: the messages the live ``detect_triangulate`` and ``hand_eye`` publish
+    for the same frames (built by :mod:`eye_in_hand.ros.outputs`, the nodes' builders), plus
+    the ground truth."""
 
-    def __init__(self, writer: Any, ids: Sequence[str]) -> None:
+    def __init__(self, writer: Any, settings: OutputSettings) -> None:
         self.w = writer
-        for name in ("/target/point", *(f"/targets/{_topic_id(i)}/point" for i in ids)):
-            writer.add_topic(name, "geometry_msgs/msg/PointStamped")
-        for prefix in ("/target", *(f"/target/{_topic_id(i)}" for i in ids)):
-            writer.add_topic(f"{prefix}/pose", "geometry_msgs/msg/PoseStamped")
-            writer.add_topic(f"{prefix}/pose_cov",
-                             "geometry_msgs/msg/PoseWithCovarianceStamped")
-        self.truth_added: set[str] = set()
+        self.s = settings
+        self.T = RosbagsTypes(writer.typestore)
+        self.added: set[str] = set()
 
-    def write_all(self, T: Any, result: ProcessResult, camera_frame: str,
-                  base_frame: str) -> None:
-        def header(stamp: int, frame: str) -> Any:
-            return T["std_msgs/msg/Header"](
-                stamp=T["builtin_interfaces/msg/Time"](sec=stamp // 1_000_000_000,
-                                                       nanosec=stamp % 1_000_000_000),
-                frame_id=frame)
+    def write(self, topic: str, stamp: int, msg: Any, kind: str | None = None) -> None:
+        if topic not in self.added:
+            key = re.sub(r"^(/targets?/)[^/]+/(point|point_cov|pose|pose_cov|ground_truth)$",
+                         r"\1{id}/\2", topic)
+            self.w.add_topic(topic, kind or _FRAME_TOPICS[key])
+            self.added.add(topic)
+        self.w.write(topic, stamp, msg)
 
-        def point(p: np.ndarray) -> Any:
-            return T["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]), z=float(p[2]))
-
-        def located(stamp: int, prefix: str, cam_topic: str, p_cam: np.ndarray,
-                    p_base: np.ndarray | None, c_base: np.ndarray | None) -> None:
-            self.w.write(cam_topic, stamp, T["geometry_msgs/msg/PointStamped"](
-                header=header(stamp, camera_frame), point=point(p_cam)))
-            if p_base is None or c_base is None:
-                return
-            pose = T["geometry_msgs/msg/Pose"](
-                position=point(p_base),
-                orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
-            self.w.write(f"{prefix}/pose", stamp, T["geometry_msgs/msg/PoseStamped"](
-                header=header(stamp, base_frame), pose=pose))
-            cov = np.zeros((6, 6))
-            cov[:3, :3] = c_base
-            cov[3:, 3:] = np.eye(3) * 1e6
-            self.w.write(f"{prefix}/pose_cov", stamp,
-                         T["geometry_msgs/msg/PoseWithCovarianceStamped"](
-                             header=header(stamp, base_frame),
-                             pose=T["geometry_msgs/msg/PoseWithCovariance"](
-                                 pose=pose, covariance=cov.ravel())))
-
+    def write_all(self, result: ProcessResult, camera_frame: str, base_frame: str) -> None:
         for f in result.frames:
-            if f.point_cam is not None:
-                located(f.stamp_ns, "/target", "/target/point", f.point_cam, f.point_base,
-                        f.cov_base)
-            for t in f.targets:
-                tid = _topic_id(t.id)
-                located(f.stamp_ns, f"/target/{tid}", f"/targets/{tid}/point", t.point_cam,
-                        t.point_base, t.cov_base)
-                if t.truth_base is not None:
-                    topic = f"/target/{tid}/ground_truth"
-                    if topic not in self.truth_added:
-                        self.w.add_topic(topic, "geometry_msgs/msg/PointStamped")
-                        self.truth_added.add(topic)
-                    self.w.write(topic, f.stamp_ns, T["geometry_msgs/msg/PointStamped"](
-                        header=header(f.stamp_ns, base_frame), point=point(t.truth_base)))
+            if f.status == "bad_image":
+                continue            # the live detector publishes nothing for such a pair
+            self.frame(f, camera_frame, base_frame)
+
+    def static(self, stamp: int, camera_frame: str) -> None:
+        """``/hand_eye/transform`` and ``/tf_static`` at the first frame (hand_eye latches both
+        at the first image stamp it receives)."""
+        s, T = self.s, self.T
+        if s.hand_eye_T is None:
+            return
+        self.write("/hand_eye/transform", stamp, transform_stamped(
+            T, s.hand_eye_T, stamp, s.camera_parent, camera_frame))
+        if not s.publish_tf:
+            return
+        edges = [(s.camera_parent, camera_frame, stamp, s.hand_eye_T)]
+        if s.stereo_T is not None:
+            edges.insert(0, (camera_frame, s.right_camera_frame, stamp, s.stereo_T))
+        self.write("/tf_static", stamp, tf_message(T, edges))
+
+    def frame(self, f: FrameResult, camera_frame: str, base_frame: str) -> None:
+        s, T, stamp = self.s, self.T, f.stamp_ns
+        if "/tf_static" not in self.added and "/hand_eye/transform" not in self.added:
+            self.static(stamp, camera_frame)
+        # detect_triangulate: the first target, every target, the frame's list
+        if f.point_cam is not None and f.cov_cam is not None:
+            self.write("/target/point_cov", stamp, pose_with_covariance(
+                T, f.point_cam, f.cov_cam, stamp, camera_frame))
+            self.write("/target/point", stamp, point_stamped(T, f.point_cam, stamp,
+                                                             camera_frame))
+        spheres = []
+        for t in f.targets:
+            tid = _topic_id(t.id)
+            self.write(f"/targets/{tid}/point_cov", stamp, pose_with_covariance(
+                T, t.point_cam, t.cov_cam, stamp, camera_frame))
+            self.write(f"/targets/{tid}/point", stamp, point_stamped(T, t.point_cam, stamp,
+                                                                   camera_frame))
+            spheres.append(Sphere(t.id, t.point_cam, *s.style(t.name)))
+        self.write("/targets/markers", stamp, sphere_markers(
+            T, spheres, stamp, camera_frame, s.camera_markers_lifetime_s))
+        # hand_eye: the first target, every target, the frame's lists, /tf
+        if f.point_base is not None and f.cov_base is not None:
+            self.write("/target/pose", stamp, pose_stamped(T, f.point_base, stamp, base_frame))
+            self.write("/target/pose_cov", stamp, pose_with_covariance(
+                T, f.point_base, f.cov_base, stamp, base_frame))
+            if s.publish_tf and s.target_frame:
+                self.write("/tf", stamp, translation_tf_message(
+                    T, [(base_frame, s.target_frame, stamp, f.point_base)]))
+        located, edges = [], []
+        for t, sphere in zip(f.targets, spheres):
+            if t.point_base is None or t.cov_base is None:
+                continue
+            tid = _topic_id(t.id)
+            self.write(f"/target/{tid}/pose_cov", stamp, pose_with_covariance(
+                T, t.point_base, t.cov_base, stamp, base_frame))
+            self.write(f"/target/{tid}/pose", stamp, pose_stamped(T, t.point_base, stamp,
+                                                                 base_frame))
+            located.append(Sphere(t.id, t.point_base, sphere.diameter_m, sphere.rgba))
+            if s.target_frame_prefix:
+                edges.append((base_frame, s.target_frame_prefix + t.id, stamp, t.point_base))
+        self.write("/target/poses", stamp, pose_array(T, [x.xyz for x in located], stamp,
+                                                      base_frame))
+        self.write("/target/markers", stamp, sphere_markers(
+            T, located, stamp, base_frame, s.target_markers_lifetime_s))
+        if edges and s.publish_tf:
+            self.write("/tf", stamp, translation_tf_message(T, edges))
+        for t in f.targets:
+            if t.truth_base is not None:
+                self.write(f"/target/{_topic_id(t.id)}/ground_truth", stamp,
+                           point_stamped(T, t.truth_base, stamp, base_frame))
 
 
 def _rows(f: FrameResult, ids: Sequence[str]) -> list[list[Any]]:
@@ -487,3 +548,60 @@ def load_known_distances(path: str | Path) -> list[tuple[str, str, float]]:
     if not out:
         raise ConfigError(f"{path}: 'distances' is empty")
     return out
+
+
+#: Topics of an output bag that the live nodes do not publish (offline only).
+OFFLINE_ONLY = re.compile(r"^/target/[^/]+/ground_truth$")
+
+
+def _plain(msg: Any) -> Any:
+    """A message as nested dicts and lists of plain numbers and strings (comparable with ==)."""
+    if dataclasses.is_dataclass(msg):
+        return {f.name: _plain(getattr(msg, f.name)) for f in dataclasses.fields(msg)}
+    if isinstance(msg, np.ndarray):
+        return msg.tolist()
+    if isinstance(msg, (list, tuple)):
+        return [_plain(x) for x in msg]
+    return msg
+
+
+def output_messages(path: str | Path, topics: Sequence[str] | None = None
+                    ) -> dict[str, list[tuple[int, Any]]]:
+    """The messages of an output bag (of ``process``, or a recording of the live nodes' outputs)
+    by topic: ``(header stamp ns, message as plain data)`` in stamp order (messages without a
+    header: their first transform's stamp). Offline-only topics (:data:`OFFLINE_ONLY`) are left
+    out."""
+    info = bag_info(path)
+    wanted = [t for t in (topics if topics is not None else info.topics)
+              if t in info.topics and not OFFLINE_ONLY.match(t)]
+    out: dict[str, list[tuple[int, Any]]] = {t: [] for t in wanted}
+    for topic, msgtype, _t, raw in iter_messages(path, wanted):
+        msg = _plain(deserialize(raw, msgtype))
+        head = msg.get("header") or (msg.get("transforms") or msg.get("markers") or
+                                     [{}])[0].get("header") or {}
+        stamp = head.get("stamp", {})
+        out[topic].append((int(stamp.get("sec", 0)) * 1_000_000_000 +
+                           int(stamp.get("nanosec", 0)), msg))
+    for msgs in out.values():
+        msgs.sort(key=lambda m: (m[0], json.dumps(m[1], sort_keys=True, default=str)))
+    return out
+
+
+def compare_outputs(live: Mapping[str, list[tuple[int, Any]]],
+                    offline: Mapping[str, list[tuple[int, Any]]],
+                    stamps: set[int] | None = None) -> list[str]:
+    """Differences between two sets of output messages (:func:`output_messages`): topics in
+    one only, and per topic the stamps with different messages. ``stamps``: compare only
+    messages of these stamps (the frames both runs saw); None: all. Empty: identical."""
+    problems = []
+    for topic in sorted(set(live) ^ set(offline)):
+        problems.append(f"{topic}: only {'live' if topic in live else 'offline'}")
+    for topic in sorted(set(live) & set(offline)):
+        a = [m for m in live[topic] if stamps is None or m[0] in stamps]
+        b = [m for m in offline[topic] if stamps is None or m[0] in stamps]
+        if a != b:
+            bad = sorted({s for s, _ in a} ^ {s for s, _ in b}) or sorted(
+                {s for (s, x), (_, y) in zip(a, b) if x != y})
+            problems.append(f"{topic}: {len(a)} live and {len(b)} offline messages differ "
+                            f"(first at {bad[0] if bad else '?'} ns)")
+    return problems

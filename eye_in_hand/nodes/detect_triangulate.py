@@ -102,14 +102,13 @@ from eye_in_hand.ros.conversions import (
     camera_info_to_model,
     header_stamp_ns,
     image_to_numpy,
-    make_header,
     numpy_to_image,
-    xyz_to_point_stamped,
 )
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
-from eye_in_hand.ros.markers import (DEFAULT_RGBA, Sphere, color_range_rgba, marker_classes,
-                                     sphere_marker_array)
+from eye_in_hand.ros.markers import Sphere, marker_classes, sphere_marker_array, sphere_style
 from eye_in_hand.ros.names import topic_name_problem
+from eye_in_hand.ros.outputs import (MARKER_DIAMETER_M, MARKER_LIFETIME_S, point_stamped,
+                                     pose_with_covariance, rclpy_types)
 from eye_in_hand.ros.params import Param, declare_params
 from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS, TARGET_POINT_QOS
 
@@ -148,10 +147,10 @@ NODE_PARAMETERS: tuple[Param, ...] = (
     Param("max_targets", 64, "most target ids that get targets/<id>/point(_cov) publishers; "
           "targets with further ids are refused (counted as targets_refused)",
           range=(1, 10_000)),
-    Param("markers.lifetime_s", 1.0, "lifetime of the spheres on targets/markers (s); "
-          "0 = until the next frame's DELETEALL", range=(0.0, 3600.0)),
-    Param("markers.diameter_m", 0.04, "sphere diameter on targets/markers for a target of "
-          "unknown radius (radius_m 0)", range=(1e-4, 10.0)),
+    Param("markers.lifetime_s", MARKER_LIFETIME_S, "lifetime of the spheres on "
+          "targets/markers (s); 0 = until the next frame's DELETEALL", range=(0.0, 3600.0)),
+    Param("markers.diameter_m", MARKER_DIAMETER_M, "sphere diameter on targets/markers for a "
+          "target of unknown radius (radius_m 0)", range=(1e-4, 10.0)),
 )
 
 
@@ -305,8 +304,10 @@ class DetectTriangulateNode(Node):
                                reliability=ReliabilityPolicy.RELIABLE
                                if node_values["images.reliable"] else SENSOR_QOS.reliability,
                                durability=SENSOR_QOS.durability)
-        self.create_subscription(Image, "left/image_raw", self._on_left, image_qos)
-        self.create_subscription(Image, "right/image_raw", self._on_right, image_qos)
+        self.create_subscription(Image, "left/image_raw", self._on_left, image_qos,
+                                 event_callbacks=self._image_qos_events("left/image_raw"))
+        self.create_subscription(Image, "right/image_raw", self._on_right, image_qos,
+                                 event_callbacks=self._image_qos_events("right/image_raw"))
         if not self._from_files:
             self.create_subscription(CameraInfo, "left/camera_info",
                                      lambda m: self._on_info("left", m), SENSOR_QOS)
@@ -475,6 +476,21 @@ class DetectTriangulateNode(Node):
             return None
         return np.ascontiguousarray(img)
 
+    def _image_qos_events(self, topic: str) -> Any:
+        """A camera whose publisher cannot match the image subscription's QoS (a best-effort
+        driver with ``images.reliable: true``) sends this node nothing: say so, with the fix,
+        in the log and on diagnostics, instead of waiting silently."""
+        from rclpy.event_handler import SubscriptionEventCallbacks
+
+        def incompatible(info: Any) -> None:
+            self.diag.report(
+                "image_qos", f"{self.resolve_topic_name(topic)}: a publisher offers a QoS this "
+                f"subscription cannot match (policy {info.last_policy_kind}): it sends no "
+                "images here; with a best-effort camera driver set images.reliable: false",
+                level=ERROR)
+
+        return SubscriptionEventCallbacks(incompatible_qos=incompatible)
+
     def _process(self, pair: StereoPair[Image]) -> str:
         """Locate and publish one pair; the ledger counter of its outcome
         (``points_published``, ``no_target`` or ``failed_pairs``)."""
@@ -497,7 +513,7 @@ class DetectTriangulateNode(Node):
             # The same two messages go to targets/<first id>/... below (built once).
             first_msgs = (point_cov_message(first.point_m, first.covariance, stamp_ns=stamp,
                                             frame_id=frame),
-                          xyz_to_point_stamped(first.point_m, stamp_ns=stamp, frame_id=frame))
+                          point_stamped(rclpy_types(), first.point_m, stamp, frame))
             self._pub_point_cov.publish(first_msgs[0])
             self._pub_point.publish(first_msgs[1])
             self.diag.count("detections")
@@ -556,7 +572,7 @@ class DetectTriangulateNode(Node):
             else:
                 cov_msg = point_cov_message(t.point_m, t.covariance, stamp_ns=stamp,
                                             frame_id=frame)
-                point_msg = xyz_to_point_stamped(t.point_m, stamp_ns=stamp, frame_id=frame)
+                point_msg = point_stamped(rclpy_types(), t.point_m, stamp, frame)
             pubs[1].publish(cov_msg)
             pubs[0].publish(point_msg)
             self.diag.count("target_points_published")
@@ -572,11 +588,9 @@ class DetectTriangulateNode(Node):
         style = self._styles.get(name)
         if style is None:
             spec = self._specs.get(name)
-            diameter = (2.0 * spec.radius_m if spec is not None and spec.radius_m
-                        else self._marker_diameter_m)
-            rgba = (color_range_rgba(spec.color.lower, spec.color.upper, wraps=spec.color.wraps)
-                    if spec is not None else DEFAULT_RGBA)
-            style = self._styles[name] = (diameter, rgba)
+            style = self._styles[name] = sphere_style(
+                spec.radius_m if spec is not None else None,
+                spec.color if spec is not None else None, self._marker_diameter_m)
         return style
 
     def _maybe_debug(self, left: np.ndarray, right: np.ndarray, result: LocateResult,
@@ -629,18 +643,10 @@ def point_cov_message(point_m: np.ndarray, covariance: np.ndarray, *, stamp_ns: 
     """``target/point_cov``: the point with its 3x3 triangulation covariance.
 
     A PoseWithCovarianceStamped whose position is the point, orientation identity, covariance
-    position block the triangulation covariance (m^2) and orientation variances 1e6 (unknown).
+    position block the triangulation covariance (m^2) and orientation variances 1e6 (unknown):
+    :func:`eye_in_hand.ros.outputs.pose_with_covariance`, as ``process`` writes it.
     """
-    msg = _point_cov_type()()
-    msg.header = make_header(stamp_ns, frame_id)
-    p = msg.pose.pose.position
-    p.x, p.y, p.z = (float(v) for v in point_m)
-    msg.pose.pose.orientation.w = 1.0
-    full = np.zeros((6, 6))
-    full[:3, :3] = covariance
-    full[3:, 3:] = np.eye(3) * 1e6
-    msg.pose.covariance = full.ravel()     # float64 (36,): taken as it is, no per-value check
-    return msg
+    return pose_with_covariance(rclpy_types(), point_m, covariance, stamp_ns, frame_id)
 
 
 def _point_type() -> Any:

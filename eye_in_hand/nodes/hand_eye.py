@@ -84,17 +84,19 @@ from sensor_msgs.msg import JointState
 from eye_in_hand.core.eye_to_hand import EyeToHandLocalizer
 from eye_in_hand.core.handeye.session import SessionConfig
 from eye_in_hand.core.localization import Localizer, LocalizerConfig, robot_pose_sigmas
+from eye_in_hand.core.sync import InputWaits
 from eye_in_hand.errors import ConversionError, EyeInHandError, InputError, LocalizationError
 from eye_in_hand.io.config import load_hand_eye
 from eye_in_hand.io.kinematics import load_kinematics
 from eye_in_hand.nodes.hand_eye_calibration import CalibrationMode
 from eye_in_hand.nodes.hand_eye_targets import EveryTargetMixin
 from eye_in_hand.nodes.hand_eye_tf import TfMixin
-from eye_in_hand.ros.conversions import (header_stamp_ns,
-                                         matrix_to_transform_stamped, ns_to_stamp, point_to_xyz,
-                                         pose_to_matrix)
+from eye_in_hand.ros.conversions import header_stamp_ns, point_to_xyz, pose_to_matrix
 from eye_in_hand.ros.diagnostics import NodeDiagnostics
 from eye_in_hand.ros.node_main import run_node
+from eye_in_hand.ros.outputs import (MARKER_LIFETIME_S, RIGHT_CAMERA_FRAME,
+                                     TARGET_FRAME_PREFIX, header, pose_stamped,
+                                     pose_with_covariance, rclpy_types, transform_stamped)
 from eye_in_hand.ros.params import load_config, param
 from eye_in_hand.ros.qos import LATCHED_QOS, RESULT_QOS, ROBOT_POSE_QOS
 
@@ -105,8 +107,6 @@ __all__ = ["HandEyeNodeConfig", "HandEyeNode", "load_kinematics", "main"]
 _SESSION = SessionConfig()
 
 NODE_NAME = "hand_eye"
-#: Orientation variance written to target/pose_cov (the target is a point: orientation unknown).
-UNKNOWN_ROTATION_VARIANCE = 1e6
 
 
 def _existing_file(value: str) -> str | None:
@@ -156,16 +156,19 @@ class HandEyeNodeConfig:
                                        "axis, 1 sigma (rad); hand_eye.yaml's robot_pose_noise "
                                        "raises it when larger", range=(0.0, 1.0))
     publish_tf: bool = param(True, "publish /tf_static (ee_frame -> camera_frame, camera_frame "
-                             "-> right_camera_frame) and /tf (base_frame -> target_frame per "
-                             "located target); needs tf2_msgs")
-    right_camera_frame: str = param("camera_right_optical_frame", "right optical frame id "
+                             "-> right_camera_frame) at the first image stamp and /tf "
+                             "(base_frame -> <target_frame_prefix><id> per located target); "
+                             "needs tf2_msgs")
+    right_camera_frame: str = param(RIGHT_CAMERA_FRAME, "right optical frame id "
                                     "(child of the stereo extrinsic on /tf_static)")
     stereo_calibration_dir: str = param("", "directory with left.yaml + right.yaml whose "
                                         "stereo extrinsic goes on /tf_static ('' = none; "
                                         "calibration mode uses calibration_dir)")
-    target_frame: str = param("target_0", "child frame id of the located target on /tf "
-                              "(base_frame -> target_frame)")
-    target_frame_prefix: str = param("target_", "every target's /tf child frame is this "
+    target_frame: str = param("", "a second /tf child frame for the first target (the one of "
+                              "target/pose), besides its target_<id>; '' = none, each target "
+                              "has one name")
+    target_frame_prefix: str = param(TARGET_FRAME_PREFIX, "every target's /tf child frame is "
+                                     "this "
                                      "prefix + its id (base_frame -> target_<id>); empty = "
                                      "no per-target /tf")
     max_targets: int = param(64, "most target ids subscribed (targets/<id>/point_cov) and "
@@ -177,7 +180,7 @@ class HandEyeNodeConfig:
     discovery_period_s: float = param(1.0, "period of the ROS graph search for "
                                       "targets/<id>/point_cov publishers (s)",
                                       range=(0.05, 3600.0))
-    marker_lifetime_s: float = param(1.0, "lifetime of the spheres on target/markers (s); 0 = "
+    marker_lifetime_s: float = param(MARKER_LIFETIME_S, "lifetime of the spheres on target/markers (s); 0 = "
                                      "until the next frame's DELETEALL", range=(0.0, 3600.0))
     stale_after_s: float = param(1.0, "diagnostics WARN when no robot pose or point arrived "
                                  "for this long (s)", range=(0.01, 3600.0))
@@ -311,6 +314,7 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
             self.create_subscription(JointState, "joint_states", self._on_joint_state,
                                      ROBOT_POSE_QOS)
         self.diag.declare_counter("robot_poses")
+        self.waits = InputWaits(cfg.max_pose_wait_s, cfg.max_target_wait_s)
         if not self.eye_to_hand or cfg.mode == "calibration":
             self.diag.stale_after("robot_poses", cfg.stale_after_s)
 
@@ -396,6 +400,7 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
 
     def _after_pose(self) -> None:
         self.diag.count("robot_poses")
+        self.waits.pose_arrived()
         if self.calibration_mode is not None:
             self.calibration_mode.poll()
         else:
@@ -415,10 +420,7 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
                                                   RESULT_QOS)
         self.pub_transform = self.create_publisher(TransformStamped, "hand_eye/transform",
                                                    LATCHED_QOS)
-        assert self.calibration is not None
-        self.pub_transform.publish(matrix_to_transform_stamped(
-            self.calibration.transform, stamp_ns=self.get_clock().now().nanoseconds,
-            frame_id=self._camera_parent, child_frame_id=cfg.camera_frame))
+        self._data_stamp_ns: int | None = None   # the first image stamp this node received
         self.diag.declare_counter("points", "poses_published", "rejected", "refused.stale_pose",
                                   "refused.pending_overflow", "pose_buffer_resets.time_jump",
                                   "pose_buffer_resets.stream_stopped")
@@ -429,10 +431,24 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
         self.create_timer(0.02, self._expire_pending,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
 
+    def first_data(self, stamp_ns: int) -> None:
+        """At the first image stamp received (a point or a frame's list of targets): latch
+        ``hand_eye/transform`` and ``/tf_static`` stamped with it, in data time as every other
+        output (a bag's time on a replay), once."""
+        if self._data_stamp_ns is not None:
+            return
+        self._data_stamp_ns = stamp_ns
+        assert self.calibration is not None
+        self.pub_transform.publish(transform_stamped(
+            rclpy_types(), self.calibration.transform, stamp_ns, self._camera_parent,
+            self.config.camera_frame))
+        self._publish_static_tf(self.calibration.transform, stamp_ns)
+
     def _on_point(self, msg: PointStamped) -> None:
         self.diag.count("points")
         try:
             stamp = header_stamp_ns(msg)
+            self.first_data(stamp)
             frame = msg.header.frame_id
             if frame and frame.lstrip("/") != self.config.camera_frame:
                 self._refuse("point_frame", f"target/point in frame {frame!r}, expected "
@@ -471,7 +487,7 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
 
     def _ready(self, item: _Pending, newest: int | None, now: float) -> bool:
         """Whether a pending point can be processed now (or must be, its wait being over)."""
-        if now - item.arrived > self.config.max_pose_wait_s:
+        if self.waits.pose_wait_over(now - item.arrived):
             return True
         if not self.eye_to_hand and (newest is None or item.stamp_ns > newest):
             return False  # wait for a robot pose at or after the image stamp
@@ -487,6 +503,9 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
 
     def _expire_pending(self) -> None:
         self._expire_poses()
+        now = time.monotonic()
+        oldest = min([q[0].arrived for q in (self._pending, self._frames) if q], default=now)
+        self.waits.tick(now - oldest)     # FIFO queues: the first item waited longest
         if self._pending:
             self._drain_pending()
         if self._frames:
@@ -532,23 +551,14 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
     def _pose_messages(self, stamp_ns: int, p: np.ndarray, cov: np.ndarray
                        ) -> tuple[PoseStamped, PoseWithCovarianceStamped]:
         """PoseStamped and PoseWithCovarianceStamped of a base-frame point (3,) and its
-        covariance (3, 3); orientation identity, orientation variances unknown."""
+        covariance (3, 3); orientation identity, orientation variances unknown
+        (:mod:`eye_in_hand.ros.outputs`, as ``process`` writes them)."""
         if not np.all(np.isfinite(p)):
             raise ConversionError(f"base-frame point is not finite: {p}")
-        msg = PoseStamped()
-        msg.header.stamp = ns_to_stamp(stamp_ns)
-        msg.header.frame_id = self.config.base_frame
-        pos = msg.pose.position
-        pos.x, pos.y, pos.z = float(p[0]), float(p[1]), float(p[2])
-        msg.pose.orientation.w = 1.0            # identity: the target is a point
-        cmsg = PoseWithCovarianceStamped()
-        cmsg.header = msg.header
-        cmsg.pose.pose = msg.pose
-        full = np.zeros((6, 6))
-        full[:3, :3] = cov
-        full[3:, 3:] = np.eye(3) * UNKNOWN_ROTATION_VARIANCE
-        cmsg.pose.covariance = full.ravel()   # float64 (36,): taken as it is
-        return msg, cmsg
+        T = rclpy_types()
+        hdr = header(T, stamp_ns, self.config.base_frame)
+        return (pose_stamped(T, p, stamp_ns, "", hdr),
+                pose_with_covariance(T, p, cov, stamp_ns, "", hdr))
 
     def _publish(self, stamp_ns: int, p: np.ndarray, cov: np.ndarray) -> None:
         # volatile topics: a message nobody subscribes to reaches no one, now or later, so it

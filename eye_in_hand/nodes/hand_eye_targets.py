@@ -116,6 +116,7 @@ class EveryTargetMixin:
     def _on_target_point(self, tid: str, msg: PoseWithCovarianceStamped) -> None:
         """A target's point and covariance (``targets/<id>/point_cov``), kept for its frame."""
         self.diag.count("target_points_received")
+        self.waits.point_arrived()
         topic = f"targets/{tid}/point_cov"
         try:
             stamp = header_stamp_ns(msg)
@@ -144,6 +145,7 @@ class EveryTargetMixin:
         except ConversionError as exc:
             self.diag.report("bad_markers", f"targets/markers: {exc}")
             return
+        self.first_data(stamp)
         self.diag.count("target_points", len(spheres))
         if frame and frame.lstrip("/") != self.config.camera_frame:
             for s in spheres:
@@ -177,11 +179,11 @@ class EveryTargetMixin:
     def _frame_ready(self, f: _Frame, newest: int | None, now: float) -> bool:
         have_points = all((s.id, f.stamp_ns) in self._target_points for s in f.spheres)
         if not have_points:
-            return now - f.arrived > self.config.max_target_wait_s
+            return self.waits.point_wait_over(now - f.arrived)
         if self.eye_to_hand or not f.spheres:
             return True
         return (newest is not None and f.stamp_ns <= newest) \
-            or now - f.arrived > self.config.max_pose_wait_s
+            or self.waits.pose_wait_over(now - f.arrived)
 
     def _drain_frames(self) -> None:
         if not self._frames:

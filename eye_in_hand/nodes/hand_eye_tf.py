@@ -17,12 +17,13 @@ import numpy as np
 
 from eye_in_hand.core.camera import StereoRig
 from eye_in_hand.core.tf import TfBuffer, TfPoseView
-from eye_in_hand.errors import ConfigError, ConversionError, EyeInHandError
-from eye_in_hand.ros.conversions import ns_to_stamp
+from eye_in_hand.errors import ConfigError, EyeInHandError
 from eye_in_hand.ros import tf as ros_tf  # have_tf2_msgs, tf_message_class looked up per call
 from eye_in_hand.ros.qos import ROBOT_POSE_DEPTH
-from eye_in_hand.ros.tf import (TF_STATIC_TOPIC, TF_TOPIC, feed_tf_message, make_tf_message,
-                                tf_qos, tf_static_pub_qos, tf_static_sub_qos)
+from eye_in_hand.ros import outputs
+from eye_in_hand.ros.outputs import rclpy_types, tf_message
+from eye_in_hand.ros.tf import (TF_STATIC_TOPIC, TF_TOPIC, feed_tf_message, tf_qos,
+                                tf_static_pub_qos, tf_static_sub_qos)
 
 __all__ = ["TfMixin", "translation_tf_message"]
 
@@ -97,11 +98,14 @@ class TfMixin:
         if rig is not None:
             self._static_tf[cfg.right_camera_frame] = (cfg.camera_frame,
                                                        np.linalg.inv(rig.right_T_left))
-        self._publish_static_tf(self.calibration.transform if self.calibration is not None
-                                else None)
+        if cfg.mode == "calibration":   # localization: at the first image stamp (first_data)
+            self._publish_static_tf(self.calibration.transform if self.calibration is not None
+                                    else None)
 
-    def _publish_static_tf(self, ee_T_cam: np.ndarray | None) -> None:
-        """(Re)publish every static transform of this node in one /tf_static message."""
+    def _publish_static_tf(self, ee_T_cam: np.ndarray | None, stamp_ns: int | None = None
+                           ) -> None:
+        """(Re)publish every static transform of this node in one /tf_static message, stamped
+        ``stamp_ns`` (localization: the first image stamp) or now on the node's clock."""
         if self.pub_tf_static is None:
             return
         cfg = self.config
@@ -109,13 +113,14 @@ class TfMixin:
             self._static_tf[cfg.camera_frame] = (self._camera_parent, np.asarray(ee_T_cam))
         if not self._static_tf:
             return
-        stamp = self.get_clock().now().nanoseconds
-        self.pub_tf_static.publish(make_tf_message(
-            (parent, child, stamp, T) for child, (parent, T) in self._static_tf.items()))
+        stamp = self.get_clock().now().nanoseconds if stamp_ns is None else stamp_ns
+        self.pub_tf_static.publish(tf_message(rclpy_types(), (
+            (parent, child, stamp, T) for child, (parent, T) in self._static_tf.items())))
 
     def _publish_target_tf(self, stamp_ns: int, p: np.ndarray) -> None:
-        """``base_frame -> target_frame`` on /tf at the image stamp (translation only)."""
-        if self.pub_tf is None:
+        """``base_frame -> target_frame`` on /tf at the image stamp (translation only), when
+        ``target_frame`` names a second frame for the first target."""
+        if self.pub_tf is None or not self.config.target_frame:
             return
         self.pub_tf.publish(translation_tf_message(
             [(self.config.base_frame, self.config.target_frame, stamp_ns, p)]))
@@ -125,25 +130,11 @@ def translation_tf_message(edges: Iterable[tuple[str, str, int, np.ndarray]]) ->
     """A ``tf2_msgs/TFMessage`` of translation-only transforms ``(parent, child, stamp_ns,
     translation (3,))``: rotation identity (0, 0, 0, 1). The same message as
     :func:`eye_in_hand.ros.tf.make_tf_message` of the 4x4 transforms, built without a rotation
-    conversion (per target and frame on the live path).
+    conversion (per target and frame on the live path;
+    :func:`eye_in_hand.ros.outputs.translation_tf_message`).
 
     Raises:
         ConversionError: a translation is not 3 finite numbers.
     """
-    from geometry_msgs.msg import TransformStamped
-
-    out = []
-    for parent, child, stamp, t in edges:
-        t = np.asarray(t, dtype=np.float64)
-        if t.shape != (3,) or not np.all(np.isfinite(t)):
-            raise ConversionError(f"translation of {parent} -> {child}: expected 3 finite "
-                                  f"numbers, got {t}")
-        msg = TransformStamped()
-        msg.header.stamp = ns_to_stamp(int(stamp))
-        msg.header.frame_id = parent
-        msg.child_frame_id = child
-        tr = msg.transform.translation
-        tr.x, tr.y, tr.z = float(t[0]), float(t[1]), float(t[2])
-        msg.transform.rotation.w = 1.0
-        out.append(msg)
-    return ros_tf.tf_message_class()(transforms=out)
+    ros_tf.tf_message_class()         # one clear error when tf2_msgs is missing
+    return outputs.translation_tf_message(rclpy_types(), edges)

@@ -8,10 +8,12 @@ Publishes (relative names):
     ``joint_states`` (sensor_msgs/JointState) and ``ee_pose`` (geometry_msgs/PoseStamped,
     ``base_frame`` -> ``tool_frame``): ``sim`` source only, when ``sim.publish_robot_state``;
     stamped with the image stamp, i.e. the robot pose at which the pair was rendered.
-    ``/tf`` (the arm, one transform per joint, ``base_frame`` -> ... -> the world's tip link,
-    at the image stamp, as ``robot_state_publisher`` publishes it) and ``/tf_static`` (the
-    world's stereo extrinsic ``left_frame_id`` -> ``right_frame_id``, transient local):
-    ``sim`` source with ``sim.publish_tf``, when tf2_msgs is installed.
+    ``/tf`` (the arm, one transform per moving joint up to the world's tip link, at the image
+    stamp) and ``/tf_static`` (its fixed ``base_frame`` -> DH base edge, and with
+    ``sim.publish_stereo_tf`` the world's stereo extrinsic ``left_frame_id`` ->
+    ``right_frame_id``; once, at the first pair's stamp, transient local), as
+    ``robot_state_publisher`` splits them: ``sim`` source with ``sim.publish_tf``, when
+    tf2_msgs is installed.
     ``diagnostics``: pairs published, read failures, frames not ready in time, source state.
 
 Sources (parameter ``source``):
@@ -118,8 +120,13 @@ NODE_PARAMETERS: tuple[Param, ...] = (
     Param("sim.supersample", 2, "sim source: sub-pixel rays per axis on edges", range=(1, 8)),
     Param("sim.publish_robot_state", True, "sim source: also publish joint_states and "
           "ee_pose at each pair's stamp (not when following joint states)"),
-    Param("sim.publish_tf", True, "sim source: also publish the arm on /tf and the stereo "
-          "extrinsic on /tf_static, as robot_state_publisher would (needs tf2_msgs)"),
+    Param("sim.publish_stereo_tf", False, "sim source with sim.publish_tf: also publish the "
+          "world's true stereo extrinsic (left_frame_id -> right_frame_id) on /tf_static; off "
+          "by default: hand_eye publishes the calibrated one (stereo_calibration_dir), and a "
+          "transform has one publisher"),
+    Param("sim.publish_tf", True, "sim source: also publish the arm as "
+          "robot_state_publisher would: its joints on /tf, its fixed base edge on /tf_static "
+          "(needs tf2_msgs)"),
     Param("sim.follow_joint_states", False, "sim source: render at the joint vector of the "
           "latest message on sim.joint_states_topic instead of the built-in trajectory"),
     Param("sim.joint_states_topic", "joint_states", "sim source: JointState topic followed "
@@ -549,7 +556,7 @@ class StereoCaptureNode(Node):
 
     # -- sim TF (robot_state_publisher stand-in) ---------------------------------------------
     def _setup_sim_tf(self) -> None:
-        """/tf for the arm and /tf_static (stereo extrinsic, sent once, latched)."""
+        """Publishers of /tf (the arm) and /tf_static (sent with the first pair)."""
         if not have_tf2_msgs():
             self.get_logger().warning("tf2_msgs is not installed: no /tf published (run "
                                       "'make venv' to build it)")
@@ -559,14 +566,28 @@ class StereoCaptureNode(Node):
         self.pub_tf = self.create_publisher(TFMessage, TF_TOPIC, tf_qos())
         self.pub_tf_static = self.create_publisher(TFMessage, TF_STATIC_TOPIC,
                                                    tf_static_pub_qos())
-        self.pub_tf_static.publish(make_tf_message([
-            (self.cfg["left_frame_id"], self.cfg["right_frame_id"],
-             self.get_clock().now().nanoseconds, self._world.left_T_right)]))
+        # the fixed base_frame -> DH base edge (ur_description's base_link -> base) and, when
+        # asked for, the true stereo extrinsic: static, once, stamped with the first pair
+        self._static_sent = False
 
     def _publish_sim_tf(self, q: np.ndarray, stamp_ns: int) -> None:
+        """The arm's moving joints on /tf; its fixed edge (and the stereo extrinsic with
+        ``sim.publish_stereo_tf``) on /tf_static at the first pair's stamp, as
+        robot_state_publisher splits them."""
         assert self._world is not None and self.pub_tf is not None
         edges = chain_tf_edges(self._world.arm, q, self.cfg["base_frame"])
-        self.pub_tf.publish(make_tf_message((p, ch, stamp_ns, T) for p, ch, T in edges))
+        arm = self._world.arm
+        base = self.cfg["base_frame"] or arm.base_frame
+        n_fixed = 1 if (getattr(arm, "dh_frame", "") or base) != base else 0  # chain_tf_edges
+        if not self._static_sent:
+            static = [(p, ch, stamp_ns, T) for p, ch, T in edges[:n_fixed]]
+            if self.cfg["sim.publish_stereo_tf"]:
+                static.append((self.cfg["left_frame_id"], self.cfg["right_frame_id"], stamp_ns,
+                               self._world.left_T_right))
+            if static:
+                self.pub_tf_static.publish(make_tf_message(static))
+            self._static_sent = True
+        self.pub_tf.publish(make_tf_message((p, ch, stamp_ns, T) for p, ch, T in edges[n_fixed:]))
 
     def destroy_node(self) -> None:
         """Stop the worker and release the source before destroying the node."""

@@ -19,41 +19,18 @@ from __future__ import annotations
 import colorsys
 import functools
 import math
-from dataclasses import dataclass
 from typing import Any, Iterable, Sequence
 
 import numpy as np
-from builtin_interfaces.msg import Duration
-from geometry_msgs.msg import Pose
 
 from eye_in_hand.errors import ConfigError, ConversionError
-from eye_in_hand.ros.conversions import header_stamp_ns, make_header
 from eye_in_hand.ros.msgtypes import import_message_type
+from eye_in_hand.ros.outputs import DEFAULT_RGBA, Sphere, pose_array, rclpy_types, sphere_markers
+from eye_in_hand.ros.stamps import header_stamp_ns
 
 __all__ = ["Sphere", "marker_classes", "pose_array_class", "sphere_marker_array",
            "spheres_from_marker_array", "points_to_pose_array", "color_range_rgba",
-           "DEFAULT_RGBA"]
-
-#: Colour of a sphere whose target has no usable hue (r, g, b, a in 0..1).
-DEFAULT_RGBA = (1.0, 1.0, 1.0, 0.8)
-
-
-@dataclass(frozen=True)
-class Sphere:
-    """One target as a sphere.
-
-    Attributes:
-        id: the target id (the marker's ``ns``).
-        xyz: centre, shape (3,), metres, in the message's frame.
-        diameter_m: the sphere's diameter (metres, > 0).
-        rgba: colour, four floats in 0..1.
-    """
-
-    id: str
-    xyz: np.ndarray
-    diameter_m: float
-    rgba: tuple[float, float, float, float] = DEFAULT_RGBA
-
+           "sphere_style", "DEFAULT_RGBA"]
 
 @functools.lru_cache(maxsize=None)
 def marker_classes() -> tuple[Any, Any]:
@@ -98,15 +75,10 @@ def color_range_rgba(lower: Sequence[int], upper: Sequence[int], *, wraps: bool 
     return (float(r), float(g), float(b), float(alpha))
 
 
-def _duration(seconds: float) -> Any:
-    ns = max(0, int(round(seconds * 1e9)))
-    sec, nanosec = divmod(ns, 1_000_000_000)
-    return Duration(sec=sec, nanosec=nanosec)
-
-
 def sphere_marker_array(spheres: Iterable[Sphere], *, stamp_ns: int, frame_id: str,
                         lifetime_s: float = 0.0) -> Any:
-    """A MarkerArray: ``DELETEALL``, then one ``SPHERE`` (``ns`` = id, ``id`` 0) per sphere.
+    """A MarkerArray: ``DELETEALL``, then one ``SPHERE`` (``ns`` = id, ``id`` 0) per sphere
+    (:func:`eye_in_hand.ros.outputs.sphere_markers`, the builder ``process`` writes with).
 
     Args:
         spheres: the frame's targets (possibly none: the array then only clears the display).
@@ -119,28 +91,19 @@ def sphere_marker_array(spheres: Iterable[Sphere], *, stamp_ns: int, frame_id: s
         ConversionError: a non-finite centre, a diameter that is not positive, or two spheres
             with one id.
     """
-    Marker, MarkerArray = marker_classes()
-    header = make_header(stamp_ns, frame_id)
-    clear = Marker(header=header, action=Marker.DELETEALL)
-    out = [clear]
-    seen: set[str] = set()
-    for s in spheres:
-        xyz = np.asarray(s.xyz, dtype=np.float64).reshape(-1)
-        if xyz.shape != (3,) or not np.all(np.isfinite(xyz)):
-            raise ConversionError(f"sphere '{s.id}': centre must be 3 finite numbers, got {xyz}")
-        if not (math.isfinite(s.diameter_m) and s.diameter_m > 0):
-            raise ConversionError(f"sphere '{s.id}': diameter must be > 0, got {s.diameter_m}")
-        if s.id in seen:
-            raise ConversionError(f"sphere '{s.id}': two spheres with one id in a frame")
-        seen.add(s.id)
-        m = Marker(header=header, ns=s.id, id=0, type=Marker.SPHERE, action=Marker.ADD)
-        m.pose.position.x, m.pose.position.y, m.pose.position.z = (float(v) for v in xyz)
-        m.pose.orientation.w = 1.0
-        m.scale.x = m.scale.y = m.scale.z = float(s.diameter_m)
-        m.color.r, m.color.g, m.color.b, m.color.a = (float(c) for c in s.rgba)
-        m.lifetime = _duration(lifetime_s)
-        out.append(m)
-    return MarkerArray(markers=out)
+    marker_classes()            # one clear error when visualization_msgs is missing
+    return sphere_markers(rclpy_types(), spheres, stamp_ns, frame_id, lifetime_s)
+
+
+def sphere_style(radius_m: float | None, color: Any, default_diameter_m: float
+                 ) -> tuple[float, tuple[float, float, float, float]]:
+    """Diameter (m) and RGBA of a target's sphere: twice its configured radius (else
+    ``default_diameter_m``) and the middle hue of its colour range (else :data:`DEFAULT_RGBA`).
+    ``color``: the target's colour range (``lower``, ``upper``, ``wraps``), or None."""
+    diameter = 2.0 * radius_m if radius_m else default_diameter_m
+    rgba = (color_range_rgba(color.lower, color.upper, wraps=color.wraps)
+            if color is not None else DEFAULT_RGBA)
+    return float(diameter), rgba
 
 
 def spheres_from_marker_array(msg: Any) -> tuple[int, str, list[Sphere]]:
@@ -189,7 +152,8 @@ def spheres_from_marker_array(msg: Any) -> tuple[int, str, list[Sphere]]:
 
 
 def points_to_pose_array(points: Iterable[np.ndarray], *, stamp_ns: int, frame_id: str) -> Any:
-    """A PoseArray with one pose per point (position = the point, orientation identity).
+    """A PoseArray with one pose per point (position = the point, orientation identity;
+    :func:`eye_in_hand.ros.outputs.pose_array`).
 
     Args:
         points: shapes (3,), metres.
@@ -199,14 +163,5 @@ def points_to_pose_array(points: Iterable[np.ndarray], *, stamp_ns: int, frame_i
     Raises:
         ConversionError: a point is not 3 finite numbers.
     """
-    PoseArray = pose_array_class()
-    poses = []
-    for k, p in enumerate(points):
-        xyz = np.asarray(p, dtype=np.float64).reshape(-1)
-        if xyz.shape != (3,) or not np.all(np.isfinite(xyz)):
-            raise ConversionError(f"points[{k}]: expected 3 finite numbers, got {xyz}")
-        pose = Pose()
-        pose.position.x, pose.position.y, pose.position.z = (float(v) for v in xyz)
-        pose.orientation.w = 1.0
-        poses.append(pose)
-    return PoseArray(header=make_header(stamp_ns, frame_id), poses=poses)
+    pose_array_class()          # one clear error when geometry_msgs is missing
+    return pose_array(rclpy_types(), points, stamp_ns, frame_id)

@@ -95,8 +95,6 @@ def test_pose_at_image_stamp_with_covariance(tmp_path, ros_context, executor, na
     cov_x = np.diag([1e-6, 1e-6, 1e-6, 1e-5, 1e-5, 1e-5])
     rig = _Rig(ros_context, executor, namespace, _overrides(_hand_eye_file(tmp_path, cov_x)))
     assert spin_until(executor, rig.connected, 10.0)
-    assert spin_until(executor, lambda: len(rig.transforms) == 1, 5.0)
-    assert rig.transforms[0].header.frame_id == "tool0"
     for k in range(11):                 # robot poses every 10 ms over [0, 0.1] s
         rig.send_pose(0.01 * k)
     p_cam = np.array([0.02, -0.01, 0.45])
@@ -113,6 +111,31 @@ def test_pose_at_image_stamp_with_covariance(tmp_path, ros_context, executor, na
     assert np.allclose(got, want, atol=1e-12)
     got_cov = np.asarray(rig.covs[0].pose.covariance).reshape(6, 6)
     assert np.allclose(got_cov[:3, :3], want_cov, rtol=1e-9, atol=1e-18)
+    # hand_eye/transform: latched once, stamped with the first image stamp (data time)
+    assert spin_until(executor, lambda: len(rig.transforms) == 1, 5.0)
+    assert rig.transforms[0].header.frame_id == "tool0"
+    assert header_stamp_ns(rig.transforms[0]) == T0 + 55_000_000
+
+
+def test_a_busy_executor_does_not_refuse_points_whose_poses_wait_in_its_queue(
+        tmp_path, ros_context, executor, namespace, spin_until):
+    """The robot poses a point waits for arrive while the node's executor is busy elsewhere for
+    longer than max_pose_wait_s: when it runs again, its periodic check must not refuse the
+    point before the queued poses are delivered."""
+    import time
+
+    rig = _Rig(ros_context, executor, namespace,
+               _overrides(_hand_eye_file(tmp_path), max_pose_wait_s=0.1))
+    assert spin_until(executor, rig.connected, 10.0)
+    for k in range(3):
+        rig.send_pose(0.01 * k)
+    rig.send_point(0.05, [0.0, 0.0, 0.5])            # newer than every pose: it waits
+    assert spin_until(executor, lambda: len(rig.node._pending) == 1, 10.0)
+    for k in range(3, 8):                            # the poses come ...
+        rig.send_pose(0.01 * k)
+    time.sleep(0.4)                                  # ... while the executor is busy
+    assert spin_until(executor, lambda: len(rig.poses) == 1, 5.0)
+    assert rig.node.diag.causes.get("no_robot_pose", 0) == 0
 
 
 def test_stale_robot_pose_publishes_nothing_then_resumes(tmp_path, ros_context, executor,

@@ -104,7 +104,8 @@ class _Cell:
 
 def test_robot_pose_from_tf_chain_interpolated_at_the_image_stamp_and_tf_out(
         tmp_path, ros_context, executor, namespace, spin_until):
-    cell = _Cell(ros_context, executor, namespace, tmp_path)
+    # target_frame: a second /tf name for the first target (target/point), opted in here
+    cell = _Cell(ros_context, executor, namespace, tmp_path, target_frame="target_0")
     assert spin_until(executor, cell.connected, 10.0)
     for k in range(11):                           # joints every 10 ms over [0, 0.1] s
         cell.send_joints(0.01 * k)
@@ -134,11 +135,16 @@ def test_robot_pose_from_tf_chain_interpolated_at_the_image_stamp_and_tf_out(
     assert tr.header.frame_id == "base_link" and header_stamp_ns(tr) == T0 + 55 * MS
     np.testing.assert_allclose(transform_to_matrix(tr)[:3, 3], want, atol=1e-12)
 
-    # /tf_static: hand-eye and stereo extrinsic in one latched message
+    # /tf_static: hand-eye and stereo extrinsic in one latched message, sent once, stamped
+    # with the first image stamp (data time, not the node's clock)
     def statics():
         return {t.child_frame_id: t for m in cell.static_out for t in m.transforms}
     assert spin_until(executor, lambda: {"camera_left_optical_frame",
                                          "camera_right_optical_frame"} <= set(statics()), 5.0)
+    assert len([m for m in cell.static_out                  # (the other: flange -> tool0)
+                if any(t.header.frame_id == "tool0" for t in m.transforms)]) == 1
+    assert {header_stamp_ns(statics()[c]) for c in (
+        "camera_left_optical_frame", "camera_right_optical_frame")} == {T0 + 55 * MS}
     he = statics()["camera_left_optical_frame"]
     assert he.header.frame_id == "tool0"
     np.testing.assert_allclose(transform_to_matrix(he), EE_T_CAM, atol=1e-9)

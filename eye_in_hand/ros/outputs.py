@@ -1,0 +1,374 @@
+"""The localization's output messages, built once for the live nodes and for ``process``.
+
+``detect_triangulate`` and ``hand_eye`` publish these messages with rclpy; ``eye-in-hand
+process`` writes the same messages into its output bag with rosbags, without rclpy. Both build
+them here, from the same numbers, so that an offline output bag replays into RViz (or any
+subscriber) exactly as the live run would have published it (docs/localization.md "Offline =
+live").
+
+Every builder takes ``T``, a lookup ``msgtype -> message class``:
+
+* :func:`rclpy_types` (the installed ROS interface packages), for the nodes;
+* :class:`RosbagsTypes` (a rosbags type store), for bags: rosbags classes have no field
+  defaults, so it fills every field a builder leaves out with its zero value, as rclpy does.
+
+Nothing here imports rclpy or a message package at import time.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from eye_in_hand.core.transforms import matrix_to_quat_xyzw
+from eye_in_hand.errors import ConfigError, ConversionError
+
+__all__ = ["Sphere", "OutputSettings", "DEFAULT_RGBA", "TARGET_FRAME_PREFIX", "MARKER_LIFETIME_S",
+           "MARKER_DIAMETER_M", "RIGHT_CAMERA_FRAME", "UNKNOWN_ROTATION_VARIANCE", "RosbagsTypes", "rclpy_types",
+           "time_msg", "header", "point_stamped", "pose_with_covariance", "pose_stamped",
+           "pose_array", "sphere_markers", "transform_stamped", "tf_message",
+           "translation_tf_message"]
+
+#: Colour of a sphere whose target has no usable hue (r, g, b, a in 0..1).
+DEFAULT_RGBA = (1.0, 1.0, 1.0, 0.8)
+#: Every target's /tf child frame is this prefix + its id (hand_eye ``target_frame_prefix``).
+TARGET_FRAME_PREFIX = "target_"
+#: Lifetime of the spheres on targets/markers and target/markers (s; the nodes' default).
+MARKER_LIFETIME_S = 1.0
+#: Sphere diameter on the markers of a target of unknown radius (m; the nodes' default).
+MARKER_DIAMETER_M = 0.04
+#: The right optical frame id (hand_eye ``right_camera_frame``).
+RIGHT_CAMERA_FRAME = "camera_right_optical_frame"
+#: Orientation variance (rad^2) of a point published as a pose: unknown.
+UNKNOWN_ROTATION_VARIANCE = 1e6
+
+_NS_PER_S = 1_000_000_000
+_INT32 = (-(2 ** 31), 2 ** 31 - 1)
+_MARKER_SPHERE, _MARKER_ADD, _MARKER_DELETEALL = 2, 0, 3
+
+#: Field defaults of ROS message definitions that are not zero (rosbags does not keep them).
+_NONZERO_DEFAULTS: dict[str, dict[str, Any]] = {"geometry_msgs/msg/Quaternion": {"w": 1.0}}
+
+
+@dataclass(frozen=True)
+class Sphere:
+    """One target as a sphere.
+
+    Attributes:
+        id: the target id (the marker's ``ns``).
+        xyz: centre, shape (3,), metres, in the message's frame.
+        diameter_m: the sphere's diameter (metres, > 0).
+        rgba: colour, four floats in 0..1.
+    """
+
+    id: str
+    xyz: np.ndarray
+    diameter_m: float
+    rgba: tuple[float, float, float, float] = DEFAULT_RGBA
+
+
+@dataclass(frozen=True)
+class OutputSettings:
+    """What the live nodes' parameters decide about their outputs, for ``process`` to write
+    the same messages (the defaults are the nodes' defaults).
+
+    Attributes:
+        target_frame_prefix, target_frame, publish_tf, right_camera_frame: hand_eye's
+            parameters of those names.
+        camera_markers_lifetime_s: detect_triangulate ``markers.lifetime_s``.
+        target_markers_lifetime_s: hand_eye ``marker_lifetime_s``.
+        styles: target name -> (sphere diameter (m), rgba) on the markers
+            (:func:`eye_in_hand.ros.markers.sphere_style` of the target's configuration).
+        default_style: the style of a target of no configured name.
+        camera_parent: the parent frame of the camera on /tf_static (ee_frame; base_frame for
+            a fixed camera).
+        hand_eye_T: ``camera_parent_T_camera`` (4x4) for /tf_static and hand_eye/transform.
+        stereo_T: ``camera_T_right_camera`` (4x4) from hand_eye's ``stereo_calibration_dir``,
+            or None (no stereo extrinsic on /tf_static).
+    """
+
+    target_frame_prefix: str = TARGET_FRAME_PREFIX
+    target_frame: str = ""
+    publish_tf: bool = True
+    right_camera_frame: str = RIGHT_CAMERA_FRAME
+    camera_markers_lifetime_s: float = MARKER_LIFETIME_S
+    target_markers_lifetime_s: float = MARKER_LIFETIME_S
+    styles: Mapping[str, tuple[float, tuple[float, float, float, float]]] = \
+        dataclasses.field(default_factory=dict)
+    default_style: tuple[float, tuple[float, float, float, float]] = (MARKER_DIAMETER_M,
+                                                                      DEFAULT_RGBA)
+    camera_parent: str = "tool0"
+    hand_eye_T: np.ndarray | None = None
+    stereo_T: np.ndarray | None = None
+
+    def style(self, name: str) -> tuple[float, tuple[float, float, float, float]]:
+        return self.styles.get(name, self.default_style)
+
+
+# -- message classes --------------------------------------------------------------------------
+class _RclpyTypes:
+    """``T[msgtype]``: the installed rclpy message class."""
+
+    def __getitem__(self, msgtype: str) -> Any:
+        return _rclpy_class(msgtype)
+
+
+@functools.lru_cache(maxsize=None)
+def _rclpy_class(msgtype: str) -> Any:
+    from eye_in_hand.ros.msgtypes import import_message_type  # local: rclpy, live path only
+
+    cls = import_message_type(msgtype)
+    if cls is None:
+        package = msgtype.split("/", 1)[0]
+        raise ConfigError(f"{package} is not installed: no {msgtype} can be published (it "
+                          "comes with ros-jazzy-common-interfaces; tf2_msgs with 'make venv')")
+    return cls
+
+
+def rclpy_types() -> Any:
+    """The message classes of the installed ROS interface packages (``T[msgtype]``)."""
+    return _RCLPY
+
+
+_RCLPY = _RclpyTypes()
+
+_NUMPY_DTYPES = {"float64": np.float64, "float32": np.float32, "int8": np.int8,
+                 "uint8": np.uint8, "byte": np.uint8, "char": np.uint8, "int16": np.int16,
+                 "uint16": np.uint16, "int32": np.int32, "uint32": np.uint32,
+                 "int64": np.int64, "uint64": np.uint64, "bool": np.bool_}
+
+
+class RosbagsTypes:
+    """``T[msgtype]`` over a rosbags type store: a constructor that fills every field not given
+    with its zero value (rclpy's defaults), so builders name only the fields they set."""
+
+    def __init__(self, typestore: Any) -> None:
+        self.typestore = typestore
+        self._factories: dict[str, Callable[..., Any]] = {}
+
+    def __getitem__(self, msgtype: str) -> Callable[..., Any]:
+        factory = self._factories.get(msgtype)
+        if factory is None:
+            factory = self._factories[msgtype] = self._factory(msgtype)
+        return factory
+
+    def _factory(self, msgtype: str) -> Callable[..., Any]:
+        cls = self.typestore.types[msgtype]
+        _, fields = self.typestore.fielddefs[msgtype]
+        defaults = {name: self._default_of(desc) for name, desc in fields}
+        for name, value in _NONZERO_DEFAULTS.get(msgtype, {}).items():
+            defaults[name] = lambda v=value: v
+
+        def make(**kwargs: Any) -> Any:
+            values = {name: (kwargs.pop(name) if name in kwargs else make_default())
+                      for name, make_default in defaults.items()}
+            if kwargs:
+                raise TypeError(f"{msgtype} has no field(s) {sorted(kwargs)}")
+            return cls(**values)
+
+        return make
+
+    def _default_of(self, desc: Any) -> Callable[[], Any]:
+        kind, detail = desc
+        kind = int(kind)
+        if kind == 1:                                   # a base type
+            name = detail[0]
+            if name == "string":
+                return str
+            if name == "bool":
+                return bool
+            return (lambda: 0.0) if name.startswith("float") else int
+        if kind == 2:                                   # a message
+            return lambda: self[detail]()
+        sub, length = detail
+        sub_kind, sub_detail = int(sub[0]), sub[1]
+        if sub_kind == 1 and sub_detail[0] != "string":
+            dtype = _NUMPY_DTYPES[sub_detail[0]]
+            n = length if kind == 3 else 0
+            return lambda: np.zeros(n, dtype=dtype)
+        item = self._default_of(sub)
+        n = length if kind == 3 else 0
+        return lambda: [item() for _ in range(n)]
+
+
+def _cls(T: Any, msgtype: str) -> Any:
+    return T[msgtype]
+
+
+# -- checks -----------------------------------------------------------------------------------
+def _xyz(xyz: Any, what: str) -> np.ndarray:
+    arr = np.asarray(xyz, dtype=np.float64).reshape(-1)
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise ConversionError(f"{what}: expected 3 finite numbers, got {arr}")
+    return arr
+
+
+# -- builders ---------------------------------------------------------------------------------
+def time_msg(T: Any, stamp_ns: int) -> Any:
+    """``builtin_interfaces/Time`` of int nanoseconds.
+
+    Raises:
+        ConversionError: not an integer, or seconds outside int32.
+    """
+    if isinstance(stamp_ns, (bool, np.bool_)) or not isinstance(stamp_ns, (int, np.integer)):
+        raise ConversionError(
+            f"stamp_ns: expected int nanoseconds, got {type(stamp_ns).__name__} {stamp_ns!r}")
+    sec, nanosec = divmod(int(stamp_ns), _NS_PER_S)
+    if not _INT32[0] <= sec <= _INT32[1]:
+        raise ConversionError(f"stamp_ns: {stamp_ns} does not fit builtin_interfaces/Time")
+    return _cls(T, "builtin_interfaces/msg/Time")(sec=sec, nanosec=nanosec)
+
+
+def header(T: Any, stamp_ns: int, frame_id: str) -> Any:
+    """``std_msgs/Header``."""
+    if not isinstance(frame_id, str):
+        raise ConversionError(f"frame_id: expected a string, got {frame_id!r}")
+    return _cls(T, "std_msgs/msg/Header")(stamp=time_msg(T, stamp_ns), frame_id=frame_id)
+
+
+def _point(T: Any, p: np.ndarray) -> Any:
+    return _cls(T, "geometry_msgs/msg/Point")(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+
+
+def _identity(T: Any) -> Any:
+    return _cls(T, "geometry_msgs/msg/Quaternion")(x=0.0, y=0.0, z=0.0, w=1.0)
+
+
+def _position_pose(T: Any, p: np.ndarray) -> Any:
+    return _cls(T, "geometry_msgs/msg/Pose")(position=_point(T, p), orientation=_identity(T))
+
+
+def point_stamped(T: Any, xyz: Any, stamp_ns: int, frame_id: str) -> Any:
+    """``geometry_msgs/PointStamped`` (``target/point``).
+
+    Raises:
+        ConversionError: not 3 finite numbers, or a bad stamp or frame.
+    """
+    return _cls(T, "geometry_msgs/msg/PointStamped")(
+        header=header(T, stamp_ns, frame_id), point=_point(T, _xyz(xyz, "point")))
+
+
+def pose_with_covariance(T: Any, xyz: Any, cov: Any, stamp_ns: int, frame_id: str,
+                         hdr: Any = None) -> Any:
+    """``geometry_msgs/PoseWithCovarianceStamped`` of a point: position = the point,
+    orientation identity, covariance position block ``cov`` (3x3, m^2), orientation variances
+    :data:`UNKNOWN_ROTATION_VARIANCE` (``target/point_cov``, ``target/pose_cov``)."""
+    full = np.zeros((6, 6))
+    full[:3, :3] = np.asarray(cov, dtype=np.float64).reshape(3, 3)
+    full[3:, 3:] = np.eye(3) * UNKNOWN_ROTATION_VARIANCE
+    pose = _cls(T, "geometry_msgs/msg/PoseWithCovariance")(
+        pose=_position_pose(T, _xyz(xyz, "point")), covariance=full.ravel())
+    return _cls(T, "geometry_msgs/msg/PoseWithCovarianceStamped")(
+        header=hdr if hdr is not None else header(T, stamp_ns, frame_id), pose=pose)
+
+
+def pose_stamped(T: Any, xyz: Any, stamp_ns: int, frame_id: str, hdr: Any = None) -> Any:
+    """``geometry_msgs/PoseStamped`` of a point: orientation identity (``target/pose``)."""
+    return _cls(T, "geometry_msgs/msg/PoseStamped")(
+        header=hdr if hdr is not None else header(T, stamp_ns, frame_id),
+        pose=_position_pose(T, _xyz(xyz, "point")))
+
+
+def pose_array(T: Any, points: Iterable[Any], stamp_ns: int, frame_id: str) -> Any:
+    """``geometry_msgs/PoseArray``: one pose per point, orientation identity
+    (``target/poses``).
+
+    Raises:
+        ConversionError: a point is not 3 finite numbers.
+    """
+    poses = [_position_pose(T, _xyz(p, f"points[{k}]")) for k, p in enumerate(points)]
+    return _cls(T, "geometry_msgs/msg/PoseArray")(header=header(T, stamp_ns, frame_id),
+                                                   poses=poses)
+
+
+def _duration(T: Any, seconds: float) -> Any:
+    ns = max(0, int(round(seconds * 1e9)))
+    sec, nanosec = divmod(ns, _NS_PER_S)
+    return _cls(T, "builtin_interfaces/msg/Duration")(sec=sec, nanosec=nanosec)
+
+
+def sphere_markers(T: Any, spheres: Iterable[Sphere], stamp_ns: int, frame_id: str,
+                   lifetime_s: float = 0.0) -> Any:
+    """``visualization_msgs/MarkerArray``: ``DELETEALL``, then one ``SPHERE`` (``ns`` = id,
+    ``id`` 0) per sphere (``targets/markers``, ``target/markers``).
+
+    Raises:
+        ConversionError: a non-finite centre, a diameter that is not positive, or two spheres
+            with one id.
+    """
+    Marker = _cls(T, "visualization_msgs/msg/Marker")
+    hdr = header(T, stamp_ns, frame_id)
+    out = [Marker(header=hdr, action=_MARKER_DELETEALL,
+                  pose=_position_pose(T, np.zeros(3)))]
+    seen: set[str] = set()
+    lifetime = _duration(T, lifetime_s)
+    for s in spheres:
+        xyz = _xyz(s.xyz, f"sphere '{s.id}': centre")
+        if not (math.isfinite(s.diameter_m) and s.diameter_m > 0):
+            raise ConversionError(f"sphere '{s.id}': diameter must be > 0, got {s.diameter_m}")
+        if s.id in seen:
+            raise ConversionError(f"sphere '{s.id}': two spheres with one id in a frame")
+        seen.add(s.id)
+        d = float(s.diameter_m)
+        r, g, b, a = (float(c) for c in s.rgba)
+        out.append(Marker(
+            header=hdr, ns=s.id, id=0, type=_MARKER_SPHERE, action=_MARKER_ADD,
+            pose=_position_pose(T, xyz),
+            scale=_cls(T, "geometry_msgs/msg/Vector3")(x=d, y=d, z=d),
+            color=_cls(T, "std_msgs/msg/ColorRGBA")(r=r, g=g, b=b, a=a),
+            lifetime=lifetime))
+    return _cls(T, "visualization_msgs/msg/MarkerArray")(markers=out)
+
+
+def transform_stamped(T: Any, parent_T_child: Any, stamp_ns: int, parent: str,
+                      child: str) -> Any:
+    """``geometry_msgs/TransformStamped`` of a 4x4 rigid transform (quaternion w >= 0).
+
+    Raises:
+        ConversionError: not a finite 4x4 transform, or a bad stamp or frame.
+    """
+    M = np.asarray(parent_T_child, dtype=np.float64)
+    if M.shape != (4, 4) or not np.all(np.isfinite(M)):
+        raise ConversionError(f"transform {parent} -> {child}: expected a finite 4x4 matrix")
+    if not isinstance(child, str):
+        raise ConversionError(f"child_frame_id: expected a string, got {child!r}")
+    q = matrix_to_quat_xyzw(M[:3, :3])
+    t = M[:3, 3]
+    tf = _cls(T, "geometry_msgs/msg/Transform")(
+        translation=_cls(T, "geometry_msgs/msg/Vector3")(x=float(t[0]), y=float(t[1]),
+                                                          z=float(t[2])),
+        rotation=_cls(T, "geometry_msgs/msg/Quaternion")(x=float(q[0]), y=float(q[1]),
+                                                          z=float(q[2]), w=float(q[3])))
+    return _cls(T, "geometry_msgs/msg/TransformStamped")(
+        header=header(T, stamp_ns, parent), child_frame_id=child, transform=tf)
+
+
+def tf_message(T: Any, edges: Iterable[tuple[str, str, int, Any]]) -> Any:
+    """``tf2_msgs/TFMessage`` of ``(parent, child, stamp_ns, parent_T_child 4x4)``."""
+    return _cls(T, "tf2_msgs/msg/TFMessage")(transforms=[
+        transform_stamped(T, M, int(stamp), parent, child) for parent, child, stamp, M in edges])
+
+
+def translation_tf_message(T: Any, edges: Iterable[tuple[str, str, int, Any]]) -> Any:
+    """``tf2_msgs/TFMessage`` of translation-only transforms ``(parent, child, stamp_ns,
+    translation (3,))``, rotation identity: the message :func:`tf_message` builds of the 4x4
+    transforms, without a rotation conversion (per target and frame on the live path).
+
+    Raises:
+        ConversionError: a translation is not 3 finite numbers.
+    """
+    out = []
+    for parent, child, stamp, t in edges:
+        p = _xyz(t, f"translation of {parent} -> {child}")
+        tf = _cls(T, "geometry_msgs/msg/Transform")(
+            translation=_cls(T, "geometry_msgs/msg/Vector3")(x=float(p[0]), y=float(p[1]),
+                                                              z=float(p[2])),
+            rotation=_identity(T))
+        out.append(_cls(T, "geometry_msgs/msg/TransformStamped")(
+            header=header(T, int(stamp), parent), child_frame_id=child, transform=tf))
+    return _cls(T, "tf2_msgs/msg/TFMessage")(transforms=out)
