@@ -90,13 +90,14 @@ def main() -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--runs", type=int, default=10)
     parser.add_argument("--demo-out", default="demo_out",
-                        help="output folder of a make demo run (params.yaml, calibrations)")
+                        help="output folder of a make demo run (its calibrations)")
     parser.add_argument("--bag", default=str(ROOT / "bags" / "localization"))
     args = parser.parse_args()
     demo = Path(args.demo_out).resolve()
-    params = demo / "params.yaml"
-    if not params.is_file():
-        print(f"bench_live_startup: {params} not found: run make demo first", file=sys.stderr)
+    params = ROOT / "config" / "eye_in_hand.yaml"      # the shipped bring-up, as make demo
+    calib, hand_eye = demo / "calibration", demo / "hand_eye" / "hand_eye.yaml"
+    if not hand_eye.is_file():
+        print(f"bench_live_startup: {hand_eye} not found: run make demo first", file=sys.stderr)
         return 1
     bag = Path(args.bag)
     n = bag_info(bag).topics[LEFT].count
@@ -113,7 +114,7 @@ def main() -> int:
         diags.latest.clear()
         t0 = time.monotonic()
         live, _log = live_step(params, bag, demo / f"bench_live_{run}.jsonl", env, n,
-                               quiet=True)
+                               calibration=calib, hand_eye=hand_eye, quiet=True)
         got = {m["header"]["stamp"]["sec"] * 10**9 + m["header"]["stamp"]["nanosec"]
                for m in live}
         missing = [i + 1 for i, s in enumerate(stamps) if s not in got]

@@ -37,12 +37,19 @@ from eye_in_hand.core.transforms import transform_distance
 from eye_in_hand.errors import EXIT_UNEXPECTED, debug_enabled, unexpected_error_line
 from eye_in_hand.io.bags import bag_info, deserialize, iter_messages
 from eye_in_hand.io.config import load_hand_eye
+from eye_in_hand.io.results import compare_outputs, output_messages
 from eye_in_hand.ros.conversions import (camera_info_to_model, header_stamp_ns, point_to_xyz,
                                          transform_to_matrix)
 
 ROOT = Path(__file__).resolve().parent.parent
 BOARD = "chessboard:9x6:0.025"
 LEFT, RIGHT = "/stereo/left/image_raw", "/stereo/right/image_raw"
+#: What detect_triangulate and hand_eye publish for the bundled world's one target (id "red"),
+#: recorded during the live step and compared with the output bag of ``process``.
+OUTPUT_TOPICS = ("/target/point", "/target/point_cov", "/targets/markers", "/targets/red/point",
+                 "/targets/red/point_cov", "/target/pose", "/target/pose_cov",
+                 "/target/red/pose", "/target/red/pose_cov", "/target/poses", "/target/markers",
+                 "/hand_eye/transform", "/tf", "/tf_static")
 
 
 def _cli(*args: str) -> list[str]:
@@ -93,9 +100,39 @@ def _stats(errors_m: Sequence[float]) -> str:
             f"max {e.max():.3f} mm over {e.size} frames")
 
 
+def _wait_subscribed(recorder: subprocess.Popen, topics: Sequence[str], timeout_s: float
+                     ) -> str:
+    """Read the recorder's log until it subscribed to every topic (or ``timeout_s`` passed, or
+    it exited); returns what it printed."""
+    import selectors
+
+    assert recorder.stderr is not None
+    want, text = set(topics), []
+    sel = selectors.DefaultSelector()
+    sel.register(recorder.stderr, selectors.EVENT_READ)
+    end = time.monotonic() + timeout_s
+    while want and time.monotonic() < end and recorder.poll() is None:
+        if not sel.select(timeout=0.2):
+            continue
+        line = recorder.stderr.readline()
+        text.append(line)
+        for topic in list(want):
+            if f"subscribed to {topic} (" in line:
+                want.discard(topic)
+    sel.close()
+    if want:
+        raise SystemExit(f"demo: the recorder did not subscribe to {sorted(want)} within "
+                         f"{timeout_s:.0f} s:\n{''.join(text)[-2000:]}")
+    return "".join(text)
+
+
 def live_step(params: Path, loc_bag: Path, live_file: Path, env: dict[str, str], n_pairs: int,
-              *, quiet: bool = False) -> tuple[list[dict], str]:
+              *, calibration: Path, hand_eye: Path, quiet: bool = False,
+              record: Path | None = None) -> tuple[list[dict], str]:
     """Step 3: ``launch`` (no stereo_capture), ``echo /target/pose``, ``play`` the bag.
+
+    With ``record``, ``record`` also writes every output topic of the nodes
+    (:data:`OUTPUT_TOPICS`) into that bag; the replay starts once it is subscribed to all.
 
     Nothing is lost to discovery: ``play --wait-for-topics`` waits, before the first message,
     until every hop of the pipeline has a publisher and a subscriber: its own topics (images,
@@ -105,7 +142,8 @@ def live_step(params: Path, loc_bag: Path, live_file: Path, env: dict[str, str],
     Returns:
         The target poses received (JSON dicts) and the launch's output.
     """
-    launch_cmd = _cli("launch", "--params", str(params), "--skip", "stereo_capture")
+    launch_cmd = _cli("launch", "--params", str(params), "--calibration", str(calibration),
+                      "--hand-eye", str(hand_eye), "--skip", "stereo_capture")
     echo_cmd = _cli("echo", "/target/pose", "--json", "--count", str(n_pairs),
                     "--timeout", "60")
     play_cmd = _cli("play", str(loc_bag), "--topics", LEFT, RIGHT, "/ee_pose",
@@ -115,12 +153,21 @@ def live_step(params: Path, loc_bag: Path, live_file: Path, env: dict[str, str],
         print(_show(launch_cmd) + " &", flush=True)
     launch = subprocess.Popen(launch_cmd, env=env, text=True, stdout=subprocess.PIPE,
                               stderr=subprocess.STDOUT, start_new_session=True)
+    recorder = None
+    if record is not None:
+        record_cmd = _cli("record", "-o", str(record), *OUTPUT_TOPICS)
+        if not quiet:
+            print(_show(record_cmd) + " &", flush=True)
+        recorder = subprocess.Popen(record_cmd, env=env, text=True, stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.PIPE)
     if not quiet:
         print(_show(echo_cmd) + f" > {live_file.name} &", flush=True)
     with live_file.open("w") as fh:
         echo = subprocess.Popen(echo_cmd, env=env, text=True, stdout=fh,
                                 stderr=subprocess.PIPE)
         try:
+            if recorder is not None:
+                _wait_subscribed(recorder, OUTPUT_TOPICS, 60.0)
             _run(play_cmd, env, quiet=quiet)
             # The last poses are still in flight (a busy machine detects late): wait while
             # they keep coming, up to 10 s after the last one and 60 s in all.
@@ -133,6 +180,10 @@ def live_step(params: Path, loc_bag: Path, live_file: Path, env: dict[str, str],
             if echo.poll() is None:
                 echo.send_signal(signal.SIGINT)
                 echo.wait(timeout=10)
+            if recorder is not None:
+                time.sleep(0.5)                 # the last frame's outputs, after its pose
+                recorder.send_signal(signal.SIGINT)
+                recorder.communicate(timeout=30)
             os.killpg(launch.pid, signal.SIGINT)
             try:
                 launch_out, _ = launch.communicate(timeout=20)
@@ -176,21 +227,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     print("\n== 3/5 live over DDS: launch detect_triangulate + hand_eye, echo /target/pose, "
           "play", loc_bag, flush=True)
-    params = out / "params.yaml"
-    base = (ROOT / "config" / "eye_in_hand.yaml").read_text()
-    params.write_text(base.replace('calibration_dir: ""          # empty = use the camera_info '
-                                   'topics', f'calibration_dir: "{calib}"')
-                      .replace("hand_eye_file: hand_eye.yaml", f"hand_eye_file: "
-                               f"{he_dir / 'hand_eye.yaml'}")
-                      # a replay of a bag, where every frame counts: images reliably, and
-                      # room for a machine too busy to detect at 30 Hz (latency, not losses)
-                      .replace("    method: dlt ", "    images: {reliable: true, depth: 30}\n"
-                               "    queue_depth: 30\n    method: dlt "))
-    if str(calib) not in params.read_text():
-        raise SystemExit("demo: could not set calibration_dir in the parameter file")
+    params = ROOT / "config" / "eye_in_hand.yaml"      # the shipped bring-up, as it is
     n_pairs = bag_info(loc_bag).topics[LEFT].count
     live_file = out / "live_target_pose.jsonl"
-    live, launch_out = live_step(params, loc_bag, live_file, env, n_pairs)
+    live, launch_out = live_step(params, loc_bag, live_file, env, n_pairs,
+                                 calibration=calib, hand_eye=he_dir / "hand_eye.yaml",
+                                 record=out / "live_outputs")
     (out / "launch.log").write_text(launch_out)
     for msg in live[:3]:
         p = msg["pose"]["position"]
@@ -233,6 +275,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"offline: {len(offline)}/{n_pairs} frames, "
           f"{_stats([np.linalg.norm(p - targets[s]) for s, p in offline.items() if s in targets])}")
     print(f"live vs offline: {len(common)} frames in both, largest difference {diff:.2e} m")
+    live_msgs = output_messages(out / "live_outputs", OUTPUT_TOPICS)
+    offline_msgs = output_messages(processed, OUTPUT_TOPICS)
+    problems = compare_outputs(live_msgs, offline_msgs, set(common))
+    n_msgs = sum(len([m for m in v if m[0] in set(common)]) for v in live_msgs.values())
+    print(f"live vs offline bags: {len(set(live_msgs) | set(offline_msgs))} topics, "
+          f"{n_msgs} messages of those frames: " + (
+              "identical" if not problems else "DIFFERENT: " + "; ".join(problems[:5])))
     print(f"\ndemo finished in {time.monotonic() - t_start:.0f} s; outputs in {out}")
     return 0 if live_pts else 1
 

@@ -100,12 +100,22 @@ def _join(root: str, rel: str) -> str:
     return (root.rstrip("/") + "/" + rel.strip("/")) if rel else root
 
 
+def _yaml_string(value: str) -> str:
+    """A string as rcl reads a ``-p name:=value`` (YAML): single-quoted, so that ``123`` or
+    ``true`` stays a string."""
+    return "'" + value.replace("'", "''") + "'"
+
+
 def node_command(spec: NodeSpec, params_file: str | os.PathLike[str], *,
-                 root_namespace: str = "/", python: str = sys.executable) -> list[str]:
-    """The command line that starts ``spec`` as a process."""
+                 root_namespace: str = "/", python: str = sys.executable,
+                 overrides: Sequence[tuple[str, str]] = ()) -> list[str]:
+    """The command line that starts ``spec`` as a process; ``overrides``: string parameters
+    ``(name, value)`` set after the parameter file (``-p name:=value``)."""
     ns = _join(root_namespace, spec.namespace)
     cmd = [python, "-u", "-m", spec.module, "--ros-args", "-r", f"__ns:={ns}",
            "--params-file", str(params_file)]
+    for name, value in overrides:
+        cmd += ["-p", f"{name}:={_yaml_string(value)}"]
     remaps = list(spec.remaps) + [(t, t) for t in _TO_ROOT]
     for src, dst in remaps:
         target = _join(root_namespace, dst)
@@ -132,6 +142,8 @@ class Launcher:
             the launch stops, naming the node.
         restart_window_s: the window of ``max_restarts`` (s).
         calibrate: calibration mode (:data:`CALIBRATION_NODES`).
+        overrides: node name -> string parameters ``(name, value)`` that replace the
+            parameter file's (``launch --calibration`` / ``--hand-eye``).
     """
 
     def __init__(self, params_file: str | os.PathLike[str], nodes: Sequence[str] | None = None,
@@ -139,7 +151,8 @@ class Launcher:
                  out: IO[str] | None = None, respawn: bool = True,
                  respawn_delay_s: float = 0.5, respawn_max_delay_s: float = 8.0,
                  max_restarts: int = 5, restart_window_s: float = 60.0,
-                 calibrate: bool = False) -> None:
+                 calibrate: bool = False,
+                 overrides: dict[str, list[tuple[str, str]]] | None = None) -> None:
         if not (respawn_delay_s >= 0 and respawn_max_delay_s >= respawn_delay_s):
             raise InputError(f"respawn delays: need 0 <= first ({respawn_delay_s}) <= max "
                              f"({respawn_max_delay_s})")
@@ -164,6 +177,7 @@ class Launcher:
         if not chosen:
             raise InputError("no node to launch")
         self.specs = [s for s in catalogue if s.name in chosen]
+        self.overrides = dict(overrides or {})
         self.root_namespace = root_namespace
         self.env = dict(os.environ if env is None else env)
         self.env.setdefault("PYTHONUNBUFFERED", "1")
@@ -178,7 +192,8 @@ class Launcher:
             self._start_one(spec)
 
     def _start_one(self, spec: NodeSpec) -> None:
-        cmd = node_command(spec, self.params_file, root_namespace=self.root_namespace)
+        cmd = node_command(spec, self.params_file, root_namespace=self.root_namespace,
+                           overrides=self.overrides.get(spec.name, ()))
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                 text=True, env=self.env, start_new_session=True)
         self.procs[spec.name] = proc

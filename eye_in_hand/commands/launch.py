@@ -28,6 +28,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``eye-in-hand launch``."""
     parser.add_argument("--params", metavar="FILE",
                         help="ROS parameter file for all nodes (default: config/eye_in_hand.yaml)")
+    parser.add_argument("--calibration", metavar="DIR",
+                        help="stereo calibration directory (left.yaml + right.yaml, from "
+                             "'calibrate stereo'): replaces the parameter file's "
+                             "detect_triangulate calibration_dir (with --calibrate: hand_eye's)")
+    parser.add_argument("--hand-eye", metavar="FILE",
+                        help="hand_eye.yaml (from 'calibrate handeye'): replaces the parameter "
+                             "file's hand_eye hand_eye_file")
     parser.add_argument("--calibrate", action="store_true",
                         help="hand-eye calibration at a live cell: stereo_capture and hand_eye "
                              "in calibration mode, reading the camera's images (default "
@@ -76,9 +83,37 @@ def run(args: argparse.Namespace) -> int:
     nodes = [n.name for n in catalogue if n.name not in args.skip]
     if not nodes:
         raise InputError("--skip: no node left to start")
-    launcher = Launcher(params, nodes, root_namespace=ns,
+    overrides = _overrides(args)
+    launcher = Launcher(params, nodes, root_namespace=ns, overrides=overrides,
                         respawn=not args.no_respawn, respawn_delay_s=args.respawn_delay,
                         max_restarts=args.max_restarts, restart_window_s=args.restart_window,
                         calibrate=args.calibrate)
     print(f"eye-in-hand launch: starting {', '.join(nodes)} with {params}", flush=True)
     return launcher.run(args.duration)
+
+
+def _overrides(args: argparse.Namespace) -> dict[str, list[tuple[str, str]]]:
+    """``--calibration`` / ``--hand-eye`` as node parameters, checked here: a missing file is
+    one line now, not a node that refuses to start."""
+    from pathlib import Path
+
+    from eye_in_hand.ros.names import check_parameter_text
+
+    out: dict[str, list[tuple[str, str]]] = {}
+    if args.calibration is not None:
+        check_parameter_text(str(args.calibration), "--calibration")
+        cdir = Path(args.calibration)
+        if not (cdir / "left.yaml").is_file() or not (cdir / "right.yaml").is_file():
+            raise InputError(f"--calibration: {cdir} has no left.yaml + right.yaml (a folder "
+                             "written by 'eye-in-hand calibrate stereo')")
+        node = "hand_eye" if args.calibrate else "detect_triangulate"
+        out.setdefault(node, []).append(("calibration_dir", str(cdir.resolve())))
+    if args.hand_eye is not None:
+        check_parameter_text(str(args.hand_eye), "--hand-eye")
+        if not Path(args.hand_eye).is_file():
+            raise InputError(f"--hand-eye: {args.hand_eye}: file not found (a hand_eye.yaml "
+                             "written by 'eye-in-hand calibrate handeye')")
+        out.setdefault("hand_eye", []).append(("hand_eye_file",
+                                               str(Path(args.hand_eye).resolve())))
+    return out
+

@@ -12,6 +12,10 @@ HELP = "publish a bag's messages over DDS at the recorded pace (like ros2 bag pl
 __all__ = ["HELP", "add_arguments", "run"]
 
 
+#: How long ``--wait-for-topics`` waits when ``--wait-for-subscribers`` is not given (s).
+WAIT_S = 60.0
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``eye-in-hand play``."""
     parser.add_argument("bag", help="bag directory (metadata.yaml) or a single .mcap/.db3 file")
@@ -30,16 +34,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="play only these topics (default: all)")
     parser.add_argument("--start-offset", type=bounded(0, 1e7, "s"), default=0.0, metavar="S",
                         help="start S seconds into the bag, 0 to 1e7 (default 0)")
-    parser.add_argument("--wait-for-subscribers", type=bounded(0, 3600, "s"), default=0.0,
+    parser.add_argument("--wait-for-subscribers", type=bounded(0, 3600, "s"), default=None,
                         metavar="S",
                         help="before the first message, wait up to S seconds (0 to 3600) "
-                             "until every "
-                             "topic has a subscriber (default 0: do not wait, like ros2 bag "
-                             "play; messages sent before discovery completes are lost)")
+                             "until every topic has a subscriber (default: 0, do not wait, "
+                             "like ros2 bag play, where messages sent before discovery "
+                             f"completes are lost; {WAIT_S:g} with --wait-for-topics)")
     parser.add_argument("--wait-for-topics", nargs="+", default=[], metavar="TOPIC",
-                        help="with --wait-for-subscribers: also wait until each TOPIC (the "
-                             "pipeline's downstream hops, e.g. /target/point /target/pose) has "
-                             "a publisher and a subscriber")
+                        help="also wait until each TOPIC (the pipeline's downstream hops, e.g. "
+                             "/target/point /target/pose) has a publisher and a subscriber "
+                             "(up to --wait-for-subscribers S)")
+
+
+def wait_for_subscribers_s(args: argparse.Namespace) -> float:
+    """The wait before the first message: ``--wait-for-subscribers``, else :data:`WAIT_S` with
+    ``--wait-for-topics`` (which would otherwise wait for nothing), else 0."""
+    if args.wait_for_subscribers is not None:
+        return float(args.wait_for_subscribers)
+    return WAIT_S if args.wait_for_topics else 0.0
 
 
 def run(args: argparse.Namespace) -> int:
@@ -55,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
     check_parameter_text(str(args.bag), "BAG")
     for topic in args.topics or ():
         check_parameter_text(topic, "--topics")
+    wait = wait_for_subscribers_s(args)
     overrides = [
         Parameter("bag", value=str(args.bag)),
         Parameter("rate", value=float(args.rate)),
@@ -62,12 +75,12 @@ def run(args: argparse.Namespace) -> int:
         Parameter("clock", value=bool(args.clock)),
         Parameter("clock_hz", value=float(args.clock_hz)),
         Parameter("start_offset", value=float(args.start_offset)),
-        Parameter("wait_for_subscribers", value=float(args.wait_for_subscribers)),
+        Parameter("wait_for_subscribers", value=float(wait)),
     ]
     if args.wait_for_topics:
-        if not args.wait_for_subscribers > 0:
-            raise InputError("--wait-for-topics: needs --wait-for-subscribers S (how long to "
-                             "wait)")
+        if not wait > 0:
+            raise InputError("--wait-for-topics: waits up to --wait-for-subscribers S, which "
+                             "is 0: give S > 0 (or leave it out: 60 s)")
         overrides.append(Parameter("wait_for_topics", Parameter.Type.STRING_ARRAY,
                                    list(args.wait_for_topics)))
     if args.topics:  # an empty list would be typed as a byte array

@@ -106,3 +106,27 @@ def test_message_to_dict_truncates_long_fields() -> None:
     full = message_to_dict(msg)
     assert full["data"] == list(range(200)) and full["header"]["stamp"] == {"sec": 0,
                                                                             "nanosec": 0}
+
+
+def test_echo_started_after_a_latched_message_receives_it(ros_context, executor, spin_until,
+                                                          namespace, ros_env) -> None:
+    """hand_eye/transform (and /tf_static) are latched: an echo started after the message was
+    published still prints it (the README tour runs echo at its own pace)."""
+    from geometry_msgs.msg import TransformStamped
+    from rclpy.node import Node
+
+    from eye_in_hand.ros.qos import LATCHED_QOS
+
+    node = Node("echo_latched_publisher", context=ros_context)
+    pub = node.create_publisher(TransformStamped, f"{namespace}/hand_eye/transform", LATCHED_QOS)
+    msg = TransformStamped()
+    msg.header.frame_id, msg.child_frame_id = "tool0", "camera_left_optical_frame"
+    msg.transform.rotation.w = 1.0
+    pub.publish(msg)                                  # before echo exists
+    executor.add_node(node)
+    proc = _echo(ros_env, f"{namespace}/hand_eye/transform", "--count", "1", "--timeout", "30",
+                 "--json")
+    assert spin_until(executor, lambda: proc.poll() is not None, 40.0), "echo did not finish"
+    out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    assert json.loads(out.splitlines()[0])["child_frame_id"] == "camera_left_optical_frame"

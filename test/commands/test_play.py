@@ -312,3 +312,18 @@ def test_prefetch_is_bounded_in_bytes_and_releases_on_close() -> None:
     buf.close()  # releases the blocked put with False
     t.join(5.0)
     assert results == [True, False] and buf.get(0.01) is _NOTHING
+
+
+def test_wait_for_topics_alone_waits_a_default_time():
+    """``play BAG --wait-for-topics T`` works as written (it once needed
+    --wait-for-subscribers S as well, and failed without it)."""
+    from eye_in_hand.cli import build_parser
+    from eye_in_hand.commands.play import WAIT_S, wait_for_subscribers_s
+
+    parser = build_parser()
+    args = parser.parse_args(["play", "bag", "--wait-for-topics", "/target/pose"])
+    assert wait_for_subscribers_s(args) == WAIT_S > 0
+    assert wait_for_subscribers_s(parser.parse_args(["play", "bag"])) == 0.0
+    args = parser.parse_args(["play", "bag", "--wait-for-subscribers", "5",
+                              "--wait-for-topics", "/x"])
+    assert wait_for_subscribers_s(args) == 5.0
