@@ -18,11 +18,21 @@ pytest.importorskip("rclpy")
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def test_demo_runs_every_step_and_meets_its_figures(tmp_path: Path, ros_env) -> None:
-    out = tmp_path / "demo_out"
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory) -> tuple[subprocess.CompletedProcess, Path]:
+    """One ``make demo`` run (``python -m eye_in_hand.demo``), shared by the tests below."""
+    import os
+
+    out = tmp_path_factory.mktemp("demo") / "demo_out"
+    env = dict(os.environ, PYTHONUNBUFFERED="1")   # conftest set the isolated DDS domain
     proc = subprocess.run([sys.executable, "-m", "eye_in_hand.demo", "--out", str(out)],
-                          cwd=ROOT, env=ros_env, text=True, stdout=subprocess.PIPE,
+                          cwd=ROOT, env=env, text=True, stdout=subprocess.PIPE,
                           stderr=subprocess.STDOUT, timeout=300)
+    return proc, out
+
+
+def test_demo_runs_every_step_and_meets_its_figures(demo) -> None:
+    proc, out = demo
     text = proc.stdout
     assert proc.returncode == 0, text[-3000:]
     for step in range(1, 6):
@@ -56,3 +66,101 @@ def test_demo_runs_every_step_and_meets_its_figures(tmp_path: Path, ros_env) -> 
     assert m and m.group(3) == "identical", text[-3000:]
     assert int(m.group(1)) == 14 and int(m.group(2)) >= 12 * rows["live"][0]
 
+# -- the figures the docs quote ----------------------------------------------------------------
+
+#: The pages that quote the demo's output, and how to find the quote: README.md's block under
+#: "What `make demo` prints", bags/README.md's "Sanity check" block.
+QUOTING_PAGES = {"README.md": "### What `make demo` prints", "bags/README.md": "Sanity check"}
+_NUMBER = re.compile(r"-?\d+(?:\.\d+)?(?:e[+-]?\d+)?")
+
+
+def quoted_block(page: str, after: str) -> list[str]:
+    """The lines of the first fenced block after the line containing ``after``."""
+    text = (ROOT / page).read_text()
+    start = text.index(after)
+    m = re.search(r"^```[^\n]*\n(.*?)^```", text[start:], re.M | re.S)
+    assert m, f"{page}: no code block after {after!r}"
+    return [line for line in m.group(1).splitlines() if line.strip()]
+
+
+def _skeleton(line: str) -> str:
+    return " ".join(_NUMBER.sub("#", line).split())
+
+
+def _pairs(quote: str, line: str) -> list[tuple[str, str]] | None:
+    """The (quoted, printed) number pairs when ``line`` has the words of ``quote``, whose
+    ``...`` stand for any text; None when it has not."""
+    skel, nums = _skeleton(line), _NUMBER.findall(line)
+    pos, pairs = 0, []
+    segments = quote.split("...")
+    for k, segment in enumerate(segments):
+        want = _skeleton(segment)
+        if not want:
+            continue
+        at = skel.find(want, pos)
+        if at < 0 or (k == 0 and at != 0):
+            return None
+        first = skel[:at].count("#")
+        found = _NUMBER.findall(segment)
+        pairs += list(zip(found, nums[first:first + len(found)]))
+        pos = at + len(want)
+    if segments[-1].strip() and pos != len(skel):
+        return None       # not abridged at the end: the whole line
+    return pairs
+
+
+def _close(quoted: str, printed: str, rel: float) -> bool:
+    """Counts equal; other figures within ``rel``, or one unit of the quote's last digit."""
+    if re.fullmatch(r"-?\d+", quoted):
+        return quoted == printed
+    unit = 10.0 ** -len(quoted.split(".")[1].split("e")[0]) if "." in quoted else 1.0
+    return abs(float(printed) - float(quoted)) <= max(rel * abs(float(quoted)), unit)
+
+
+def quote_problem(quote: str, output: list[str], rel: float = 0.05) -> str | None:
+    """Why ``quote`` (a line of a doc; ``...`` stands for text left out) is not a line of
+    ``output``: None when an output line has the same words and its numbers are within
+    ``rel`` (or one unit of the quote's last digit). The run time (``demo finished in N s``)
+    is machine-dependent and not compared; the live figures are compared with the offline
+    ones, which the demo checks they equal (a busy machine may lose a live frame)."""
+    quote = quote.strip()
+    if quote.startswith("live:"):
+        quote = "offline:" + quote[len("live:"):]
+    timing = quote.startswith("demo finished in")
+    best = None
+    for line in output:
+        pairs = _pairs(quote, line.strip())
+        if pairs is None:
+            continue
+        bad = [(q, g) for q, g in pairs if not timing and not _close(q, g, rel)]
+        if not bad:
+            return None
+        best = f"{quote!r}: the demo prints {line.strip()!r} (quoted vs printed: {bad})"
+    return best or f"{quote!r}: no such line in the demo's output"
+
+
+def test_quote_problem_compares_words_and_numbers() -> None:
+    out = ["hand-eye (kronecker): 0.176 mm, 0.0149 deg from the true mount",
+           "  stereo: joint RMS 0.0259 px over 34 pairs (0 image(s) skipped)"]
+    assert quote_problem("hand-eye (kronecker): 0.18 mm, 0.015 deg from the true mount",
+                         out) is None
+    assert quote_problem("hand-eye (kronecker): 0.207 mm, 0.0149 deg from the true mount", out)
+    assert quote_problem("hand-eye (refined): 0.176 mm, 0.0149 deg from the true mount", out)
+    assert quote_problem("  stereo: joint RMS 0.0259 px over 34 pairs ...", out) is None
+    assert quote_problem("  stereo: joint RMS 0.0678 px over 34 pairs ...", out)
+    assert quote_problem("stereo: joint RMS ... 34 pairs (0 image(s) skipped)", out) is None
+    assert quote_problem("stereo: joint RMS ... 35 pairs (0 image(s) skipped)", out)
+    assert quote_problem("stereo: joint RMS 0.0259 px over 34 pairs", out)   # not abridged
+
+
+@pytest.mark.parametrize("page", sorted(QUOTING_PAGES))
+def test_docs_quote_the_demo_as_it_prints(demo, page: str) -> None:
+    """README.md and bags/README.md quote the demo's output; every quoted line is printed by
+    the demo today, its figures within 5 % (paths as from the repository root)."""
+    proc, out = demo
+    assert proc.returncode == 0, proc.stdout[-3000:]
+    output = proc.stdout.replace(str(out), "demo_out").replace(str(ROOT) + "/", "")
+    output_lines = output.splitlines()
+    problems = [p for q in quoted_block(page, QUOTING_PAGES[page])
+                if (p := quote_problem(q, output_lines))]
+    assert not problems, "\n".join(problems)

@@ -128,3 +128,67 @@ def test_every_page_has_its_contents_list_up_to_date() -> None:
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout + proc.stderr + (
         " (run: .venv/bin/python tools/docs_contents.py)")
+
+
+#: Pages whose command examples are checked for paths (docs/ and the two READMEs).
+EXAMPLE_PAGES = sorted(DOCS.glob("*.md")) + [ROOT / "README.md", ROOT / "bags" / "README.md"]
+#: Where the repository's shipped files live (a bare name of one of them is a path mistake).
+SHIPPED_DIRS = ("config", "launch", "bags", "benchmarks", "tools", "test/data")
+#: Folders that commands write (git-ignored).
+GENERATED = {"demo_out", "build", "out", "install", "log", "dist"}
+
+
+def _example_paths(text: str) -> list[str]:
+    """The values of options (``--kinematics world.yaml``) and the scripts given to
+    ``python`` in the code of a page (fenced blocks and code spans; continued lines joined)."""
+    fences = re.findall(r"^```[^\n]*\n(.*?)^```", text, re.M | re.S)
+    prose = re.sub(r"^```[^\n]*\n.*?^```", "", text, flags=re.M | re.S)
+    values: list[str] = []
+    for code in fences + re.findall(r"`([^`]+)`", prose):
+        code = code.replace("\\\n", " ")
+        values += re.findall(r"(?<![\w-])--[a-z][\w-]*[ =]([^\s`'\"|&;)]+)", code)
+        values += re.findall(r"python3?\s+([^\s-]\S*\.py)\b", code)
+    return [v.rstrip(".,") for v in values]
+
+
+def _path_problem(value: str, shipped: dict[str, list[str]]) -> str | None:
+    """Why ``value`` is a path that fails when the example is run from the repository root:
+    under a folder of the repository but missing, or the bare name of a shipped file."""
+    if value.startswith(("/", "-", "$", "~")) or "<" in value or "*" in value:
+        return None       # absolute, a flag, a variable, a placeholder or a pattern
+    top = value.split("/")[0]
+    if top in GENERATED:
+        return None       # written by a command (git-ignored), absent from a fresh clone
+    if "/" in value and (ROOT / top).is_dir() and not top.startswith("."):
+        return None if (ROOT / value).exists() else f"{value}: no such file"
+    if "/" not in value and value in shipped and not (ROOT / value).exists():
+        return f"{value}: not in the repository root; the shipped file is {shipped[value][0]}"
+    return None
+
+
+def _shipped() -> dict[str, list[str]]:
+    shipped: dict[str, list[str]] = {}
+    for folder in SHIPPED_DIRS:
+        for f in sorted((ROOT / folder).rglob("*")):
+            if f.is_file():
+                shipped.setdefault(f.name, []).append(str(f.relative_to(ROOT)))
+    return shipped
+
+
+def test_path_problem_flags_missing_and_bare_shipped_files() -> None:
+    shipped = _shipped()
+    assert _example_paths("x\n```\neye-in-hand a --kinematics world.yaml \\\n    --bag b\n```\n"
+                          "and `python tools/x.py`") == ["world.yaml", "b", "tools/x.py"]
+    assert _path_problem("world.yaml", shipped) is not None
+    assert _path_problem("config/world.yaml", shipped) is None
+    assert _path_problem("config/wrold.yaml", shipped) is not None
+    assert _path_problem("calib_bag", shipped) is None and _path_problem("out/x", shipped) is None
+
+
+def test_paths_in_command_examples_exist() -> None:
+    """An example run from the repository root finds every repository file it names."""
+    shipped = _shipped()
+    problems = [f"{page.relative_to(ROOT)}: {problem}" for page in EXAMPLE_PAGES
+                for value in _example_paths(page.read_text())
+                if (problem := _path_problem(value, shipped))]
+    assert not problems, "\n".join(problems)

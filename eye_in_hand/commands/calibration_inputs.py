@@ -509,6 +509,10 @@ def solve_handeye_inputs(args: argparse.Namespace) -> tuple[dict[str, Any], Any]
 
     inputs = load_handeye_inputs(args)
     samples = inputs["samples"]
+    meta = inputs["input"]
+    if meta.get("summary"):
+        print(f"{meta['type']}: {meta['summary']}; robot pose from {meta['pose_source']}",
+              file=sys.stderr)
     for note in inputs["notes"]:
         print(f"warning: {note}", file=sys.stderr)
     for s in inputs["skipped"]:
@@ -632,8 +636,9 @@ def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
         else:
             samples.append(obs.sample)
     moving = sum(1 for s in found.skipped if s["reason"] == "robot moving")
-    notes.append(f"bag: {found.n_images} images, {len(found.samples)} still stops, {moving} "
-                 f"images with the robot moving; robot pose from {found.pose_source}")
+    # what was found, not a warning: images taken while the arm moves are expected
+    summary = (f"{found.n_images} images, {len(found.samples)} still stops, {moving} images "
+               "with the robot moving")
     skipped.extend(s for s in found.skipped if "name" in s)
     if found.damage:        # damaged chunks and unusable messages, skipped: named and counted
         notes.append(f"damaged bag: {found.damage.summary()}")
@@ -643,7 +648,7 @@ def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
             "input": {"type": "bag", "path": str(args.bag), "board": args.board,
                       "stereo": rig is not None, "count": len(found.samples),
                       "image_topics": dict(found.image_topics),
-                      "pose_source": found.pose_source,
+                      "pose_source": found.pose_source, "summary": summary,
                       "damage": found.damage.to_dict() if found.damage is not None else None}}
 
 

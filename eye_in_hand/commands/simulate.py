@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import re
 import sys
 from pathlib import Path
@@ -28,19 +29,60 @@ def _size(text: str) -> tuple[int, int]:
 
 
 # The cost model of the estimate printed before the work (measured on the reference machine
-# under load: 30 pairs at 1280x720, supersample 3: 72 s, 90 MB, 366 MB peak; at 320x180: 15 s)
-_S_PER_PAIR = 0.3           # fixed cost of one stereo pair (s)
+# under load: 30 pairs at 1280x720, supersample 3: 72 s, 90 MB, 366 MB peak; at 320x180: 15 s;
+# re-measured with the runs of docs/simulator.md "Time and size": 6 pairs at 1280x720 in 16 s,
+# 73 at 320x180 in 18 s, 52 at 1280x720 in 157 s)
+_S_START = 3.0              # start-up: imports, the world, the bag (s)
+_S_PER_STOP = 0.5           # calibration: finding one reachable pose that sees the board (s)
+_S_PER_PAIR = 0.15          # fixed cost of one stereo pair (s)
 _S_PER_MPX = 2.3            # per megapixel of one image (s)
 _MEMORY_BASE = 200 << 20    # the interpreter, SciPy, OpenCV (bytes)
 _MEMORY_PER_PX = 200        # per pixel of one image, rendering buffers (bytes)
+# The size model: zstd-compressed bgr8 images, measured once (default world, seed 0; 6 pairs at
+# 1280x720: noise 1 18.0 MB, noise 0 2.0 MB; 10 pairs at 320x180: 2.2 and 0.5 MB): with sensor
+# noise an image compresses to ~0.56 of its raw size (Gaussian noise is incompressible: one more
+# bit per pixel and channel, 1/8 of the raw size, per doubling of sigma, extrapolated beyond the
+# measured sigma 1); without, to ~0.16 MB at 1280x720, growing with the pixels to the power 0.65
+# (the edges of the scene, not its area, cost the bytes).
+_RATIO_NOISE_1 = 0.56
+_BYTES_NOISE_FREE = 0.164e6     # one noise-free 1280x720 image
+_NOISE_FREE_EXPONENT = 0.65
+_BYTES_PER_ROBOT_SAMPLE = 150   # joint_states, ee_pose and tf at one stamp, compressed
 
 
-def _pairs(args: argparse.Namespace, frames: int) -> int:
-    """Stereo pairs the run writes (a calibration bag films the moves between its poses)."""
-    if args.scenario == "localization" or args.format == "dataset" or args.still_images_only:
-        return frames * (1 if args.scenario == "localization" or args.format == "dataset"
-                         else args.hold_frames)
-    return frames * (args.hold_frames + int((args.move_s + 2 * args.settle_s) * 30) + 1)
+def _image_bytes(size: tuple[int, int], noise: float) -> float:
+    """Estimated bytes of one compressed image (see the size model above)."""
+    px = size[0] * size[1]
+    raw = 3.0 * px
+    floor = min(raw, _BYTES_NOISE_FREE * (px / (1280 * 720)) ** _NOISE_FREE_EXPONENT)
+    if noise <= 0:
+        return floor
+    return min(raw, max(floor, (_RATIO_NOISE_1 + math.log2(noise) / 8.0) * raw))
+
+
+def _counts(args: argparse.Namespace, frames: int, *,
+            still_images_only: bool | None = None) -> tuple[int, int]:
+    """``(stereo pairs, robot samples)`` the run writes (a calibration bag films the moves
+    between its poses unless ``--still-images-only``)."""
+    from eye_in_hand.sim.output import recording_counts
+
+    if args.format == "dataset":
+        return frames, 0
+    return recording_counts(args.scenario, frames, hold_frames=args.hold_frames,
+                            move_s=args.move_s, settle_s=args.settle_s,
+                            still_images_only=(args.still_images_only
+                                               if still_images_only is None
+                                               else still_images_only))
+
+
+def _cost(args: argparse.Namespace, frames: int, size: tuple[int, int], pairs: int,
+          robot: int) -> tuple[float, float]:
+    """Estimated ``(seconds, bytes on disk)`` of a run of ``pairs`` stereo pairs."""
+    stops = frames if args.scenario == "calibration" else 0
+    seconds = (_S_START + stops * _S_PER_STOP
+               + pairs * (_S_PER_PAIR + _S_PER_MPX * size[0] * size[1] / 1e6))
+    disk = 2 * pairs * _image_bytes(size, args.noise) + robot * _BYTES_PER_ROBOT_SAMPLE
+    return seconds, disk
 
 
 def _available_memory() -> int | None:
@@ -56,13 +98,14 @@ def _available_memory() -> int | None:
 
 def estimate(args: argparse.Namespace, frames: int, size: tuple[int, int]) -> str:
     """The run's estimated time, disk and memory, as one line; refuses (``InputError``) a run
-    that cannot fit on the disk or in memory, unless ``--force``."""
+    whose upper bound (uncompressed images) cannot fit on the disk, or that cannot fit in
+    memory, unless ``--force``."""
     import shutil
 
-    pairs = _pairs(args, frames)
+    pairs, robot = _counts(args, frames)
     px = size[0] * size[1]
-    seconds = pairs * (_S_PER_PAIR + _S_PER_MPX * px / 1e6)
-    disk = pairs * 2 * px * 3               # uncompressed images: the upper bound
+    seconds, disk = _cost(args, frames, size, pairs, robot)
+    bound = pairs * 2 * px * 3 + robot * 1000     # uncompressed: the upper bound
     memory = _MEMORY_BASE + _MEMORY_PER_PX * px
     parent = Path(args.out).absolute().parent
     while not parent.exists() and parent != parent.parent:
@@ -70,16 +113,26 @@ def estimate(args: argparse.Namespace, frames: int, size: tuple[int, int]) -> st
     free = shutil.disk_usage(parent).free
     avail = _available_memory()
     line = (f"simulate: {pairs} stereo pairs at {size[0]}x{size[1]}: about "
-            f"{_duration(seconds)}, up to {disk / 1e6:,.0f} MB on disk ({free / 1e6:,.0f} MB "
-            f"free), about {memory / 1e6:,.0f} MB of memory")
+            f"{_duration(seconds)} and {_megabytes(disk)} on disk (up to "
+            f"{_megabytes(bound)} uncompressed; {free / 1e6:,.0f} MB free), about "
+            f"{memory / 1e6:,.0f} MB of memory")
+    if args.scenario == "calibration" and args.format == "bag" and not args.still_images_only:
+        small, small_robot = _counts(args, frames, still_images_only=True)
+        t_small, d_small = _cost(args, frames, size, small, small_robot)
+        line += (f"; with --still-images-only: {small} pairs, about {_duration(t_small)} and "
+                 f"{_megabytes(d_small)}")
     if not args.force:
-        if disk > free:
+        if bound > free:
             raise InputError(f"{line}: does not fit on the disk of {parent} (give --force to "
                              "try anyway, or fewer --frames or a smaller --size)")
         if avail is not None and memory > avail:
             raise InputError(f"{line}: does not fit in the {avail / 1e6:,.0f} MB of free memory "
                              "(give --force to try anyway, or a smaller --size)")
     return line
+
+
+def _megabytes(n: float) -> str:
+    return f"{n / 1e6:,.1f} MB" if n < 10e6 else f"{n / 1e6:,.0f} MB"
 
 
 def _duration(seconds: float) -> str:

@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 from matplotlib import colormaps
 
-from eye_in_hand.report.html import HtmlReport, new_figure
+from eye_in_hand.report.html import HtmlReport, new_figure, value_and_std
 
 __all__ = ["camera_report", "stereo_report", "per_view_figure", "residual_figure",
            "coverage_figure", "rectified_pair_image"]
@@ -139,7 +139,7 @@ def rectified_pair_image(rig: Any, left: np.ndarray, right: np.ndarray,
 def _param_rows(cam: Any, std: dict) -> list[list[Any]]:
     vals = {"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy}
     vals.update({n: float(v) for n, v in zip(_DIST, cam.dist)})
-    return [[n, v, std.get(n, float("nan"))] for n, v in vals.items()]
+    return [[n, *value_and_std(v, std.get(n))] for n, v in vals.items()]
 
 
 def _skipped_table(report: HtmlReport, skipped: Sequence[dict]) -> None:
@@ -185,8 +185,7 @@ def camera_report(cal: Any, source: Any, board: Any, sample_image: np.ndarray | 
                       f"{100 * cal.coverage:.0f} %; add views near the image borders and corners"
                       if cal.coverage < 0.5 else f"{100 * cal.coverage:.0f} %")
     report.add_section("Parameters (1-sigma from the Jacobian)")
-    report.add_table(_param_rows(cam, cal.std), header=["parameter", "value", "std"],
-                     precision=6)
+    report.add_table(_param_rows(cam, cal.std), header=["parameter", "value", "std"])
     report.add_section("Per-view errors")
     views = list(cal.views)
     report.add_figure(per_view_figure([v.name for v in views], [v.rms_px for v in views],
@@ -244,16 +243,17 @@ def stereo_report(cal: Any, names: Sequence[tuple[str, str]], board: Any, descri
         ["joint RMS [px]", cal.rms_px],
         ["left / right RMS in the joint fit [px]",
          f"{cal.side_rms('left'):.4f} / {cal.side_rms('right'):.4f}"],
-        ["baseline |T|", f"{rig.baseline:.6g} ± {cal.std['baseline']:.2g}"],
-        ["T (X_right = R X_left + T)", np.array2string(rig.T, precision=5)],
+        ["baseline |T| [mm]", " ± ".join(value_and_std(rig.baseline, cal.std["baseline"],
+                                                        1000.0))],
+        ["T (X_right = R X_left + T) [mm]", " ".join(f"{1000 * v:.3f}" for v in rig.T)],
         ["rotation between cameras [deg]", st["rotation_deg"]],
         ["epipolar error mean / max [px]",
          f"{q.epipolar_error_px:.4f} / {q.epipolar_error_max_px:.3f}"],
         ["rectified |dy| mean / max [px]",
          f"{q.rectified_dy_mean_px:.4f} / {q.rectified_dy_max_px:.3f}"],
-        ["square measured by triangulation (mean ± std)",
-         f"{q.square_measured_mean:.6g} ± {q.square_measured_std:.2g} "
-         f"(board: {board.square:g})"],
+        ["square measured by triangulation (mean ± std) [mm]",
+         " ± ".join(value_and_std(q.square_measured_mean, q.square_measured_std, 1000.0))
+         + f" (board: {1000 * board.square:g})"],
         ["joint refinement", f"{cal.method}" + (" (intrinsics fixed)" if cal.fix_intrinsics
                                                  else " (all parameters free)")],
         ["rectification alpha", cal.alpha],
@@ -268,15 +268,16 @@ def stereo_report(cal: Any, names: Sequence[tuple[str, str]], board: Any, descri
     report.add_section("Parameters (1-sigma from the joint fit's Jacobian)")
     for side, cam in (("left", rig.left), ("right", rig.right)):
         report.add_heading(f"{side} camera")
-        report.add_table(_param_rows(cam, d[side]["std"]), header=["parameter", "value", "std"],
-                         precision=6)
+        report.add_table(_param_rows(cam, d[side]["std"]), header=["parameter", "value", "std"])
     report.add_heading("extrinsic")
-    ext = [[f"T.{a}", rig.T[i], cal.std[f"T.{a}"]] for i, a in enumerate("xyz")]
+    ext = [[f"T.{a} [mm]", *value_and_std(rig.T[i], cal.std[f"T.{a}"], 1000.0)]
+           for i, a in enumerate("xyz")]
     rv = _rvec(rig.R)
-    ext += [[f"R.r{a} (rotation vector) [deg]", np.degrees(rv[i]),
-             np.degrees(cal.std[f"R.r{a}"])] for i, a in enumerate("xyz")]
-    ext.append(["baseline", rig.baseline, cal.std["baseline"]])
-    report.add_table(ext, header=["parameter", "value", "std"], precision=6)
+    ext += [[f"R.r{a} (rotation vector) [deg]",
+             *value_and_std(np.degrees(rv[i]), np.degrees(cal.std[f"R.r{a}"]))]
+            for i, a in enumerate("xyz")]
+    ext.append(["baseline [mm]", *value_and_std(rig.baseline, cal.std["baseline"], 1000.0)])
+    report.add_table(ext, header=["parameter", "value", "std"])
     report.add_section("Per-pair errors (joint fit)")
     views = list(cal.views)
     report.add_figure(per_view_figure([v.name for v in views], [v.rms_px for v in views],

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from eye_in_hand.report.html import HtmlReport, new_figure
+from eye_in_hand.report.html import HtmlReport, format_cell, new_figure
 
 __all__ = ["write_outputs"]
 
@@ -22,9 +22,10 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
     rep.add_section("Result")
     sel = report["methods"][result.selected]
     noise = result.robot_pose_noise
-    rep.add_table([["translation (m)", " ".join(f"{v:.6f}" for v in sel["translation"])],
+    rep.add_table([["translation (mm)", " ".join(f"{1000 * v:.3f}" for v in sel["translation"])],
                    ["quat_xyzw", " ".join(f"{v:.6f}" for v in sel["quat_xyzw"])],
-                   ["1-sigma (mm / deg)", f"{sel['std_mm']} / {sel['std_deg']}"],
+                   ["1-sigma", f"{format_cell(sel['std_mm'], 2)} mm, "
+                               f"{format_cell(sel['std_deg'], 2)} deg"],
                    ["selected because", result.selection_reason],
                    ["robot pose noise (1 sigma per axis)",
                     "not estimated" if noise is None else
@@ -36,6 +37,8 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
                     "none"]], header=["quantity", "value"])
     for w in report["warnings"]:
         rep.add_status("warning", False, w)
+    _html_input(rep, report.get("input") or {})
+    _html_truth(rep, report)
     _html_budget(rep, report)
     rep.add_section("Method comparison")
     rows, names = [], list(result.methods)
@@ -51,7 +54,7 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
     rep.add_table(rows, header=["method", "selection score", "held-out px", "held-out mm",
                                 "held-out deg", "AX=XB rot deg", "AX=XB trans mm",
                                 "board spread mm", "board spread deg", "reproj px", "sigma mm",
-                                "sigma deg"])
+                                "sigma deg"], precision=PRECISION)
     _html_average(rep, report)
     _html_motion_residuals(rep, report, result.selected)
     sel_X = result.X
@@ -98,7 +101,7 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
     for s in report["skipped"]:
         rows.append([s["name"], "skipped: " + s["reason"]] + [""] * 7)
         classes.append("warn")
-    rep.add_table(rows, header=header, row_classes=classes)
+    rep.add_table(rows, header=header, row_classes=classes, precision=PRECISION)
     rep.add_section("Board in the fixed frame")
     # local: core.handeye loads SciPy (~0.35 s), and this module loads at CLI start-up
     from eye_in_hand.core.handeye import board_in_fixed_frame
@@ -122,9 +125,64 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
     ax1.legend(fontsize=6)
     rep.add_figure(fig, f"board origin in the fixed frame per sample minus its mean "
                         f"({len(names_used)} samples)")
-    rep.add_section("Motion diagnostics")
-    rep.add_preformatted(json.dumps(report["diagnostics"], indent=2))
+    _html_diagnostics(rep, report["diagnostics"])
     rep.save(path)
+
+
+#: Significant digits of the report's table cells: the residuals and uncertainties are known to
+#: a few per cent at best, so a third digit is already below their own scatter.
+PRECISION = 3
+
+
+def _html_input(rep: Any, meta: dict[str, Any]) -> None:
+    """What the calibration read (``report.json`` ``input``), as a table."""
+    if not meta:
+        return
+    rep.add_section("Input")
+    label = {"type": "input", "path": "path", "board": "board", "stereo": "stereo",
+             "count": "samples in the input", "image_topics": "image topics",
+             "pose_source": "robot pose from", "summary": "found"}
+    rows = []
+    for key, name in label.items():
+        value = meta.get(key)
+        if value is None:
+            continue
+        if isinstance(value, dict):
+            value = ", ".join(f"{k}: {v}" for k, v in value.items())
+        rows.append([name, value])
+    rep.add_table(rows, header=["quantity", "value"])
+
+
+def _html_truth(rep: Any, report: dict[str, Any]) -> None:
+    """Each method's distance from the true X, when the input carries ground truth."""
+    truth = report.get("ground_truth_error")
+    if not truth:
+        return
+    rep.add_section("Against the ground truth (simulated input)")
+    rep.add_table([[name + (" (selected)" if name == report["selected"] else ""), e["mm"],
+                    e["deg"]] for name, e in truth.items()],
+                  header=["method", "mm from the true X", "deg from the true X"],
+                  precision=PRECISION)
+
+
+def _html_diagnostics(rep: Any, diag: dict[str, Any]) -> None:
+    """How well the motions constrain X (``report.json`` ``diagnostics``), as a table (its
+    warnings are among the report's, shown at the top)."""
+    rep.add_section("Motion diagnostics")
+    rot = diag["rotation_deg"]
+    rep.add_table([
+        ["samples", diag["n_samples"]],
+        ["motions with a usable rotation (> 0.5 deg)", diag["n_motions"]],
+        ["rotation between samples min / median / max (deg)",
+         " / ".join(format_cell(rot[k], PRECISION) for k in ("min", "median", "max"))],
+        ["largest angle between two motions' rotation axes (deg)",
+         format_cell(diag["axis_spread_deg"], PRECISION)],
+        ["motion-axis scatter eigenvalues (1, 0, 0: one axis only)",
+         ", ".join(format_cell(v, 2) for v in diag["axis_eigenvalues"])],
+        ["condition number, rotation / translation",
+         f"{format_cell(diag['rotation_condition'], PRECISION)} / "
+         f"{format_cell(diag['translation_condition'], PRECISION)}"],
+    ], header=["quantity", "value"])
 
 
 #: Most motion rows in the HTML table (report.json always has them all).
@@ -144,7 +202,7 @@ def _html_budget(rep: Any, report: dict[str, Any]) -> None:
              "robot_systematic_mm": "pose-dependent robot error found by the systematic model"}
     rows = [[label[k], b[k]] for k in label if b.get(k) is not None]
     rows.append(["largest part", f"{b['largest']}: {b['advice']}"])
-    rep.add_table(rows, header=["part", "mm"])
+    rep.add_table(rows, header=["part", "mm"], precision=PRECISION)
 
 
 def _html_average(rep: Any, report: dict[str, Any]) -> None:
@@ -186,7 +244,8 @@ def _html_motion_residuals(rep: Any, report: dict[str, Any], selected: str) -> N
                     + [s[q][k] for q in ("rot_deg", "trans_mm", "frobenius")
                        for k in ("mean", "median", "max")])
     rep.add_table(rows, header=["method"] + [f"{q} {k}" for q in ("rot deg", "trans mm", "Frob")
-                                             for k in ("mean", "median", "max")])
+                                             for k in ("mean", "median", "max")],
+                  precision=PRECISION)
     n = len(table["motions"])
     order = list(range(n))
     if n > HTML_MOTION_ROWS:

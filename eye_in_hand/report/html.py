@@ -28,7 +28,7 @@ import numpy as np
 
 from eye_in_hand.io.atomic import atomic_write_text
 
-__all__ = ["HtmlReport", "new_figure", "format_cell"]
+__all__ = ["HtmlReport", "new_figure", "format_cell", "value_and_std"]
 
 _STYLE = """
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;
@@ -80,6 +80,19 @@ def format_cell(value: Any, precision: int = 4) -> str:
     if isinstance(value, np.integer):
         return str(int(value))
     return str(value)
+
+
+def value_and_std(value: float, std: float | None, scale: float = 1.0) -> tuple[str, str]:
+    """A value and its 1-sigma as table text, to the digits the sigma supports: the sigma with
+    two significant digits, the value to the same decimal place (``902.590``, ``0.067``).
+    Without a finite sigma, the value with six significant digits and ``–``. ``scale``
+    multiplies both (e.g. 1000 for metres shown in mm)."""
+    value = float(value) * scale
+    if std is None or not np.isfinite(std) or float(std) <= 0.0:
+        return format_cell(value, 6), "–"
+    std = float(std) * scale
+    decimals = max(0, 1 - int(np.floor(np.log10(std))))
+    return f"{value:.{decimals}f}", f"{std:.{decimals}f}"
 
 
 class HtmlReport:

@@ -67,6 +67,7 @@ __all__ = [
     "RenderOptions",
     "BagSummary",
     "write_bag",
+    "recording_counts",
     "write_dataset",
     "joint_samples",
 ]
@@ -221,6 +222,56 @@ def _interp_q(stamps: np.ndarray, qs: np.ndarray, t_ns: int) -> tuple[np.ndarray
     return qs[i] + (qs[i + 1] - qs[i]) * s, True
 
 
+def _image_stamps(stamps: np.ndarray, still: np.ndarray, *, scenario: str, frames: int,
+                  settle_s: float, image_rate_hz: float,
+                  still_images_only: bool) -> list[int]:
+    """Stamps of the stereo pairs of a recording whose robot samples are ``stamps``
+    (``still``: the arm holds a pose)."""
+    # settled windows: [start + settle, end - settle] of every run of still samples
+    settle_ns = int(round(settle_s * 1e9))
+    windows = []
+    k = 0
+    while k < len(still):
+        if still[k]:
+            j = k
+            while j + 1 < len(still) and still[j + 1]:
+                j += 1
+            windows.append((int(stamps[k]) + settle_ns, int(stamps[j]) - settle_ns))
+            k = j + 1
+        else:
+            k += 1
+    img_period = int(round(1e9 / image_rate_hz))
+    img_stamps = []
+    t = int(stamps[0]) + _IMAGE_CLOCK_OFFSET_NS
+    while t <= stamps[-1]:
+        settled = any(a <= t <= b for a, b in windows)
+        if not still_images_only or scenario != "calibration" or settled:
+            img_stamps.append(t)
+        t += img_period
+    if scenario == "localization":
+        img_stamps = img_stamps[:frames]
+    return img_stamps
+
+
+def recording_counts(scenario: str, frames: int, *, hold_frames: int = 3, move_s: float = 1.2,
+                     settle_s: float = 0.25, still_images_only: bool = False,
+                     robot_rate_hz: float = 125.0,
+                     image_rate_hz: float = 30.0) -> tuple[int, int]:
+    """``(stereo pairs, robot samples)`` that :func:`write_bag` writes for these options,
+    without solving a pose or rendering (the time line does not depend on the poses)."""
+    if scenario == "calibration":
+        hold_s = (hold_frames + 0.5) / image_rate_hz + 2.0 * settle_s
+        tl = calibration_timeline([np.zeros(6)] * frames, hold_s=hold_s, move_s=move_s,
+                                  rate_hz=robot_rate_hz)
+        stamps = np.array([t for t, _, _ in tl], dtype=np.int64)
+        still = np.array([s for _, _, s in tl], dtype=bool)
+        pairs = len(_image_stamps(stamps, still, scenario=scenario, frames=frames,
+                                  settle_s=settle_s, image_rate_hz=image_rate_hz,
+                                  still_images_only=still_images_only))
+        return pairs, len(stamps)
+    return frames, max(1, int(round(frames / image_rate_hz * robot_rate_hz)) + 1)
+
+
 def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed: int = 0,
               storage: str = "mcap", render: RenderOptions = RenderOptions(),
               image_rate_hz: float = 30.0, robot_rate_hz: float = 125.0,
@@ -265,29 +316,9 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
                                         image_rate_hz=image_rate_hz, move_s=move_s,
                                         settle_s=settle_s)
     stamps = np.array(stamps_l, dtype=np.int64) + start_ns
-    # settled windows: [start + settle, end - settle] of every run of still samples
-    settle_ns = int(round(settle_s * 1e9))
-    windows = []
-    k = 0
-    while k < len(still):
-        if still[k]:
-            j = k
-            while j + 1 < len(still) and still[j + 1]:
-                j += 1
-            windows.append((int(stamps[k]) + settle_ns, int(stamps[j]) - settle_ns))
-            k = j + 1
-        else:
-            k += 1
-    img_period = int(round(1e9 / image_rate_hz))
-    img_stamps = []
-    t = int(stamps[0]) + _IMAGE_CLOCK_OFFSET_NS
-    while t <= stamps[-1]:
-        settled = any(a <= t <= b for a, b in windows)
-        if not still_images_only or scenario != "calibration" or settled:
-            img_stamps.append(t)
-        t += img_period
-    if scenario == "localization":
-        img_stamps = img_stamps[:frames]
+    img_stamps = _image_stamps(stamps, still, scenario=scenario, frames=frames,
+                               settle_s=settle_s, image_rate_hz=image_rate_hz,
+                               still_images_only=still_images_only)
 
     rig = world.rig.rectified()
     arm = world.arm

@@ -363,13 +363,14 @@ def test_simulate_states_its_estimate_and_refuses_what_cannot_fit(tmp_path, caps
     line = _one_line_error(capsys.readouterr().err)
     assert line.startswith("eye-in-hand: error: simulate: 100000 stereo pairs at 16000x16000: "
                            "about "), line
-    assert "up to 153,600,000 MB on disk" in line and "does not fit on the disk" in line
+    assert "up to 153,600,417 MB uncompressed" in line and "does not fit on the disk" in line
     assert "--force" in line and not out.exists()
     # a run that fits says what it will cost before it starts
     assert main(["simulate", "--scenario", "localization", "--frames", "2", "--size",
                  "64x48", "--supersample", "1", "--out", str(out)]) == 0
     err = capsys.readouterr().err
-    assert "simulate: 2 stereo pairs at 64x48: about 1 s, up to 0 MB on disk" in err, err
+    assert "simulate: 2 stereo pairs at 64x48: about 3 s and 0.0 MB on disk (up to 0.0 MB " \
+        "uncompressed" in err, err
     # a disk that is full: refused, unless --force (which then runs, and succeeds here)
     usage = namedtuple("usage", "total used free")
     monkeypatch.setattr(shutil, "disk_usage", lambda _p: usage(1 << 30, 1 << 30, 1000))

@@ -96,6 +96,17 @@ def test_sqlite3_bags_say_jazzy_too(tmp_path: Path) -> None:
     assert bag_info(tmp_path / "bag").ros_distro == "jazzy"
 
 
+@pytest.mark.parametrize("name", ["calibration", "localization"])
+def test_bundled_bags_say_jazzy(name: str) -> None:
+    """The bundled bags (docs/bags.md: ``ros_distro: jazzy``), in metadata.yaml and in the
+    metadata copy inside the MCAP file, which ``ros2 bag reindex`` reads."""
+    bag = Path(__file__).resolve().parents[2] / "bags" / name
+    assert bag_info(bag).ros_distro == "jazzy"
+    data = (bag / f"{name}.mcap").read_bytes()
+    assert b"ros_distro: jazzy\n" in data and b"ros_distro: rosbags" not in data
+    assert sum(1 for _ in iter_messages(bag)) == bag_info(bag).message_count
+
+
 def test_verify_crc_names_the_corrupt_chunk(tmp_path: Path) -> None:
     sent = _write(tmp_path / "bag")
     mcap = tmp_path / "bag" / "bag.mcap"
