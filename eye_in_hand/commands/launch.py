@@ -64,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
     # bad input is one line here, not a traceback from rcl in every node
     # local: ros.names loads rclpy (~50 ms at CLI start-up)
     from eye_in_hand.ros.names import check_namespace, check_parameter_text
+    from eye_in_hand.nodes.parameters import check_parameter_file_keys
     from eye_in_hand.ros.params import check_parameter_file
 
     ns = check_namespace(args.namespace)
@@ -72,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"{printable(params)}: parameter file must map node names to "
                           "'ros__parameters'")
     check_parameter_file(params)  # rcl's own parser: never a crash-looping node
+    check_parameter_file_keys(params)  # a mistyped key would run on its default
     catalogue = CALIBRATION_NODES if args.calibrate else NODES
     nodes = [n.name for n in catalogue if n.name not in args.skip]
     if not nodes:

@@ -228,6 +228,11 @@ def run(args: argparse.Namespace) -> int:
     from eye_in_hand.io.results import load_known_distances, run_figures
     from eye_in_hand.offline import ProcessOptions, error_stats, process_bag, write_results
 
+    if args.params:  # a mistyped key would run on its default, as the live node refuses it
+        # local: the nodes' parameter lists load rclpy and the node modules (~1 s)
+        from eye_in_hand.nodes.parameters import check_parameter_file_keys
+
+        check_parameter_file_keys(args.params)
     detect = _node_params(args.params, "detect_triangulate")
     hand_eye_params = _node_params(args.params, "hand_eye")
     config = apply_overrides(locator_config_from_params(
