@@ -227,3 +227,12 @@ def test_new_output_folder_gets_normal_permissions(tmp_path: Path) -> None:
     finally:
         os.umask(umask)
     assert (tmp_path / "new").stat().st_mode & 0o777 == 0o755
+
+
+def test_a_board_square_in_millimetres_is_refused_before_any_work(tmp_path, capsys):
+    out = tmp_path / "cam"
+    assert main(["calibrate", "camera", "--images", str(tmp_path / "*.png"),
+                 "--board", "chessboard:9x6:25", "-o", str(out)]) != 0
+    err = capsys.readouterr().err
+    assert "pass 'chessboard:9x6:0.025'" in err and not out.exists()
+
