@@ -200,9 +200,11 @@ def detect_files(files: Sequence[Path], board, args: argparse.Namespace, desc: s
     """
     # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
     from eye_in_hand.core.calibration import detect_board
+    from eye_in_hand.core.calibration.board_check import BoardCheck
 
     frames: list[Frame] = []
     first: tuple[str, tuple[int, int]] | None = None
+    check = BoardCheck(board, f"{desc} images")   # a wrong board: say so after a few images
     with progress(len(files), desc) as bar:
         for i, path in enumerate(files):
             image = read_image(path)
@@ -215,6 +217,7 @@ def detect_files(files: Sequence[Path], board, args: argparse.Namespace, desc: s
                     f"{path} is {size[0]}x{size[1]}")
             det = detect_board(image, board, args.detector, subpix_window=args.subpix_window,
                                fallback=not args.no_fallback)
+            check.add(image, det.found)
             # the name as text every report can hold (a non-UTF-8 byte as \xNN)
             frames.append(Frame(printable(path.name), det, image if keep(i) else None))
             bar.update(1)
@@ -540,6 +543,7 @@ def load_handeye_inputs(args: argparse.Namespace) -> dict[str, Any]:
     # start-up), io.datasets ~90 ms
     from eye_in_hand.core.calibration import BoardSpec
     from eye_in_hand.core.handeye import HandEyeSample
+    from eye_in_hand.core.calibration.board_check import BoardCheck
     from eye_in_hand.core.handeye.observe import observe_sample, rig_views
     from eye_in_hand.io.datasets import load_dataset, load_pose_pairs
 
@@ -563,6 +567,8 @@ def load_handeye_inputs(args: argparse.Namespace) -> dict[str, Any]:
     ds = load_dataset(args.dataset)
     board = BoardSpec.parse(ds.board)
     views = rig_views(ds.camera, ds.rig)
+    check = BoardCheck(board, f"samples' {views[0].name} images",
+                       f"{printable(ds.root)}/dataset.yaml board:")
     samples, skipped, notes = [], [], []
     for s in ds.samples:
         images = {}
@@ -573,6 +579,7 @@ def load_handeye_inputs(args: argparse.Namespace) -> dict[str, Any]:
                 raise InputError(f"sample {s.name!r}: {exc}") from exc
             images["image" if key == "image" else key] = img
         obs = observe_sample(s.name, images, s.base_T_ee, board, views)
+        check.add(images.get(views[0].name), not obs.reason.startswith("board not found"))
         notes.extend(obs.notes)
         if obs.sample is None:
             skipped.append({"name": s.name, "reason": obs.reason})
@@ -589,6 +596,7 @@ def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
     # local: as in _load_inputs (SciPy and OpenCV, ~0.45 s at CLI start-up)
     from eye_in_hand.core.calibration import BoardSpec
     from eye_in_hand.core.camera import CameraModel, StereoRig
+    from eye_in_hand.core.calibration.board_check import BoardCheck
     from eye_in_hand.core.handeye.observe import observe_sample, rig_views
     from eye_in_hand.io.datasets import read_bag_samples
 
@@ -624,8 +632,10 @@ def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
         raise ConfigError(f"--calibration is {'stereo' if rig else 'mono'} but the bag's images "
                           f"are {sorted(found.image_topics)}")
     samples, skipped, notes = [], [], []
+    check = BoardCheck(board, f"still stops' {views[0].name} images")
     for s in found.samples:
         obs = observe_sample(s.name, s.images, s.base_T_ee, board, views)
+        check.add(s.images.get(views[0].name), not obs.reason.startswith("board not found"))
         notes.extend(obs.notes)
         if obs.sample is None:
             skipped.append({"name": s.name, "reason": obs.reason})
