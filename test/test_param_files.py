@@ -269,3 +269,35 @@ def test_commands_refuse_an_unknown_key_before_any_work(tmp_path, capsys, comman
     assert (f"{path}: unknown parameter `/**/detect_triangulate.ros__parameters.targets.red."
             "radius_mm` (did you mean `targets.red.radius_m`?)") in err
     assert not (tmp_path / "OUT").exists()
+
+
+# -- values with units: plausible, and a hint when a length was given in millimetres ----------
+
+def test_a_radius_in_millimetres_is_refused_with_the_value_in_metres(tmp_path):
+    """A 20 mm sphere written `radius_m: 20.0` is a 20 m sphere."""
+    from eye_in_hand.core.locator import load_locator_config
+    from eye_in_hand.errors import ConfigError
+
+    path = _write(tmp_path, "/**/detect_triangulate:\n  ros__parameters:\n    targets:\n"
+                            "      red:\n        radius_m: 20.0\n")
+    with pytest.raises(ConfigError) as info:
+        load_locator_config(path)
+    assert str(info.value) == ("parameter 'targets.red.radius_m': 20.0 is outside [0.0, 1.0] "
+                               "(it is in metres: for 20 mm write 0.02)")
+    # a radius of a few metres is no target either: refused, without a mm hint
+    with pytest.raises(ConfigError) as info:
+        load_locator_config(_write(tmp_path, path.read_text().replace("20.0", "2000.0")))
+    assert "outside [0.0, 1.0]" in str(info.value) and "mm" not in str(info.value)
+
+
+def test_a_node_parameter_in_millimetres_gets_the_same_hint(ros_context):
+    from rclpy.parameter import Parameter
+
+    from eye_in_hand.errors import ConfigError
+    from eye_in_hand.nodes.detect_triangulate import DetectTriangulateNode
+
+    with pytest.raises(ConfigError) as info:
+        DetectTriangulateNode(context=ros_context, namespace="/units",
+                              parameter_overrides=[Parameter("markers.diameter_m", value=40.0)])
+    assert "parameter 'markers.diameter_m': 40.0 is outside the range [0.0001, 10.0] (it is " \
+           "in metres: for 40 mm write 0.04)" in str(info.value)

@@ -82,6 +82,16 @@ _NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*(\.[A-Za-z][A-Za-z0-9_]*)*$")
 _META_KEY = "eye_in_hand.param"
 
 
+def _unit_hint(name: str, value: Any, high: float) -> str:
+    """:func:`eye_in_hand.core.units.unit_hint` for a value that may be text from rclpy."""
+    from eye_in_hand.core.units import unit_hint
+
+    try:
+        return unit_hint(name, float(value), high)
+    except (TypeError, ValueError):
+        return ""
+
+
 def _infer_type(default: Any) -> str | None:
     if isinstance(default, (list, tuple)):
         if not default:
@@ -205,7 +215,8 @@ class Param:
             values = value if self.is_array else (value,)
             bad = [v for v in values if not (lo <= v <= hi)]
             if bad:
-                return f"{bad[0]!r} is outside the range [{lo}, {hi}]"
+                return (f"{bad[0]!r} is outside the range [{lo}, {hi}]"
+                        + _unit_hint(self.name, bad[0], hi))
         if self.choices is not None and value not in self.choices:
             return f"{value!r} is not one of {', '.join(map(repr, self.choices))}"
         if self.validate is not None:
@@ -293,7 +304,8 @@ def _declare_one(node: Any, p: Param, full: str) -> Any:
         text = str(exc.args[0]) if exc.args else str(exc)
         match = re.search(r"Invalid parameter value \((.*?)\) for parameter", text)
         if match and p.range is not None:
-            problem = f"{match.group(1)} is outside the range [{p.range[0]}, {p.range[1]}]"
+            problem = (f"{match.group(1)} is outside the range [{p.range[0]}, {p.range[1]}]"
+                       + _unit_hint(full, match.group(1), p.range[1]))
         else:
             problem = f"rejected by rclpy: {text}"
         raise ConfigError(f"parameter '{full}': {problem}: {p.description}") from exc
