@@ -194,7 +194,11 @@ def test_target_parameters_follow_target_names(tmp_path):
     check_parameter_file_keys(_write(tmp_path, good))
     bad = good.replace("[red, blue]", "[red]")
     text = _key_problems(_write(tmp_path, bad, "bad.yaml"))
-    assert "targets.blue.radius_m" in text and "did you mean `targets.red.radius_m`?" in text
+    assert "`/**/detect_triangulate.ros__parameters.targets.blue.radius_m` (target 'blue' is " \
+           "not in target_names [red]: add it there, or remove its section" in text
+    typo = good.replace("      blue:\n        radius_m", "      blue:\n        radius")
+    assert "targets.blue.radius` (did you mean `targets.blue.radius_m`?)" in _key_problems(
+        _write(tmp_path, typo, "typo.yaml"))
 
 
 def test_a_wildcard_section_holds_only_what_every_node_declares(tmp_path):

@@ -113,7 +113,8 @@ from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.params import Param, declare_params
 from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS, TARGET_POINT_QOS
 
-__all__ = ["NODE_PARAMETERS", "DetectTriangulateNode", "parameter_names", "main"]
+__all__ = ["NODE_PARAMETERS", "DetectTriangulateNode", "parameter_names", "parameter_hint",
+           "main"]
 
 NODE_NAME = "detect_triangulate"
 #: A stamp this far behind the previous one on the same side is a time jump (bag loop, sim
@@ -184,6 +185,20 @@ def parameter_names(values: Mapping[str, Any]) -> list[str]:
         names = [p for p in LOCATOR_PARAMETERS if p.name == "target_names"][0].default
     return [prefix + p.name for prefix, group in _parameter_groups([str(n) for n in names])
             for p in group]
+
+
+def parameter_hint(name: str, values: Mapping[str, Any]) -> str | None:
+    """Advice for an undeclared ``targets.<name>.*``: its target is not in ``target_names``."""
+    parts = name.split(".")
+    if len(parts) != 3 or parts[0] != "targets":
+        return None
+    names = [p for p in LOCATOR_PARAMETERS if p.name == "target_names"][0].default
+    names = values.get("target_names", names)
+    if parts[1] in names:
+        return None
+    return (f"target '{parts[1]}' is not in target_names [{', '.join(map(str, names))}]: add it "
+            "there, or remove its section (a node declares targets.<name>.* only for the "
+            "names in target_names)")
 
 
 class _PairQueue:

@@ -31,6 +31,12 @@ def declared_parameters(node: str, values: Mapping[str, Any]) -> list[str]:
     return list(module.parameter_names(values))
 
 
+def _hint(node: str, name: str, values: Mapping[str, Any]) -> str | None:
+    module = importlib.import_module(f"eye_in_hand.nodes.{node}")
+    advise = getattr(module, "parameter_hint", None)
+    return advise(name, values) if advise is not None else None
+
+
 def check_parameter_file_keys(path: str | os.PathLike[str]) -> None:
     """Refuse a parameter file with a key no node declares, or a section for an unknown node.
 
@@ -41,6 +47,6 @@ def check_parameter_file_keys(path: str | os.PathLike[str]) -> None:
     # local: ros.params imports rclpy (~0.2 s); only a command given a parameter file needs it
     from eye_in_hand.ros.params import unknown_parameter_keys
 
-    problems = unknown_parameter_keys(path, declared_parameters, NODE_NAMES)
+    problems = unknown_parameter_keys(path, declared_parameters, NODE_NAMES, _hint)
     if problems:
         raise ConfigError("\n".join(problems))

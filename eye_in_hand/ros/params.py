@@ -514,7 +514,9 @@ def _sections(data: Mapping[Any, Any], prefix: str = "") -> Iterable[tuple[str, 
 
 def unknown_parameter_keys(path: str | os.PathLike[str],
                            declared: Callable[[str, Mapping[str, Any]], Collection[str]],
-                           nodes: Sequence[str]) -> list[str]:
+                           nodes: Sequence[str],
+                           hint: Callable[[str, str, Mapping[str, Any]], str | None] | None = None
+                           ) -> list[str]:
     """Every key of a ROS parameter file that no node it applies to declares, one line each.
 
     A section's node name is the last part of its key (``/**/hand_eye``, ``/stereo/hand_eye``,
@@ -527,6 +529,8 @@ def unknown_parameter_keys(path: str | os.PathLike[str],
         path: the parameter file.
         declared: ``(node, its flat parameters in the file) -> the names it declares``.
         nodes: the node names a file may configure.
+        hint: ``(node, unknown name, its flat parameters) -> advice or None``, said instead of
+            the closest name where the node knows better.
 
     Returns:
         ``<file>: unknown ... `<key>` ... (did you mean `<name>`?)`` lines; empty when all is
@@ -560,9 +564,11 @@ def unknown_parameter_keys(path: str | os.PathLike[str],
                 valid = set(declared(node, flat)) | ALWAYS_DECLARED
                 if name not in valid:
                     where = "" if len(matched) == 1 else f" (not a parameter of {node})"
+                    advice = hint(node, name, flat) if hint is not None else None
                     problems.append(f"{shown}: unknown parameter "
                                     f"`{key}.ros__parameters.{name}`{where}"
-                                    f"{_did_you_mean(name, valid)}")
+                                    + (f" ({advice})" if advice else
+                                       _did_you_mean(name, valid)))
                     break
     return problems
 
