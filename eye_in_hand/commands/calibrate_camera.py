@@ -85,6 +85,7 @@ def _gather(args: argparse.Namespace, board) -> ImageSource:
             check.add(image, det.found)
             frames.append(Frame(name, det, image if not frames else None, stamp))
             bar.update(1)
+    check.finish()
     if not frames:
         raise BagError(f"bag {args.bag}: no images on {args.left_topic}"
                        + (f" ({damage.summary()})" if damage else ""))

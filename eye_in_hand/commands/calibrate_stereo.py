@@ -117,6 +117,7 @@ def _gather(args: argparse.Namespace, board) -> tuple[list[Frame], list[Frame], 
             right.append(Frame(rn, detect_board(ri, board, args.detector, **kw), None, stamp))
             check.add(li, left[-1].detection.found or right[-1].detection.found)
             bar.update(1)
+    check.finish()
     if not left:
         raise BagError(f"bag {args.bag}: no image pairs with identical header stamps on "
                        f"{args.left_topic} and {args.right_topic}")

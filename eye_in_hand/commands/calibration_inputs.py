@@ -221,6 +221,7 @@ def detect_files(files: Sequence[Path], board, args: argparse.Namespace, desc: s
             # the name as text every report can hold (a non-UTF-8 byte as \xNN)
             frames.append(Frame(printable(path.name), det, image if keep(i) else None))
             bar.update(1)
+    check.finish()
     return frames
 
 
@@ -567,7 +568,7 @@ def load_handeye_inputs(args: argparse.Namespace) -> dict[str, Any]:
     ds = load_dataset(args.dataset)
     board = BoardSpec.parse(ds.board)
     views = rig_views(ds.camera, ds.rig)
-    check = BoardCheck(board, f"samples' {views[0].name} images",
+    check = BoardCheck(board, f"samples' {_view_images(views)}",
                        f"{printable(ds.root)}/dataset.yaml board:")
     samples, skipped, notes = [], [], []
     for s in ds.samples:
@@ -585,10 +586,16 @@ def load_handeye_inputs(args: argparse.Namespace) -> dict[str, Any]:
             skipped.append({"name": s.name, "reason": obs.reason})
         else:
             samples.append(obs.sample)
+    check.finish()
     return {"samples": samples, "views": views, "setup": args.setup or ds.setup,
             "skipped": skipped, "notes": notes, "ground_truth": dict(ds.ground_truth),
             "input": {"type": "dataset", "path": str(ds.root), "board": ds.board,
                       "stereo": ds.is_stereo, "count": len(ds.samples)}}
+
+
+def _view_images(views: Sequence[Any]) -> str:
+    """``images`` (mono) or ``left images``: the reference view's images, for messages."""
+    return "images" if views[0].name == "image" else f"{views[0].name} images"
 
 
 def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
@@ -632,7 +639,7 @@ def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
         raise ConfigError(f"--calibration is {'stereo' if rig else 'mono'} but the bag's images "
                           f"are {sorted(found.image_topics)}")
     samples, skipped, notes = [], [], []
-    check = BoardCheck(board, f"still stops' {views[0].name} images")
+    check = BoardCheck(board, f"still stops' {_view_images(views)}")
     for s in found.samples:
         obs = observe_sample(s.name, s.images, s.base_T_ee, board, views)
         check.add(s.images.get(views[0].name), not obs.reason.startswith("board not found"))
@@ -641,6 +648,7 @@ def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
             skipped.append({"name": s.name, "reason": obs.reason})
         else:
             samples.append(obs.sample)
+    check.finish()
     moving = sum(1 for s in found.skipped if s["reason"] == "robot moving")
     notes.append(f"bag: {found.n_images} images, {len(found.samples)} still stops, {moving} "
                  f"images with the robot moving; robot pose from {found.pose_source}")

@@ -108,8 +108,9 @@ def _spec_text(board: BoardSpec) -> str:
 class BoardCheck:
     """Watches a detection loop for a board that is in none of the first images.
 
-    Call :meth:`add` with each image and whether the board was found in it. Once the board
-    was in none of the first ``after`` images, the usual mistakes (:func:`board_alternatives`)
+    Call :meth:`add` with each image and whether the board was found in it, and
+    :meth:`finish` after the last. Once the board was in none of the first ``after`` images
+    (or of all of them, when there are fewer), the usual mistakes (:func:`board_alternatives`)
     are tried on them; when one is found the check raises, naming the fix. Once the board is
     found, or the alternatives were tried, it does nothing more (and keeps no images).
 
@@ -143,6 +144,13 @@ class BoardCheck:
             return
         self._images.append(image)
         if len(self._images) >= self.after:
+            images, self._images, self.done = self._images, [], True
+            self._check(images)
+
+    def finish(self) -> None:
+        """The end of the input: with fewer than ``after`` images, none with the board, check
+        those (raises as :meth:`add`)."""
+        if not self.done and self._images:
             images, self._images, self.done = self._images, [], True
             self._check(images)
 
