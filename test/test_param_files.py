@@ -305,3 +305,19 @@ def test_a_node_parameter_in_millimetres_gets_the_same_hint(ros_context):
                               parameter_overrides=[Parameter("markers.diameter_m", value=40.0)])
     assert "parameter 'markers.diameter_m': 40.0 is outside the range [0.0001, 10.0] (it is " \
            "in metres: for 40 mm write 0.04)" in str(info.value)
+
+
+def test_a_wildcard_section_is_checked_against_the_nodes_a_command_runs(tmp_path, capsys):
+    """`locate` runs only detect_triangulate's code: `/**: {method: ...}` is fine there, and
+    refused where other nodes would get it (launch)."""
+    from eye_in_hand.nodes.parameters import check_parameter_file_keys
+
+    path = _write(tmp_path, "/**:\n  ros__parameters:\n    method: optimal\n")
+    check_parameter_file_keys(path, used=["detect_triangulate"])
+    text = _key_problems(path)
+    assert "`/**.ros__parameters.method` (not a parameter of stereo_capture)" in text
+    bad = _write(tmp_path, "/**:\n  ros__parameters:\n    methd: optimal\n", "bad.yaml")
+    from eye_in_hand.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="did you mean `method`"):
+        check_parameter_file_keys(bad, used=["detect_triangulate"])

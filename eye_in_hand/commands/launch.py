@@ -73,11 +73,11 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"{printable(params)}: parameter file must map node names to "
                           "'ros__parameters'")
     check_parameter_file(params)  # rcl's own parser: never a crash-looping node
-    check_parameter_file_keys(params)  # a mistyped key would run on its default
     catalogue = CALIBRATION_NODES if args.calibrate else NODES
     nodes = [n.name for n in catalogue if n.name not in args.skip]
     if not nodes:
         raise InputError("--skip: no node left to start")
+    check_parameter_file_keys(params, used=nodes)  # a mistyped key would run on its default
     launcher = Launcher(params, nodes, root_namespace=ns,
                         respawn=not args.no_respawn, respawn_delay_s=args.respawn_delay,
                         max_restarts=args.max_restarts, restart_window_s=args.restart_window,

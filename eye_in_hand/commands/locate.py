@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         # local: the nodes' parameter lists load rclpy and the node modules (~1 s)
         from eye_in_hand.nodes.parameters import check_parameter_file_keys
 
-        check_parameter_file_keys(args.params)
+        check_parameter_file_keys(args.params, used=["detect_triangulate"])
     config = apply_overrides(load_locator_config(args.params), radius=args.radius,
                              method=args.method)
     rig = StereoRig.load(args.calibration)

@@ -233,7 +233,7 @@ def run(args: argparse.Namespace) -> int:
         # local: the nodes' parameter lists load rclpy and the node modules (~1 s)
         from eye_in_hand.nodes.parameters import check_parameter_file_keys
 
-        check_parameter_file_keys(args.params)
+        check_parameter_file_keys(args.params, used=["detect_triangulate", "hand_eye"])
     detect = _node_params(args.params, "detect_triangulate")
     hand_eye_params = _node_params(args.params, "hand_eye")
     config = apply_overrides(locator_config_from_params(

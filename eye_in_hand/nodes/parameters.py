@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import importlib
 import os
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 from eye_in_hand.errors import ConfigError
 
@@ -37,8 +37,14 @@ def _hint(node: str, name: str, values: Mapping[str, Any]) -> str | None:
     return advise(name, values) if advise is not None else None
 
 
-def check_parameter_file_keys(path: str | os.PathLike[str]) -> None:
+def check_parameter_file_keys(path: str | os.PathLike[str],
+                              used: Sequence[str] | None = None) -> None:
     """Refuse a parameter file with a key no node declares, or a section for an unknown node.
+
+    Args:
+        path: the parameter file.
+        used: the nodes it is given to (default: every node); a ``/**`` section must hold only
+            what each of them declares (``locate`` runs only ``detect_triangulate``'s code).
 
     Raises:
         ConfigError: one line per unknown key: the file, the key (``/**/<node>.ros__parameters.
@@ -47,6 +53,6 @@ def check_parameter_file_keys(path: str | os.PathLike[str]) -> None:
     # local: ros.params imports rclpy (~0.2 s); only a command given a parameter file needs it
     from eye_in_hand.ros.params import unknown_parameter_keys
 
-    problems = unknown_parameter_keys(path, declared_parameters, NODE_NAMES, _hint)
+    problems = unknown_parameter_keys(path, declared_parameters, NODE_NAMES, _hint, used)
     if problems:
         raise ConfigError("\n".join(problems))

@@ -515,8 +515,8 @@ def _sections(data: Mapping[Any, Any], prefix: str = "") -> Iterable[tuple[str, 
 def unknown_parameter_keys(path: str | os.PathLike[str],
                            declared: Callable[[str, Mapping[str, Any]], Collection[str]],
                            nodes: Sequence[str],
-                           hint: Callable[[str, str, Mapping[str, Any]], str | None] | None = None
-                           ) -> list[str]:
+                           hint: Callable[[str, str, Mapping[str, Any]], str | None] | None = None,
+                           used: Collection[str] | None = None) -> list[str]:
     """Every key of a ROS parameter file that no node it applies to declares, one line each.
 
     A section's node name is the last part of its key (``/**/hand_eye``, ``/stereo/hand_eye``,
@@ -531,6 +531,8 @@ def unknown_parameter_keys(path: str | os.PathLike[str],
         nodes: the node names a file may configure.
         hint: ``(node, unknown name, its flat parameters) -> advice or None``, said instead of
             the closest name where the node knows better.
+        used: the nodes the file is given to (default: all of ``nodes``): a wildcard section
+            (``/**``) must hold only what each of these declares.
 
     Returns:
         ``<file>: unknown ... `<key>` ... (did you mean `<name>`?)`` lines; empty when all is
@@ -550,6 +552,7 @@ def unknown_parameter_keys(path: str | os.PathLike[str],
     for key, params in sections:
         node_pattern = key.rstrip("/").rsplit("/", 1)[-1] or "**"
         matched = [n for n in nodes if fnmatch.fnmatchcase(n, node_pattern.replace("**", "*"))]
+        matched = [n for n in matched if used is None or n in used] or matched
         if not matched:
             problems.append(f"{shown}: unknown node name `{key}`"
                             f"{_did_you_mean(node_pattern, nodes)}; the nodes are "
