@@ -586,8 +586,9 @@ def refuse_undeclared_overrides(node: Any, args: Sequence[str] | None = None) ->
         ConfigError: naming each unknown parameter, the parameter files given, and the closest
             declared name.
     """
+    # rclpy keeps the overrides it was given (file and -p) here; it has no public accessor
     overrides = getattr(node, "_parameter_overrides", {}) or {}
-    declared = set(node._parameters) | ALWAYS_DECLARED
+    declared = set(node.list_parameters([], 0).names) | ALWAYS_DECLARED
     unknown = sorted(set(overrides) - declared)
     if not unknown:
         return
