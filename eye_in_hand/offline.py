@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 import mmap
 import os
+import re
 import threading
 from collections import deque
 from dataclasses import dataclass, field
@@ -49,7 +50,7 @@ from eye_in_hand.ros.outputs import OutputSettings
 
 __all__ = ["ProcessOptions", "FrameResult", "ProcessResult", "TargetResult", "process_bag",
            "loss_total",
-           "error_stats", "write_results"]
+           "error_stats", "top_reasons", "write_results"]
 
 
 @dataclass(frozen=True)
@@ -219,6 +220,26 @@ def error_stats(frames: list[FrameResult]) -> dict[str, float] | None:
     return {"frames": int(errs.size), "rms_mm": 1000.0 * float(np.sqrt(np.mean(errs ** 2))),
             "p95_mm": 1000.0 * float(np.percentile(errs, 95)),
             "max_mm": 1000.0 * float(errs.max()), "mean_mm": 1000.0 * float(errs.mean())}
+
+
+_NUMBER = re.compile(r"-?\d+(?:\.\d+)?(?:e[-+]?\d+)?")
+
+
+def top_reasons(frames: list[FrameResult], top: int = 3) -> list[tuple[int, str, str]]:
+    """Why frames have no base-frame result, most frequent first: ``(count, status, example)``.
+
+    Reasons that differ only in their numbers (``depth 566.1 m``, ``depth 570.4 m``) count as
+    one; the example is the first frame's reason, as results.csv has it.
+    """
+    groups: dict[tuple[str, str], list[Any]] = {}
+    for f in frames:
+        if f.status == "ok":
+            continue
+        reason = f.reason or "no reason given"
+        key = (f.status, _NUMBER.sub("#", reason))
+        groups.setdefault(key, [0, reason])[0] += 1
+    ranked = sorted(groups.items(), key=lambda kv: -kv[1][0])
+    return [(count, status, example) for (status, _), (count, example) in ranked[:top]]
 
 
 def available_cpus() -> int:

@@ -116,3 +116,208 @@ def test_stereo_capture_under_stereo_runs_at_the_files_rate(ros_context, tmp_pat
         assert node.timer.timer_period_ns == pytest.approx(1e9 / 12.5)
     finally:
         node.destroy_node()
+
+
+# -- unknown keys: an error for every command and every node ----------------------------------
+
+def _write(tmp_path: Path, text: str, name: str = "params.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def _key_problems(path: Path) -> str:
+    from eye_in_hand.errors import ConfigError
+    from eye_in_hand.nodes.parameters import check_parameter_file_keys
+
+    with pytest.raises(ConfigError) as info:
+        check_parameter_file_keys(path)
+    return str(info.value)
+
+
+def test_every_node_has_a_parameter_list():
+    """The nodes whose files are checked are the package's node executables."""
+    from eye_in_hand.nodes.parameters import NODE_NAMES, declared_parameters
+
+    assert set(NODE_NAMES) == node_names()
+    for node in NODE_NAMES:
+        assert declared_parameters(node, {}), node
+
+
+@pytest.mark.parametrize("path", sorted(parameter_files()), ids=lambda p: p.name)
+def test_the_shipped_parameter_files_have_no_unknown_key(path):
+    from eye_in_hand.nodes.parameters import check_parameter_file_keys
+
+    check_parameter_file_keys(path)
+
+
+def test_a_mistyped_key_names_the_file_the_key_and_the_closest_name(tmp_path):
+    """The trap: `radius_mm:` ran on the default radius, offline and live, exit 0."""
+    path = _write(tmp_path, "/**/detect_triangulate:\n  ros__parameters:\n    method: optimal\n"
+                            "    targets:\n      red:\n        radius_mm: 20.0\n")
+    text = _key_problems(path)
+    assert str(path) in text
+    assert "`/**/detect_triangulate.ros__parameters.targets.red.radius_mm`" in text
+    assert "did you mean `targets.red.radius_m`?" in text
+    assert "method" not in text
+
+
+def test_an_unknown_node_name_is_refused(tmp_path):
+    """The trap: `/**/detect_triangulat:` configured no node at all."""
+    path = _write(tmp_path, "/**/detect_triangulat:\n  ros__parameters:\n    method: optimal\n")
+    text = _key_problems(path)
+    assert "unknown node name `/**/detect_triangulat`" in text
+    assert "did you mean `detect_triangulate`?" in text
+
+
+@pytest.mark.parametrize("key", ["/stereo/hand_eye", "hand_eye", "/robot1/*/hand_eye"])
+def test_namespaced_and_bare_node_names_are_checked(tmp_path, key):
+    path = _write(tmp_path, f"{key}:\n  ros__parameters:\n    max_pose_gap: 0.1\n"
+                            "    base_frame: base\n")
+    text = _key_problems(path)
+    assert f"`{key}.ros__parameters.max_pose_gap` (did you mean `max_pose_gap_s`?)" in text
+    assert "base_frame" not in text
+
+
+def test_nested_namespace_sections_are_checked(tmp_path):
+    path = _write(tmp_path, "/stereo:\n  stereo_capture:\n    ros__parameters:\n"
+                            "      rate_hz: 10.0\n      rate: 10.0\n")
+    assert "`/stereo/stereo_capture.ros__parameters.rate`" in _key_problems(path)
+
+
+def test_target_parameters_follow_target_names(tmp_path):
+    """targets.<name>.* is declared only for the names in target_names."""
+    from eye_in_hand.nodes.parameters import check_parameter_file_keys
+
+    good = ("/**/detect_triangulate:\n  ros__parameters:\n    target_names: [red, blue]\n"
+            "    targets:\n      blue:\n        radius_m: 0.01\n")
+    check_parameter_file_keys(_write(tmp_path, good))
+    bad = good.replace("[red, blue]", "[red]")
+    text = _key_problems(_write(tmp_path, bad, "bad.yaml"))
+    assert "`/**/detect_triangulate.ros__parameters.targets.blue.radius_m` (target 'blue' is " \
+           "not in target_names [red]: add it there, or remove its section" in text
+    typo = good.replace("      blue:\n        radius_m", "      blue:\n        radius")
+    assert "targets.blue.radius` (did you mean `targets.blue.radius_m`?)" in _key_problems(
+        _write(tmp_path, typo, "typo.yaml"))
+
+
+def test_a_wildcard_section_holds_only_what_every_node_declares(tmp_path):
+    from eye_in_hand.nodes.parameters import check_parameter_file_keys
+
+    check_parameter_file_keys(_write(tmp_path, "/**:\n  ros__parameters:\n"
+                                               "    use_sim_time: true\n"))
+    text = _key_problems(_write(tmp_path, "/**:\n  ros__parameters:\n    method: dlt\n", "b.yaml"))
+    assert "`/**.ros__parameters.method` (not a parameter of" in text
+
+
+def test_a_file_without_ros_parameters_is_not_a_parameter_file():
+    assert "not a ROS parameter file" in _key_problems(CONFIG / "world.yaml")
+
+
+def test_a_node_refuses_an_override_it_does_not_declare(ros_context, tmp_path):
+    """In-process: the check the node's main() runs once the node is built."""
+    from eye_in_hand.errors import ConfigError
+    from eye_in_hand.nodes.stereo_capture import StereoCaptureNode
+    from eye_in_hand.ros.params import refuse_undeclared_overrides
+
+    path = _write(tmp_path, "/**/stereo_capture:\n  ros__parameters:\n    rate: 12.5\n")
+    args = ["--ros-args", "--params-file", str(path), "-p", "rate_hz:=20.0"]
+    node = StereoCaptureNode(context=ros_context, namespace="/stereo", cli_args=args)
+    try:
+        with pytest.raises(ConfigError) as info:
+            refuse_undeclared_overrides(node, args)
+        text = str(info.value)
+        assert text.startswith("/stereo/stereo_capture: unknown parameter (--params-file "
+                               f"{path} or -p): `rate` (did you mean `rate_hz`?)")
+    finally:
+        node.destroy_node()
+    node = StereoCaptureNode(context=ros_context, namespace="/stereo",
+                             cli_args=["--ros-args", "-p", "rate_hz:=20.0"])
+    try:
+        refuse_undeclared_overrides(node, [])  # every override declared: no error
+    finally:
+        node.destroy_node()
+
+
+def test_a_node_process_exits_on_an_unknown_key(ros_env, tmp_path):
+    """The trap, live: the node ran on its defaults with a mistyped key and never said so."""
+    import subprocess
+    import sys
+
+    path = _write(tmp_path, "/**/detect_triangulate:\n  ros__parameters:\n    targets:\n"
+                            "      red:\n        radius_mm: 20.0\n")
+    proc = subprocess.run(
+        [sys.executable, "-m", "eye_in_hand.nodes.detect_triangulate", "--ros-args",
+         "-r", "__ns:=/stereo", "--params-file", str(path)],
+        env=ros_env, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 1, proc.stderr
+    assert ("detect_triangulate: error: /stereo/detect_triangulate: unknown parameter "
+            f"(--params-file {path} or -p): `targets.red.radius_mm` (did you mean "
+            "`targets.red.radius_m`?)") in proc.stderr
+
+
+@pytest.mark.parametrize("command", [
+    ["process", "BAG", "--hand-eye", "HE", "-o", "OUT", "--quiet"],
+    ["locate", "--left", "L.png", "--right", "R.png", "--calibration", "CAL"],
+    ["launch", "--duration", "1"],
+])
+def test_commands_refuse_an_unknown_key_before_any_work(tmp_path, capsys, command):
+    """The trap, offline: `process --params` with `radius_mm:` located with the default radius."""
+    from eye_in_hand.cli import main
+
+    path = _write(tmp_path, "/**/detect_triangulate:\n  ros__parameters:\n    targets:\n"
+                            "      red:\n        radius_mm: 20.0\n")
+    argv = [str(tmp_path / a) if a.isupper() or a.endswith(".png") else a for a in command]
+    assert main(argv + ["--params", str(path)]) != 0
+    err = capsys.readouterr().err
+    assert (f"{path}: unknown parameter `/**/detect_triangulate.ros__parameters.targets.red."
+            "radius_mm` (did you mean `targets.red.radius_m`?)") in err
+    assert not (tmp_path / "OUT").exists()
+
+
+# -- values with units: plausible, and a hint when a length was given in millimetres ----------
+
+def test_a_radius_in_millimetres_is_refused_with_the_value_in_metres(tmp_path):
+    """A 20 mm sphere written `radius_m: 20.0` is a 20 m sphere."""
+    from eye_in_hand.core.locator import load_locator_config
+    from eye_in_hand.errors import ConfigError
+
+    path = _write(tmp_path, "/**/detect_triangulate:\n  ros__parameters:\n    targets:\n"
+                            "      red:\n        radius_m: 20.0\n")
+    with pytest.raises(ConfigError) as info:
+        load_locator_config(path)
+    assert str(info.value) == ("parameter 'targets.red.radius_m': 20.0 is outside [0.0, 1.0] "
+                               "(it is in metres: for 20 mm write 0.02)")
+    # a radius of a few metres is no target either: refused, without a mm hint
+    with pytest.raises(ConfigError) as info:
+        load_locator_config(_write(tmp_path, path.read_text().replace("20.0", "2000.0")))
+    assert "outside [0.0, 1.0]" in str(info.value) and "mm" not in str(info.value)
+
+
+def test_a_node_parameter_in_millimetres_gets_the_same_hint(ros_context):
+    from rclpy.parameter import Parameter
+
+    from eye_in_hand.errors import ConfigError
+    from eye_in_hand.nodes.detect_triangulate import DetectTriangulateNode
+
+    with pytest.raises(ConfigError) as info:
+        DetectTriangulateNode(context=ros_context, namespace="/units",
+                              parameter_overrides=[Parameter("markers.diameter_m", value=40.0)])
+    assert "parameter 'markers.diameter_m': 40.0 is outside the range [0.0001, 10.0] (it is " \
+           "in metres: for 40 mm write 0.04)" in str(info.value)
+
+
+def test_a_wildcard_section_is_checked_against_the_nodes_a_command_runs(tmp_path, capsys):
+    """`locate` runs only detect_triangulate's code: `/**: {method: ...}` is fine there, and
+    refused where other nodes would get it (launch)."""
+    from eye_in_hand.nodes.parameters import check_parameter_file_keys
+
+    path = _write(tmp_path, "/**:\n  ros__parameters:\n    method: optimal\n")
+    check_parameter_file_keys(path, used=["detect_triangulate"])
+    text = _key_problems(path)
+    assert "`/**.ros__parameters.method` (not a parameter of stereo_capture)" in text
+    bad = _write(tmp_path, "/**:\n  ros__parameters:\n    methd: optimal\n", "bad.yaml")
+    from eye_in_hand.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="did you mean `method`"):
+        check_parameter_file_keys(bad, used=["detect_triangulate"])

@@ -55,6 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _gather(args: argparse.Namespace, board) -> ImageSource:
     # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
     from eye_in_hand.core.calibration import detect_board
+    from eye_in_hand.core.calibration.board_check import BoardCheck
 
     if bool(args.images) == bool(args.bag):
         raise InputError("give either --images GLOB or --bag BAG --left-topic TOPIC")
@@ -68,6 +69,7 @@ def _gather(args: argparse.Namespace, board) -> ImageSource:
     frames = []
     size = None
     damage = DamageLog()
+    check = BoardCheck(board, f"images of {args.left_topic}")  # a wrong board: say so early
     with progress(total, "camera") as bar:
         for name, stamp, image in iter_bag_frames(args.bag, args.left_topic, args.every,
                                                   damage):
@@ -80,8 +82,10 @@ def _gather(args: argparse.Namespace, board) -> ImageSource:
                     f"{shape[0]}x{shape[1]} at {name}")
             det = detect_board(image, board, args.detector, subpix_window=args.subpix_window,
                                fallback=not args.no_fallback)
+            check.add(image, det.found)
             frames.append(Frame(name, det, image if not frames else None, stamp))
             bar.update(1)
+    check.finish()
     if not frames:
         raise BagError(f"bag {args.bag}: no images on {args.left_topic}"
                        + (f" ({damage.summary()})" if damage else ""))

@@ -66,6 +66,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _gather(args: argparse.Namespace, board) -> tuple[list[Frame], list[Frame], str, int]:
     # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
     from eye_in_hand.core.calibration import detect_board
+    from eye_in_hand.core.calibration.board_check import BoardCheck
 
     files_mode = bool(args.left or args.right)
     if files_mode == bool(args.bag):
@@ -97,6 +98,7 @@ def _gather(args: argparse.Namespace, board) -> tuple[list[Frame], list[Frame], 
     stats: dict[str, int] = {}
     size = None
     args.bag_damage = DamageLog()   # damaged chunks and images: skipped, named, counted
+    check = BoardCheck(board, f"pairs' left images ({args.left_topic})")  # a wrong board: early
     with progress(total, "stereo pairs") as bar:
         for stamp, (ln, li), (rn, ri) in iter_bag_pairs(args.bag, args.left_topic,
                                                         args.right_topic, args.every, stats,
@@ -113,7 +115,9 @@ def _gather(args: argparse.Namespace, board) -> tuple[list[Frame], list[Frame], 
             kw = dict(subpix_window=args.subpix_window, fallback=not args.no_fallback)
             left.append(Frame(ln, detect_board(li, board, args.detector, **kw), None, stamp))
             right.append(Frame(rn, detect_board(ri, board, args.detector, **kw), None, stamp))
+            check.add(li, left[-1].detection.found or right[-1].detection.found)
             bar.update(1)
+    check.finish()
     if not left:
         raise BagError(f"bag {args.bag}: no image pairs with identical header stamps on "
                        f"{args.left_topic} and {args.right_topic}")

@@ -200,9 +200,11 @@ def detect_files(files: Sequence[Path], board, args: argparse.Namespace, desc: s
     """
     # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
     from eye_in_hand.core.calibration import detect_board
+    from eye_in_hand.core.calibration.board_check import BoardCheck
 
     frames: list[Frame] = []
     first: tuple[str, tuple[int, int]] | None = None
+    check = BoardCheck(board, f"{desc} images")   # a wrong board: say so after a few images
     with progress(len(files), desc) as bar:
         for i, path in enumerate(files):
             image = read_image(path)
@@ -215,9 +217,11 @@ def detect_files(files: Sequence[Path], board, args: argparse.Namespace, desc: s
                     f"{path} is {size[0]}x{size[1]}")
             det = detect_board(image, board, args.detector, subpix_window=args.subpix_window,
                                fallback=not args.no_fallback)
+            check.add(image, det.found)
             # the name as text every report can hold (a non-UTF-8 byte as \xNN)
             frames.append(Frame(printable(path.name), det, image if keep(i) else None))
             bar.update(1)
+    check.finish()
     return frames
 
 
@@ -544,6 +548,7 @@ def load_handeye_inputs(args: argparse.Namespace) -> dict[str, Any]:
     # start-up), io.datasets ~90 ms
     from eye_in_hand.core.calibration import BoardSpec
     from eye_in_hand.core.handeye import HandEyeSample
+    from eye_in_hand.core.calibration.board_check import BoardCheck
     from eye_in_hand.core.handeye.observe import observe_sample, rig_views
     from eye_in_hand.io.datasets import load_dataset, load_pose_pairs
 
@@ -567,6 +572,8 @@ def load_handeye_inputs(args: argparse.Namespace) -> dict[str, Any]:
     ds = load_dataset(args.dataset)
     board = BoardSpec.parse(ds.board)
     views = rig_views(ds.camera, ds.rig)
+    check = BoardCheck(board, f"samples' {_view_images(views)}",
+                       f"{printable(ds.root)}/dataset.yaml board:")
     samples, skipped, notes = [], [], []
     for s in ds.samples:
         images = {}
@@ -577,15 +584,22 @@ def load_handeye_inputs(args: argparse.Namespace) -> dict[str, Any]:
                 raise InputError(f"sample {s.name!r}: {exc}") from exc
             images["image" if key == "image" else key] = img
         obs = observe_sample(s.name, images, s.base_T_ee, board, views)
+        check.add(images.get(views[0].name), not obs.reason.startswith("board not found"))
         notes.extend(obs.notes)
         if obs.sample is None:
             skipped.append({"name": s.name, "reason": obs.reason})
         else:
             samples.append(obs.sample)
+    check.finish()
     return {"samples": samples, "views": views, "setup": args.setup or ds.setup,
             "skipped": skipped, "notes": notes, "ground_truth": dict(ds.ground_truth),
             "input": {"type": "dataset", "path": str(ds.root), "board": ds.board,
                       "stereo": ds.is_stereo, "count": len(ds.samples)}}
+
+
+def _view_images(views: Sequence[Any]) -> str:
+    """``images`` (mono) or ``left images``: the reference view's images, for messages."""
+    return "images" if views[0].name == "image" else f"{views[0].name} images"
 
 
 def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
@@ -593,6 +607,7 @@ def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
     # local: as in _load_inputs (SciPy and OpenCV, ~0.45 s at CLI start-up)
     from eye_in_hand.core.calibration import BoardSpec
     from eye_in_hand.core.camera import CameraModel, StereoRig
+    from eye_in_hand.core.calibration.board_check import BoardCheck
     from eye_in_hand.core.handeye.observe import observe_sample, rig_views
     from eye_in_hand.io.datasets import read_bag_samples
 
@@ -628,13 +643,16 @@ def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
         raise ConfigError(f"--calibration is {'stereo' if rig else 'mono'} but the bag's images "
                           f"are {sorted(found.image_topics)}")
     samples, skipped, notes = [], [], []
+    check = BoardCheck(board, f"still stops' {_view_images(views)}")
     for s in found.samples:
         obs = observe_sample(s.name, s.images, s.base_T_ee, board, views)
+        check.add(s.images.get(views[0].name), not obs.reason.startswith("board not found"))
         notes.extend(obs.notes)
         if obs.sample is None:
             skipped.append({"name": s.name, "reason": obs.reason})
         else:
             samples.append(obs.sample)
+    check.finish()
     moving = sum(1 for s in found.skipped if s["reason"] == "robot moving")
     # what was found, not a warning: images taken while the arm moves are expected
     summary = (f"{found.n_images} images, {len(found.samples)} still stops, {moving} images "

@@ -71,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
     # bad input is one line here, not a traceback from rcl in every node
     # local: ros.names loads rclpy (~50 ms at CLI start-up)
     from eye_in_hand.ros.names import check_namespace, check_parameter_text
+    from eye_in_hand.nodes.parameters import check_parameter_file_keys
     from eye_in_hand.ros.params import check_parameter_file
 
     ns = check_namespace(args.namespace)
@@ -83,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
     nodes = [n.name for n in catalogue if n.name not in args.skip]
     if not nodes:
         raise InputError("--skip: no node left to start")
+    check_parameter_file_keys(params, used=nodes)  # a mistyped key would run on its default
     overrides = _overrides(args)
     launcher = Launcher(params, nodes, root_namespace=ns, overrides=overrides,
                         respawn=not args.no_respawn, respawn_delay_s=args.respawn_delay,

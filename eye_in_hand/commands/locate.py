@@ -81,6 +81,11 @@ def run(args: argparse.Namespace) -> int:
     from eye_in_hand.core.camera import StereoRig
     from eye_in_hand.core.locator import StereoLocator, load_locator_config
 
+    if args.params:  # a mistyped key would run on its default, as the live node refuses it
+        # local: the nodes' parameter lists load rclpy and the node modules (~1 s)
+        from eye_in_hand.nodes.parameters import check_parameter_file_keys
+
+        check_parameter_file_keys(args.params, used=["detect_triangulate"])
     config = apply_overrides(load_locator_config(args.params), radius=args.radius,
                              method=args.method)
     rig = StereoRig.load(args.calibration)

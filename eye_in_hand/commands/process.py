@@ -258,8 +258,14 @@ def run(args: argparse.Namespace) -> int:
     from eye_in_hand.core.locator import locator_config_from_params
     from eye_in_hand.io.config import load_hand_eye
     from eye_in_hand.io.results import load_known_distances, run_figures
-    from eye_in_hand.offline import ProcessOptions, error_stats, process_bag, write_results
+    from eye_in_hand.offline import (ProcessOptions, error_stats, process_bag, top_reasons,
+                                     write_results)
 
+    if args.params:  # a mistyped key would run on its default, as the live node refuses it
+        # local: the nodes' parameter lists load rclpy and the node modules (~1 s)
+        from eye_in_hand.nodes.parameters import check_parameter_file_keys
+
+        check_parameter_file_keys(args.params, used=["detect_triangulate", "hand_eye"])
     detect = _node_params(args.params, "detect_triangulate")
     hand_eye_params = _node_params(args.params, "hand_eye")
     config = apply_overrides(locator_config_from_params(
@@ -356,6 +362,12 @@ def run(args: argparse.Namespace) -> int:
           f"{c['located']} located, {c['localized']} in the base frame, {c['no_target']} "
           f"without target, {c['no_robot_pose']} without robot pose, {c['bad_messages']} bad "
           "messages")
+    ok = sum(1 for f in result.frames if f.status == "ok")
+    if result.frames and ok < len(result.frames) / 2:  # few located: say why, not only in the csv
+        print(f"why {len(result.frames) - ok} of {len(result.frames)} stereo pairs have no "
+              "result in the base frame (top reasons):")
+        for count, status, example in top_reasons(result.frames):
+            print(f"  {count} {status}: {example}")
     refused = {k[len("refused."):]: v for k, v in c.items() if k.startswith("refused.") and v}
     loss = result.loss
     if loss.get("total") or not loss.get("complete", True):

@@ -23,6 +23,7 @@ from eye_in_hand.core.detection import (
     TargetSpec,
 )
 from eye_in_hand.core.triangulation import METHODS
+from eye_in_hand.core.units import unit_hint
 from eye_in_hand.errors import ConfigError, InputError
 from eye_in_hand.yamlfile import read_yaml_file
 
@@ -105,7 +106,8 @@ class ParamSpec:
             if (self.min is not None and out < self.min) or (self.max is not None
                                                               and out > self.max):
                 raise ConfigError(f"parameter '{name}': {out} is outside "
-                                  f"[{self.min}, {self.max}]")
+                                  f"[{self.min}, {self.max}]"
+                                  f"{unit_hint(name, out, self.max)}")
         return out
 
 
@@ -169,7 +171,7 @@ TARGET_PARAMETERS: tuple[ParamSpec, ...] = (
               "h > upper h wraps around 0 (red)"),
     ParamSpec("upper", [10, 255, 255], "upper bound [h, s, v]"),
     ParamSpec("radius_m", 0.02, "sphere radius in metres (0 = unknown: the angular radius is "
-              "estimated from the silhouette)", 0.0, 10.0),
+              "estimated from the silhouette)", 0.0, 1.0),
     ParamSpec("is_sphere", True, "the target is a sphere (apply the sphere-centre correction)"),
     ParamSpec("min_area_px", 30.0, "smallest blob area (pixels)", 1.0, 1e8),
     ParamSpec("max_area_px", 0.0, "largest blob area (pixels, 0 = no limit)", 0.0, 1e8),

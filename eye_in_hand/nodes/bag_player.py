@@ -41,13 +41,11 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.interfaces import MessageDefinitionFormat
 from rosbags.typesys import Stores, get_typestore
@@ -61,10 +59,13 @@ from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
 from eye_in_hand.ros.msgtypes import import_message_type as _import_message_type
 from eye_in_hand.ros.msgtypes import message_definition
 from eye_in_hand.ros.names import topic_name_problem
+from eye_in_hand.ros.params import Param, declare_params
 from eye_in_hand.ros.node_main import guard, run_with_executor, sigterm_as_interrupt
 from eye_in_hand.ros.tf import TF_STATIC_TOPIC
 
 __all__ = [
+    "parameter_names",
+    "NODE_PARAMETERS",
     "PlayerConfig",
     "BagPlayer",
     "import_message_type",
@@ -165,6 +166,28 @@ class PlayerConfig:
     wait_for_topics: tuple[str, ...] = ()
 
 
+#: The node's parameters (declared at start-up; the keys its parameter file may hold).
+NODE_PARAMETERS: tuple[Param, ...] = (
+    Param("bag", "", "bag directory or .mcap/.db3 file"),
+    Param("rate", 1.0, "playback speed factor (2.0: twice as fast)", range=(0.001, 1000.0)),
+    Param("loop", False, "restart at the end"),
+    Param("clock", False, "publish rosgraph_msgs/Clock on /clock (for use_sim_time)"),
+    Param("clock_hz", 40.0, "/clock publishing frequency", range=(0.1, 1000.0)),
+    Param("topics", (), "topics to play (empty: all)", type="str[]"),
+    Param("start_offset", 0.0, "seconds into the bag to start from", range=(0.0, 1e9)),
+    Param("wait_for_subscribers", 0.0, "wait up to this many seconds for a subscriber on "
+          "every topic (0: do not wait)", range=(0.0, 3600.0)),
+    Param("wait_for_topics", (), "with wait_for_subscribers: also wait until each of these "
+          "topics has a publisher and a subscriber (the downstream hops of a pipeline)",
+          type="str[]"),
+)
+
+
+def parameter_names(values: Mapping[str, Any]) -> list[str]:
+    """Every parameter name the node declares (``values``: its parameters in a file, unused)."""
+    return [p.name for p in NODE_PARAMETERS]
+
+
 class BagPlayer(Node):
     """Publishes a bag's messages; call :meth:`start`, then spin until :attr:`finished`.
 
@@ -249,31 +272,11 @@ class BagPlayer(Node):
     # -- parameters ---------------------------------------------------------------------------
 
     def _declare_parameters(self) -> PlayerConfig:
-        def desc(text: str, lo: float | None = None, hi: float | None = None
-                 ) -> ParameterDescriptor:
-            d = ParameterDescriptor(description=text, read_only=True)
-            if lo is not None and hi is not None:
-                d.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi)]
-            return d
-
-        bag = self.declare_parameter("bag", "", desc("bag directory or .mcap/.db3 file")).value
-        rate = self.declare_parameter("rate", 1.0, desc(
-            "playback speed factor (2.0: twice as fast)", 0.001, 1000.0)).value
-        loop = self.declare_parameter("loop", False, desc("restart at the end")).value
-        clock = self.declare_parameter("clock", False, desc(
-            "publish rosgraph_msgs/Clock on /clock (for use_sim_time)")).value
-        clock_hz = self.declare_parameter("clock_hz", 40.0, desc(
-            "/clock publishing frequency", 0.1, 1000.0)).value
-        topics = self.declare_parameter("topics", Parameter.Type.STRING_ARRAY, desc(
-            "topics to play (empty: all)")).value or []
-        offset = self.declare_parameter("start_offset", 0.0, desc(
-            "seconds into the bag to start from", 0.0, 1e9)).value
-        wait = self.declare_parameter("wait_for_subscribers", 0.0, desc(
-            "wait up to this many seconds for a subscriber on every topic (0: do not wait)",
-            0.0, 3600.0)).value
-        downstream = self.declare_parameter("wait_for_topics", Parameter.Type.STRING_ARRAY, desc(
-            "with wait_for_subscribers: also wait until each of these topics has a publisher "
-            "and a subscriber (the downstream hops of a pipeline)")).value or []
+        v = declare_params(self, NODE_PARAMETERS)
+        bag, rate, loop, clock, clock_hz = (v["bag"], v["rate"], v["loop"], v["clock"],
+                                            v["clock_hz"])
+        topics, offset, wait = v["topics"], v["start_offset"], v["wait_for_subscribers"]
+        downstream = v["wait_for_topics"]
         if not bag:
             raise ConfigError("parameter 'bag' is required (a bag directory or .mcap file)")
         return PlayerConfig(bag=str(bag), rate=float(rate), loop=bool(loop), clock=bool(clock),

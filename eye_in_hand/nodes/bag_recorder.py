@@ -40,13 +40,11 @@ import threading
 import time
 from concurrent.futures import Future
 from functools import partial
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from eye_in_hand.ros.dds import use_large_data_profile
@@ -55,9 +53,12 @@ from eye_in_hand.io.bags import STORAGES, BagWriter, OfferedQos, default_typesto
 from eye_in_hand.ros.msgtypes import import_message_type, message_definition
 from eye_in_hand.ros.node_main import guard, run_with_executor, sigterm_as_interrupt
 from eye_in_hand.ros.names import topic_name_problem
+from eye_in_hand.ros.params import Param, declare_params
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
 
 __all__ = [
+    "parameter_names",
+    "NODE_PARAMETERS",
     "BagRecorder",
     "subscription_qos",
     "offered_qos",
@@ -151,6 +152,25 @@ class _WriteQueue:
             self._cv.notify_all()
 
 
+#: The node's parameters (declared at start-up; the keys its parameter file may hold).
+NODE_PARAMETERS: tuple[Param, ...] = (
+    Param("output", "", "bag directory to create"),
+    Param("topics", (), "topics to record", type="str[]"),
+    Param("all", False, "record every topic"),
+    Param("storage", "mcap", "storage plugin: mcap or sqlite3"),
+    Param("compression", "", "'' (none) or zstd"),
+    Param("discovery_period", 0.2, "seconds between topic discovery polls", range=(0.01, 60.0)),
+    Param("max_cache_mb", 512.0, "MiB of received messages that may wait for the disk before "
+          "new ones are dropped", range=(1.0, 65536.0)),
+    Param("duration", 0.0, "stop after this many seconds (0: until stopped)", range=(0.0, 1e9)),
+)
+
+
+def parameter_names(values: Mapping[str, Any]) -> list[str]:
+    """Every parameter name the node declares (``values``: its parameters in a file, unused)."""
+    return [p.name for p in NODE_PARAMETERS]
+
+
 class BagRecorder(Node):
     """Records topics into a bag; call :meth:`close` (or destroy the node) to finish it.
 
@@ -193,32 +213,15 @@ class BagRecorder(Node):
         self.get_logger().info(f"recording {what} into {self.output} ({self.storage})")
 
     def _declare_parameters(self) -> None:
-        def desc(text: str, lo: float | None = None, hi: float | None = None
-                 ) -> ParameterDescriptor:
-            d = ParameterDescriptor(description=text, read_only=True)
-            if lo is not None and hi is not None:
-                d.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi)]
-            return d
-
-        self.output = str(self.declare_parameter(
-            "output", "", desc("bag directory to create")).value)
-        topics = self.declare_parameter("topics", Parameter.Type.STRING_ARRAY, desc(
-            "topics to record")).value or []
-        self.record_all = bool(self.declare_parameter(
-            "all", False, desc("record every topic")).value)
-        self.storage = str(self.declare_parameter(
-            "storage", "mcap", desc("storage plugin: mcap or sqlite3")).value)
-        self.compression = str(self.declare_parameter(
-            "compression", "", desc("'' (none) or zstd")).value)
-        self.discovery_period = float(self.declare_parameter(
-            "discovery_period", 0.2, desc("seconds between topic discovery polls",
-                                          0.01, 60.0)).value)
-        self.max_cache_mb = float(self.declare_parameter(
-            "max_cache_mb", 512.0, desc("MiB of received messages that may wait for the disk "
-                                        "before new ones are dropped", 1.0, 65536.0)).value)
-        self.duration = float(self.declare_parameter(
-            "duration", 0.0, desc("stop after this many seconds (0: until stopped)",
-                                  0.0, 1e9)).value)
+        v = declare_params(self, NODE_PARAMETERS)
+        self.output = str(v["output"])
+        topics = list(v["topics"])
+        self.record_all = bool(v["all"])
+        self.storage = str(v["storage"])
+        self.compression = str(v["compression"])
+        self.discovery_period = float(v["discovery_period"])
+        self.max_cache_mb = float(v["max_cache_mb"])
+        self.duration = float(v["duration"])
         if not self.output:
             raise ConfigError("parameter 'output' is required (the bag directory to create)")
         if self.storage not in STORAGES:

@@ -76,7 +76,7 @@ import threading
 from collections import deque
 import time
 import traceback
-from typing import Any
+from typing import Any, Mapping
 
 import cv2
 import numpy as np
@@ -112,7 +112,8 @@ from eye_in_hand.ros.outputs import (MARKER_DIAMETER_M, MARKER_LIFETIME_S, point
 from eye_in_hand.ros.params import Param, declare_params
 from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS, TARGET_POINT_QOS
 
-__all__ = ["NODE_PARAMETERS", "DetectTriangulateNode", "main"]
+__all__ = ["NODE_PARAMETERS", "DetectTriangulateNode", "parameter_names", "parameter_hint",
+           "main"]
 
 NODE_NAME = "detect_triangulate"
 #: A stamp this far behind the previous one on the same side is a time jump (bag loop, sim
@@ -164,6 +165,39 @@ def _to_param(spec: ParamSpec, name: str | None = None) -> Param:
             spec.default, bool) else (float(lo), float(hi))
     return Param(name or spec.name, default, spec.description, range=rng,
                  choices=spec.choices or None)
+
+
+def _parameter_groups(target_names: Any) -> list[tuple[str, list[Param]]]:
+    """``(prefix, parameters)`` the node declares: its own, the locator's, and one group
+    ``targets.<name>.`` per entry of ``target_names``."""
+    groups = [("", list(NODE_PARAMETERS)), ("", [_to_param(p) for p in LOCATOR_PARAMETERS])]
+    for tname in target_names:
+        groups.append((f"targets.{tname}.", [_to_param(p) for p in TARGET_PARAMETERS]))
+    return groups
+
+
+def parameter_names(values: Mapping[str, Any]) -> list[str]:
+    """Every parameter name the node declares, given its parameter values (flat, dotted) from
+    a parameter file: the per-target names follow ``target_names`` (default ``[red]``)."""
+    names = values.get("target_names")
+    if not isinstance(names, (list, tuple)):
+        names = [p for p in LOCATOR_PARAMETERS if p.name == "target_names"][0].default
+    return [prefix + p.name for prefix, group in _parameter_groups([str(n) for n in names])
+            for p in group]
+
+
+def parameter_hint(name: str, values: Mapping[str, Any]) -> str | None:
+    """Advice for an undeclared ``targets.<name>.*``: its target is not in ``target_names``."""
+    parts = name.split(".")
+    if len(parts) != 3 or parts[0] != "targets":
+        return None
+    names = [p for p in LOCATOR_PARAMETERS if p.name == "target_names"][0].default
+    names = values.get("target_names", names)
+    if parts[1] in names:
+        return None
+    return (f"target '{parts[1]}' is not in target_names [{', '.join(map(str, names))}]: add it "
+            "there, or remove its section (a node declares targets.<name>.* only for the "
+            "names in target_names)")
 
 
 class _PairQueue:
@@ -230,17 +264,18 @@ class DetectTriangulateNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        node_values = declare_params(self, NODE_PARAMETERS)
-        loc_values = declare_params(self, [_to_param(p) for p in LOCATOR_PARAMETERS])
+        (_, own), (_, locator) = _parameter_groups(())
+        node_values = declare_params(self, own)
+        loc_values = declare_params(self, locator)
         flat: dict[str, Any] = dict(loc_values)
         for tname in loc_values["target_names"]:
             if not tname or not all(c.isalnum() or c == "_" for c in tname) \
                     or not tname[0].isalpha():
                 raise ConfigError(f"parameter 'target_names': '{tname}' must start with a "
                                   "letter and contain only letters, digits and underscores")
-            vals = declare_params(self, [_to_param(p) for p in TARGET_PARAMETERS],
-                                  prefix=f"targets.{tname}.")
-            flat.update({f"targets.{tname}.{k}": v for k, v in vals.items()})
+            ((prefix, group),) = _parameter_groups((tname,))[2:]
+            vals = declare_params(self, group, prefix=prefix)
+            flat.update({f"{prefix}{k}": v for k, v in vals.items()})
         self.config: LocatorConfig = locator_config_from_params(flat)
         self._frame_id = str(node_values["frame_id"])
         self._debug_period = (1.0 / node_values["debug_image.max_rate_hz"]

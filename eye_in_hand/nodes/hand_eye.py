@@ -73,7 +73,7 @@ import time
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 from geometry_msgs.msg import PointStamped, PoseStamped, PoseWithCovarianceStamped, TransformStamped
@@ -97,11 +97,11 @@ from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.ros.outputs import (MARKER_LIFETIME_S, RIGHT_CAMERA_FRAME,
                                      TARGET_FRAME_PREFIX, header, pose_stamped,
                                      pose_with_covariance, rclpy_types, transform_stamped)
-from eye_in_hand.ros.params import load_config, param
+from eye_in_hand.ros.params import load_config, param, params_of
 from eye_in_hand.ros.qos import LATCHED_QOS, RESULT_QOS, ROBOT_POSE_QOS
 
 
-__all__ = ["HandEyeNodeConfig", "HandEyeNode", "load_kinematics", "main"]
+__all__ = ["HandEyeNodeConfig", "HandEyeNode", "load_kinematics", "parameter_names", "main"]
 
 #: The calibration session's rules: their defaults are the calibration-mode parameters'.
 _SESSION = SessionConfig()
@@ -241,6 +241,11 @@ class HandEyeNodeConfig:
             raise ValueError("kinematics_file: required when robot_pose_source is joint_states")
         if self.mode == "calibration" and not self.calibration_dir:
             raise ValueError("calibration_dir: required in calibration mode")
+
+
+def parameter_names(values: Mapping[str, Any]) -> list[str]:
+    """Every parameter name the node declares (``values``: its parameters in a file, unused)."""
+    return [p.name for p in params_of(HandEyeNodeConfig)]
 
 
 @dataclass

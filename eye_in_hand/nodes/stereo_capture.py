@@ -47,7 +47,7 @@ import queue
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import cv2
 import numpy as np
@@ -72,7 +72,8 @@ from eye_in_hand.ros.params import Param, declare_params
 from eye_in_hand.ros.tf import (TF_STATIC_TOPIC, TF_TOPIC, chain_tf_edges, have_tf2_msgs,
                                 make_tf_message, tf_message_class, tf_qos, tf_static_pub_qos)
 
-__all__ = ["NODE_PARAMETERS", "SOURCES", "StereoCaptureNode", "FrameSource", "main"]
+__all__ = ["NODE_PARAMETERS", "SOURCES", "StereoCaptureNode", "FrameSource", "parameter_names",
+           "main"]
 
 NODE_NAME = "stereo_capture"
 SOURCES = ("sim", "images", "video", "v4l2")
@@ -135,6 +136,11 @@ NODE_PARAMETERS: tuple[Param, ...] = (
     Param("diagnostics_period_s", 1.0, "diagnostics publication period (s)",
           range=(0.05, 60.0)),
 )
+
+
+def parameter_names(values: Mapping[str, Any]) -> list[str]:
+    """Every parameter name the node declares (``values``: its parameters in a file, unused)."""
+    return [p.name for p in NODE_PARAMETERS]
 
 
 class _Pair:

@@ -23,6 +23,7 @@ from eye_in_hand.errors import (
     unexpected_error_line,
 )
 from eye_in_hand.ros.dds import use_large_data_profile
+from eye_in_hand.ros.params import refuse_undeclared_overrides
 
 __all__ = ["guard", "run_node", "run_with_executor", "sigterm_as_interrupt"]
 
@@ -73,6 +74,7 @@ def run_node(name: str, factory: Callable[[], Any], args: Sequence[str] | None =
         node = None
         try:
             node = factory()
+            refuse_undeclared_overrides(node, args)
             rclpy.spin(node)
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
@@ -100,6 +102,7 @@ def run_with_executor(factory: Callable[[], Any], spin: Callable[[Any, Any], int
     try:
         executor = SingleThreadedExecutor()
         node = factory()
+        refuse_undeclared_overrides(node, args)
         return spin(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         return 0

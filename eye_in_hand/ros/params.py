@@ -34,9 +34,12 @@ Such a node re-reads the value with ``node.get_parameter(name)`` where it uses i
 from __future__ import annotations
 
 import dataclasses
+import difflib
+import fnmatch
 import math
+import os
 import re
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -65,6 +68,9 @@ __all__ = [
     "load_config",
     "params_markdown",
     "check_parameter_file",
+    "closest_name",
+    "unknown_parameter_keys",
+    "refuse_undeclared_overrides",
 ]
 
 #: Parameter type names accepted by :class:`Param` (``type=``).
@@ -74,6 +80,16 @@ PARAM_TYPES: tuple[str, ...] = (
 _SCALARS: dict[type, str] = {bool: "bool", int: "int", float: "float", str: "str"}
 _NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*(\.[A-Za-z][A-Za-z0-9_]*)*$")
 _META_KEY = "eye_in_hand.param"
+
+
+def _unit_hint(name: str, value: Any, high: float) -> str:
+    """:func:`eye_in_hand.core.units.unit_hint` for a value that may be text from rclpy."""
+    from eye_in_hand.core.units import unit_hint
+
+    try:
+        return unit_hint(name, float(value), high)
+    except (TypeError, ValueError):
+        return ""
 
 
 def _infer_type(default: Any) -> str | None:
@@ -199,7 +215,8 @@ class Param:
             values = value if self.is_array else (value,)
             bad = [v for v in values if not (lo <= v <= hi)]
             if bad:
-                return f"{bad[0]!r} is outside the range [{lo}, {hi}]"
+                return (f"{bad[0]!r} is outside the range [{lo}, {hi}]"
+                        + _unit_hint(self.name, bad[0], hi))
         if self.choices is not None and value not in self.choices:
             return f"{value!r} is not one of {', '.join(map(repr, self.choices))}"
         if self.validate is not None:
@@ -287,7 +304,8 @@ def _declare_one(node: Any, p: Param, full: str) -> Any:
         text = str(exc.args[0]) if exc.args else str(exc)
         match = re.search(r"Invalid parameter value \((.*?)\) for parameter", text)
         if match and p.range is not None:
-            problem = f"{match.group(1)} is outside the range [{p.range[0]}, {p.range[1]}]"
+            problem = (f"{match.group(1)} is outside the range [{p.range[0]}, {p.range[1]}]"
+                       + _unit_hint(full, match.group(1), p.range[1]))
         else:
             problem = f"rejected by rclpy: {text}"
         raise ConfigError(f"parameter '{full}': {problem}: {p.description}") from exc
@@ -440,3 +458,148 @@ def check_parameter_file(path: Any) -> None:
         reason = re.sub(r",? at /\S+:\d+", "", reason).strip().rstrip(",")
         shown = str(path).encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
         raise ConfigError(f"{shown}: rcl cannot parse this parameter file: {reason}") from exc
+
+
+#: Parameters every rclpy node declares itself.
+ALWAYS_DECLARED: frozenset[str] = frozenset({"use_sim_time"})
+
+
+def closest_name(name: str, candidates: Iterable[str]) -> str | None:
+    """The candidate closest to ``name`` (``difflib``), or None when none is close.
+
+    Dotted names are compared first with their siblings (same group: ``targets.red.radius_mm``
+    against ``targets.red.*`` by the last part), then as whole names.
+    """
+    pool = sorted(set(candidates))
+    group, _, leaf = name.rpartition(".")
+    siblings = {c.rpartition(".")[2]: c for c in pool if c.rpartition(".")[0] == group}
+    match = difflib.get_close_matches(leaf, list(siblings), n=1, cutoff=0.6)
+    if match:
+        return siblings[match[0]]
+    match = difflib.get_close_matches(name, pool, n=1, cutoff=0.6)
+    if match:
+        return match[0]
+    leaves = {c.rpartition(".")[2]: c for c in pool}  # the right name in another group
+    match = difflib.get_close_matches(leaf, list(leaves), n=1, cutoff=0.75)
+    return leaves[match[0]] if match else None
+
+
+def _did_you_mean(name: str, candidates: Iterable[str]) -> str:
+    best = closest_name(name, candidates)
+    return f" (did you mean `{best}`?)" if best else ""
+
+
+def _flat_parameters(params: Mapping[Any, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in params.items():
+        if isinstance(value, Mapping):
+            out.update(_flat_parameters(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def _sections(data: Mapping[Any, Any], prefix: str = "") -> Iterable[tuple[str, Any]]:
+    """``(node key, ros__parameters)`` of a parameter file; nested namespace mappings
+    (``/stereo: {detect_triangulate: {ros__parameters: ...}}``) are joined with ``/``."""
+    for key, body in data.items():
+        path = f"{prefix}/{str(key).strip('/')}" if prefix else str(key)
+        if isinstance(body, Mapping) and "ros__parameters" in body:
+            yield path, body["ros__parameters"]
+        elif isinstance(body, Mapping):
+            yield from _sections(body, path)
+        else:
+            yield path, None
+
+
+def unknown_parameter_keys(path: str | os.PathLike[str],
+                           declared: Callable[[str, Mapping[str, Any]], Collection[str]],
+                           nodes: Sequence[str],
+                           hint: Callable[[str, str, Mapping[str, Any]], str | None] | None = None,
+                           used: Collection[str] | None = None) -> list[str]:
+    """Every key of a ROS parameter file that no node it applies to declares, one line each.
+
+    A section's node name is the last part of its key (``/**/hand_eye``, ``/stereo/hand_eye``,
+    ``hand_eye``); ``*`` and ``**`` match any node (``/**`` applies to every node). A name
+    that matches none of ``nodes`` is an unknown node; a parameter is unknown unless every node
+    the section applies to declares it (that node would refuse it at start-up:
+    :func:`refuse_undeclared_overrides`).
+
+    Args:
+        path: the parameter file.
+        declared: ``(node, its flat parameters in the file) -> the names it declares``.
+        nodes: the node names a file may configure.
+        hint: ``(node, unknown name, its flat parameters) -> advice or None``, said instead of
+            the closest name where the node knows better.
+        used: the nodes the file is given to (default: all of ``nodes``): a wildcard section
+            (``/**``) must hold only what each of these declares.
+
+    Returns:
+        ``<file>: unknown ... `<key>` ... (did you mean `<name>`?)`` lines; empty when all is
+        known.
+    """
+    from eye_in_hand.yamlfile import printable, read_yaml_file
+
+    shown = printable(path)
+    data = read_yaml_file(path, "parameter file")
+    if not isinstance(data, Mapping):
+        return [f"{shown}: expected a mapping of node names to ros__parameters"]
+    sections = list(_sections(data))
+    if not any(isinstance(params, Mapping) for _, params in sections):
+        return [f"{shown}: not a ROS parameter file (no `/**/<node>: {{ros__parameters: ...}}` "
+                "entry)"]
+    problems = []
+    for key, params in sections:
+        node_pattern = key.rstrip("/").rsplit("/", 1)[-1] or "**"
+        matched = [n for n in nodes if fnmatch.fnmatchcase(n, node_pattern.replace("**", "*"))]
+        matched = [n for n in matched if used is None or n in used] or matched
+        if not matched:
+            problems.append(f"{shown}: unknown node name `{key}`"
+                            f"{_did_you_mean(node_pattern, nodes)}; the nodes are "
+                            f"{', '.join(nodes)}")
+            continue
+        if not isinstance(params, Mapping):
+            problems.append(f"{shown}: `{key}` must contain a 'ros__parameters' mapping")
+            continue
+        flat = _flat_parameters(params)
+        for name in flat:
+            for node in matched:
+                valid = set(declared(node, flat)) | ALWAYS_DECLARED
+                if name not in valid:
+                    where = "" if len(matched) == 1 else f" (not a parameter of {node})"
+                    advice = hint(node, name, flat) if hint is not None else None
+                    problems.append(f"{shown}: unknown parameter "
+                                    f"`{key}.ros__parameters.{name}`{where}"
+                                    + (f" ({advice})" if advice else
+                                       _did_you_mean(name, valid)))
+                    break
+    return problems
+
+
+def refuse_undeclared_overrides(node: Any, args: Sequence[str] | None = None) -> None:
+    """Refuse the parameter overrides (``--params-file``, ``-p name:=value``) that ``node``
+    did not declare: rclpy ignores them silently, so a mistyped name ran on the default.
+
+    Call once the node has declared all its parameters (the end of its construction).
+
+    Raises:
+        ConfigError: naming each unknown parameter, the parameter files given, and the closest
+            declared name.
+    """
+    # rclpy keeps the overrides it was given (file and -p) here; it has no public accessor
+    overrides = getattr(node, "_parameter_overrides", {}) or {}
+    declared = set(node.list_parameters([], 0).names) | ALWAYS_DECLARED
+    unknown = sorted(set(overrides) - declared)
+    if not unknown:
+        return
+    import sys
+
+    argv = list(sys.argv if args is None else args)
+    files = [argv[i + 1] for i, a in enumerate(argv[:-1]) if a == "--params-file"]
+    source = (f"--params-file {', '.join(files)} or -p" if files
+              else "-p or a parameter file")
+    lines = [f"`{name}`{_did_you_mean(name, declared)}" for name in unknown]
+    raise ConfigError(f"{node.get_fully_qualified_name()}: unknown parameter"
+                      f"{'s' if len(unknown) > 1 else ''} ({source}): " + ", ".join(lines)
+                      + "; the node does not declare " + ("them" if len(unknown) > 1 else "it")
+                      + ", so it would have no effect")

@@ -227,3 +227,24 @@ def test_new_output_folder_gets_normal_permissions(tmp_path: Path) -> None:
     finally:
         os.umask(umask)
     assert (tmp_path / "new").stat().st_mode & 0o777 == 0o755
+
+
+def test_a_board_square_in_millimetres_is_refused_before_any_work(tmp_path, capsys):
+    out = tmp_path / "cam"
+    assert main(["calibrate", "camera", "--images", str(tmp_path / "*.png"),
+                 "--board", "chessboard:9x6:25", "-o", str(out)]) != 0
+    err = capsys.readouterr().err
+    assert "pass 'chessboard:9x6:0.025'" in err and not out.exists()
+
+
+def test_a_board_given_in_squares_stops_early_with_the_fix(data_dir, tmp_path, capsys):
+    """The trap: `10x7` (squares) for a 9x6 board printed a "skipped" line per image and
+    failed at the end with no hint."""
+    out = tmp_path / "cam"
+    assert main(["calibrate", "camera", "--images", str(_images(data_dir) / "left*.jpg"),
+                 "--board", "chessboard:10x7:1.0", "-o", str(out)]) != 0
+    err = capsys.readouterr().err
+    assert ("no board chessboard:10x7:1 found in the first 8 camera images; a 9x6 chessboard "
+            "(inner corners) is found in 8 of them") in err
+    assert "Pass --board chessboard:9x6:1" in err
+    assert "skipped" not in err and not out.exists()

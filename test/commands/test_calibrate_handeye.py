@@ -204,3 +204,23 @@ def test_mono_eye_to_hand_dataset(tmp_path: Path) -> None:
     report = json.loads((out / "report.json").read_text())
     assert report["refinement"]["space"] == "reprojection"
     assert report["ground_truth_error"]["refined"]["mm"] < 1.0
+
+
+def test_a_board_given_in_squares_stops_after_the_first_samples(stereo_dataset, tmp_path,
+                                                                 capsys) -> None:
+    """The trap: `10x7` (squares) for a 9x6 board skipped every sample and failed at the end
+    with no hint."""
+    import shutil
+
+    root = tmp_path / "ds"
+    shutil.copytree(stereo_dataset[0], root)
+    text = (root / "dataset.yaml").read_text()
+    assert "chessboard:9x6:0.025" in text
+    (root / "dataset.yaml").write_text(text.replace("chessboard:9x6:0.025",
+                                                    "chessboard:10x7:0.025"))
+    assert main(["calibrate", "handeye", str(root), "-o", str(tmp_path / "out")]) != 0
+    err = capsys.readouterr().err
+    assert ("no board chessboard:10x7:0.025 found in the first 8 samples' left images; a 9x6 "
+            "chessboard (inner corners) is found in 8 of them") in err
+    assert "dataset.yaml board: chessboard:9x6:0.025" in err
+    assert "skipped" not in err and not (tmp_path / "out").exists()

@@ -201,3 +201,17 @@ def test_bag_errors(calib_bag, tmp_path: Path, capsys) -> None:
     assert main(["calibrate", "handeye", "--bag", str(path), "--board", "chessboard:9x6:0.025",
                  "--joint-topic", "/joint_states", "-o", str(tmp_path)]) == 1
     assert "--kinematics" in capsys.readouterr().err
+
+
+def test_a_board_given_in_squares_is_named_with_the_fix(calib_bag, tmp_path: Path,
+                                                        capsys) -> None:
+    """The trap: `10x7` (squares) for a 9x6 board: a "skipped" line per stop, then a failure
+    with no hint. With fewer stops than the early check waits for, it runs at the end."""
+    path, _, n_stops = calib_bag
+    out = tmp_path / "out"
+    assert main(["calibrate", "handeye", "--bag", str(path), "--board", "chessboard:10x7:0.025",
+                 "--image-topic", "image_raw", "--no-html", "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert (f"no board chessboard:10x7:0.025 found in the first {n_stops} still stops' "
+            f"images; a 9x6 chessboard (inner corners) is found in {n_stops - 1} of them") in err
+    assert "Pass --board chessboard:9x6:0.025" in err and not out.exists()

@@ -140,3 +140,15 @@ def test_stereo_bad_input_writes_nothing(case: str, data_dir: Path, tmp_path: Pa
     assert len([ln for ln in err.splitlines() if ln.startswith("eye-in-hand: error:")]) == 1
     assert not out.exists()
     assert [p.name for p in tmp_path.iterdir() if ".partial-" in p.name] == []
+
+
+def test_a_board_given_in_squares_stops_early_with_the_fix(data_dir, tmp_path, capsys):
+    out = tmp_path / "rig"
+    images = data_dir / "opencv_stereo_chessboard"
+    assert main(["calibrate", "stereo", "--left", str(images / "left*.jpg"),
+                 "--right", str(images / "right*.jpg"), "--board", "chessboard:10x7:1.0",
+                 "-o", str(out)]) != 0
+    err = capsys.readouterr().err
+    assert ("no board chessboard:10x7:1 found in the first 8 left images; a 9x6 chessboard "
+            "(inner corners) is found in 8 of them") in err
+    assert not out.exists()

@@ -148,3 +148,32 @@ def test_workers_option_changes_nothing_but_speed(loc_bag, tmp_path, capsys):
     assert exit_info.value.code == 2
     assert "argument --workers: must be an integer within [1, 64], got 0" in \
         capsys.readouterr().err
+
+
+def test_the_summary_gives_the_top_reasons_when_few_are_located(loc_bag, tmp_path, capsys):
+    """The trap: "0 located, 12 without target", exit 0, and the reason (a depth far outside
+    the plausible range, as with a board square given in mm) only in results.csv."""
+    bag, world = loc_bag
+    params = tmp_path / "params.yaml"
+    params.write_text("/**/detect_triangulate:\n  ros__parameters:\n    min_depth_m: 0.001\n"
+                      "    max_depth_m: 0.01\n")
+    rc = main(["process", str(bag), "--hand-eye", str(_hand_eye(tmp_path, world)), "-o",
+               str(tmp_path / "out"), "--quiet", "--params", str(params)])
+    text = capsys.readouterr().out
+    assert rc != 0
+    assert "why 12 of 12 stereo pairs have no result in the base frame (top reasons):" in text
+    line = next(x for x in text.splitlines() if x.startswith("  12 no_target: "))
+    assert "puts the pair at depth" in line and "outside 0.001-0.01 m" in line
+    rows = list(csv.DictReader((tmp_path / "out" / "results.csv").open()))
+    assert line.endswith(rows[0]["reason"])
+
+
+def test_top_reasons_group_reasons_that_differ_in_numbers_only():
+    from eye_in_hand.offline import FrameResult, top_reasons
+
+    frames = ([FrameResult(i, "no_target", f"target 'red': depth {500 + i}.5 m, outside "
+                                          "0.05-100 m") for i in range(3)]
+              + [FrameResult(9, "no_robot_pose", "no pose"), FrameResult(10, "ok")])
+    assert top_reasons(frames) == [
+        (3, "no_target", "target 'red': depth 500.5 m, outside 0.05-100 m"),
+        (1, "no_robot_pose", "no pose")]

@@ -34,6 +34,14 @@ PARAMS = """/**/detect_triangulate:
 FRAMES = 8
 
 
+def _only(names: list[str]) -> str:
+    """PARAMS with target_names ``names`` and only their sections (a section for a target
+    not in target_names is an unknown parameter)."""
+    lines = [line for line in PARAMS.splitlines(keepends=True)
+             if not line.startswith("      ") or line.split(":")[0].strip() in names]
+    return "".join(lines).replace("[yellow, red, green, blue]", f"[{', '.join(names)}]")
+
+
 @pytest.fixture(scope="module")
 def multi(tmp_path_factory):
     """A small four-target localization bag (640x360, 8 pairs), processed once."""
@@ -201,7 +209,7 @@ def test_process_with_a_truth_file_and_a_single_target(multi, tmp_path, capsys):
     assert s["distances_truth"] == str(truth)
     # one configured target: no distance table, distances empty, the rows as before
     single = tmp_path / "single.yaml"
-    single.write_text(PARAMS.replace("[yellow, red, green, blue]", "[red]"))
+    single.write_text(_only(["red"]))
     o2 = tmp_path / "o2"
     assert main(["process", str(root / "bag"), "--hand-eye", str(root / "hand_eye.yaml"),
                  "--params", str(single), "-o", str(o2), "--quiet"]) == 0
@@ -302,7 +310,7 @@ def test_a_first_target_never_seen_keeps_its_rows_and_the_others_are_localized(m
                                                                                capsys):
     _world, root, _out = multi
     params = tmp_path / "params.yaml"
-    params.write_text(PARAMS.replace("[yellow, red, green, blue]", "[purple, red, green]")
+    params.write_text(_only(["purple", "red", "green"])
                       .replace("    targets:\n", "    targets:\n      purple: {lower: [140, 100, "
                                "40], upper: [160, 255, 255], radius_m: 0.02}\n"))
     out = tmp_path / "o"

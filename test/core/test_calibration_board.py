@@ -126,3 +126,23 @@ def test_html_report(tmp_path) -> None:
     assert "data:image/png;base64,iVBOR" in text
     assert "http" not in text.replace("http-equiv", "")
     assert [p.name for p in out.parent.iterdir()] == ["r.html"]
+
+
+@pytest.mark.parametrize("spec, fixed", [
+    ("chessboard:9x6:25", "chessboard:9x6:0.025"),
+    ("chessboard:9x6:24.5", "chessboard:9x6:0.0245"),
+    ("charuco:7x5:40:30:DICT_4X4_50", "charuco:7x5:0.04:0.03:DICT_4X4_50"),
+])
+def test_a_square_in_millimetres_is_refused_with_the_spec_in_metres(spec, fixed) -> None:
+    """The trap: `chessboard:9x6:25` calibrated "fine"; process then located nothing (depth
+    566 m)."""
+    with pytest.raises(InputError) as info:
+        BoardSpec.parse(spec)
+    assert "squares are in metres" in str(info.value)
+    assert f"pass {fixed!r}" in str(info.value)
+    BoardSpec.parse(fixed)
+
+
+def test_unit_squares_and_metres_are_accepted() -> None:
+    assert BoardSpec.parse("chessboard:9x6:1.0").square == 1.0
+    assert BoardSpec.parse("chessboard:9x6:0.025").square == 0.025

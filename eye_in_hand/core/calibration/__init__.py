@@ -4,7 +4,8 @@ Board specification strings (:meth:`BoardSpec.parse`)::
 
     chessboard:COLSxROWS:SQUARE
         COLS x ROWS inner corners (the corners where four squares meet), SQUARE the side of one
-        square in metres (or any length unit; results come out in the same unit).
+        square in metres (results come out in the same unit; a side above 1 is refused: 25
+        would be 25 m, so the message names the spec in metres).
         Example: ``chessboard:9x6:0.025`` (a 10 x 7 squares board, 25 mm squares).
 
     charuco:SQUARESXxSQUARESY:SQUARE:MARKER[:DICT][:legacy]

@@ -15,6 +15,26 @@ _DEFAULT_CHARUCO_DICT = "DICT_5X5_100"
 _BOARD_RE = re.compile(r"^\s*(\d+)\s*[xX]\s*(\d+)\s*$")
 
 
+#: Largest plausible square (or marker) side in a board spec string, metres. A printed board's
+#: squares are millimetres to centimetres; 25 means 25 mm given in the wrong unit. (Unit
+#: squares, 1.0, remain: a board whose results are wanted in squares.)
+MAX_SQUARE_M = 1.0
+
+
+def _in_metres(spec: str, parts: list[str], fields: tuple[int, ...]) -> None:
+    """Refuse a square side above :data:`MAX_SQUARE_M`, naming the spec in metres."""
+    square = float(parts[fields[0]])
+    if square <= MAX_SQUARE_M:
+        return
+    fixed = list(parts)
+    for i in fields:
+        if float(parts[i]) > MAX_SQUARE_M:
+            fixed[i] = f"{float(parts[i]) / 1000:g}"
+    raise InputError(
+        f"board spec {spec!r}: square size {square:g} would be {square:g} m: squares are in "
+        f"metres; for {square:g} mm pass {':'.join(fixed)!r}")
+
+
 def _positive_float(text: str, what: str, spec: str) -> float:
     try:
         value = float(text)
@@ -88,6 +108,7 @@ class BoardSpec:
                     "e.g. chessboard:9x6:0.025")
             cols, rows = cls._parse_size(parts[1], spec, "inner corners")
             square = _positive_float(parts[2], "square size", spec)
+            _in_metres(spec, parts, (2,))
             return cls("chessboard", cols, rows, square)
         if kind == "charuco":
             if len(parts) < 4 or len(parts) > 6:
@@ -99,6 +120,7 @@ class BoardSpec:
                 raise InputError(f"board spec {spec!r}: a ChArUco board needs at least 3x3 squares")
             square = _positive_float(parts[2], "square size", spec)
             marker = _positive_float(parts[3], "marker size", spec)
+            _in_metres(spec, parts, (2, 3))
             dictionary = _DEFAULT_CHARUCO_DICT
             legacy = False
             for extra in parts[4:]:
