@@ -195,11 +195,15 @@ class CalibrationMode:
         self._publish_status()
 
     def _pose_age_rule(self, req: Any) -> dict[str, int]:
-        """The receive-age rule of the capture's pose lookups: the poses may be up to
-        ``max_pose_age_s`` older than the frame's arrival (however long the capture then
-        waited for the poses after it), and none may come from the clock's future."""
+        """The receive-age rule of the capture's pose lookups: the poses may have been received
+        up to ``max_pose_age_s`` before the frame's stamp (on the node's clock), however late
+        the frame then arrived (a camera that renders or transfers slowly) and however long the
+        capture waited for the poses after it; none may come from the clock's future."""
         now = self.node._now_ns()
-        waited = 0 if req.frame_received_ns is None else max(now - req.frame_received_ns, 0)
+        since = req.frame_received_ns if req.frame_received_ns is not None else now
+        if req.frame_stamp_ns is not None:
+            since = min(since, req.frame_stamp_ns)
+        waited = max(now - since, 0)
         return {"now_ns": now, "max_age_ns": int(self.config.max_pose_age_s * 1e9) + waited}
 
     # -- frames -----------------------------------------------------------------------------
