@@ -370,7 +370,15 @@ def test_eye_to_hand_tf_one_child_frame_per_target(tmp_path, ros_context, execut
     feed.io.create_subscription(TFMessage, "/tf_static", static_out.append, tf_static_sub_qos())
     assert feed.ready(executor, spin_until)
     assert spin_until(executor, lambda: feed.node.pub_tf.get_subscription_count() > 0, 10.0)
+    from geometry_msgs.msg import PointStamped
+
+    from eye_in_hand.ros.conversions import xyz_to_point_stamped
+    from eye_in_hand.ros.qos import RESULT_QOS
+    pub_first = feed.io.create_publisher(PointStamped, "target/point", RESULT_QOS)
+    assert spin_until(executor, lambda: pub_first.get_subscription_count() > 0, 10.0)
     pts = {"a": np.array([0.02, -0.01, 0.45]), "b": np.array([-0.1, 0.05, 0.7])}
+    # as detect_triangulate: the first target also on target/point, then every target
+    pub_first.publish(xyz_to_point_stamped(pts["a"], stamp_ns=T0, frame_id=CAM))
     feed.frame(T0, pts)
 
     def edges():
@@ -381,6 +389,9 @@ def test_eye_to_hand_tf_one_child_frame_per_target(tmp_path, ros_context, execut
         assert tr.header.frame_id == "base_link" and header_stamp_ns(tr) == T0
         want = base_T_cam[:3, :3] @ pts[n] + base_T_cam[:3, 3]
         np.testing.assert_allclose(transform_to_matrix(tr)[:3, 3], want, atol=1e-12)
+    # one /tf name per target (not also target_0 for the first one)
+    spin_until(executor, lambda: False, 0.3)
+    assert set(edges()) == {"target_a", "target_b"}
     # the fixed camera hangs off the base frame on /tf_static
     assert spin_until(executor, lambda: any(t.child_frame_id == CAM for m in static_out
                                             for t in m.transforms), 10.0)
