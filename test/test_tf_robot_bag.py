@@ -93,7 +93,7 @@ def test_calibrate_handeye_from_a_tf_only_bag(tmp_path, capsys):
               hold_frames=1, ee_pose=False, render=RenderOptions(supersample=1))
     out = tmp_path / "out"
     rc = main(["calibrate", "handeye", "--bag", str(bag), "--board", "chessboard:9x6:0.025",
-               "--image-topic", "/stereo/left/image_raw", "--no-html", "-o", str(out)])
+               "--left-topic", "/stereo/left/image_raw", "--no-html", "-o", str(out)])
     captured = capsys.readouterr()
     assert rc == 0, captured.err
     report = json.loads((out / "report.json").read_text())

@@ -240,8 +240,9 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
         elif "/tf" in topics:
             use_tf = True
         else:
-            raise ConfigError(f"{source}: no robot pose source: give --pose-topic, "
-                              "--joint-topic with --kinematics, or --tf")
+            raise ConfigError(f"{source}: no robot pose source (no /ee_pose, no /tf): give "
+                              "--robot-pose ee_pose --ee-pose-topic T, --robot-pose "
+                              "joint_states with --kinematics, or --robot-pose tf")
     if pose_topic is not None:
         pt = _resolve_topic(topics, pose_topic, "pose", source)
         pose_source = f"{pt} (PoseStamped)"
@@ -256,7 +257,8 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
                 series.add(stamp, T)
     elif joint_topic is not None:
         if kinematics is None:
-            raise ConfigError("--joint-topic needs --kinematics (a DH chain)")
+            raise ConfigError("--robot-pose joint_states needs --kinematics (a kinematic "
+                              "chain)")
         jt = _resolve_topic(topics, joint_topic, "joint state", source)
         pose_source = f"{jt} (JointState) + forward kinematics"
         names = list(kinematics.joint_names)

@@ -178,7 +178,7 @@ def test_bag_end_to_end(calib_bag, tmp_path: Path, capsys) -> None:
     path, X, n_stops = calib_bag
     out = tmp_path / "out"
     rc = main(["calibrate", "handeye", "--bag", str(path), "--board", "chessboard:9x6:0.025",
-               "--image-topic", "image_raw", "--no-html", "-o", str(out)])
+               "--left-topic", "image_raw", "--no-html", "-o", str(out)])
     assert rc == 0
     err = capsys.readouterr().err
     assert "board not found" in err and "stop003" in err
@@ -196,8 +196,8 @@ def test_bag_errors(calib_bag, tmp_path: Path, capsys) -> None:
     assert main(["calibrate", "handeye", "--bag", str(path), "-o", str(tmp_path)]) == 1
     assert "--bag needs --board" in capsys.readouterr().err
     assert main(["calibrate", "handeye", "--bag", str(path), "--board", "chessboard:9x6:0.025",
-                 "--pose-topic", "/nope", "-o", str(tmp_path)]) == 1
+                 "--robot-pose", "ee_pose", "--ee-pose-topic", "/nope", "-o", str(tmp_path)]) == 1
     assert "no pose topic '/nope'" in capsys.readouterr().err
     assert main(["calibrate", "handeye", "--bag", str(path), "--board", "chessboard:9x6:0.025",
-                 "--joint-topic", "/joint_states", "-o", str(tmp_path)]) == 1
+                 "--robot-pose", "joint_states", "-o", str(tmp_path)]) == 1
     assert "--kinematics" in capsys.readouterr().err
