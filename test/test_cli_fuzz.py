@@ -183,6 +183,8 @@ SHARED = {
     "--urdf-tip-link": ("urdf_tip_link", None),
     "--base-frame": ("base_frame", None),
     "--ee-frame": ("ee_frame", None),
+    "--tf-topic": ("tf_topic", None),
+    "--tf-static-topic": ("tf_static_topic", None),
     "--outlier-threshold-px": ("outlier_threshold_px", "(0, 1000] px"),
     "--outlier-factor": ("outlier_factor", "(0, 1000] x the median"),
     "--still-window-s": ("still_window_s", "[0, 10] s"),
@@ -193,7 +195,8 @@ SHARED = {
 #: flags that come as a family: a command with one of them has them all
 FAMILIES = [
     ("--robot-pose", "--ee-pose-topic", "--joint-states-topic", "--kinematics",
-     "--urdf-base-link", "--urdf-tip-link", "--base-frame", "--ee-frame"),
+     "--urdf-base-link", "--urdf-tip-link", "--base-frame", "--ee-frame", "--tf-topic",
+     "--tf-static-topic"),
     ("--still-window-s", "--still-translation-m", "--still-rotation-deg"),
 ]
 

@@ -453,9 +453,9 @@ def add_handeye_input_arguments(parser: argparse.ArgumentParser, *, pairs: bool 
     pose = add_robot_pose_arguments(
         bag, default_source=None,
         source_help="robot pose source: ee_pose (--ee-pose-topic), joint_states "
-                    "(--joint-states-topic + --kinematics) or tf (/tf + /tf_static, "
-                    "--base-frame -> --ee-frame); default: ee_pose when the bag has "
-                    "--ee-pose-topic, else tf",
+                    "(--joint-states-topic + --kinematics) or tf (--tf-topic + "
+                    "--tf-static-topic, --base-frame -> --ee-frame); default: ee_pose when "
+                    "the bag has --ee-pose-topic, else tf",
         base_help="robot base frame: the root of the /tf chain and of a URDF chain",
         ee_help="flange (tool) frame: the tip of the /tf chain and of a URDF chain",
         default_base="base_link", default_ee="tool0")
@@ -637,7 +637,8 @@ def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
         kinematics=kin, use_tf=source == "tf", base_frame=args.base_frame,
         ee_frame=args.ee_frame, stereo=None if args.calibration is None else rig is not None,
         still_window_s=args.still_window_s, still_translation_m=args.still_translation_m,
-        still_rotation_deg=args.still_rotation_deg)
+        still_rotation_deg=args.still_rotation_deg, tf_topic=args.tf_topic,
+        tf_static_topic=args.tf_static_topic)
     if camera is None and rig is None:
         camera, rig = found.camera, found.rig
         if camera is None and rig is None:

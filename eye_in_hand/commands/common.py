@@ -243,7 +243,8 @@ def add_robot_pose_arguments(parser, *, default_source: str | None, source_help:
     """The robot pose family, the same in every command that reads robot poses from a bag:
     ``--robot-pose {ee_pose,joint_states,tf}``, ``--ee-pose-topic``, ``--joint-states-topic``
     with ``--kinematics`` (and ``--urdf-base-link``, ``--urdf-tip-link`` for a URDF), and
-    ``--base-frame`` -> ``--ee-frame`` for ``tf``."""
+    ``--base-frame`` -> ``--ee-frame`` over ``--tf-topic`` and ``--tf-static-topic`` for
+    ``tf``."""
     add = parser.add_argument
     out = {
         "source": add("--robot-pose", choices=ROBOT_POSE_SOURCES, default=default_source,
@@ -268,5 +269,9 @@ def add_robot_pose_arguments(parser, *, default_source: str | None, source_help:
         "base_frame": add("--base-frame", metavar="FRAME", default=default_base,
                           help=base_help),
         "ee_frame": add("--ee-frame", metavar="FRAME", default=default_ee, help=ee_help),
+        "tf_topic": add("--tf-topic", metavar="TOPIC", default="/tf",
+                        help="TF topic of --robot-pose tf"),
+        "tf_static_topic": add("--tf-static-topic", metavar="TOPIC", default="/tf_static",
+                               help="static TF topic of --robot-pose tf"),
     }
     return out

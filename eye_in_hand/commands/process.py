@@ -82,10 +82,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         ee_help="flange (tool) frame: the tip of the /tf chain and of a URDF chain (default: "
                 "hand_eye ee_frame in --params, else the hand-eye file's parent frame)",
         default_base=None, default_ee=None)
-    parser.add_argument("--tf-topic", metavar="TOPIC", default="/tf",
-                        help="TF topic of --robot-pose tf")
-    parser.add_argument("--tf-static-topic", metavar="TOPIC", default="/tf_static",
-                        help="static TF topic of --robot-pose tf")
     parser.add_argument("--ground-truth-topic", metavar="TOPIC", default="/ground_truth/target",
                         help="geometry_msgs/PointStamped true target position, when the bag "
                              "has it: the error statistics are against it")
