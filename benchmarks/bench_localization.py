@@ -101,8 +101,8 @@ def make_data(pairs: int, fresh: bool) -> dict[str, Path]:
              str(paths["calib"]))
     if not (paths["he"] / "hand_eye.yaml").exists():
         _cli("calibrate", "handeye", "--bag", str(paths["cal"]), "--board",
-             "chessboard:9x6:0.025", "--calibration", str(paths["calib"]), "--image-topic", LEFT,
-             "--right-image-topic", RIGHT, "-o", str(paths["he"]))
+             "chessboard:9x6:0.025", "--calibration", str(paths["calib"]), "--left-topic", LEFT,
+             "--right-topic", RIGHT, "-o", str(paths["he"]))
     return paths
 
 
@@ -501,7 +501,7 @@ def consistency(pairs: int, fresh: bool) -> dict[str, dict[str, float]]:
                  "--right-topic", RIGHT, "--board", "chessboard:9x6:0.025", "-o", str(calib))
         if not (he_dir / "hand_eye.yaml").exists():
             _cli("calibrate", "handeye", "--bag", str(cal), "--board", "chessboard:9x6:0.025",
-                 "--calibration", str(calib), "--image-topic", LEFT, "--right-image-topic",
+                 "--calibration", str(calib), "--left-topic", LEFT, "--right-topic",
                  RIGHT, "--no-html", "-o", str(he_dir))
         he = load_hand_eye(he_dir / "hand_eye.yaml")
         cfg = load_locator_config(ROOT / "config" / "eye_in_hand.yaml")  # radius 35 mm

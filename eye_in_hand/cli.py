@@ -23,6 +23,7 @@ import sys
 from typing import NoReturn, Sequence
 
 from eye_in_hand import __version__
+from eye_in_hand.commands.common import HelpFormatter, parse_known_args_with_aliases
 from eye_in_hand.errors import (
     DEBUG_ENV,
     EXIT_UNEXPECTED,
@@ -60,6 +61,9 @@ class _Parser(argparse.ArgumentParser):
     """An argument parser whose errors are one line: ``<prog>: error: <what> (see <prog>
     --help)``, exit code 2 (argparse's own prints the whole usage first)."""
 
+    def parse_known_args(self, args=None, namespace=None):
+        return parse_known_args_with_aliases(self, super().parse_known_args, args, namespace)
+
     def error(self, message: str) -> NoReturn:
         text = " ".join(_printable(message).split())
         if len(text) > 400:
@@ -92,7 +96,8 @@ def build_parser() -> argparse.ArgumentParser:
                     dest=f"{group}_command", metavar="SUBCOMMAND", required=True,
                     parser_class=_Parser)
             sub = groups[group]
-        cmd = sub.add_parser(parts[-1], help=module.HELP, description=module.HELP)
+        cmd = sub.add_parser(parts[-1], help=module.HELP, description=module.HELP,
+                             formatter_class=HelpFormatter)
         module.add_arguments(cmd)
         cmd.set_defaults(_run=module.run)
     return parser

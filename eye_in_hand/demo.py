@@ -32,6 +32,7 @@ from typing import Sequence
 
 import numpy as np
 
+from eye_in_hand.commands.common import deprecated_alias
 from eye_in_hand.core.camera import StereoRig
 from eye_in_hand.core.transforms import transform_distance
 from eye_in_hand.errors import EXIT_UNEXPECTED, debug_enabled, unexpected_error_line
@@ -200,11 +201,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--calibration-bag", default=str(ROOT / "bags" / "calibration"))
     parser.add_argument("--localization-bag", default=str(ROOT / "bags" / "localization"))
-    parser.add_argument("--out", default="demo_out", help="output folder (replaced)")
+    out_flag = parser.add_argument("-o", "--output", default="demo_out",
+                                   help="output folder (replaced; default: %(default)s)")
+    deprecated_alias(parser, "--out", out_flag)
     args = parser.parse_args(argv)
 
     t_start = time.monotonic()
-    out = Path(args.out).resolve()
+    out = Path(args.output).resolve()
     if out.exists():
         shutil.rmtree(out)
     out.mkdir(parents=True)
@@ -222,7 +225,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print("\n== 2/5 hand-eye calibration from", cal_bag, "(with the stereo calibration above)",
           flush=True)
     _run(_cli("calibrate", "handeye", "--bag", str(cal_bag), "--board", BOARD,
-              "--calibration", str(calib), "--image-topic", LEFT, "--right-image-topic", RIGHT,
+              "--calibration", str(calib), "--left-topic", LEFT, "--right-topic", RIGHT,
               "-o", str(he_dir)), env)
 
     print("\n== 3/5 live over DDS: launch detect_triangulate + hand_eye, echo /target/pose, "

@@ -25,7 +25,7 @@ def demo(tmp_path_factory) -> tuple[subprocess.CompletedProcess, Path]:
 
     out = tmp_path_factory.mktemp("demo") / "demo_out"
     env = dict(os.environ, PYTHONUNBUFFERED="1")   # conftest set the isolated DDS domain
-    proc = subprocess.run([sys.executable, "-m", "eye_in_hand.demo", "--out", str(out)],
+    proc = subprocess.run([sys.executable, "-m", "eye_in_hand.demo", "-o", str(out)],
                           cwd=ROOT, env=env, text=True, stdout=subprocess.PIPE,
                           stderr=subprocess.STDOUT, timeout=300)
     return proc, out

@@ -93,13 +93,25 @@ def test_calibrate_handeye_from_a_tf_only_bag(tmp_path, capsys):
               hold_frames=1, ee_pose=False, render=RenderOptions(supersample=1))
     out = tmp_path / "out"
     rc = main(["calibrate", "handeye", "--bag", str(bag), "--board", "chessboard:9x6:0.025",
-               "--image-topic", "/stereo/left/image_raw", "--no-html", "-o", str(out)])
+               "--left-topic", "/stereo/left/image_raw", "--no-html", "-o", str(out)])
     captured = capsys.readouterr()
     assert rc == 0, captured.err
     report = json.loads((out / "report.json").read_text())
     assert "/tf" in json.dumps(report["input"])
-    dt, dr = transform_distance(world.ee_T_cam, load_hand_eye(out / "hand_eye.yaml").transform)
+    X = load_hand_eye(out / "hand_eye.yaml").transform
+    dt, dr = transform_distance(world.ee_T_cam, X)
     assert dt < 0.002 and np.degrees(dr) < 0.2, (dt, np.degrees(dr))
+    # the same robot poses from /joint_states through the built-in arm ('ur5e', as process and
+    # the hand_eye node take it): the same X
+    rc = main(["calibrate", "handeye", "--bag", str(bag), "--board", "chessboard:9x6:0.025",
+               "--left-topic", "/stereo/left/image_raw", "--robot-pose", "joint_states",
+               "--kinematics", "ur5e", "--no-html", "-o", str(tmp_path / "joints")])
+    captured = capsys.readouterr()
+    assert rc == 0, captured.err
+    report = json.loads((tmp_path / "joints" / "report.json").read_text())
+    assert "/joint_states" in report["input"]["pose_source"]
+    dt, dr = transform_distance(X, load_hand_eye(tmp_path / "joints" / "hand_eye.yaml").transform)
+    assert dt < 1e-6 and dr < 1e-6, (dt, dr)
 
 
 def test_live_replay_with_tf_gives_the_offline_numbers(tf_bag, tmp_path, ros_context, executor,

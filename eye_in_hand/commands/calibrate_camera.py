@@ -32,6 +32,7 @@ from eye_in_hand.commands.calibration_inputs import (
     view_entries,
     write_json,
 )
+from eye_in_hand.commands.common import add_image_topic_arguments, deprecated_alias
 from eye_in_hand.errors import BagError, CalibrationError, InputError
 from eye_in_hand.io.atomic import atomic_output_dir
 from eye_in_hand.io.bags import DamageLog
@@ -45,8 +46,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``calibrate camera``."""
     parser.add_argument("--images", metavar="GLOB",
                         help="image files, e.g. 'calib/*.png' (quote it)")
-    parser.add_argument("--left-topic", "--topic", dest="left_topic", metavar="TOPIC",
-                        help="bag input: the image topic (sensor_msgs/Image or CompressedImage)")
+    topics = add_image_topic_arguments(
+        parser, left_help="bag input: the camera's image topic (sensor_msgs/Image or "
+                          "CompressedImage); a single camera is the left one (no default: "
+                          "needed with --bag)")
+    deprecated_alias(parser, "--topic", topics["left"])
     add_common_arguments(parser)
     parser.epilog = ("Writes OUT_DIR/camera.yaml, report.json, report.html. Either --images or "
                      "--bag with --left-topic.")
@@ -107,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
     names = [f.name for f in source.frames]
     cal = calibrate_camera([f.detection for f in source.frames], names, options=options,
                            reject_outliers=args.reject_outliers,
-                           outlier_threshold_px=args.outlier_threshold,
+                           outlier_threshold_px=args.outlier_threshold_px,
                            min_views=args.min_views, camera_name="camera")
     report = cal.to_dict()
     report["views"] = view_entries(source.frames, cal.views)

@@ -12,6 +12,7 @@ import numpy as np
 from eye_in_hand.commands.calibration_inputs import (add_handeye_calibration_arguments,
                                                      add_handeye_input_arguments,
                                                      solve_handeye_inputs)
+from eye_in_hand.commands.common import add_output_argument
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 from eye_in_hand.report.handeye import write_outputs
 
@@ -32,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     opt.add_argument("--child-frame", default="camera_left_optical_frame",
                      help="camera frame id (default: %(default)s)")
     opt.add_argument("--no-html", action="store_true", help="do not write report.html")
-    parser.add_argument("-o", "--output", required=True, metavar="OUT_DIR",
+    add_output_argument(parser, metavar="OUT_DIR",
                         help="output folder: hand_eye.yaml, report.json, report.html; written "
                              "whole or not at all (must not exist, or give --overwrite)")
     parser.add_argument("--overwrite", action="store_true",

@@ -17,7 +17,7 @@ from typing import Any
 from eye_in_hand.commands.calibration_inputs import (add_handeye_calibration_arguments,
                                                      add_handeye_input_arguments,
                                                      solve_handeye_inputs)
-from eye_in_hand.commands.common import bounded
+from eye_in_hand.commands.common import add_output_argument, bounded
 from eye_in_hand.errors import InputError
 from eye_in_hand.io.atomic import OutputError, OutputExistsError, atomic_write_text
 
@@ -65,8 +65,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="translation weight of the trace criterion (default 0.3)")
     add("--target-deg", type=bounded(0, 180, "deg", lo_open=True), metavar="DEG",
         help="rotation weight of the trace criterion (default 0.03)")
-    parser.add_argument("-o", "--output", metavar="FILE", default=None,
-                        help="write the plan as YAML (must not exist, or give --overwrite)")
+    add_output_argument(parser, metavar="FILE", required=False,
+                        help="write the plan as YAML (must not exist, or give --overwrite; "
+                                 "default: print it only)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace an existing FILE")
 

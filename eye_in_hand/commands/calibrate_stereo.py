@@ -32,7 +32,7 @@ from eye_in_hand.commands.calibration_inputs import (
     view_entries,
     write_json,
 )
-from eye_in_hand.commands.common import bounded
+from eye_in_hand.commands.common import add_image_topic_arguments, bounded
 from eye_in_hand.errors import BagError, CalibrationError, InputError
 from eye_in_hand.io.bags import DamageLog
 
@@ -46,8 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--left", metavar="GLOB", help="left image files, e.g. 'calib/left*.png'")
     parser.add_argument("--right", metavar="GLOB",
                         help="right image files; paired with --left in sorted order")
-    parser.add_argument("--left-topic", metavar="TOPIC", help="bag input: left image topic")
-    parser.add_argument("--right-topic", metavar="TOPIC", help="bag input: right image topic")
+    add_image_topic_arguments(
+        parser, left_help="bag input: left image topic (no default: needed with --bag)",
+        right_help="bag input: right image topic (no default: needed with --bag)")
     add_common_arguments(parser)
     parser.add_argument("--alpha", type=bounded(0, 1), default=0.0,
                         help="rectification free scaling: 0 keeps only valid pixels, 1 keeps "
@@ -164,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
                            [f.name for f in left], [f.name for f in right], board=board,
                            options=options, method=args.method, fix_intrinsics=args.fix_intrinsics,
                            alpha=args.alpha, reject_outliers=args.reject_outliers,
-                           outlier_threshold_px=args.outlier_threshold, min_views=args.min_views)
+                           outlier_threshold_px=args.outlier_threshold_px, min_views=args.min_views)
     report = cal.to_dict()
     by_left = {v["file"]: v for v in report["views"]}
     views = []

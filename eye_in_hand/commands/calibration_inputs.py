@@ -15,7 +15,8 @@ from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
-from eye_in_hand.commands.common import bounded
+from eye_in_hand.commands.common import (add_image_topic_arguments, add_output_argument,
+                                         add_robot_pose_arguments, bounded, deprecated_alias)
 from eye_in_hand.errors import BagError, CalibrationError, ConfigError, ConversionError, \
     HandEyeError, InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
@@ -58,7 +59,7 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--board", required=True, metavar="SPEC",
                         help="board: chessboard:COLSxROWS:SQUARE (inner corners, square in m) or "
                              "charuco:SQUARESXxSQUARESY:SQUARE:MARKER[:DICT][:legacy]")
-    parser.add_argument("-o", "--output", required=True, metavar="OUT_DIR", type=Path,
+    add_output_argument(parser, metavar="OUT_DIR", type=Path,
                         help="output folder, written whole or not at all (must not exist, or "
                              "give --overwrite)")
     parser.add_argument("--overwrite", action="store_true",
@@ -84,10 +85,12 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
                         help="keep (cx, cy) at the image centre")
     parser.add_argument("--reject-outliers", action="store_true",
                         help="drop views whose RMS is above the outlier threshold and recompute")
-    parser.add_argument("--outlier-threshold", type=bounded(0, 1000, "px", lo_open=True),
-                        default=None, metavar="PX",
-                        help="per-view RMS (px) above which a view is an outlier; default: "
-                             "max(2 x median, median + 4 x MAD) of the per-view RMS")
+    px = parser.add_argument(
+        "--outlier-threshold-px", type=bounded(0, 1000, "px", lo_open=True), default=None,
+        metavar="PX",
+        help="per-view RMS (px) above which a view is an outlier; default: max(2 x median, "
+             "median + 4 x MAD) of the per-view RMS")
+    deprecated_alias(parser, "--outlier-threshold", px)
     parser.add_argument("--min-views", type=bounded(1, 10000, integer=True), default=5,
                         metavar="N",
                         help="fewest usable views accepted; default 5")
@@ -112,8 +115,8 @@ def check_common_arguments(args: argparse.Namespace) -> None:
         raise InputError(f"--subpix-window must be >= 1, got {args.subpix_window}")
     if args.min_views < 1:
         raise InputError(f"--min-views must be >= 1, got {args.min_views}")
-    if args.outlier_threshold is not None and not args.outlier_threshold > 0:
-        raise InputError(f"--outlier-threshold must be > 0, got {args.outlier_threshold}")
+    if args.outlier_threshold_px is not None and not args.outlier_threshold_px > 0:
+        raise InputError(f"--outlier-threshold-px must be > 0, got {args.outlier_threshold_px}")
     globs = [getattr(args, k, None) for k in ("images", "left", "right")]
     inputs = [args.bag] + [g if os.path.isdir(g) else os.path.dirname(g) or "."
                            for g in globs if g]
@@ -443,36 +446,42 @@ def add_handeye_input_arguments(parser: argparse.ArgumentParser, *, pairs: bool 
                      help="camera calibration for --bag: a camera YAML (mono) or a folder "
                           "with left.yaml, right.yaml [, stereo.yaml] (stereo); default: the "
                           "bag's camera_info")
-    bag.add_argument("--image-topic", default=None,
-                     help="image topic (left camera for stereo); a suffix such as "
-                          "left/image_raw matches /stereo/left/image_raw (default: the only "
-                          "image topic, or the one with 'left' in its name)")
-    bag.add_argument("--right-image-topic", default=None,
-                     help="right image topic for a stereo rig (default: the left topic with "
-                          "'left' replaced by 'right', when the bag has it)")
-    bag.add_argument("--pose-topic", default=None,
-                     help="geometry_msgs/PoseStamped robot pose topic (default: /ee_pose when "
-                          "the bag has it, else /tf)")
-    bag.add_argument("--joint-topic", default=None,
-                     help="sensor_msgs/JointState topic, with --kinematics")
-    bag.add_argument("--kinematics", default=None,
-                     help="kinematic chain for --joint-topic: 'ur5e', a URDF file "
-                          "(--base-frame to --ee-frame) or a DH YAML file (or a world.yaml)")
-    bag.add_argument("--tf", action="store_true",
-                     help="take the robot pose from /tf (--base-frame to --ee-frame)")
-    bag.add_argument("--base-frame", default="base_link", help="(default: %(default)s)")
-    bag.add_argument("--ee-frame", default="tool0", help="(default: %(default)s)")
-    bag.add_argument("--still-window", type=bounded(0, 10, "s"), default=0.1, metavar="S",
-                     help="the robot must be still this long (s) around an image "
-                          "(default: %(default)s)")
-    bag.add_argument("--still-translation", type=bounded(0, 1, "m"), default=0.0005,
-                     metavar="M",
-                     help="largest robot translation within the window, m (default: "
-                          "%(default)s)")
-    bag.add_argument("--still-rotation", type=bounded(0, 180, "deg"), default=0.05,
-                     metavar="DEG",
-                     help="largest robot rotation within the window, deg (default: "
-                          "%(default)s)")
+    topics = add_image_topic_arguments(
+        bag, left_help="image topic (the left camera's for stereo); a suffix such as "
+                       "left/image_raw matches /stereo/left/image_raw (default: the only image "
+                       "topic, or the one with 'left' in its name)",
+        right_help="right image topic for a stereo rig (default: the left topic with 'left' "
+                   "replaced by 'right', when the bag has it)")
+    deprecated_alias(bag, "--image-topic", topics["left"])
+    deprecated_alias(bag, "--right-image-topic", topics["right"])
+    pose = add_robot_pose_arguments(
+        bag, default_source=None,
+        source_help="robot pose source: ee_pose (--ee-pose-topic), joint_states "
+                    "(--joint-states-topic + --kinematics) or tf (--tf-topic + "
+                    "--tf-static-topic, --base-frame -> --ee-frame); default: ee_pose when "
+                    "the bag has --ee-pose-topic, else tf",
+        base_help="robot base frame: the root of the /tf chain and of a URDF chain",
+        ee_help="flange (tool) frame: the tip of the /tf chain and of a URDF chain",
+        default_base="base_link", default_ee="tool0")
+    deprecated_alias(bag, "--pose-topic", pose["ee_pose_topic"],
+                     new="--robot-pose ee_pose --ee-pose-topic",
+                     sets={"robot_pose": "ee_pose"})
+    deprecated_alias(bag, "--joint-topic", pose["joint_states_topic"],
+                     new="--robot-pose joint_states --joint-states-topic",
+                     sets={"robot_pose": "joint_states"})
+    deprecated_alias(bag, "--tf", pose["source"], new="--robot-pose tf", value="tf")
+    window = bag.add_argument(
+        "--still-window-s", type=bounded(0, 10, "s"), default=0.1, metavar="S",
+        help="the robot must be still this long (s) around an image")
+    translation = bag.add_argument(
+        "--still-translation-m", type=bounded(0, 1, "m"), default=0.0005, metavar="M",
+        help="largest robot translation within the window (m)")
+    rotation = bag.add_argument(
+        "--still-rotation-deg", type=bounded(0, 180, "deg"), default=0.05, metavar="DEG",
+        help="largest robot rotation within the window (deg)")
+    deprecated_alias(bag, "--still-window", window)
+    deprecated_alias(bag, "--still-translation", translation)
+    deprecated_alias(bag, "--still-rotation", rotation)
 
 
 def add_handeye_calibration_arguments(group: Any, *, method_help: str) -> None:
@@ -490,10 +499,12 @@ def add_handeye_calibration_arguments(group: Any, *, method_help: str) -> None:
                        help="skip the joint refinements (refined, refined_exact)")
     group.add_argument("--no-outlier-rejection", action="store_true",
                        help="keep every sample")
-    group.add_argument("--outlier-threshold", type=bounded(0, 1000, lo_open=True), default=5.0,
-                       metavar="K",
-                       help="reject a sample whose leave-one-out board pose deviation exceeds K "
-                            "times the median (default: %(default)s)")
+    factor = group.add_argument(
+        "--outlier-factor", type=bounded(0, 1000, "x the median", lo_open=True), default=5.0,
+        metavar="K",
+        help="reject a sample whose leave-one-out board pose deviation exceeds K times the "
+             "median deviation (a multiple, no unit)")
+    deprecated_alias(group, "--outlier-threshold", factor)
 
 
 def solve_handeye_inputs(args: argparse.Namespace) -> tuple[dict[str, Any], Any]:
@@ -527,7 +538,7 @@ def solve_handeye_inputs(args: argparse.Namespace) -> tuple[dict[str, Any], Any]
     result = calibrate_hand_eye(
         samples, inputs["setup"], cameras=inputs["views"], method=args.method,
         refine=not args.no_refine, reject_outliers=not args.no_outlier_rejection,
-        outlier_threshold=args.outlier_threshold,
+        outlier_threshold=args.outlier_factor,
         **({} if args.average_solver is None else {"average_solver": args.average_solver}))
     return inputs, result
 
@@ -624,15 +635,25 @@ def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
     # local: io.kinematics loads scipy.optimize (~0.3 s); only --kinematics needs it
     from eye_in_hand.io.kinematics import load_kinematics
 
-    kin = (load_kinematics(args.kinematics, args.base_frame, args.ee_frame)
-           if args.kinematics else None)
+    source = args.robot_pose
+    if source == "joint_states" and not args.kinematics:
+        raise InputError("--kinematics: required with --robot-pose joint_states")
+    kin = (load_kinematics(args.kinematics, args.urdf_base_link or args.base_frame,
+                           args.urdf_tip_link or args.ee_frame)
+           if source == "joint_states" else None)
+    # no --robot-pose: /ee_pose when the bag has it, else /tf (read_bag_samples' choice); a
+    # --ee-pose-topic of one's own is the pose topic
+    pose_topic = args.ee_pose_topic if source == "ee_pose" or (
+        source is None and args.ee_pose_topic != "/ee_pose") else None
     found = read_bag_samples(
-        args.bag, image_topic=args.image_topic, right_image_topic=args.right_image_topic,
-        pose_topic=args.pose_topic, joint_topic=args.joint_topic, kinematics=kin,
-        use_tf=args.tf, base_frame=args.base_frame, ee_frame=args.ee_frame,
-        stereo=None if args.calibration is None else rig is not None,
-        still_window_s=args.still_window, still_translation_m=args.still_translation,
-        still_rotation_deg=args.still_rotation)
+        args.bag, image_topic=args.left_topic, right_image_topic=args.right_topic,
+        pose_topic=pose_topic,
+        joint_topic=args.joint_states_topic if source == "joint_states" else None,
+        kinematics=kin, use_tf=source == "tf", base_frame=args.base_frame,
+        ee_frame=args.ee_frame, stereo=None if args.calibration is None else rig is not None,
+        still_window_s=args.still_window_s, still_translation_m=args.still_translation_m,
+        still_rotation_deg=args.still_rotation_deg, tf_topic=args.tf_topic,
+        tf_static_topic=args.tf_static_topic)
     if camera is None and rig is None:
         camera, rig = found.camera, found.rig
         if camera is None and rig is None:

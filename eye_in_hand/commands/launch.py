@@ -31,10 +31,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calibration", metavar="DIR",
                         help="stereo calibration directory (left.yaml + right.yaml, from "
                              "'calibrate stereo'): replaces the parameter file's "
-                             "detect_triangulate calibration_dir (with --calibrate: hand_eye's)")
+                             "detect_triangulate calibration_dir (with --calibrate: hand_eye's; "
+                             "default: the parameter file's)")
     parser.add_argument("--hand-eye", metavar="FILE",
                         help="hand_eye.yaml (from 'calibrate handeye'): replaces the parameter "
-                             "file's hand_eye hand_eye_file")
+                             "file's hand_eye hand_eye_file (default: the parameter file's)")
     parser.add_argument("--calibrate", action="store_true",
                         help="hand-eye calibration at a live cell: stereo_capture and hand_eye "
                              "in calibration mode, reading the camera's images (default "

@@ -45,10 +45,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the detect_triangulate parameter file (default: built-in red "
                              "sphere)")
     parser.add_argument("--radius", type=bounded(0, 10, "m", lo_open=True), metavar="R",
-                        help="sphere radius of the first target in metres (overrides the "
-                             "parameter file)")
+                        help="sphere radius of the first target in metres (default: the "
+                             "parameter file's, else 0.02)")
     parser.add_argument("--method", choices=("dlt", "disparity", "optimal"),
-                        help="triangulation method (overrides the parameter file)")
+                        help="triangulation method (default: the parameter file's, else "
+                             "dlt)")
     parser.add_argument("--json", action="store_true",
                         help="print a JSON list, one object per located target: name, id, "
                              "point_m, covariance, residual_px, left_px, right_px")

@@ -23,7 +23,9 @@ import sys
 import time
 from pathlib import Path
 
-from eye_in_hand.commands.common import MAX_WORKERS, apply_overrides, bounded
+from eye_in_hand.commands.common import (MAX_WORKERS, add_image_topic_arguments,
+                                         add_output_argument, add_robot_pose_arguments,
+                                         apply_overrides, bounded)
 from eye_in_hand.errors import ConfigError, InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 from eye_in_hand.io.bags import bag_info
@@ -34,7 +36,7 @@ HELP = "run detection, triangulation and localization over a bag offline (no DDS
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``eye-in-hand process``."""
     parser.add_argument("bag", metavar="BAG", help="input bag directory or .mcap file")
-    parser.add_argument("-o", "--output", required=True, metavar="OUT",
+    add_output_argument(parser, metavar="OUT",
                         help="output bag directory, written whole or not at all (must not "
                              "exist, or give --overwrite)")
     parser.add_argument("--overwrite", action="store_true",
@@ -57,32 +59,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "default: built-in red sphere")
     parser.add_argument("--radius", type=bounded(0, 10, "m", lo_open=True), metavar="R",
                         help="sphere radius of the first target in metres, (0, 10] "
-                             "(overrides --params)")
+                             "(default: the --params file's, else 0.02)")
     parser.add_argument("--method", choices=("dlt", "disparity", "optimal"),
-                        help="triangulation method (overrides --params)")
-    parser.add_argument("--left-topic", default="/stereo/left/image_raw")
-    parser.add_argument("--right-topic", default="/stereo/right/image_raw")
-    parser.add_argument("--left-info-topic", default="/stereo/left/camera_info")
-    parser.add_argument("--right-info-topic", default="/stereo/right/camera_info")
-    parser.add_argument("--robot-pose", choices=("ee_pose", "joint_states", "tf"),
-                        default="ee_pose",
-                        help="robot pose source (default ee_pose; tf: /tf + /tf_static, "
-                             "--base-frame -> --ee-frame at each image stamp)")
-    parser.add_argument("--ee-pose-topic", default="/ee_pose")
-    parser.add_argument("--joint-states-topic", default="/joint_states")
-    parser.add_argument("--tf-topic", default="/tf")
-    parser.add_argument("--tf-static-topic", default="/tf_static")
-    parser.add_argument("--base-frame", default=None,
-                        help="robot base frame (default: hand_eye base_frame in --params, else "
-                             "base_link)")
-    parser.add_argument("--ee-frame", default=None,
-                        help="tool frame looked up in /tf (default: hand_eye ee_frame in "
-                             "--params, else the hand-eye file's parent frame)")
-    parser.add_argument("--kinematics", metavar="FILE",
-                        help="DH YAML or URDF file (with --robot-pose joint_states)")
-    parser.add_argument("--urdf-base-link", default="base_link")
-    parser.add_argument("--urdf-tip-link", default="tool0")
-    parser.add_argument("--ground-truth-topic", default="/ground_truth/target")
+                        help="triangulation method (default: the --params file's, else dlt)")
+    add_image_topic_arguments(parser, left_help="left image topic",
+                              right_help="right image topic",
+                              default_left="/stereo/left/image_raw",
+                              default_right="/stereo/right/image_raw")
+    parser.add_argument("--left-info-topic", metavar="TOPIC",
+                        default="/stereo/left/camera_info",
+                        help="left camera_info topic (without --calibration)")
+    parser.add_argument("--right-info-topic", metavar="TOPIC",
+                        default="/stereo/right/camera_info",
+                        help="right camera_info topic (without --calibration)")
+    add_robot_pose_arguments(
+        parser, default_source="ee_pose",
+        source_help="robot pose source: ee_pose (--ee-pose-topic), joint_states "
+                    "(--joint-states-topic + --kinematics) or tf (--tf-topic + "
+                    "--tf-static-topic, --base-frame -> --ee-frame at each image stamp)",
+        base_help="robot base frame: the frame of the results, the root of the /tf chain and "
+                  "of a URDF chain (default: hand_eye base_frame in --params, else base_link)",
+        ee_help="flange (tool) frame: the tip of the /tf chain and of a URDF chain (default: "
+                "hand_eye ee_frame in --params, else the hand-eye file's parent frame)",
+        default_base=None, default_ee=None)
+    parser.add_argument("--ground-truth-topic", metavar="TOPIC", default="/ground_truth/target",
+                        help="geometry_msgs/PointStamped true target position, when the bag "
+                             "has it: the error statistics are against it")
     parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
                         help="output bag storage (default mcap)")
     parser.add_argument("--task-timeout", type=bounded(0, 3600, "s", lo_open=True), default=20.0,
@@ -277,6 +279,9 @@ def run(args: argparse.Namespace) -> int:
     fixed = calib.setup == "eye_to_hand"
     known = load_known_distances(args.truth) if args.truth else []
     rig = StereoRig.load(args.calibration) if args.calibration else None
+    ee_frame = str(args.ee_frame or hand_eye_params.get("ee_frame", calib.parent_frame))
+    base_frame = str(args.base_frame or (calib.parent_frame if fixed else
+                                         hand_eye_params.get("base_frame", "base_link")))
     kinematics = None
     if args.robot_pose == "joint_states":
         if not args.kinematics:
@@ -284,8 +289,10 @@ def run(args: argparse.Namespace) -> int:
         # local: io.kinematics loads scipy.optimize (~0.3-0.4 s); only joint_states needs it
         from eye_in_hand.io.kinematics import load_kinematics
 
-        kinematics = load_kinematics(args.kinematics, args.urdf_base_link, args.urdf_tip_link)
-    ee_frame = str(args.ee_frame or hand_eye_params.get("ee_frame", calib.parent_frame))
+        kinematics = load_kinematics(
+            args.kinematics,
+            args.urdf_base_link or hand_eye_params.get("urdf_base_link", base_frame),
+            args.urdf_tip_link or hand_eye_params.get("urdf_tip_link", ee_frame))
     try:
         robot_sigmas = robot_pose_sigmas(
             float(hand_eye_params.get("robot_sigma_pos_m", ProcessOptions.robot_sigma_pos_m)),
@@ -297,10 +304,8 @@ def run(args: argparse.Namespace) -> int:
             robot_pose_source=args.robot_pose, ee_pose_topic=args.ee_pose_topic,
             joint_states_topic=args.joint_states_topic, kinematics=kinematics,
             tf_topic=args.tf_topic, tf_static_topic=args.tf_static_topic,
-            ee_frame=ee_frame,
-            ground_truth_topic=args.ground_truth_topic,
-            base_frame=str(args.base_frame or (calib.parent_frame if fixed else
-                                               hand_eye_params.get("base_frame", "base_link"))),
+            ee_frame=ee_frame, ground_truth_topic=args.ground_truth_topic,
+            base_frame=base_frame,
             camera_frame=calib.child_frame,
             sync_slop_s=float(detect.get("sync.slop_s", 0.005)),
             sync_queue_size=int(detect.get("sync.queue_size", 5)),

@@ -7,7 +7,7 @@ import re
 import sys
 from pathlib import Path
 
-from eye_in_hand.commands.common import bounded
+from eye_in_hand.commands.common import add_output_argument, bounded, deprecated_alias
 from eye_in_hand.errors import InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 
@@ -107,7 +107,7 @@ def estimate(args: argparse.Namespace, frames: int, size: tuple[int, int]) -> st
     seconds, disk = _cost(args, frames, size, pairs, robot)
     bound = pairs * 2 * px * 3 + robot * 1000     # uncompressed: the upper bound
     memory = _MEMORY_BASE + _MEMORY_PER_PX * px
-    parent = Path(args.out).absolute().parent
+    parent = Path(args.output).absolute().parent
     while not parent.exists() and parent != parent.parent:
         parent = parent.parent
     free = shutil.disk_usage(parent).free
@@ -148,12 +148,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scenario", choices=("calibration", "localization"), required=True,
                         help="calibration: still poses looking at the chessboard; "
                              "localization: continuous motion around the target(s)")
-    parser.add_argument("--out", required=True, type=Path,
-                        help="bag directory (--format bag) or dataset folder (--format dataset)"
-                             ", written whole or not at all; must not exist (or be empty), or "
-                             "give --overwrite")
+    out = add_output_argument(
+        parser, metavar="OUT", type=Path,
+        help="bag directory (--format bag) or dataset folder (--format dataset), written "
+             "whole or not at all; must not exist (or be empty), or give --overwrite")
+    deprecated_alias(parser, "--out", out)
     parser.add_argument("--overwrite", action="store_true",
-                        help="replace an existing --out (whole, once the new one is complete)")
+                        help="replace an existing OUT (whole, once the new one is complete)")
     parser.add_argument("--frames", type=bounded(1, 100000, integer=True), default=None,
                         help="1 to 100000; calibration: number of still poses (default 16); "
                              "localization: number of stereo pairs at 30 Hz (default 90)")
@@ -218,7 +219,7 @@ def run(args: argparse.Namespace) -> int:
     from eye_in_hand.sim.world import World
 
     frames = args.frames if args.frames is not None else _DEFAULT_FRAMES[args.scenario]
-    check_output_dir(args.out, overwrite=args.overwrite, option="--out", inputs=[args.world])
+    check_output_dir(args.output, overwrite=args.overwrite, option="-o", inputs=[args.world])
     if args.format == "dataset" and args.scenario != "calibration":
         raise InputError("--format dataset needs --scenario calibration")
     world = World.from_yaml(args.world) if args.world is not None else World.default()
@@ -243,7 +244,7 @@ def run(args: argparse.Namespace) -> int:
         bar.update(done - bar.n)
 
     try:  # written under a temporary name in the same folder, renamed into place when complete
-        with atomic_output_dir(args.out, overwrite=args.overwrite, option="--out",
+        with atomic_output_dir(args.output, overwrite=args.overwrite, option="-o",
                                create=args.format == "dataset") as tmp:
             if args.format == "dataset":
                 path = write_dataset(world, tmp, frames=frames, seed=args.seed, render=render,
@@ -259,12 +260,12 @@ def run(args: argparse.Namespace) -> int:
         if bar is not None:
             bar.close()
     if args.format == "dataset":
-        print(f"wrote calibration dataset {args.out / path.name} ({frames} stereo pairs, "
+        print(f"wrote calibration dataset {args.output / path.name} ({frames} stereo pairs, "
               f"{world.image_size[0]}x{world.image_size[1]}, board {world.board}; "
               f"{world.robot_error.describe()})")
         return 0
-    size = sum(p.stat().st_size for p in Path(args.out).rglob("*") if p.is_file())
-    print(f"wrote bag {args.out} ({args.storage}, {size / 1e6:.1f} MB): "
+    size = sum(p.stat().st_size for p in Path(args.output).rglob("*") if p.is_file())
+    print(f"wrote bag {args.output} ({args.storage}, {size / 1e6:.1f} MB): "
           f"{summary.n_images} stereo pairs at {world.image_size[0]}x{world.image_size[1]}, "
           f"{summary.n_robot} robot samples, {summary.duration_s:.2f} s; "
           f"{world.robot_error.describe()}")

@@ -155,7 +155,8 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
                      use_tf: bool = False, base_frame: str = "base_link",
                      ee_frame: str = "tool0", stereo: bool | None = None,
                      still_window_s: float = 0.1, still_translation_m: float = 0.0005,
-                     still_rotation_deg: float = 0.05, damage: Any = None) -> BagSamples:
+                     still_rotation_deg: float = 0.05, damage: Any = None,
+                     tf_topic: str = "/tf", tf_static_topic: str = "/tf_static") -> BagSamples:
     """Find the still robot stops of a calibration recording and their images and poses.
 
     Each image (header stamp) is paired with the robot pose interpolated at that stamp (never
@@ -173,7 +174,8 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
         pose_topic: ``geometry_msgs/PoseStamped`` robot pose topic (``base_T_ee``).
         joint_topic: ``sensor_msgs/JointState`` topic; needs ``kinematics``.
         kinematics: an object with ``fk(q) -> base_T_ee`` and ``joint_names``.
-        use_tf: take the pose from ``/tf`` (+ ``/tf_static``), ``base_frame`` to ``ee_frame``.
+        use_tf: take the pose from ``tf_topic`` (+ ``tf_static_topic``), ``base_frame`` to
+            ``ee_frame``.
         base_frame, ee_frame: frames of the /tf chain.
         stereo: force mono (False) or stereo (True); None: stereo when a right topic exists.
         still_window_s, still_translation_m, still_rotation_deg: the stillness test.
@@ -237,11 +239,12 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
     if pose_topic is None and joint_topic is None and not use_tf:
         if "/ee_pose" in topics:
             pose_topic = "/ee_pose"
-        elif "/tf" in topics:
+        elif tf_topic in topics:
             use_tf = True
         else:
-            raise ConfigError(f"{source}: no robot pose source: give --pose-topic, "
-                              "--joint-topic with --kinematics, or --tf")
+            raise ConfigError(f"{source}: no robot pose source (no /ee_pose, no /tf): give "
+                              "--robot-pose ee_pose --ee-pose-topic T, --robot-pose "
+                              "joint_states with --kinematics, or --robot-pose tf")
     if pose_topic is not None:
         pt = _resolve_topic(topics, pose_topic, "pose", source)
         pose_source = f"{pt} (PoseStamped)"
@@ -256,7 +259,8 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
                 series.add(stamp, T)
     elif joint_topic is not None:
         if kinematics is None:
-            raise ConfigError("--joint-topic needs --kinematics (a DH chain)")
+            raise ConfigError("--robot-pose joint_states needs --kinematics (a kinematic "
+                              "chain)")
         jt = _resolve_topic(topics, joint_topic, "joint state", source)
         pose_source = f"{jt} (JointState) + forward kinematics"
         names = list(kinematics.joint_names)
@@ -277,10 +281,10 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
                 continue
             series.add(header_stamp_ns(msg), kinematics.fk(q))
     else:
-        pose_source = f"/tf {base_frame} -> {ee_frame}"
+        pose_source = f"{tf_topic} {base_frame} -> {ee_frame}"
         edges: dict[tuple[str, str], _PoseSeries] = {}
         static: dict[tuple[str, str], np.ndarray] = {}
-        for topic, msgtype, log_ns, raw in iter_messages(path, ["/tf", "/tf_static"]):
+        for topic, msgtype, log_ns, raw in iter_messages(path, [tf_topic, tf_static_topic]):
             try:
                 msg = deserialize(raw, msgtype, store)
             except unusable as exc:
@@ -293,7 +297,7 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
                 except unusable as exc:
                     log.bad_message(topic, log_ns, f"{key[0]} -> {key[1]}: {exc}")
                     continue
-                if topic == "/tf_static":
+                if topic == tf_static_topic:
                     static[key] = T
                 else:
                     edges.setdefault(key, _PoseSeries(f"{key[0]}->{key[1]}")).add(

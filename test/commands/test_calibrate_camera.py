@@ -181,13 +181,13 @@ def test_camera_from_compressed_bag_and_wrong_topic_type(data_dir: Path, tmp_pat
                 format="mono8; jpeg compressed mono8", data=data))
         bag.write("/chatter", 5 * 10**9, String(data="hi"))
     out = tmp_path / "out"
-    code = main(["calibrate", "camera", "--bag", str(tmp_path / "bag"), "--topic",
+    code = main(["calibrate", "camera", "--bag", str(tmp_path / "bag"), "--left-topic",
                  "/cam/image/compressed", "--board", BOARD, "-o", str(out), "--no-html"])
     assert code == 0, capsys.readouterr().err
     report = json.loads((out / "report.json").read_text())
     assert sum(v["used"] for v in report["views"]) == 7
     assert report["views"][0]["file"] == "/cam/image/compressed@1000000000"
-    code = main(["calibrate", "camera", "--bag", str(tmp_path / "bag"), "--topic", "/chatter",
+    code = main(["calibrate", "camera", "--bag", str(tmp_path / "bag"), "--left-topic", "/chatter",
                  "--board", BOARD, "-o", str(tmp_path / "out2")])
     err = capsys.readouterr().err
     assert code == 1 and "topic /chatter has type std_msgs/msg/String" in err

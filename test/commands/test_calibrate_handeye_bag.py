@@ -178,7 +178,7 @@ def test_bag_end_to_end(calib_bag, tmp_path: Path, capsys) -> None:
     path, X, n_stops = calib_bag
     out = tmp_path / "out"
     rc = main(["calibrate", "handeye", "--bag", str(path), "--board", "chessboard:9x6:0.025",
-               "--image-topic", "image_raw", "--no-html", "-o", str(out)])
+               "--left-topic", "image_raw", "--no-html", "-o", str(out)])
     assert rc == 0
     err = capsys.readouterr().err
     assert "board not found" in err and "stop003" in err
@@ -191,15 +191,33 @@ def test_bag_end_to_end(calib_bag, tmp_path: Path, capsys) -> None:
     assert dt < 0.001 and np.degrees(dr) < 0.1, (dt, np.degrees(dr))
 
 
+def test_robot_pose_tf_gives_the_pose_topic_result(calib_bag, tmp_path: Path, capsys) -> None:
+    """--robot-pose tf (--base-frame -> --ee-frame) and the deprecated --tf: the X of /ee_pose."""
+    path, _, _ = calib_bag
+    common = ["calibrate", "handeye", "--bag", str(path), "--board", "chessboard:9x6:0.025",
+              "--no-html"]
+    X = {}
+    for name, extra in (("ee_pose", ["--robot-pose", "ee_pose"]), ("tf", ["--robot-pose", "tf"]),
+                        ("old_tf", ["--tf"])):
+        assert main(common + extra + ["-o", str(tmp_path / name)]) == 0
+        report = json.loads((tmp_path / name / "report.json").read_text())
+        assert report["input"]["pose_source"].startswith("/tf" if "tf" in name else "/ee_pose")
+        X[name] = load_hand_eye(tmp_path / name / "hand_eye.yaml").transform
+    assert "--tf is deprecated" in capsys.readouterr().err
+    for name in ("tf", "old_tf"):
+        dt, dr = transform_distance(X["ee_pose"], X[name])
+        assert dt < 1e-6 and dr < 1e-6, (name, dt, dr)
+
+
 def test_bag_errors(calib_bag, tmp_path: Path, capsys) -> None:
     path, _, _ = calib_bag
     assert main(["calibrate", "handeye", "--bag", str(path), "-o", str(tmp_path)]) == 1
     assert "--bag needs --board" in capsys.readouterr().err
     assert main(["calibrate", "handeye", "--bag", str(path), "--board", "chessboard:9x6:0.025",
-                 "--pose-topic", "/nope", "-o", str(tmp_path)]) == 1
+                 "--robot-pose", "ee_pose", "--ee-pose-topic", "/nope", "-o", str(tmp_path)]) == 1
     assert "no pose topic '/nope'" in capsys.readouterr().err
     assert main(["calibrate", "handeye", "--bag", str(path), "--board", "chessboard:9x6:0.025",
-                 "--joint-topic", "/joint_states", "-o", str(tmp_path)]) == 1
+                 "--robot-pose", "joint_states", "-o", str(tmp_path)]) == 1
     assert "--kinematics" in capsys.readouterr().err
 
 

@@ -52,8 +52,8 @@ def reports(tmp_path_factory) -> dict[str, Path]:
                  "--right-topic", TOPICS[1], "--board", BOARD, "-o",
                  str(base / "calibration")]) == 0
     assert main(["calibrate", "handeye", "--bag", str(BAG), "--board", BOARD, "--calibration",
-                 str(base / "calibration"), "--image-topic", TOPICS[0],
-                 "--right-image-topic", TOPICS[1], "-o", str(base / "hand_eye")]) == 0
+                 str(base / "calibration"), "--left-topic", TOPICS[0],
+                 "--right-topic", TOPICS[1], "-o", str(base / "hand_eye")]) == 0
     return {"stereo": base / "calibration", "handeye": base / "hand_eye"}
 
 

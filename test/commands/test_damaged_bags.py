@@ -157,8 +157,8 @@ def test_calibrate_camera_from_a_damaged_bag(cal_bag, tmp_path, capsys):
 
 def test_calibrate_handeye_from_a_damaged_bag(cal_bag, tmp_path, capsys):
     bag, off = _damaged_copy(cal_bag, tmp_path)
-    rc = main(["calibrate", "handeye", "--bag", str(bag), "--board", BOARD, "--image-topic",
-               LEFT, "--right-image-topic", RIGHT, "--pose-topic", "/ee_pose",
+    rc = main(["calibrate", "handeye", "--bag", str(bag), "--board", BOARD, "--left-topic",
+               LEFT, "--right-topic", RIGHT, "--robot-pose", "ee_pose",
                "-o", str(tmp_path / "out"), "--no-html"])
     cap = capsys.readouterr()
     assert rc == 0, cap.err
@@ -183,8 +183,8 @@ def test_too_few_samples_left_is_a_clear_error(cal_bag, tmp_path, capsys):
     hits = {_image_chunk(mcap, LEFT, k) for k in range(2, bag_info(bag).topics[LEFT].count)}
     for off, records in hits:
         _smash(mcap, records + 2, seed=off)
-    rc = main(["calibrate", "handeye", "--bag", str(bag), "--board", BOARD, "--image-topic",
-               LEFT, "--right-image-topic", RIGHT, "--pose-topic", "/ee_pose",
+    rc = main(["calibrate", "handeye", "--bag", str(bag), "--board", BOARD, "--left-topic",
+               LEFT, "--right-topic", RIGHT, "--robot-pose", "ee_pose",
                "-o", str(tmp_path / "out"), "--no-html"])
     err = capsys.readouterr().err
     assert rc == 1 and "Traceback" not in err

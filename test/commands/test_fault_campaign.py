@@ -134,7 +134,7 @@ def test_a_full_disk_names_the_final_output_and_keeps_the_earlier_one(small_bag,
                 "--workers", "1", "--overwrite", "--storage", case.split("-")[1]]
     elif case == "simulate":
         argv = ["simulate", "--scenario", "localization", "--frames", "2", "--size", "320x180",
-                "--supersample", "1", "--out", str(out), "--overwrite", "--quiet"]
+                "--supersample", "1", "-o", str(out), "--overwrite", "--quiet"]
     else:   # the report's plots are larger than the limit
         argv = ["calibrate", "camera", "--images",
                 str(data_dir / "opencv_stereo_chessboard" / "left*"), "--board",
@@ -358,7 +358,7 @@ def test_simulate_states_its_estimate_and_refuses_what_cannot_fit(tmp_path, caps
 
     out = tmp_path / "sim"
     argv = ["simulate", "--scenario", "localization", "--frames", "100000", "--size",
-            "16000x16000", "--out", str(out)]
+            "16000x16000", "-o", str(out)]
     assert main(argv) == 1
     line = _one_line_error(capsys.readouterr().err)
     assert line.startswith("eye-in-hand: error: simulate: 100000 stereo pairs at 16000x16000: "
@@ -367,7 +367,7 @@ def test_simulate_states_its_estimate_and_refuses_what_cannot_fit(tmp_path, caps
     assert "--force" in line and not out.exists()
     # a run that fits says what it will cost before it starts
     assert main(["simulate", "--scenario", "localization", "--frames", "2", "--size",
-                 "64x48", "--supersample", "1", "--out", str(out)]) == 0
+                 "64x48", "--supersample", "1", "-o", str(out)]) == 0
     err = capsys.readouterr().err
     assert "simulate: 2 stereo pairs at 64x48: about 3 s and 0.0 MB on disk (up to 0.0 MB " \
         "uncompressed" in err, err
@@ -375,7 +375,7 @@ def test_simulate_states_its_estimate_and_refuses_what_cannot_fit(tmp_path, caps
     usage = namedtuple("usage", "total used free")
     monkeypatch.setattr(shutil, "disk_usage", lambda _p: usage(1 << 30, 1 << 30, 1000))
     small = ["simulate", "--scenario", "localization", "--frames", "2", "--size", "64x48",
-             "--supersample", "1", "--out", str(tmp_path / "s2")]
+             "--supersample", "1", "-o", str(tmp_path / "s2")]
     assert main(small) == 1
     assert "does not fit on the disk" in _one_line_error(capsys.readouterr().err)
     assert main(small + ["--force"]) == 0

@@ -82,12 +82,12 @@ def test_calibrate_handeye_refuses_then_replaces_whole(pairs, tmp_path, capsys) 
 def test_simulate_refuses_then_replaces_whole(tmp_path, capsys) -> None:
     out = tmp_path / "ds"
     argv = ["simulate", "--scenario", "calibration", "--format", "dataset", "--frames", "1",
-            "--size", "160x120", "--supersample", "1", "--out", str(out), "--quiet"]
+            "--size", "160x120", "--supersample", "1", "-o", str(out), "--quiet"]
     assert main(argv) == 0
     (out / "mine.txt").write_text("notes")
     capsys.readouterr()
     assert main(argv) == 1
-    assert "--out" in _one_line_error(capsys.readouterr().err)
+    assert "-o " in _one_line_error(capsys.readouterr().err)
     assert (out / "mine.txt").exists()
     assert main(argv + ["--overwrite"]) == 0
     assert not (out / "mine.txt").exists() and (out / "dataset.yaml").is_file()
@@ -267,7 +267,7 @@ import os, sys
 from eye_in_hand.cli import main
 ds = os.fsdecode(b"caf\xe9")
 codes = [main(["simulate", "--scenario", "calibration", "--format", "dataset", "--frames", "3",
-               "--size", "320x240", "--supersample", "1", "--out", ds, "--quiet"]),
+               "--size", "320x240", "--supersample", "1", "-o", ds, "--quiet"]),
          main(["calibrate", "handeye", ds, "-o", ds + "_he", "--no-html"]),
          main(["tune-color", os.path.join(ds, "left", "0000.png"), "--roi", "10,10,8,8"])]
 imgs = os.fsdecode(b"imgs")
@@ -313,7 +313,7 @@ def test_non_utf8_yaml_is_one_line_naming_the_file(small_bag, tmp_path, capsys) 
     assert f"{bad}: hand-eye calibration file is not UTF-8 text (byte 0xe9 at offset 34)" in line
     world = tmp_path / "world.yaml"
     world.write_bytes(b"\xff\xfe")
-    assert main(["simulate", "--scenario", "calibration", "--world", str(world), "--out",
+    assert main(["simulate", "--scenario", "calibration", "--world", str(world), "-o",
                  str(tmp_path / "s")]) == 1
     assert "world.yaml: world file is not UTF-8 text" in _one_line_error(capsys.readouterr().err)
     ds = tmp_path / "ds"

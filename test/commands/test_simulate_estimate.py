@@ -42,7 +42,7 @@ def test_recording_counts_of_the_calibration_time_line() -> None:
 def test_estimate_is_close_to_what_is_written(tmp_path: Path, capsys, noise: str) -> None:
     out = tmp_path / "loc"
     assert main(["simulate", "--scenario", "localization", "--frames", "4", "--size", "320x180",
-                 "--supersample", "1", "--noise", noise, "--out", str(out)]) == 0
+                 "--supersample", "1", "--noise", noise, "-o", str(out)]) == 0
     captured = capsys.readouterr()
     pairs, disk = _estimate(captured.err)
     written, size, _ = _written(captured.out)
@@ -54,7 +54,7 @@ def test_small_still_only_calibration_bag_states_its_cost_and_calibrates(tmp_pat
                                                                          capsys) -> None:
     bag = tmp_path / "calib"
     assert main(["simulate", "--scenario", "calibration", "--frames", "6", "--still-images-only",
-                 "--hold-frames", "1", "--size", "640x360", "--noise", "0", "--out",
+                 "--hold-frames", "1", "--size", "640x360", "--noise", "0", "-o",
                  str(bag)]) == 0
     captured = capsys.readouterr()
     pairs, disk = _estimate(captured.err)
@@ -77,7 +77,7 @@ def test_calibration_estimate_names_the_smaller_still_only_bag(tmp_path: Path, c
     real = shutil.disk_usage
     try:
         shutil.disk_usage = lambda _p: usage(1 << 30, 1 << 30, 1000)   # type: ignore[assignment]
-        assert main(["simulate", "--scenario", "calibration", "--out",
+        assert main(["simulate", "--scenario", "calibration", "-o",
                      str(tmp_path / "c")]) == 1
     finally:
         shutil.disk_usage = real    # type: ignore[assignment]

@@ -166,13 +166,13 @@ def test_simulate_command(tmp_path, capsys):
     from eye_in_hand.cli import main
 
     out = tmp_path / "bag"
-    assert main(["simulate", "--scenario", "localization", "--out", str(out), "--frames", "3",
+    assert main(["simulate", "--scenario", "localization", "-o", str(out), "--frames", "3",
                  "--size", "160x120", "--quiet"]) == 0
     assert "3 stereo pairs at 160x120" in capsys.readouterr().out
-    assert main(["simulate", "--scenario", "localization", "--format", "dataset", "--out",
+    assert main(["simulate", "--scenario", "localization", "--format", "dataset", "-o",
                  str(tmp_path / "x"), "--quiet"]) == 1
     assert "needs --scenario calibration" in capsys.readouterr().err
-    assert main(["simulate", "--scenario", "localization", "--out", str(out), "--frames", "3",
+    assert main(["simulate", "--scenario", "localization", "-o", str(out), "--frames", "3",
                  "--size", "160x120", "--quiet"]) == 1
     assert "exists" in capsys.readouterr().err
 

@@ -91,13 +91,13 @@ def test_parse_and_world_yaml(tmp_path):
 def test_simulate_command_robot_error_option(tmp_path, capsys):
     from eye_in_hand.cli import main
 
-    assert main(["simulate", "--scenario", "localization", "--out", str(tmp_path / "a"),
+    assert main(["simulate", "--scenario", "localization", "-o", str(tmp_path / "a"),
                  "--frames", "2", "--size", "160x120", "--quiet", "--robot-error", "0"]) == 0
     assert "robot error: none" in capsys.readouterr().out
-    assert main(["simulate", "--scenario", "localization", "--out", str(tmp_path / "b"),
+    assert main(["simulate", "--scenario", "localization", "-o", str(tmp_path / "b"),
                  "--frames", "2", "--size", "160x120", "--quiet"]) == 0
     assert "robot error: links 0.15 mm" in capsys.readouterr().out
-    assert main(["simulate", "--scenario", "localization", "--out", str(tmp_path / "c"),
+    assert main(["simulate", "--scenario", "localization", "-o", str(tmp_path / "c"),
                  "--frames", "2", "--quiet", "--robot-error", "seed=x"]) == 1
     err = capsys.readouterr().err
     assert "--robot-error: bad value for seed" in err and "Traceback" not in err
