@@ -1,6 +1,6 @@
 """Hand-eye calibration at a live (simulated) cell, end to end, as a person runs it.
 
-The arm moves through 12 stops with smooth joint motions and dwells at each for 2 s, or until
+The arm moves through 8 stops with smooth joint motions and dwells at each for 2 s, or until
 the operator's capture there is answered if that takes longer (the simulator renders a pair in
 0.2-1 s, so under load its first pair of a still arm can come late; a real robot program also
 waits for the capture before it moves on). A robot driver
@@ -9,7 +9,7 @@ robot error: the images come from the true arm) and either ``/tf`` (robot_state_
 view of the reported joints) or ``ee_pose``, stamped now, continuously. ``stereo_capture``
 streams the rendered pair of the true arm (``sim.follow_joint_states``: each pair carries the
 stamp of the arm state it shows). A client calls ``hand_eye/capture`` once per stop, 1 s after
-the arm arrives, then ``compute`` and ``save``. All 12 captures must be taken and X must be
+the arm arrives, then ``compute`` and ``save``. All 8 captures must be taken and X must be
 within 1 mm / 0.1 deg of the true mount, and no worse than the same stops calibrated offline.
 Three cells: eye-in-hand with the pose from ``/tf``, from ``ee_pose``, and eye-to-hand (a fixed
 camera, the board on the flange: see ``robot_driver_standin.py``).
@@ -28,7 +28,7 @@ pytest.importorskip("rclpy")
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
-STOPS, SEED = 12, 4
+STOPS, SEED = 8, 4
 DWELL_S, CAPTURE_AFTER_S = 2.0, 1.0
 W, H = 640, 360
 DRIVER = Path(__file__).with_name("robot_driver_standin.py")
