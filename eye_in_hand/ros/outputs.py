@@ -114,8 +114,14 @@ class OutputSettings:
 class _RclpyTypes:
     """``T[msgtype]``: the installed rclpy message class."""
 
+    def __init__(self) -> None:
+        self._classes: dict[str, Any] = {}
+
     def __getitem__(self, msgtype: str) -> Any:
-        return _rclpy_class(msgtype)
+        cls = self._classes.get(msgtype)
+        if cls is None:
+            cls = self._classes[msgtype] = _rclpy_class(msgtype)
+        return cls
 
 
 @functools.lru_cache(maxsize=None)
@@ -196,16 +202,19 @@ class RosbagsTypes:
         return lambda: [item() for _ in range(n)]
 
 
-def _cls(T: Any, msgtype: str) -> Any:
-    return T[msgtype]
-
-
 # -- checks -----------------------------------------------------------------------------------
-def _xyz(xyz: Any, what: str) -> np.ndarray:
-    arr = np.asarray(xyz, dtype=np.float64).reshape(-1)
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise ConversionError(f"{what}: expected 3 finite numbers, got {arr}")
-    return arr
+def _xyz(xyz: Any, what: str) -> tuple[float, float, float]:
+    """Three finite floats of an array-like of 3 numbers (any shape holding 3 values)."""
+    try:
+        if isinstance(xyz, np.ndarray) and xyz.shape != (3,):
+            xyz = xyz.reshape(-1)
+        x, y, z = xyz
+        out = (float(x), float(y), float(z))
+    except (TypeError, ValueError) as exc:
+        raise ConversionError(f"{what}: expected 3 finite numbers, got {xyz!r}") from exc
+    if not (math.isfinite(out[0]) and math.isfinite(out[1]) and math.isfinite(out[2])):
+        raise ConversionError(f"{what}: expected 3 finite numbers, got {list(out)}")
+    return out
 
 
 # -- builders ---------------------------------------------------------------------------------
@@ -221,26 +230,31 @@ def time_msg(T: Any, stamp_ns: int) -> Any:
     sec, nanosec = divmod(int(stamp_ns), _NS_PER_S)
     if not _INT32[0] <= sec <= _INT32[1]:
         raise ConversionError(f"stamp_ns: {stamp_ns} does not fit builtin_interfaces/Time")
-    return _cls(T, "builtin_interfaces/msg/Time")(sec=sec, nanosec=nanosec)
+    t = T["builtin_interfaces/msg/Time"]()
+    t.sec, t.nanosec = sec, nanosec
+    return t
 
 
 def header(T: Any, stamp_ns: int, frame_id: str) -> Any:
     """``std_msgs/Header``."""
     if not isinstance(frame_id, str):
         raise ConversionError(f"frame_id: expected a string, got {frame_id!r}")
-    return _cls(T, "std_msgs/msg/Header")(stamp=time_msg(T, stamp_ns), frame_id=frame_id)
+    h = T["std_msgs/msg/Header"]()
+    h.stamp = time_msg(T, stamp_ns)
+    h.frame_id = frame_id
+    return h
 
 
-def _point(T: Any, p: np.ndarray) -> Any:
-    return _cls(T, "geometry_msgs/msg/Point")(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+# Builders fill default-constructed messages field by field (rclpy's keyword constructors build
+# every default sub-message first and then replace it: about 2-3x the time per message).
+def _set_xyz(obj: Any, p: Any) -> None:
+    obj.x, obj.y, obj.z = float(p[0]), float(p[1]), float(p[2])
 
 
-def _identity(T: Any) -> Any:
-    return _cls(T, "geometry_msgs/msg/Quaternion")(x=0.0, y=0.0, z=0.0, w=1.0)
-
-
-def _position_pose(T: Any, p: np.ndarray) -> Any:
-    return _cls(T, "geometry_msgs/msg/Pose")(position=_point(T, p), orientation=_identity(T))
+def _set_position_pose(pose: Any, p: Any) -> None:
+    """A pose at ``p`` with the identity orientation."""
+    _set_xyz(pose.position, p)
+    pose.orientation.w = 1.0
 
 
 def point_stamped(T: Any, xyz: Any, stamp_ns: int, frame_id: str) -> Any:
@@ -249,8 +263,11 @@ def point_stamped(T: Any, xyz: Any, stamp_ns: int, frame_id: str) -> Any:
     Raises:
         ConversionError: not 3 finite numbers, or a bad stamp or frame.
     """
-    return _cls(T, "geometry_msgs/msg/PointStamped")(
-        header=header(T, stamp_ns, frame_id), point=_point(T, _xyz(xyz, "point")))
+    p = _xyz(xyz, "point")
+    msg = T["geometry_msgs/msg/PointStamped"]()
+    msg.header = header(T, stamp_ns, frame_id)
+    _set_xyz(msg.point, p)
+    return msg
 
 
 def pose_with_covariance(T: Any, xyz: Any, cov: Any, stamp_ns: int, frame_id: str,
@@ -258,20 +275,24 @@ def pose_with_covariance(T: Any, xyz: Any, cov: Any, stamp_ns: int, frame_id: st
     """``geometry_msgs/PoseWithCovarianceStamped`` of a point: position = the point,
     orientation identity, covariance position block ``cov`` (3x3, m^2), orientation variances
     :data:`UNKNOWN_ROTATION_VARIANCE` (``target/point_cov``, ``target/pose_cov``)."""
+    p = _xyz(xyz, "point")
     full = np.zeros((6, 6))
     full[:3, :3] = np.asarray(cov, dtype=np.float64).reshape(3, 3)
     full[3:, 3:] = np.eye(3) * UNKNOWN_ROTATION_VARIANCE
-    pose = _cls(T, "geometry_msgs/msg/PoseWithCovariance")(
-        pose=_position_pose(T, _xyz(xyz, "point")), covariance=full.ravel())
-    return _cls(T, "geometry_msgs/msg/PoseWithCovarianceStamped")(
-        header=hdr if hdr is not None else header(T, stamp_ns, frame_id), pose=pose)
+    msg = T["geometry_msgs/msg/PoseWithCovarianceStamped"]()
+    msg.header = hdr if hdr is not None else header(T, stamp_ns, frame_id)
+    _set_position_pose(msg.pose.pose, p)
+    msg.pose.covariance = full.ravel()       # float64 (36,): taken as it is
+    return msg
 
 
 def pose_stamped(T: Any, xyz: Any, stamp_ns: int, frame_id: str, hdr: Any = None) -> Any:
     """``geometry_msgs/PoseStamped`` of a point: orientation identity (``target/pose``)."""
-    return _cls(T, "geometry_msgs/msg/PoseStamped")(
-        header=hdr if hdr is not None else header(T, stamp_ns, frame_id),
-        pose=_position_pose(T, _xyz(xyz, "point")))
+    p = _xyz(xyz, "point")
+    msg = T["geometry_msgs/msg/PoseStamped"]()
+    msg.header = hdr if hdr is not None else header(T, stamp_ns, frame_id)
+    _set_position_pose(msg.pose, p)
+    return msg
 
 
 def pose_array(T: Any, points: Iterable[Any], stamp_ns: int, frame_id: str) -> Any:
@@ -281,15 +302,16 @@ def pose_array(T: Any, points: Iterable[Any], stamp_ns: int, frame_id: str) -> A
     Raises:
         ConversionError: a point is not 3 finite numbers.
     """
-    poses = [_position_pose(T, _xyz(p, f"points[{k}]")) for k, p in enumerate(points)]
-    return _cls(T, "geometry_msgs/msg/PoseArray")(header=header(T, stamp_ns, frame_id),
-                                                   poses=poses)
-
-
-def _duration(T: Any, seconds: float) -> Any:
-    ns = max(0, int(round(seconds * 1e9)))
-    sec, nanosec = divmod(ns, _NS_PER_S)
-    return _cls(T, "builtin_interfaces/msg/Duration")(sec=sec, nanosec=nanosec)
+    Pose = T["geometry_msgs/msg/Pose"]
+    poses = []
+    for k, p in enumerate(points):
+        pose = Pose()
+        _set_position_pose(pose, _xyz(p, f"points[{k}]"))
+        poses.append(pose)
+    msg = T["geometry_msgs/msg/PoseArray"]()
+    msg.header = header(T, stamp_ns, frame_id)
+    msg.poses = poses
+    return msg
 
 
 def sphere_markers(T: Any, spheres: Iterable[Sphere], stamp_ns: int, frame_id: str,
@@ -301,12 +323,13 @@ def sphere_markers(T: Any, spheres: Iterable[Sphere], stamp_ns: int, frame_id: s
         ConversionError: a non-finite centre, a diameter that is not positive, or two spheres
             with one id.
     """
-    Marker = _cls(T, "visualization_msgs/msg/Marker")
+    Marker = T["visualization_msgs/msg/Marker"]
     hdr = header(T, stamp_ns, frame_id)
-    out = [Marker(header=hdr, action=_MARKER_DELETEALL,
-                  pose=_position_pose(T, np.zeros(3)))]
+    clear = Marker()
+    clear.header, clear.action = hdr, _MARKER_DELETEALL
+    out = [clear]
     seen: set[str] = set()
-    lifetime = _duration(T, lifetime_s)
+    life = max(0, int(round(lifetime_s * 1e9)))
     for s in spheres:
         xyz = _xyz(s.xyz, f"sphere '{s.id}': centre")
         if not (math.isfinite(s.diameter_m) and s.diameter_m > 0):
@@ -314,15 +337,16 @@ def sphere_markers(T: Any, spheres: Iterable[Sphere], stamp_ns: int, frame_id: s
         if s.id in seen:
             raise ConversionError(f"sphere '{s.id}': two spheres with one id in a frame")
         seen.add(s.id)
-        d = float(s.diameter_m)
-        r, g, b, a = (float(c) for c in s.rgba)
-        out.append(Marker(
-            header=hdr, ns=s.id, id=0, type=_MARKER_SPHERE, action=_MARKER_ADD,
-            pose=_position_pose(T, xyz),
-            scale=_cls(T, "geometry_msgs/msg/Vector3")(x=d, y=d, z=d),
-            color=_cls(T, "std_msgs/msg/ColorRGBA")(r=r, g=g, b=b, a=a),
-            lifetime=lifetime))
-    return _cls(T, "visualization_msgs/msg/MarkerArray")(markers=out)
+        m = Marker()
+        m.header, m.ns, m.id, m.type, m.action = hdr, s.id, 0, _MARKER_SPHERE, _MARKER_ADD
+        _set_position_pose(m.pose, xyz)
+        m.scale.x = m.scale.y = m.scale.z = float(s.diameter_m)
+        m.color.r, m.color.g, m.color.b, m.color.a = (float(c) for c in s.rgba)
+        m.lifetime.sec, m.lifetime.nanosec = divmod(life, _NS_PER_S)
+        out.append(m)
+    msg = T["visualization_msgs/msg/MarkerArray"]()
+    msg.markers = out
+    return msg
 
 
 def transform_stamped(T: Any, parent_T_child: Any, stamp_ns: int, parent: str,
@@ -338,20 +362,21 @@ def transform_stamped(T: Any, parent_T_child: Any, stamp_ns: int, parent: str,
     if not isinstance(child, str):
         raise ConversionError(f"child_frame_id: expected a string, got {child!r}")
     q = matrix_to_quat_xyzw(M[:3, :3])
-    t = M[:3, 3]
-    tf = _cls(T, "geometry_msgs/msg/Transform")(
-        translation=_cls(T, "geometry_msgs/msg/Vector3")(x=float(t[0]), y=float(t[1]),
-                                                          z=float(t[2])),
-        rotation=_cls(T, "geometry_msgs/msg/Quaternion")(x=float(q[0]), y=float(q[1]),
-                                                          z=float(q[2]), w=float(q[3])))
-    return _cls(T, "geometry_msgs/msg/TransformStamped")(
-        header=header(T, stamp_ns, parent), child_frame_id=child, transform=tf)
+    msg = T["geometry_msgs/msg/TransformStamped"]()
+    msg.header = header(T, stamp_ns, parent)
+    msg.child_frame_id = child
+    _set_xyz(msg.transform.translation, M[:3, 3])
+    r = msg.transform.rotation
+    r.x, r.y, r.z, r.w = float(q[0]), float(q[1]), float(q[2]), float(q[3])
+    return msg
 
 
 def tf_message(T: Any, edges: Iterable[tuple[str, str, int, Any]]) -> Any:
     """``tf2_msgs/TFMessage`` of ``(parent, child, stamp_ns, parent_T_child 4x4)``."""
-    return _cls(T, "tf2_msgs/msg/TFMessage")(transforms=[
-        transform_stamped(T, M, int(stamp), parent, child) for parent, child, stamp, M in edges])
+    msg = T["tf2_msgs/msg/TFMessage"]()
+    msg.transforms = [transform_stamped(T, M, int(stamp), parent, child)
+                      for parent, child, stamp, M in edges]
+    return msg
 
 
 def translation_tf_message(T: Any, edges: Iterable[tuple[str, str, int, Any]]) -> Any:
@@ -362,13 +387,16 @@ def translation_tf_message(T: Any, edges: Iterable[tuple[str, str, int, Any]]) -
     Raises:
         ConversionError: a translation is not 3 finite numbers.
     """
+    Transform = T["geometry_msgs/msg/TransformStamped"]
     out = []
     for parent, child, stamp, t in edges:
         p = _xyz(t, f"translation of {parent} -> {child}")
-        tf = _cls(T, "geometry_msgs/msg/Transform")(
-            translation=_cls(T, "geometry_msgs/msg/Vector3")(x=float(p[0]), y=float(p[1]),
-                                                              z=float(p[2])),
-            rotation=_identity(T))
-        out.append(_cls(T, "geometry_msgs/msg/TransformStamped")(
-            header=header(T, int(stamp), parent), child_frame_id=child, transform=tf))
-    return _cls(T, "tf2_msgs/msg/TFMessage")(transforms=out)
+        tr = Transform()
+        tr.header = header(T, int(stamp), parent)
+        tr.child_frame_id = child
+        _set_xyz(tr.transform.translation, p)
+        tr.transform.rotation.w = 1.0
+        out.append(tr)
+    msg = T["tf2_msgs/msg/TFMessage"]()
+    msg.transforms = out
+    return msg
