@@ -111,7 +111,19 @@ def installed_type_hash(msgtype: str) -> str | None:
     return _HASHES[msgtype]
 
 
-def playback_qos(offered: Sequence[OfferedQos]) -> QoSProfile:
+#: Message types replayed at least :data:`LARGE_DEPTH` deep (a second of a 30 Hz camera); every
+#: other, smaller type is offered keep-last :data:`SMALL_DEPTH`, so that a reliable subscriber
+#: that is busy for a moment (a robot pose stream at 125-500 Hz) misses nothing the writer
+#: already dropped.
+LARGE_TYPES = frozenset({"sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage",
+                         "sensor_msgs/msg/PointCloud2", "sensor_msgs/msg/LaserScan"})
+SMALL_DEPTH = 1000
+LARGE_DEPTH = 30
+#: How long playback waits at its end for reliable subscribers to acknowledge every message (s)
+ACK_TIMEOUT_S = 10.0
+
+
+def playback_qos(offered: Sequence[OfferedQos], msgtype: str = "") -> QoSProfile:
     """The QoS to offer when replaying a topic, from what its recorded publishers offered.
 
     Like ``ros2 bag play``: when every recorded publisher offered the same reliability and
@@ -123,8 +135,14 @@ def playback_qos(offered: Sequence[OfferedQos]) -> QoSProfile:
     Args:
         offered: the recorded profiles (:attr:`TopicInfo.offered_qos`).
 
+    A reliable keep-last writer drops a message that a slow subscriber has not acknowledged
+    once ``depth`` newer ones are written: images and other :data:`LARGE_TYPES` are offered at
+    least :data:`LARGE_DEPTH` deep (a second of a 30 Hz camera: 27 MB of 640x480 colour images),
+    small messages at least :data:`SMALL_DEPTH`.
+
     Returns:
-        An rclpy ``QoSProfile`` (keep-last; depth from the recording, at least 10).
+        An rclpy ``QoSProfile`` (keep-last; depth from the recording, at least 10; with
+        ``msgtype``, at least :data:`LARGE_DEPTH` or :data:`SMALL_DEPTH`).
     """
     depth = 10
     reliability = ReliabilityPolicy.RELIABLE
@@ -137,6 +155,8 @@ def playback_qos(offered: Sequence[OfferedQos]) -> QoSProfile:
         if dur == {"transient_local"}:
             durability = DurabilityPolicy.TRANSIENT_LOCAL
         depth = max([depth] + [q.depth for q in offered if q.history == "keep_last"])
+    if msgtype:
+        depth = max(depth, LARGE_DEPTH if msgtype in LARGE_TYPES else SMALL_DEPTH)
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=reliability,
                       durability=durability)
 
@@ -251,7 +271,7 @@ class BagPlayer(Node):
                     f"type_mismatch:{name}",
                     f"topic {name}: the bag's {topic.msgtype} ({topic.type_hash}) is not the "
                     "installed definition; subscribers may misread it (playing it anyway)")
-            qos = playback_qos(topic.offered_qos)
+            qos = playback_qos(topic.offered_qos, topic.msgtype)
             if name == TF_STATIC_TOPIC:
                 qos = static_tf_playback_qos(topic.count)
             self._topic_pubs[name] = self.create_publisher(cls, name, qos)
@@ -390,11 +410,33 @@ class BagPlayer(Node):
             if self._error is None:
                 self.diag.gauge("state", "finished")
             total = sum(self.published.values())
+            if self._error is None and self.context.ok():
+                self._wait_for_acks()
             if self.context.ok():
                 self.get_logger().info(f"published {total} message(s)")
                 if self.damage:
                     self.get_logger().warning(f"damaged bag: {self.damage.summary()}")
             self._done.set()
+
+    def _wait_for_acks(self) -> None:
+        """Before playback counts as finished (and the process may exit, taking its writers'
+        undelivered messages with it), wait up to :data:`ACK_TIMEOUT_S` until every reliable
+        subscriber has acknowledged every message; say which topics it did not."""
+        from rclpy.duration import Duration
+
+        deadline = time.monotonic() + ACK_TIMEOUT_S
+        late = []
+        for name, pub in self._topic_pubs.items():
+            left = max(0.0, deadline - time.monotonic())
+            try:
+                if not pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))):
+                    late.append(name)
+            except Exception:  # noqa: BLE001 - a publisher destroyed by a shutdown: not ours
+                return
+        if late:
+            self.get_logger().warning(
+                f"{', '.join(late)}: not acknowledged by every subscriber within "
+                f"{ACK_TIMEOUT_S:g} s of the end: a slow subscriber may miss the last messages")
 
     def _play_once(self) -> None:
         buffer = _Prefetch()

@@ -225,6 +225,10 @@ def test_playback_qos_follows_the_recording() -> None:
     mixed = playback_qos([OfferedQos("best_effort"), OfferedQos("reliable")])
     assert mixed.reliability == ReliabilityPolicy.RELIABLE
     assert mixed.durability == DurabilityPolicy.VOLATILE
+    # a reliable writer drops what a busy subscriber has not acknowledged once `depth` newer
+    # messages are out: small messages (robot poses at 125-500 Hz) go out deep, images not
+    assert playback_qos([], "geometry_msgs/msg/PoseStamped").depth >= 1000
+    assert 30 <= playback_qos([], "sensor_msgs/msg/Image").depth < 1000
 
 
 def test_import_message_type() -> None:
