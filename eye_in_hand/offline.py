@@ -44,13 +44,13 @@ from eye_in_hand.core.sync import ApproximateStereoSync
 from eye_in_hand.errors import BagError, ConversionError, InputError, LocalizationError
 from eye_in_hand.io.bags import (DamageLog, bag_info, deserialize, iter_messages, memory_mappable,
                                  require_topics, typestore_for)
-from eye_in_hand.io.results import TargetResult, assign_truth, target_order
+from eye_in_hand.io.results import (FrameResult, ProcessResult, TargetResult, assign_truth,
+                                    target_order)
 from eye_in_hand.io.results import write_results as _write_results
 from eye_in_hand.ros.outputs import OutputSettings
 
-__all__ = ["ProcessOptions", "FrameResult", "ProcessResult", "TargetResult", "process_bag",
-           "loss_total",
-           "error_stats", "top_reasons", "write_results"]
+__all__ = ["ProcessOptions", "process_bag", "loss_total", "error_stats", "top_reasons",
+           "write_results"]
 
 
 @dataclass(frozen=True)
@@ -137,79 +137,6 @@ class ProcessOptions:
             return self.tf_topic
         return self.ee_pose_topic if self.robot_pose_source == "ee_pose" else \
             self.joint_states_topic
-
-
-@dataclass
-class FrameResult:
-    """One stereo pair's outcome.
-
-    Attributes:
-        stamp_ns: the image stamp.
-        status: ``"ok"``, ``"no_target"`` (with the locator's reason in ``reason``),
-            ``"no_robot_pose"`` (located in the camera, but no robot pose brackets the stamp),
-            or ``"bad_image"`` (an image that does not decode, or of the wrong size; counted in
-            ``bad_messages``).
-        point_cam, cov_cam, residual_px, left_px, right_px: the triangulation (when located).
-        point_base, cov_base: the base-frame result (status ok).
-        truth_base: the ground-truth target at this stamp, when the bag has it.
-        targets: every located target (:class:`TargetResult`), the first target (the one of
-            the fields above) first when it was located.
-        missing: target name (or id) -> why it was not located.
-        truth_by_id: target id -> its matched ground-truth target at this stamp, for every
-            matched id, located here or not (set by :func:`eye_in_hand.io.results.
-            assign_truth`; the ``gt_*`` columns of a target's ``no_target`` rows).
-    """
-
-    stamp_ns: int
-    status: str
-    reason: str = ""
-    point_cam: np.ndarray | None = None
-    cov_cam: np.ndarray | None = None
-    residual_px: float = math.nan
-    left_px: np.ndarray | None = None
-    right_px: np.ndarray | None = None
-    point_base: np.ndarray | None = None
-    cov_base: np.ndarray | None = None
-    truth_base: np.ndarray | None = None
-    targets: list[TargetResult] = field(default_factory=list)
-    missing: dict[str, str] = field(default_factory=dict)
-    truth_by_id: dict[str, np.ndarray] = field(default_factory=dict)
-
-    @property
-    def error_m(self) -> float:
-        """Distance to the ground truth (m), NaN when either is missing."""
-        if self.point_base is None or self.truth_base is None:
-            return math.nan
-        return float(np.linalg.norm(self.point_base - self.truth_base))
-
-
-@dataclass
-class ProcessResult:
-    """All frames, counters, and what the bag covered.
-
-    ``located_in_processes``: pairs located by worker processes (the rest in this process).
-    ``damage``: the damaged parts of the bag that were skipped (a
-    :class:`eye_in_hand.io.bags.DamageLog`: chunks, truncated tails, messages that could not
-    be read; messages of the processed topics read but not decodable are
-    ``counts['bad_messages']``).
-    ``target_ids``: every target id, in :func:`eye_in_hand.io.results.target_order`;
-    ``truth_match``: id -> matched ground-truth index (:func:`eye_in_hand.io.results.
-    assign_truth`).
-    """
-
-    frames: list[FrameResult] = field(default_factory=list)
-    counts: dict[str, int] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-    duration_s: float = 0.0
-    rig: StereoRig | None = None
-    located_in_processes: int = 0
-    damage: Any = None
-    loss: dict[str, Any] = field(default_factory=dict)
-    target_ids: list[str] = field(default_factory=list)
-    truth_match: dict[str, dict[str, Any]] = field(default_factory=dict)
-
-    def ok(self) -> list[FrameResult]:
-        return [f for f in self.frames if f.status == "ok"]
 
 
 def error_stats(frames: list[FrameResult]) -> dict[str, float] | None:

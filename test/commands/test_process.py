@@ -169,7 +169,8 @@ def test_the_summary_gives_the_top_reasons_when_few_are_located(loc_bag, tmp_pat
 
 
 def test_top_reasons_group_reasons_that_differ_in_numbers_only():
-    from eye_in_hand.offline import FrameResult, top_reasons
+    from eye_in_hand.io.results import FrameResult
+    from eye_in_hand.offline import top_reasons
 
     frames = ([FrameResult(i, "no_target", f"target 'red': depth {500 + i}.5 m, outside "
                                           "0.05-100 m") for i in range(3)]
