@@ -27,8 +27,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from eye_in_hand.core.calibration import (BoardDetection, BoardSpec,  # noqa: E402
-                                          calibrate_camera, calibrate_stereo, detect_board)
+from eye_in_hand.core.calibration import (  # noqa: E402
+    BoardDetection,
+    BoardSpec,
+    calibrate_camera,
+    calibrate_stereo,
+    detect_board,
+)
 
 REF_RMS = 0.196334638034
 REF_K = np.array([[532.80992189, 0.0, 342.4952186], [0.0, 532.93346422, 233.8879292],

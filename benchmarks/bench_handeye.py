@@ -202,8 +202,11 @@ def other_average(res, samples) -> dict[str, np.ndarray]:
     """The per-motion-pair average with the non-default per-pair solver(s), on the samples
     ``res`` kept (``avg_<solver>``); empty when it cannot solve them."""
     from eye_in_hand.core.handeye import gripper_poses, motion_pairs
-    from eye_in_hand.core.handeye.average import (AVERAGE_SOLVERS, DEFAULT_AVERAGE_SOLVER,
-                                                  average_hand_eye)
+    from eye_in_hand.core.handeye.average import (
+        AVERAGE_SOLVERS,
+        DEFAULT_AVERAGE_SOLVER,
+        average_hand_eye,
+    )
     from eye_in_hand.errors import HandEyeError
 
     kept = [s for s in samples if s.name in set(res.sample_names)]

@@ -107,8 +107,8 @@ def opencv_solutions(train_sets) -> list[dict[str, np.ndarray]] | None:
 def main() -> None:
     from eye_in_hand.core.handeye import CLOSED_FORM_METHODS, calibrate_hand_eye
     from eye_in_hand.core.handeye.kfold import classic_fit, fold_indices, kfold_held_out, rms
-    from eye_in_hand.core.transforms import average_transforms
     from eye_in_hand.core.handeye.solvers import board_in_fixed_frame
+    from eye_in_hand.core.transforms import average_transforms
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--k", type=int, default=6, help="number of folds (default 6)")

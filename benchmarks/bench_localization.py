@@ -332,10 +332,10 @@ def replay(bag: str, lead_s: float) -> None:
     Prints the stamp offset (ns) on its first line so the parent can map stamps back.
     """
     import rclpy
+    from geometry_msgs.msg import PoseStamped
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Image
-    from geometry_msgs.msg import PoseStamped
 
     from eye_in_hand.io.bags import iter_messages
     from eye_in_hand.ros.dds import use_large_data_profile

@@ -20,7 +20,8 @@ import argparse
 import codecs
 import importlib
 import sys
-from typing import NoReturn, Sequence
+from collections.abc import Sequence
+from typing import NoReturn
 
 from eye_in_hand import __version__
 from eye_in_hand.commands.common import HelpFormatter, parse_known_args_with_aliases

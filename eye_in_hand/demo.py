@@ -27,8 +27,8 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -39,8 +39,12 @@ from eye_in_hand.errors import EXIT_UNEXPECTED, debug_enabled, unexpected_error_
 from eye_in_hand.io.bags import bag_info, deserialize, iter_messages
 from eye_in_hand.io.config import load_hand_eye
 from eye_in_hand.io.results import compare_outputs, output_messages
-from eye_in_hand.ros.conversions import (camera_info_to_model, header_stamp_ns, point_to_xyz,
-                                         transform_to_matrix)
+from eye_in_hand.ros.conversions import (
+    camera_info_to_model,
+    header_stamp_ns,
+    point_to_xyz,
+    transform_to_matrix,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 BOARD = "chessboard:9x6:0.025"

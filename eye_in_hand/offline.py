@@ -29,9 +29,10 @@ import os
 import re
 import threading
 from collections import deque
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import cv2
 import numpy as np
@@ -42,10 +43,22 @@ from eye_in_hand.core.localization import Localizer, LocalizerConfig
 from eye_in_hand.core.locator import LocatorConfig, StereoLocator
 from eye_in_hand.core.sync import ApproximateStereoSync
 from eye_in_hand.errors import BagError, ConversionError, InputError, LocalizationError
-from eye_in_hand.io.bags import (DamageLog, bag_info, deserialize, iter_messages, memory_mappable,
-                                 require_topics, typestore_for)
-from eye_in_hand.io.results import (FrameResult, ProcessResult, TargetResult, assign_truth,
-                                    target_order)
+from eye_in_hand.io.bags import (
+    DamageLog,
+    bag_info,
+    deserialize,
+    iter_messages,
+    memory_mappable,
+    require_topics,
+    typestore_for,
+)
+from eye_in_hand.io.results import (
+    FrameResult,
+    ProcessResult,
+    TargetResult,
+    assign_truth,
+    target_order,
+)
 from eye_in_hand.io.results import write_results as _write_results
 from eye_in_hand.ros.outputs import OutputSettings
 

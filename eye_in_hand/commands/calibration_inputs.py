@@ -9,16 +9,28 @@ import glob
 import json
 import os
 import sys
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 
-from eye_in_hand.commands.common import (add_image_topic_arguments, add_output_argument,
-                                         add_robot_pose_arguments, bounded, deprecated_alias)
-from eye_in_hand.errors import BagError, CalibrationError, ConfigError, ConversionError, \
-    HandEyeError, InputError
+from eye_in_hand.commands.common import (
+    add_image_topic_arguments,
+    add_output_argument,
+    add_robot_pose_arguments,
+    bounded,
+    deprecated_alias,
+)
+from eye_in_hand.errors import (
+    BagError,
+    CalibrationError,
+    ConfigError,
+    ConversionError,
+    HandEyeError,
+    InputError,
+)
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 from eye_in_hand.io.bags import bag_info, deserialize, iter_messages, require_topics
 from eye_in_hand.ros.stamps import header_stamp_ns
@@ -558,8 +570,8 @@ def load_handeye_inputs(args: argparse.Namespace) -> dict[str, Any]:
     # local: core.handeye and core.calibration load SciPy and OpenCV (~0.45 s at CLI
     # start-up), io.datasets ~90 ms
     from eye_in_hand.core.calibration import BoardSpec
-    from eye_in_hand.core.handeye import HandEyeSample
     from eye_in_hand.core.calibration.board_check import BoardCheck
+    from eye_in_hand.core.handeye import HandEyeSample
     from eye_in_hand.core.handeye.observe import observe_sample, rig_views
     from eye_in_hand.io.datasets import load_dataset, load_pose_pairs
 
@@ -617,8 +629,8 @@ def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
     """Still robot stops of a bag -> detected boards -> samples."""
     # local: as in _load_inputs (SciPy and OpenCV, ~0.45 s at CLI start-up)
     from eye_in_hand.core.calibration import BoardSpec
-    from eye_in_hand.core.camera import CameraModel, StereoRig
     from eye_in_hand.core.calibration.board_check import BoardCheck
+    from eye_in_hand.core.camera import CameraModel, StereoRig
     from eye_in_hand.core.handeye.observe import observe_sample, rig_views
     from eye_in_hand.io.datasets import read_bag_samples
 

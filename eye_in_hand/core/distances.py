@@ -12,8 +12,8 @@ Pure numpy (and scipy's assignment solver): no ROS, no files.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Mapping, Sequence
 
 import numpy as np
 

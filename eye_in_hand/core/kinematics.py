@@ -23,9 +23,10 @@ from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol, Sequence
+from typing import Protocol
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -160,7 +161,7 @@ class DHChain:
 
     @classmethod
     def ur5e(cls, *, base_frame: str = "base_link", dh_frame: str = "base",
-             limit: float = 2.0 * math.pi) -> "DHChain":
+             limit: float = 2.0 * math.pi) -> DHChain:
         """The UR5e with its published DH parameters and +-``limit`` joint limits, in
         ur_description's frames: DH frame 0 is ``dh_frame`` (``base``), ``fk`` is in
         ``base_frame`` (``base_link`` = Rz(pi) ``base``)."""
@@ -174,7 +175,7 @@ class DHChain:
         )
 
     @classmethod
-    def from_dict(cls, data: dict) -> "DHChain":
+    def from_dict(cls, data: dict) -> DHChain:
         """Build from a mapping with keys d, a, alpha [, theta_offset, lower, upper,
         joint_names, link_names, base_frame, dh_frame, base_T_dh] (the ``arm`` section of
         ``world.yaml``; ``base_T_dh`` as ``{translation: [x, y, z], quat_xyzw: [x, y, z, w]}``,
@@ -332,7 +333,7 @@ class UrdfChain:
         object.__setattr__(self, "upper", np.array([j.upper for j in movable], dtype=float))
 
     @classmethod
-    def from_file(cls, path: str | Path, base_link: str, tip_link: str) -> "UrdfChain":
+    def from_file(cls, path: str | Path, base_link: str, tip_link: str) -> UrdfChain:
         """Parse the chain ``base_link`` -> ``tip_link`` of a URDF file.
 
         Raises:
@@ -351,7 +352,7 @@ class UrdfChain:
 
     @classmethod
     def from_string(cls, text: str, base_link: str, tip_link: str, *,
-                    source: str = "<string>") -> "UrdfChain":
+                    source: str = "<string>") -> UrdfChain:
         """Parse the chain ``base_link`` -> ``tip_link`` from URDF XML text.
 
         Args:

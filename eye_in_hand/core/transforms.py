@@ -11,8 +11,7 @@ argument; internal helpers trust their inputs.
 from __future__ import annotations
 
 import math
-
-from typing import Iterable, Sequence
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 

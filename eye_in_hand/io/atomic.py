@@ -36,8 +36,9 @@ import errno
 import os
 import re
 import shutil
+from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import IO, Iterable, Iterator
+from typing import IO
 
 from eye_in_hand.errors import EyeInHandError
 

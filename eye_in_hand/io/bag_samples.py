@@ -6,8 +6,9 @@ from __future__ import annotations
 import bisect
 import os
 import struct
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Iterator, Mapping
+from typing import Any
 
 import numpy as np
 

@@ -23,9 +23,10 @@ Dataset layout (``dataset.yaml``; paths are relative to the file's folder)::
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import yaml

@@ -31,16 +31,24 @@ import heapq
 import mmap
 import threading
 from collections import OrderedDict
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 
 from eye_in_hand.errors import ConversionError
-from eye_in_hand.io.cdr import CdrHeader, CdrStamp, image_from_cdr
-from eye_in_hand.io.mcap_chunks import (ChunkDamage, _address, _Chunk, _DamagedRecords,
-                                        _lost, _may_hold, _messages_of, chunk_damage)
+from eye_in_hand.io.cdr import CdrHeader, image_from_cdr
+from eye_in_hand.io.mcap_chunks import (
+    ChunkDamage,
+    _address,
+    _Chunk,
+    _DamagedRecords,
+    _may_hold,
+    _messages_of,
+    chunk_damage,
+)
 
 __all__ = ["ChunkRef", "ImageRef", "plan_groups", "open_group", "worker_messages", "release",
            "GROUP_BYTES", "CACHE_BYTES"]

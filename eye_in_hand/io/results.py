@@ -34,20 +34,36 @@ import dataclasses
 import json
 import math
 import re
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Mapping, Protocol, Sequence
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from eye_in_hand.core.distances import (PairDistance, TargetStats, apply_known_distances,
-                                        match_truth, pairwise_distances, target_stats)
+from eye_in_hand.core.distances import (
+    PairDistance,
+    TargetStats,
+    apply_known_distances,
+    match_truth,
+    pairwise_distances,
+    target_stats,
+)
 from eye_in_hand.errors import BagError, ConfigError, InputError
 from eye_in_hand.io.bags import BagWriter, bag_info, deserialize, iter_messages
-from eye_in_hand.ros.outputs import (OutputSettings, RosbagsTypes, Sphere, point_stamped,
-                                     pose_array, pose_stamped, pose_with_covariance,
-                                     sphere_markers, tf_message, transform_stamped,
-                                     translation_tf_message)
+from eye_in_hand.ros.outputs import (
+    OutputSettings,
+    RosbagsTypes,
+    Sphere,
+    point_stamped,
+    pose_array,
+    pose_stamped,
+    pose_with_covariance,
+    sphere_markers,
+    tf_message,
+    transform_stamped,
+    translation_tf_message,
+)
 from eye_in_hand.yamlfile import read_yaml_file
 
 if TYPE_CHECKING:  # annotations only: core.camera imports OpenCV, which `distances` never needs

@@ -27,9 +27,10 @@ import math
 import queue
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import cv2
 import numpy as np
@@ -45,8 +46,13 @@ from eye_in_hand.core.camera import CameraModel, StereoRig
 from eye_in_hand.core.handeye import HandEyeResult
 from eye_in_hand.core.handeye.observe import board_pose_pnp, rig_views
 from eye_in_hand.core.handeye.plan import Plan, PlanConfig, suggest_next_poses
-from eye_in_hand.core.handeye.session import (CalibrationSession, CaptureOutcome, SampleRecord,
-                                              SessionConfig, SessionStatus)
+from eye_in_hand.core.handeye.session import (
+    CalibrationSession,
+    CaptureOutcome,
+    SampleRecord,
+    SessionConfig,
+    SessionStatus,
+)
 from eye_in_hand.errors import ConfigError, ConversionError, EyeInHandError, InputError
 from eye_in_hand.io.atomic import atomic_output_dir
 from eye_in_hand.io.config import load_hand_eye

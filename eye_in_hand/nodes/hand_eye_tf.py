@@ -18,12 +18,18 @@ import numpy as np
 from eye_in_hand.core.camera import StereoRig
 from eye_in_hand.core.tf import TfBuffer, TfPoseView
 from eye_in_hand.errors import ConfigError, EyeInHandError
-from eye_in_hand.ros import tf as ros_tf  # have_tf2_msgs, tf_message_class looked up per call
-from eye_in_hand.ros.qos import ROBOT_POSE_DEPTH
 from eye_in_hand.ros import outputs
+from eye_in_hand.ros import tf as ros_tf  # have_tf2_msgs, tf_message_class looked up per call
 from eye_in_hand.ros.outputs import rclpy_types, tf_message
-from eye_in_hand.ros.tf import (TF_STATIC_TOPIC, TF_TOPIC, feed_tf_message, tf_qos,
-                                tf_static_pub_qos, tf_static_sub_qos)
+from eye_in_hand.ros.qos import ROBOT_POSE_DEPTH
+from eye_in_hand.ros.tf import (
+    TF_STATIC_TOPIC,
+    TF_TOPIC,
+    feed_tf_message,
+    tf_qos,
+    tf_static_pub_qos,
+    tf_static_sub_qos,
+)
 
 __all__ = ["TfMixin", "translation_tf_message"]
 

@@ -46,8 +46,9 @@ import os
 import queue
 import threading
 import time
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import cv2
 import numpy as np
@@ -56,7 +57,6 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, JointState
 
-from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.core.camera import CameraModel, StereoRig
 from eye_in_hand.errors import ConfigError, ConversionError, EyeInHandError, InputError
 from eye_in_hand.io.images import read_image_file
@@ -68,9 +68,18 @@ from eye_in_hand.ros.conversions import (
     numpy_to_image,
 )
 from eye_in_hand.ros.diagnostics import ERROR, WARN, NodeDiagnostics
+from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.ros.params import Param, declare_params
-from eye_in_hand.ros.tf import (TF_STATIC_TOPIC, TF_TOPIC, chain_tf_edges, have_tf2_msgs,
-                                make_tf_message, tf_message_class, tf_qos, tf_static_pub_qos)
+from eye_in_hand.ros.tf import (
+    TF_STATIC_TOPIC,
+    TF_TOPIC,
+    chain_tf_edges,
+    have_tf2_msgs,
+    make_tf_message,
+    tf_message_class,
+    tf_qos,
+    tf_static_pub_qos,
+)
 
 __all__ = ["NODE_PARAMETERS", "SOURCES", "StereoCaptureNode", "FrameSource", "parameter_names",
            "main"]

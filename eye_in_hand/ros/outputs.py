@@ -118,7 +118,7 @@ class _RclpyTypes:
         return _rclpy_class(msgtype)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _rclpy_class(msgtype: str) -> Any:
     from eye_in_hand.ros.msgtypes import import_message_type  # local: rclpy, live path only
 

@@ -20,9 +20,10 @@ looks along -z, so cameras see it from the -z side, as OpenCV's PnP assumes.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import yaml
@@ -188,7 +189,7 @@ class World:
 
     # -- construction ---------------------------------------------------------------------
     @classmethod
-    def default(cls) -> "World":
+    def default(cls) -> World:
         """The default world: UR5e, 1280x720 stereo pair (fx ~ 900 px, 60 mm baseline, radial
         and tangential distortion, a small inter-camera rotation), one red sphere, a 9x6
         chessboard with 25 mm squares lying on a textured table."""
@@ -221,7 +222,7 @@ class World:
                    board=board, base_T_board=base_T_board)
 
     @classmethod
-    def from_dict(cls, data: Any, source: str = "<world>") -> "World":
+    def from_dict(cls, data: Any, source: str = "<world>") -> World:
         """Build a world from the ``world.yaml`` mapping (see ``config/world.yaml``).
 
         Raises:
@@ -298,7 +299,7 @@ class World:
         }
 
     @classmethod
-    def from_yaml(cls, path: str | Path) -> "World":
+    def from_yaml(cls, path: str | Path) -> World:
         """Load a world file.
 
         Raises:
@@ -317,7 +318,7 @@ class World:
         p.write_text(header + yaml.safe_dump(self.to_dict(), sort_keys=False), encoding="utf-8")
         return p
 
-    def with_image_size(self, width: int, height: int) -> "World":
+    def with_image_size(self, width: int, height: int) -> World:
         """The same world with both cameras resampled to ``width`` x ``height`` pixels.
 
         Focal lengths and principal points scale with the size ratio per axis (the field of
@@ -339,7 +340,7 @@ class World:
         rig = StereoRig(left=cams[0], right=cams[1], R=self.rig.R, T=self.rig.T)
         return replace(self, rig=rig)
 
-    def with_robot_error(self, spec: RobotErrorSpec) -> "World":
+    def with_robot_error(self, spec: RobotErrorSpec) -> World:
         """The same world with another robot error (``RobotErrorSpec.none()``: ideal arm)."""
         return replace(self, robot_error=spec)
 

@@ -11,11 +11,16 @@ import pytest
 from eye_in_hand.cli import main
 from eye_in_hand.core.camera import CameraModel
 from eye_in_hand.core.handeye.synthetic import make_problem
-from eye_in_hand.core.transforms import (from_rotvec, interpolate, invert, to_xyz_quat,
-                                         transform_distance)
+from eye_in_hand.core.transforms import (
+    from_rotvec,
+    interpolate,
+    invert,
+    to_xyz_quat,
+    transform_distance,
+)
+from eye_in_hand.errors import ConfigError
 from eye_in_hand.io.bags import BagWriter, default_typestore
 from eye_in_hand.io.config import load_hand_eye
-from eye_in_hand.errors import ConfigError
 from eye_in_hand.io.datasets import read_bag_samples
 
 T0 = 1_700_000_000_000_000_000

@@ -5,9 +5,16 @@ import cv2
 import numpy as np
 import pytest
 
-from eye_in_hand.core.calibration import (BoardDetection, BoardSpec, CalibrationOptions,
-                                          calibrate_camera, calibrate_stereo, coverage,
-                                          detect_board, outlier_threshold)
+from eye_in_hand.core.calibration import (
+    BoardDetection,
+    BoardSpec,
+    CalibrationOptions,
+    calibrate_camera,
+    calibrate_stereo,
+    coverage,
+    detect_board,
+    outlier_threshold,
+)
 from eye_in_hand.errors import CalibrationError, InputError
 
 BOARD = BoardSpec.parse("chessboard:9x6:0.025")

@@ -6,9 +6,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from eye_in_hand.core.handeye import (CornerObservation, HandEyeSample, PlanConfig,
-                                      predicted_covariance, solve_closed_form,
-                                      suggest_next_poses)
+from eye_in_hand.core.handeye import (
+    CornerObservation,
+    HandEyeSample,
+    PlanConfig,
+    predicted_covariance,
+    solve_closed_form,
+    suggest_next_poses,
+)
 from eye_in_hand.core.handeye.eiv import refine_errors_in_variables
 from eye_in_hand.core.handeye.observe import board_pose_pnp
 from eye_in_hand.core.handeye.plan import candidate_poses

@@ -7,9 +7,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from eye_in_hand.core.handeye import (CLOSED_FORM_METHODS, HandEyeSample, board_in_fixed_frame,
-                                      calibrate_hand_eye, motion_diagnostics, solve_closed_form,
-                                      validate_samples)
+from eye_in_hand.core.handeye import (
+    CLOSED_FORM_METHODS,
+    HandEyeSample,
+    board_in_fixed_frame,
+    calibrate_hand_eye,
+    motion_diagnostics,
+    solve_closed_form,
+    validate_samples,
+)
 from eye_in_hand.core.transforms import from_rotvec, invert, transform_distance
 from eye_in_hand.errors import HandEyeError
 

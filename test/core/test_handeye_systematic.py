@@ -12,10 +12,20 @@ from scipy.spatial.transform import Rotation
 
 from eye_in_hand.core.calibration import BoardSpec, detect_board
 from eye_in_hand.core.camera import CameraModel
-from eye_in_hand.core.handeye import (CLOSED_FORM_METHODS, CameraView, CornerObservation,
-                                      HandEyeSample, calibrate_hand_eye)
-from eye_in_hand.core.handeye.kfold import (classic_fit, fold_indices, kfold_held_out,
-                                            predict_view, rms)
+from eye_in_hand.core.handeye import (
+    CLOSED_FORM_METHODS,
+    CameraView,
+    CornerObservation,
+    HandEyeSample,
+    calibrate_hand_eye,
+)
+from eye_in_hand.core.handeye.kfold import (
+    classic_fit,
+    fold_indices,
+    kfold_held_out,
+    predict_view,
+    rms,
+)
 from eye_in_hand.core.handeye.observe import board_pose_pnp
 from eye_in_hand.core.handeye.systematic import fit_systematic, refine_systematic
 from eye_in_hand.core.transforms import from_rotvec, invert, transform_distance

@@ -13,8 +13,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from geometry_msgs.msg import (PointStamped, PoseArray, PoseStamped,  # noqa: E402
-                               PoseWithCovarianceStamped)
+from geometry_msgs.msg import PointStamped, PoseArray, PoseStamped, PoseWithCovarianceStamped  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import Image  # noqa: E402
@@ -26,8 +25,7 @@ from eye_in_hand.core.transforms import from_rotvec, interpolate  # noqa: E402
 from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye  # noqa: E402
 from eye_in_hand.nodes.detect_triangulate import DetectTriangulateNode  # noqa: E402
 from eye_in_hand.nodes.hand_eye import HandEyeNode  # noqa: E402
-from eye_in_hand.ros.conversions import (header_stamp_ns, matrix_to_pose_stamped,  # noqa: E402
-                                         numpy_to_image)
+from eye_in_hand.ros.conversions import header_stamp_ns, matrix_to_pose_stamped, numpy_to_image  # noqa: E402
 from eye_in_hand.ros.markers import Sphere, sphere_marker_array  # noqa: E402
 from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS  # noqa: E402
 from eye_in_hand.sim.sphere import render_sphere  # noqa: E402

@@ -13,8 +13,12 @@ from eye_in_hand.core.transforms import from_rotvec, interpolate
 from eye_in_hand.errors import ConfigError
 from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye
 from eye_in_hand.nodes.hand_eye import HandEyeNode
-from eye_in_hand.ros.conversions import (header_stamp_ns, make_header, matrix_to_pose_stamped,
-                                         xyz_to_point_stamped)
+from eye_in_hand.ros.conversions import (
+    header_stamp_ns,
+    make_header,
+    matrix_to_pose_stamped,
+    xyz_to_point_stamped,
+)
 from eye_in_hand.ros.qos import LATCHED_QOS, RESULT_QOS, SENSOR_QOS
 
 EE_T_CAM = from_rotvec([0.1, -0.2, 0.05], [0.03, -0.05, 0.08])
@@ -37,8 +41,12 @@ class _Rig:
     """Publishers/subscribers around a HandEyeNode in the test's namespace."""
 
     def __init__(self, ros_context, executor, namespace, overrides, robot="ee_pose"):
-        from geometry_msgs.msg import (PointStamped, PoseStamped, PoseWithCovarianceStamped,
-                                       TransformStamped)
+        from geometry_msgs.msg import (
+            PointStamped,
+            PoseStamped,
+            PoseWithCovarianceStamped,
+            TransformStamped,
+        )
         from sensor_msgs.msg import JointState
 
         self.node = HandEyeNode(context=ros_context, namespace=namespace,

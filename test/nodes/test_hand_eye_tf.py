@@ -14,8 +14,14 @@ from eye_in_hand.core.transforms import from_rotvec, interpolate, invert
 from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye
 from eye_in_hand.ros.conversions import header_stamp_ns, transform_to_matrix, xyz_to_point_stamped
 from eye_in_hand.ros.qos import RESULT_QOS
-from eye_in_hand.ros.tf import (chain_tf_edges, have_tf2_msgs, make_tf_message, tf_qos,
-                                tf_static_pub_qos, tf_static_sub_qos)
+from eye_in_hand.ros.tf import (
+    chain_tf_edges,
+    have_tf2_msgs,
+    make_tf_message,
+    tf_qos,
+    tf_static_pub_qos,
+    tf_static_sub_qos,
+)
 
 pytestmark = pytest.mark.skipif(not have_tf2_msgs(), reason="tf2_msgs not built (make venv)")
 

@@ -111,12 +111,11 @@ def test_calibration_at_a_live_cell(robot, tmp_path, ros_context, executor, name
     from std_msgs.msg import Int32
     from std_srvs.srv import Trigger
 
-    from eye_in_hand.ros.qos import LATCHED_QOS
-
     from eye_in_hand.core.calibration import BoardSpec
     from eye_in_hand.core.handeye.observe import rig_views
     from eye_in_hand.core.transforms import transform_distance
     from eye_in_hand.nodes.hand_eye import HandEyeNode
+    from eye_in_hand.ros.qos import LATCHED_QOS
     from eye_in_hand.ros.tf import have_tf2_msgs
     from eye_in_hand.sim import World
     from eye_in_hand.sim.scenarios import calibration_poses

@@ -7,8 +7,13 @@ import pytest
 pytest.importorskip("visualization_msgs")
 
 from eye_in_hand.errors import ConversionError  # noqa: E402
-from eye_in_hand.ros.markers import (Sphere, color_range_rgba, points_to_pose_array,  # noqa: E402
-                                     sphere_marker_array, spheres_from_marker_array)
+from eye_in_hand.ros.markers import (  # noqa: E402
+    Sphere,
+    color_range_rgba,
+    points_to_pose_array,
+    sphere_marker_array,
+    spheres_from_marker_array,
+)
 
 STAMP = 1_700_000_000_123_456_789
 

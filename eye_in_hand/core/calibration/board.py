@@ -10,7 +10,6 @@ import numpy as np
 
 from eye_in_hand.errors import InputError
 
-
 _DEFAULT_CHARUCO_DICT = "DICT_5X5_100"
 _BOARD_RE = re.compile(r"^\s*(\d+)\s*[xX]\s*(\d+)\s*$")
 
@@ -85,7 +84,7 @@ class BoardSpec:
 
     # -- construction -----------------------------------------------------------------------
     @classmethod
-    def parse(cls, spec: str) -> "BoardSpec":
+    def parse(cls, spec: str) -> BoardSpec:
         """Parse a board specification string (grammar in the module docstring).
 
         Args:
@@ -224,7 +223,7 @@ class BoardDetection:
     meta: dict = field(default_factory=dict, compare=False, repr=False)
 
     @classmethod
-    def missing(cls, image_size: tuple[int, int], detector: str, reason: str) -> "BoardDetection":
+    def missing(cls, image_size: tuple[int, int], detector: str, reason: str) -> BoardDetection:
         """A not-found result carrying ``reason``."""
         return cls(False, np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64),
                    image_size, detector, reason)
@@ -234,7 +233,7 @@ class BoardDetection:
         """Number of detected corners."""
         return int(self.corners.shape[0])
 
-    def reversed(self) -> "BoardDetection":
+    def reversed(self) -> BoardDetection:
         """The same chessboard detection with the corner order rotated by 180 degrees.
 
         Used to make left/right orderings agree when the detector returned a symmetric board

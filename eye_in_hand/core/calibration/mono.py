@@ -2,8 +2,8 @@
 errors, outlier flags and rejection, coverage and parameter standard deviations."""
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import cv2
 import numpy as np
@@ -12,7 +12,6 @@ from eye_in_hand.core.calibration.board import BoardDetection
 from eye_in_hand.core.calibration.quality import coverage, outlier_threshold
 from eye_in_hand.core.camera import CameraModel
 from eye_in_hand.errors import CalibrationError, InputError
-
 
 #: Fewest corners a view needs to take part in a calibration.
 MIN_POINTS_PER_VIEW = 6

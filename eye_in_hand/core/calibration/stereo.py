@@ -2,8 +2,9 @@
 intrinsics and distortion, the extrinsic and every board pose, then rectification."""
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import cv2
 import numpy as np
@@ -28,7 +29,6 @@ from eye_in_hand.core.calibration.quality import StereoQuality, outlier_threshol
 from eye_in_hand.core.camera import CameraModel, StereoRig
 from eye_in_hand.core.transforms import average_transforms
 from eye_in_hand.errors import CalibrationError, InputError
-
 
 #: Accepted values of the ``method`` argument of :func:`calibrate_stereo`.
 STEREO_METHODS: tuple[str, ...] = ("bundle", "opencv")

@@ -23,8 +23,9 @@
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -32,20 +33,28 @@ from scipy.spatial.transform import Rotation
 from eye_in_hand.core.transforms import average_transforms, invert_many, to_xyz_quat
 from eye_in_hand.errors import HandEyeError
 
-from .average import AVERAGE_SOLVERS, DEFAULT_AVERAGE_SOLVER, average_hand_eye, \
-    solve_average
-from .eiv import SIGMA_FLOORS, EivResult, leave_one_out_steps, refine_errors_in_variables
-from .refine import RefinementResult, pose_residual_scales, refine_pose_space, \
-    refine_reprojection, reprojection_errors
-from .samples import MIN_SAMPLES, CameraView, HandEyeSample, MotionDiagnostics, \
-    motion_diagnostics, validate_samples
-from .solvers import CLOSED_FORM_METHODS, SETUPS, board_in_fixed_frame, gripper_poses, \
-    motion_pairs
-from .residuals import motion_residuals
-from .select import HeldOut, choose, held_out_position_sigma, held_out_prediction, \
-    selection_scores
-from .systematic import SystematicResult, leave_one_out_systematic, refine_systematic
+from .average import AVERAGE_SOLVERS, DEFAULT_AVERAGE_SOLVER, average_hand_eye, solve_average
 from .budget import error_budget
+from .eiv import SIGMA_FLOORS, EivResult, leave_one_out_steps, refine_errors_in_variables
+from .refine import (
+    RefinementResult,
+    pose_residual_scales,
+    refine_pose_space,
+    refine_reprojection,
+    reprojection_errors,
+)
+from .residuals import motion_residuals
+from .samples import (
+    MIN_SAMPLES,
+    CameraView,
+    HandEyeSample,
+    MotionDiagnostics,
+    motion_diagnostics,
+    validate_samples,
+)
+from .select import HeldOut, choose, held_out_position_sigma, held_out_prediction, selection_scores
+from .solvers import CLOSED_FORM_METHODS, SETUPS, board_in_fixed_frame, gripper_poses, motion_pairs
+from .systematic import SystematicResult, leave_one_out_systematic, refine_systematic
 
 __all__ = [
     "METHODS",

@@ -43,8 +43,8 @@ that sample's correction only: 18 evaluations per Jacobian). The normal equation
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation

@@ -42,20 +42,24 @@ for reachability and collisions before the robot moves there.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from eye_in_hand.core.transforms import as_transform, average_transforms, invert, \
-    invert_many, to_xyz_quat
+from eye_in_hand.core.transforms import (
+    as_transform,
+    average_transforms,
+    invert,
+    invert_many,
+    to_xyz_quat,
+)
 from eye_in_hand.errors import HandEyeError, InputError
 
 from .eiv import SIGMA_FLOORS, _normal, _Problem
 from .refine import _start, project_points
-from .samples import MIN_SAMPLES, CameraView, CornerObservation, HandEyeSample, \
-    validate_samples
+from .samples import MIN_SAMPLES, CameraView, CornerObservation, HandEyeSample, validate_samples
 from .solvers import SETUPS, board_in_fixed_frame
 
 __all__ = ["PlanConfig", "Suggestion", "Plan", "suggest_next_poses", "CRITERIA",

@@ -24,8 +24,8 @@ The covariance is ``s^2 (J^T J)^-1`` at the solution with ``s^2`` the residual v
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import cv2
 import numpy as np

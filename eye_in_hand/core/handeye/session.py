@@ -29,8 +29,9 @@ with no frame, or with no covering pose, by ``capture_timeout_s`` after it is re
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping, Protocol, Sequence
+from typing import Any, Protocol
 
 import numpy as np
 

@@ -29,8 +29,8 @@ them, so motions above 90 degrees are handled the same as small ones.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 from scipy.spatial.transform import Rotation

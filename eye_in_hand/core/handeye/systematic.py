@@ -28,8 +28,8 @@ Gauss-Newton one of the whitened problem, scaled by its residual variance.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -37,7 +37,6 @@ from scipy.spatial.transform import Rotation
 
 from eye_in_hand.core.transforms import invert_many
 from eye_in_hand.errors import HandEyeError
-
 
 __all__ = ["LEVELS", "SystematicResult", "fit_systematic", "refine_systematic",
            "leave_one_out_systematic"]

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import heapq
 import struct
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Iterable, Iterator, Sequence
+from typing import Any
 
 import yaml
 

@@ -17,16 +17,17 @@ from __future__ import annotations
 
 import queue
 import threading
+from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any
 
 from eye_in_hand.errors import BagError, ConversionError
 from eye_in_hand.io import mcap_chunks
 from eye_in_hand.io.bags.decoding import deserialize
 from eye_in_hand.io.bags.reading import _OpenBag, chunk_damage_record, iter_messages
+from eye_in_hand.io.bags.records import DamageLog
 from eye_in_hand.io.cdr import image_from_cdr, is_image_type
 from eye_in_hand.io.mcap_tasks import worker_messages
-from eye_in_hand.io.bags.records import DamageLog
 
 __all__ = ["decoded_stream", "decoded_on_thread", "worker_readable", "iter_in_workers",
            "decoded_in_workers"]

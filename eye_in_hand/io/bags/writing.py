@@ -4,11 +4,12 @@ from __future__ import annotations
 import threading
 import zlib
 from collections import defaultdict
+from collections.abc import Sequence
 from dataclasses import dataclass
 from io import BytesIO
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Literal, Sequence
+from typing import Any, Literal
 
 from eye_in_hand.errors import BagError, InputError
 from eye_in_hand.io.bags.decoding import _types_from_definition, serialize
@@ -18,8 +19,14 @@ from eye_in_hand.io.bags.records import COMPRESSIONS, STORAGES, OfferedQos
 
 def _to_rosbags_qos(qos: OfferedQos) -> Any:
     # local: rosbags costs ~25 ms at CLI start-up (every command loads io.bags)
-    from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
-                                    QosReliability, QosTime)
+    from rosbags.interfaces import (
+        Qos,
+        QosDurability,
+        QosHistory,
+        QosLiveliness,
+        QosReliability,
+        QosTime,
+    )
 
     try:
         return Qos(QosHistory[qos.history.upper()], int(qos.depth),
@@ -70,9 +77,15 @@ def _rosbags_writer() -> Any:
     # command loads io.bags), and only commands that write bags need it
     from rosbags.rosbag2 import Writer
     from rosbags.rosbag2.enums import StoragePlugin
-    from rosbags.rosbag2.storage_mcap import (McapWriter, PendingChunk, write_record,
-                                              write_string, write_uint16, write_uint32,
-                                              write_uint64)
+    from rosbags.rosbag2.storage_mcap import (
+        McapWriter,
+        PendingChunk,
+        write_record,
+        write_string,
+        write_uint16,
+        write_uint32,
+        write_uint64,
+    )
 
     def jazzy(metadata: str) -> str:
         return metadata.replace("ros_distro: rosbags", f"ros_distro: {ROS_DISTRO}")
