@@ -196,8 +196,8 @@ def synthetic_images(world, n_frames: int) -> None:
         left = [detect_board(f[0], board, det, fallback=False) for f in frames]
         right = [detect_board(f[1], board, det, fallback=False) for f in frames]
         errs = []
-        for d, f, side in [(d, f, 0) for d, f in zip(left, frames)] + \
-                          [(d, f, 1) for d, f in zip(right, frames)]:
+        for d, f, side in [(d, f, 0) for d, f in zip(left, frames, strict=True)] + \
+                          [(d, f, 1) for d, f in zip(right, frames, strict=True)]:
             if d.found:
                 truth = f[2].board_corners_px_left if side == 0 else f[2].board_corners_px_right
                 errs.append(np.linalg.norm(d.corners - truth, axis=1))

@@ -296,7 +296,7 @@ def accuracy(args: argparse.Namespace) -> None:
               f"{best_mm} in {wins} of {len(sel_a)} datasets")
         if cv_out is not None:
             theirs: dict[str, list[tuple[float, float]]] = {}
-            for trial, X_true in zip(cv_out["trials"], truths):
+            for trial, X_true in zip(cv_out["trials"], truths, strict=False):
                 for name, X in trial.items():
                     theirs.setdefault(name, []).append(errors(X_true, np.array(X)))
             cv_mm = min(theirs, key=lambda k: med(theirs[k])[1])

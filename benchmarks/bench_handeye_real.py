@@ -77,7 +77,7 @@ def make_samples(detector: str = "auto", data: Path = DATA, refine: str = "saddl
 
     board, cam, images, offsets, poses = load_capture(data)
     samples, dets = [], []
-    for i, (img, off, pose) in enumerate(zip(images, offsets, poses)):
+    for i, (img, off, pose) in enumerate(zip(images, offsets, poses, strict=False)):
         det = detect_board(img, board, detector, refine=refine)
         if not det.found:
             raise SystemExit(f"image {i:03d}: board not found ({det.reason})")

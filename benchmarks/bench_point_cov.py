@@ -147,7 +147,7 @@ def print_pixels(m: dict[str, np.ndarray]) -> None:
           f"{cross_model[1]:.5f} px^2; beyond the shading term: x {beyond[0]:+.5f} y "
           f"{beyond[1]:+.5f} px^2, {np.sqrt(max(beyond.mean(), 0.0)):.3f} px RMS over the axes "
           f"(CUT_SIGMA_PX {detection.CUT_SIGMA_PX:g}, times 1 + CUT_BLUR_GAIN b)")
-    zd = [np.array([(u @ x) / np.sqrt(u @ s_ @ u) for x, s_ in zip(e, S)])
+    zd = [np.array([(u @ x) / np.sqrt(u @ s_ @ u) for x, s_ in zip(e, S, strict=False)])
           for u in (np.array([1.0, 0, -1.0, 0]), np.array([0, 1.0, 0, -1.0]))]
     c = m["corr"]
     print(f"  left - right (what the depth sees) over the model's sigma: RMS x "
@@ -158,7 +158,7 @@ def print_pixels(m: dict[str, np.ndarray]) -> None:
 
 def print_point(m: dict[str, np.ndarray], label: str) -> None:
     m2, lat, dep, el, sl, ed, sd = [], [], [], [], [], [], []
-    for e, P, p in zip(m["e"], m["P"], m["truth"]):
+    for e, P, p in zip(m["e"], m["P"], m["truth"], strict=False):
         m2.append(float(e @ np.linalg.solve(P, e)))
         B = lateral_basis(p)
         x, C = B @ e, B @ P @ B.T

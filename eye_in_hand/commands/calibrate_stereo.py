@@ -169,7 +169,7 @@ def run(args: argparse.Namespace) -> int:
     report = cal.to_dict()
     by_left = {v["file"]: v for v in report["views"]}
     views = []
-    for lf, rf in zip(left, right):
+    for lf, rf in zip(left, right, strict=True):
         entry = dict(by_left[lf.name])
         if not lf.detection.found:
             entry["left_reason"] = lf.detection.reason
@@ -192,7 +192,7 @@ def run(args: argparse.Namespace) -> int:
             from eye_in_hand.report.calibration import stereo_report
 
             images, corners, pair_name = _pair_image(args, left, right, cal)
-            stereo_report(cal, [(lf.name, rf.name) for lf, rf in zip(left, right)], board,
+            stereo_report(cal, [(lf.name, rf.name) for lf, rf in zip(left, right, strict=True)], board,
                           description, skipped, images, corners, pair_name
                           ).save(tmp / "report.html")
     q = cal.quality

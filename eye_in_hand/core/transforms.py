@@ -309,7 +309,7 @@ def interpolate_unchecked(stamp_ns: int, stamp0_ns: int, A: np.ndarray, stamp1_n
     s = float(stamp_ns - stamp0_ns) / float(stamp1_ns - stamp0_ns)
     q0 = _quat_of(A)
     q1 = _quat_of(B)
-    if sum(a * b for a, b in zip(q0, q1)) < 0.0:
+    if sum(a * b for a, b in zip(q0, q1, strict=True)) < 0.0:
         q1 = tuple(-v for v in q1)
     # the angle between the quaternions, accurate also when they are nearly equal
     theta = 2.0 * math.atan2(math.dist(q0, q1), math.dist(q0, tuple(-v for v in q1)))
@@ -318,7 +318,7 @@ def interpolate_unchecked(stamp_ns: int, stamp0_ns: int, A: np.ndarray, stamp1_n
     else:
         sin_t = math.sin(theta)
         w0, w1 = math.sin((1.0 - s) * theta) / sin_t, math.sin(s * theta) / sin_t
-    q = [w0 * a + w1 * b for a, b in zip(q0, q1)]
+    q = [w0 * a + w1 * b for a, b in zip(q0, q1, strict=True)]
     out = np.eye(4)
     out[:3, :3] = quat_xyzw_to_matrix(q)
     out[:3, 3] = (1.0 - s) * A[:3, 3] + s * B[:3, 3]

@@ -271,7 +271,7 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
             except unusable as exc:
                 log.bad_message(topic, log_ns, str(exc))
                 continue
-            pos = dict(zip(list(msg.name), np.asarray(msg.position, dtype=float)))
+            pos = dict(zip(list(msg.name), np.asarray(msg.position, dtype=float), strict=False))
             missing = [n for n in names if n not in pos]
             if missing:
                 raise ConfigError(f"{source}: {jt} lacks joints {missing} of the kinematic "

@@ -288,7 +288,7 @@ def write_dataset(directory: str | os.PathLike[str], *, setup: str, board: str,
         data["camera"] = "camera.yaml"
         keys = {"image": "images"}
     samples = []
-    for i, (imgs, T) in enumerate(zip(images, base_T_ee)):
+    for i, (imgs, T) in enumerate(zip(images, base_T_ee, strict=True)):
         name = names[i] if names is not None else f"{i:04d}"
         entry: dict[str, Any] = {}
         for key, folder in keys.items():

@@ -344,7 +344,7 @@ def worker_messages(storage: Any, connections: Sequence[Any], submit: Submit, *,
         if g + ahead < len(groups):
             launch(g + ahead)
         results, owner = outcome(g)
-        for ref, (msgs, damage) in zip(group, results):
+        for ref, (msgs, damage) in zip(group, results, strict=True):
             t0 = ref.message_start_time
             while pending and pending[0][0] < t0:     # nothing later can come before these
                 m = heapq.heappop(pending)

@@ -462,7 +462,7 @@ class _Topics:
                 self.write("/tf", stamp, translation_tf_message(
                     T, [(base_frame, s.target_frame, stamp, f.point_base)]))
         located, edges = [], []
-        for t, sphere in zip(f.targets, spheres):
+        for t, sphere in zip(f.targets, spheres, strict=True):
             if t.point_base is None or t.cov_base is None:
                 continue
             tid = _topic_id(t.id)
@@ -707,7 +707,7 @@ def compare_outputs(live: Mapping[str, list[tuple[int, Any]]],
         b = [m for m in offline[topic] if stamps is None or m[0] in stamps]
         if a != b:
             bad = sorted({s for s, _ in a} ^ {s for s, _ in b}) or sorted(
-                {s for (s, x), (_, y) in zip(a, b) if x != y})
+                {s for (s, x), (_, y) in zip(a, b, strict=False) if x != y})
             problems.append(f"{topic}: {len(a)} live and {len(b)} offline messages differ "
                             f"(first at {bad[0] if bad else '?'} ns)")
     return problems

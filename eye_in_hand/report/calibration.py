@@ -30,7 +30,7 @@ def per_view_figure(names: Sequence[str], rms: Sequence[float], used: Sequence[b
     fig = new_figure(max(6.0, 0.28 * len(names) + 2.0), 3.4)
     ax = fig.add_subplot(1, 1, 1)
     vals = np.array([np.nan if r is None else float(r) for r in rms])
-    colors = ["#c62828" if o else ("#1f77b4" if u else "#9e9e9e") for u, o in zip(used, outlier)]
+    colors = ["#c62828" if o else ("#1f77b4" if u else "#9e9e9e") for u, o in zip(used, outlier, strict=True)]
     x = np.arange(len(names))
     ax.bar(x, np.nan_to_num(vals), color=colors)
     if np.isfinite(threshold):
@@ -139,7 +139,7 @@ def rectified_pair_image(rig: Any, left: np.ndarray, right: np.ndarray,
 
 def _param_rows(cam: Any, std: dict) -> list[list[Any]]:
     vals = {"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy}
-    vals.update({n: float(v) for n, v in zip(_DIST, cam.dist)})
+    vals.update({n: float(v) for n, v in zip(_DIST, cam.dist, strict=False)})
     return [[n, *value_and_std(v, std.get(n))] for n, v in vals.items()]
 
 

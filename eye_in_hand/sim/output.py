@@ -366,7 +366,7 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
         # robot streams
         dt = 1.0 / robot_rate_hz
         frames_names = (arm.dh_frame, *arm.link_names)
-        for k, (ns, q) in enumerate(zip(stamps, qs_rep)):
+        for k, (ns, q) in enumerate(zip(stamps, qs_rep, strict=True)):
             ns = int(ns)
             k0, k1 = max(k - 1, 0), min(k + 1, len(qs) - 1)
             dq = (qs_rep[k1] - qs_rep[k0]) / (max(k1 - k0, 1) * dt)

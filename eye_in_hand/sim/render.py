@@ -393,7 +393,7 @@ class Renderer:
                                   ("right", w.rig.right, t_right, right_T_base)):
             out[f"center_px_{side}"] = (cam.project(pts) if len(pts) else np.zeros((0, 2)))
             cents, vis = [], []
-            for tgt, c in zip(w.targets, pts):
+            for tgt, c in zip(w.targets, pts, strict=True):
                 poly = sphere_silhouette(cam, c, tgt.radius_m)
                 if poly is None:
                     cents.append(np.full(2, np.nan))

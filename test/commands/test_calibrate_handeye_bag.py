@@ -173,7 +173,7 @@ def test_tf_pose_source_matches_pose_topic(calib_bag) -> None:
     assert b.pose_source == "/tf base_link -> tool0"
     assert [s.stamp_ns for s in a.samples] == [s.stamp_ns for s in b.samples]
     assert len(b.samples) == n_stops
-    for sa, sb in zip(a.samples, b.samples):
+    for sa, sb in zip(a.samples, b.samples, strict=True):
         np.testing.assert_allclose(sa.base_T_ee, sb.base_T_ee, atol=1e-9)
     with pytest.raises(ConfigError, match="no chain from 'base_link' to 'flange'"):
         read_bag_samples(path, use_tf=True, ee_frame="flange")

@@ -51,7 +51,7 @@ def test_process_writes_bag_csv_and_error_stats(loc_bag, tmp_path, capsys):
     assert len(rows) == 12 and all(r["status"] == "ok" for r in rows)
     # The bag and the CSV hold the same numbers.
     poses = [deserialize(raw, mt) for _, mt, _, raw in iter_messages(out, ["/target/pose"])]
-    for row, msg in zip(rows, poses):
+    for row, msg in zip(rows, poses, strict=True):
         assert int(row["stamp_ns"]) == msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
         assert float(row["x_base"]) == msg.pose.position.x
 

@@ -79,7 +79,7 @@ def test_pair_solutions_equal_the_full_solvers_on_two_motions(solver: str) -> No
     Xs, ok = pair_solutions(noisy, pairs, solver)
     assert ok.all()
     full = solve_tsai if solver == "tsai" else solve_kronecker
-    for Xp, (p, q) in zip(Xs, pairs):
+    for Xp, (p, q) in zip(Xs, pairs, strict=True):
         ref = full(MotionPairs(noisy.A[[p, q]], noisy.B[[p, q]], noisy.index[[p, q]]))
         assert np.max(np.abs(Xp - ref)) < 1e-9
     assert np.max(np.abs(Xs - X)) > 1e-4  # the noise does change them

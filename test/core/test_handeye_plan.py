@@ -125,13 +125,13 @@ def test_every_admissible_candidate_keeps_tight_limits(problem, tight) -> None:
                                           problem.views, Y=problem.Y, config=cfg)
     assert len(cands) >= 10
     _check_limits(problem, [(c.base_T_ee, c.cam_T_board, d, t)
-                            for c, d, t in zip(cands, dists, tilts)], cfg)
+                            for c, d, t in zip(cands, dists, tilts, strict=True)], cfg)
 
 
 def test_predicted_uncertainty_drops_with_each_suggestion(plan) -> None:
     scores = [_score(plan.std_mm, plan.std_deg)] + [_score(s.std_mm, s.std_deg)
                                                     for s in plan.suggestions]
-    assert all(b < a for a, b in zip(scores, scores[1:])), scores
+    assert all(b < a for a, b in zip(scores, scores[1:], strict=False)), scores
     assert plan.suggestions[0].std_mm < plan.std_mm
     assert plan.suggestions[0].std_deg < plan.std_deg
 

@@ -156,7 +156,7 @@ def _franka():
     offsets = yaml.safe_load((DATA / "crops.yaml").read_text())["offsets_xy"]
     poses = yaml.safe_load((DATA / "poses.yaml").read_text())["poses"]
     samples = []
-    for i, (off, pose) in enumerate(zip(offsets, poses)):
+    for i, (off, pose) in enumerate(zip(offsets, poses, strict=True)):
         img = cv2.imread(str(DATA / "images" / f"{i:03d}.png"), cv2.IMREAD_GRAYSCALE)
         det = detect_board(img, board)
         assert det.found and det.n_corners >= 20, f"image {i}: {det.reason}"

@@ -118,7 +118,7 @@ def test_worker_processes_open_the_chunks(tmp_path, monkeypatch):
             got.append((topic, t, p))
     assert owners == {0, 1}
     assert [(a, b) for a, b, _ in got] == [(a, b) for a, b, _ in expected]
-    for (topic, _t, p), (_a, _b, raw) in zip(got, expected):
+    for (topic, _t, p), (_a, _b, raw) in zip(got, expected, strict=True):
         assert (raw.endswith(p) and len(p) == 120 * 480) if topic in ("/left", "/right") \
             else p == raw
 

@@ -129,7 +129,7 @@ def test_two_targets_through_detect_triangulate_and_hand_eye(tmp_path, ros_conte
                       and all(io.count_publishers(f"target/{n}/pose") for n in TARGETS), 15.0)
     frames = [BOTH, RED_ONLY, BOTH]           # green leaves the view in the middle frame
     stamps = [T0 + k * PERIOD_NS for k in range(len(frames))]
-    for stamp, (left, right) in zip(stamps, frames):
+    for stamp, (left, right) in zip(stamps, frames, strict=True):
         for dt in (-10_000_000, 10_000_000):   # robot poses bracket the image stamp
             pub_ee.publish(matrix_to_pose_stamped(_robot_pose(stamp + dt), stamp_ns=stamp + dt,
                                                   frame_id="base_link"))
@@ -161,7 +161,7 @@ def test_two_targets_through_detect_triangulate_and_hand_eye(tmp_path, ros_conte
     for n in TARGETS:
         cams = _by_stamp(cam_cov[n])
         assert [header_stamp_ns(p) for p in poses[n]] == sorted(cams)
-        for pose, pcov in zip(poses[n], pose_covs[n]):
+        for pose, pcov in zip(poses[n], pose_covs[n], strict=True):
             stamp = header_stamp_ns(pose)
             assert header_stamp_ns(pcov) == stamp and pose.header.frame_id == "base_link"
             c = cams[stamp]
@@ -182,13 +182,13 @@ def test_two_targets_through_detect_triangulate_and_hand_eye(tmp_path, ros_conte
     # per frame: a PoseArray and spheres in the base frame, in the same order, image stamps
     assert [header_stamp_ns(a) for a in arrays] == stamps
     assert [header_stamp_ns(m.markers[0]) for m in base_markers] == stamps
-    for a, m in zip(arrays, base_markers):
+    for a, m in zip(arrays, base_markers, strict=True):
         stamp = header_stamp_ns(a)
         assert a.header.frame_id == "base_link" and m.markers[0].action == Marker.DELETEALL
         ids = [x.ns for x in m.markers[1:]]
         assert len(a.poses) == len(ids) and all(x.header.frame_id == "base_link"
                                                 for x in m.markers)
-        for pose, x in zip(a.poses, m.markers[1:]):
+        for pose, x in zip(a.poses, m.markers[1:], strict=True):
             want = _by_stamp(poses[x.ns])[stamp].pose.position
             assert (pose.position.x, pose.position.y, pose.position.z) == (
                 want.x, want.y, want.z) == (x.pose.position.x, x.pose.position.y,

@@ -124,7 +124,7 @@ def test_robot_pose_from_tf_chain_interpolated_at_the_image_stamp_and_tf_out(
     edges0 = chain_tf_edges(CHAIN, _q(0.05))
     edges1 = chain_tf_edges(CHAIN, _q(0.06))
     base_T_flange = np.eye(4)
-    for (_, _, A), (_, _, B) in zip(edges0, edges1):
+    for (_, _, A), (_, _, B) in zip(edges0, edges1, strict=True):
         base_T_flange = base_T_flange @ interpolate(55 * MS, 50 * MS, A, 60 * MS, B)
     want, _ = target_in_base(base_T_flange @ FLANGE_T_TOOL, EE_T_CAM, p_cam)
     got = np.array([out.pose.position.x, out.pose.position.y, out.pose.position.z])

@@ -33,7 +33,7 @@ def test_marker_array_clears_first_then_one_sphere_per_target_and_reads_back():
     stamp, frame, back = spheres_from_marker_array(msg)
     assert (stamp, frame) == (STAMP, "cam")
     assert [s.id for s in back] == ["red", "red_1"]
-    for a, b in zip(spheres, back):
+    for a, b in zip(spheres, back, strict=True):
         assert np.array_equal(a.xyz, b.xyz) and a.diameter_m == b.diameter_m
         assert np.allclose(a.rgba, b.rgba, atol=1e-6)   # float32 colour fields
     empty = sphere_marker_array([], stamp_ns=STAMP, frame_id="cam")

@@ -409,7 +409,7 @@ def calibrate_stereo(left: Sequence[BoardDetection], right: Sequence[BoardDetect
     lnames = _names(left, left_names, "left")
     rnames = _names(right, right_names, "right")
     right = [_align_symmetric(board, ld, rd) if ld.found and rd.found else rd
-             for ld, rd in zip(left, right)]
+             for ld, rd in zip(left, right, strict=True)]
     found_l = [d for d in left if d.found]
     found_r = [d for d in right if d.found]
     if found_l and found_r and tuple(found_l[0].image_size) != tuple(found_r[0].image_size):
@@ -422,7 +422,7 @@ def calibrate_stereo(left: Sequence[BoardDetection], right: Sequence[BoardDetect
         result = _stereo_once(left, right, lnames, rnames, active, board, options, method,
                               fix_intrinsics, float(alpha), outlier_threshold_px, min_views,
                               rejected)
-        flagged = [i for i, v in zip(range(len(left)), result.views) if v.used and v.outlier]
+        flagged = [i for i, v in zip(range(len(left)), result.views, strict=False) if v.used and v.outlier]
         paired_left = sum(1 for i, v in enumerate(result.views)
                           if v.used and v.paired and i not in flagged)
         if not (reject_outliers and flagged) or _round == max_rejection_rounds \

@@ -603,8 +603,8 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                 mr.std_mm, mr.std_deg, mr.loo_mm, mr.loo_deg = _jackknife(xs, X)
                 mr.covariance = _jackknife_covariance(xs)
                 ys = [average_transforms(board_in_fixed_frame(x, bte[k], ctb[k], setup))
-                      for x, k in zip(xs, keep_masks)]
-                held[name] = held_out_prediction(list(zip(xs, ys)), kept, cameras, setup)
+                      for x, k in zip(xs, keep_masks, strict=True)]
+                held[name] = held_out_prediction(list(zip(xs, ys, strict=True)), kept, cameras, setup)
                 mr.held_out = held[name]
         results[name] = mr
     if not results:
@@ -704,7 +704,7 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
     if sel.held_out is not None:
         used = kept
         if selected == "refined_systematic" and systematic is not None:
-            used = [replace(s, base_T_ee=b) for s, b in zip(kept, systematic.correct(bte))]
+            used = [replace(s, base_T_ee=b) for s, b in zip(kept, systematic.correct(bte), strict=True)]
         budget = error_budget(used, cameras if use_corners else None, setup, sel.Y,
                               sel.board_dev_mm, sel.held_out.mm,
                               None if systematic is None else systematic.correction(bte))
@@ -732,7 +732,7 @@ def _systematic(X0: np.ndarray, Y0: np.ndarray, kept: Sequence[HandEyeSample],
         warnings.append(f"refined_systematic failed and is left out of the comparison: {exc}")
         return None
     # Figures against the corrected poses: the model's X holds with them.
-    corrected = [replace(s, base_T_ee=b) for s, b in zip(kept, fit.correct(bte))]
+    corrected = [replace(s, base_T_ee=b) for s, b in zip(kept, fit.correct(bte), strict=True)]
     mr = _refined_result("refined_systematic", fit.X, fit.Y, fit.covariance, corrected,
                          cameras, setup, use_corners)
     if loo:
@@ -746,7 +746,7 @@ def _systematic(X0: np.ndarray, Y0: np.ndarray, kept: Sequence[HandEyeSample],
             for i, f in enumerate(sols):
                 mr.loo_mm[i], mr.loo_deg[i] = _x_delta(f.X, fit.X)
             held_samples = [replace(s, base_T_ee=f.correct(s.base_T_ee))
-                            for s, f in zip(kept, sols)]
+                            for s, f in zip(kept, sols, strict=True)]
             held["refined_systematic"] = held_out_prediction(
                 [(f.X, f.Y) for f in sols], held_samples, cameras, setup)
             mr.held_out = held["refined_systematic"]

@@ -160,7 +160,7 @@ def reprojection_errors(X: np.ndarray, Y: np.ndarray, samples: Sequence[HandEyeS
     G = gripper_poses(np.stack([s.base_T_ee for s in samples]), setup)
     Xi = invert_many(X)
     out = []
-    for s, g in zip(samples, G):
+    for s, g in zip(samples, G, strict=True):
         C = Xi @ invert_many(g) @ Y
         errs = []
         for ob in s.observations:

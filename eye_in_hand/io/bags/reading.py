@@ -335,7 +335,7 @@ class _OpenBag:
                     if not scanned_all or any(x is None for x in scanned_all):
                         raise
                     expected = _expected_counts(target) if len(files) == 1 else None
-                    for f, scanned in zip(files, scanned_all):
+                    for f, scanned in zip(files, scanned_all, strict=True):
                         assert scanned is not None
                         if expected is not None:
                             scanned.expected, scanned.expected_end = expected
