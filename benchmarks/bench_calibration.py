@@ -142,7 +142,8 @@ def synthetic_corners(world, n_frames: int, seeds: int) -> None:
         rng = np.random.default_rng(seed)
         left, right = [], []
 
-        def add(px_l: np.ndarray, px_r: np.ndarray, lst_l: list, lst_r: list) -> None:
+        def add(px_l: np.ndarray, px_r: np.ndarray, lst_l: list, lst_r: list,
+                rng: np.random.Generator = rng) -> None:
             for px, lst in ((px_l, lst_l), (px_r, lst_r)):
                 noisy = px + rng.normal(0.0, 0.2, px.shape)
                 lst.append(BoardDetection(True, noisy, obj, ids, size, "truth+noise"))

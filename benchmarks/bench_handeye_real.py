@@ -129,7 +129,8 @@ def main() -> None:
     print(f"Franka + RealSense ChArUco capture: {len(samples)} views, {sum(n_corners)} corners "
           f"({min(n_corners)}-{max(n_corners)} per view), detector {args.detector!r}, "
           f"{args.k}-fold held-out prediction")
-    print(f"corners: refinement {args.refine!r}, PnP residual {np.sqrt(np.mean(np.square(pnp))):.3f} "
+    print(f"corners: refinement {args.refine!r}, PnP residual "
+          f"{np.sqrt(np.mean(np.square(pnp))):.3f} "
           f"px RMS over the views"
           + (f", corner sigma (median per view) {np.nanmin(sig):.3f}-{np.nanmax(sig):.3f} px"
              if np.any(np.isfinite(sig)) else ""))

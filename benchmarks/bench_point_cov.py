@@ -80,7 +80,8 @@ def render(world: World, jobs: list[tuple[np.ndarray, int]], blur: float = 0.0) 
 
 
 def measure(loc: StereoLocator, frames: list) -> dict[str, np.ndarray]:
-    """Per view: pixel errors (4,), pixel covariance (4, 4), point error (3,), covariance, truth."""
+    """Per view: pixel errors (4,), pixel covariance (4, 4), point error (3,), covariance,
+    truth."""
     e_px, corr, S, e, P, truth, blur, shade = [], [], [], [], [], [], [], []
     for f in frames:
         t = loc.locate(f.left, f.right).first
@@ -151,7 +152,8 @@ def print_pixels(m: dict[str, np.ndarray]) -> None:
           for u in (np.array([1.0, 0, -1.0, 0]), np.array([0, 1.0, 0, -1.0]))]
     c = m["corr"]
     print(f"  left - right (what the depth sees) over the model's sigma: RMS x "
-          f"{np.sqrt(np.mean(zd[0] ** 2)):.2f} y {np.sqrt(np.mean(zd[1] ** 2)):.2f} (1 when right);"
+          f"{np.sqrt(np.mean(zd[0] ** 2)):.2f} y {np.sqrt(np.mean(zd[1] ** 2)):.2f} "
+          "(1 when right);"
           f" the sphere-centre correction's own error: mean {np.abs(c.mean(axis=0)).max():.4f} px"
           f" at most, spread {c.std(axis=0).max():.4f} px at most")
 

@@ -243,7 +243,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     (out / "launch.log").write_text(launch_out)
     for msg in live[:3]:
         p = msg["pose"]["position"]
-        print(f"  target/pose @ {msg['header']['stamp']['sec']}.{msg['header']['stamp']['nanosec']:09d}"
+        stamp = msg["header"]["stamp"]
+        print(f"  target/pose @ {stamp['sec']}.{stamp['nanosec']:09d}"
               f"  [{p['x']:.5f}, {p['y']:.5f}, {p['z']:.5f}] m in {msg['header']['frame_id']}")
     if len(live) > 3:
         print(f"  ... {len(live)} poses in {live_file}")
@@ -277,10 +278,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                     [float(row[k]) for k in ("x_base", "y_base", "z_base")])
     common = sorted(set(live_pts) & set(offline))
     diff = max((float(np.max(np.abs(live_pts[s] - offline[s]))) for s in common), default=0.0)
-    print(f"live:    {len(live_pts)}/{n_pairs} frames, "
-          f"{_stats([np.linalg.norm(p - targets[s]) for s, p in live_pts.items() if s in targets])}")
-    print(f"offline: {len(offline)}/{n_pairs} frames, "
-          f"{_stats([np.linalg.norm(p - targets[s]) for s, p in offline.items() if s in targets])}")
+    live_err = [np.linalg.norm(p - targets[s]) for s, p in live_pts.items() if s in targets]
+    offline_err = [np.linalg.norm(p - targets[s]) for s, p in offline.items() if s in targets]
+    print(f"live:    {len(live_pts)}/{n_pairs} frames, {_stats(live_err)}")
+    print(f"offline: {len(offline)}/{n_pairs} frames, {_stats(offline_err)}")
     print(f"live vs offline: {len(common)} frames in both, largest difference {diff:.2e} m")
     live_msgs = output_messages(out / "live_outputs", OUTPUT_TOPICS)
     offline_msgs = output_messages(processed, OUTPUT_TOPICS)

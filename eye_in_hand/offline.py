@@ -1,4 +1,5 @@
-"""Offline processing of a bag: the live pipeline's core code, with no DDS, as fast as the CPU allows.
+"""Offline processing of a bag: the live pipeline's core code, with no DDS, as fast as the CPU
+allows.
 
 One pass over the bag in log-time order:
 
@@ -89,9 +90,9 @@ class ProcessOptions:
             ``max_pose_age_s`` before the pair's image (log time), and the pose buffer (and the
             stereo pairing) restart when stamps jump back more than ``pose_jump_back_s``.
         workers: processes (or threads, see :class:`_PairPool`) locating stereo pairs; 1 =
-            in the calling thread; None: one per CPU this process may run on. Results are consumed in stamp order; with ``selection:
-            nearest`` (which depends on the previous frame) one is used whatever this says, so
-            the numbers never depend on it.
+            in the calling thread; None: one per CPU this process may run on. Results are
+            consumed in stamp order; with ``selection: nearest`` (which depends on the previous
+            frame) one is used whatever this says, so the numbers never depend on it.
         task_timeout_s: deadline of a worker process for one stereo pair (s): a worker that
             gives no result for this long (stopped with SIGSTOP, hung) is killed and its pairs
             are located again in this process, so ``process`` never hangs.

@@ -141,7 +141,8 @@ def check_common_arguments(args: argparse.Namespace) -> None:
 # ------------------------------------------------------------------------------------------------
 @dataclass
 class Frame:
-    """One input image: its name, the detection, and (optionally) the pixels kept for the report."""
+    """One input image: its name, the detection, and (optionally) the pixels kept for the
+    report."""
 
     name: str
     detection: Any
@@ -179,7 +180,8 @@ def expand_glob(pattern: str, option: str) -> list[Path]:
     if path.is_dir():
         files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS)
     else:
-        files = sorted(Path(p) for p in glob.glob(os.path.expanduser(pattern)) if Path(p).is_file())
+        files = sorted(Path(p) for p in glob.glob(os.path.expanduser(pattern))
+                       if Path(p).is_file())
     if not files:
         shown = pattern.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
         raise InputError(f"{option} '{shown}': no image files match")

@@ -409,7 +409,7 @@ def run(args: argparse.Namespace) -> int:
                            if any(p.truth_source for p in pairs) else ""))
         for line in distance_table(pairs, stats_by_target):
             print("  " + line)
-    for a, b, m in unmatched:
+    for a, b, _m in unmatched:
         print(f"warning: {args.truth}: no measured distance {a} - {b} (targets located: "
               f"{', '.join(result.target_ids)})", file=sys.stderr)
     print(f"wrote {paths['bag']} (bag), {paths['csv']}, {paths['summary']}")

@@ -117,7 +117,8 @@ class CameraModel:
         if K[0, 0] <= 0 or K[1, 1] <= 0:
             raise InputError(f"K: focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}")
         if np.max(np.abs(K[2] - (0.0, 0.0, 1.0))) > 1e-9 or K[1, 0] != 0 or K[2, 0] != 0:
-            raise InputError(f"K: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {K.tolist()}")
+            raise InputError("K: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got "
+                             f"{K.tolist()}")
         if self.distortion_model not in DISTORTION_MODELS:
             raise InputError(f"distortion_model: '{self.distortion_model}' is not supported "
                              f"(supported: {', '.join(DISTORTION_MODELS)})")
@@ -131,7 +132,8 @@ class CameraModel:
         R = as_finite_array(self.R, "R", (3, 3))
         if np.max(np.abs(R.T @ R - np.eye(3))) > 1e-5 or np.linalg.det(R) < 0:
             raise InputError("R: rectification matrix is not a rotation")
-        P = np.hstack([K, np.zeros((3, 1))]) if self.P is None else as_finite_array(self.P, "P", (3, 4))
+        P = (np.hstack([K, np.zeros((3, 1))]) if self.P is None
+             else as_finite_array(self.P, "P", (3, 4)))
         object.__setattr__(self, "K", _readonly(K))
         object.__setattr__(self, "dist", _readonly(dist))
         object.__setattr__(self, "R", _readonly(R))

@@ -210,7 +210,8 @@ def match_truth(positions: Mapping[str, np.ndarray], truth_points: np.ndarray, *
     P = np.array([np.asarray(positions[k], dtype=np.float64).reshape(3) for k in ids])
     cost = np.linalg.norm(P[:, None, :] - T[None, :, :], axis=2)
     rows, cols = linear_sum_assignment(cost)
-    return {ids[r]: int(c) for r, c in zip(rows, cols, strict=True) if cost[r, c] <= max_distance_m}
+    return {ids[r]: int(c) for r, c in zip(rows, cols, strict=True)
+            if cost[r, c] <= max_distance_m}
 
 
 def distance_table(pairs: Sequence[PairDistance],

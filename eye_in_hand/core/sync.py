@@ -44,7 +44,8 @@ T = TypeVar("T")
 def _as_stamp(stamp_ns, name: str = "stamp_ns") -> int:
     """Validate an int nanosecond stamp (Python or numpy integer, not bool, not float)."""
     if isinstance(stamp_ns, (bool, np.bool_)) or not isinstance(stamp_ns, (int, np.integer)):
-        raise InputError(f"{name}: expected an int nanosecond stamp, got {type(stamp_ns).__name__}")
+        raise InputError(f"{name}: expected an int nanosecond stamp, got "
+                         f"{type(stamp_ns).__name__}")
     return int(stamp_ns)
 
 

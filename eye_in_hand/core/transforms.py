@@ -197,7 +197,8 @@ def quat_xyzw_to_matrix(quat_xyzw, name: str = "quat_xyzw") -> np.ndarray:
     if n < 1e-9:
         raise InputError(f"{name}: quaternion has zero norm")
     if abs(n - 1.0) > 1e-3:
-        raise InputError(f"{name}: quaternion norm is {n:.6f}, expected 1 (check xyzw order/units)")
+        raise InputError(f"{name}: quaternion norm is {n:.6f}, expected 1 "
+                         "(check xyzw order/units)")
     x, y, z, w = x / n, y / n, z / n, w / n
     # The unit-quaternion rotation matrix, written out (no BLAS call, no Rotation object: this
     # runs for every robot pose).
@@ -364,7 +365,8 @@ def average_rotations(rotations: Sequence | np.ndarray,
     w = None
     if weights is not None:
         w = np.asarray(list(weights), dtype=np.float64)
-        if w.shape != (arr.shape[0],) or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
+        if (w.shape != (arr.shape[0],) or not np.all(np.isfinite(w)) or np.any(w < 0)
+                or w.sum() <= 0):
             raise InputError("weights: expected N finite non-negative values with a positive sum")
     return _rotation_class().from_matrix(arr).mean(weights=w).as_matrix()
 

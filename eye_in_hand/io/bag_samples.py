@@ -322,7 +322,7 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
 
     # Image stamps of the reference view (pass 1), stillness and grouping.
     stamps: list[int] = []
-    for topic, msgtype, log_ns, raw in iter_messages(path, [left_topic]):
+    for topic, _msgtype, log_ns, raw in iter_messages(path, [left_topic]):
         try:
             stamps.append(_cdr_header_stamp_ns(raw))
         except unusable as exc:

@@ -69,10 +69,10 @@ from eye_in_hand.yamlfile import read_yaml_file
 if TYPE_CHECKING:  # annotations only: core.camera imports OpenCV, which `distances` never needs
     from eye_in_hand.core.camera import StereoRig
 
-__all__ = ["TargetResult", "FrameResult", "ProcessResult", "OutputOptions", "CSV_COLUMNS", "OFFLINE_ONLY", "output_messages", "compare_outputs",
-           "target_order", "assign_truth", "frame_tracks",
-           "summary_figures", "run_figures", "write_results", "load_tracks", "load_known_distances",
-           "Tracks"]
+__all__ = ["TargetResult", "FrameResult", "ProcessResult", "OutputOptions", "CSV_COLUMNS",
+           "OFFLINE_ONLY", "output_messages", "compare_outputs", "target_order", "assign_truth",
+           "frame_tracks", "summary_figures", "run_figures", "write_results", "load_tracks",
+           "load_known_distances", "Tracks"]
 
 #: Columns of ``results.csv``: the first 21 as before per-target rows existed, then ``target``.
 CSV_COLUMNS = ["stamp_ns", "status", "x_cam", "y_cam", "z_cam", "residual_px", "left_u",
@@ -293,7 +293,8 @@ def frame_tracks(frames: Sequence[FrameResult], ids: Sequence[str]) -> tuple[Tra
 
 def summary_figures(tracks: Tracks, truth: Tracks,
                     known: Sequence[tuple[str, str, float]] = ()
-                    ) -> tuple[list[PairDistance], list[TargetStats], list[tuple[str, str, float]]]:
+                    ) -> tuple[list[PairDistance], list[TargetStats],
+                               list[tuple[str, str, float]]]:
     """Pairwise distances (truth: ``known`` where given, else the ground truth) and per-target
     figures; also the known entries that name no measured pair."""
     pairs = pairwise_distances(tracks, truth or None)

@@ -192,8 +192,9 @@ class HandEyeNodeConfig:
     discovery_period_s: float = param(1.0, "period of the ROS graph search for "
                                       "targets/<id>/point_cov publishers (s)",
                                       range=(0.05, 3600.0))
-    marker_lifetime_s: float = param(MARKER_LIFETIME_S, "lifetime of the spheres on target/markers (s); 0 = "
-                                     "until the next frame's DELETEALL", range=(0.0, 3600.0))
+    marker_lifetime_s: float = param(MARKER_LIFETIME_S, "lifetime of the spheres on "
+                                     "target/markers (s); 0 = until the next frame's DELETEALL",
+                                     range=(0.0, 3600.0))
     stale_after_s: float = param(1.0, "diagnostics WARN when no robot pose or point arrived "
                                  "for this long (s)", range=(0.01, 3600.0))
     # -- calibration mode ---------------------------------------------------------------

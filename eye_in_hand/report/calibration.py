@@ -30,7 +30,8 @@ def per_view_figure(names: Sequence[str], rms: Sequence[float], used: Sequence[b
     fig = new_figure(max(6.0, 0.28 * len(names) + 2.0), 3.4)
     ax = fig.add_subplot(1, 1, 1)
     vals = np.array([np.nan if r is None else float(r) for r in rms])
-    colors = ["#c62828" if o else ("#1f77b4" if u else "#9e9e9e") for u, o in zip(used, outlier, strict=True)]
+    colors = ["#c62828" if o else ("#1f77b4" if u else "#9e9e9e")
+              for u, o in zip(used, outlier, strict=True)]
     x = np.arange(len(names))
     ax.bar(x, np.nan_to_num(vals), color=colors)
     if np.isfinite(threshold):
@@ -216,7 +217,8 @@ def camera_report(cal: Any, source: Any, board: Any, sample_image: np.ndarray | 
 
 
 def stereo_report(cal: Any, names: Sequence[tuple[str, str]], board: Any, description: str,
-                  skipped: Sequence[dict], pair_images: tuple[np.ndarray, np.ndarray] | None = None,
+                  skipped: Sequence[dict],
+                  pair_images: tuple[np.ndarray, np.ndarray] | None = None,
                   pair_corners: tuple[np.ndarray, np.ndarray] | None = None,
                   pair_name: str = "") -> HtmlReport:
     """The report of a stereo calibration.

@@ -1,4 +1,5 @@
-"""Camera calibration messages: ``sensor_msgs/CameraInfo`` <-> :class:`~eye_in_hand.core.camera.CameraModel`.
+"""Camera calibration messages: ``sensor_msgs/CameraInfo`` <->
+:class:`~eye_in_hand.core.camera.CameraModel`.
 
 The reader is duck-typed (rclpy or rosbags messages) and names the bad field in its
 :class:`eye_in_hand.errors.ConversionError`; the builder returns an rclpy message object.

@@ -29,7 +29,8 @@ from eye_in_hand.core.transforms import matrix_to_quat_xyzw
 from eye_in_hand.errors import ConfigError, ConversionError
 
 __all__ = ["Sphere", "OutputSettings", "DEFAULT_RGBA", "TARGET_FRAME_PREFIX", "MARKER_LIFETIME_S",
-           "MARKER_DIAMETER_M", "RIGHT_CAMERA_FRAME", "UNKNOWN_ROTATION_VARIANCE", "RosbagsTypes", "rclpy_types",
+           "MARKER_DIAMETER_M", "RIGHT_CAMERA_FRAME", "UNKNOWN_ROTATION_VARIANCE",
+           "RosbagsTypes", "rclpy_types",
            "time_msg", "header", "point_stamped", "pose_with_covariance", "pose_stamped",
            "pose_array", "sphere_markers", "transform_stamped", "tf_message",
            "translation_tf_message"]

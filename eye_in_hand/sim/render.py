@@ -7,9 +7,9 @@ undistortion, then Newton steps on our own evaluation of the distortion polynomi
 re-projection round trip is below 1e-6 px) and cached. Rays are intersected exactly with the
 spheres, the board rectangle and the table plane; the nearest hit is shaded (Lambert +
 ambient). Pixels whose 3x3 neighbourhood sees more than one surface (object edges and
-chessboard square edges) are re-rendered with a regular grid of ``supersample x supersample`` sub-pixel rays
-(their ideal coordinates interpolated bilinearly from the cached grid, error < 1e-4 px), which
-anti-aliases edges at a fraction of the cost of supersampling the whole image.
+chessboard square edges) are re-rendered with a regular grid of ``supersample x supersample``
+sub-pixel rays (their ideal coordinates interpolated bilinearly from the cached grid, error
+< 1e-4 px), which anti-aliases edges at a fraction of the cost of supersampling the whole image.
 
 Ground truth (:class:`FrameTruth`) is computed independently of the rendering: projections
 with :meth:`CameraModel.project` (OpenCV), and the area centroid of each sphere's silhouette in

@@ -262,5 +262,6 @@ def flange_errors(nominal: DHChain, true_arm: DHChain, qs,
     """
     qs = np.atleast_2d(np.asarray(qs, dtype=np.float64))
     qr = qs if q_reported is None else np.atleast_2d(np.asarray(q_reported, dtype=np.float64))
-    out = np.array([pose_error(*flange_poses(nominal, true_arm, a, b)) for a, b in zip(qs, qr, strict=False)])
+    out = np.array([pose_error(*flange_poses(nominal, true_arm, a, b))
+                    for a, b in zip(qs, qr, strict=False)])
     return out[:, 0], out[:, 1]

@@ -312,7 +312,8 @@ class World:
         """Write the world file; returns its path."""
         p = Path(path)
         p.parent.mkdir(parents=True, exist_ok=True)
-        header = ("# eye_in_hand synthetic world. Metres, radians, pixels; poses as translation +\n"
+        header = ("# eye_in_hand synthetic world. Metres, radians, pixels; poses as "
+                  "translation +\n"
                   "# quat_xyzw (a_T_b maps points in b into a). rig.right_T_left follows OpenCV:\n"
                   "# X_right = R X_left + T. Board frame: origin at the first inner corner.\n")
         p.write_text(header + yaml.safe_dump(self.to_dict(), sort_keys=False), encoding="utf-8")

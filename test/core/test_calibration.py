@@ -222,7 +222,8 @@ def _charuco_views(board: BoardSpec, K: np.ndarray, n: int, seed: int,
     A = np.array([[1 / ppm, 0, -board.square - 40 / ppm], [0, 1 / ppm, -board.square - 40 / ppm],
                   [0, 0, 1]])
     rng = np.random.default_rng(seed)
-    center = np.array([(board.cols - 1) * board.square / 2, (board.rows - 1) * board.square / 2, 0])
+    center = np.array([(board.cols - 1) * board.square / 2,
+                       (board.rows - 1) * board.square / 2, 0])
     images = []
     for k in range(n):
         R = cv2.Rodrigues(np.array([rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6),

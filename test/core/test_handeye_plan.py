@@ -94,7 +94,8 @@ def _check_limits(problem, poses, cfg: PlanConfig) -> None:
         assert tilt_deg == pytest.approx(tilt, abs=1e-6)
         d = np.linalg.norm(board_T_cam[:3, 3] - centre)
         assert distance == pytest.approx(d, abs=1e-9)
-        assert (1 - cfg.distance_margin) * min(dists) <= d <= (1 + cfg.distance_margin) * max(dists)
+        assert ((1 - cfg.distance_margin) * min(dists) <= d
+                <= (1 + cfg.distance_margin) * max(dists))
         for v in problem.views:
             T = v.view_T_cam @ cam_T_board
             pts = obj @ T[:3, :3].T + T[:3, 3]

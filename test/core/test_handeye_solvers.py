@@ -155,12 +155,14 @@ def test_bad_poses_are_errors_naming_the_sample() -> None:
     _, _, bte, ctb = _exact_problem("eye_in_hand", n=5)
     nan = bte.copy()
     nan[2, 0, 3] = np.nan
-    samples = [HandEyeSample(f"img{i}", b, c) for i, (b, c) in enumerate(zip(nan, ctb, strict=True))]
+    samples = [HandEyeSample(f"img{i}", b, c)
+               for i, (b, c) in enumerate(zip(nan, ctb, strict=True))]
     with pytest.raises(HandEyeError, match=r"sample 'img2'.*base_T_ee.*NaN"):
         calibrate_hand_eye(samples)
     skew = ctb.copy()
     skew[3, :3, :3] *= 1.01
-    samples = [HandEyeSample(f"img{i}", b, c) for i, (b, c) in enumerate(zip(bte, skew, strict=True))]
+    samples = [HandEyeSample(f"img{i}", b, c)
+               for i, (b, c) in enumerate(zip(bte, skew, strict=True))]
     with pytest.raises(HandEyeError, match=r"sample 'img3'.*cam_T_board.*not orthonormal"):
         calibrate_hand_eye(samples)
 

@@ -135,7 +135,8 @@ def test_two_targets_through_detect_triangulate_and_hand_eye(tmp_path, ros_conte
                                                   frame_id="base_link"))
         pub_l.publish(numpy_to_image(left, "bgr8", stamp_ns=stamp, frame_id=CAM))
         pub_r.publish(numpy_to_image(right, "bgr8", stamp_ns=stamp, frame_id=CAM))
-        assert spin_until(executor, lambda: len(arrays) == stamps.index(stamp) + 1, 15.0), (
+        assert spin_until(executor, lambda stamp=stamp: len(arrays) == stamps.index(stamp) + 1,
+                          15.0), (
             detect.diag.snapshot().counters, hand_eye.diag.snapshot().counters,
             hand_eye.diag.causes)
     spin_until(executor, lambda: False, 0.2)    # anything extra would arrive now
@@ -550,7 +551,7 @@ def test_first_frame_of_a_new_target_id_is_not_lost(tmp_path, ros_context, execu
     assert spin_until(executor, lambda: io.count_publishers("target/red_1/pose") > 0, 10.0)
     for s in stamps[1:]:
         frame(s, ["red", "red_1"])
-        assert spin_until(executor, lambda: len(arrays) == stamps.index(s) + 1, 15.0)
+        assert spin_until(executor, lambda s=s: len(arrays) == stamps.index(s) + 1, 15.0)
     assert spin_until(executor, lambda: all(len(poses[t]) == 3 for t in poses), 10.0), (
         {t: len(p) for t, p in poses.items()}, hand_eye.diag.snapshot().counters)
     spin_until(executor, lambda: False, 0.2)    # anything extra would arrive now

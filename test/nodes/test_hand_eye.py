@@ -70,7 +70,8 @@ class _Rig:
 
     def connected(self):
         return (self.pub_point.get_subscription_count() > 0
-                and self.pub_pose.get_subscription_count() + self.pub_js.get_subscription_count() > 0
+                and self.pub_pose.get_subscription_count()
+                + self.pub_js.get_subscription_count() > 0
                 and self.io.count_publishers("target/pose") > 0)
 
     def send_pose(self, t_s):
@@ -292,7 +293,7 @@ def test_a_bag_replayed_again_resets_the_pose_buffer(tmp_path, ros_context, exec
     for k in range(0, 150):                # 1.5 s of robot poses (every 10 ms)
         rig.send_pose(0.01 * k)
         if k % 50 == 49:
-            spin_until(executor, lambda: rig.node.diag.counter("robot_poses") == k + 1, 10.0)
+            spin_until(executor, lambda k=k: rig.node.diag.counter("robot_poses") == k + 1, 10.0)
     assert spin_until(executor, lambda: rig.node.diag.counter("robot_poses") == 150, 10.0)
     assert len(rig.node.localizer.poses) == 150
     for k in range(5):                     # the bag starts again

@@ -159,14 +159,14 @@ def test_calibration_at_a_live_cell(robot, tmp_path, ros_context, executor, name
     for k in range(STOPS):
         if k:
             go.publish(Int32(data=k))
-            assert spin_until(executor, lambda: arrived[-1][0] == k, 30.0), (
+            assert spin_until(executor, lambda k=k: arrived[-1][0] == k, 30.0), (
                 k, arrived, driver.poll(), [a.message for a in answers])
         t_arrived = arrived[-1][1]
-        spin_until(executor, lambda: time.monotonic() >= t_arrived + CAPTURE_AFTER_S,
+        spin_until(executor, lambda t=t_arrived: time.monotonic() >= t + CAPTURE_AFTER_S,
                    CAPTURE_AFTER_S + 1.0)
         answers.append(call("capture"))
         # the arm dwells 2 s, or until the capture is answered (a robot program waits for it)
-        spin_until(executor, lambda: time.monotonic() >= t_arrived + DWELL_S, DWELL_S)
+        spin_until(executor, lambda t=t_arrived: time.monotonic() >= t + DWELL_S, DWELL_S)
     taken = [a for a in answers if a.success]
     assert len(taken) == STOPS, [a.message for a in answers if not a.success]
     res = call("compute", 120.0)

@@ -21,7 +21,7 @@ def test_calibration_poses_are_diverse_and_see_the_board(small_world):
     assert len(poses) == 12
     cams = [world.base_T_cam(q) for q in poses]
     axes = []
-    for q, T in zip(poses, cams, strict=True):
+    for q, _T in zip(poses, cams, strict=True):
         tr = world.truth(q)
         assert tr.board_visible_left and tr.board_visible_right
         assert np.all(q >= world.arm.lower) and np.all(q <= world.arm.upper)
@@ -47,7 +47,7 @@ def test_calibration_timeline_holds_and_moves(small_world):
     assert stamps[0] == 5 and np.all(np.diff(stamps) == 10_000_000)
     still = [s for _, _, s in tl]
     assert still[:10] == [True] * 10 and not all(still)
-    for t, q, s in tl:
+    for _t, q, s in tl:
         if s:
             assert min(np.max(np.abs(q - p)) for p in poses) < 1e-12
     steps = np.diff(np.array([q for _, q, _ in tl]), axis=0)

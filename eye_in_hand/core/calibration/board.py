@@ -116,7 +116,8 @@ class BoardSpec:
                     "[:DICT][:legacy], e.g. charuco:7x5:0.04:0.03:DICT_5X5_100")
             sx, sy = cls._parse_size(parts[1], spec, "squares")
             if sx < 3 or sy < 3:
-                raise InputError(f"board spec {spec!r}: a ChArUco board needs at least 3x3 squares")
+                raise InputError(f"board spec {spec!r}: a ChArUco board needs at least 3x3 "
+                                 "squares")
             square = _positive_float(parts[2], "square size", spec)
             marker = _positive_float(parts[3], "marker size", spec)
             _in_metres(spec, parts, (2, 3))
@@ -286,7 +287,8 @@ def render_board(board: BoardSpec, K: np.ndarray, dist: np.ndarray, cam_T_board:
     uu, vv = np.meshgrid(u, v)
     px = np.stack([uu.ravel(), vv.ravel()], axis=1)
     norm = cv2.undistortPoints(px.reshape(-1, 1, 2), K, dist,
-                               criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-9))
+                               criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20,
+                                         1e-9))
     rays = np.concatenate([norm.reshape(-1, 2), np.ones((px.shape[0], 1))], axis=1)
     # plane z=0 in the board frame: n . (X - t) = 0 in camera coordinates
     R, t = T[:3, :3], T[:3, 3]

@@ -422,7 +422,8 @@ def calibrate_stereo(left: Sequence[BoardDetection], right: Sequence[BoardDetect
         result = _stereo_once(left, right, lnames, rnames, active, board, options, method,
                               fix_intrinsics, float(alpha), outlier_threshold_px, min_views,
                               rejected)
-        flagged = [i for i, v in zip(range(len(left)), result.views, strict=False) if v.used and v.outlier]
+        flagged = [i for i, v in zip(range(len(left)), result.views, strict=False)
+                   if v.used and v.outlier]
         paired_left = sum(1 for i, v in enumerate(result.views)
                           if v.used and v.paired and i not in flagged)
         if not (reject_outliers and flagged) or _round == max_rejection_rounds \

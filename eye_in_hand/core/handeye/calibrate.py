@@ -604,7 +604,8 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                 mr.covariance = _jackknife_covariance(xs)
                 ys = [average_transforms(board_in_fixed_frame(x, bte[k], ctb[k], setup))
                       for x, k in zip(xs, keep_masks, strict=True)]
-                held[name] = held_out_prediction(list(zip(xs, ys, strict=True)), kept, cameras, setup)
+                held[name] = held_out_prediction(list(zip(xs, ys, strict=True)), kept,
+                                                 cameras, setup)
                 mr.held_out = held[name]
         results[name] = mr
     if not results:
@@ -704,7 +705,8 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
     if sel.held_out is not None:
         used = kept
         if selected == "refined_systematic" and systematic is not None:
-            used = [replace(s, base_T_ee=b) for s, b in zip(kept, systematic.correct(bte), strict=True)]
+            used = [replace(s, base_T_ee=b)
+                    for s, b in zip(kept, systematic.correct(bte), strict=True)]
         budget = error_budget(used, cameras if use_corners else None, setup, sel.Y,
                               sel.board_dev_mm, sel.held_out.mm,
                               None if systematic is None else systematic.correction(bte))

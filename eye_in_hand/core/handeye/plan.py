@@ -472,7 +472,8 @@ def _candidates(kept: list[HandEyeSample], X: np.ndarray, Y: np.ndarray,
         drawn += batch
         ok = np.flatnonzero(_admissible(cand, kept, views, obj, outline, cfg, d_range))
         for k in ok[:cfg.candidates - len(out)]:
-            obs = tuple(CornerObservation(v.name, obj, px[k]) for v, px in zip(views, cand.pixels, strict=True))
+            obs = tuple(CornerObservation(v.name, obj, px[k])
+                        for v, px in zip(views, cand.pixels, strict=True))
             out.append(HandEyeSample(f"candidate{len(out):04d}", cand.B[k], cand.C[k], obs))
             dists.append(float(cand.distance[k]))
             tilts.append(float(cand.tilt_deg[k]))

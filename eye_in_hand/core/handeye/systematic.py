@@ -185,7 +185,7 @@ class SystematicResult:
             f, _ = _residual_fn(X0, Y0, bte[k:k + 1], ctb[k:k + 1], setup, self.level,
                                 self.R_ref, self.sigmas["robot_t"], self.sigmas["robot_r"])
             e = f(p)[:6]
-            Jn = _jacobian(lambda q: f(q)[:6], p)
+            Jn = _jacobian(lambda q, f=f: f(q)[:6], p)
             S = s2 * (np.eye(6) + Jn @ Ainv @ Jn.T)
             out[k] = float(e @ np.linalg.solve(S, e))
         return out
