@@ -194,7 +194,7 @@ def available_cpus() -> int:
 def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: LocatorConfig,
                 rig: StereoRig | None = None, hand_eye_cov: np.ndarray | None = None,
                 options: ProcessOptions | None = None,
-                progress: Callable[[int], None] | None = None) -> ProcessResult:
+                progress: Callable[[int], object] | None = None) -> ProcessResult:
     """Run detection, triangulation and localization over a bag.
 
     Args:
@@ -238,7 +238,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     def newest() -> int | None:
         return None if fixed else localizer.poses.newest_ns
     tf_buffer = _use_tf(localizer, opts, n_poses) if use_tf else None
-    sync = ApproximateStereoSync(int(round(opts.sync_slop_s * 1e9)), opts.sync_queue_size)
+    sync: ApproximateStereoSync[Any] = ApproximateStereoSync(int(round(opts.sync_slop_s * 1e9)),
+                                                             opts.sync_queue_size)
     result = ProcessResult(duration_s=info.duration_ns / 1e9, rig=rig, damage=DamageLog())
     result.notes.extend(info.notes)   # a damaged metadata.yaml, a file read by scanning
     counts = result.counts

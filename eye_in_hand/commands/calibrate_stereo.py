@@ -95,8 +95,8 @@ def _gather(args: argparse.Namespace, board) -> tuple[list[Frame], list[Frame], 
         raise InputError("--bag needs --left-topic and --right-topic")
     total = -(-min(bag_count(args.bag, args.left_topic), bag_count(args.bag, args.right_topic))
               // args.every)
-    left: list[Frame] = []
-    right: list[Frame] = []
+    left = []
+    right = []
     stats: dict[str, int] = {}
     size = None
     args.bag_damage = DamageLog()   # damaged chunks and images: skipped, named, counted

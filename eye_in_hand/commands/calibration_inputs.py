@@ -599,7 +599,8 @@ def load_handeye_inputs(args: argparse.Namespace) -> dict[str, Any]:
     views = rig_views(ds.camera, ds.rig)
     check = BoardCheck(board, f"samples' {_view_images(views)}",
                        f"{printable(ds.root)}/dataset.yaml board:")
-    samples, skipped, notes = [], [], []
+    notes: list[str] = []
+    samples, skipped = [], []
     for s in ds.samples:
         images = {}
         for key, path in s.images.items():
@@ -677,7 +678,8 @@ def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
     if {v.name for v in views} != set(found.image_topics):
         raise ConfigError(f"--calibration is {'stereo' if rig else 'mono'} but the bag's images "
                           f"are {sorted(found.image_topics)}")
-    samples, skipped, notes = [], [], []
+    notes: list[str] = []
+    samples, skipped = [], []
     check = BoardCheck(board, f"still stops' {_view_images(views)}")
     for s in found.samples:
         obs = observe_sample(s.name, s.images, s.base_T_ee, board, views)

@@ -284,7 +284,7 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
         cfg = self.config
         self.diag = NodeDiagnostics(self, hardware_id=NODE_NAME)
         self.calibration_mode: CalibrationMode | None = None
-        self._chain = None
+        self._chain: Any = None    # load_kinematics: a DHChain or a UrdfChain
         self._joint_index: np.ndarray | None = None
         if cfg.robot_pose_source == "joint_states":
             self._chain = load_kinematics(cfg.kinematics_file, cfg.urdf_base_link,

@@ -23,6 +23,7 @@ robot poses and diagnostics keep flowing meanwhile.
 """
 from __future__ import annotations
 
+import functools
 import math
 import queue
 import threading
@@ -63,6 +64,8 @@ from eye_in_hand.ros.markers import marker_classes
 from eye_in_hand.ros.qos import LATCHED_QOS, RESULT_QOS, SENSOR_QOS
 from eye_in_hand.ros.stamps import header_stamp_ns, ns_to_stamp
 
+iface_msg: Any
+iface_srv: Any
 try:  # built into the venv by tools/build_interfaces.py; a colcon package on a ROS install
     from eye_in_hand_interfaces import msg as iface_msg
     from eye_in_hand_interfaces import srv as iface_srv
@@ -286,7 +289,7 @@ class CalibrationMode:
                 with self._lock:
                     return self.session.commit(req, T, obs)
 
-            self._submit(job, lambda out, err, rid=req.id: self._captured(rid, out, err))
+            self._submit(job, functools.partial(self._captured, req.id))
 
     def _captured(self, rid: int, out: CaptureOutcome | None, err: BaseException | None) -> None:
         fut = self._waiters.pop(rid, None)

@@ -48,7 +48,7 @@ class TfMixin:
         except ConfigError as exc:
             raise ConfigError(f"robot_pose_source: tf: {exc}") from exc
         self.tf_buffer = TfBuffer(cfg.pose_buffer_size)
-        self.localizer.poses = TfPoseView(  # type: ignore[assignment]
+        self.localizer.poses = TfPoseView(
             self.tf_buffer, cfg.base_frame, cfg.ee_frame,
             jump_back_ns=int(cfg.pose_jump_back_s * 1e9))
         # as deep as the robot pose topics' queue: a burst of late /tf while the executor is

@@ -161,9 +161,13 @@ class RosbagsTypes:
     def _factory(self, msgtype: str) -> Callable[..., Any]:
         cls = self.typestore.types[msgtype]
         _, fields = self.typestore.fielddefs[msgtype]
-        defaults = {name: self._default_of(desc) for name, desc in fields}
+        defaults: dict[str, Callable[[], Any]] = {name: self._default_of(desc)
+                                                  for name, desc in fields}
         for name, value in _NONZERO_DEFAULTS.get(msgtype, {}).items():
-            defaults[name] = lambda v=value: v
+            def constant(v: Any = value) -> Any:
+                return v
+
+            defaults[name] = constant
 
         def make(**kwargs: Any) -> Any:
             values = {name: (kwargs.pop(name) if name in kwargs else make_default())

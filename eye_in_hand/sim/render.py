@@ -289,7 +289,8 @@ def _make_texture(seed: int, color_bgr: tuple[int, int, int]) -> np.ndarray:
         gain[inside] *= rng.uniform(0.7, 0.9)
     mottle = cv2.GaussianBlur(rng.standard_normal((n // 16, n // 16)).astype(np.float32),
                               (0, 0), 1.5)
-    mottle = cv2.resize(mottle / max(float(mottle.std()), 1e-6), (n, n),
+    scaled: np.ndarray = mottle / max(float(mottle.std()), 1e-6)
+    mottle = cv2.resize(scaled, (n, n),
                         interpolation=cv2.INTER_NEAREST)
     gain *= 1.0 + 0.04 * np.round(mottle * 2) / 2   # a few flat levels
     return np.clip(gain[:, :, None] * base[None, None, :], 0, 255).astype(np.float32)
@@ -461,7 +462,7 @@ class Renderer:
         w = self.world
         R, t = cam_T_base[:3, :3], cam_T_base[:3, 3]
         cam_T_board = compose(cam_T_base, w.base_T_board)
-        s = {}
+        s: dict[str, Any] = {}
         # table plane z_base = h: normal n (cam), offset: n . X = n . p0
         n_tab = R[:, 2]
         p_tab = R @ np.array([0.0, 0.0, w.table_height]) + t
@@ -580,6 +581,8 @@ class Renderer:
         if ys.size == 0:
             return img, cov
         offs = (np.arange(ss) + 0.5) / ss - 0.5
+        ou: np.ndarray
+        ov: np.ndarray
         ou, ov = np.meshgrid(offs, offs)
         ou, ov = ou.ravel(), ov.ravel()
         S = ou.size

@@ -23,7 +23,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import yaml
@@ -263,7 +263,8 @@ class World:
                                             f"{source}: board.base_T_board"),
                 board_margin=float(board_d.get("margin", 0.02)),
                 table_height=float(table.get("height", 0.0)),
-                table_color_bgr=tuple(int(v) for v in table.get("color_bgr", (120, 135, 150))),
+                table_color_bgr=cast(tuple[int, int, int], tuple(
+                    int(v) for v in table.get("color_bgr", (120, 135, 150)))),
                 texture_seed=int(table.get("texture_seed", 7)),
                 light_dir_base=np.asarray(light.get("direction_base", (0.3, -0.2, 1.0)), float),
                 ambient=float(light.get("ambient", 0.35)),
