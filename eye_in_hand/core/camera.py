@@ -109,7 +109,8 @@ class CameraModel:
     height: int
     distortion_model: str = "plumb_bob"
     R: np.ndarray = field(default_factory=lambda: np.eye(3))
-    P: np.ndarray | None = None
+    # None: [K | 0]; __post_init__ always stores an array, which is what readers see
+    P: np.ndarray = None  # type: ignore[assignment]
     name: str = "camera"
 
     def __post_init__(self) -> None:
@@ -243,7 +244,8 @@ class CameraModel:
                               f"'{model}' takes {n}")
         R = (matrix_from_yaml(data["rectification_matrix"], "rectification_matrix", source, (3, 3))
              if "rectification_matrix" in data else np.eye(3))
-        P = (matrix_from_yaml(data["projection_matrix"], "projection_matrix", source, (3, 4))
+        P: Any = (matrix_from_yaml(data["projection_matrix"], "projection_matrix", source,
+                                   (3, 4))
              if "projection_matrix" in data else None)
         try:
             return cls(K=K, dist=dist, width=int(data["image_width"]),

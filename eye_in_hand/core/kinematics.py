@@ -72,9 +72,14 @@ UR5E_LINK_NAMES: tuple[str, ...] = (
 class KinematicChain(Protocol):
     """What :func:`solve_ik` and the simulator need of a chain."""
 
-    joint_names: tuple[str, ...]
-    lower: np.ndarray
-    upper: np.ndarray
+    @property
+    def joint_names(self) -> tuple[str, ...]: ...
+
+    @property
+    def lower(self) -> np.ndarray: ...
+
+    @property
+    def upper(self) -> np.ndarray: ...
 
     def fk(self, q: Sequence[float] | np.ndarray) -> np.ndarray:  # pragma: no cover - protocol
         ...
@@ -92,7 +97,7 @@ def _as_q(q, n: int, name: str = "q") -> np.ndarray:
     return arr
 
 
-def rpy_to_matrix(rpy: Sequence[float]) -> np.ndarray:
+def rpy_to_matrix(rpy: Sequence[float] | np.ndarray) -> np.ndarray:
     """URDF roll-pitch-yaw (fixed axes X, then Y, then Z) to a rotation matrix (3, 3)."""
     r, p, y = (float(v) for v in rpy)
     return Rotation.from_euler("xyz", [r, p, y]).as_matrix()
@@ -384,12 +389,12 @@ class UrdfChain:
         path: list[UrdfJoint] = []
         link = tip_link
         while link != base_link:
-            joint = by_child.get(link)
-            if joint is None:
+            above = by_child.get(link)
+            if above is None:
                 raise KinematicsError(
                     f"URDF {source}: tip link {tip_link!r} is not below base link {base_link!r}")
-            path.append(joint)
-            link = joint.parent
+            path.append(above)
+            link = above.parent
             if len(path) > len(by_child):
                 raise KinematicsError(f"URDF {source}: joint graph has a cycle")
         return cls(joints=tuple(reversed(path)), base_link=base_link, tip_link=tip_link)

@@ -408,7 +408,7 @@ class PoseBuffer:
         if now_ns is None or max_age_ns is None:
             return
         now = _as_stamp(now_ns, "now_ns")
-        received = [self._received[j] for j in indices if self._received[j] is not None]
+        received = [r for r in (self._received[j] for j in indices) if r is not None]
         if not received:
             return
         oldest = min(received)

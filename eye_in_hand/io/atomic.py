@@ -84,7 +84,7 @@ class OutputWriteError(OutputError):
         self.strerror = strerror
 
 
-def _show(path: Path | str) -> str:
+def _show(path: str | os.PathLike[str]) -> str:
     """``path`` printable on any terminal (non-UTF-8 bytes of a file name as ``\\xNN``)."""
     text = os.fspath(path)
     return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
@@ -273,7 +273,8 @@ def _newest_file(root: Path) -> str | None:
 def _write_error(exc: OSError | OutputWriteError, out: Path, existed: bool,
                  staged: Path | None = None) -> OutputWriteError:
     """One line: the file (as it would be named in ``out``), the reason, and what was kept."""
-    filename = os.fspath(exc.filename) if getattr(exc, "filename", None) else None
+    named = getattr(exc, "filename", None)
+    filename = os.fspath(named) if named else None
     if filename is None and staged is not None:  # a write() failed: the file written last
         filename = _newest_file(staged)
     if filename is not None and staged is not None:

@@ -8,6 +8,7 @@ import os
 import struct
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -196,9 +197,9 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
         BagError: unreadable bag.
     """
     source = str(path)
-    info = bag_info(path)
+    info = bag_info(Path(path))
     topics = info.topics
-    store = typestore_for(path)
+    store = typestore_for(Path(path))
     log = damage if damage is not None else DamageLog()
     unusable = (BagError, ConversionError, InputError, ConfigError, ValueError)
     bad_images: dict[int, str] = {}

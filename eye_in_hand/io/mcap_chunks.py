@@ -121,7 +121,7 @@ def _zstd_decompressor() -> Callable[[Any, int], Any]:
     try:  # local: the fallback zstd modules, optional as well
         from compression import zstd  # type: ignore[import-not-found]  # Python >= 3.14
     except ImportError:
-        from backports import zstd  # type: ignore[import-not-found,no-redef]
+        from backports import zstd
 
     def decompress_std(data: Any, size: int) -> Any:
         d = zstd.ZstdDecompressor()
@@ -150,7 +150,7 @@ def zstd_binding() -> str:
     except ImportError:
         pass
     try:
-        from compression import zstd  # type: ignore[import-not-found]  # noqa: F401
+        from compression import zstd  # noqa: F401
 
         return "compression.zstd"
     except ImportError:

@@ -576,8 +576,7 @@ def _stack(frames: list[dict[str, tuple[np.ndarray, np.ndarray]]],
 def _read_bag(path: Path) -> tuple[Tracks, Tracks]:
     info = bag_info(path)
     pat = re.compile(r"^/target/([A-Za-z0-9_]+)/(pose|ground_truth)$")
-    topics = {t: pat.match(t) for t in info.topics}
-    topics = {t: m for t, m in topics.items() if m}
+    topics = {t: m for t in info.topics if (m := pat.match(t))}
     if not any(m.group(2) == "pose" for m in topics.values()):
         raise InputError(f"{path}: no /target/<id>/pose topics (not an output bag of "
                          "eye-in-hand process, or written before per-target topics)")

@@ -453,8 +453,11 @@ def _stereo_once(left: Sequence[BoardDetection], right: Sequence[BoardDetection]
                               camera_name="left", max_rejection_rounds=0)
     mono_r = calibrate_camera(rdets, rnames, options=options, min_views=min_views,
                               camera_name="right", max_rejection_rounds=0)
-    pose_l = {v.index: v.cam_T_board for v in mono_l.views if v.used}
-    pose_r = {v.index: v.cam_T_board for v in mono_r.views if v.used}
+    # a used view has its pose (cam_T_board is None only for views left out)
+    pose_l = {v.index: v.cam_T_board for v in mono_l.views
+              if v.used and v.cam_T_board is not None}
+    pose_r = {v.index: v.cam_T_board for v in mono_r.views
+              if v.used and v.cam_T_board is not None}
     rels = [pose_r[i] @ np.linalg.inv(pose_l[i]) for i in paired if i in pose_l and i in pose_r]
     if not rels:
         raise CalibrationError("stereo: no pair has a board pose in both cameras")
@@ -489,7 +492,7 @@ def _stereo_once(left: Sequence[BoardDetection], right: Sequence[BoardDetection]
         views_in = list(paired)
         poses = [(np.asarray(rvecs[k]).ravel(), np.asarray(tvecs[k]).ravel())
                  for k in range(len(paired))]
-        obs = [[(o, a), (o, b)] for o, a, b in
+        obs: list[list[tuple[np.ndarray, np.ndarray] | None]] = [[(o, a), (o, b)] for o, a, b in
                ((_pair_points(left[i], right[i])[1], _pair_points(left[i], right[i])[2],
                  _pair_points(left[i], right[i])[3]) for i in paired)]
     else:

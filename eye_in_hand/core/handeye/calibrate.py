@@ -693,13 +693,13 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
     for name, mr in results.items():
         if name == selected or not (np.isfinite(mr.std_mm) and np.isfinite(sel.std_mm)):
             continue
-        dmm, ddeg = _x_delta(mr.X, sel.X)
+        diff_mm, diff_deg = _x_delta(mr.X, sel.X)
         lim_mm = 3.0 * float(np.hypot(mr.std_mm, sel.std_mm)) + 1e-6
         lim_deg = 3.0 * float(np.hypot(mr.std_deg, sel.std_deg)) + 1e-7
-        if dmm > lim_mm or ddeg > lim_deg:
+        if diff_mm > lim_mm or diff_deg > lim_deg:
             warnings.append(
-                f"methods disagree: {name} differs from {selected} by {dmm:.2f} mm / "
-                f"{ddeg:.3f} deg, beyond 3 sigma of their uncertainties ({lim_mm:.2f} mm / "
+                f"methods disagree: {name} differs from {selected} by {diff_mm:.2f} mm / "
+                f"{diff_deg:.3f} deg, beyond 3 sigma of their uncertainties ({lim_mm:.2f} mm / "
                 f"{lim_deg:.3f} deg): check for bad samples or unmodelled errors")
     budget = None
     if sel.held_out is not None:

@@ -215,7 +215,7 @@ def _pose_dict(T: np.ndarray) -> dict[str, list[float]]:
     return {"xyz": [float(v) for v in t], "quat_xyzw": [float(v) for v in q]}
 
 
-def _std(cov_x: np.ndarray) -> tuple[float, float]:
+def _std(cov_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(std_mm, std_deg)`` of a (..., 6, 6) covariance of X, as MethodResult reports them."""
     tt = np.trace(cov_x[..., :3, :3], axis1=-2, axis2=-1)
     tr = np.trace(cov_x[..., 3:, 3:], axis1=-2, axis2=-1)

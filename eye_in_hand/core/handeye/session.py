@@ -263,7 +263,8 @@ class CalibrationSession:
     def ready(self, now_s: float) -> list[CaptureRequest]:
         """The requests that can be answered now (their window covered, or timed out); they
         leave the waiting list and go to :meth:`complete`."""
-        out, keep = [], []
+        out: list[CaptureRequest] = []
+        keep: list[CaptureRequest] = []
         window = int(self.config.still_window_s * 1e9)
         newest = self.poses.newest_ns
         for req in self._requests:

@@ -19,7 +19,7 @@ import queue
 import threading
 from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from eye_in_hand.errors import BagError, ConversionError
 from eye_in_hand.io import mcap_chunks
@@ -90,7 +90,7 @@ def iter_in_workers(path: str | Path, topics: Iterable[str], submit: Any, *,
         name = Path(storage.path).name
         images = {c.id for c in conns if c.topic in image_topics and is_image_type(c.msgtype)}
         ids = [next((c.id for c in conns if c.topic == t), None) for t in image_topics]
-        pair = (ids[0], ids[1]) if None not in ids else None
+        pair = cast(tuple[int, int] | None, (ids[0], ids[1]) if None not in ids else None)
         on_damage = None if damage is None else \
             (lambda cd: damage.add(chunk_damage_record(name, by_id, cd)))
         index = 0

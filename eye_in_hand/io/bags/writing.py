@@ -90,12 +90,14 @@ def _rosbags_writer() -> Any:
     def jazzy(metadata: str) -> str:
         return metadata.replace("ros_distro: rosbags", f"ros_distro: {ROS_DISTRO}")
 
-    class CrcMcapWriter(McapWriter):  # type: ignore[misc,valid-type]
+    class CrcMcapWriter(McapWriter):
         def __init__(self, path: Path, compression: Any) -> None:
             super().__init__(path, compression)
             self.bio.flush()
             head = self.path.read_bytes()[:self.bio.tell()]     # magic and header record
-            self.bio = _CrcFile(self.bio, zlib.crc32(head))
+            self.crc_file = _CrcFile(self.bio, zlib.crc32(head))
+            # the writer's file, wrapped: every byte written goes through the CRC
+            self.bio = self.crc_file  # type: ignore[assignment]
 
         def close_chunk(self) -> None:
             # rosbags' close_chunk, with the CRC-32 of the uncompressed records
@@ -140,18 +142,20 @@ def _rosbags_writer() -> Any:
         def close(self, version: int, metadata: str) -> None:
             if self.chunk.bio.tell():
                 self.close_chunk()
-            pos, crc = self.bio.tell(), self.bio.crc
+            pos, crc = self.bio.tell(), self.crc_file.crc
             super().close(version, jazzy(metadata))
             _patch_mcap_crcs(self.path, pos, crc)
 
-    class CrcWriter(Writer):  # type: ignore[misc,valid-type]
+    class CrcWriter(Writer):
         STORAGE_PLUGINS = {**Writer.STORAGE_PLUGINS, StoragePlugin.MCAP: CrcMcapWriter}
 
         def close(self) -> None:
             storage = self.storage
             if storage is not None and not isinstance(storage, CrcMcapWriter):
                 close = storage.close
-                storage.close = lambda version, metadata: close(version, jazzy(metadata))
+                # the storage's own close, with this package's ros_distro in its metadata
+                storage.close = lambda version, metadata: close(  # type: ignore[method-assign]
+                    version, jazzy(metadata))
             super().close()
             meta = Path(self.metapath)
             if meta.is_file():
