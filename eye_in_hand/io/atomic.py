@@ -38,7 +38,7 @@ import re
 import shutil
 from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 from eye_in_hand.errors import EyeInHandError
 
@@ -374,7 +374,7 @@ def _write_cause(exc: BaseException, staged: Path) -> OSError | None:
 
 @contextlib.contextmanager
 def atomic_file(path: str | os.PathLike[str], mode: str = "w", *,
-                encoding: str | None = "utf-8", newline: str | None = None) -> Iterator[IO]:
+                encoding: str | None = "utf-8", newline: str | None = None) -> Iterator[IO[Any]]:
     """Open a temporary file beside ``path``; on success flush, ``fsync`` and rename it to
     ``path`` (replacing it). On any exception the temporary file is removed and ``path`` is
     unchanged.

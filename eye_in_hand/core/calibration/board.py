@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import cv2
 import numpy as np
@@ -180,7 +180,7 @@ class BoardSpec:
         pts[:, 1] = row.ravel() * self.square
         return pts
 
-    def charuco_board(self):
+    def charuco_board(self) -> Any:
         """The OpenCV ``cv2.aruco.CharucoBoard`` of a ChArUco spec.
 
         Raises:
@@ -221,7 +221,7 @@ class BoardDetection:
     image_size: tuple[int, int]
     detector: str
     reason: str = ""
-    meta: dict = field(default_factory=dict, compare=False, repr=False)
+    meta: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
     @classmethod
     def missing(cls, image_size: tuple[int, int], detector: str, reason: str) -> BoardDetection:
@@ -247,7 +247,7 @@ class BoardDetection:
 def render_board(board: BoardSpec, K: np.ndarray, dist: np.ndarray, cam_T_board: np.ndarray,
                  image_size: tuple[int, int], *, supersample: int = 3, margin_squares: float = 1.0,
                  black: int = 25, white: int = 230, background: int = 110,
-                 return_corners: bool = False):
+                 return_corners: bool = False) -> Any:
     """Render a chessboard seen by a distorted pinhole camera (exact, per-pixel ray casting).
 
     Every (sub-)pixel is undistorted (``cv2.undistortPoints``), its ray intersected with the

@@ -63,7 +63,7 @@ class StereoViewResult:
     left_residuals: np.ndarray | None = None
     right_residuals: np.ndarray | None = None
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-able summary (without the arrays)."""
         return {"file": self.name, "right_file": self.right_name, "rms_px": _f(self.rms_px),
                 "used": self.used, "paired": self.paired, "outlier": self.outlier,
@@ -96,7 +96,7 @@ class StereoCalibration:
     right: CameraCalibration
     rms_px: float
     views: tuple[StereoViewResult, ...]
-    std: dict
+    std: dict[str, Any]
     quality: StereoQuality
     method: str
     alpha: float
@@ -105,11 +105,11 @@ class StereoCalibration:
     options: CalibrationOptions
     fix_intrinsics: bool
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-able report content (``left``, ``right``, ``stereo`` blocks + ``views``)."""
         rig = self.rig
 
-        def cam_block(cam: CameraModel, mono: CameraCalibration, side: str) -> dict:
+        def cam_block(cam: CameraModel, mono: CameraCalibration, side: str) -> dict[str, Any]:
             return {
                 "name": cam.name,
                 "image_size": [cam.width, cam.height],

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -86,7 +87,7 @@ def _start(T: np.ndarray) -> np.ndarray:
     return np.concatenate([T[:3, 3], np.zeros(3)])
 
 
-def _covariance(res, m: int) -> tuple[np.ndarray, float]:
+def _covariance(res: Any, m: int) -> tuple[np.ndarray, float]:
     dof = max(1, m - res.x.size)
     s2 = 2.0 * float(res.cost) / dof
     J = res.jac

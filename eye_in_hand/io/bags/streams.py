@@ -144,7 +144,7 @@ def decoded_on_thread(path: str | Path, topics: list[str], typestore: Any,
     (a ``DamageLog``) and are skipped; an unreadable bag ends the iteration with the error.
     """
     errors: list[BaseException] = []
-    q: queue.Queue = queue.Queue(maxsize=16)
+    q: queue.Queue[Any] = queue.Queue(maxsize=16)
     stop = threading.Event()
 
     def decode(raw: Any, msgtype: str) -> Any:

@@ -50,7 +50,8 @@ class _CrcFile:
 
     def write(self, data: Any) -> int:
         self.crc = zlib.crc32(data, self.crc)
-        return self._fh.write(data)
+        written: int = self._fh.write(data)
+        return written
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._fh, name)
