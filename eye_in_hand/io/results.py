@@ -354,7 +354,7 @@ def write_results(out: str | Path, result: ProcessResult, opts: OutputOptions | 
     if out.exists():
         raise BagError(f"{out}: output exists already (choose a new -o)")
     ids = list(result.target_ids)
-    with BagWriter(out, storage=storage) as writer:  # type: ignore[arg-type]
+    with BagWriter(out, storage=storage) as writer:
         _Topics(writer, getattr(opts, "outputs", None) or OutputSettings()).write_all(
             result, getattr(opts, "camera_frame", "camera_left_optical_frame"),
             getattr(opts, "base_frame", "base_link"))

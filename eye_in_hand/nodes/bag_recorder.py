@@ -305,8 +305,8 @@ class BagRecorder(Node):
     def _writer_main(self, ready: Future) -> None:
         """Writer thread: create the bag, then run calls and write messages until closed."""
         try:
-            writer = BagWriter(self.output, storage=self.storage,  # type: ignore[arg-type]
-                               compression=self.compression or None)  # type: ignore[arg-type]
+            writer = BagWriter(self.output, storage=self.storage,
+                               compression=self.compression or None)
         except BaseException as exc:
             ready.set_exception(exc)
             return

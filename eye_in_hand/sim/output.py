@@ -332,7 +332,7 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
     latched = (OfferedQos("reliable", "transient_local", "keep_last", 1),)
     reliable = (OfferedQos("reliable", "volatile", "keep_last", 100),)
     store = get_typestore(Stores.ROS2_JAZZY)
-    writer = BagWriter(out, storage=storage, compression="zstd",  # type: ignore[arg-type]
+    writer = BagWriter(out, storage=storage, compression="zstd",
                        typestore=store)
     with writer:
         m = _Msgs(store)

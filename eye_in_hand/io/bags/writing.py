@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from io import BytesIO
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Literal
+from typing import Any
 
 from eye_in_hand.errors import BagError, InputError
 from eye_in_hand.io.bags.decoding import _types_from_definition, serialize
@@ -225,8 +225,8 @@ class BagWriter:
         BagError: ``path`` exists, or the bag cannot be created.
     """
 
-    def __init__(self, path: str | Path, storage: Literal["mcap", "sqlite3"] = "mcap",
-                 compression: Literal["zstd"] | None = None, *, typestore: Any = None) -> None:
+    def __init__(self, path: str | Path, storage: str = "mcap",
+                 compression: str | None = None, *, typestore: Any = None) -> None:
         if storage not in STORAGES:
             raise InputError(f"storage must be one of {', '.join(STORAGES)}, got {storage!r}")
         if compression not in COMPRESSIONS:
