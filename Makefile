@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 IFACES := $(VENV)/.interfaces
 
-.PHONY: venv test demo bench mutation clean
+.PHONY: venv test lint demo bench mutation clean
 
 venv: $(STAMP) $(IFACES)
 
@@ -26,6 +26,13 @@ $(IFACES): $(STAMP) tools/build_interfaces.py $(wildcard eye_in_hand_interfaces/
 
 test: venv
 	$(PY) -m pytest -q test
+
+# ruff check (ruff.toml: pycodestyle, pyflakes, isort, bugbear, pyupgrade) on the package, its
+# tests, benchmarks, tools and launch file; mypy (mypy.ini: strict on core/ and io/) on the
+# package. docs/development.md, "Lint".
+lint: venv
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/mypy
 
 demo: venv
 	$(PY) -m eye_in_hand.demo

@@ -57,6 +57,11 @@ setup(
             "pytest>=8",
             "colcon-common-extensions>=0.3",
             "catkin_pkg",  # imported by test_package.py (colcon-ros requires it as well)
+            # make lint (docs/development.md, "Lint"): the versions it was made clean with
+            "ruff>=0.17.6",
+            "mypy>=2.4.1",
+            "types-PyYAML>=6.0.12.20261113",
+            "types-tqdm>=4.70.0.20261106",
         ],
     },
     zip_safe=True,

@@ -27,8 +27,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from eye_in_hand.core.calibration import (BoardDetection, BoardSpec,  # noqa: E402
-                                          calibrate_camera, calibrate_stereo, detect_board)
+from eye_in_hand.core.calibration import (  # noqa: E402
+    BoardDetection,
+    BoardSpec,
+    calibrate_camera,
+    calibrate_stereo,
+    detect_board,
+)
 
 REF_RMS = 0.196334638034
 REF_K = np.array([[532.80992189, 0.0, 342.4952186], [0.0, 532.93346422, 233.8879292],
@@ -137,7 +142,8 @@ def synthetic_corners(world, n_frames: int, seeds: int) -> None:
         rng = np.random.default_rng(seed)
         left, right = [], []
 
-        def add(px_l: np.ndarray, px_r: np.ndarray, lst_l: list, lst_r: list) -> None:
+        def add(px_l: np.ndarray, px_r: np.ndarray, lst_l: list, lst_r: list,
+                rng: np.random.Generator = rng) -> None:
             for px, lst in ((px_l, lst_l), (px_r, lst_r)):
                 noisy = px + rng.normal(0.0, 0.2, px.shape)
                 lst.append(BoardDetection(True, noisy, obj, ids, size, "truth+noise"))
@@ -191,8 +197,8 @@ def synthetic_images(world, n_frames: int) -> None:
         left = [detect_board(f[0], board, det, fallback=False) for f in frames]
         right = [detect_board(f[1], board, det, fallback=False) for f in frames]
         errs = []
-        for d, f, side in [(d, f, 0) for d, f in zip(left, frames)] + \
-                          [(d, f, 1) for d, f in zip(right, frames)]:
+        for d, f, side in [(d, f, 0) for d, f in zip(left, frames, strict=True)] + \
+                          [(d, f, 1) for d, f in zip(right, frames, strict=True)]:
             if d.found:
                 truth = f[2].board_corners_px_left if side == 0 else f[2].board_corners_px_right
                 errs.append(np.linalg.norm(d.corners - truth, axis=1))

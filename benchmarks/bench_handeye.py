@@ -202,8 +202,11 @@ def other_average(res, samples) -> dict[str, np.ndarray]:
     """The per-motion-pair average with the non-default per-pair solver(s), on the samples
     ``res`` kept (``avg_<solver>``); empty when it cannot solve them."""
     from eye_in_hand.core.handeye import gripper_poses, motion_pairs
-    from eye_in_hand.core.handeye.average import (AVERAGE_SOLVERS, DEFAULT_AVERAGE_SOLVER,
-                                                  average_hand_eye)
+    from eye_in_hand.core.handeye.average import (
+        AVERAGE_SOLVERS,
+        DEFAULT_AVERAGE_SOLVER,
+        average_hand_eye,
+    )
     from eye_in_hand.errors import HandEyeError
 
     kept = [s for s in samples if s.name in set(res.sample_names)]
@@ -293,7 +296,7 @@ def accuracy(args: argparse.Namespace) -> None:
               f"{best_mm} in {wins} of {len(sel_a)} datasets")
         if cv_out is not None:
             theirs: dict[str, list[tuple[float, float]]] = {}
-            for trial, X_true in zip(cv_out["trials"], truths):
+            for trial, X_true in zip(cv_out["trials"], truths, strict=False):
                 for name, X in trial.items():
                     theirs.setdefault(name, []).append(errors(X_true, np.array(X)))
             cv_mm = min(theirs, key=lambda k: med(theirs[k])[1])

@@ -77,7 +77,7 @@ def make_samples(detector: str = "auto", data: Path = DATA, refine: str = "saddl
 
     board, cam, images, offsets, poses = load_capture(data)
     samples, dets = [], []
-    for i, (img, off, pose) in enumerate(zip(images, offsets, poses)):
+    for i, (img, off, pose) in enumerate(zip(images, offsets, poses, strict=False)):
         det = detect_board(img, board, detector, refine=refine)
         if not det.found:
             raise SystemExit(f"image {i:03d}: board not found ({det.reason})")
@@ -107,8 +107,8 @@ def opencv_solutions(train_sets) -> list[dict[str, np.ndarray]] | None:
 def main() -> None:
     from eye_in_hand.core.handeye import CLOSED_FORM_METHODS, calibrate_hand_eye
     from eye_in_hand.core.handeye.kfold import classic_fit, fold_indices, kfold_held_out, rms
-    from eye_in_hand.core.transforms import average_transforms
     from eye_in_hand.core.handeye.solvers import board_in_fixed_frame
+    from eye_in_hand.core.transforms import average_transforms
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--k", type=int, default=6, help="number of folds (default 6)")
@@ -129,7 +129,8 @@ def main() -> None:
     print(f"Franka + RealSense ChArUco capture: {len(samples)} views, {sum(n_corners)} corners "
           f"({min(n_corners)}-{max(n_corners)} per view), detector {args.detector!r}, "
           f"{args.k}-fold held-out prediction")
-    print(f"corners: refinement {args.refine!r}, PnP residual {np.sqrt(np.mean(np.square(pnp))):.3f} "
+    print(f"corners: refinement {args.refine!r}, PnP residual "
+          f"{np.sqrt(np.mean(np.square(pnp))):.3f} "
           f"px RMS over the views"
           + (f", corner sigma (median per view) {np.nanmin(sig):.3f}-{np.nanmax(sig):.3f} px"
              if np.any(np.isfinite(sig)) else ""))

@@ -332,10 +332,10 @@ def replay(bag: str, lead_s: float) -> None:
     Prints the stamp offset (ns) on its first line so the parent can map stamps back.
     """
     import rclpy
+    from geometry_msgs.msg import PoseStamped
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Image
-    from geometry_msgs.msg import PoseStamped
 
     from eye_in_hand.io.bags import iter_messages
     from eye_in_hand.ros.dds import use_large_data_profile
@@ -630,7 +630,8 @@ def main() -> int:
           f"{bc['estimate_only_nees']:.2f}, coverage {100 * bc['estimate_only_coverage95']:.1f} %")
     live_pts, fig = live(paths)
     common = sorted(set(live_pts) & set(off_pts))
-    diff = max((float(np.max(np.abs(live_pts[s] - off_pts[s]))) for s in common), default=float("nan"))
+    diff = max((float(np.max(np.abs(live_pts[s] - off_pts[s]))) for s in common),
+               default=float("nan"))
     print(f"live vs offline: {len(common)} frames in both, largest difference {diff:.2e} m  "
           "(target <= 1e-6 m)")
     print_live(fig, live_pts, truth)

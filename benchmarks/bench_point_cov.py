@@ -80,7 +80,8 @@ def render(world: World, jobs: list[tuple[np.ndarray, int]], blur: float = 0.0) 
 
 
 def measure(loc: StereoLocator, frames: list) -> dict[str, np.ndarray]:
-    """Per view: pixel errors (4,), pixel covariance (4, 4), point error (3,), covariance, truth."""
+    """Per view: pixel errors (4,), pixel covariance (4, 4), point error (3,), covariance,
+    truth."""
     e_px, corr, S, e, P, truth, blur, shade = [], [], [], [], [], [], [], []
     for f in frames:
         t = loc.locate(f.left, f.right).first
@@ -147,18 +148,19 @@ def print_pixels(m: dict[str, np.ndarray]) -> None:
           f"{cross_model[1]:.5f} px^2; beyond the shading term: x {beyond[0]:+.5f} y "
           f"{beyond[1]:+.5f} px^2, {np.sqrt(max(beyond.mean(), 0.0)):.3f} px RMS over the axes "
           f"(CUT_SIGMA_PX {detection.CUT_SIGMA_PX:g}, times 1 + CUT_BLUR_GAIN b)")
-    zd = [np.array([(u @ x) / np.sqrt(u @ s_ @ u) for x, s_ in zip(e, S)])
+    zd = [np.array([(u @ x) / np.sqrt(u @ s_ @ u) for x, s_ in zip(e, S, strict=False)])
           for u in (np.array([1.0, 0, -1.0, 0]), np.array([0, 1.0, 0, -1.0]))]
     c = m["corr"]
     print(f"  left - right (what the depth sees) over the model's sigma: RMS x "
-          f"{np.sqrt(np.mean(zd[0] ** 2)):.2f} y {np.sqrt(np.mean(zd[1] ** 2)):.2f} (1 when right);"
+          f"{np.sqrt(np.mean(zd[0] ** 2)):.2f} y {np.sqrt(np.mean(zd[1] ** 2)):.2f} "
+          "(1 when right);"
           f" the sphere-centre correction's own error: mean {np.abs(c.mean(axis=0)).max():.4f} px"
           f" at most, spread {c.std(axis=0).max():.4f} px at most")
 
 
 def print_point(m: dict[str, np.ndarray], label: str) -> None:
     m2, lat, dep, el, sl, ed, sd = [], [], [], [], [], [], []
-    for e, P, p in zip(m["e"], m["P"], m["truth"]):
+    for e, P, p in zip(m["e"], m["P"], m["truth"], strict=False):
         m2.append(float(e @ np.linalg.solve(P, e)))
         B = lateral_basis(p)
         x, C = B @ e, B @ P @ B.T

@@ -43,7 +43,7 @@ def main() -> None:
     stamps = [T0 + k * PERIOD for k in range(N)]
     edges = [chain_tf_edges(chain, _q(k * PERIOD / 1e9)) for k in range(N)]
     t = time.perf_counter()
-    for s, es in zip(stamps, edges):
+    for s, es in zip(stamps, edges, strict=True):
         for p, c, T in es:
             buf.set_transform(p, c, s, T)
     add_us = (time.perf_counter() - t) / (N * 6) * 1e6

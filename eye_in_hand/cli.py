@@ -8,11 +8,11 @@ Each sub-command lives in its own module under :mod:`eye_in_hand.commands` and p
 
 Command modules import heavy dependencies (rclpy, OpenCV, matplotlib) inside ``run`` so that
 ``eye-in-hand --help`` stays fast. Errors derived from :class:`eye_in_hand.errors.EyeInHandError`
-are printed as one line on stderr (``eye-in-hand: error: ...``) with exit code 1, never a traceback;
-so is any ``OSError`` that reaches the top (e.g. a full disk), with the file it names. Any other
-exception (a bug) is one line too, ``eye-in-hand: internal error: <Type>: <message> (run with
---debug ...)``, exit code 70; ``--debug`` (or ``EYE_IN_HAND_DEBUG=1``) shows its traceback and
-is passed on to worker processes and launched nodes.
+are printed as one line on stderr (``eye-in-hand: error: ...``) with exit code 1, never a
+traceback; so is any ``OSError`` that reaches the top (e.g. a full disk), with the file it
+names. Any other exception (a bug) is one line too, ``eye-in-hand: internal error: <Type>:
+<message> (run with --debug ...)``, exit code 70; ``--debug`` (or ``EYE_IN_HAND_DEBUG=1``) shows
+its traceback and is passed on to worker processes and launched nodes.
 """
 from __future__ import annotations
 
@@ -20,7 +20,8 @@ import argparse
 import codecs
 import importlib
 import sys
-from typing import NoReturn, Sequence
+from collections.abc import Sequence
+from typing import NoReturn
 
 from eye_in_hand import __version__
 from eye_in_hand.commands.common import HelpFormatter, parse_known_args_with_aliases

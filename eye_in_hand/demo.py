@@ -27,8 +27,9 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -39,8 +40,12 @@ from eye_in_hand.errors import EXIT_UNEXPECTED, debug_enabled, unexpected_error_
 from eye_in_hand.io.bags import bag_info, deserialize, iter_messages
 from eye_in_hand.io.config import load_hand_eye
 from eye_in_hand.io.results import compare_outputs, output_messages
-from eye_in_hand.ros.conversions import (camera_info_to_model, header_stamp_ns, point_to_xyz,
-                                         transform_to_matrix)
+from eye_in_hand.ros.conversions import (
+    camera_info_to_model,
+    header_stamp_ns,
+    point_to_xyz,
+    transform_to_matrix,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 BOARD = "chessboard:9x6:0.025"
@@ -77,8 +82,8 @@ def _run(cmd: list[str], env: dict[str, str], *, quiet: bool = False) -> str:
     return out
 
 
-def _ground_truth(bag: Path) -> dict[str, object]:
-    out: dict[str, object] = {"targets": {}}
+def _ground_truth(bag: Path) -> dict[str, Any]:
+    out: dict[str, Any] = {"targets": {}}
     for topic, mt, _t, raw in iter_messages(bag, ["/ground_truth/hand_eye",
                                                   "/ground_truth/target",
                                                   "/stereo/left/camera_info",
@@ -87,7 +92,7 @@ def _ground_truth(bag: Path) -> dict[str, object]:
         if topic == "/ground_truth/hand_eye":
             out["ee_T_cam"] = transform_to_matrix(msg.transform)
         elif topic == "/ground_truth/target":
-            out["targets"].setdefault(header_stamp_ns(msg), point_to_xyz(msg.point))  # type: ignore[union-attr]
+            out["targets"].setdefault(header_stamp_ns(msg), point_to_xyz(msg.point))
         elif topic.endswith("camera_info") and topic not in out:
             out[topic] = camera_info_to_model(msg)
     return out
@@ -239,7 +244,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     (out / "launch.log").write_text(launch_out)
     for msg in live[:3]:
         p = msg["pose"]["position"]
-        print(f"  target/pose @ {msg['header']['stamp']['sec']}.{msg['header']['stamp']['nanosec']:09d}"
+        stamp = msg["header"]["stamp"]
+        print(f"  target/pose @ {stamp['sec']}.{stamp['nanosec']:09d}"
               f"  [{p['x']:.5f}, {p['y']:.5f}, {p['z']:.5f}] m in {msg['header']['frame_id']}")
     if len(live) > 3:
         print(f"  ... {len(live)} poses in {live_file}")
@@ -254,15 +260,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     truth = _ground_truth(loc_bag)
     cal_truth = _ground_truth(cal_bag)
     rig = StereoRig.load(calib)
-    true_rig = StereoRig.from_ros_pair(cal_truth["/stereo/left/camera_info"],  # type: ignore[arg-type]
-                                       cal_truth["/stereo/right/camera_info"])  # type: ignore[arg-type]
+    true_rig = StereoRig.from_ros_pair(cal_truth["/stereo/left/camera_info"],
+                                       cal_truth["/stereo/right/camera_info"])
     he = load_hand_eye(he_dir / "hand_eye.yaml")
     dt, dr = transform_distance(he.transform, cal_truth["ee_T_cam"])
     print(f"stereo calibration: fx {rig.left.fx:.2f} px (true {true_rig.left.fx:.2f}), baseline "
           f"{1000 * rig.baseline:.3f} mm (true {1000 * true_rig.baseline:.3f})")
     print(f"hand-eye ({he.method}): {1000 * dt:.3f} mm, {np.degrees(dr):.4f} deg from the true "
           "mount")
-    targets: dict[int, np.ndarray] = truth["targets"]  # type: ignore[assignment]
+    targets: dict[int, np.ndarray] = truth["targets"]
     live_pts = {m["header"]["stamp"]["sec"] * 10**9 + m["header"]["stamp"]["nanosec"]:
                 np.array([m["pose"]["position"][k] for k in "xyz"]) for m in live}
     offline = {}
@@ -273,10 +279,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                     [float(row[k]) for k in ("x_base", "y_base", "z_base")])
     common = sorted(set(live_pts) & set(offline))
     diff = max((float(np.max(np.abs(live_pts[s] - offline[s]))) for s in common), default=0.0)
-    print(f"live:    {len(live_pts)}/{n_pairs} frames, "
-          f"{_stats([np.linalg.norm(p - targets[s]) for s, p in live_pts.items() if s in targets])}")
-    print(f"offline: {len(offline)}/{n_pairs} frames, "
-          f"{_stats([np.linalg.norm(p - targets[s]) for s, p in offline.items() if s in targets])}")
+    live_err = [float(np.linalg.norm(p - targets[s])) for s, p in live_pts.items()
+                if s in targets]
+    offline_err = [float(np.linalg.norm(p - targets[s])) for s, p in offline.items()
+                   if s in targets]
+    print(f"live:    {len(live_pts)}/{n_pairs} frames, {_stats(live_err)}")
+    print(f"offline: {len(offline)}/{n_pairs} frames, {_stats(offline_err)}")
     print(f"live vs offline: {len(common)} frames in both, largest difference {diff:.2e} m")
     live_msgs = output_messages(out / "live_outputs", OUTPUT_TOPICS)
     offline_msgs = output_messages(processed, OUTPUT_TOPICS)

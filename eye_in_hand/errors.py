@@ -31,7 +31,7 @@ DEBUG_ENV = "EYE_IN_HAND_DEBUG"
 EXIT_UNEXPECTED = 70
 
 
-def debug_enabled(argv: "list[str] | tuple[str, ...] | None" = None) -> bool:
+def debug_enabled(argv: list[str] | tuple[str, ...] | None = None) -> bool:
     """Whether tracebacks are wanted: ``--debug`` among ``argv`` or ``EYE_IN_HAND_DEBUG`` set
     to anything but ``""``/``0``."""
     import os

@@ -1,4 +1,5 @@
-"""Offline processing of a bag: the live pipeline's core code, with no DDS, as fast as the CPU allows.
+"""Offline processing of a bag: the live pipeline's core code, with no DDS, as fast as the CPU
+allows.
 
 One pass over the bag in log-time order:
 
@@ -29,9 +30,10 @@ import os
 import re
 import threading
 from collections import deque
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import cv2
 import numpy as np
@@ -42,15 +44,27 @@ from eye_in_hand.core.localization import Localizer, LocalizerConfig
 from eye_in_hand.core.locator import LocatorConfig, StereoLocator
 from eye_in_hand.core.sync import ApproximateStereoSync
 from eye_in_hand.errors import BagError, ConversionError, InputError, LocalizationError
-from eye_in_hand.io.bags import (DamageLog, bag_info, deserialize, iter_messages, memory_mappable,
-                                 require_topics, typestore_for)
-from eye_in_hand.io.results import TargetResult, assign_truth, target_order
+from eye_in_hand.io.bags import (
+    DamageLog,
+    bag_info,
+    deserialize,
+    iter_messages,
+    memory_mappable,
+    require_topics,
+    typestore_for,
+)
+from eye_in_hand.io.results import (
+    FrameResult,
+    ProcessResult,
+    TargetResult,
+    assign_truth,
+    target_order,
+)
 from eye_in_hand.io.results import write_results as _write_results
 from eye_in_hand.ros.outputs import OutputSettings
 
-__all__ = ["ProcessOptions", "FrameResult", "ProcessResult", "TargetResult", "process_bag",
-           "loss_total",
-           "error_stats", "top_reasons", "write_results"]
+__all__ = ["ProcessOptions", "process_bag", "loss_total", "error_stats", "top_reasons",
+           "write_results"]
 
 
 @dataclass(frozen=True)
@@ -76,9 +90,9 @@ class ProcessOptions:
             ``max_pose_age_s`` before the pair's image (log time), and the pose buffer (and the
             stereo pairing) restart when stamps jump back more than ``pose_jump_back_s``.
         workers: processes (or threads, see :class:`_PairPool`) locating stereo pairs; 1 =
-            in the calling thread; None: one per CPU this process may run on. Results are consumed in stamp order; with ``selection:
-            nearest`` (which depends on the previous frame) one is used whatever this says, so
-            the numbers never depend on it.
+            in the calling thread; None: one per CPU this process may run on. Results are
+            consumed in stamp order; with ``selection: nearest`` (which depends on the previous
+            frame) one is used whatever this says, so the numbers never depend on it.
         task_timeout_s: deadline of a worker process for one stereo pair (s): a worker that
             gives no result for this long (stopped with SIGSTOP, hung) is killed and its pairs
             are located again in this process, so ``process`` never hangs.
@@ -139,79 +153,6 @@ class ProcessOptions:
             self.joint_states_topic
 
 
-@dataclass
-class FrameResult:
-    """One stereo pair's outcome.
-
-    Attributes:
-        stamp_ns: the image stamp.
-        status: ``"ok"``, ``"no_target"`` (with the locator's reason in ``reason``),
-            ``"no_robot_pose"`` (located in the camera, but no robot pose brackets the stamp),
-            or ``"bad_image"`` (an image that does not decode, or of the wrong size; counted in
-            ``bad_messages``).
-        point_cam, cov_cam, residual_px, left_px, right_px: the triangulation (when located).
-        point_base, cov_base: the base-frame result (status ok).
-        truth_base: the ground-truth target at this stamp, when the bag has it.
-        targets: every located target (:class:`TargetResult`), the first target (the one of
-            the fields above) first when it was located.
-        missing: target name (or id) -> why it was not located.
-        truth_by_id: target id -> its matched ground-truth target at this stamp, for every
-            matched id, located here or not (set by :func:`eye_in_hand.io.results.
-            assign_truth`; the ``gt_*`` columns of a target's ``no_target`` rows).
-    """
-
-    stamp_ns: int
-    status: str
-    reason: str = ""
-    point_cam: np.ndarray | None = None
-    cov_cam: np.ndarray | None = None
-    residual_px: float = math.nan
-    left_px: np.ndarray | None = None
-    right_px: np.ndarray | None = None
-    point_base: np.ndarray | None = None
-    cov_base: np.ndarray | None = None
-    truth_base: np.ndarray | None = None
-    targets: list[TargetResult] = field(default_factory=list)
-    missing: dict[str, str] = field(default_factory=dict)
-    truth_by_id: dict[str, np.ndarray] = field(default_factory=dict)
-
-    @property
-    def error_m(self) -> float:
-        """Distance to the ground truth (m), NaN when either is missing."""
-        if self.point_base is None or self.truth_base is None:
-            return math.nan
-        return float(np.linalg.norm(self.point_base - self.truth_base))
-
-
-@dataclass
-class ProcessResult:
-    """All frames, counters, and what the bag covered.
-
-    ``located_in_processes``: pairs located by worker processes (the rest in this process).
-    ``damage``: the damaged parts of the bag that were skipped (a
-    :class:`eye_in_hand.io.bags.DamageLog`: chunks, truncated tails, messages that could not
-    be read; messages of the processed topics read but not decodable are
-    ``counts['bad_messages']``).
-    ``target_ids``: every target id, in :func:`eye_in_hand.io.results.target_order`;
-    ``truth_match``: id -> matched ground-truth index (:func:`eye_in_hand.io.results.
-    assign_truth`).
-    """
-
-    frames: list[FrameResult] = field(default_factory=list)
-    counts: dict[str, int] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-    duration_s: float = 0.0
-    rig: StereoRig | None = None
-    located_in_processes: int = 0
-    damage: Any = None
-    loss: dict[str, Any] = field(default_factory=dict)
-    target_ids: list[str] = field(default_factory=list)
-    truth_match: dict[str, dict[str, Any]] = field(default_factory=dict)
-
-    def ok(self) -> list[FrameResult]:
-        return [f for f in self.frames if f.status == "ok"]
-
-
 def error_stats(frames: list[FrameResult]) -> dict[str, float] | None:
     """RMS, p95 and max error in mm over frames with a result and ground truth (None if none)."""
     errs = np.array([f.error_m for f in frames if math.isfinite(f.error_m)])
@@ -253,7 +194,7 @@ def available_cpus() -> int:
 def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: LocatorConfig,
                 rig: StereoRig | None = None, hand_eye_cov: np.ndarray | None = None,
                 options: ProcessOptions | None = None,
-                progress: Callable[[int], None] | None = None) -> ProcessResult:
+                progress: Callable[[int], object] | None = None) -> ProcessResult:
     """Run detection, triangulation and localization over a bag.
 
     Args:
@@ -297,7 +238,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     def newest() -> int | None:
         return None if fixed else localizer.poses.newest_ns
     tf_buffer = _use_tf(localizer, opts, n_poses) if use_tf else None
-    sync = ApproximateStereoSync(int(round(opts.sync_slop_s * 1e9)), opts.sync_queue_size)
+    sync: ApproximateStereoSync[Any] = ApproximateStereoSync(int(round(opts.sync_slop_s * 1e9)),
+                                                             opts.sync_queue_size)
     result = ProcessResult(duration_s=info.duration_ns / 1e9, rig=rig, damage=DamageLog())
     result.notes.extend(info.notes)   # a damaged metadata.yaml, a file read by scanning
     counts = result.counts

@@ -41,7 +41,7 @@ import threading
 import time
 from concurrent.futures import Future
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import IO, Any
 
 from eye_in_hand.errors import EyeInHandError
 
@@ -60,7 +60,7 @@ def _frame(obj: Any) -> bytes:
     return _LEN.pack(len(data)) + data
 
 
-def _recv_bytes(stream: BinaryIO) -> bytes:
+def _recv_bytes(stream: IO[bytes]) -> bytes:
     head = stream.read(_LEN.size)
     if len(head) < _LEN.size:
         raise EOFError

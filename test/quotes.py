@@ -31,7 +31,7 @@ def _pairs(quote: str, line: str) -> list[tuple[str, str]] | None:
             return None
         first = skel[:at].count("#")
         found = _NUMBER.findall(segment)
-        pairs += list(zip(found, nums[first:first + len(found)]))
+        pairs += list(zip(found, nums[first:first + len(found)], strict=False))
         pos = at + len(want)
     if segments[-1].strip() and pos != len(skel):
         return None       # not abridged at the end: the whole line

@@ -148,7 +148,6 @@ def test_the_range_table_of_the_reliability_page_is_the_parsers():
     import re
     from pathlib import Path
 
-    from eye_in_hand import cli
 
     text = (Path(__file__).resolve().parents[1] / "docs" / "reliability.md").read_text()
     documented = {(m[0], m[1]): m[2].strip() for m in re.findall(
@@ -367,8 +366,9 @@ def test_the_command_language_table_is_the_parsers():
 def test_kinematics_takes_the_same_values_in_every_command(tmp_path, capsys):
     """'ur5e' (any case), a DH YAML such as config/world.yaml or a URDF file, in every command;
     a name that is neither is refused when the line is parsed, naming --kinematics."""
-    import pytest
     from pathlib import Path
+
+    import pytest
 
     from eye_in_hand import cli
 

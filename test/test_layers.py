@@ -1,4 +1,4 @@
-"""The package's imports point down the floors of DESIGN.md and never run in a circle.
+"""The package's imports point down the floors of docs/architecture.md and never run in a circle.
 
 Floors, top to bottom (a module may import from its own room or from a lower floor)::
 
@@ -9,11 +9,13 @@ Floors, top to bottom (a module may import from its own room or from a lower flo
     0  yamlfile, the package itself
    -1  errors
 
-Every import counts, also one inside a function; an import under ``if TYPE_CHECKING:`` is
-for annotations only and does not. Two rooms of one floor may not import each other's modules,
+Every import counts: one inside a function, a relative one (``from .x import y``, resolved
+against the importing module's package) and one under ``if TYPE_CHECKING:`` (an annotation
+that names a higher floor is an arrow up, and closes a circle as any other import would).
+Two rooms of one floor may not import each other's modules,
 except where listed (a piece two rooms share moves down a floor); each command and each node is
 a room of its own: commands share only ``commands.common`` and ``commands.calibration_inputs``
-(and the floors below; ``cli`` and ``demo`` share ``commands.common``, the flags' language), nodes share nothing but the floors below. A node split into parts keeps
+(and the floors below), nodes share nothing but the floors below. A node split into parts keeps
 them in its room (``NODE_PARTS``): ``nodes.hand_eye_targets`` belongs to ``nodes.hand_eye``.
 """
 from __future__ import annotations
@@ -42,33 +44,40 @@ NODE_PARTS = {
 }
 
 
-def _module(path: Path) -> str:
-    parts = list(path.relative_to(PKG.parent).with_suffix("").parts)
+def _module(path: Path, pkg: Path = PKG) -> str:
+    parts = list(path.relative_to(pkg.parent).with_suffix("").parts)
     if parts[-1] == "__init__":
         parts = parts[:-1]
     return ".".join(parts)
 
 
-def _imports() -> dict[str, set[str]]:
-    modules = {_module(p): p for p in PKG.rglob("*.py")}
+def _absolute(node: ast.ImportFrom, mod: str, is_package: bool) -> str:
+    """The absolute module name of ``from <node.module> import ...`` written in ``mod``."""
+    if node.level == 0:
+        return node.module or ""
+    package = mod.split(".") if is_package else mod.split(".")[:-1]
+    base = package[:len(package) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+def _imports(pkg: Path = PKG) -> dict[str, set[str]]:
+    """module -> the package's modules it imports (every import, see the module docstring)."""
+    modules = {_module(p, pkg): p for p in pkg.rglob("*.py")}
     graph: dict[str, set[str]] = {m: set() for m in modules}
     for mod, path in modules.items():
         tree = ast.parse(path.read_text(), str(path))
-        type_only = {id(n) for block in ast.walk(tree) if isinstance(block, ast.If)
-                     and "TYPE_CHECKING" in ast.unparse(block.test) for n in ast.walk(block)}
         for node in ast.walk(tree):
-            if id(node) in type_only:
-                continue
             names: list[str] = []
-            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-                names = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+            if isinstance(node, ast.ImportFrom):
+                base = _absolute(node, mod, path.name == "__init__.py")
+                names = [base] + [f"{base}.{a.name}" for a in node.names]
             elif isinstance(node, ast.Import):
                 names = [a.name for a in node.names]
             for name in names:
                 # the longest known module the name refers to (from a import b: b may be one)
                 while name and name not in modules:
                     name = name.rpartition(".")[0]
-                if name.startswith("eye_in_hand") and name != mod:
+                if name.startswith(pkg.name) and name != mod:
                     graph[mod].add(name)
     return graph
 
@@ -122,3 +131,22 @@ def test_no_import_circles() -> None:
     # a package importing its own submodules (re-exports) is not a circle of ideas
     real = [c for c in cycles if not all(c[0].startswith(x) or x.startswith(c[0]) for x in c)]
     assert not real, "import circles: " + "; ".join(" -> ".join(c) for c in real)
+
+
+def test_relative_and_type_checking_imports_count(tmp_path: Path) -> None:
+    """A relative import and one under ``if TYPE_CHECKING:`` are arrows like any other."""
+    pkg = tmp_path / "eye_in_hand"
+    (pkg / "core").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "core" / "__init__.py").write_text("from . import a\n")
+    (pkg / "core" / "a.py").write_text(
+        "from typing import TYPE_CHECKING\nfrom .b import f\nif TYPE_CHECKING:\n"
+        "    from ..offline import Options\n")
+    (pkg / "core" / "b.py").write_text("from .. import errors\n")
+    (pkg / "errors.py").write_text("")
+    (pkg / "offline.py").write_text("from .core.a import g\n")
+    graph = _imports(pkg)
+    assert graph["eye_in_hand.core"] == {"eye_in_hand.core.a"}
+    assert graph["eye_in_hand.core.a"] == {"eye_in_hand.core.b", "eye_in_hand.offline"}
+    assert graph["eye_in_hand.core.b"] == {"eye_in_hand", "eye_in_hand.errors"}
+    assert graph["eye_in_hand.offline"] == {"eye_in_hand.core.a"}

@@ -70,7 +70,7 @@ def test_worker_processes_thread_and_inline_give_identical_results(bags):
         results[mode] = out
     for mode in ("threads", "processes"):
         assert [f.stamp_ns for f in results[mode]] == [f.stamp_ns for f in results["inline"]]
-        for a, b in zip(results[mode], results["inline"]):
+        for a, b in zip(results[mode], results["inline"], strict=True):
             assert a.status == b.status == "located"
             np.testing.assert_array_equal(a.point_cam, b.point_cam)
             np.testing.assert_array_equal(a.cov_cam, b.cov_cam)
@@ -89,7 +89,7 @@ def test_process_bag_is_the_same_on_both_storages_and_any_worker_count(bags):
     assert first.counts["localized"] == 8
     for other in runs[1:]:
         assert other.counts == first.counts
-        for a, b in zip(other.frames, first.frames):
+        for a, b in zip(other.frames, first.frames, strict=True):
             assert a.stamp_ns == b.stamp_ns
             np.testing.assert_array_equal(a.point_base, b.point_base)
 
@@ -124,7 +124,7 @@ def test_a_worker_process_that_dies_costs_no_pair(bags):
     finally:
         pool.close()
     assert [f.stamp_ns for f in out] == [f.stamp_ns for f in expected]
-    for a, b in zip(out, expected):
+    for a, b in zip(out, expected, strict=True):
         np.testing.assert_array_equal(a.point_cam, b.point_cam)
     assert any("worker process" in n for n in pool.notes), pool.notes
 
@@ -222,6 +222,6 @@ def test_a_stopped_worker_process_times_out_and_costs_no_pair(bags):
     assert time.monotonic() - t0 < 30
     assert pool.timeouts == 1 and pool.relocated >= 1
     assert [f.stamp_ns for f in out] == [f.stamp_ns for f in expected]
-    for a, b in zip(out, expected):
+    for a, b in zip(out, expected, strict=True):
         np.testing.assert_array_equal(a.point_cam, b.point_cam)
     assert any("task deadline" in n for n in pool.notes), pool.notes

@@ -172,6 +172,6 @@ def test_a_stopped_worker_costs_no_chunk_and_no_pair(bags, monkeypatch):
     assert time.monotonic() - t0 < 30
     assert pool.timeouts == 1 and pool.in_processes >= 1
     assert [f.stamp_ns for f in out] == [f.stamp_ns for f in expected] and len(out) == 7
-    for a, b in zip(out, expected):
+    for a, b in zip(out, expected, strict=True):
         assert a.status == b.status == "located"
         np.testing.assert_array_equal(a.point_cam, b.point_cam)

@@ -372,7 +372,8 @@ echo "prefix=$prefix"
 "{sys.executable}" -c "import {PACKAGE}; print('module=' + {PACKAGE}.__file__)"
 """
     env = {k: v for k, v in os.environ.items()
-           if k not in ("PYTHONPATH", "AMENT_PREFIX_PATH", "COLCON_PREFIX_PATH", "CMAKE_PREFIX_PATH")}
+           if k not in ("PYTHONPATH", "AMENT_PREFIX_PATH", "COLCON_PREFIX_PATH",
+                        "CMAKE_PREFIX_PATH")}
     proc = subprocess.run([bash, "-c", script], env=env, cwd=colcon_install,
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stdout + proc.stderr

@@ -66,7 +66,8 @@ TESTS: dict[str, tuple[str, ...]] = {
     "core/handeye/average.py": ("test/core/test_handeye_average.py",),
     "core/handeye/refine.py": ("test/core/test_handeye_refine_rules.py",
                                "test/core/test_handeye_refine.py"),
-    "core/handeye/eiv.py": ("test/core/test_handeye_eiv_rules.py", "test/core/test_handeye_eiv.py"),
+    "core/handeye/eiv.py": ("test/core/test_handeye_eiv_rules.py",
+                            "test/core/test_handeye_eiv.py"),
     "core/handeye/select.py": ("test/core/test_handeye_select_rules.py",
                                "test/core/test_handeye_held_out_noise.py",
                                "test/core/test_handeye_eiv.py"),
@@ -119,7 +120,7 @@ M = Mutant
 MUTANTS: tuple[Mutant, ...] = (
     # -- core/transforms.py
     M("slerp-shorter-arc", "core/transforms.py",
-      "    if sum(a * b for a, b in zip(q0, q1)) < 0.0:\n", "    if False:\n",
+      "    if sum(a * b for a, b in zip(q0, q1, strict=True)) < 0.0:\n", "    if False:\n",
       "pose interpolation takes the longer arc when quaternion signs differ"),
     M("lerp-weights", "core/transforms.py",
       "    out[:3, 3] = (1.0 - s) * A[:3, 3] + s * B[:3, 3]\n",
@@ -159,7 +160,8 @@ MUTANTS: tuple[Mutant, ...] = (
       "        return self.history.lookup(self.history.newest_ns, max_gap_ns)\n",
       "a TF edge answers with its newest sample instead of interpolating at the stamp"),
     M("tf-newest-target-side", "core/tf.py",
-      "        for child in up_t[:-1] + up_s[:-1]:\n            n = self._edges[child].newest_ns()",
+      "        for child in up_t[:-1] + up_s[:-1]:\n"
+      "            n = self._edges[child].newest_ns()",
       "        for child in up_s[:-1]:\n            n = self._edges[child].newest_ns()",
       "newest_ns ignores the dynamic edges on the target frame's side of the chain"),
     M("tf-oldest", "core/tf.py",

@@ -1,4 +1,5 @@
-"""``eye-in-hand bag info BAG``: storage, time range and topics of a bag, like ``ros2 bag info``."""
+"""``eye-in-hand bag info BAG``: storage, time range and topics of a bag, like
+``ros2 bag info``."""
 from __future__ import annotations
 
 import argparse

@@ -17,13 +17,13 @@ import argparse
 import numpy as np
 
 from eye_in_hand.commands.calibration_inputs import (
+    Frame,
+    ImageSource,
     add_common_arguments,
     bag_count,
     check_common_arguments,
     detect_files,
     expand_glob,
-    Frame,
-    ImageSource,
     iter_bag_frames,
     options_from_args,
     progress,

@@ -9,9 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
-from eye_in_hand.commands.calibration_inputs import (add_handeye_calibration_arguments,
-                                                     add_handeye_input_arguments,
-                                                     solve_handeye_inputs)
+from eye_in_hand.commands.calibration_inputs import (
+    add_handeye_calibration_arguments,
+    add_handeye_input_arguments,
+    solve_handeye_inputs,
+)
 from eye_in_hand.commands.common import add_output_argument
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 from eye_in_hand.report.handeye import write_outputs

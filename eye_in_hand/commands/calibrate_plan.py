@@ -14,9 +14,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from eye_in_hand.commands.calibration_inputs import (add_handeye_calibration_arguments,
-                                                     add_handeye_input_arguments,
-                                                     solve_handeye_inputs)
+from eye_in_hand.commands.calibration_inputs import (
+    add_handeye_calibration_arguments,
+    add_handeye_input_arguments,
+    solve_handeye_inputs,
+)
 from eye_in_hand.commands.common import add_output_argument, bounded
 from eye_in_hand.errors import InputError
 from eye_in_hand.io.atomic import OutputError, OutputExistsError, atomic_write_text

@@ -61,7 +61,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "Levenberg-Marquardt) or opencv (cv2.stereoCalibrate on the pairs "
                              "seen by both cameras); default bundle")
     parser.epilog = ("Writes OUT_DIR/left.yaml, right.yaml, stereo.yaml, report.json, "
-                     "report.html. Either --left/--right or --bag with --left-topic/--right-topic.")
+                     "report.html. Either --left/--right or --bag with "
+                     "--left-topic/--right-topic.")
 
 
 def _gather(args: argparse.Namespace, board) -> tuple[list[Frame], list[Frame], str, int]:
@@ -94,8 +95,8 @@ def _gather(args: argparse.Namespace, board) -> tuple[list[Frame], list[Frame], 
         raise InputError("--bag needs --left-topic and --right-topic")
     total = -(-min(bag_count(args.bag, args.left_topic), bag_count(args.bag, args.right_topic))
               // args.every)
-    left: list[Frame] = []
-    right: list[Frame] = []
+    left = []
+    right = []
     stats: dict[str, int] = {}
     size = None
     args.bag_damage = DamageLog()   # damaged chunks and images: skipped, named, counted
@@ -165,11 +166,12 @@ def run(args: argparse.Namespace) -> int:
                            [f.name for f in left], [f.name for f in right], board=board,
                            options=options, method=args.method, fix_intrinsics=args.fix_intrinsics,
                            alpha=args.alpha, reject_outliers=args.reject_outliers,
-                           outlier_threshold_px=args.outlier_threshold_px, min_views=args.min_views)
+                           outlier_threshold_px=args.outlier_threshold_px,
+                           min_views=args.min_views)
     report = cal.to_dict()
     by_left = {v["file"]: v for v in report["views"]}
     views = []
-    for lf, rf in zip(left, right):
+    for lf, rf in zip(left, right, strict=True):
         entry = dict(by_left[lf.name])
         if not lf.detection.found:
             entry["left_reason"] = lf.detection.reason
@@ -192,8 +194,8 @@ def run(args: argparse.Namespace) -> int:
             from eye_in_hand.report.calibration import stereo_report
 
             images, corners, pair_name = _pair_image(args, left, right, cal)
-            stereo_report(cal, [(lf.name, rf.name) for lf, rf in zip(left, right)], board,
-                          description, skipped, images, corners, pair_name
+            names = [(lf.name, rf.name) for lf, rf in zip(left, right, strict=True)]
+            stereo_report(cal, names, board, description, skipped, images, corners, pair_name
                           ).save(tmp / "report.html")
     q = cal.quality
     st = report["stereo"]

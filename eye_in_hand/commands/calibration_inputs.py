@@ -9,16 +9,28 @@ import glob
 import json
 import os
 import sys
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 
-from eye_in_hand.commands.common import (add_image_topic_arguments, add_output_argument,
-                                         add_robot_pose_arguments, bounded, deprecated_alias)
-from eye_in_hand.errors import BagError, CalibrationError, ConfigError, ConversionError, \
-    HandEyeError, InputError
+from eye_in_hand.commands.common import (
+    add_image_topic_arguments,
+    add_output_argument,
+    add_robot_pose_arguments,
+    bounded,
+    deprecated_alias,
+)
+from eye_in_hand.errors import (
+    BagError,
+    CalibrationError,
+    ConfigError,
+    ConversionError,
+    HandEyeError,
+    InputError,
+)
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 from eye_in_hand.io.bags import bag_info, deserialize, iter_messages, require_topics
 from eye_in_hand.ros.stamps import header_stamp_ns
@@ -129,7 +141,8 @@ def check_common_arguments(args: argparse.Namespace) -> None:
 # ------------------------------------------------------------------------------------------------
 @dataclass
 class Frame:
-    """One input image: its name, the detection, and (optionally) the pixels kept for the report."""
+    """One input image: its name, the detection, and (optionally) the pixels kept for the
+    report."""
 
     name: str
     detection: Any
@@ -167,7 +180,8 @@ def expand_glob(pattern: str, option: str) -> list[Path]:
     if path.is_dir():
         files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS)
     else:
-        files = sorted(Path(p) for p in glob.glob(os.path.expanduser(pattern)) if Path(p).is_file())
+        files = sorted(Path(p) for p in glob.glob(os.path.expanduser(pattern))
+                       if Path(p).is_file())
     if not files:
         shown = pattern.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
         raise InputError(f"{option} '{shown}': no image files match")
@@ -558,8 +572,8 @@ def load_handeye_inputs(args: argparse.Namespace) -> dict[str, Any]:
     # local: core.handeye and core.calibration load SciPy and OpenCV (~0.45 s at CLI
     # start-up), io.datasets ~90 ms
     from eye_in_hand.core.calibration import BoardSpec
-    from eye_in_hand.core.handeye import HandEyeSample
     from eye_in_hand.core.calibration.board_check import BoardCheck
+    from eye_in_hand.core.handeye import HandEyeSample
     from eye_in_hand.core.handeye.observe import observe_sample, rig_views
     from eye_in_hand.io.datasets import load_dataset, load_pose_pairs
 
@@ -585,7 +599,8 @@ def load_handeye_inputs(args: argparse.Namespace) -> dict[str, Any]:
     views = rig_views(ds.camera, ds.rig)
     check = BoardCheck(board, f"samples' {_view_images(views)}",
                        f"{printable(ds.root)}/dataset.yaml board:")
-    samples, skipped, notes = [], [], []
+    notes: list[str] = []
+    samples, skipped = [], []
     for s in ds.samples:
         images = {}
         for key, path in s.images.items():
@@ -617,8 +632,8 @@ def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
     """Still robot stops of a bag -> detected boards -> samples."""
     # local: as in _load_inputs (SciPy and OpenCV, ~0.45 s at CLI start-up)
     from eye_in_hand.core.calibration import BoardSpec
-    from eye_in_hand.core.camera import CameraModel, StereoRig
     from eye_in_hand.core.calibration.board_check import BoardCheck
+    from eye_in_hand.core.camera import CameraModel, StereoRig
     from eye_in_hand.core.handeye.observe import observe_sample, rig_views
     from eye_in_hand.io.datasets import read_bag_samples
 
@@ -663,7 +678,8 @@ def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
     if {v.name for v in views} != set(found.image_topics):
         raise ConfigError(f"--calibration is {'stereo' if rig else 'mono'} but the bag's images "
                           f"are {sorted(found.image_topics)}")
-    samples, skipped, notes = [], [], []
+    notes: list[str] = []
+    samples, skipped = [], []
     check = BoardCheck(board, f"still stops' {_view_images(views)}")
     for s in found.samples:
         obs = observe_sample(s.name, s.images, s.base_T_ee, board, views)

@@ -185,12 +185,13 @@ def parse_known_args_with_aliases(parser: argparse.ArgumentParser, parse, args, 
     refused as argparse refuses it."""
     aliased = [a for a in parser._actions if a.required and getattr(a, "has_alias", False)]
     for a in aliased:
-        a.required, a.required_meanwhile = False, True
+        # our flag on argparse's action, read by the help formatter
+        a.required, a.required_meanwhile = False, True  # type: ignore[attr-defined]
     try:
         namespace, rest = parse(args, namespace)
     finally:
         for a in aliased:
-            a.required, a.required_meanwhile = True, False
+            a.required, a.required_meanwhile = True, False  # type: ignore[attr-defined]
     missing = [a for a in aliased if getattr(namespace, a.dest, None) is None]
     if missing:
         parser.error("the following arguments are required: "

@@ -71,8 +71,8 @@ def run(args: argparse.Namespace) -> int:
         "hand_eye_calibration.yaml" if args.calibrate else "eye_in_hand.yaml")
     # bad input is one line here, not a traceback from rcl in every node
     # local: ros.names loads rclpy (~50 ms at CLI start-up)
-    from eye_in_hand.ros.names import check_namespace, check_parameter_text
     from eye_in_hand.nodes.parameters import check_parameter_file_keys
+    from eye_in_hand.ros.names import check_namespace, check_parameter_text
     from eye_in_hand.ros.params import check_parameter_file
 
     ns = check_namespace(args.namespace)

@@ -23,9 +23,14 @@ import sys
 import time
 from pathlib import Path
 
-from eye_in_hand.commands.common import (MAX_WORKERS, add_image_topic_arguments,
-                                         add_output_argument, add_robot_pose_arguments,
-                                         apply_overrides, bounded)
+from eye_in_hand.commands.common import (
+    MAX_WORKERS,
+    add_image_topic_arguments,
+    add_output_argument,
+    add_robot_pose_arguments,
+    apply_overrides,
+    bounded,
+)
 from eye_in_hand.errors import ConfigError, InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 from eye_in_hand.io.bags import bag_info
@@ -198,9 +203,13 @@ def output_settings(detect: dict, hand_eye: dict, config, calib, *, camera_paren
 
     from eye_in_hand.core.camera import StereoRig
     from eye_in_hand.ros.markers import sphere_style
-    from eye_in_hand.ros.outputs import (MARKER_DIAMETER_M, MARKER_LIFETIME_S,
-                                         RIGHT_CAMERA_FRAME, TARGET_FRAME_PREFIX,
-                                         OutputSettings)
+    from eye_in_hand.ros.outputs import (
+        MARKER_DIAMETER_M,
+        MARKER_LIFETIME_S,
+        RIGHT_CAMERA_FRAME,
+        TARGET_FRAME_PREFIX,
+        OutputSettings,
+    )
 
     diameter = float(detect.get("markers.diameter_m", MARKER_DIAMETER_M))
     styles = {t.name: sphere_style(t.radius_m, t.color, diameter)
@@ -260,8 +269,13 @@ def run(args: argparse.Namespace) -> int:
     from eye_in_hand.core.locator import locator_config_from_params
     from eye_in_hand.io.config import load_hand_eye
     from eye_in_hand.io.results import load_known_distances, run_figures
-    from eye_in_hand.offline import (ProcessOptions, error_stats, process_bag, top_reasons,
-                                     write_results)
+    from eye_in_hand.offline import (
+        ProcessOptions,
+        error_stats,
+        process_bag,
+        top_reasons,
+        write_results,
+    )
 
     if args.params:  # a mistyped key would run on its default, as the live node refuses it
         # local: the nodes' parameter lists load rclpy and the node modules (~1 s)
@@ -395,7 +409,7 @@ def run(args: argparse.Namespace) -> int:
                            if any(p.truth_source for p in pairs) else ""))
         for line in distance_table(pairs, stats_by_target):
             print("  " + line)
-    for a, b, m in unmatched:
+    for a, b, _m in unmatched:
         print(f"warning: {args.truth}: no measured distance {a} - {b} (targets located: "
               f"{', '.join(result.target_ids)})", file=sys.stderr)
     print(f"wrote {paths['bag']} (bag), {paths['csv']}, {paths['summary']}")

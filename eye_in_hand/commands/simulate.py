@@ -1,4 +1,5 @@
-"""``eye-in-hand simulate``: record a synthetic scenario as a rosbag2 bag or a calibration dataset."""
+"""``eye-in-hand simulate``: record a synthetic scenario as a rosbag2 bag or a calibration
+dataset."""
 from __future__ import annotations
 
 import argparse

@@ -29,7 +29,7 @@ def _roi(text: str) -> tuple[int, int, int, int]:
     if len(vals) != 4 or vals[2] <= 0 or vals[3] <= 0 or vals[0] < 0 or vals[1] < 0:
         raise argparse.ArgumentTypeError(f"expected x,y,w,h with x, y >= 0 and w, h > 0, "
                                          f"got '{text}'")
-    return vals  # type: ignore[return-value]
+    return vals
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -18,9 +18,10 @@ board of unit square), pixels for image coordinates.
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import cv2
 import numpy as np
@@ -108,7 +109,8 @@ class CameraModel:
     height: int
     distortion_model: str = "plumb_bob"
     R: np.ndarray = field(default_factory=lambda: np.eye(3))
-    P: np.ndarray | None = None
+    # None: [K | 0]; __post_init__ always stores an array, which is what readers see
+    P: np.ndarray = None  # type: ignore[assignment]
     name: str = "camera"
 
     def __post_init__(self) -> None:
@@ -116,7 +118,8 @@ class CameraModel:
         if K[0, 0] <= 0 or K[1, 1] <= 0:
             raise InputError(f"K: focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}")
         if np.max(np.abs(K[2] - (0.0, 0.0, 1.0))) > 1e-9 or K[1, 0] != 0 or K[2, 0] != 0:
-            raise InputError(f"K: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {K.tolist()}")
+            raise InputError("K: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got "
+                             f"{K.tolist()}")
         if self.distortion_model not in DISTORTION_MODELS:
             raise InputError(f"distortion_model: '{self.distortion_model}' is not supported "
                              f"(supported: {', '.join(DISTORTION_MODELS)})")
@@ -130,7 +133,8 @@ class CameraModel:
         R = as_finite_array(self.R, "R", (3, 3))
         if np.max(np.abs(R.T @ R - np.eye(3))) > 1e-5 or np.linalg.det(R) < 0:
             raise InputError("R: rectification matrix is not a rotation")
-        P = np.hstack([K, np.zeros((3, 1))]) if self.P is None else as_finite_array(self.P, "P", (3, 4))
+        P = (np.hstack([K, np.zeros((3, 1))]) if self.P is None
+             else as_finite_array(self.P, "P", (3, 4)))
         object.__setattr__(self, "K", _readonly(K))
         object.__setattr__(self, "dist", _readonly(dist))
         object.__setattr__(self, "R", _readonly(R))
@@ -240,7 +244,8 @@ class CameraModel:
                               f"'{model}' takes {n}")
         R = (matrix_from_yaml(data["rectification_matrix"], "rectification_matrix", source, (3, 3))
              if "rectification_matrix" in data else np.eye(3))
-        P = (matrix_from_yaml(data["projection_matrix"], "projection_matrix", source, (3, 4))
+        P: Any = (matrix_from_yaml(data["projection_matrix"], "projection_matrix", source,
+                                   (3, 4))
              if "projection_matrix" in data else None)
         try:
             return cls(K=K, dist=dist, width=int(data["image_width"]),

@@ -92,8 +92,9 @@ image border (a truncated silhouette has a biased centre) are not reported.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import cv2
 import numpy as np
@@ -350,7 +351,8 @@ class DetectorConfig:
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
                 raise InputError(f"{key}: expected an integer in [{lo}, {hi}], got {v!r}")
         if self.selection not in SELECTIONS:
-            raise InputError(f"selection: '{self.selection}' is not one of {', '.join(SELECTIONS)}")
+            raise InputError(f"selection: '{self.selection}' is not one of "
+                             f"{', '.join(SELECTIONS)}")
 
     def limit(self, target: TargetSpec) -> int:
         """Blobs per image examined for ``target``: ``max_candidates`` for one blob, ``count +

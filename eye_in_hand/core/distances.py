@@ -12,8 +12,8 @@ Pure numpy (and scipy's assignment solver): no ROS, no files.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -87,7 +87,7 @@ def _tracks(tracks: Mapping[str, np.ndarray], name: str) -> tuple[list[str], np.
         return [], np.zeros((0, 0, 3))
     arrays = [np.asarray(tracks[k], dtype=np.float64) for k in tracks]
     n = arrays[0].shape[0] if arrays[0].ndim == 2 else -1
-    for k, arr in zip(ids, arrays):
+    for k, arr in zip(ids, arrays, strict=True):
         if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] != n:
             raise InputError(f"{name}[{k!r}]: expected shape ({max(n, 0)}, 3), got {arr.shape}")
         if np.any(np.isinf(arr)):
@@ -210,7 +210,8 @@ def match_truth(positions: Mapping[str, np.ndarray], truth_points: np.ndarray, *
     P = np.array([np.asarray(positions[k], dtype=np.float64).reshape(3) for k in ids])
     cost = np.linalg.norm(P[:, None, :] - T[None, :, :], axis=2)
     rows, cols = linear_sum_assignment(cost)
-    return {ids[r]: int(c) for r, c in zip(rows, cols) if cost[r, c] <= max_distance_m}
+    return {ids[r]: int(c) for r, c in zip(rows, cols, strict=True)
+            if cost[r, c] <= max_distance_m}
 
 
 def distance_table(pairs: Sequence[PairDistance],

@@ -12,6 +12,7 @@ Pure numpy: no rclpy, no messages.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from eye_in_hand.core.localization import TargetInBase, target_in_base
 from eye_in_hand.core.transforms import as_transform
@@ -33,14 +34,14 @@ class EyeToHandLocalizer:
             not symmetric positive semi-definite.
     """
 
-    def __init__(self, base_T_cam, cov_hand_eye=None) -> None:
+    def __init__(self, base_T_cam: ArrayLike, cov_hand_eye: ArrayLike | None = None) -> None:
         self.base_T_cam = as_transform(base_T_cam, "base_T_cam").copy()
         self.cov_hand_eye = None if cov_hand_eye is None else np.asarray(cov_hand_eye,
                                                                          dtype=np.float64)
         # a malformed covariance fails here (InputError), not at the first located target
         target_in_base(_IDENTITY, self.base_T_cam, np.zeros(3), cov_hand_eye=self.cov_hand_eye)
 
-    def locate(self, stamp_ns: int, point_cam, cov_cam=None, *,
+    def locate(self, stamp_ns: int, point_cam: ArrayLike, cov_cam: ArrayLike | None = None, *,
                now_ns: int | None = None) -> TargetInBase:
         """The target in the base frame (``now_ns`` is ignored: there is no robot pose to be
         stale); ``base_T_ee`` of the result is the identity.

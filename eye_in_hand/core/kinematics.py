@@ -23,9 +23,10 @@ from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol, Sequence
+from typing import Protocol
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -71,9 +72,14 @@ UR5E_LINK_NAMES: tuple[str, ...] = (
 class KinematicChain(Protocol):
     """What :func:`solve_ik` and the simulator need of a chain."""
 
-    joint_names: tuple[str, ...]
-    lower: np.ndarray
-    upper: np.ndarray
+    @property
+    def joint_names(self) -> tuple[str, ...]: ...
+
+    @property
+    def lower(self) -> np.ndarray: ...
+
+    @property
+    def upper(self) -> np.ndarray: ...
 
     def fk(self, q: Sequence[float] | np.ndarray) -> np.ndarray:  # pragma: no cover - protocol
         ...
@@ -91,7 +97,7 @@ def _as_q(q, n: int, name: str = "q") -> np.ndarray:
     return arr
 
 
-def rpy_to_matrix(rpy: Sequence[float]) -> np.ndarray:
+def rpy_to_matrix(rpy: Sequence[float] | np.ndarray) -> np.ndarray:
     """URDF roll-pitch-yaw (fixed axes X, then Y, then Z) to a rotation matrix (3, 3)."""
     r, p, y = (float(v) for v in rpy)
     return Rotation.from_euler("xyz", [r, p, y]).as_matrix()
@@ -160,7 +166,7 @@ class DHChain:
 
     @classmethod
     def ur5e(cls, *, base_frame: str = "base_link", dh_frame: str = "base",
-             limit: float = 2.0 * math.pi) -> "DHChain":
+             limit: float = 2.0 * math.pi) -> DHChain:
         """The UR5e with its published DH parameters and +-``limit`` joint limits, in
         ur_description's frames: DH frame 0 is ``dh_frame`` (``base``), ``fk`` is in
         ``base_frame`` (``base_link`` = Rz(pi) ``base``)."""
@@ -174,7 +180,7 @@ class DHChain:
         )
 
     @classmethod
-    def from_dict(cls, data: dict) -> "DHChain":
+    def from_dict(cls, data: dict) -> DHChain:
         """Build from a mapping with keys d, a, alpha [, theta_offset, lower, upper,
         joint_names, link_names, base_frame, dh_frame, base_T_dh] (the ``arm`` section of
         ``world.yaml``; ``base_T_dh`` as ``{translation: [x, y, z], quat_xyzw: [x, y, z, w]}``,
@@ -332,7 +338,7 @@ class UrdfChain:
         object.__setattr__(self, "upper", np.array([j.upper for j in movable], dtype=float))
 
     @classmethod
-    def from_file(cls, path: str | Path, base_link: str, tip_link: str) -> "UrdfChain":
+    def from_file(cls, path: str | Path, base_link: str, tip_link: str) -> UrdfChain:
         """Parse the chain ``base_link`` -> ``tip_link`` of a URDF file.
 
         Raises:
@@ -351,7 +357,7 @@ class UrdfChain:
 
     @classmethod
     def from_string(cls, text: str, base_link: str, tip_link: str, *,
-                    source: str = "<string>") -> "UrdfChain":
+                    source: str = "<string>") -> UrdfChain:
         """Parse the chain ``base_link`` -> ``tip_link`` from URDF XML text.
 
         Args:
@@ -383,12 +389,12 @@ class UrdfChain:
         path: list[UrdfJoint] = []
         link = tip_link
         while link != base_link:
-            joint = by_child.get(link)
-            if joint is None:
+            above = by_child.get(link)
+            if above is None:
                 raise KinematicsError(
                     f"URDF {source}: tip link {tip_link!r} is not below base link {base_link!r}")
-            path.append(joint)
-            link = joint.parent
+            path.append(above)
+            link = above.parent
             if len(path) > len(by_child):
                 raise KinematicsError(f"URDF {source}: joint graph has a cycle")
         return cls(joints=tuple(reversed(path)), base_link=base_link, tip_link=tip_link)

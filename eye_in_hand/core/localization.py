@@ -28,8 +28,8 @@ Pure numpy: no rclpy, no messages.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
 import numpy as np
 

@@ -36,8 +36,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -584,7 +585,7 @@ class StereoLocator:
                ) -> StereoPoint:
         cfg = self.config
         gate = cfg.max_residual_px
-        kw: dict = ({"sigma_px": pix[0]} if pix[1] is None else {"pixel_cov": pix[1]})
+        kw: dict[str, Any] = ({"sigma_px": pix[0]} if pix[1] is None else {"pixel_cov": pix[1]})
         if cfg.method == "dlt":
             return triangulate_dlt(self.rig, xl, xr, rectified=True, max_residual_px=gate, **kw)
         if cfg.method == "disparity":

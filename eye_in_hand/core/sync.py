@@ -23,9 +23,10 @@ from __future__ import annotations
 import bisect
 from collections import deque
 from dataclasses import dataclass
-from typing import Generic, TypeVar
+from typing import Any, Generic, TypeVar
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from eye_in_hand.core.transforms import as_transform, interpolate_unchecked
 from eye_in_hand.errors import InputError, LocalizationError
@@ -41,10 +42,11 @@ __all__ = [
 T = TypeVar("T")
 
 
-def _as_stamp(stamp_ns, name: str = "stamp_ns") -> int:
+def _as_stamp(stamp_ns: Any, name: str = "stamp_ns") -> int:
     """Validate an int nanosecond stamp (Python or numpy integer, not bool, not float)."""
     if isinstance(stamp_ns, (bool, np.bool_)) or not isinstance(stamp_ns, (int, np.integer)):
-        raise InputError(f"{name}: expected an int nanosecond stamp, got {type(stamp_ns).__name__}")
+        raise InputError(f"{name}: expected an int nanosecond stamp, got "
+                         f"{type(stamp_ns).__name__}")
     return int(stamp_ns)
 
 
@@ -332,7 +334,7 @@ class PoseBuffer:
         self.clear()
         self.resets[cause] += 1
 
-    def add(self, stamp_ns: int, pose, *, received_ns: int | None = None) -> bool:
+    def add(self, stamp_ns: int, pose: ArrayLike, *, received_ns: int | None = None) -> bool:
         """Insert a stamped pose.
 
         Args:
@@ -407,7 +409,7 @@ class PoseBuffer:
         if now_ns is None or max_age_ns is None:
             return
         now = _as_stamp(now_ns, "now_ns")
-        received = [self._received[j] for j in indices if self._received[j] is not None]
+        received = [r for r in (self._received[j] for j in indices) if r is not None]
         if not received:
             return
         oldest = min(received)

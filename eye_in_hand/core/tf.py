@@ -23,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from eye_in_hand.core.sync import PoseBuffer
 from eye_in_hand.core.transforms import as_transform, invert
@@ -135,7 +136,7 @@ class TfBuffer:
         else:
             self._edges.clear()
 
-    def set_transform(self, parent: str, child: str, stamp_ns: int, parent_T_child,
+    def set_transform(self, parent: str, child: str, stamp_ns: int, parent_T_child: ArrayLike,
                       *, static: bool = False) -> None:
         """Add one transform ``parent -> child`` (a ``/tf`` or ``/tf_static`` entry).
 
@@ -358,7 +359,7 @@ class TfPoseView:
         self._receipts.clear()
         self._last_newest = None
 
-    def add(self, stamp_ns: int, pose, *, received_ns: int | None = None) -> bool:
+    def add(self, stamp_ns: int, pose: ArrayLike, *, received_ns: int | None = None) -> bool:
         raise InputError(f"robot poses come from TF ({self.base_frame} -> {self.ee_frame}): "
                          "add transforms to the TfBuffer")
 

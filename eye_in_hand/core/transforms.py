@@ -11,10 +11,11 @@ argument; internal helpers trust their inputs.
 from __future__ import annotations
 
 import math
-
-from typing import Iterable, Sequence
+from collections.abc import Iterable
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from eye_in_hand.errors import InputError
 
@@ -44,7 +45,7 @@ __all__ = [
     "average_transforms",
 ]
 
-def _rotation_class():
+def _rotation_class() -> Any:
     """``scipy.spatial.transform.Rotation``, imported on first use (scipy.spatial takes 0.2 s
     to import; processes that only detect and triangulate never need it)."""
     from scipy.spatial.transform import Rotation
@@ -56,7 +57,7 @@ def _rotation_class():
 ORTHONORMAL_ATOL = 1e-6
 
 
-def as_finite_array(value, name: str, shape: tuple[int, ...]) -> np.ndarray:
+def as_finite_array(value: ArrayLike, name: str, shape: tuple[int, ...]) -> np.ndarray:
     """Validate a finite float64 array of an exact shape, raising InputError naming ``name``."""
     try:
         arr = np.asarray(value, dtype=np.float64)
@@ -69,7 +70,7 @@ def as_finite_array(value, name: str, shape: tuple[int, ...]) -> np.ndarray:
     return arr
 
 
-def as_rotation(R, name: str = "R", *, atol: float = ORTHONORMAL_ATOL) -> np.ndarray:
+def as_rotation(R: ArrayLike, name: str = "R", *, atol: float = ORTHONORMAL_ATOL) -> np.ndarray:
     """Validate a rotation matrix.
 
     Args:
@@ -93,7 +94,7 @@ def as_rotation(R, name: str = "R", *, atol: float = ORTHONORMAL_ATOL) -> np.nda
     return arr
 
 
-def as_transform(T, name: str = "T", *, atol: float = ORTHONORMAL_ATOL) -> np.ndarray:
+def as_transform(T: ArrayLike, name: str = "T", *, atol: float = ORTHONORMAL_ATOL) -> np.ndarray:
     """Validate a homogeneous transform.
 
     Args:
@@ -114,7 +115,7 @@ def as_transform(T, name: str = "T", *, atol: float = ORTHONORMAL_ATOL) -> np.nd
     return arr
 
 
-def as_points(points, name: str = "points") -> np.ndarray:
+def as_points(points: ArrayLike, name: str = "points") -> np.ndarray:
     """Validate points: array-like shape (3,) or (N, 3), finite. Returns shape (N, 3)."""
     try:
         arr = np.asarray(points, dtype=np.float64)
@@ -129,7 +130,7 @@ def as_points(points, name: str = "points") -> np.ndarray:
     return arr
 
 
-def make_transform(R, t) -> np.ndarray:
+def make_transform(R: ArrayLike, t: ArrayLike) -> np.ndarray:
     """Build ``a_T_b`` from rotation (3, 3) and translation (3,)."""
     Rm = as_rotation(R, "R")
     tv = as_finite_array(np.ravel(t), "t", (3,))
@@ -139,7 +140,7 @@ def make_transform(R, t) -> np.ndarray:
     return T
 
 
-def compose(*transforms) -> np.ndarray:
+def compose(*transforms: ArrayLike) -> np.ndarray:
     """Chain transforms left to right: ``compose(a_T_b, b_T_c) == a_T_c``."""
     if not transforms:
         return np.eye(4)
@@ -149,7 +150,7 @@ def compose(*transforms) -> np.ndarray:
     return out
 
 
-def invert(T) -> np.ndarray:
+def invert(T: ArrayLike) -> np.ndarray:
     """Inverse of a rigid transform: ``invert(a_T_b) == b_T_a`` (exact, via R^T)."""
     arr = as_transform(T, "T")
     R = arr[:3, :3]
@@ -173,7 +174,7 @@ def invert_many(T: np.ndarray) -> np.ndarray:
     return out
 
 
-def apply(T, points) -> np.ndarray:
+def apply(T: ArrayLike, points: ArrayLike) -> np.ndarray:
     """Map points from frame b to frame a with ``a_T_b``.
 
     Args:
@@ -186,11 +187,11 @@ def apply(T, points) -> np.ndarray:
     arr = as_transform(T, "T")
     single = np.ndim(points) == 1
     pts = as_points(points)
-    out = pts @ arr[:3, :3].T + arr[:3, 3]
+    out: np.ndarray = pts @ arr[:3, :3].T + arr[:3, 3]
     return out[0] if single else out
 
 
-def quat_xyzw_to_matrix(quat_xyzw, name: str = "quat_xyzw") -> np.ndarray:
+def quat_xyzw_to_matrix(quat_xyzw: ArrayLike, name: str = "quat_xyzw") -> np.ndarray:
     """Rotation matrix from a quaternion (x, y, z, w); normalised, must not be near zero."""
     q = as_finite_array(np.ravel(quat_xyzw), name, (4,))
     x, y, z, w = (float(v) for v in q)
@@ -198,7 +199,8 @@ def quat_xyzw_to_matrix(quat_xyzw, name: str = "quat_xyzw") -> np.ndarray:
     if n < 1e-9:
         raise InputError(f"{name}: quaternion has zero norm")
     if abs(n - 1.0) > 1e-3:
-        raise InputError(f"{name}: quaternion norm is {n:.6f}, expected 1 (check xyzw order/units)")
+        raise InputError(f"{name}: quaternion norm is {n:.6f}, expected 1 "
+                         "(check xyzw order/units)")
     x, y, z, w = x / n, y / n, z / n, w / n
     # The unit-quaternion rotation matrix, written out (no BLAS call, no Rotation object: this
     # runs for every robot pose).
@@ -208,13 +210,13 @@ def quat_xyzw_to_matrix(quat_xyzw, name: str = "quat_xyzw") -> np.ndarray:
         [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)]])
 
 
-def matrix_to_quat_xyzw(R) -> np.ndarray:
+def matrix_to_quat_xyzw(R: ArrayLike) -> np.ndarray:
     """Quaternion (x, y, z, w) of a rotation matrix, canonical with w >= 0."""
-    q = _rotation_class().from_matrix(as_rotation(R, "R")).as_quat()
+    q: np.ndarray = _rotation_class().from_matrix(as_rotation(R, "R")).as_quat()
     return -q if q[3] < 0 else q
 
 
-def from_xyz_quat(xyz, quat_xyzw) -> np.ndarray:
+def from_xyz_quat(xyz: ArrayLike, quat_xyzw: ArrayLike) -> np.ndarray:
     """4x4 transform from a translation (3,) and a quaternion (x, y, z, w)."""
     T = np.eye(4)
     T[:3, :3] = quat_xyzw_to_matrix(quat_xyzw)
@@ -222,13 +224,13 @@ def from_xyz_quat(xyz, quat_xyzw) -> np.ndarray:
     return T
 
 
-def to_xyz_quat(T) -> tuple[np.ndarray, np.ndarray]:
+def to_xyz_quat(T: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Split a transform into (xyz (3,), quat_xyzw (4,)), with w >= 0."""
     arr = as_transform(T, "T")
     return arr[:3, 3].copy(), matrix_to_quat_xyzw(arr[:3, :3])
 
 
-def from_rotvec(rotvec, t=(0.0, 0.0, 0.0)) -> np.ndarray:
+def from_rotvec(rotvec: ArrayLike, t: ArrayLike = (0.0, 0.0, 0.0)) -> np.ndarray:
     """4x4 transform from a rotation vector (axis * angle, radians) and a translation."""
     rv = as_finite_array(np.ravel(rotvec), "rotvec", (3,))
     T = np.eye(4)
@@ -237,22 +239,24 @@ def from_rotvec(rotvec, t=(0.0, 0.0, 0.0)) -> np.ndarray:
     return T
 
 
-def to_rotvec(T_or_R) -> np.ndarray:
+def to_rotvec(T_or_R: ArrayLike) -> np.ndarray:
     """Rotation vector (3,) of a 4x4 transform or 3x3 rotation."""
     arr = np.asarray(T_or_R, dtype=np.float64)
     R = as_transform(arr)[:3, :3] if arr.shape == (4, 4) else as_rotation(arr)
-    return _rotation_class().from_matrix(R).as_rotvec()
+    rotvec: np.ndarray = _rotation_class().from_matrix(R).as_rotvec()
+    return rotvec
 
 
-def project_to_so3(M) -> np.ndarray:
+def project_to_so3(M: ArrayLike) -> np.ndarray:
     """Nearest rotation (Frobenius norm) to a 3x3 matrix, via SVD with det = +1."""
     arr = as_finite_array(M, "M", (3, 3))
     U, _, Vt = np.linalg.svd(arr)
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    return U @ D @ Vt
+    nearest: np.ndarray = U @ D @ Vt
+    return nearest
 
 
-def rotation_angle(R) -> float:
+def rotation_angle(R: ArrayLike) -> float:
     """Angle (radians, in [0, pi]) of a rotation matrix or of the rotation block of a 4x4.
 
     Raises:
@@ -270,7 +274,7 @@ def rotation_angle(R) -> float:
     return float(np.arccos(c))
 
 
-def transform_distance(a_T_b, a_T_c) -> tuple[float, float]:
+def transform_distance(a_T_b: ArrayLike, a_T_c: ArrayLike) -> tuple[float, float]:
     """Difference between two transforms: (translation distance in m, rotation angle in rad)."""
     A = as_transform(a_T_b, "a_T_b")
     B = as_transform(a_T_c, "a_T_c")
@@ -278,7 +282,8 @@ def transform_distance(a_T_b, a_T_c) -> tuple[float, float]:
     return dt, rotation_angle(A[:3, :3].T @ B[:3, :3])
 
 
-def interpolate(stamp_ns: int, stamp0_ns: int, T0, stamp1_ns: int, T1) -> np.ndarray:
+def interpolate(stamp_ns: int, stamp0_ns: int, T0: ArrayLike, stamp1_ns: int,
+                T1: ArrayLike) -> np.ndarray:
     """Pose at ``stamp_ns`` between two stamped poses: slerp on rotation, lerp on translation.
 
     Args:
@@ -309,8 +314,8 @@ def interpolate_unchecked(stamp_ns: int, stamp0_ns: int, A: np.ndarray, stamp1_n
     # Integer arithmetic first: ns stamps near 1.7e18 lose precision as float64.
     s = float(stamp_ns - stamp0_ns) / float(stamp1_ns - stamp0_ns)
     q0 = _quat_of(A)
-    q1 = _quat_of(B)
-    if sum(a * b for a, b in zip(q0, q1)) < 0.0:
+    q1: tuple[float, ...] = _quat_of(B)
+    if sum(a * b for a, b in zip(q0, q1, strict=True)) < 0.0:
         q1 = tuple(-v for v in q1)
     # the angle between the quaternions, accurate also when they are nearly equal
     theta = 2.0 * math.atan2(math.dist(q0, q1), math.dist(q0, tuple(-v for v in q1)))
@@ -319,7 +324,7 @@ def interpolate_unchecked(stamp_ns: int, stamp0_ns: int, A: np.ndarray, stamp1_n
     else:
         sin_t = math.sin(theta)
         w0, w1 = math.sin((1.0 - s) * theta) / sin_t, math.sin(s * theta) / sin_t
-    q = [w0 * a + w1 * b for a, b in zip(q0, q1)]
+    q = [w0 * a + w1 * b for a, b in zip(q0, q1, strict=True)]
     out = np.eye(4)
     out[:3, :3] = quat_xyzw_to_matrix(q)
     out[:3, 3] = (1.0 - s) * A[:3, 3] + s * B[:3, 3]
@@ -346,7 +351,7 @@ def _quat_of(T: np.ndarray) -> tuple[float, float, float, float]:
     return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
 
 
-def average_rotations(rotations: Sequence | np.ndarray,
+def average_rotations(rotations: ArrayLike,
                       weights: Iterable[float] | None = None) -> np.ndarray:
     """Mean rotation (chordal L2 mean via the quaternion eigenvector, Markley et al. 2007).
 
@@ -365,12 +370,14 @@ def average_rotations(rotations: Sequence | np.ndarray,
     w = None
     if weights is not None:
         w = np.asarray(list(weights), dtype=np.float64)
-        if w.shape != (arr.shape[0],) or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
+        if (w.shape != (arr.shape[0],) or not np.all(np.isfinite(w)) or np.any(w < 0)
+                or w.sum() <= 0):
             raise InputError("weights: expected N finite non-negative values with a positive sum")
-    return _rotation_class().from_matrix(arr).mean(weights=w).as_matrix()
+    mean: np.ndarray = _rotation_class().from_matrix(arr).mean(weights=w).as_matrix()
+    return mean
 
 
-def average_transforms(transforms: Sequence | np.ndarray,
+def average_transforms(transforms: ArrayLike,
                        weights: Iterable[float] | None = None) -> np.ndarray:
     """Mean pose: rotation by :func:`average_rotations`, translation by weighted mean.
 

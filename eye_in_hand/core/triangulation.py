@@ -29,8 +29,8 @@ Rejections raise :class:`Rejected` (a :class:`~eye_in_hand.errors.TriangulationE
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import cv2
 import numpy as np

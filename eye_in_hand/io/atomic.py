@@ -36,8 +36,9 @@ import errno
 import os
 import re
 import shutil
+from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import IO, Iterable, Iterator
+from typing import IO, Any
 
 from eye_in_hand.errors import EyeInHandError
 
@@ -83,7 +84,7 @@ class OutputWriteError(OutputError):
         self.strerror = strerror
 
 
-def _show(path: Path | str) -> str:
+def _show(path: str | os.PathLike[str]) -> str:
     """``path`` printable on any terminal (non-UTF-8 bytes of a file name as ``\\xNN``)."""
     text = os.fspath(path)
     return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
@@ -272,7 +273,8 @@ def _newest_file(root: Path) -> str | None:
 def _write_error(exc: OSError | OutputWriteError, out: Path, existed: bool,
                  staged: Path | None = None) -> OutputWriteError:
     """One line: the file (as it would be named in ``out``), the reason, and what was kept."""
-    filename = os.fspath(exc.filename) if getattr(exc, "filename", None) else None
+    named = getattr(exc, "filename", None)
+    filename = os.fspath(named) if named else None
     if filename is None and staged is not None:  # a write() failed: the file written last
         filename = _newest_file(staged)
     if filename is not None and staged is not None:
@@ -372,7 +374,7 @@ def _write_cause(exc: BaseException, staged: Path) -> OSError | None:
 
 @contextlib.contextmanager
 def atomic_file(path: str | os.PathLike[str], mode: str = "w", *,
-                encoding: str | None = "utf-8", newline: str | None = None) -> Iterator[IO]:
+                encoding: str | None = "utf-8", newline: str | None = None) -> Iterator[IO[Any]]:
     """Open a temporary file beside ``path``; on success flush, ``fsync`` and rename it to
     ``path`` (replacing it). On any exception the temporary file is removed and ``path`` is
     unchanged.

@@ -6,8 +6,10 @@ from __future__ import annotations
 import bisect
 import os
 import struct
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Iterator, Mapping
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -195,9 +197,9 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
         BagError: unreadable bag.
     """
     source = str(path)
-    info = bag_info(path)
+    info = bag_info(Path(path))
     topics = info.topics
-    store = typestore_for(path)
+    store = typestore_for(Path(path))
     log = damage if damage is not None else DamageLog()
     unusable = (BagError, ConversionError, InputError, ConfigError, ValueError)
     bad_images: dict[int, str] = {}
@@ -270,7 +272,7 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
             except unusable as exc:
                 log.bad_message(topic, log_ns, str(exc))
                 continue
-            pos = dict(zip(list(msg.name), np.asarray(msg.position, dtype=float)))
+            pos = dict(zip(list(msg.name), np.asarray(msg.position, dtype=float), strict=False))
             missing = [n for n in names if n not in pos]
             if missing:
                 raise ConfigError(f"{source}: {jt} lacks joints {missing} of the kinematic "
@@ -321,7 +323,7 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
 
     # Image stamps of the reference view (pass 1), stillness and grouping.
     stamps: list[int] = []
-    for topic, msgtype, log_ns, raw in iter_messages(path, [left_topic]):
+    for topic, _msgtype, log_ns, raw in iter_messages(path, [left_topic]):
         try:
             stamps.append(_cdr_header_stamp_ns(raw))
         except unusable as exc:

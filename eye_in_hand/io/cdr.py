@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
+
 import numpy as np
 
 from eye_in_hand.errors import ConversionError

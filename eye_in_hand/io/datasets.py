@@ -23,9 +23,10 @@ Dataset layout (``dataset.yaml``; paths are relative to the file's folder)::
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import yaml
@@ -287,7 +288,7 @@ def write_dataset(directory: str | os.PathLike[str], *, setup: str, board: str,
         data["camera"] = "camera.yaml"
         keys = {"image": "images"}
     samples = []
-    for i, (imgs, T) in enumerate(zip(images, base_T_ee)):
+    for i, (imgs, T) in enumerate(zip(images, base_T_ee, strict=True)):
         name = names[i] if names is not None else f"{i:04d}"
         entry: dict[str, Any] = {}
         for key, folder in keys.items():

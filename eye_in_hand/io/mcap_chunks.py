@@ -33,10 +33,11 @@ import mmap
 import struct
 import threading
 import zlib
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -120,7 +121,7 @@ def _zstd_decompressor() -> Callable[[Any, int], Any]:
     try:  # local: the fallback zstd modules, optional as well
         from compression import zstd  # type: ignore[import-not-found]  # Python >= 3.14
     except ImportError:
-        from backports import zstd  # type: ignore[import-not-found,no-redef]
+        from backports import zstd
 
     def decompress_std(data: Any, size: int) -> Any:
         d = zstd.ZstdDecompressor()
@@ -149,7 +150,7 @@ def zstd_binding() -> str:
     except ImportError:
         pass
     try:
-        from compression import zstd  # type: ignore[import-not-found]  # noqa: F401
+        from compression import zstd  # noqa: F401
 
         return "compression.zstd"
     except ImportError:

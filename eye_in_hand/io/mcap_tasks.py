@@ -31,16 +31,24 @@ import heapq
 import mmap
 import threading
 from collections import OrderedDict
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 
 from eye_in_hand.errors import ConversionError
-from eye_in_hand.io.cdr import CdrHeader, CdrStamp, image_from_cdr
-from eye_in_hand.io.mcap_chunks import (ChunkDamage, _address, _Chunk, _DamagedRecords,
-                                        _lost, _may_hold, _messages_of, chunk_damage)
+from eye_in_hand.io.cdr import CdrHeader, image_from_cdr
+from eye_in_hand.io.mcap_chunks import (
+    ChunkDamage,
+    _address,
+    _Chunk,
+    _DamagedRecords,
+    _may_hold,
+    _messages_of,
+    chunk_damage,
+)
 
 __all__ = ["ChunkRef", "ImageRef", "plan_groups", "open_group", "worker_messages", "release",
            "GROUP_BYTES", "CACHE_BYTES"]
@@ -336,7 +344,7 @@ def worker_messages(storage: Any, connections: Sequence[Any], submit: Submit, *,
         if g + ahead < len(groups):
             launch(g + ahead)
         results, owner = outcome(g)
-        for ref, (msgs, damage) in zip(group, results):
+        for ref, (msgs, damage) in zip(group, results, strict=True):
             t0 = ref.message_start_time
             while pending and pending[0][0] < t0:     # nothing later can come before these
                 m = heapq.heappop(pending)

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -48,7 +48,7 @@ def load_pose_pairs(path: str | os.PathLike[str]) -> list[tuple[np.ndarray, np.n
             raise ConfigError(f"{p}: pair {i}: expected [base_T_ee, cam_T_board], got {n} "
                               "entries")
         mats = []
-        for name, M in zip(("base_T_ee", "cam_T_board"), pair):
+        for name, M in zip(("base_T_ee", "cam_T_board"), pair, strict=True):
             try:
                 mats.append(as_transform(np.asarray(M, dtype=np.float64), name))
             except (InputError, ValueError, TypeError) as exc:

@@ -21,6 +21,9 @@ Written by :func:`write_results` into ``OUT`` (a rosbag2 bag with ``results.csv`
 Read back by :func:`load_tracks` (a ``results.csv``, a folder holding one, or an output bag)
 for ``eye-in-hand distances``; known distances by :func:`load_known_distances`.
 
+The result types of a run (:class:`TargetResult`, :class:`FrameResult`, :class:`ProcessResult`)
+live here, below both this writer and :mod:`eye_in_hand.offline`, which fills them.
+
 No rclpy: messages are built with the bag writer's type store
 (:class:`eye_in_hand.ros.outputs.RosbagsTypes`).
 """
@@ -31,29 +34,45 @@ import dataclasses
 import json
 import math
 import re
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from eye_in_hand.core.distances import (PairDistance, TargetStats, apply_known_distances,
-                                        match_truth, pairwise_distances, target_stats)
+from eye_in_hand.core.distances import (
+    PairDistance,
+    TargetStats,
+    apply_known_distances,
+    match_truth,
+    pairwise_distances,
+    target_stats,
+)
 from eye_in_hand.errors import BagError, ConfigError, InputError
 from eye_in_hand.io.bags import BagWriter, bag_info, deserialize, iter_messages
-from eye_in_hand.ros.outputs import (OutputSettings, RosbagsTypes, Sphere, point_stamped,
-                                     pose_array, pose_stamped, pose_with_covariance,
-                                     sphere_markers, tf_message, transform_stamped,
-                                     translation_tf_message)
+from eye_in_hand.ros.outputs import (
+    OutputSettings,
+    RosbagsTypes,
+    Sphere,
+    point_stamped,
+    pose_array,
+    pose_stamped,
+    pose_with_covariance,
+    sphere_markers,
+    tf_message,
+    transform_stamped,
+    translation_tf_message,
+)
 from eye_in_hand.yamlfile import read_yaml_file
 
-if TYPE_CHECKING:  # annotations only: offline sits a floor above
-    from eye_in_hand.offline import FrameResult, ProcessOptions, ProcessResult
+if TYPE_CHECKING:  # annotations only: core.camera imports OpenCV, which `distances` never needs
+    from eye_in_hand.core.camera import StereoRig
 
-__all__ = ["TargetResult", "CSV_COLUMNS", "OFFLINE_ONLY", "output_messages", "compare_outputs",
-           "target_order", "assign_truth", "frame_tracks",
-           "summary_figures", "run_figures", "write_results", "load_tracks", "load_known_distances",
-           "Tracks"]
+__all__ = ["TargetResult", "FrameResult", "ProcessResult", "OutputOptions", "CSV_COLUMNS",
+           "OFFLINE_ONLY", "output_messages", "compare_outputs", "target_order", "assign_truth",
+           "frame_tracks", "summary_figures", "run_figures", "write_results", "load_tracks",
+           "load_known_distances", "Tracks"]
 
 #: Columns of ``results.csv``: the first 21 as before per-target rows existed, then ``target``.
 CSV_COLUMNS = ["stamp_ns", "status", "x_cam", "y_cam", "z_cam", "residual_px", "left_u",
@@ -95,6 +114,93 @@ class TargetResult:
         if self.point_base is None or self.truth_base is None:
             return math.nan
         return float(np.linalg.norm(self.point_base - self.truth_base))
+
+
+@dataclass
+class FrameResult:
+    """One stereo pair's outcome.
+
+    Attributes:
+        stamp_ns: the image stamp.
+        status: ``"ok"``, ``"no_target"`` (with the locator's reason in ``reason``),
+            ``"no_robot_pose"`` (located in the camera, but no robot pose brackets the stamp),
+            or ``"bad_image"`` (an image that does not decode, or of the wrong size; counted in
+            ``bad_messages``).
+        point_cam, cov_cam, residual_px, left_px, right_px: the triangulation (when located).
+        point_base, cov_base: the base-frame result (status ok).
+        truth_base: the ground-truth target at this stamp, when the bag has it.
+        targets: every located target (:class:`TargetResult`), the first target (the one of
+            the fields above) first when it was located.
+        missing: target name (or id) -> why it was not located.
+        truth_by_id: target id -> its matched ground-truth target at this stamp, for every
+            matched id, located here or not (set by :func:`eye_in_hand.io.results.
+            assign_truth`; the ``gt_*`` columns of a target's ``no_target`` rows).
+    """
+
+    stamp_ns: int
+    status: str
+    reason: str = ""
+    point_cam: np.ndarray | None = None
+    cov_cam: np.ndarray | None = None
+    residual_px: float = math.nan
+    left_px: np.ndarray | None = None
+    right_px: np.ndarray | None = None
+    point_base: np.ndarray | None = None
+    cov_base: np.ndarray | None = None
+    truth_base: np.ndarray | None = None
+    targets: list[TargetResult] = field(default_factory=list)
+    missing: dict[str, str] = field(default_factory=dict)
+    truth_by_id: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def error_m(self) -> float:
+        """Distance to the ground truth (m), NaN when either is missing."""
+        if self.point_base is None or self.truth_base is None:
+            return math.nan
+        return float(np.linalg.norm(self.point_base - self.truth_base))
+
+
+@dataclass
+class ProcessResult:
+    """All frames, counters, and what the bag covered.
+
+    ``located_in_processes``: pairs located by worker processes (the rest in this process).
+    ``damage``: the damaged parts of the bag that were skipped (a
+    :class:`eye_in_hand.io.bags.DamageLog`: chunks, truncated tails, messages that could not
+    be read; messages of the processed topics read but not decodable are
+    ``counts['bad_messages']``).
+    ``target_ids``: every target id, in :func:`eye_in_hand.io.results.target_order`;
+    ``truth_match``: id -> matched ground-truth index (:func:`eye_in_hand.io.results.
+    assign_truth`).
+    """
+
+    frames: list[FrameResult] = field(default_factory=list)
+    counts: dict[str, int] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    duration_s: float = 0.0
+    rig: StereoRig | None = None
+    located_in_processes: int = 0
+    damage: Any = None
+    loss: dict[str, Any] = field(default_factory=dict)
+    target_ids: list[str] = field(default_factory=list)
+    truth_match: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    def ok(self) -> list[FrameResult]:
+        return [f for f in self.frames if f.status == "ok"]
+
+
+class OutputOptions(Protocol):
+    """What :func:`write_results` reads of the run's options
+    (:class:`eye_in_hand.offline.ProcessOptions`)."""
+
+    @property
+    def outputs(self) -> OutputSettings: ...
+
+    @property
+    def camera_frame(self) -> str: ...
+
+    @property
+    def base_frame(self) -> str: ...
 
 
 def _natural(text: str) -> list[Any]:
@@ -187,7 +293,8 @@ def frame_tracks(frames: Sequence[FrameResult], ids: Sequence[str]) -> tuple[Tra
 
 def summary_figures(tracks: Tracks, truth: Tracks,
                     known: Sequence[tuple[str, str, float]] = ()
-                    ) -> tuple[list[PairDistance], list[TargetStats], list[tuple[str, str, float]]]:
+                    ) -> tuple[list[PairDistance], list[TargetStats],
+                               list[tuple[str, str, float]]]:
     """Pairwise distances (truth: ``known`` where given, else the ground truth) and per-target
     figures; also the known entries that name no measured pair."""
     pairs = pairwise_distances(tracks, truth or None)
@@ -233,7 +340,7 @@ def _topic_id(target_id: str) -> str:
     return token if token and not token[0].isdigit() else f"t_{token}"
 
 
-def write_results(out: str | Path, result: ProcessResult, opts: ProcessOptions | None = None,
+def write_results(out: str | Path, result: ProcessResult, opts: OutputOptions | None = None,
                   *, storage: str = "mcap", summary_extra: Mapping[str, Any] | None = None
                   ) -> dict[str, Path]:
     """Write ``OUT`` as a bag with ``OUT/results.csv`` and ``OUT/summary.json`` (module
@@ -247,7 +354,7 @@ def write_results(out: str | Path, result: ProcessResult, opts: ProcessOptions |
     if out.exists():
         raise BagError(f"{out}: output exists already (choose a new -o)")
     ids = list(result.target_ids)
-    with BagWriter(out, storage=storage) as writer:  # type: ignore[arg-type]
+    with BagWriter(out, storage=storage) as writer:
         _Topics(writer, getattr(opts, "outputs", None) or OutputSettings()).write_all(
             result, getattr(opts, "camera_frame", "camera_left_optical_frame"),
             getattr(opts, "base_frame", "base_link"))
@@ -356,7 +463,7 @@ class _Topics:
                 self.write("/tf", stamp, translation_tf_message(
                     T, [(base_frame, s.target_frame, stamp, f.point_base)]))
         located, edges = [], []
-        for t, sphere in zip(f.targets, spheres):
+        for t, sphere in zip(f.targets, spheres, strict=True):
             if t.point_base is None or t.cov_base is None:
                 continue
             tid = _topic_id(t.id)
@@ -469,8 +576,7 @@ def _stack(frames: list[dict[str, tuple[np.ndarray, np.ndarray]]],
 def _read_bag(path: Path) -> tuple[Tracks, Tracks]:
     info = bag_info(path)
     pat = re.compile(r"^/target/([A-Za-z0-9_]+)/(pose|ground_truth)$")
-    topics = {t: pat.match(t) for t in info.topics}
-    topics = {t: m for t, m in topics.items() if m}
+    topics = {t: m for t in info.topics if (m := pat.match(t))}
     if not any(m.group(2) == "pose" for m in topics.values()):
         raise InputError(f"{path}: no /target/<id>/pose topics (not an output bag of "
                          "eye-in-hand process, or written before per-target topics)")
@@ -601,7 +707,7 @@ def compare_outputs(live: Mapping[str, list[tuple[int, Any]]],
         b = [m for m in offline[topic] if stamps is None or m[0] in stamps]
         if a != b:
             bad = sorted({s for s, _ in a} ^ {s for s, _ in b}) or sorted(
-                {s for (s, x), (_, y) in zip(a, b) if x != y})
+                {s for (s, x), (_, y) in zip(a, b, strict=False) if x != y})
             problems.append(f"{topic}: {len(a)} live and {len(b)} offline messages differ "
                             f"(first at {bad[0] if bad else '?'} ns)")
     return problems

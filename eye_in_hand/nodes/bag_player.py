@@ -40,8 +40,9 @@ import sys
 import threading
 import time
 from collections import deque
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
@@ -51,16 +52,23 @@ from rosbags.interfaces import MessageDefinitionFormat
 from rosbags.typesys import Stores, get_typestore
 from rosgraph_msgs.msg import Clock
 
-from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.errors import BagError, ConfigError, EyeInHandError
-from eye_in_hand.io.bags import (BagInfo, Damage, DamageLog, OfferedQos, _types_from_definition,
-                                 bag_info, iter_messages)
+from eye_in_hand.io.bags import (
+    BagInfo,
+    Damage,
+    DamageLog,
+    OfferedQos,
+    _types_from_definition,
+    bag_info,
+    iter_messages,
+)
+from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
 from eye_in_hand.ros.msgtypes import import_message_type as _import_message_type
 from eye_in_hand.ros.msgtypes import message_definition
 from eye_in_hand.ros.names import topic_name_problem
-from eye_in_hand.ros.params import Param, declare_params
 from eye_in_hand.ros.node_main import guard, run_with_executor, sigterm_as_interrupt
+from eye_in_hand.ros.params import Param, declare_params
 from eye_in_hand.ros.tf import TF_STATIC_TOPIC
 
 __all__ = [

@@ -38,23 +38,24 @@ from __future__ import annotations
 import sys
 import threading
 import time
+from collections.abc import Mapping, Sequence
 from concurrent.futures import Future
 from functools import partial
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.errors import BagError, ConfigError
 from eye_in_hand.io.bags import STORAGES, BagWriter, OfferedQos, default_typestore
-from eye_in_hand.ros.msgtypes import import_message_type, message_definition
-from eye_in_hand.ros.node_main import guard, run_with_executor, sigterm_as_interrupt
-from eye_in_hand.ros.names import topic_name_problem
-from eye_in_hand.ros.params import Param, declare_params
+from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
+from eye_in_hand.ros.msgtypes import import_message_type, message_definition
+from eye_in_hand.ros.names import topic_name_problem
+from eye_in_hand.ros.node_main import guard, run_with_executor, sigterm_as_interrupt
+from eye_in_hand.ros.params import Param, declare_params
 
 __all__ = [
     "parameter_names",
@@ -304,8 +305,8 @@ class BagRecorder(Node):
     def _writer_main(self, ready: Future) -> None:
         """Writer thread: create the bag, then run calls and write messages until closed."""
         try:
-            writer = BagWriter(self.output, storage=self.storage,  # type: ignore[arg-type]
-                               compression=self.compression or None)  # type: ignore[arg-type]
+            writer = BagWriter(self.output, storage=self.storage,
+                               compression=self.compression or None)
         except BaseException as exc:
             ready.set_exception(exc)
             return

@@ -73,10 +73,11 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import math
 import threading
-from collections import deque
 import time
 import traceback
-from typing import Any, Mapping
+from collections import deque
+from collections.abc import Mapping
+from typing import Any
 
 import cv2
 import numpy as np
@@ -85,7 +86,6 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 
-from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.core.camera import StereoRig
 from eye_in_hand.core.locator import (
     LOCATOR_PARAMETERS,
@@ -107,8 +107,14 @@ from eye_in_hand.ros.conversions import (
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
 from eye_in_hand.ros.markers import Sphere, marker_classes, sphere_marker_array, sphere_style
 from eye_in_hand.ros.names import topic_name_problem
-from eye_in_hand.ros.outputs import (MARKER_DIAMETER_M, MARKER_LIFETIME_S, point_stamped,
-                                     pose_with_covariance, rclpy_types)
+from eye_in_hand.ros.node_main import run_node
+from eye_in_hand.ros.outputs import (
+    MARKER_DIAMETER_M,
+    MARKER_LIFETIME_S,
+    point_stamped,
+    pose_with_covariance,
+    rclpy_types,
+)
 from eye_in_hand.ros.params import Param, declare_params
 from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS, TARGET_POINT_QOS
 

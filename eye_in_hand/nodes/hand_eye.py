@@ -71,12 +71,18 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
-from geometry_msgs.msg import PointStamped, PoseStamped, PoseWithCovarianceStamped, TransformStamped
+from geometry_msgs.msg import (
+    PointStamped,
+    PoseStamped,
+    PoseWithCovarianceStamped,
+    TransformStamped,
+)
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -94,12 +100,18 @@ from eye_in_hand.nodes.hand_eye_tf import TfMixin
 from eye_in_hand.ros.conversions import header_stamp_ns, point_to_xyz, pose_to_matrix
 from eye_in_hand.ros.diagnostics import NodeDiagnostics
 from eye_in_hand.ros.node_main import run_node
-from eye_in_hand.ros.outputs import (MARKER_LIFETIME_S, RIGHT_CAMERA_FRAME,
-                                     TARGET_FRAME_PREFIX, header, pose_stamped,
-                                     pose_with_covariance, rclpy_types, transform_stamped)
+from eye_in_hand.ros.outputs import (
+    MARKER_LIFETIME_S,
+    RIGHT_CAMERA_FRAME,
+    TARGET_FRAME_PREFIX,
+    header,
+    pose_stamped,
+    pose_with_covariance,
+    rclpy_types,
+    transform_stamped,
+)
 from eye_in_hand.ros.params import load_config, param, params_of
 from eye_in_hand.ros.qos import LATCHED_QOS, RESULT_QOS, ROBOT_POSE_QOS
-
 
 __all__ = ["HandEyeNodeConfig", "HandEyeNode", "load_kinematics", "parameter_names", "main"]
 
@@ -180,8 +192,9 @@ class HandEyeNodeConfig:
     discovery_period_s: float = param(1.0, "period of the ROS graph search for "
                                       "targets/<id>/point_cov publishers (s)",
                                       range=(0.05, 3600.0))
-    marker_lifetime_s: float = param(MARKER_LIFETIME_S, "lifetime of the spheres on target/markers (s); 0 = "
-                                     "until the next frame's DELETEALL", range=(0.0, 3600.0))
+    marker_lifetime_s: float = param(MARKER_LIFETIME_S, "lifetime of the spheres on "
+                                     "target/markers (s); 0 = until the next frame's DELETEALL",
+                                     range=(0.0, 3600.0))
     stale_after_s: float = param(1.0, "diagnostics WARN when no robot pose or point arrived "
                                  "for this long (s)", range=(0.01, 3600.0))
     # -- calibration mode ---------------------------------------------------------------
@@ -271,7 +284,7 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
         cfg = self.config
         self.diag = NodeDiagnostics(self, hardware_id=NODE_NAME)
         self.calibration_mode: CalibrationMode | None = None
-        self._chain = None
+        self._chain: Any = None    # load_kinematics: a DHChain or a UrdfChain
         self._joint_index: np.ndarray | None = None
         if cfg.robot_pose_source == "joint_states":
             self._chain = load_kinematics(cfg.kinematics_file, cfg.urdf_base_link,

@@ -23,13 +23,15 @@ robot poses and diagnostics keep flowing meanwhile.
 """
 from __future__ import annotations
 
+import functools
 import math
 import queue
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import cv2
 import numpy as np
@@ -45,8 +47,13 @@ from eye_in_hand.core.camera import CameraModel, StereoRig
 from eye_in_hand.core.handeye import HandEyeResult
 from eye_in_hand.core.handeye.observe import board_pose_pnp, rig_views
 from eye_in_hand.core.handeye.plan import Plan, PlanConfig, suggest_next_poses
-from eye_in_hand.core.handeye.session import (CalibrationSession, CaptureOutcome, SampleRecord,
-                                              SessionConfig, SessionStatus)
+from eye_in_hand.core.handeye.session import (
+    CalibrationSession,
+    CaptureOutcome,
+    SampleRecord,
+    SessionConfig,
+    SessionStatus,
+)
 from eye_in_hand.errors import ConfigError, ConversionError, EyeInHandError, InputError
 from eye_in_hand.io.atomic import atomic_output_dir
 from eye_in_hand.io.config import load_hand_eye
@@ -57,6 +64,8 @@ from eye_in_hand.ros.markers import marker_classes
 from eye_in_hand.ros.qos import LATCHED_QOS, RESULT_QOS, SENSOR_QOS
 from eye_in_hand.ros.stamps import header_stamp_ns, ns_to_stamp
 
+iface_msg: Any
+iface_srv: Any
 try:  # built into the venv by tools/build_interfaces.py; a colcon package on a ROS install
     from eye_in_hand_interfaces import msg as iface_msg
     from eye_in_hand_interfaces import srv as iface_srv
@@ -280,7 +289,7 @@ class CalibrationMode:
                 with self._lock:
                     return self.session.commit(req, T, obs)
 
-            self._submit(job, lambda out, err, rid=req.id: self._captured(rid, out, err))
+            self._submit(job, functools.partial(self._captured, req.id))
 
     def _captured(self, rid: int, out: CaptureOutcome | None, err: BaseException | None) -> None:
         fut = self._waiters.pop(rid, None)

@@ -20,13 +20,18 @@ from rclpy.clock import Clock, ClockType
 from rclpy.qos import DurabilityPolicy
 
 from eye_in_hand.errors import ConversionError, InputError, LocalizationError
+from eye_in_hand.nodes.hand_eye_tf import translation_tf_message
 from eye_in_hand.ros.conversions import header_stamp_ns, point_to_xyz
-from eye_in_hand.ros.markers import (Sphere, marker_classes, points_to_pose_array,
-                                     pose_array_class, sphere_marker_array,
-                                     spheres_from_marker_array)
+from eye_in_hand.ros.markers import (
+    Sphere,
+    marker_classes,
+    points_to_pose_array,
+    pose_array_class,
+    sphere_marker_array,
+    spheres_from_marker_array,
+)
 from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.qos import RESULT_QOS, TARGET_POINT_QOS
-from eye_in_hand.nodes.hand_eye_tf import translation_tf_message
 
 __all__ = ["EveryTargetMixin"]
 

@@ -18,12 +18,18 @@ import numpy as np
 from eye_in_hand.core.camera import StereoRig
 from eye_in_hand.core.tf import TfBuffer, TfPoseView
 from eye_in_hand.errors import ConfigError, EyeInHandError
-from eye_in_hand.ros import tf as ros_tf  # have_tf2_msgs, tf_message_class looked up per call
-from eye_in_hand.ros.qos import ROBOT_POSE_DEPTH
 from eye_in_hand.ros import outputs
+from eye_in_hand.ros import tf as ros_tf  # have_tf2_msgs, tf_message_class looked up per call
 from eye_in_hand.ros.outputs import rclpy_types, tf_message
-from eye_in_hand.ros.tf import (TF_STATIC_TOPIC, TF_TOPIC, feed_tf_message, tf_qos,
-                                tf_static_pub_qos, tf_static_sub_qos)
+from eye_in_hand.ros.qos import ROBOT_POSE_DEPTH
+from eye_in_hand.ros.tf import (
+    TF_STATIC_TOPIC,
+    TF_TOPIC,
+    feed_tf_message,
+    tf_qos,
+    tf_static_pub_qos,
+    tf_static_sub_qos,
+)
 
 __all__ = ["TfMixin", "translation_tf_message"]
 
@@ -42,7 +48,7 @@ class TfMixin:
         except ConfigError as exc:
             raise ConfigError(f"robot_pose_source: tf: {exc}") from exc
         self.tf_buffer = TfBuffer(cfg.pose_buffer_size)
-        self.localizer.poses = TfPoseView(  # type: ignore[assignment]
+        self.localizer.poses = TfPoseView(
             self.tf_buffer, cfg.base_frame, cfg.ee_frame,
             jump_back_ns=int(cfg.pose_jump_back_s * 1e9))
         # as deep as the robot pose topics' queue: a burst of late /tf while the executor is

@@ -3,7 +3,8 @@
 Each node module has ``parameter_names(values)``: the names it declares, derived from the same
 :class:`~eye_in_hand.ros.params.Param` lists and config dataclasses it declares at start-up
 (``detect_triangulate``'s per-target names follow the file's ``target_names``). A node refuses
-an override it does not declare at start-up (:func:`eye_in_hand.ros.params.refuse_undeclared_overrides`);
+an override it does not declare at start-up
+(:func:`eye_in_hand.ros.params.refuse_undeclared_overrides`);
 :func:`check_parameter_file_keys` refuses the same keys earlier, for the commands that read a
 parameter file (``launch``, ``process``, ``locate``), and unknown node names as well.
 """
@@ -11,7 +12,8 @@ from __future__ import annotations
 
 import importlib
 import os
-from typing import Any, Mapping, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 from eye_in_hand.errors import ConfigError
 

@@ -46,17 +46,18 @@ import os
 import queue
 import threading
 import time
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, JointState
 
-from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.core.camera import CameraModel, StereoRig
 from eye_in_hand.errors import ConfigError, ConversionError, EyeInHandError, InputError
 from eye_in_hand.io.images import read_image_file
@@ -68,9 +69,21 @@ from eye_in_hand.ros.conversions import (
     numpy_to_image,
 )
 from eye_in_hand.ros.diagnostics import ERROR, WARN, NodeDiagnostics
+from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.ros.params import Param, declare_params
-from eye_in_hand.ros.tf import (TF_STATIC_TOPIC, TF_TOPIC, chain_tf_edges, have_tf2_msgs,
-                                make_tf_message, tf_message_class, tf_qos, tf_static_pub_qos)
+from eye_in_hand.ros.tf import (
+    TF_STATIC_TOPIC,
+    TF_TOPIC,
+    chain_tf_edges,
+    have_tf2_msgs,
+    make_tf_message,
+    tf_message_class,
+    tf_qos,
+    tf_static_pub_qos,
+)
+
+if TYPE_CHECKING:  # imported where used: the simulator only loads with source: sim
+    from eye_in_hand.sim.world import World
 
 __all__ = ["NODE_PARAMETERS", "SOURCES", "StereoCaptureNode", "FrameSource", "parameter_names",
            "main"]
@@ -376,7 +389,7 @@ class StereoCaptureNode(Node):
                                     hardware_id=self.cfg["source"])
         self.diag.declare_counter("pairs", "read_failures", "not_ready")
         self.diag.expect_rate("pairs", min_hz=min(1.0, self.cfg["rate_hz"] / 4))
-        self._world = None
+        self._world: World | None = None
         self._encoder_rng: np.random.Generator | None = None
         try:
             self.source = self._open_source()
@@ -405,7 +418,7 @@ class StereoCaptureNode(Node):
         elif self._world is not None and self.cfg["sim.publish_robot_state"]:
             self.pub_joints = self.create_publisher(JointState, "joint_states", 10)
             self.pub_pose = self.create_publisher(PoseStamped, "ee_pose", 10)
-        self.pub_tf = None
+        self.pub_tf: Publisher | None = None
         if self._world is not None and not follow and self.cfg["sim.publish_tf"]:
             self._setup_sim_tf()
         self._queue: queue.Queue[_Pair] = queue.Queue(maxsize=self.cfg["queue_depth"])
@@ -553,7 +566,7 @@ class StereoCaptureNode(Node):
             js.name = list(self._world.arm.joint_names)
             js.position = [float(v) for v in q_rep]
             self.pub_joints.publish(js)
-            self.pub_pose.publish(matrix_to_pose_stamped(  # type: ignore[union-attr]
+            self.pub_pose.publish(matrix_to_pose_stamped(
                 self._world.arm.fk(q_rep), stamp_ns=stamp_ns, frame_id=c["base_frame"]))
             if self.pub_tf is not None:   # robot_state_publisher's view: the reported joints
                 self._publish_sim_tf(q_rep, stamp_ns)

@@ -8,7 +8,8 @@ rectified pair with epipolar lines.
 """
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import cv2
 import numpy as np
@@ -29,7 +30,8 @@ def per_view_figure(names: Sequence[str], rms: Sequence[float], used: Sequence[b
     fig = new_figure(max(6.0, 0.28 * len(names) + 2.0), 3.4)
     ax = fig.add_subplot(1, 1, 1)
     vals = np.array([np.nan if r is None else float(r) for r in rms])
-    colors = ["#c62828" if o else ("#1f77b4" if u else "#9e9e9e") for u, o in zip(used, outlier)]
+    colors = ["#c62828" if o else ("#1f77b4" if u else "#9e9e9e")
+              for u, o in zip(used, outlier, strict=True)]
     x = np.arange(len(names))
     ax.bar(x, np.nan_to_num(vals), color=colors)
     if np.isfinite(threshold):
@@ -138,7 +140,7 @@ def rectified_pair_image(rig: Any, left: np.ndarray, right: np.ndarray,
 
 def _param_rows(cam: Any, std: dict) -> list[list[Any]]:
     vals = {"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy}
-    vals.update({n: float(v) for n, v in zip(_DIST, cam.dist)})
+    vals.update({n: float(v) for n, v in zip(_DIST, cam.dist, strict=False)})
     return [[n, *value_and_std(v, std.get(n))] for n, v in vals.items()]
 
 
@@ -215,7 +217,8 @@ def camera_report(cal: Any, source: Any, board: Any, sample_image: np.ndarray | 
 
 
 def stereo_report(cal: Any, names: Sequence[tuple[str, str]], board: Any, description: str,
-                  skipped: Sequence[dict], pair_images: tuple[np.ndarray, np.ndarray] | None = None,
+                  skipped: Sequence[dict],
+                  pair_images: tuple[np.ndarray, np.ndarray] | None = None,
                   pair_corners: tuple[np.ndarray, np.ndarray] | None = None,
                   pair_name: str = "") -> HtmlReport:
     """The report of a stereo calibration.

@@ -21,8 +21,9 @@ import datetime as _dt
 import html
 import io
 import os
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -109,36 +110,36 @@ class HtmlReport:
         self._parts: list[str] = []
 
     # -- content --------------------------------------------------------------------------------
-    def add_section(self, title: str) -> "HtmlReport":
+    def add_section(self, title: str) -> HtmlReport:
         """Start a new section with a level-2 heading."""
         self._parts.append(f"<h2>{html.escape(str(title))}</h2>")
         return self
 
-    def add_heading(self, title: str, level: int = 3) -> "HtmlReport":
+    def add_heading(self, title: str, level: int = 3) -> HtmlReport:
         """A heading of level 2..6."""
         level = min(6, max(2, int(level)))
         self._parts.append(f"<h{level}>{html.escape(str(title))}</h{level}>")
         return self
 
-    def add_paragraph(self, text: str) -> "HtmlReport":
+    def add_paragraph(self, text: str) -> HtmlReport:
         """A paragraph of plain text (escaped)."""
         self._parts.append(f"<p>{html.escape(str(text))}</p>")
         return self
 
-    def add_status(self, label: str, ok: bool, detail: str = "") -> "HtmlReport":
+    def add_status(self, label: str, ok: bool, detail: str = "") -> HtmlReport:
         """A pass/fail line, e.g. an accuracy check against a threshold."""
         cls, word = ("ok", "PASS") if ok else ("fail", "CHECK")
         self._parts.append(f"<p><span class='{cls}'>{word}</span> {html.escape(label)}"
                            f"{(' — ' + html.escape(detail)) if detail else ''}</p>")
         return self
 
-    def add_preformatted(self, text: str) -> "HtmlReport":
+    def add_preformatted(self, text: str) -> HtmlReport:
         """A block of monospaced text (escaped)."""
         self._parts.append(f"<pre>{html.escape(str(text))}</pre>")
         return self
 
     def add_table(self, rows: Iterable[Sequence[Any]], header: Sequence[str] | None = None, *,
-                  row_classes: Sequence[str] | None = None, precision: int = 4) -> "HtmlReport":
+                  row_classes: Sequence[str] | None = None, precision: int = 4) -> HtmlReport:
         """A table; numbers are right-aligned, the first column left-aligned.
 
         Args:
@@ -162,7 +163,7 @@ class HtmlReport:
         self._parts.append("".join(out))
         return self
 
-    def add_image_png(self, png: bytes, caption: str = "", alt: str = "") -> "HtmlReport":
+    def add_image_png(self, png: bytes, caption: str = "", alt: str = "") -> HtmlReport:
         """Embed PNG bytes as a base64 data URI."""
         data = base64.b64encode(png).decode("ascii")
         cap = f"<figcaption>{html.escape(caption)}</figcaption>" if caption else ""
@@ -170,7 +171,7 @@ class HtmlReport:
                            f"src='data:image/png;base64,{data}'/>{cap}</figure>")
         return self
 
-    def add_figure(self, fig, caption: str = "", *, dpi: int = 100) -> "HtmlReport":
+    def add_figure(self, fig, caption: str = "", *, dpi: int = 100) -> HtmlReport:
         """Render a matplotlib figure to PNG (Agg) and embed it.
 
         Args:
@@ -187,7 +188,7 @@ class HtmlReport:
         fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
         return self.add_image_png(buf.getvalue(), caption)
 
-    def add_image_array(self, image, caption: str = "") -> "HtmlReport":
+    def add_image_array(self, image, caption: str = "") -> HtmlReport:
         """Embed an image array (H, W) gray or (H, W, 3) BGR uint8 as PNG."""
         # local: OpenCV costs ~16 ms, and this module loads at CLI start-up (report.handeye)
         import cv2

@@ -1,4 +1,5 @@
-"""Camera calibration messages: ``sensor_msgs/CameraInfo`` <-> :class:`~eye_in_hand.core.camera.CameraModel`.
+"""Camera calibration messages: ``sensor_msgs/CameraInfo`` <->
+:class:`~eye_in_hand.core.camera.CameraModel`.
 
 The reader is duck-typed (rclpy or rosbags messages) and names the bad field in its
 :class:`eye_in_hand.errors.ConversionError`; the builder returns an rclpy message object.
@@ -79,9 +80,10 @@ def camera_info_to_model(msg: Any, *, name: str = "camera") -> Any:
         if (rw, rh) != (0, 0) and (rx, ry, rw, rh) != (0, 0, width, height):
             raise ConversionError(
                 f"roi: a region of interest ({rx}, {ry}, {rw}x{rh}) is not supported")
+    projection: Any = P if np.any(P) else None      # None: CameraModel's [K | 0]
     try:
         return CameraModel(K=K, dist=d, width=width, height=height, distortion_model=model,
-                           R=R, P=P if np.any(P) else None, name=name)
+                           R=R, P=projection, name=name)
     except InputError as exc:
         raise ConversionError(f"camera_info: {exc}") from exc
 

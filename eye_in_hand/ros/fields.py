@@ -52,7 +52,8 @@ def read_float(msg: Any, attr: str, path: str = "") -> float:
     try:
         out = float(value)
     except (TypeError, ValueError) as exc:
-        raise ConversionError(f"{field_path(path, attr)}: expected a number, got {value!r}") from exc
+        raise ConversionError(f"{field_path(path, attr)}: expected a number, got {value!r}"
+                              ) from exc
     if not math.isfinite(out):
         raise ConversionError(f"{field_path(path, attr)}: is {out} (must be finite)")
     return out
@@ -78,7 +79,8 @@ def byte_view(data: Any, field: str) -> np.ndarray:
         return data.reshape(-1)  # a view for contiguous data (always, for rosbags messages)
     if isinstance(data, (array.array, bytes, bytearray, memoryview)):
         if isinstance(data, array.array) and data.itemsize != 1:
-            raise ConversionError(f"{field}: expected a byte array, got typecode {data.typecode!r}")
+            raise ConversionError(f"{field}: expected a byte array, got typecode "
+                                  f"{data.typecode!r}")
         try:
             return np.frombuffer(data, dtype=np.uint8)
         except (TypeError, ValueError) as exc:

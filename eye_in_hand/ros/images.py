@@ -178,7 +178,8 @@ def image_to_numpy(msg: Any, *, desired_encoding: str | None = None,
     dtype = spec.dtype
     if dtype.itemsize > 1:
         dtype = dtype.newbyteorder(">" if bigendian else "<")
-    arr = rows.view(dtype)  # the last axis is contiguous, so this is a view even with padding
+    # the last axis is contiguous, so this is a view even with padding
+    arr: np.ndarray = rows.view(dtype)
     arr = arr.reshape((height, width) if spec.channels == 1 else (height, width, spec.channels))
     if not arr.dtype.isnative:
         arr = arr.astype(arr.dtype.newbyteorder("="))  # a copy already

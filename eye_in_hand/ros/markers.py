@@ -19,7 +19,8 @@ from __future__ import annotations
 import colorsys
 import functools
 import math
-from typing import Any, Iterable, Sequence
+from collections.abc import Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -32,7 +33,7 @@ __all__ = ["Sphere", "marker_classes", "pose_array_class", "sphere_marker_array"
            "spheres_from_marker_array", "points_to_pose_array", "color_range_rgba",
            "sphere_style", "DEFAULT_RGBA"]
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def marker_classes() -> tuple[Any, Any]:
     """``(Marker, MarkerArray)`` of visualization_msgs.
 
@@ -47,7 +48,7 @@ def marker_classes() -> tuple[Any, Any]:
     return marker, array
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def pose_array_class() -> Any:
     """``geometry_msgs.msg.PoseArray`` (ConfigError when geometry_msgs is missing)."""
     cls = import_message_type("geometry_msgs/msg/PoseArray")

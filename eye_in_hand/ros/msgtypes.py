@@ -38,7 +38,8 @@ def _normalise(msgtype: str) -> str:
 
 
 def valid_msgtype(msgtype: str) -> bool:
-    """Whether ``msgtype`` is a well-formed message type name (``pkg/msg/Type`` or ``pkg/Type``)."""
+    """Whether ``msgtype`` is a well-formed message type name (``pkg/msg/Type`` or
+    ``pkg/Type``)."""
     return bool(MSGTYPE_PATTERN.match(_normalise(msgtype)))
 
 

@@ -70,7 +70,7 @@ def run_node(name: str, factory: Callable[[], Any], args: Sequence[str] | None =
     """
     def body() -> None:
         use_large_data_profile()
-        rclpy.init(args=args)
+        rclpy.init(args=None if args is None else list(args))
         node = None
         try:
             node = factory()
@@ -96,7 +96,7 @@ def run_with_executor(factory: Callable[[], Any], spin: Callable[[Any, Any], int
 
     The executor is built first: an rclpy executor interrupted in its constructor spews on exit.
     """
-    rclpy.init(args=args)
+    rclpy.init(args=None if args is None else list(args))
     node = None
     executor = None
     try:

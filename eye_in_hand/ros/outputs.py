@@ -29,7 +29,8 @@ from eye_in_hand.core.transforms import matrix_to_quat_xyzw
 from eye_in_hand.errors import ConfigError, ConversionError
 
 __all__ = ["Sphere", "OutputSettings", "DEFAULT_RGBA", "TARGET_FRAME_PREFIX", "MARKER_LIFETIME_S",
-           "MARKER_DIAMETER_M", "RIGHT_CAMERA_FRAME", "UNKNOWN_ROTATION_VARIANCE", "RosbagsTypes", "rclpy_types",
+           "MARKER_DIAMETER_M", "RIGHT_CAMERA_FRAME", "UNKNOWN_ROTATION_VARIANCE",
+           "RosbagsTypes", "rclpy_types",
            "time_msg", "header", "point_stamped", "pose_with_covariance", "pose_stamped",
            "pose_array", "sphere_markers", "transform_stamped", "tf_message",
            "translation_tf_message"]
@@ -124,7 +125,7 @@ class _RclpyTypes:
         return cls
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _rclpy_class(msgtype: str) -> Any:
     from eye_in_hand.ros.msgtypes import import_message_type  # local: rclpy, live path only
 
@@ -166,9 +167,13 @@ class RosbagsTypes:
     def _factory(self, msgtype: str) -> Callable[..., Any]:
         cls = self.typestore.types[msgtype]
         _, fields = self.typestore.fielddefs[msgtype]
-        defaults = {name: self._default_of(desc) for name, desc in fields}
+        defaults: dict[str, Callable[[], Any]] = {name: self._default_of(desc)
+                                                  for name, desc in fields}
         for name, value in _NONZERO_DEFAULTS.get(msgtype, {}).items():
-            defaults[name] = lambda v=value: v
+            def constant(v: Any = value) -> Any:
+                return v
+
+            defaults[name] = constant
 
         def make(**kwargs: Any) -> Any:
             values = {name: (kwargs.pop(name) if name in kwargs else make_default())

@@ -51,7 +51,8 @@ def ns_to_stamp(stamp_ns: int) -> Any:
 
 def header_stamp_ns(msg: Any) -> int:
     """Nanoseconds of ``msg.header.stamp`` (any stamped message, rclpy or rosbags)."""
-    return stamp_to_ns(get_field(get_field(msg, "header", ""), "stamp", "header"), field="header.stamp")
+    return stamp_to_ns(get_field(get_field(msg, "header", ""), "stamp", "header"),
+                       field="header.stamp")
 
 
 def make_header(stamp_ns: int = 0, frame_id: str = "") -> Any:

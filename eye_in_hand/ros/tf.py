@@ -15,7 +15,8 @@ raises a :class:`ConfigError` that says so. Reading TF from a bag needs no ``tf2
 """
 from __future__ import annotations
 
-from typing import Any, Iterable
+from collections.abc import Iterable
+from typing import Any
 
 import numpy as np
 
@@ -167,7 +168,7 @@ def chain_tf_edges(chain: Any, q: Any, base_frame: str | None = None
     Works with :class:`~eye_in_hand.core.kinematics.DHChain` (frames ``base_frame`` and its
     ``link_names``) and :class:`~eye_in_hand.core.kinematics.UrdfChain` (its joints' links).
     """
-    frames = getattr(chain, "fk_frames")(q)
+    frames = chain.fk_frames(q)
     if frames and isinstance(frames[0], tuple):
         return [(p, c, np.asarray(T)) for p, c, T in frames]
     base = base_frame or chain.base_frame

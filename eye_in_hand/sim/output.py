@@ -41,9 +41,10 @@ shows the arm at ``t + time_offset_s``.
 from __future__ import annotations
 
 import shutil
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 import yaml
@@ -331,7 +332,7 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
     latched = (OfferedQos("reliable", "transient_local", "keep_last", 1),)
     reliable = (OfferedQos("reliable", "volatile", "keep_last", 100),)
     store = get_typestore(Stores.ROS2_JAZZY)
-    writer = BagWriter(out, storage=storage, compression="zstd",  # type: ignore[arg-type]
+    writer = BagWriter(out, storage=storage, compression="zstd",
                        typestore=store)
     with writer:
         m = _Msgs(store)
@@ -365,7 +366,7 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
         # robot streams
         dt = 1.0 / robot_rate_hz
         frames_names = (arm.dh_frame, *arm.link_names)
-        for k, (ns, q) in enumerate(zip(stamps, qs_rep)):
+        for k, (ns, q) in enumerate(zip(stamps, qs_rep, strict=True)):
             ns = int(ns)
             k0, k1 = max(k - 1, 0), min(k + 1, len(qs) - 1)
             dq = (qs_rep[k1] - qs_rep[k0]) / (max(k1 - k0, 1) * dt)

@@ -7,9 +7,9 @@ undistortion, then Newton steps on our own evaluation of the distortion polynomi
 re-projection round trip is below 1e-6 px) and cached. Rays are intersected exactly with the
 spheres, the board rectangle and the table plane; the nearest hit is shaded (Lambert +
 ambient). Pixels whose 3x3 neighbourhood sees more than one surface (object edges and
-chessboard square edges) are re-rendered with a regular grid of ``supersample x supersample`` sub-pixel rays
-(their ideal coordinates interpolated bilinearly from the cached grid, error < 1e-4 px), which
-anti-aliases edges at a fraction of the cost of supersampling the whole image.
+chessboard square edges) are re-rendered with a regular grid of ``supersample x supersample``
+sub-pixel rays (their ideal coordinates interpolated bilinearly from the cached grid, error
+< 1e-4 px), which anti-aliases edges at a fraction of the cost of supersampling the whole image.
 
 Ground truth (:class:`FrameTruth`) is computed independently of the rendering: projections
 with :meth:`CameraModel.project` (OpenCV), and the area centroid of each sphere's silhouette in
@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol, Sequence
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -288,7 +289,8 @@ def _make_texture(seed: int, color_bgr: tuple[int, int, int]) -> np.ndarray:
         gain[inside] *= rng.uniform(0.7, 0.9)
     mottle = cv2.GaussianBlur(rng.standard_normal((n // 16, n // 16)).astype(np.float32),
                               (0, 0), 1.5)
-    mottle = cv2.resize(mottle / max(float(mottle.std()), 1e-6), (n, n),
+    scaled: np.ndarray = mottle / max(float(mottle.std()), 1e-6)
+    mottle = cv2.resize(scaled, (n, n),
                         interpolation=cv2.INTER_NEAREST)
     gain *= 1.0 + 0.04 * np.round(mottle * 2) / 2   # a few flat levels
     return np.clip(gain[:, :, None] * base[None, None, :], 0, 255).astype(np.float32)
@@ -392,7 +394,7 @@ class Renderer:
                                   ("right", w.rig.right, t_right, right_T_base)):
             out[f"center_px_{side}"] = (cam.project(pts) if len(pts) else np.zeros((0, 2)))
             cents, vis = [], []
-            for tgt, c in zip(w.targets, pts):
+            for tgt, c in zip(w.targets, pts, strict=True):
                 poly = sphere_silhouette(cam, c, tgt.radius_m)
                 if poly is None:
                     cents.append(np.full(2, np.nan))
@@ -460,7 +462,7 @@ class Renderer:
         w = self.world
         R, t = cam_T_base[:3, :3], cam_T_base[:3, 3]
         cam_T_board = compose(cam_T_base, w.base_T_board)
-        s = {}
+        s: dict[str, Any] = {}
         # table plane z_base = h: normal n (cam), offset: n . X = n . p0
         n_tab = R[:, 2]
         p_tab = R @ np.array([0.0, 0.0, w.table_height]) + t
@@ -579,6 +581,8 @@ class Renderer:
         if ys.size == 0:
             return img, cov
         offs = (np.arange(ss) + 0.5) / ss - 0.5
+        ou: np.ndarray
+        ov: np.ndarray
         ou, ov = np.meshgrid(offs, offs)
         ou, ov = ou.ravel(), ov.ravel()
         S = ou.size

@@ -31,8 +31,9 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, fields, replace
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -91,12 +92,12 @@ class RobotErrorSpec:
 
     # -- construction ---------------------------------------------------------------------
     @classmethod
-    def none(cls) -> "RobotErrorSpec":
+    def none(cls) -> RobotErrorSpec:
         """The ideal arm: reported = true, no encoder noise, no time offset."""
         return cls()
 
     @classmethod
-    def default(cls) -> "RobotErrorSpec":
+    def default(cls) -> RobotErrorSpec:
         """The realistic default: an uncalibrated industrial arm (per-pose flange error
         ~0.2-0.5 mm and ~0.02-0.05 deg, see docs/simulator.md), fine encoders, no time
         offset."""
@@ -109,7 +110,7 @@ class RobotErrorSpec:
         return (self.link_sigma_m == self.twist_sigma_rad == self.joint_offset_sigma_rad
                 == self.encoder_sigma_rad == self.time_offset_s == 0.0)
 
-    def scaled(self, factor: float) -> "RobotErrorSpec":
+    def scaled(self, factor: float) -> RobotErrorSpec:
         """Every sigma and the time offset multiplied by ``factor`` (>= 0); same seed."""
         if not (math.isfinite(factor) and factor >= 0):
             raise ConfigError(f"robot error scale must be a finite number >= 0, got {factor}")
@@ -124,7 +125,7 @@ class RobotErrorSpec:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, data: Any, where: str = "robot_error") -> "RobotErrorSpec":
+    def from_dict(cls, data: Any, where: str = "robot_error") -> RobotErrorSpec:
         """Read the ``robot_error`` section: a mapping of the fields (missing ones are 0,
         ``seed`` 1), or a number: the realistic default scaled by it (``0`` = ideal).
 
@@ -148,7 +149,7 @@ class RobotErrorSpec:
             raise ConfigError(f"{where}: {exc}") from exc
 
     @classmethod
-    def parse(cls, text: str, base: "RobotErrorSpec | None" = None) -> "RobotErrorSpec":
+    def parse(cls, text: str, base: RobotErrorSpec | None = None) -> RobotErrorSpec:
         """Parse ``--robot-error``: ``0`` (ideal), ``default``, a scale of the default
         (``2`` = twice the default errors), or comma-separated ``key=value`` overrides of
         ``base`` (default: the realistic default), e.g. ``time_offset_s=0.004,seed=3``; a
@@ -261,5 +262,6 @@ def flange_errors(nominal: DHChain, true_arm: DHChain, qs,
     """
     qs = np.atleast_2d(np.asarray(qs, dtype=np.float64))
     qr = qs if q_reported is None else np.atleast_2d(np.asarray(q_reported, dtype=np.float64))
-    out = np.array([pose_error(*flange_poses(nominal, true_arm, a, b)) for a, b in zip(qs, qr)])
+    out = np.array([pose_error(*flange_poses(nominal, true_arm, a, b))
+                    for a, b in zip(qs, qr, strict=False)])
     return out[:, 0], out[:, 1]

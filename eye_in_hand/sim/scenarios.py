@@ -13,7 +13,7 @@ Everything is deterministic for a given seed (``np.random.default_rng(seed)``).
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation

@@ -20,9 +20,10 @@ looks along -z, so cameras see it from the -z side, as OpenCV's PnP assumes.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, cast
 
 import numpy as np
 import yaml
@@ -188,7 +189,7 @@ class World:
 
     # -- construction ---------------------------------------------------------------------
     @classmethod
-    def default(cls) -> "World":
+    def default(cls) -> World:
         """The default world: UR5e, 1280x720 stereo pair (fx ~ 900 px, 60 mm baseline, radial
         and tangential distortion, a small inter-camera rotation), one red sphere, a 9x6
         chessboard with 25 mm squares lying on a textured table."""
@@ -221,7 +222,7 @@ class World:
                    board=board, base_T_board=base_T_board)
 
     @classmethod
-    def from_dict(cls, data: Any, source: str = "<world>") -> "World":
+    def from_dict(cls, data: Any, source: str = "<world>") -> World:
         """Build a world from the ``world.yaml`` mapping (see ``config/world.yaml``).
 
         Raises:
@@ -262,7 +263,8 @@ class World:
                                             f"{source}: board.base_T_board"),
                 board_margin=float(board_d.get("margin", 0.02)),
                 table_height=float(table.get("height", 0.0)),
-                table_color_bgr=tuple(int(v) for v in table.get("color_bgr", (120, 135, 150))),
+                table_color_bgr=cast(tuple[int, int, int], tuple(
+                    int(v) for v in table.get("color_bgr", (120, 135, 150)))),
                 texture_seed=int(table.get("texture_seed", 7)),
                 light_dir_base=np.asarray(light.get("direction_base", (0.3, -0.2, 1.0)), float),
                 ambient=float(light.get("ambient", 0.35)),
@@ -298,7 +300,7 @@ class World:
         }
 
     @classmethod
-    def from_yaml(cls, path: str | Path) -> "World":
+    def from_yaml(cls, path: str | Path) -> World:
         """Load a world file.
 
         Raises:
@@ -311,13 +313,14 @@ class World:
         """Write the world file; returns its path."""
         p = Path(path)
         p.parent.mkdir(parents=True, exist_ok=True)
-        header = ("# eye_in_hand synthetic world. Metres, radians, pixels; poses as translation +\n"
+        header = ("# eye_in_hand synthetic world. Metres, radians, pixels; poses as "
+                  "translation +\n"
                   "# quat_xyzw (a_T_b maps points in b into a). rig.right_T_left follows OpenCV:\n"
                   "# X_right = R X_left + T. Board frame: origin at the first inner corner.\n")
         p.write_text(header + yaml.safe_dump(self.to_dict(), sort_keys=False), encoding="utf-8")
         return p
 
-    def with_image_size(self, width: int, height: int) -> "World":
+    def with_image_size(self, width: int, height: int) -> World:
         """The same world with both cameras resampled to ``width`` x ``height`` pixels.
 
         Focal lengths and principal points scale with the size ratio per axis (the field of
@@ -339,7 +342,7 @@ class World:
         rig = StereoRig(left=cams[0], right=cams[1], R=self.rig.R, T=self.rig.T)
         return replace(self, rig=rig)
 
-    def with_robot_error(self, spec: RobotErrorSpec) -> "World":
+    def with_robot_error(self, spec: RobotErrorSpec) -> World:
         """The same world with another robot error (``RobotErrorSpec.none()``: ideal arm)."""
         return replace(self, robot_error=spec)
 

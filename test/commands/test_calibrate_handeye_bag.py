@@ -11,11 +11,16 @@ import pytest
 from eye_in_hand.cli import main
 from eye_in_hand.core.camera import CameraModel
 from eye_in_hand.core.handeye.synthetic import make_problem
-from eye_in_hand.core.transforms import (from_rotvec, interpolate, invert, to_xyz_quat,
-                                         transform_distance)
+from eye_in_hand.core.transforms import (
+    from_rotvec,
+    interpolate,
+    invert,
+    to_xyz_quat,
+    transform_distance,
+)
+from eye_in_hand.errors import ConfigError
 from eye_in_hand.io.bags import BagWriter, default_typestore
 from eye_in_hand.io.config import load_hand_eye
-from eye_in_hand.errors import ConfigError
 from eye_in_hand.io.datasets import read_bag_samples
 
 T0 = 1_700_000_000_000_000_000
@@ -168,7 +173,7 @@ def test_tf_pose_source_matches_pose_topic(calib_bag) -> None:
     assert b.pose_source == "/tf base_link -> tool0"
     assert [s.stamp_ns for s in a.samples] == [s.stamp_ns for s in b.samples]
     assert len(b.samples) == n_stops
-    for sa, sb in zip(a.samples, b.samples):
+    for sa, sb in zip(a.samples, b.samples, strict=True):
         np.testing.assert_allclose(sa.base_T_ee, sb.base_T_ee, atol=1e-9)
     with pytest.raises(ConfigError, match="no chain from 'base_link' to 'flange'"):
         read_bag_samples(path, use_tf=True, ee_frame="flange")

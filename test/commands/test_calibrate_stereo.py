@@ -17,7 +17,8 @@ BOARD = "chessboard:9x6:1.0"
 
 def _pairs(data_dir: Path) -> list[tuple[Path, Path]]:
     folder = data_dir / "opencv_stereo_chessboard"
-    return [(f, folder / f.name.replace("left", "right")) for f in sorted(folder.glob("left*.jpg"))]
+    return [(f, folder / f.name.replace("left", "right"))
+            for f in sorted(folder.glob("left*.jpg"))]
 
 
 def _write_bag(path: Path, frames: dict[str, list[tuple[int, np.ndarray]]]) -> None:

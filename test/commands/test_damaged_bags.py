@@ -10,8 +10,14 @@ import numpy as np
 import pytest
 
 from eye_in_hand.cli import main
-from eye_in_hand.io.bags import (BagWriter, bag_info, default_typestore, deserialize,
-                                 iter_messages, serialize)
+from eye_in_hand.io.bags import (
+    BagWriter,
+    bag_info,
+    default_typestore,
+    deserialize,
+    iter_messages,
+    serialize,
+)
 from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye
 from eye_in_hand.sim import World
 from eye_in_hand.sim.output import write_bag

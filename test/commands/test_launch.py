@@ -6,10 +6,10 @@ import subprocess
 import sys
 import time
 
+import numpy as np
+
 from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye
 from eye_in_hand.launcher import NODES, node_command
-
-import numpy as np
 
 
 def _params(tmp_path, hand_eye_file):

@@ -51,7 +51,7 @@ def test_process_writes_bag_csv_and_error_stats(loc_bag, tmp_path, capsys):
     assert len(rows) == 12 and all(r["status"] == "ok" for r in rows)
     # The bag and the CSV hold the same numbers.
     poses = [deserialize(raw, mt) for _, mt, _, raw in iter_messages(out, ["/target/pose"])]
-    for row, msg in zip(rows, poses):
+    for row, msg in zip(rows, poses, strict=True):
         assert int(row["stamp_ns"]) == msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
         assert float(row["x_base"]) == msg.pose.position.x
 
@@ -169,7 +169,8 @@ def test_the_summary_gives_the_top_reasons_when_few_are_located(loc_bag, tmp_pat
 
 
 def test_top_reasons_group_reasons_that_differ_in_numbers_only():
-    from eye_in_hand.offline import FrameResult, top_reasons
+    from eye_in_hand.io.results import FrameResult
+    from eye_in_hand.offline import top_reasons
 
     frames = ([FrameResult(i, "no_target", f"target 'red': depth {500 + i}.5 m, outside "
                                           "0.05-100 m") for i in range(3)]

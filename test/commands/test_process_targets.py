@@ -128,7 +128,7 @@ def test_distances_command_on_csv_folder_and_bag_agrees_with_process(multi, caps
             (bag_only / f.name).write_bytes(f.read_bytes())
     assert main(["distances", str(bag_only), "--json"]) == 0
     got = json.loads(capsys.readouterr().out)
-    for a, b in zip(got["distances"], summary["distances"]):
+    for a, b in zip(got["distances"], summary["distances"], strict=True):
         assert (a["a"], a["b"], a["frames"]) == (b["a"], b["b"], b["frames"])
         assert a["mean_m"] == pytest.approx(b["mean_m"], abs=1e-12)
         assert a["error_mm"] == pytest.approx(b["error_mm"], abs=1e-9)

@@ -5,9 +5,16 @@ import cv2
 import numpy as np
 import pytest
 
-from eye_in_hand.core.calibration import (BoardDetection, BoardSpec, CalibrationOptions,
-                                          calibrate_camera, calibrate_stereo, coverage,
-                                          detect_board, outlier_threshold)
+from eye_in_hand.core.calibration import (
+    BoardDetection,
+    BoardSpec,
+    CalibrationOptions,
+    calibrate_camera,
+    calibrate_stereo,
+    coverage,
+    detect_board,
+    outlier_threshold,
+)
 from eye_in_hand.errors import CalibrationError, InputError
 
 BOARD = BoardSpec.parse("chessboard:9x6:0.025")
@@ -215,7 +222,8 @@ def _charuco_views(board: BoardSpec, K: np.ndarray, n: int, seed: int,
     A = np.array([[1 / ppm, 0, -board.square - 40 / ppm], [0, 1 / ppm, -board.square - 40 / ppm],
                   [0, 0, 1]])
     rng = np.random.default_rng(seed)
-    center = np.array([(board.cols - 1) * board.square / 2, (board.rows - 1) * board.square / 2, 0])
+    center = np.array([(board.cols - 1) * board.square / 2,
+                       (board.rows - 1) * board.square / 2, 0])
     images = []
     for k in range(n):
         R = cv2.Rodrigues(np.array([rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6),

@@ -13,7 +13,8 @@ def _pose(rx: float, ry: float, z: float, board: BoardSpec) -> np.ndarray:
     import cv2
 
     R, _ = cv2.Rodrigues(np.array([rx, ry, 0.02]))
-    center = np.array([(board.cols - 1) * board.square / 2, (board.rows - 1) * board.square / 2, 0])
+    center = np.array([(board.cols - 1) * board.square / 2,
+                       (board.rows - 1) * board.square / 2, 0])
     T = np.eye(4)
     T[:3, :3] = R
     T[:3, 3] = np.array([0.0, 0.0, z]) - R @ center
@@ -39,7 +40,8 @@ def test_parse_charuco() -> None:
 
 @pytest.mark.parametrize("spec", [
     "chessboard:9x6", "chessboard:9*6:0.02", "chessboard:1x6:0.02", "chessboard:9x6:-1",
-    "chessboard:9x6:abc", "checker:9x6:0.02", "charuco:7x5:0.04:0.05", "charuco:7x5:0.04:0.03:NOPE",
+    "chessboard:9x6:abc", "checker:9x6:0.02", "charuco:7x5:0.04:0.05",
+    "charuco:7x5:0.04:0.03:NOPE",
     "", "chessboard:9x6:nan"])
 def test_parse_rejects_malformed(spec: str) -> None:
     with pytest.raises(InputError, match="board"):

@@ -7,8 +7,12 @@ import cv2
 import numpy as np
 import pytest
 
-from eye_in_hand.core.calibration import (BoardSpec, calibrate_camera, calibrate_stereo,
-                                          detect_board)
+from eye_in_hand.core.calibration import (
+    BoardSpec,
+    calibrate_camera,
+    calibrate_stereo,
+    detect_board,
+)
 
 BOARD = BoardSpec.parse("chessboard:9x6:1.0")
 # modules/python/test/test_calibration.py in OpenCV

@@ -6,8 +6,13 @@ import math
 import numpy as np
 import pytest
 
-from eye_in_hand.core.distances import (apply_known_distances, distance_table, match_truth,
-                                        pairwise_distances, target_stats)
+from eye_in_hand.core.distances import (
+    apply_known_distances,
+    distance_table,
+    match_truth,
+    pairwise_distances,
+    target_stats,
+)
 from eye_in_hand.errors import InputError
 
 

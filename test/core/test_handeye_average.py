@@ -5,14 +5,26 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from eye_in_hand.core.handeye import (HandEyeSample, MotionPairs, calibrate_hand_eye,
-                                      gripper_poses, motion_pairs, solve_closed_form,
-                                      solve_kronecker, solve_tsai)
+from eye_in_hand.core.handeye import (
+    HandEyeSample,
+    MotionPairs,
+    calibrate_hand_eye,
+    gripper_poses,
+    motion_pairs,
+    solve_closed_form,
+    solve_kronecker,
+    solve_tsai,
+)
 from eye_in_hand.core.handeye import calibrate as calibrate_module
-from eye_in_hand.core.handeye.average import (AVERAGE_SOLVERS, MIN_AXIS_ANGLE_DEG,
-                                              MIN_ROTATION_DEG, average_hand_eye,
-                                              pair_solutions, rotation_mean,
-                                              usable_motion_pairs)
+from eye_in_hand.core.handeye.average import (
+    AVERAGE_SOLVERS,
+    MIN_AXIS_ANGLE_DEG,
+    MIN_ROTATION_DEG,
+    average_hand_eye,
+    pair_solutions,
+    rotation_mean,
+    usable_motion_pairs,
+)
 from eye_in_hand.core.handeye.residuals import motion_residual_table, motion_residuals
 from eye_in_hand.core.handeye.synthetic import make_problem
 from eye_in_hand.core.transforms import from_rotvec, invert, transform_distance
@@ -67,7 +79,7 @@ def test_pair_solutions_equal_the_full_solvers_on_two_motions(solver: str) -> No
     Xs, ok = pair_solutions(noisy, pairs, solver)
     assert ok.all()
     full = solve_tsai if solver == "tsai" else solve_kronecker
-    for Xp, (p, q) in zip(Xs, pairs):
+    for Xp, (p, q) in zip(Xs, pairs, strict=True):
         ref = full(MotionPairs(noisy.A[[p, q]], noisy.B[[p, q]], noisy.index[[p, q]]))
         assert np.max(np.abs(Xp - ref)) < 1e-9
     assert np.max(np.abs(Xs - X)) > 1e-4  # the noise does change them

@@ -6,8 +6,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from eye_in_hand.core.handeye import (CLOSED_FORM_METHODS, HandEyeSample, calibrate_hand_eye,
-                                      solve_closed_form)
+from eye_in_hand.core.handeye import (
+    CLOSED_FORM_METHODS,
+    HandEyeSample,
+    calibrate_hand_eye,
+    solve_closed_form,
+)
 from eye_in_hand.core.handeye import calibrate as calibrate_module
 from eye_in_hand.core.handeye.eiv import leave_one_out_steps, refine_errors_in_variables
 from eye_in_hand.core.handeye.synthetic import make_problem

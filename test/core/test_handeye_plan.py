@@ -6,9 +6,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from eye_in_hand.core.handeye import (CornerObservation, HandEyeSample, PlanConfig,
-                                      predicted_covariance, solve_closed_form,
-                                      suggest_next_poses)
+from eye_in_hand.core.handeye import (
+    CornerObservation,
+    HandEyeSample,
+    PlanConfig,
+    predicted_covariance,
+    solve_closed_form,
+    suggest_next_poses,
+)
 from eye_in_hand.core.handeye.eiv import refine_errors_in_variables
 from eye_in_hand.core.handeye.observe import board_pose_pnp
 from eye_in_hand.core.handeye.plan import candidate_poses
@@ -89,7 +94,8 @@ def _check_limits(problem, poses, cfg: PlanConfig) -> None:
         assert tilt_deg == pytest.approx(tilt, abs=1e-6)
         d = np.linalg.norm(board_T_cam[:3, 3] - centre)
         assert distance == pytest.approx(d, abs=1e-9)
-        assert (1 - cfg.distance_margin) * min(dists) <= d <= (1 + cfg.distance_margin) * max(dists)
+        assert ((1 - cfg.distance_margin) * min(dists) <= d
+                <= (1 + cfg.distance_margin) * max(dists))
         for v in problem.views:
             T = v.view_T_cam @ cam_T_board
             pts = obj @ T[:3, :3].T + T[:3, 3]
@@ -120,13 +126,13 @@ def test_every_admissible_candidate_keeps_tight_limits(problem, tight) -> None:
                                           problem.views, Y=problem.Y, config=cfg)
     assert len(cands) >= 10
     _check_limits(problem, [(c.base_T_ee, c.cam_T_board, d, t)
-                            for c, d, t in zip(cands, dists, tilts)], cfg)
+                            for c, d, t in zip(cands, dists, tilts, strict=True)], cfg)
 
 
 def test_predicted_uncertainty_drops_with_each_suggestion(plan) -> None:
     scores = [_score(plan.std_mm, plan.std_deg)] + [_score(s.std_mm, s.std_deg)
                                                     for s in plan.suggestions]
-    assert all(b < a for a, b in zip(scores, scores[1:])), scores
+    assert all(b < a for a, b in zip(scores, scores[1:], strict=False)), scores
     assert plan.suggestions[0].std_mm < plan.std_mm
     assert plan.suggestions[0].std_deg < plan.std_deg
 

@@ -4,9 +4,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eye_in_hand.core.handeye import (CLOSED_FORM_METHODS, HandEyeSample, axxb_residuals,
-                                      bootstrap_covariance, calibrate_hand_eye,
-                                      refine_reprojection, reprojection_errors)
+from eye_in_hand.core.handeye import (
+    CLOSED_FORM_METHODS,
+    HandEyeSample,
+    axxb_residuals,
+    bootstrap_covariance,
+    calibrate_hand_eye,
+    refine_reprojection,
+    reprojection_errors,
+)
 from eye_in_hand.core.handeye.synthetic import make_problem
 from eye_in_hand.core.transforms import from_rotvec, transform_distance
 from eye_in_hand.errors import HandEyeError

@@ -56,7 +56,7 @@ def _expected_sigma(solutions, samples, setup: str, s_r: float) -> tuple[float, 
     """The docstring's law, computed independently: s_t^2 = max(0, mean(|e|^2 - 2 s_r^2
     |l|^2)) / 3, ``l`` the board centre in the flange frame."""
     e2, l2 = [], []
-    for (X, Y), s in zip(solutions, samples):
+    for (X, Y), s in zip(solutions, samples, strict=True):
         c = s.observations[0].object_points.mean(axis=0)
         G = s.base_T_ee
         if setup == "eye_in_hand":

@@ -7,9 +7,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from eye_in_hand.core.handeye import (CLOSED_FORM_METHODS, HandEyeSample, board_in_fixed_frame,
-                                      calibrate_hand_eye, motion_diagnostics, solve_closed_form,
-                                      validate_samples)
+from eye_in_hand.core.handeye import (
+    CLOSED_FORM_METHODS,
+    HandEyeSample,
+    board_in_fixed_frame,
+    calibrate_hand_eye,
+    motion_diagnostics,
+    solve_closed_form,
+    validate_samples,
+)
 from eye_in_hand.core.transforms import from_rotvec, invert, transform_distance
 from eye_in_hand.errors import HandEyeError
 
@@ -43,7 +49,7 @@ def test_eye_in_hand_meaning_of_x() -> None:
     """X is ee_T_cam: a camera pose is base_T_ee @ X, and the board is fixed in base."""
     X, Y, bte, ctb = _exact_problem("eye_in_hand", seed=3)
     Xh = solve_closed_form("park", bte, ctb, "eye_in_hand")
-    for b, c in zip(bte, ctb):
+    for b, c in zip(bte, ctb, strict=True):
         np.testing.assert_allclose(b @ Xh @ c, Y, atol=1e-9)  # base_T_board for every sample
     np.testing.assert_allclose(board_in_fixed_frame(Xh, bte, ctb, "eye_in_hand"),
                                np.repeat(Y[None], len(bte), axis=0), atol=1e-9)
@@ -53,7 +59,7 @@ def test_eye_to_hand_meaning_of_x() -> None:
     """X is base_T_cam: the board on the flange is ee_T_board = inv(base_T_ee) X cam_T_board."""
     X, Y, bte, ctb = _exact_problem("eye_to_hand", seed=4)
     Xh = solve_closed_form("tsai", bte, ctb, "eye_to_hand")
-    for b, c in zip(bte, ctb):
+    for b, c in zip(bte, ctb, strict=True):
         np.testing.assert_allclose(invert(b) @ Xh @ c, Y, atol=1e-9)
 
 
@@ -107,7 +113,7 @@ def test_too_few_samples_is_an_error() -> None:
     _, _, bte, ctb = _exact_problem("eye_in_hand", n=2)
     with pytest.raises(HandEyeError, match="at least 3"):
         motion_diagnostics(bte, "eye_in_hand")
-    samples = [HandEyeSample(str(i), b, c) for i, (b, c) in enumerate(zip(bte, ctb))]
+    samples = [HandEyeSample(str(i), b, c) for i, (b, c) in enumerate(zip(bte, ctb, strict=True))]
     with pytest.raises(HandEyeError, match="at least 3"):
         calibrate_hand_eye(samples)
 
@@ -119,7 +125,7 @@ def test_parallel_axes_is_an_error_that_says_what_to_add() -> None:
     ctb = np.stack([invert(X) @ invert(b) @ Y for b in bte])
     with pytest.raises(HandEyeError, match="same axis.*add samples that rotate"):
         motion_diagnostics(bte, "eye_in_hand")
-    samples = [HandEyeSample(str(i), b, c) for i, (b, c) in enumerate(zip(bte, ctb))]
+    samples = [HandEyeSample(str(i), b, c) for i, (b, c) in enumerate(zip(bte, ctb, strict=True))]
     with pytest.raises(HandEyeError, match="same axis"):
         calibrate_hand_eye(samples)
 
@@ -149,19 +155,21 @@ def test_bad_poses_are_errors_naming_the_sample() -> None:
     _, _, bte, ctb = _exact_problem("eye_in_hand", n=5)
     nan = bte.copy()
     nan[2, 0, 3] = np.nan
-    samples = [HandEyeSample(f"img{i}", b, c) for i, (b, c) in enumerate(zip(nan, ctb))]
+    samples = [HandEyeSample(f"img{i}", b, c)
+               for i, (b, c) in enumerate(zip(nan, ctb, strict=True))]
     with pytest.raises(HandEyeError, match=r"sample 'img2'.*base_T_ee.*NaN"):
         calibrate_hand_eye(samples)
     skew = ctb.copy()
     skew[3, :3, :3] *= 1.01
-    samples = [HandEyeSample(f"img{i}", b, c) for i, (b, c) in enumerate(zip(bte, skew))]
+    samples = [HandEyeSample(f"img{i}", b, c)
+               for i, (b, c) in enumerate(zip(bte, skew, strict=True))]
     with pytest.raises(HandEyeError, match=r"sample 'img3'.*cam_T_board.*not orthonormal"):
         calibrate_hand_eye(samples)
 
 
 def test_duplicates_are_dropped_with_a_warning() -> None:
     _, _, bte, ctb = _exact_problem("eye_in_hand", n=5)
-    samples = [HandEyeSample(f"s{i}", b, c) for i, (b, c) in enumerate(zip(bte, ctb))]
+    samples = [HandEyeSample(f"s{i}", b, c) for i, (b, c) in enumerate(zip(bte, ctb, strict=True))]
     samples.append(HandEyeSample("again", bte[1], ctb[1]))
     kept, warnings = validate_samples(samples)
     assert [s.name for s in kept] == ["s0", "s1", "s2", "s3", "s4"]

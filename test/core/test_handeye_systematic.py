@@ -12,10 +12,20 @@ from scipy.spatial.transform import Rotation
 
 from eye_in_hand.core.calibration import BoardSpec, detect_board
 from eye_in_hand.core.camera import CameraModel
-from eye_in_hand.core.handeye import (CLOSED_FORM_METHODS, CameraView, CornerObservation,
-                                      HandEyeSample, calibrate_hand_eye)
-from eye_in_hand.core.handeye.kfold import (classic_fit, fold_indices, kfold_held_out,
-                                            predict_view, rms)
+from eye_in_hand.core.handeye import (
+    CLOSED_FORM_METHODS,
+    CameraView,
+    CornerObservation,
+    HandEyeSample,
+    calibrate_hand_eye,
+)
+from eye_in_hand.core.handeye.kfold import (
+    classic_fit,
+    fold_indices,
+    kfold_held_out,
+    predict_view,
+    rms,
+)
 from eye_in_hand.core.handeye.observe import board_pose_pnp
 from eye_in_hand.core.handeye.systematic import fit_systematic, refine_systematic
 from eye_in_hand.core.transforms import from_rotvec, invert, transform_distance
@@ -146,7 +156,7 @@ def _franka():
     offsets = yaml.safe_load((DATA / "crops.yaml").read_text())["offsets_xy"]
     poses = yaml.safe_load((DATA / "poses.yaml").read_text())["poses"]
     samples = []
-    for i, (off, pose) in enumerate(zip(offsets, poses)):
+    for i, (off, pose) in enumerate(zip(offsets, poses, strict=True)):
         img = cv2.imread(str(DATA / "images" / f"{i:03d}.png"), cv2.IMREAD_GRAYSCALE)
         det = detect_board(img, board)
         assert det.found and det.n_corners >= 20, f"image {i}: {det.reason}"

@@ -18,6 +18,7 @@ That scatter alone is far too small.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
@@ -28,8 +29,6 @@ from eye_in_hand.errors import InputError
 from eye_in_hand.sim import World
 from eye_in_hand.sim.robot_error import RobotErrorSpec, draw_true_arm
 from eye_in_hand.sim.scenarios import calibration_poses
-
-import pytest
 
 K95 = chi2.ppf(0.95, 3)
 

@@ -180,7 +180,8 @@ def test_a_blob_leaving_one_view_is_rejected_with_the_reason_and_the_other_keeps
             (ids_a if np.linalg.norm(t.point_m - XA) < 2e-3 else ids_b).add(t.id)
             if t.id in ids_b:
                 assert np.linalg.norm(t.point_m - XB) < 2e-3
-        u_right = RIG.right.project((RIG.right_T_left[:3, :3] @ XB + RIG.right_T_left[:3, 3])[None])
+        u_right = RIG.right.project(
+            (RIG.right_T_left[:3, :3] @ XB + RIG.right_T_left[:3, 3])[None])
         if u_right[0, 0] < -14:              # gone from the right image, still in the left
             gone += 1
             assert 0 < RIG.left.project(XB[None])[0, 0] < 640

@@ -22,7 +22,7 @@ GAP = S // 10
 def _feed(view: TfPoseView, stamps, received=None) -> None:
     """base_link -> base static, base -> tool0 dynamic at each stamp, received as given."""
     received = stamps if received is None else received
-    for stamp, recv in zip(stamps, received):
+    for stamp, recv in zip(stamps, received, strict=True):
         view.check_jump(stamp, recv)
         view.buffer.set_transform("base", "tool0", stamp,
                                   from_rotvec([0, 0, 1e-9 * (stamp - T0)], [0.4, 0, 0.3]))

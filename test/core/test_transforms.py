@@ -88,8 +88,8 @@ def test_compose_invert_identities():
         np.testing.assert_allclose(tf.invert(inv), A, atol=1e-12)
         np.testing.assert_allclose(tf.invert(A), np.linalg.inv(A), atol=1e-12)
         # associativity and (AB)^-1 = B^-1 A^-1
-        np.testing.assert_allclose(tf.compose(tf.compose(A, B), C), tf.compose(A, tf.compose(B, C)),
-                                   atol=1e-12)
+        np.testing.assert_allclose(tf.compose(tf.compose(A, B), C),
+                                   tf.compose(A, tf.compose(B, C)), atol=1e-12)
         np.testing.assert_allclose(tf.compose(A, B, C), A @ B @ C, atol=1e-12)
         np.testing.assert_allclose(tf.invert(tf.compose(A, B)),
                                    tf.compose(tf.invert(B), tf.invert(A)), atol=1e-12)

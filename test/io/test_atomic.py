@@ -10,9 +10,16 @@ from pathlib import Path
 import pytest
 
 from eye_in_hand.io import atomic
-from eye_in_hand.io.atomic import (OutputError, OutputExistsError, OutputWriteError,
-                                   atomic_file, atomic_output_dir, atomic_write_text,
-                                   check_output_dir, remove_stale_partials)
+from eye_in_hand.io.atomic import (
+    OutputError,
+    OutputExistsError,
+    OutputWriteError,
+    atomic_file,
+    atomic_output_dir,
+    atomic_write_text,
+    check_output_dir,
+    remove_stale_partials,
+)
 
 
 def _tree(root: Path) -> dict[str, str]:

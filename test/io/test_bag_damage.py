@@ -76,7 +76,7 @@ def test_written_mcap_files_carry_chunk_data_and_summary_crcs(tmp_path: Path,
     data = mcap.read_bytes()
     chunks = _chunks(mcap)
     assert len(chunks) >= 4
-    for off, _len, crc, _d in chunks:
+    for _off, _len, crc, _d in chunks:
         assert crc != 0
     # the chunk CRC is the CRC-32 of the uncompressed records (checked by the reader)
     assert len(list(iter_messages(tmp_path / "bag", verify_crc=True))) == 60
@@ -266,7 +266,8 @@ def test_stored_definition_that_fails_falls_back_to_jazzy(tmp_path: Path) -> Non
         bag.write("/rosout", T0, raw)
     store = typestore_for(tmp_path / "bag")
     assert "node_namespace" in [f for f, _ in store.fielddefs[log_type][1]]  # stored def used
-    with pytest.raises(Exception):
+    # any error: which one rosbags raises is not its API, and io.bags.decoding catches any
+    with pytest.raises(Exception):  # noqa: B017
         store.deserialize_cdr(raw, log_type)            # the stored definition fails
     msg = deserialize(raw, log_type, store)
     assert (msg.msg, msg.line, msg.name) == ("hello", 7, "node")

@@ -9,8 +9,12 @@ import yaml
 
 from eye_in_hand.core.transforms import from_rotvec
 from eye_in_hand.errors import ConfigError
-from eye_in_hand.io.config import (COVARIANCE_ORDER, HandEyeCalibration, load_hand_eye,
-                                   save_hand_eye)
+from eye_in_hand.io.config import (
+    COVARIANCE_ORDER,
+    HandEyeCalibration,
+    load_hand_eye,
+    save_hand_eye,
+)
 
 
 def _calib(cov: bool = True) -> HandEyeCalibration:

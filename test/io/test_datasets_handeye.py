@@ -11,8 +11,7 @@ import yaml
 from eye_in_hand.core.camera import CameraModel, StereoRig
 from eye_in_hand.core.transforms import from_rotvec
 from eye_in_hand.errors import ConfigError
-from eye_in_hand.io.datasets import (load_dataset, load_pose_pairs, save_pose_pairs,
-                                     write_dataset)
+from eye_in_hand.io.datasets import load_dataset, load_pose_pairs, save_pose_pairs, write_dataset
 
 
 def _camera(name: str = "camera") -> CameraModel:
@@ -36,7 +35,7 @@ def test_mono_round_trip(tmp_path: Path) -> None:
     assert ds.setup == "eye_to_hand" and ds.board == "chessboard:9x6:0.025"
     assert not ds.is_stereo and ds.camera is not None and ds.camera_names == ("image",)
     assert [s.name for s in ds.samples] == ["0000", "0001", "0002"]
-    for s, T in zip(ds.samples, poses):
+    for s, T in zip(ds.samples, poses, strict=True):
         np.testing.assert_allclose(s.base_T_ee, T, atol=1e-12)
         assert s.images["image"].is_file()
     np.testing.assert_allclose(ds.ground_truth["ee_T_cam"], poses[0], atol=1e-12)
@@ -103,11 +102,11 @@ def test_missing_dataset(tmp_path: Path) -> None:
 
 
 def test_pose_pairs_round_trip_and_errors(tmp_path: Path, data_dir: Path) -> None:
-    pairs = list(zip(_poses(4, 1), _poses(4, 2)))
+    pairs = list(zip(_poses(4, 1), _poses(4, 2), strict=True))
     p = save_pose_pairs(tmp_path / "pairs.json", pairs)
     back = load_pose_pairs(p)
     assert len(back) == 4
-    for (a, b), (c, d) in zip(pairs, back):
+    for (a, b), (c, d) in zip(pairs, back, strict=True):
         np.testing.assert_allclose(a, c)
         np.testing.assert_allclose(b, d)
     real = load_pose_pairs(data_dir / "moveit_eye_to_hand" / "pose_samples.json")

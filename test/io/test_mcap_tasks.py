@@ -118,7 +118,7 @@ def test_worker_processes_open_the_chunks(tmp_path, monkeypatch):
             got.append((topic, t, p))
     assert owners == {0, 1}
     assert [(a, b) for a, b, _ in got] == [(a, b) for a, b, _ in expected]
-    for (topic, _t, p), (_a, _b, raw) in zip(got, expected):
+    for (topic, _t, p), (_a, _b, raw) in zip(got, expected, strict=True):
         assert (raw.endswith(p) and len(p) == 120 * 480) if topic in ("/left", "/right") \
             else p == raw
 
@@ -129,7 +129,8 @@ def test_a_damaged_chunk_is_recorded_as_by_the_serial_reader(tmp_path):
     mcap = bag / "bag.mcap"
     off, data_at = _chunks(mcap)[1]
     data = bytearray(mcap.read_bytes())
-    data[data_at + 2:data_at + 66] = np.random.default_rng(1).integers(0, 256, 64, np.uint8).tobytes()
+    noise = np.random.default_rng(1).integers(0, 256, 64, np.uint8).tobytes()
+    data[data_at + 2:data_at + 66] = noise
     mcap.write_bytes(bytes(data))
     serial_log, worker_log = DamageLog(), DamageLog()
     expected = _serial(bag, serial_log)

@@ -5,8 +5,13 @@ import csv
 
 import numpy as np
 
-from eye_in_hand.io.results import assign_truth, write_results
-from eye_in_hand.offline import FrameResult, ProcessResult, TargetResult
+from eye_in_hand.io.results import (
+    FrameResult,
+    ProcessResult,
+    TargetResult,
+    assign_truth,
+    write_results,
+)
 
 T0 = 1_700_000_000_000_000_000
 TRUE = {"a": np.array([0.40, 0.10, 0.02]), "b": np.array([0.55, 0.25, 0.02])}

@@ -13,8 +13,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from geometry_msgs.msg import (PointStamped, PoseArray, PoseStamped,  # noqa: E402
-                               PoseWithCovarianceStamped)
+from geometry_msgs.msg import PointStamped, PoseArray, PoseStamped, PoseWithCovarianceStamped  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import Image  # noqa: E402
@@ -26,8 +25,7 @@ from eye_in_hand.core.transforms import from_rotvec, interpolate  # noqa: E402
 from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye  # noqa: E402
 from eye_in_hand.nodes.detect_triangulate import DetectTriangulateNode  # noqa: E402
 from eye_in_hand.nodes.hand_eye import HandEyeNode  # noqa: E402
-from eye_in_hand.ros.conversions import (header_stamp_ns, matrix_to_pose_stamped,  # noqa: E402
-                                         numpy_to_image)
+from eye_in_hand.ros.conversions import header_stamp_ns, matrix_to_pose_stamped, numpy_to_image  # noqa: E402
 from eye_in_hand.ros.markers import Sphere, sphere_marker_array  # noqa: E402
 from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS  # noqa: E402
 from eye_in_hand.sim.sphere import render_sphere  # noqa: E402
@@ -131,13 +129,14 @@ def test_two_targets_through_detect_triangulate_and_hand_eye(tmp_path, ros_conte
                       and all(io.count_publishers(f"target/{n}/pose") for n in TARGETS), 15.0)
     frames = [BOTH, RED_ONLY, BOTH]           # green leaves the view in the middle frame
     stamps = [T0 + k * PERIOD_NS for k in range(len(frames))]
-    for stamp, (left, right) in zip(stamps, frames):
+    for stamp, (left, right) in zip(stamps, frames, strict=True):
         for dt in (-10_000_000, 10_000_000):   # robot poses bracket the image stamp
             pub_ee.publish(matrix_to_pose_stamped(_robot_pose(stamp + dt), stamp_ns=stamp + dt,
                                                   frame_id="base_link"))
         pub_l.publish(numpy_to_image(left, "bgr8", stamp_ns=stamp, frame_id=CAM))
         pub_r.publish(numpy_to_image(right, "bgr8", stamp_ns=stamp, frame_id=CAM))
-        assert spin_until(executor, lambda: len(arrays) == stamps.index(stamp) + 1, 15.0), (
+        assert spin_until(executor, lambda stamp=stamp: len(arrays) == stamps.index(stamp) + 1,
+                          15.0), (
             detect.diag.snapshot().counters, hand_eye.diag.snapshot().counters,
             hand_eye.diag.causes)
     spin_until(executor, lambda: False, 0.2)    # anything extra would arrive now
@@ -163,7 +162,7 @@ def test_two_targets_through_detect_triangulate_and_hand_eye(tmp_path, ros_conte
     for n in TARGETS:
         cams = _by_stamp(cam_cov[n])
         assert [header_stamp_ns(p) for p in poses[n]] == sorted(cams)
-        for pose, pcov in zip(poses[n], pose_covs[n]):
+        for pose, pcov in zip(poses[n], pose_covs[n], strict=True):
             stamp = header_stamp_ns(pose)
             assert header_stamp_ns(pcov) == stamp and pose.header.frame_id == "base_link"
             c = cams[stamp]
@@ -184,13 +183,13 @@ def test_two_targets_through_detect_triangulate_and_hand_eye(tmp_path, ros_conte
     # per frame: a PoseArray and spheres in the base frame, in the same order, image stamps
     assert [header_stamp_ns(a) for a in arrays] == stamps
     assert [header_stamp_ns(m.markers[0]) for m in base_markers] == stamps
-    for a, m in zip(arrays, base_markers):
+    for a, m in zip(arrays, base_markers, strict=True):
         stamp = header_stamp_ns(a)
         assert a.header.frame_id == "base_link" and m.markers[0].action == Marker.DELETEALL
         ids = [x.ns for x in m.markers[1:]]
         assert len(a.poses) == len(ids) and all(x.header.frame_id == "base_link"
                                                 for x in m.markers)
-        for pose, x in zip(a.poses, m.markers[1:]):
+        for pose, x in zip(a.poses, m.markers[1:], strict=True):
             want = _by_stamp(poses[x.ns])[stamp].pose.position
             assert (pose.position.x, pose.position.y, pose.position.z) == (
                 want.x, want.y, want.z) == (x.pose.position.x, x.pose.position.y,
@@ -552,7 +551,7 @@ def test_first_frame_of_a_new_target_id_is_not_lost(tmp_path, ros_context, execu
     assert spin_until(executor, lambda: io.count_publishers("target/red_1/pose") > 0, 10.0)
     for s in stamps[1:]:
         frame(s, ["red", "red_1"])
-        assert spin_until(executor, lambda: len(arrays) == stamps.index(s) + 1, 15.0)
+        assert spin_until(executor, lambda s=s: len(arrays) == stamps.index(s) + 1, 15.0)
     assert spin_until(executor, lambda: all(len(poses[t]) == 3 for t in poses), 10.0), (
         {t: len(p) for t, p in poses.items()}, hand_eye.diag.snapshot().counters)
     spin_until(executor, lambda: False, 0.2)    # anything extra would arrive now

@@ -13,8 +13,12 @@ from eye_in_hand.core.transforms import from_rotvec, interpolate
 from eye_in_hand.errors import ConfigError
 from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye
 from eye_in_hand.nodes.hand_eye import HandEyeNode
-from eye_in_hand.ros.conversions import (header_stamp_ns, make_header, matrix_to_pose_stamped,
-                                         xyz_to_point_stamped)
+from eye_in_hand.ros.conversions import (
+    header_stamp_ns,
+    make_header,
+    matrix_to_pose_stamped,
+    xyz_to_point_stamped,
+)
 from eye_in_hand.ros.qos import LATCHED_QOS, RESULT_QOS, SENSOR_QOS
 
 EE_T_CAM = from_rotvec([0.1, -0.2, 0.05], [0.03, -0.05, 0.08])
@@ -37,8 +41,12 @@ class _Rig:
     """Publishers/subscribers around a HandEyeNode in the test's namespace."""
 
     def __init__(self, ros_context, executor, namespace, overrides, robot="ee_pose"):
-        from geometry_msgs.msg import (PointStamped, PoseStamped, PoseWithCovarianceStamped,
-                                       TransformStamped)
+        from geometry_msgs.msg import (
+            PointStamped,
+            PoseStamped,
+            PoseWithCovarianceStamped,
+            TransformStamped,
+        )
         from sensor_msgs.msg import JointState
 
         self.node = HandEyeNode(context=ros_context, namespace=namespace,
@@ -62,7 +70,8 @@ class _Rig:
 
     def connected(self):
         return (self.pub_point.get_subscription_count() > 0
-                and self.pub_pose.get_subscription_count() + self.pub_js.get_subscription_count() > 0
+                and self.pub_pose.get_subscription_count()
+                + self.pub_js.get_subscription_count() > 0
                 and self.io.count_publishers("target/pose") > 0)
 
     def send_pose(self, t_s):
@@ -284,7 +293,7 @@ def test_a_bag_replayed_again_resets_the_pose_buffer(tmp_path, ros_context, exec
     for k in range(0, 150):                # 1.5 s of robot poses (every 10 ms)
         rig.send_pose(0.01 * k)
         if k % 50 == 49:
-            spin_until(executor, lambda: rig.node.diag.counter("robot_poses") == k + 1, 10.0)
+            spin_until(executor, lambda k=k: rig.node.diag.counter("robot_poses") == k + 1, 10.0)
     assert spin_until(executor, lambda: rig.node.diag.counter("robot_poses") == 150, 10.0)
     assert len(rig.node.localizer.poses) == 150
     for k in range(5):                     # the bag starts again

@@ -171,13 +171,20 @@ def test_no_image_after_the_request_times_out(tmp_path, ros_context, executor, n
 
 def test_typed_services_status_and_debug_image(cell):
     pytest.importorskip("eye_in_hand_interfaces")
-    from eye_in_hand_interfaces.msg import CalibrationStatus
-    from eye_in_hand_interfaces.srv import (Capture, Compute, GetStatus, ListSamples, Load,
-                                            RemoveSample, Save)
     from geometry_msgs.msg import PoseArray
     from sensor_msgs.msg import Image
 
     from eye_in_hand.sim.scenarios import calibration_poses
+    from eye_in_hand_interfaces.msg import CalibrationStatus
+    from eye_in_hand_interfaces.srv import (
+        Capture,
+        Compute,
+        GetStatus,
+        ListSamples,
+        Load,
+        RemoveSample,
+        Save,
+    )
 
     ns = cell.node.get_fully_qualified_name()
     clients = {name: cell.io.create_client(typ, f"{ns}/calibration/{name}") for name, typ in (

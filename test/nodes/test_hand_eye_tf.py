@@ -14,8 +14,14 @@ from eye_in_hand.core.transforms import from_rotvec, interpolate, invert
 from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye
 from eye_in_hand.ros.conversions import header_stamp_ns, transform_to_matrix, xyz_to_point_stamped
 from eye_in_hand.ros.qos import RESULT_QOS
-from eye_in_hand.ros.tf import (chain_tf_edges, have_tf2_msgs, make_tf_message, tf_qos,
-                                tf_static_pub_qos, tf_static_sub_qos)
+from eye_in_hand.ros.tf import (
+    chain_tf_edges,
+    have_tf2_msgs,
+    make_tf_message,
+    tf_qos,
+    tf_static_pub_qos,
+    tf_static_sub_qos,
+)
 
 pytestmark = pytest.mark.skipif(not have_tf2_msgs(), reason="tf2_msgs not built (make venv)")
 
@@ -118,7 +124,7 @@ def test_robot_pose_from_tf_chain_interpolated_at_the_image_stamp_and_tf_out(
     edges0 = chain_tf_edges(CHAIN, _q(0.05))
     edges1 = chain_tf_edges(CHAIN, _q(0.06))
     base_T_flange = np.eye(4)
-    for (_, _, A), (_, _, B) in zip(edges0, edges1):
+    for (_, _, A), (_, _, B) in zip(edges0, edges1, strict=True):
         base_T_flange = base_T_flange @ interpolate(55 * MS, 50 * MS, A, 60 * MS, B)
     want, _ = target_in_base(base_T_flange @ FLANGE_T_TOOL, EE_T_CAM, p_cam)
     got = np.array([out.pose.position.x, out.pose.position.y, out.pose.position.z])

@@ -111,12 +111,11 @@ def test_calibration_at_a_live_cell(robot, tmp_path, ros_context, executor, name
     from std_msgs.msg import Int32
     from std_srvs.srv import Trigger
 
-    from eye_in_hand.ros.qos import LATCHED_QOS
-
     from eye_in_hand.core.calibration import BoardSpec
     from eye_in_hand.core.handeye.observe import rig_views
     from eye_in_hand.core.transforms import transform_distance
     from eye_in_hand.nodes.hand_eye import HandEyeNode
+    from eye_in_hand.ros.qos import LATCHED_QOS
     from eye_in_hand.ros.tf import have_tf2_msgs
     from eye_in_hand.sim import World
     from eye_in_hand.sim.scenarios import calibration_poses
@@ -160,14 +159,14 @@ def test_calibration_at_a_live_cell(robot, tmp_path, ros_context, executor, name
     for k in range(STOPS):
         if k:
             go.publish(Int32(data=k))
-            assert spin_until(executor, lambda: arrived[-1][0] == k, 30.0), (
+            assert spin_until(executor, lambda k=k: arrived[-1][0] == k, 30.0), (
                 k, arrived, driver.poll(), [a.message for a in answers])
         t_arrived = arrived[-1][1]
-        spin_until(executor, lambda: time.monotonic() >= t_arrived + CAPTURE_AFTER_S,
+        spin_until(executor, lambda t=t_arrived: time.monotonic() >= t + CAPTURE_AFTER_S,
                    CAPTURE_AFTER_S + 1.0)
         answers.append(call("capture"))
         # the arm dwells 2 s, or until the capture is answered (a robot program waits for it)
-        spin_until(executor, lambda: time.monotonic() >= t_arrived + DWELL_S, DWELL_S)
+        spin_until(executor, lambda t=t_arrived: time.monotonic() >= t + DWELL_S, DWELL_S)
     taken = [a for a in answers if a.success]
     assert len(taken) == STOPS, [a.message for a in answers if not a.success]
     res = call("compute", 120.0)

@@ -1,8 +1,9 @@
 """Issue #14: a replay at 10x through detect_triangulate and hand_eye loses nothing uncounted.
 
-A simulated localization bag (24 pairs, 320x240) is played at ten times its rate (the bag_player node, as
-``eye-in-hand play --rate 10``) into ``detect_triangulate`` and ``hand_eye``, in process. At the
-end every left image the player published is accounted for by the nodes' diagnostics counters:
+A simulated localization bag (24 pairs, 320x240) is played at ten times its rate (the bag_player
+node, as ``eye-in-hand play --rate 10``) into ``detect_triangulate`` and ``hand_eye``, in
+process. At the end every left image the player published is accounted for by the nodes'
+diagnostics counters:
 
     published  = left_frames (+ lost on the way to detect_triangulate)
     left_frames = sync_pairs + sync_unpaired_left + sync_pending_left

@@ -72,7 +72,7 @@ def test_images_source_publishes_paired_same_stamp_frames(tmp_path, ros_context,
     left, right = col.msgs["left"], col.msgs["right"]
     assert col.stamps("left") == col.stamps("right") == col.stamps("linfo")
     assert len(set(col.stamps("left"))) == 4
-    for i, (lm, rm) in enumerate(zip(left, right)):
+    for i, (lm, rm) in enumerate(zip(left, right, strict=True)):
         assert lm.encoding == "bgr8" and (lm.width, lm.height) == (64, 48)
         assert lm.header.frame_id == "camera_left_optical_frame"
         assert rm.header.frame_id == "camera_right_optical_frame"
@@ -182,7 +182,7 @@ def test_video_source_splits_side_by_side_frames(tmp_path, ros_context, executor
     executor.add_node(listener)
     assert spin_until(executor, lambda: len(col.msgs["right"]) >= 4, 15.0)
     assert col.stamps("left")[:4] == col.stamps("right")[:4]
-    for i, (lm, rm) in enumerate(zip(col.msgs["left"][:4], col.msgs["right"][:4])):
+    for i, (lm, rm) in enumerate(zip(col.msgs["left"][:4], col.msgs["right"][:4], strict=True)):
         assert (lm.width, lm.height) == (64, 48) == (rm.width, rm.height)
         assert abs(int(lm.data[0]) - 40 * i) <= 3 and abs(int(rm.data[0]) - (200 - 20 * i)) <= 3
 

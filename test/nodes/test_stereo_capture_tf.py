@@ -62,7 +62,8 @@ def test_sim_tf_chain_matches_ee_pose_and_static_extrinsic_is_latched(
     from eye_in_hand.ros.conversions import transform_to_matrix
     assert ("base_link", "base") in edges   # ur_description's fixed joint: static
     assert not any(t.child_frame_id == "base" for m in dynamic for t in m.transforms)
-    assert {header_stamp_ns(t) for t in edges.values()} == {header_stamp_ns(statics[0].transforms[0])}
+    first_static = header_stamp_ns(statics[0].transforms[0])
+    assert {header_stamp_ns(t) for t in edges.values()} == {first_static}
     if stereo_tf:
         tr = edges[("camera_left_optical_frame", "camera_right_optical_frame")]
         np.testing.assert_allclose(transform_to_matrix(tr), world.left_T_right, atol=1e-9)

@@ -266,7 +266,8 @@ def test_jpeg_round_trip_is_close(encoding):
     bgr = smooth_bgr()
     img = {"bgr8": bgr, "rgb8": bgr[:, :, ::-1].copy(), "mono8": bgr[:, :, 1].copy()}[encoding]
     msg = conv.numpy_to_compressed(img, "jpeg", encoding=encoding, jpeg_quality=95)
-    assert msg.format == f"{encoding}; jpeg compressed {'mono8' if encoding == 'mono8' else 'bgr8'}"
+    raw = "mono8" if encoding == "mono8" else "bgr8"
+    assert msg.format == f"{encoding}; jpeg compressed {raw}"
     out = conv.compressed_to_numpy(msg)
     assert out.shape == img.shape
     assert np.mean(np.abs(out.astype(int) - img)) < 2.0  # channel order restored, not swapped

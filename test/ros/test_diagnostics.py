@@ -80,7 +80,8 @@ def test_counters_rates_gauges_and_rules(node):
     clock.t += 1.0
     status = diag.publish().status[0]
     assert status.level == bytes([WARN])
-    assert "frames at 2.00 Hz < 5 Hz" in status.message and "latency_ms = 80 > 50" in status.message
+    assert "frames at 2.00 Hz < 5 Hz" in status.message
+    assert "latency_ms = 80 > 50" in status.message
     assert values(status)["frames"] == "12"
     # Third: pose stale for 3 s -> STALE; few inliers -> ERROR; the highest wins, listed first.
     diag.count("frames", 10)

@@ -7,8 +7,13 @@ import pytest
 pytest.importorskip("visualization_msgs")
 
 from eye_in_hand.errors import ConversionError  # noqa: E402
-from eye_in_hand.ros.markers import (Sphere, color_range_rgba, points_to_pose_array,  # noqa: E402
-                                     sphere_marker_array, spheres_from_marker_array)
+from eye_in_hand.ros.markers import (  # noqa: E402
+    Sphere,
+    color_range_rgba,
+    points_to_pose_array,
+    sphere_marker_array,
+    spheres_from_marker_array,
+)
 
 STAMP = 1_700_000_000_123_456_789
 
@@ -28,7 +33,7 @@ def test_marker_array_clears_first_then_one_sphere_per_target_and_reads_back():
     stamp, frame, back = spheres_from_marker_array(msg)
     assert (stamp, frame) == (STAMP, "cam")
     assert [s.id for s in back] == ["red", "red_1"]
-    for a, b in zip(spheres, back):
+    for a, b in zip(spheres, back, strict=True):
         assert np.array_equal(a.xyz, b.xyz) and a.diameter_m == b.diameter_m
         assert np.allclose(a.rgba, b.rgba, atol=1e-6)   # float32 colour fields
     empty = sphere_marker_array([], stamp_ns=STAMP, frame_id="cam")

@@ -22,7 +22,8 @@ def test_built_tf2_msgs_has_jazzy_type_hash(ros_context):
     node = rclpy.create_node("tf_hash", context=ros_context)
     try:
         node.create_publisher(TFMessage, "tf_hash_check", 1)
-        info = node.get_publishers_info_by_topic(f"{node.get_namespace().rstrip('/')}/tf_hash_check")
+        topic = f"{node.get_namespace().rstrip('/')}/tf_hash_check"
+        info = node.get_publishers_info_by_topic(topic)
         want = get_typestore(Stores.ROS2_JAZZY).hash_rihs01("tf2_msgs/msg/TFMessage")
         assert str(info[0].topic_type_hash) == want
     finally:

@@ -46,6 +46,9 @@ def test_simulated_bag_replays_with_play(tmp_path, small_world, ros_context, exe
             proc.kill()
             out, _ = proc.communicate()
     assert proc.returncode == 0, out.decode(errors="replace")
-    stamps = lambda msgs: [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in msgs]
+
+    def stamps(msgs: list) -> list[int]:
+        return [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in msgs]
+
     assert stamps(got["left"]) == stamps(got["right"])
     assert got["left"][0].width == 160 and got["left"][0].encoding == "bgr8"

@@ -1,8 +1,6 @@
 """The simulator's robot error model: true arm vs reported nominal arm."""
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 

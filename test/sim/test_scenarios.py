@@ -21,21 +21,21 @@ def test_calibration_poses_are_diverse_and_see_the_board(small_world):
     assert len(poses) == 12
     cams = [world.base_T_cam(q) for q in poses]
     axes = []
-    for q, T in zip(poses, cams):
+    for q, _T in zip(poses, cams, strict=True):
         tr = world.truth(q)
         assert tr.board_visible_left and tr.board_visible_right
         assert np.all(q >= world.arm.lower) and np.all(q <= world.arm.upper)
     from scipy.spatial.transform import Rotation
 
-    for a, b in zip(cams[:-1], cams[1:]):
+    for a, b in zip(cams[:-1], cams[1:], strict=True):
         R = a[:3, :3].T @ b[:3, :3]
         angle = math.degrees(rotation_angle(R))
         assert 20.0 - 1e-6 <= angle <= 40.0 + 1e-6
         axes.append(Rotation.from_matrix(R).as_rotvec() / math.radians(angle))
-    for u, v in zip(axes[:-1], axes[1:]):
+    for u, v in zip(axes[:-1], axes[1:], strict=True):
         assert abs(float(u @ v)) <= math.cos(math.radians(30.0)) + 1e-9
     again = calibration_poses(world, 12, seed=2)
-    assert all(np.array_equal(a, b) for a, b in zip(poses, again))
+    assert all(np.array_equal(a, b) for a, b in zip(poses, again, strict=True))
     other = calibration_poses(world, 12, seed=3)
     assert not np.allclose(poses[0], other[0])
 
@@ -47,7 +47,7 @@ def test_calibration_timeline_holds_and_moves(small_world):
     assert stamps[0] == 5 and np.all(np.diff(stamps) == 10_000_000)
     still = [s for _, _, s in tl]
     assert still[:10] == [True] * 10 and not all(still)
-    for t, q, s in tl:
+    for _t, q, s in tl:
         if s:
             assert min(np.max(np.abs(q - p)) for p in poses) < 1e-12
     steps = np.diff(np.array([q for _, q, _ in tl]), axis=0)

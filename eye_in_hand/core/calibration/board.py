@@ -3,13 +3,12 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import cv2
 import numpy as np
 
 from eye_in_hand.errors import InputError
-
 
 _DEFAULT_CHARUCO_DICT = "DICT_5X5_100"
 _BOARD_RE = re.compile(r"^\s*(\d+)\s*[xX]\s*(\d+)\s*$")
@@ -85,7 +84,7 @@ class BoardSpec:
 
     # -- construction -----------------------------------------------------------------------
     @classmethod
-    def parse(cls, spec: str) -> "BoardSpec":
+    def parse(cls, spec: str) -> BoardSpec:
         """Parse a board specification string (grammar in the module docstring).
 
         Args:
@@ -117,7 +116,8 @@ class BoardSpec:
                     "[:DICT][:legacy], e.g. charuco:7x5:0.04:0.03:DICT_5X5_100")
             sx, sy = cls._parse_size(parts[1], spec, "squares")
             if sx < 3 or sy < 3:
-                raise InputError(f"board spec {spec!r}: a ChArUco board needs at least 3x3 squares")
+                raise InputError(f"board spec {spec!r}: a ChArUco board needs at least 3x3 "
+                                 "squares")
             square = _positive_float(parts[2], "square size", spec)
             marker = _positive_float(parts[3], "marker size", spec)
             _in_metres(spec, parts, (2, 3))
@@ -180,7 +180,7 @@ class BoardSpec:
         pts[:, 1] = row.ravel() * self.square
         return pts
 
-    def charuco_board(self):
+    def charuco_board(self) -> Any:
         """The OpenCV ``cv2.aruco.CharucoBoard`` of a ChArUco spec.
 
         Raises:
@@ -221,10 +221,10 @@ class BoardDetection:
     image_size: tuple[int, int]
     detector: str
     reason: str = ""
-    meta: dict = field(default_factory=dict, compare=False, repr=False)
+    meta: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
     @classmethod
-    def missing(cls, image_size: tuple[int, int], detector: str, reason: str) -> "BoardDetection":
+    def missing(cls, image_size: tuple[int, int], detector: str, reason: str) -> BoardDetection:
         """A not-found result carrying ``reason``."""
         return cls(False, np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64),
                    image_size, detector, reason)
@@ -234,7 +234,7 @@ class BoardDetection:
         """Number of detected corners."""
         return int(self.corners.shape[0])
 
-    def reversed(self) -> "BoardDetection":
+    def reversed(self) -> BoardDetection:
         """The same chessboard detection with the corner order rotated by 180 degrees.
 
         Used to make left/right orderings agree when the detector returned a symmetric board
@@ -247,7 +247,7 @@ class BoardDetection:
 def render_board(board: BoardSpec, K: np.ndarray, dist: np.ndarray, cam_T_board: np.ndarray,
                  image_size: tuple[int, int], *, supersample: int = 3, margin_squares: float = 1.0,
                  black: int = 25, white: int = 230, background: int = 110,
-                 return_corners: bool = False):
+                 return_corners: bool = False) -> Any:
     """Render a chessboard seen by a distorted pinhole camera (exact, per-pixel ray casting).
 
     Every (sub-)pixel is undistorted (``cv2.undistortPoints``), its ray intersected with the
@@ -287,7 +287,8 @@ def render_board(board: BoardSpec, K: np.ndarray, dist: np.ndarray, cam_T_board:
     uu, vv = np.meshgrid(u, v)
     px = np.stack([uu.ravel(), vv.ravel()], axis=1)
     norm = cv2.undistortPoints(px.reshape(-1, 1, 2), K, dist,
-                               criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-9))
+                               criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20,
+                                         1e-9))
     rays = np.concatenate([norm.reshape(-1, 2), np.ones((px.shape[0], 1))], axis=1)
     # plane z=0 in the board frame: n . (X - t) = 0 in camera coordinates
     R, t = T[:3, :3], T[:3, 3]

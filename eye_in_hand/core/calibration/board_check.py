@@ -31,9 +31,11 @@ _MIN_MARKERS = 4
 
 def aruco_dictionaries_in(image: np.ndarray) -> list[str]:
     """The ArUco dictionaries of which ``image`` shows at least a few markers."""
-    gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    gray: np.ndarray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     if gray.dtype != np.uint8:
-        gray = cv2.normalize(gray, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+        # OpenCV's stubs refuse None for dst, which the function takes (a new array)
+        gray = cv2.normalize(gray, None, 0, 255, cv2.NORM_MINMAX  # type: ignore[call-overload]
+                             ).astype(np.uint8)
     out = []
     for name in ARUCO_DICTIONARIES:
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))

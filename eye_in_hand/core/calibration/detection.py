@@ -9,7 +9,6 @@ import numpy as np
 from eye_in_hand.core.calibration.board import BoardDetection, BoardSpec
 from eye_in_hand.errors import InputError
 
-
 #: Accepted values of the ``detector`` argument of :func:`detect_board`.
 DETECTORS: tuple[str, ...] = ("auto", "classic", "sb")
 

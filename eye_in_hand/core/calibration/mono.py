@@ -2,8 +2,8 @@
 errors, outlier flags and rejection, coverage and parameter standard deviations."""
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import cv2
 import numpy as np
@@ -12,7 +12,6 @@ from eye_in_hand.core.calibration.board import BoardDetection
 from eye_in_hand.core.calibration.quality import coverage, outlier_threshold
 from eye_in_hand.core.camera import CameraModel
 from eye_in_hand.errors import CalibrationError, InputError
-
 
 #: Fewest corners a view needs to take part in a calibration.
 MIN_POINTS_PER_VIEW = 6
@@ -228,7 +227,8 @@ def _mono_once(obj: list[np.ndarray], img: list[np.ndarray], size: tuple[int, in
                options: CalibrationOptions):
     criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12)
     try:
-        rms, K, dist, rvecs, tvecs, std_intr, _std_extr, per_view = cv2.calibrateCameraExtended(
+        # OpenCV's stubs refuse None for the initial K and dist, which the function takes
+        rms, K, dist, rvecs, tvecs, std_intr, _std_extr, per_view = cv2.calibrateCameraExtended(  # type: ignore[call-overload]
             [o.astype(np.float32) for o in obj],
             [p.astype(np.float32).reshape(-1, 1, 2) for p in img],
             size, None, None, flags=options.cv_flags(), criteria=criteria)
@@ -297,6 +297,7 @@ def calibrate_camera(detections: Sequence[BoardDetection], names: Sequence[str] 
                          distortion_model=options.distortion_model, name=camera_name)
     pose_of = {i: _as_pose(rvecs[k], tvecs[k]) for k, i in enumerate(active)}
     views = []
+    T: np.ndarray | None
     for i, det in enumerate(detections):
         if not det.found:
             continue

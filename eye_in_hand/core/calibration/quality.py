@@ -1,8 +1,8 @@
 """Quality figures of a calibration: outlier threshold, image coverage, stereo checks."""
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import cv2
 import numpy as np
@@ -10,7 +10,6 @@ import numpy as np
 from eye_in_hand.core.calibration.board import BoardDetection, BoardSpec, _pair_points
 from eye_in_hand.core.camera import StereoRig
 from eye_in_hand.errors import CalibrationError
-
 
 #: Default floor of the outlier threshold, as a multiple of the median per-view RMS.
 OUTLIER_MEDIAN_FACTOR = 2.0

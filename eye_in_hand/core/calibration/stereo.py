@@ -2,8 +2,9 @@
 intrinsics and distortion, the extrinsic and every board pose, then rectification."""
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import cv2
 import numpy as np
@@ -28,7 +29,6 @@ from eye_in_hand.core.calibration.quality import StereoQuality, outlier_threshol
 from eye_in_hand.core.camera import CameraModel, StereoRig
 from eye_in_hand.core.transforms import average_transforms
 from eye_in_hand.errors import CalibrationError, InputError
-
 
 #: Accepted values of the ``method`` argument of :func:`calibrate_stereo`.
 STEREO_METHODS: tuple[str, ...] = ("bundle", "opencv")
@@ -63,7 +63,7 @@ class StereoViewResult:
     left_residuals: np.ndarray | None = None
     right_residuals: np.ndarray | None = None
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-able summary (without the arrays)."""
         return {"file": self.name, "right_file": self.right_name, "rms_px": _f(self.rms_px),
                 "used": self.used, "paired": self.paired, "outlier": self.outlier,
@@ -96,7 +96,7 @@ class StereoCalibration:
     right: CameraCalibration
     rms_px: float
     views: tuple[StereoViewResult, ...]
-    std: dict
+    std: dict[str, Any]
     quality: StereoQuality
     method: str
     alpha: float
@@ -105,11 +105,11 @@ class StereoCalibration:
     options: CalibrationOptions
     fix_intrinsics: bool
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-able report content (``left``, ``right``, ``stereo`` blocks + ``views``)."""
         rig = self.rig
 
-        def cam_block(cam: CameraModel, mono: CameraCalibration, side: str) -> dict:
+        def cam_block(cam: CameraModel, mono: CameraCalibration, side: str) -> dict[str, Any]:
             return {
                 "name": cam.name,
                 "image_size": [cam.width, cam.height],
@@ -409,7 +409,7 @@ def calibrate_stereo(left: Sequence[BoardDetection], right: Sequence[BoardDetect
     lnames = _names(left, left_names, "left")
     rnames = _names(right, right_names, "right")
     right = [_align_symmetric(board, ld, rd) if ld.found and rd.found else rd
-             for ld, rd in zip(left, right)]
+             for ld, rd in zip(left, right, strict=True)]
     found_l = [d for d in left if d.found]
     found_r = [d for d in right if d.found]
     if found_l and found_r and tuple(found_l[0].image_size) != tuple(found_r[0].image_size):
@@ -422,7 +422,8 @@ def calibrate_stereo(left: Sequence[BoardDetection], right: Sequence[BoardDetect
         result = _stereo_once(left, right, lnames, rnames, active, board, options, method,
                               fix_intrinsics, float(alpha), outlier_threshold_px, min_views,
                               rejected)
-        flagged = [i for i, v in zip(range(len(left)), result.views) if v.used and v.outlier]
+        flagged = [i for i, v in zip(range(len(left)), result.views, strict=False)
+                   if v.used and v.outlier]
         paired_left = sum(1 for i, v in enumerate(result.views)
                           if v.used and v.paired and i not in flagged)
         if not (reject_outliers and flagged) or _round == max_rejection_rounds \
@@ -452,8 +453,11 @@ def _stereo_once(left: Sequence[BoardDetection], right: Sequence[BoardDetection]
                               camera_name="left", max_rejection_rounds=0)
     mono_r = calibrate_camera(rdets, rnames, options=options, min_views=min_views,
                               camera_name="right", max_rejection_rounds=0)
-    pose_l = {v.index: v.cam_T_board for v in mono_l.views if v.used}
-    pose_r = {v.index: v.cam_T_board for v in mono_r.views if v.used}
+    # a used view has its pose (cam_T_board is None only for views left out)
+    pose_l = {v.index: v.cam_T_board for v in mono_l.views
+              if v.used and v.cam_T_board is not None}
+    pose_r = {v.index: v.cam_T_board for v in mono_r.views
+              if v.used and v.cam_T_board is not None}
     rels = [pose_r[i] @ np.linalg.inv(pose_l[i]) for i in paired if i in pose_l and i in pose_r]
     if not rels:
         raise CalibrationError("stereo: no pair has a board pose in both cameras")
@@ -488,7 +492,7 @@ def _stereo_once(left: Sequence[BoardDetection], right: Sequence[BoardDetection]
         views_in = list(paired)
         poses = [(np.asarray(rvecs[k]).ravel(), np.asarray(tvecs[k]).ravel())
                  for k in range(len(paired))]
-        obs = [[(o, a), (o, b)] for o, a, b in
+        obs: list[list[tuple[np.ndarray, np.ndarray] | None]] = [[(o, a), (o, b)] for o, a, b in
                ((_pair_points(left[i], right[i])[1], _pair_points(left[i], right[i])[2],
                  _pair_points(left[i], right[i])[3]) for i in paired)]
     else:

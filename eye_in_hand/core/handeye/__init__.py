@@ -20,18 +20,45 @@ Pure numerics (numpy, scipy, OpenCV for projection): no rclpy, no messages.
 """
 from __future__ import annotations
 
-from .calibrate import (FRAMES, METHODS, HandEyeResult, MethodResult, RejectedSample,
-                        axxb_residuals, board_spread, bootstrap_covariance, calibrate_hand_eye)
+from .calibrate import (
+                        FRAMES,
+                        METHODS,
+                        HandEyeResult,
+                        MethodResult,
+                        RejectedSample,
+                        axxb_residuals,
+                        board_spread,
+                        bootstrap_covariance,
+                        calibrate_hand_eye,
+)
 from .eiv import EivResult, leave_one_out_steps, refine_errors_in_variables
 from .plan import Plan, PlanConfig, Suggestion, predicted_covariance, suggest_next_poses
-from .refine import (RefinementResult, refine_pose_space, refine_reprojection,
-                     reprojection_errors)
-from .samples import (MIN_SAMPLES, CameraView, CornerObservation, HandEyeSample,
-                      MotionDiagnostics, motion_diagnostics, validate_samples)
+from .refine import RefinementResult, refine_pose_space, refine_reprojection, reprojection_errors
+from .samples import (
+                        MIN_SAMPLES,
+                        CameraView,
+                        CornerObservation,
+                        HandEyeSample,
+                        MotionDiagnostics,
+                        motion_diagnostics,
+                        validate_samples,
+)
 from .select import HeldOut, choose, held_out_prediction, selection_scores
-from .solvers import (CLOSED_FORM_METHODS, SETUPS, MotionPairs, board_in_fixed_frame,
-                      gripper_poses, motion_pairs, solve_andreff, solve_closed_form,
-                      solve_daniilidis, solve_horaud, solve_kronecker, solve_park, solve_tsai)
+from .solvers import (
+                        CLOSED_FORM_METHODS,
+                        SETUPS,
+                        MotionPairs,
+                        board_in_fixed_frame,
+                        gripper_poses,
+                        motion_pairs,
+                        solve_andreff,
+                        solve_closed_form,
+                        solve_daniilidis,
+                        solve_horaud,
+                        solve_kronecker,
+                        solve_park,
+                        solve_tsai,
+)
 
 __all__ = [
     "CLOSED_FORM_METHODS", "METHODS", "SETUPS", "FRAMES", "MIN_SAMPLES",

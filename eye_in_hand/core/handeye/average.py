@@ -41,8 +41,7 @@ from scipy.spatial.transform import Rotation
 
 from eye_in_hand.errors import HandEyeError
 
-from .solvers import MotionPairs, _kronecker_system, _quat_wxyz, \
-    _skew
+from .solvers import MotionPairs, _kronecker_system, _quat_wxyz, _skew
 
 __all__ = [
     "AVERAGE_SOLVERS",

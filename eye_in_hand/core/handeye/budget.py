@@ -23,7 +23,8 @@ fixed frame (the robot base, eye-in-hand), the point of the held-out figures of
 """
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 

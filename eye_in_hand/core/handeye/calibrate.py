@@ -23,8 +23,9 @@
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -32,20 +33,28 @@ from scipy.spatial.transform import Rotation
 from eye_in_hand.core.transforms import average_transforms, invert_many, to_xyz_quat
 from eye_in_hand.errors import HandEyeError
 
-from .average import AVERAGE_SOLVERS, DEFAULT_AVERAGE_SOLVER, average_hand_eye, \
-    solve_average
-from .eiv import SIGMA_FLOORS, EivResult, leave_one_out_steps, refine_errors_in_variables
-from .refine import RefinementResult, pose_residual_scales, refine_pose_space, \
-    refine_reprojection, reprojection_errors
-from .samples import MIN_SAMPLES, CameraView, HandEyeSample, MotionDiagnostics, \
-    motion_diagnostics, validate_samples
-from .solvers import CLOSED_FORM_METHODS, SETUPS, board_in_fixed_frame, gripper_poses, \
-    motion_pairs
-from .residuals import motion_residuals
-from .select import HeldOut, choose, held_out_position_sigma, held_out_prediction, \
-    selection_scores
-from .systematic import SystematicResult, leave_one_out_systematic, refine_systematic
+from .average import AVERAGE_SOLVERS, DEFAULT_AVERAGE_SOLVER, average_hand_eye, solve_average
 from .budget import error_budget
+from .eiv import SIGMA_FLOORS, EivResult, leave_one_out_steps, refine_errors_in_variables
+from .refine import (
+    RefinementResult,
+    pose_residual_scales,
+    refine_pose_space,
+    refine_reprojection,
+    reprojection_errors,
+)
+from .residuals import motion_residuals
+from .samples import (
+    MIN_SAMPLES,
+    CameraView,
+    HandEyeSample,
+    MotionDiagnostics,
+    motion_diagnostics,
+    validate_samples,
+)
+from .select import HeldOut, choose, held_out_position_sigma, held_out_prediction, selection_scores
+from .solvers import CLOSED_FORM_METHODS, SETUPS, board_in_fixed_frame, gripper_poses, motion_pairs
+from .systematic import SystematicResult, leave_one_out_systematic, refine_systematic
 
 __all__ = [
     "METHODS",
@@ -594,8 +603,9 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                 mr.std_mm, mr.std_deg, mr.loo_mm, mr.loo_deg = _jackknife(xs, X)
                 mr.covariance = _jackknife_covariance(xs)
                 ys = [average_transforms(board_in_fixed_frame(x, bte[k], ctb[k], setup))
-                      for x, k in zip(xs, keep_masks)]
-                held[name] = held_out_prediction(list(zip(xs, ys)), kept, cameras, setup)
+                      for x, k in zip(xs, keep_masks, strict=True)]
+                held[name] = held_out_prediction(list(zip(xs, ys, strict=True)), kept,
+                                                 cameras, setup)
                 mr.held_out = held[name]
         results[name] = mr
     if not results:
@@ -683,19 +693,20 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
     for name, mr in results.items():
         if name == selected or not (np.isfinite(mr.std_mm) and np.isfinite(sel.std_mm)):
             continue
-        dmm, ddeg = _x_delta(mr.X, sel.X)
+        diff_mm, diff_deg = _x_delta(mr.X, sel.X)
         lim_mm = 3.0 * float(np.hypot(mr.std_mm, sel.std_mm)) + 1e-6
         lim_deg = 3.0 * float(np.hypot(mr.std_deg, sel.std_deg)) + 1e-7
-        if dmm > lim_mm or ddeg > lim_deg:
+        if diff_mm > lim_mm or diff_deg > lim_deg:
             warnings.append(
-                f"methods disagree: {name} differs from {selected} by {dmm:.2f} mm / "
-                f"{ddeg:.3f} deg, beyond 3 sigma of their uncertainties ({lim_mm:.2f} mm / "
+                f"methods disagree: {name} differs from {selected} by {diff_mm:.2f} mm / "
+                f"{diff_deg:.3f} deg, beyond 3 sigma of their uncertainties ({lim_mm:.2f} mm / "
                 f"{lim_deg:.3f} deg): check for bad samples or unmodelled errors")
     budget = None
     if sel.held_out is not None:
         used = kept
         if selected == "refined_systematic" and systematic is not None:
-            used = [replace(s, base_T_ee=b) for s, b in zip(kept, systematic.correct(bte))]
+            used = [replace(s, base_T_ee=b)
+                    for s, b in zip(kept, systematic.correct(bte), strict=True)]
         budget = error_budget(used, cameras if use_corners else None, setup, sel.Y,
                               sel.board_dev_mm, sel.held_out.mm,
                               None if systematic is None else systematic.correction(bte))
@@ -723,7 +734,7 @@ def _systematic(X0: np.ndarray, Y0: np.ndarray, kept: Sequence[HandEyeSample],
         warnings.append(f"refined_systematic failed and is left out of the comparison: {exc}")
         return None
     # Figures against the corrected poses: the model's X holds with them.
-    corrected = [replace(s, base_T_ee=b) for s, b in zip(kept, fit.correct(bte))]
+    corrected = [replace(s, base_T_ee=b) for s, b in zip(kept, fit.correct(bte), strict=True)]
     mr = _refined_result("refined_systematic", fit.X, fit.Y, fit.covariance, corrected,
                          cameras, setup, use_corners)
     if loo:
@@ -737,7 +748,7 @@ def _systematic(X0: np.ndarray, Y0: np.ndarray, kept: Sequence[HandEyeSample],
             for i, f in enumerate(sols):
                 mr.loo_mm[i], mr.loo_deg[i] = _x_delta(f.X, fit.X)
             held_samples = [replace(s, base_T_ee=f.correct(s.base_T_ee))
-                            for s, f in zip(kept, sols)]
+                            for s, f in zip(kept, sols, strict=True)]
             held["refined_systematic"] = held_out_prediction(
                 [(f.X, f.Y) for f in sols], held_samples, cameras, setup)
             mr.held_out = held["refined_systematic"]

@@ -43,8 +43,8 @@ that sample's correction only: 18 evaluations per Jacobian). The normal equation
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -333,7 +333,7 @@ def refine_errors_in_variables(X0: np.ndarray, Y0: np.ndarray,
     iterations = 0
     # Gauss-Newton steps, each followed by the variance-component update computed from the
     # linearised residuals at the new point (exact for the linearised problem).
-    for iterations in range(1, max_iter + 1):
+    for iterations in range(1, max_iter + 1):  # noqa: B007 - the count is read after the loop
         Jg, Ju = prob.jacobian(p, sig)
         nfev += 19
         step, _, h = _solve_normal(prob, _normal(prob, Jg, Ju, r), Jg, Ju, hat=estimate)

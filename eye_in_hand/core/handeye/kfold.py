@@ -17,8 +17,9 @@ on a real robot; these figures are what can be measured.
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -117,7 +118,7 @@ def classic_fit(solver: Callable[[Any], np.ndarray], samples: Sequence[HandEyeSa
 #: training samples -> ``({method: (X, Y) or (X, Y, correct)}, info)``; ``correct`` maps a
 #: reported robot pose (4, 4) to the one X is used with (a robot error model); ``info`` may
 #: give ``selected``, ``warnings`` and ``extra`` for the fold's :class:`FoldResult`.
-FitFn = Callable[[list[HandEyeSample]], tuple[dict[str, tuple], dict[str, Any]]]
+FitFn = Callable[[list[HandEyeSample]], tuple[dict[str, tuple[Any, ...]], dict[str, Any]]]
 
 
 def kfold_held_out(samples: Sequence[HandEyeSample], fit: FitFn, *, k: int = 6,

@@ -6,8 +6,9 @@ planar homography start) on the detected corners with the camera's distortion.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 import cv2
 import numpy as np

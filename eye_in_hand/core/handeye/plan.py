@@ -42,20 +42,24 @@ for reachability and collisions before the robot moves there.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from eye_in_hand.core.transforms import as_transform, average_transforms, invert, \
-    invert_many, to_xyz_quat
+from eye_in_hand.core.transforms import (
+    as_transform,
+    average_transforms,
+    invert,
+    invert_many,
+    to_xyz_quat,
+)
 from eye_in_hand.errors import HandEyeError, InputError
 
 from .eiv import SIGMA_FLOORS, _normal, _Problem
 from .refine import _start, project_points
-from .samples import MIN_SAMPLES, CameraView, CornerObservation, HandEyeSample, \
-    validate_samples
+from .samples import MIN_SAMPLES, CameraView, CornerObservation, HandEyeSample, validate_samples
 from .solvers import SETUPS, board_in_fixed_frame
 
 __all__ = ["PlanConfig", "Suggestion", "Plan", "suggest_next_poses", "CRITERIA",
@@ -211,7 +215,7 @@ def _pose_dict(T: np.ndarray) -> dict[str, list[float]]:
     return {"xyz": [float(v) for v in t], "quat_xyzw": [float(v) for v in q]}
 
 
-def _std(cov_x: np.ndarray) -> tuple[float, float]:
+def _std(cov_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(std_mm, std_deg)`` of a (..., 6, 6) covariance of X, as MethodResult reports them."""
     tt = np.trace(cov_x[..., :3, :3], axis1=-2, axis2=-1)
     tr = np.trace(cov_x[..., 3:, 3:], axis1=-2, axis2=-1)
@@ -468,7 +472,8 @@ def _candidates(kept: list[HandEyeSample], X: np.ndarray, Y: np.ndarray,
         drawn += batch
         ok = np.flatnonzero(_admissible(cand, kept, views, obj, outline, cfg, d_range))
         for k in ok[:cfg.candidates - len(out)]:
-            obs = tuple(CornerObservation(v.name, obj, px[k]) for v, px in zip(views, cand.pixels))
+            obs = tuple(CornerObservation(v.name, obj, px[k])
+                        for v, px in zip(views, cand.pixels, strict=True))
             out.append(HandEyeSample(f"candidate{len(out):04d}", cand.B[k], cand.C[k], obs))
             dists.append(float(cand.distance[k]))
             tilts.append(float(cand.tilt_deg[k]))

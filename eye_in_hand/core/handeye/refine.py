@@ -24,8 +24,9 @@ The covariance is ``s^2 (J^T J)^-1`` at the solution with ``s^2`` the residual v
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any
 
 import cv2
 import numpy as np
@@ -86,7 +87,7 @@ def _start(T: np.ndarray) -> np.ndarray:
     return np.concatenate([T[:3, 3], np.zeros(3)])
 
 
-def _covariance(res, m: int) -> tuple[np.ndarray, float]:
+def _covariance(res: Any, m: int) -> tuple[np.ndarray, float]:
     dof = max(1, m - res.x.size)
     s2 = 2.0 * float(res.cost) / dof
     J = res.jac
@@ -160,7 +161,7 @@ def reprojection_errors(X: np.ndarray, Y: np.ndarray, samples: Sequence[HandEyeS
     G = gripper_poses(np.stack([s.base_T_ee for s in samples]), setup)
     Xi = invert_many(X)
     out = []
-    for s, g in zip(samples, G):
+    for s, g in zip(samples, G, strict=True):
         C = Xi @ invert_many(g) @ Y
         errs = []
         for ob in s.observations:

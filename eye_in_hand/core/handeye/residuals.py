@@ -11,7 +11,8 @@ For every motion ``(A, B)`` (all sample pairs ``i < j``, as the solvers use them
 """
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation

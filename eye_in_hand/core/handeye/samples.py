@@ -1,8 +1,9 @@
 """Hand-eye samples, their validation and the motion diagnostics run before solving."""
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation

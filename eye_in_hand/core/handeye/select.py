@@ -28,8 +28,8 @@ alone.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -83,7 +83,7 @@ def held_out_prediction(solutions: Sequence[tuple[np.ndarray, np.ndarray]],
     px = np.zeros(n) if use_corners else None
     mm = np.zeros(n)
     deg = np.zeros(n)
-    for i, ((X, Y), s) in enumerate(zip(solutions, samples)):
+    for i, ((X, Y), s) in enumerate(zip(solutions, samples, strict=True)):
         Yi = board_in_fixed_frame(X, s.base_T_ee[None], s.cam_T_board[None], setup)[0]
         mm[i] = 1000.0 * float(np.linalg.norm(Yi[:3, 3] - Y[:3, 3]))
         deg[i] = float(np.degrees(np.linalg.norm(
@@ -235,7 +235,7 @@ def held_out_position_sigma(solutions: Sequence[tuple[np.ndarray, np.ndarray]],
     meas = []
     use_corners = (bool(cameras) and px_sigma is not None
                    and all(len(s.observations) > 0 for s in samples))
-    for (X, Y), s in zip(solutions, samples):
+    for (X, Y), s in zip(solutions, samples, strict=True):
         c = (np.mean(s.observations[0].object_points, axis=0) if s.observations
              else np.zeros(3))
         Yi = board_in_fixed_frame(X, s.base_T_ee[None], s.cam_T_board[None], setup)[0]

@@ -29,8 +29,9 @@ with no frame, or with no covering pose, by ``capture_timeout_s`` after it is re
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping, Protocol, Sequence
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -262,7 +263,8 @@ class CalibrationSession:
     def ready(self, now_s: float) -> list[CaptureRequest]:
         """The requests that can be answered now (their window covered, or timed out); they
         leave the waiting list and go to :meth:`complete`."""
-        out, keep = [], []
+        out: list[CaptureRequest] = []
+        keep: list[CaptureRequest] = []
         window = int(self.config.still_window_s * 1e9)
         newest = self.poses.newest_ns
         for req in self._requests:

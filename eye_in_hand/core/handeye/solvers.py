@@ -29,8 +29,8 @@ them, so motions above 90 degrees are handled the same as small ones.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -342,7 +342,8 @@ def _normalize_rotation_block(M: np.ndarray) -> tuple[np.ndarray, float]:
     """Scale a 3x3 block to unit determinant, return its projection onto SO(3) and the scale."""
     det = float(np.linalg.det(M))
     if not np.isfinite(det) or abs(det) < 1e-12:
-        raise HandEyeError("rotation block of the linear solution is singular (degenerate motions)")
+        raise HandEyeError("rotation block of the linear solution is singular "
+                           "(degenerate motions)")
     scale = np.copysign(1.0, det) / np.cbrt(abs(det))
     return project_to_so3(scale * M), scale
 
@@ -458,7 +459,8 @@ def solve_closed_form(method: str, base_T_ee: np.ndarray, cam_T_board: np.ndarra
                            f"got {method!r}")
     base_T_ee = np.asarray(base_T_ee, dtype=np.float64)
     cam_T_board = np.asarray(cam_T_board, dtype=np.float64)
-    if base_T_ee.shape != cam_T_board.shape or base_T_ee.ndim != 3 or base_T_ee.shape[1:] != (4, 4):
+    if (base_T_ee.shape != cam_T_board.shape or base_T_ee.ndim != 3
+            or base_T_ee.shape[1:] != (4, 4)):
         raise HandEyeError(f"expected base_T_ee and cam_T_board of equal shape (N, 4, 4), got "
                            f"{base_T_ee.shape} and {cam_T_board.shape}")
     if base_T_ee.shape[0] < 3:

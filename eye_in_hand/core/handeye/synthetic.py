@@ -141,7 +141,7 @@ def make_problem(n: int = 15, *, setup: str = "eye_in_hand", seed: int = 0,
             noisy = bte @ from_rotvec(rng.normal(scale=np.radians(robot_noise_deg), size=3),
                                       rng.normal(scale=robot_noise_mm / 1000.0, size=3))
         obs = tuple(CornerObservation(v.name, obj, p + rng.normal(scale=noise_px, size=p.shape))
-                    for v, p in zip(views, pix))
+                    for v, p in zip(views, pix, strict=True))
         C_meas, _ = board_pose_pnp(cam, obj, obs[0].image_points)
         if noise_px == 0:
             C_meas = C.copy()

@@ -28,8 +28,8 @@ Gauss-Newton one of the whitened problem, scaled by its residual variance.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -37,7 +37,6 @@ from scipy.spatial.transform import Rotation
 
 from eye_in_hand.core.transforms import invert_many
 from eye_in_hand.errors import HandEyeError
-
 
 __all__ = ["LEVELS", "SystematicResult", "fit_systematic", "refine_systematic",
            "leave_one_out_systematic"]
@@ -186,7 +185,7 @@ class SystematicResult:
             f, _ = _residual_fn(X0, Y0, bte[k:k + 1], ctb[k:k + 1], setup, self.level,
                                 self.R_ref, self.sigmas["robot_t"], self.sigmas["robot_r"])
             e = f(p)[:6]
-            Jn = _jacobian(lambda q: f(q)[:6], p)
+            Jn = _jacobian(lambda q, f=f: f(q)[:6], p)
             S = s2 * (np.eye(6) + Jn @ Ainv @ Jn.T)
             out[k] = float(e @ np.linalg.solve(S, e))
         return out

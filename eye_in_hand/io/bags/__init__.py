@@ -39,8 +39,9 @@ from __future__ import annotations
 # The package: records (bag and topic information, damage), reading (log-time order, damaged
 # and interrupted files), decoding (type stores, definitions, the Jazzy fallback) and writing
 # (BagWriter with CRCs); every public name is re-exported here.
+# a private name, re-exported (an explicit alias) for nodes.bag_player and a test
+from eye_in_hand.io.bags.decoding import _types_from_definition as _types_from_definition
 from eye_in_hand.io.bags.decoding import (
-    _types_from_definition,
     check_bag,
     default_typestore,
     deserialize,

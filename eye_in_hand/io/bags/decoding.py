@@ -3,13 +3,13 @@ fallback), ``deserialize`` / ``serialize``, ``iter_decoded``, ``require_topics``
 from __future__ import annotations
 
 import threading
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Mapping
+from typing import Any
 
 from eye_in_hand.errors import BagError, ConversionError
 from eye_in_hand.io.bags.reading import _OpenBag, iter_messages
 from eye_in_hand.io.bags.records import BagInfo, DamageLog
-
 
 _DEFAULT_STORE: Any = None
 _DEFAULT_LOCK = threading.Lock()

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import heapq
 import struct
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Iterable, Iterator, Sequence
+from typing import Any, cast
 
 import yaml
 
@@ -334,7 +335,7 @@ class _OpenBag:
                     if not scanned_all or any(x is None for x in scanned_all):
                         raise
                     expected = _expected_counts(target) if len(files) == 1 else None
-                    for f, scanned in zip(files, scanned_all):
+                    for f, scanned in zip(files, scanned_all, strict=True):
                         assert scanned is not None
                         if expected is not None:
                             scanned.expected, scanned.expected_end = expected
@@ -618,16 +619,18 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
             assert damage is not None
             damage.add(chunk_damage_record(name, by_id, cd))
 
-        source = mcap_chunks.chunk_messages(storage, conns, start, stop, verify_crc=verify_crc,
+        chunks = mcap_chunks.chunk_messages(storage, conns, start, stop, verify_crc=verify_crc,
                                             on_damage=None if damage is None else chunk_damage)
-        for order, (conn, stamp, view) in enumerate(source):
-            yield stamp, stream, order, conn.topic, conn.msgtype, view if views else bytes(view)
+        for order, (conn, stamp, view) in enumerate(chunks):
+            # views: the memoryview itself, read as bytes by the callers that ask for it
+            raw = cast(bytes, view) if views else bytes(view)
+            yield stamp, stream, order, conn.topic, conn.msgtype, raw
         return
     if per_message_zstd:
         try:  # local: an optional module, needed only for per-message zstd bags
             from compression import zstd  # type: ignore[import-not-found]  # Python >= 3.14
         except ImportError:
-            from backports import zstd  # type: ignore[import-not-found,no-redef]
+            from backports import zstd
     if isinstance(storage, _ScannedMcap):
         source: Iterator[tuple[Any, int, Any]] = storage.messages(
             conns, start, stop, on_damage=damage.add if damage is not None else None)

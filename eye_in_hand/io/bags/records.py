@@ -2,11 +2,10 @@
 from __future__ import annotations
 
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
-
-
+from typing import Any
 
 STORAGES: tuple[str, ...] = ("mcap", "sqlite3")
 """Storage plugins :class:`BagWriter` can write (both are readable)."""

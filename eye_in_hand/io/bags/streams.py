@@ -17,16 +17,17 @@ from __future__ import annotations
 
 import queue
 import threading
+from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any, cast
 
 from eye_in_hand.errors import BagError, ConversionError
 from eye_in_hand.io import mcap_chunks
 from eye_in_hand.io.bags.decoding import deserialize
 from eye_in_hand.io.bags.reading import _OpenBag, chunk_damage_record, iter_messages
+from eye_in_hand.io.bags.records import DamageLog
 from eye_in_hand.io.cdr import image_from_cdr, is_image_type
 from eye_in_hand.io.mcap_tasks import worker_messages
-from eye_in_hand.io.bags.records import DamageLog
 
 __all__ = ["decoded_stream", "decoded_on_thread", "worker_readable", "iter_in_workers",
            "decoded_in_workers"]
@@ -89,7 +90,7 @@ def iter_in_workers(path: str | Path, topics: Iterable[str], submit: Any, *,
         name = Path(storage.path).name
         images = {c.id for c in conns if c.topic in image_topics and is_image_type(c.msgtype)}
         ids = [next((c.id for c in conns if c.topic == t), None) for t in image_topics]
-        pair = (ids[0], ids[1]) if None not in ids else None
+        pair = cast(tuple[int, int] | None, (ids[0], ids[1]) if None not in ids else None)
         on_damage = None if damage is None else \
             (lambda cd: damage.add(chunk_damage_record(name, by_id, cd)))
         index = 0
@@ -143,7 +144,7 @@ def decoded_on_thread(path: str | Path, topics: list[str], typestore: Any,
     (a ``DamageLog``) and are skipped; an unreadable bag ends the iteration with the error.
     """
     errors: list[BaseException] = []
-    q: queue.Queue = queue.Queue(maxsize=16)
+    q: queue.Queue[Any] = queue.Queue(maxsize=16)
     stop = threading.Event()
 
     def decode(raw: Any, msgtype: str) -> Any:

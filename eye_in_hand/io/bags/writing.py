@@ -4,11 +4,12 @@ from __future__ import annotations
 import threading
 import zlib
 from collections import defaultdict
+from collections.abc import Sequence
 from dataclasses import dataclass
 from io import BytesIO
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Literal, Sequence
+from typing import Any
 
 from eye_in_hand.errors import BagError, InputError
 from eye_in_hand.io.bags.decoding import _types_from_definition, serialize
@@ -18,8 +19,14 @@ from eye_in_hand.io.bags.records import COMPRESSIONS, STORAGES, OfferedQos
 
 def _to_rosbags_qos(qos: OfferedQos) -> Any:
     # local: rosbags costs ~25 ms at CLI start-up (every command loads io.bags)
-    from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
-                                    QosReliability, QosTime)
+    from rosbags.interfaces import (
+        Qos,
+        QosDurability,
+        QosHistory,
+        QosLiveliness,
+        QosReliability,
+        QosTime,
+    )
 
     try:
         return Qos(QosHistory[qos.history.upper()], int(qos.depth),
@@ -43,7 +50,8 @@ class _CrcFile:
 
     def write(self, data: Any) -> int:
         self.crc = zlib.crc32(data, self.crc)
-        return self._fh.write(data)
+        written: int = self._fh.write(data)
+        return written
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._fh, name)
@@ -70,19 +78,27 @@ def _rosbags_writer() -> Any:
     # command loads io.bags), and only commands that write bags need it
     from rosbags.rosbag2 import Writer
     from rosbags.rosbag2.enums import StoragePlugin
-    from rosbags.rosbag2.storage_mcap import (McapWriter, PendingChunk, write_record,
-                                              write_string, write_uint16, write_uint32,
-                                              write_uint64)
+    from rosbags.rosbag2.storage_mcap import (
+        McapWriter,
+        PendingChunk,
+        write_record,
+        write_string,
+        write_uint16,
+        write_uint32,
+        write_uint64,
+    )
 
     def jazzy(metadata: str) -> str:
         return metadata.replace("ros_distro: rosbags", f"ros_distro: {ROS_DISTRO}")
 
-    class CrcMcapWriter(McapWriter):  # type: ignore[misc,valid-type]
+    class CrcMcapWriter(McapWriter):
         def __init__(self, path: Path, compression: Any) -> None:
             super().__init__(path, compression)
             self.bio.flush()
             head = self.path.read_bytes()[:self.bio.tell()]     # magic and header record
-            self.bio = _CrcFile(self.bio, zlib.crc32(head))
+            self.crc_file = _CrcFile(self.bio, zlib.crc32(head))
+            # the writer's file, wrapped: every byte written goes through the CRC
+            self.bio = self.crc_file  # type: ignore[assignment]
 
         def close_chunk(self) -> None:
             # rosbags' close_chunk, with the CRC-32 of the uncompressed records
@@ -127,18 +143,20 @@ def _rosbags_writer() -> Any:
         def close(self, version: int, metadata: str) -> None:
             if self.chunk.bio.tell():
                 self.close_chunk()
-            pos, crc = self.bio.tell(), self.bio.crc
+            pos, crc = self.bio.tell(), self.crc_file.crc
             super().close(version, jazzy(metadata))
             _patch_mcap_crcs(self.path, pos, crc)
 
-    class CrcWriter(Writer):  # type: ignore[misc,valid-type]
+    class CrcWriter(Writer):
         STORAGE_PLUGINS = {**Writer.STORAGE_PLUGINS, StoragePlugin.MCAP: CrcMcapWriter}
 
         def close(self) -> None:
             storage = self.storage
             if storage is not None and not isinstance(storage, CrcMcapWriter):
                 close = storage.close
-                storage.close = lambda version, metadata: close(version, jazzy(metadata))
+                # the storage's own close, with this package's ros_distro in its metadata
+                storage.close = lambda version, metadata: close(  # type: ignore[method-assign]
+                    version, jazzy(metadata))
             super().close()
             meta = Path(self.metapath)
             if meta.is_file():
@@ -207,8 +225,8 @@ class BagWriter:
         BagError: ``path`` exists, or the bag cannot be created.
     """
 
-    def __init__(self, path: str | Path, storage: Literal["mcap", "sqlite3"] = "mcap",
-                 compression: Literal["zstd"] | None = None, *, typestore: Any = None) -> None:
+    def __init__(self, path: str | Path, storage: str = "mcap",
+                 compression: str | None = None, *, typestore: Any = None) -> None:
         if storage not in STORAGES:
             raise InputError(f"storage must be one of {', '.join(STORAGES)}, got {storage!r}")
         if compression not in COMPRESSIONS:
