@@ -32,7 +32,7 @@ setup(
     python_requires=">=3.10",
     # Each minimum is the version pinned in .ci/min-constraints.txt, where `make test-min-deps`
     # runs the bag, offline and calibration tests (docs/development.md, "Dependencies"). Below
-    # them: rosbags < 0.11.6 lacks storage_mcap.get_msgdef (io/bags.py's MCAP scanner);
+    # them: rosbags < 0.11.6 lacks storage_mcap.get_msgdef (io/bags/reading.py's MCAP scanner);
     # OpenCV 4.x has no criteria argument in undistortPoints (core/camera.py); scipy < 1.15.2
     # refuses read-only matrices in Rotation.from_matrix; OpenCV 5 needs numpy 2, and
     # matplotlib < 3.8.4 is built for numpy 1.
