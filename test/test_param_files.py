@@ -215,24 +215,26 @@ def test_a_file_without_ros_parameters_is_not_a_parameter_file():
 
 
 def test_a_node_refuses_an_override_it_does_not_declare(ros_context, tmp_path):
-    """In-process: the check the node's main() runs once the node is built."""
+    """In-process: the check the node's main() runs once the node is built (detect_triangulate:
+    built in milliseconds, where stereo_capture's default source builds a simulator)."""
     from eye_in_hand.errors import ConfigError
-    from eye_in_hand.nodes.stereo_capture import StereoCaptureNode
+    from eye_in_hand.nodes.detect_triangulate import DetectTriangulateNode
     from eye_in_hand.ros.params import refuse_undeclared_overrides
 
-    path = _write(tmp_path, "/**/stereo_capture:\n  ros__parameters:\n    rate: 12.5\n")
-    args = ["--ros-args", "--params-file", str(path), "-p", "rate_hz:=20.0"]
-    node = StereoCaptureNode(context=ros_context, namespace="/stereo", cli_args=args)
+    path = _write(tmp_path, "/**/detect_triangulate:\n  ros__parameters:\n"
+                            "    queue_dept: 12\n")
+    args = ["--ros-args", "--params-file", str(path), "-p", "queue_depth:=20"]
+    node = DetectTriangulateNode(context=ros_context, namespace="/stereo", cli_args=args)
     try:
         with pytest.raises(ConfigError) as info:
             refuse_undeclared_overrides(node, args)
         text = str(info.value)
-        assert text.startswith("/stereo/stereo_capture: unknown parameter (--params-file "
-                               f"{path} or -p): `rate` (did you mean `rate_hz`?)")
+        assert text.startswith("/stereo/detect_triangulate: unknown parameter (--params-file "
+                               f"{path} or -p): `queue_dept` (did you mean `queue_depth`?)")
     finally:
         node.destroy_node()
-    node = StereoCaptureNode(context=ros_context, namespace="/stereo",
-                             cli_args=["--ros-args", "-p", "rate_hz:=20.0"])
+    node = DetectTriangulateNode(context=ros_context, namespace="/stereo",
+                                 cli_args=["--ros-args", "-p", "queue_depth:=20"])
     try:
         refuse_undeclared_overrides(node, [])  # every override declared: no error
     finally:
