@@ -204,6 +204,7 @@ def output_settings(detect: dict, hand_eye: dict, config, calib, *, camera_paren
     from eye_in_hand.core.camera import StereoRig
     from eye_in_hand.ros.markers import sphere_style
     from eye_in_hand.ros.outputs import (
+        DEFAULT_RGBA,
         MARKER_DIAMETER_M,
         MARKER_LIFETIME_S,
         RIGHT_CAMERA_FRAME,
@@ -224,7 +225,7 @@ def output_settings(detect: dict, hand_eye: dict, config, calib, *, camera_paren
         right_camera_frame=str(hand_eye.get("right_camera_frame", RIGHT_CAMERA_FRAME)),
         camera_markers_lifetime_s=float(detect.get("markers.lifetime_s", MARKER_LIFETIME_S)),
         target_markers_lifetime_s=float(hand_eye.get("marker_lifetime_s", MARKER_LIFETIME_S)),
-        styles=styles, default_style=(diameter, sphere_style(None, None, diameter)[1]),
+        styles=styles, default_style=(diameter, DEFAULT_RGBA),
         camera_parent=camera_parent,
         hand_eye_T=calib.transform, stereo_T=stereo_T)
 

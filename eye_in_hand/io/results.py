@@ -81,6 +81,13 @@ CSV_COLUMNS = ["stamp_ns", "status", "x_cam", "y_cam", "z_cam", "residual_px", "
                "target"]
 
 
+def _error_m(point_base: np.ndarray | None, truth_base: np.ndarray | None) -> float:
+    """Distance of a base-frame result to its ground truth (m), NaN when either is missing."""
+    if point_base is None or truth_base is None:
+        return math.nan
+    return float(np.linalg.norm(point_base - truth_base))
+
+
 @dataclass
 class TargetResult:
     """One located target in one stereo pair.
@@ -111,9 +118,7 @@ class TargetResult:
     @property
     def error_m(self) -> float:
         """Distance to the ground truth (m), NaN when either is missing."""
-        if self.point_base is None or self.truth_base is None:
-            return math.nan
-        return float(np.linalg.norm(self.point_base - self.truth_base))
+        return _error_m(self.point_base, self.truth_base)
 
 
 @dataclass
@@ -155,9 +160,7 @@ class FrameResult:
     @property
     def error_m(self) -> float:
         """Distance to the ground truth (m), NaN when either is missing."""
-        if self.point_base is None or self.truth_base is None:
-            return math.nan
-        return float(np.linalg.norm(self.point_base - self.truth_base))
+        return _error_m(self.point_base, self.truth_base)
 
 
 @dataclass
@@ -405,18 +408,20 @@ class _Topics:
         self.T = RosbagsTypes(writer.typestore)
         self.added: set[str] = set()
 
-    def write(self, topic: str, stamp: int, msg: Any, kind: str | None = None) -> None:
+    def write(self, topic: str, stamp: int, msg: Any) -> None:
         if topic not in self.added:
             key = re.sub(r"^(/targets?/)[^/]+/(point|point_cov|pose|pose_cov|ground_truth)$",
                          r"\1{id}/\2", topic)
-            self.w.add_topic(topic, kind or _FRAME_TOPICS[key])
+            self.w.add_topic(topic, _FRAME_TOPICS[key])
             self.added.add(topic)
         self.w.write(topic, stamp, msg)
 
     def write_all(self, result: ProcessResult, camera_frame: str, base_frame: str) -> None:
-        for f in result.frames:
-            if f.status == "bad_image":
-                continue            # the live detector publishes nothing for such a pair
+        # the live detector publishes nothing for a pair whose image is bad
+        frames = [f for f in result.frames if f.status != "bad_image"]
+        if frames:
+            self.static(frames[0].stamp_ns, camera_frame)
+        for f in frames:
             self.frame(f, camera_frame, base_frame)
 
     def static(self, stamp: int, camera_frame: str) -> None:
@@ -436,8 +441,6 @@ class _Topics:
 
     def frame(self, f: FrameResult, camera_frame: str, base_frame: str) -> None:
         s, T, stamp = self.s, self.T, f.stamp_ns
-        if "/tf_static" not in self.added and "/hand_eye/transform" not in self.added:
-            self.static(stamp, camera_frame)
         # detect_triangulate: the first target, every target, the frame's list
         if f.point_cam is not None and f.cov_cam is not None:
             self.write("/target/point_cov", stamp, pose_with_covariance(
