@@ -213,3 +213,45 @@ def test_launch_calibrate_starts_hand_eye_in_calibration_mode(tmp_path, ros_env,
         out, _ = proc.communicate(timeout=30)
     assert "started in calibration mode" in out, out
     assert "Traceback" not in out, out
+
+
+def test_calibration_and_hand_eye_flags_become_node_parameters(tmp_path):
+    """``launch --calibration DIR --hand-eye FILE`` set the nodes' parameters after the
+    parameter file, quoted as strings; a missing folder or file is one error line before any
+    node starts."""
+    import argparse
+
+    from eye_in_hand.commands.launch import _overrides
+    from eye_in_hand.errors import InputError
+
+    spec = next(n for n in NODES if n.name == "hand_eye")
+    cmd = node_command(spec, tmp_path / "p.yaml", overrides=[("hand_eye_file", "1234"),
+                                                            ("x", "it's")])
+    assert cmd[cmd.index("--params-file") + 2:][:4] == [
+        "-p", "hand_eye_file:='1234'", "-p", "x:='it''s'"]      # a string, not the int 1234
+
+    calib = tmp_path / "calib"
+    calib.mkdir()
+    args = argparse.Namespace(calibration=str(calib), hand_eye=None, calibrate=False)
+    try:
+        _overrides(args)
+    except InputError as exc:
+        assert "--calibration" in str(exc) and "left.yaml + right.yaml" in str(exc)
+    else:
+        raise AssertionError("a folder without left.yaml + right.yaml was accepted")
+    for side in ("left", "right"):
+        (calib / f"{side}.yaml").write_text("{}")
+    he = tmp_path / "hand_eye.yaml"
+    he.write_text("{}")
+    args = argparse.Namespace(calibration=str(calib), hand_eye=str(he), calibrate=False)
+    assert _overrides(args) == {"detect_triangulate": [("calibration_dir", str(calib.resolve()))],
+                                "hand_eye": [("hand_eye_file", str(he.resolve()))]}
+    args.calibrate = True          # calibration mode: hand_eye reads the stereo calibration
+    assert ("calibration_dir", str(calib.resolve())) in _overrides(args)["hand_eye"]
+    args.hand_eye = str(tmp_path / "missing.yaml")
+    try:
+        _overrides(args)
+    except InputError as exc:
+        assert "--hand-eye" in str(exc) and "file not found" in str(exc)
+    else:
+        raise AssertionError("a missing hand_eye.yaml was accepted")
