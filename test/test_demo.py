@@ -18,23 +18,17 @@ pytest.importorskip("rclpy")
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def _run_demo(folder: Path, env: dict[str, str]) -> tuple[subprocess.CompletedProcess, Path]:
-    """One ``make demo`` run (``python -m eye_in_hand.demo``), in the background while the
-    rest of the suite runs (conftest's background jobs), on a DDS domain of its own."""
-    out = folder / "demo_out"
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory) -> tuple[subprocess.CompletedProcess, Path]:
+    """One ``make demo`` run (``python -m eye_in_hand.demo``), shared by the tests below."""
+    import os
+
+    out = tmp_path_factory.mktemp("demo") / "demo_out"
+    env = dict(os.environ, PYTHONUNBUFFERED="1")   # conftest set the isolated DDS domain
     proc = subprocess.run([sys.executable, "-m", "eye_in_hand.demo", "-o", str(out)],
                           cwd=ROOT, env=env, text=True, stdout=subprocess.PIPE,
                           stderr=subprocess.STDOUT, timeout=300)
     return proc, out
-
-
-BACKGROUND_JOB = ("demo", _run_demo)
-
-
-@pytest.fixture(scope="module")
-def demo(background) -> tuple[subprocess.CompletedProcess, Path]:
-    """The demo run, shared by the tests below."""
-    return background("demo")
 
 
 def test_demo_runs_every_step_and_meets_its_figures(demo) -> None:

@@ -40,30 +40,20 @@ def test_the_tour_block_uses_only_the_bundled_inputs_and_its_own_outputs():
         assert word not in block.replace("<<", ""), f"the tour still has {word!r}"
 
 
-def _run_tour(folder: Path, env: dict[str, str]) -> tuple[subprocess.CompletedProcess, Path]:
-    """The tour block, by bash, in an empty folder (run in the background while the rest of
-    the suite runs: conftest's background jobs, on a DDS domain of their own)."""
+def test_the_readme_tour_runs_as_written(tmp_path: Path, ros_env: dict[str, str]) -> None:
     for name in ("bags", "config"):
-        (folder / name).symlink_to(ROOT / name)
-    env = dict(env)
+        (tmp_path / name).symlink_to(ROOT / name)
+    env = dict(ros_env)
     env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
     script = ("set -e\n" + tour_block() +
               "\nsleep 1\nkill -INT $(jobs -p) 2>/dev/null || true\nwait || true\n")
-    proc = subprocess.run(["bash", "-c", script], cwd=folder, env=env, text=True,
+    proc = subprocess.run(["bash", "-c", script], cwd=tmp_path, env=env, text=True,
                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, timeout=600)
-    return proc, folder
-
-
-BACKGROUND_JOB = ("readme_tour", _run_tour)
-
-
-def test_the_readme_tour_runs_as_written(background) -> None:
-    proc, folder = background("readme_tour")
     assert proc.returncode == 0, proc.stdout[-4000:]
-    assert (folder / "calib" / "left.yaml").is_file(), proc.stdout[-3000:]
-    assert (folder / "handeye" / "hand_eye.yaml").is_file(), proc.stdout[-3000:]
-    poses = [d for d in yaml.safe_load_all((folder / "poses.yaml").read_text()) if d]
+    assert (tmp_path / "calib" / "left.yaml").is_file(), proc.stdout[-3000:]
+    assert (tmp_path / "handeye" / "hand_eye.yaml").is_file(), proc.stdout[-3000:]
+    poses = [d for d in yaml.safe_load_all((tmp_path / "poses.yaml").read_text()) if d]
     assert len(poses) == 45, proc.stdout[-3000:]           # every frame of the bag, live
     assert {p["header"]["frame_id"] for p in poses} == {"base_link"}
-    rows = (folder / "results" / "results.csv").read_text().splitlines()
+    rows = (tmp_path / "results" / "results.csv").read_text().splitlines()
     assert sum(",ok," in r for r in rows) == 45, proc.stdout[-3000:]
