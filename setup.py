@@ -16,6 +16,7 @@ NODE_SCRIPTS = [
     "hand_eye = eye_in_hand.nodes.hand_eye:main",
     "stereo_capture = eye_in_hand.nodes.stereo_capture:main",
     "detect_triangulate = eye_in_hand.nodes.detect_triangulate:main",
+    "localize = eye_in_hand.nodes.localize:main",
 ]
 
 setup(

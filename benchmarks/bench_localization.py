@@ -34,8 +34,11 @@ the CPU-seconds per second of bag of each and of zstd decompression alone: what 
 allow at most.)
        .venv/bin/python benchmarks/bench_localization.py --consistency-only [--nees-pairs N]
        .venv/bin/python benchmarks/bench_localization.py --live-only [--live-runs N]
+           [--live-mode separate|composed|both]
 (--live-only: only the live part over DDS, N runs one after the other (default 1), each with
-its latency, frames and base-frame error: about 40 s a run. The nodes come from the
+its latency, frames and base-frame error and each node process's CPU per pair: about 40 s a
+run; --live-mode composed runs detect_triangulate + hand_eye in one process (launch
+--composed), both alternates the two layouts in each round. The nodes come from the
 ``eye_in_hand`` package Python imports, so ``PYTHONPATH=<other checkout>`` measures that
 checkout's nodes with this script and data.)
 Data is cached in build/bench-data/ (regenerate with --fresh).
@@ -392,7 +395,8 @@ def node_cpu_s(launcher_pid: int) -> dict[str, float]:
     return out
 
 
-def live(paths: dict[str, Path]) -> tuple[dict[int, np.ndarray], dict[str, float]]:
+def live(paths: dict[str, Path], composed: bool = False
+         ) -> tuple[dict[int, np.ndarray], dict[str, float]]:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import PoseStamped
@@ -413,7 +417,8 @@ def live(paths: dict[str, Path]) -> tuple[dict[int, np.ndarray], dict[str, float
     use_large_data_profile()
     params = params_file(paths)
     launch = subprocess.Popen([sys.executable, "-m", "eye_in_hand.cli", "launch", "--params",
-                               str(params), "--skip", "stereo_capture"], env=env, text=True,
+                               str(params), "--skip", "stereo_capture",
+                               *(["--composed"] if composed else [])], env=env, text=True,
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                               start_new_session=True)
     rclpy.init()
@@ -560,7 +565,8 @@ def print_live(fig: dict[str, float], live_pts: dict[int, np.ndarray],
           "(target: 0 lost to backlog)")
     cpu = {k.split(".", 1)[1]: v for k, v in fig.items() if k.startswith("cpu_ms_per_pair.")}
     print("live CPU per processed pair: " + ", ".join(f"{k} {v:.1f} ms" for k, v in
-                                                      sorted(cpu.items())), flush=True)
+                                                      sorted(cpu.items()))
+          + f"; all nodes {sum(cpu.values()):.1f} ms", flush=True)
 
 
 def main() -> int:
@@ -582,6 +588,11 @@ def main() -> int:
                         help="only the live part over DDS (latency, frames, error)")
     parser.add_argument("--live-runs", type=int, default=1,
                         help="live runs of --live-only, one after the other (default 1)")
+    parser.add_argument("--live-mode", choices=("separate", "composed", "both"),
+                        default="separate",
+                        help="--live-only: detect_triangulate and hand_eye as separate "
+                             "processes (eye-in-hand launch), in one (launch --composed), or "
+                             "both alternating, each --live-runs times (default separate)")
     parser.add_argument("--trials", type=int, default=3,
                         help="process_bag runs per bag, the best one counts (default 3)")
     args = parser.parse_args()
@@ -597,9 +608,13 @@ def main() -> int:
         import eye_in_hand
 
         print(f"nodes from {Path(eye_in_hand.__file__).parent}")
+        modes = ["separate", "composed"] if args.live_mode == "both" else [args.live_mode]
         for _ in range(args.live_runs):
-            live_pts, fig = live(paths)
-            print_live(fig, live_pts, truth)
+            for mode in modes:
+                print(f"== live, {mode} processes" if mode == "separate" else
+                      "== live, composed (detect_triangulate + hand_eye in one process)")
+                live_pts, fig = live(paths, composed=mode == "composed")
+                print_live(fig, live_pts, truth)
         return 0
     from eye_in_hand.core.camera import StereoRig
     from eye_in_hand.core.transforms import transform_distance

@@ -1,5 +1,8 @@
 """Process launcher: the three nodes as separate processes, one parameter file.
 
+With ``composed``, detect_triangulate and hand_eye run in one process instead
+(:data:`COMPOSED`, :mod:`eye_in_hand.nodes.localize`): the same names, namespaces and topics.
+
 The equivalent of ``launch/eye_in_hand.launch.py`` for installs without ``ros2 launch``:
 
 =================== ============ ===========================================================
@@ -43,8 +46,8 @@ from typing import IO
 
 from eye_in_hand.errors import ConfigError, InputError
 
-__all__ = ["NodeSpec", "NODES", "CALIBRATION_NODES", "node_command", "Launcher",
-           "default_params_file"]
+__all__ = ["NodeSpec", "NODES", "CALIBRATION_NODES", "COMPOSED", "node_command", "node_ros_args",
+           "Launcher", "default_params_file"]
 
 
 @dataclass(frozen=True)
@@ -70,6 +73,10 @@ NODES: tuple[NodeSpec, ...] = (
               ("targets/markers", "targets/markers"))),
     NodeSpec("hand_eye", "eye_in_hand.nodes.hand_eye", ""),
 )
+
+#: detect_triangulate and hand_eye in one process (``eye-in-hand launch --composed``,
+#: :mod:`eye_in_hand.nodes.localize`): each node's namespace and remappings as above.
+COMPOSED = NodeSpec("localize", "eye_in_hand.nodes.localize", "")
 
 #: Calibration mode (``eye-in-hand launch --calibrate``, ``mode:=calibration``): the camera, and
 #: hand_eye in calibration mode reading the camera's images (``stereo/left/image_raw``, ...).
@@ -107,22 +114,40 @@ def _yaml_string(value: str) -> str:
     return "'" + value.replace("'", "''") + "'"
 
 
-def node_command(spec: NodeSpec, params_file: str | os.PathLike[str], *,
-                 root_namespace: str = "/", python: str = sys.executable,
-                 overrides: Sequence[tuple[str, str]] = ()) -> list[str]:
-    """The command line that starts ``spec`` as a process; ``overrides``: string parameters
-    ``(name, value)`` set after the parameter file (``-p name:=value``)."""
+def node_ros_args(spec: NodeSpec, *, root_namespace: str = "/",
+                  overrides: Sequence[tuple[str, str]] = ()) -> list[str]:
+    """The ROS arguments of one node after ``--ros-args`` and the parameter file: its
+    namespace, ``overrides`` (string parameters ``(name, value)``, ``-p name:=value``) and
+    remappings; as a process's arguments or a node's own ``cli_args`` in a composed process."""
     ns = _join(root_namespace, spec.namespace)
-    cmd = [python, "-u", "-m", spec.module, "--ros-args", "-r", f"__ns:={ns}",
-           "--params-file", str(params_file)]
+    args = ["-r", f"__ns:={ns}"]
     for name, value in overrides:
-        cmd += ["-p", f"{name}:={_yaml_string(value)}"]
+        args += ["-p", f"{name}:={_yaml_string(value)}"]
     remaps = list(spec.remaps) + [(t, t) for t in _TO_ROOT]
     for src, dst in remaps:
         target = _join(root_namespace, dst)
         if target != _join(ns, src):
-            cmd += ["-r", f"{src}:={target}"]
-    return cmd + list(spec.extra_args)
+            args += ["-r", f"{src}:={target}"]
+    return args + list(spec.extra_args)
+
+
+def node_command(spec: NodeSpec, params_file: str | os.PathLike[str], *,
+                 root_namespace: str = "/", python: str = sys.executable,
+                 overrides: Sequence[tuple[str, str]] = (),
+                 composed_overrides: dict[str, list[tuple[str, str]]] | None = None
+                 ) -> list[str]:
+    """The command line that starts ``spec`` as a process; ``overrides``: string parameters
+    ``(name, value)`` set after the parameter file (``-p name:=value``). :data:`COMPOSED`
+    takes its nodes' overrides as ``composed_overrides`` (node name -> parameters)."""
+    if spec.name == COMPOSED.name:
+        sets = [a for node, items in (composed_overrides or {}).items() for name, value in items
+                for a in ("--set", f"{node}.{name}:={value}")]
+        return [python, "-u", "-m", spec.module, "--namespace", root_namespace, *sets,
+                "--ros-args", "--params-file", str(params_file)]
+    args = node_ros_args(spec, root_namespace=root_namespace, overrides=overrides)
+    # the namespace, the file, then the overrides: they replace the file's values
+    return [python, "-u", "-m", spec.module, "--ros-args", *args[:2],
+            "--params-file", str(params_file), *args[2:]]
 
 
 class Launcher:
@@ -145,6 +170,8 @@ class Launcher:
         calibrate: calibration mode (:data:`CALIBRATION_NODES`).
         overrides: node name -> string parameters ``(name, value)`` that replace the
             parameter file's (``launch --calibration`` / ``--hand-eye``).
+        composed: detect_triangulate and hand_eye in one process (:data:`COMPOSED`), with
+            the hand-off in memory (:mod:`eye_in_hand.nodes.localize`).
     """
 
     def __init__(self, params_file: str | os.PathLike[str], nodes: Sequence[str] | None = None,
@@ -153,7 +180,8 @@ class Launcher:
                  respawn_delay_s: float = 0.5, respawn_max_delay_s: float = 8.0,
                  max_restarts: int = 5, restart_window_s: float = 60.0,
                  calibrate: bool = False,
-                 overrides: dict[str, list[tuple[str, str]]] | None = None) -> None:
+                 overrides: dict[str, list[tuple[str, str]]] | None = None,
+                 composed: bool = False) -> None:
         if not (respawn_delay_s >= 0 and respawn_max_delay_s >= respawn_delay_s):
             raise InputError(f"respawn delays: need 0 <= first ({respawn_delay_s}) <= max "
                              f"({respawn_max_delay_s})")
@@ -178,6 +206,12 @@ class Launcher:
         if not chosen:
             raise InputError("no node to launch")
         self.specs = [s for s in catalogue if s.name in chosen]
+        if composed:
+            pair = {"detect_triangulate", "hand_eye"}
+            if calibrate or not pair <= set(chosen):
+                raise InputError("composed: needs both detect_triangulate and hand_eye (not "
+                                 "skipped), in localization mode")
+            self.specs = [s for s in self.specs if s.name not in pair] + [COMPOSED]
         self.overrides = dict(overrides or {})
         self.root_namespace = root_namespace
         self.env = dict(os.environ if env is None else env)
@@ -194,7 +228,8 @@ class Launcher:
 
     def _start_one(self, spec: NodeSpec) -> None:
         cmd = node_command(spec, self.params_file, root_namespace=self.root_namespace,
-                           overrides=self.overrides.get(spec.name, ()))
+                           overrides=self.overrides.get(spec.name, ()),
+                           composed_overrides=self.overrides)
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                 text=True, env=self.env, start_new_session=True)
         self.procs[spec.name] = proc

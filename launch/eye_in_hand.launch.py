@@ -1,6 +1,6 @@
 """ros2 launch eye_in_hand eye_in_hand.launch.py [params_file:=FILE] [namespace:=NS]
 [start_capture:=true|false] [respawn:=true|false] [respawn_delay:=S]
-[mode:=localization|calibration]
+[mode:=localization|calibration] [composed:=true|false]
 
 The same bring-up as ``eye-in-hand launch`` (eye_in_hand/launcher.py: keep the two equal):
 
@@ -9,6 +9,10 @@ The same bring-up as ``eye-in-hand launch`` (eye_in_hand/launcher.py: keep the t
                       targets/markers (and with it every targets/<id>/...) -> <ns>
 * hand_eye            in <ns>
 * every node's diagnostics -> <ns>/diagnostics
+
+``composed:=true`` (= ``eye-in-hand launch --composed``): detect_triangulate and hand_eye in
+one process (executable ``localize``, eye_in_hand/nodes/localize.py), with the same names,
+namespaces and topics, the located points handed over in memory.
 
 One parameter file (default: share/eye_in_hand/config/eye_in_hand.yaml) configures all three.
 
@@ -75,7 +79,14 @@ def _nodes(context):
              output="screen", **again),
         hand_eye,
     ]
-    return [nodes[0], nodes[2]] if calibrate else nodes
+    if calibrate:
+        return [nodes[0], nodes[2]]
+    if LaunchConfiguration("composed").perform(context).lower() in ("true", "1", "yes"):
+        # one process; it gives each node its namespace and remappings (as the launcher)
+        return [nodes[0], Node(package="eye_in_hand", executable="localize",
+                               arguments=["--namespace", ns], parameters=[params],
+                               additional_env=env, output="screen", **again)]
+    return nodes
 
 
 def generate_launch_description():
@@ -88,6 +99,9 @@ def generate_launch_description():
                               choices=["localization", "calibration"],
                               description="localization: the three nodes; calibration: "
                               "stereo_capture and hand_eye in calibration mode"),
+        DeclareLaunchArgument("composed", default_value="false",
+                              description="detect_triangulate and hand_eye in one process "
+                              "(localization mode)"),
         DeclareLaunchArgument("namespace", default_value="/",
                               description="root namespace of every node and topic"),
         DeclareLaunchArgument("start_capture", default_value="true",

@@ -98,9 +98,25 @@ def target_in_base(base_T_ee, ee_T_cam, point_cam, *, cov_cam=None, cov_hand_eye
     if p_c.shape[0] != 1:
         raise InputError(f"point_cam: expected one point, got {p_c.shape[0]}")
     p_c = p_c[0]
+    _check_sigmas(robot_sigma_pos_m, robot_sigma_rot_rad)
+    return _propagate(b_T_e, e_T_c, p_c,
+                      None if cov_cam is None else _as_cov(cov_cam, "cov_cam", 3),
+                      None if cov_hand_eye is None else _as_cov(cov_hand_eye, "cov_hand_eye", 6),
+                      robot_sigma_pos_m, robot_sigma_rot_rad)
+
+
+def _check_sigmas(robot_sigma_pos_m: float, robot_sigma_rot_rad: float) -> None:
     if not (np.isfinite(robot_sigma_pos_m) and robot_sigma_pos_m >= 0
             and np.isfinite(robot_sigma_rot_rad) and robot_sigma_rot_rad >= 0):
         raise InputError("robot pose sigmas must be finite and non-negative")
+
+
+def _propagate(b_T_e: np.ndarray, e_T_c: np.ndarray, p_c: np.ndarray,
+               cov_cam: np.ndarray | None, cov_hand_eye: np.ndarray | None,
+               robot_sigma_pos_m: float, robot_sigma_rot_rad: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`target_in_base` on checked inputs (float64 arrays of the right shapes, valid
+    transforms and covariances): the one formula of the live and offline paths."""
     Rb, tb = b_T_e[:3, :3], b_T_e[:3, 3]
     Rx, tx = e_T_c[:3, :3], e_T_c[:3, 3]
     q = Rx @ p_c                      # camera point rotated into ee axes
@@ -110,11 +126,11 @@ def target_in_base(base_T_ee, ee_T_cam, point_cam, *, cov_cam=None, cov_hand_eye
     cov = np.zeros((3, 3))
     if cov_cam is not None:
         J = Rb @ Rx
-        cov += J @ _as_cov(cov_cam, "cov_cam", 3) @ J.T
+        cov += J @ cov_cam @ J.T
     if cov_hand_eye is not None:
         # d p_ee = dt - [q]x dr  (left rotation perturbation in the ee frame)
         J = Rb @ np.hstack([np.eye(3), -_skew(q)])
-        cov += J @ _as_cov(cov_hand_eye, "cov_hand_eye", 6) @ J.T
+        cov += J @ cov_hand_eye @ J.T
     if robot_sigma_pos_m > 0:
         cov += robot_sigma_pos_m ** 2 * np.eye(3)
     if robot_sigma_rot_rad > 0:
@@ -219,6 +235,7 @@ class Localizer:
                              else _as_cov(cov_hand_eye, "cov_hand_eye", 6).copy())
         self.poses = PoseBuffer(self.config.buffer_size, name="base_T_ee",
                                 jump_back_ns=self.config.jump_back_ns)
+        _check_sigmas(self.config.robot_sigma_pos_m, self.config.robot_sigma_rot_rad)
 
     def add_robot_pose(self, stamp_ns: int, base_T_ee, *, received_ns: int | None = None
                        ) -> bool:
@@ -246,10 +263,15 @@ class Localizer:
         """
         base_T_ee = self.poses.lookup(stamp_ns, int(self.config.max_gap_ns), now_ns=now_ns,
                                       max_age_ns=self.config.max_age_ns)
-        p, cov = target_in_base(base_T_ee, self.ee_T_cam, point_cam, cov_cam=cov_cam,
-                                cov_hand_eye=self.cov_hand_eye,
-                                robot_sigma_pos_m=self.config.robot_sigma_pos_m,
-                                robot_sigma_rot_rad=self.config.robot_sigma_rot_rad)
+        p_c = as_points(point_cam, "point_cam")
+        if p_c.shape[0] != 1:
+            raise InputError(f"point_cam: expected one point, got {p_c.shape[0]}")
+        # the calibration and the sigmas were checked once (__init__), the robot pose when it
+        # was buffered (an interpolation of checked poses): per point, only its own inputs
+        p, cov = _propagate(base_T_ee, self.ee_T_cam, p_c[0],
+                            None if cov_cam is None else _as_cov(cov_cam, "cov_cam", 3),
+                            self.cov_hand_eye, self.config.robot_sigma_pos_m,
+                            self.config.robot_sigma_rot_rad)
         return TargetInBase(stamp_ns=int(stamp_ns), point_base=p, covariance=cov,
                             base_T_ee=base_T_ee)
 

@@ -76,7 +76,7 @@ import threading
 import time
 import traceback
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import cv2
@@ -111,6 +111,7 @@ from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.ros.outputs import (
     MARKER_DIAMETER_M,
     MARKER_LIFETIME_S,
+    LocatedFrame,
     point_stamped,
     pose_with_covariance,
     rclpy_types,
@@ -355,6 +356,9 @@ class DetectTriangulateNode(Node):
             self.create_subscription(CameraInfo, "right/camera_info",
                                      lambda m: self._on_info("right", m), SENSOR_QOS)
 
+        #: called on the worker thread with each located pair, after its topics are sent
+        #: (``hand_eye`` in the same process: :mod:`eye_in_hand.nodes.localize`)
+        self.frame_sinks: list[Callable[[LocatedFrame], None]] = []
         self._worker = threading.Thread(target=self._work, name=f"{NODE_NAME}_worker",
                                          daemon=True)
         self._worker.start()
@@ -563,7 +567,13 @@ class DetectTriangulateNode(Node):
             self.diag.gauge("range_m", float(np.linalg.norm(first.point_m)))
         else:
             self.diag.gauge("last_miss", result.rejected.get(result.first_name, ""))
-        self._publish_targets(result, stamp, frame, first_msgs)
+        delivered = self._publish_targets(result, stamp, frame, first_msgs)
+        if self.frame_sinks:
+            located = LocatedFrame(
+                stamp, frame, None if first is None else (first.point_m, first.covariance),
+                tuple(delivered))
+            for sink in self.frame_sinks:
+                sink(located)
         n_pairs = self.diag.counter("pairs")
         self.diag.gauge("detection_rate", self.diag.counter("detections") / max(1, n_pairs))
         try:
@@ -571,6 +581,12 @@ class DetectTriangulateNode(Node):
         except (EyeInHandError, cv2.error, ValueError) as exc:  # the point is out already
             self.diag.report("debug_image", f"target/debug_image: {exc}")
         return "points_published" if first is not None else "no_target"
+
+    @property
+    def target_ids(self) -> list[str]:
+        """The target ids that have publishers (the configured names from the start)."""
+        with self._pub_targets_lock:
+            return list(self._pub_targets)
 
     def _target_publishers(self, tid: str) -> tuple[Any, Any] | None:
         """``(point, point_cov)`` publishers of ``targets/<tid>/...``, made on first use; None
@@ -597,11 +613,14 @@ class DetectTriangulateNode(Node):
             return pubs
 
     def _publish_targets(self, result: LocateResult, stamp: int, frame: str,
-                         first_msgs: tuple[Any, Any] | None = None) -> None:
+                         first_msgs: tuple[Any, Any] | None = None
+                         ) -> list[tuple[Sphere, np.ndarray]]:
         """Every located target on its own topics, then the frame's ``targets/markers``.
         ``first_msgs``: the ``(point_cov, point)`` messages already built for
-        ``result.first`` (``target/point_cov``, ``target/point``), sent again as they are."""
+        ``result.first`` (``target/point_cov``, ``target/point``), sent again as they are.
+        Returns each published target's sphere (as on ``targets/markers``) and covariance."""
         spheres = []
+        delivered = []
         for t in result.targets:
             self.diag.count("targets_located")
             pubs = self._target_publishers(t.id)
@@ -619,9 +638,11 @@ class DetectTriangulateNode(Node):
             self.diag.count("target_points_published")
             diameter, rgba = self._sphere_style(t.name)
             spheres.append(Sphere(t.id, t.point_m, diameter, rgba))
+            delivered.append((spheres[-1], t.covariance))
         self._pub_markers.publish(sphere_marker_array(
             spheres, stamp_ns=stamp, frame_id=frame, lifetime_s=self._marker_lifetime_s))
         self.diag.count("marker_frames")
+        return delivered
 
     def _sphere_style(self, name: str) -> tuple[float, tuple[float, float, float, float]]:
         """Diameter (m) and RGBA of a target's sphere on ``targets/markers`` (per name, cached:

@@ -104,6 +104,7 @@ from eye_in_hand.ros.outputs import (
     MARKER_LIFETIME_S,
     RIGHT_CAMERA_FRAME,
     TARGET_FRAME_PREFIX,
+    LocatedFrame,
     header,
     pose_stamped,
     pose_with_covariance,
@@ -278,8 +279,11 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
     (:mod:`~eye_in_hand.nodes.hand_eye_calibration`) in their own modules.
     """
 
-    def __init__(self, **kwargs: Any) -> None:
+    def __init__(self, *, in_process: bool = False, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
+        #: fed by :meth:`deliver` (a detector in the same process, :mod:`.localize`) instead
+        #: of the camera-frame topics: no subscription to them, no message to parse
+        self.in_process = in_process
         self.config: HandEyeNodeConfig = load_config(self, HandEyeNodeConfig)
         cfg = self.config
         self.diag = NodeDiagnostics(self, hardware_id=NODE_NAME)
@@ -430,9 +434,14 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
         cfg = self.config
         self._pending: deque[_Pending] = deque(maxlen=1000)
         self._covs: dict[int, np.ndarray] = {}
-        self.create_subscription(PointStamped, "target/point", self._on_point, RESULT_QOS)
-        self.create_subscription(PoseWithCovarianceStamped, "target/point_cov",
-                                 self._on_point_cov, RESULT_QOS)
+        if self.in_process:
+            # frames handed over by a detector thread, taken on the executor's thread
+            self._inbox: deque[LocatedFrame] = deque()
+            self._inbox_gc = self.create_guard_condition(self._drain_inbox)
+        else:
+            self.create_subscription(PointStamped, "target/point", self._on_point, RESULT_QOS)
+            self.create_subscription(PoseWithCovarianceStamped, "target/point_cov",
+                                     self._on_point_cov, RESULT_QOS)
         self.pub_pose = self.create_publisher(PoseStamped, "target/pose", RESULT_QOS)
         self.pub_pose_cov = self.create_publisher(PoseWithCovarianceStamped, "target/pose_cov",
                                                   RESULT_QOS)
@@ -462,25 +471,60 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
             self.config.camera_frame))
         self._publish_static_tf(self.calibration.transform, stamp_ns)
 
+    # -- in-process input (one process with the detector: nodes/localize.py) ---------------
+    def deliver(self, frame: LocatedFrame) -> None:
+        """Hand over one located stereo pair from a detector in this process (any thread):
+        the same inputs as ``target/point(_cov)``, ``targets/<id>/point_cov`` and
+        ``targets/markers`` carry, taken on the executor's thread in arrival order."""
+        self._inbox.append(frame)
+        self._inbox_gc.trigger()
+
+    def _drain_inbox(self) -> None:
+        while self._inbox:
+            self._take_frame_in_process(self._inbox.popleft())
+
+    def _take_frame_in_process(self, f: LocatedFrame) -> None:
+        """What the topic callbacks do with a pair's messages, in their order (first target,
+        every target's point, the list of targets), from the detector's values."""
+        if f.first is not None:
+            self.diag.count("points")
+            self.first_data(f.stamp_ns)
+            if self._camera_frame_ok("target/point", f.frame_id):
+                self._take_point(f.stamp_ns, f.first[0], f.first[1])
+        for sphere, cov in f.targets:
+            self._take_target_point(sphere.id, f.stamp_ns, f.frame_id, sphere.xyz, cov)
+        self._take_markers(f.stamp_ns, f.frame_id, [s for s, _ in f.targets])
+
+    # -- camera-frame topics ----------------------------------------------------------------
+    def _camera_frame_ok(self, topic: str, frame: str) -> bool:
+        """Whether ``frame`` is the camera frame (or empty); else the point is refused."""
+        if frame and frame.lstrip("/") != self.config.camera_frame:
+            self._refuse("point_frame", f"{topic} in frame {frame!r}, expected "
+                         f"{self.config.camera_frame!r}: ignored")
+            return False
+        return True
+
     def _on_point(self, msg: PointStamped) -> None:
         self.diag.count("points")
         try:
             stamp = header_stamp_ns(msg)
             self.first_data(stamp)
-            frame = msg.header.frame_id
-            if frame and frame.lstrip("/") != self.config.camera_frame:
-                self._refuse("point_frame", f"target/point in frame {frame!r}, expected "
-                             f"{self.config.camera_frame!r}: ignored")
+            if not self._camera_frame_ok("target/point", msg.header.frame_id):
                 return
             p = point_to_xyz(msg.point)
         except (ConversionError, InputError) as exc:
             self._refuse("bad_point", f"target/point: {exc}")
             return
+        self._take_point(stamp, p, self._covs.pop(stamp, None))
+
+    def _take_point(self, stamp: int, p: np.ndarray, cov: np.ndarray | None) -> None:
+        """Queue the first target's camera point (and covariance, when it came first) until
+        its robot pose is there."""
         if len(self._pending) == self._pending.maxlen:
             old = self._pending[0]
             self._refuse("pending_overflow", f"more than {self._pending.maxlen} points wait "
                          f"for robot poses: the oldest (at {old.stamp_ns} ns) was dropped")
-        self._pending.append(_Pending(stamp, p, self._covs.pop(stamp, None), time.monotonic()))
+        self._pending.append(_Pending(stamp, p, cov, time.monotonic()))
         self._drain_pending()
 
     def _on_point_cov(self, msg: PoseWithCovarianceStamped) -> None:
@@ -510,7 +554,8 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
         if not self.eye_to_hand and (newest is None or item.stamp_ns > newest):
             return False  # wait for a robot pose at or after the image stamp
         # Wait for the triangulation covariance when a detector publishes one.
-        return item.cov is not None or self.count_publishers("target/point_cov") == 0
+        return item.cov is not None or self.in_process \
+            or self.count_publishers("target/point_cov") == 0
 
     def _drain_pending(self) -> None:
         newest = self.localizer.poses.newest_ns

@@ -36,6 +36,7 @@ from eye_in_hand.ros.qos import RESULT_QOS, TARGET_POINT_QOS
 __all__ = ["EveryTargetMixin"]
 
 
+
 @dataclass
 class _Frame:
     """One frame of ``targets/markers`` waiting for its targets' points and the robot pose."""
@@ -64,16 +65,19 @@ class EveryTargetMixin:
         # targets/markers, target/<id>/pose(_cov) next to target/poses
         self._targets_prefix = self.resolve_topic_name("targets/markers").rsplit("/", 1)[0]
         self._poses_prefix = self.resolve_topic_name("target/poses").rsplit("/", 1)[0]
-        self.create_subscription(MarkerArray, "targets/markers", self._on_markers, RESULT_QOS)
+        if not self.in_process:
+            self.create_subscription(MarkerArray, "targets/markers", self._on_markers,
+                                     RESULT_QOS)
         self.pub_poses = self.create_publisher(pose_array_class(), "target/poses", RESULT_QOS)
         self.pub_markers = self.create_publisher(MarkerArray, "target/markers", RESULT_QOS)
         self.diag.declare_counter("target_frames", "target_points", "target_points_received",
                                   "target_poses_published", "targets_rejected",
                                   "target_frames_published", "orphan_target_points",
                                   "target_refused.stale_pose", "target_refused.no_point")
-        self.create_timer(cfg.discovery_period_s, self._discover_targets,
-                          clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self._discover_targets()
+        if not self.in_process:
+            self.create_timer(cfg.discovery_period_s, self._discover_targets,
+                              clock=Clock(clock_type=ClockType.STEADY_TIME))
+            self._discover_targets()
 
     def _discover_targets(self) -> None:
         """Subscribe to every ``targets/<id>/point_cov`` that has a publisher in the graph."""
@@ -84,6 +88,13 @@ class EveryTargetMixin:
                 if tid and "/" not in tid and tid not in self._target_subs \
                         and self.count_publishers(name) > 0:
                     self._subscribe_target(tid)
+
+    def expect_targets(self, ids: list[str]) -> None:
+        """Make the ``target/<id>/pose(_cov)`` publishers of a detector's known target ids
+        now (in one process with it, where no graph search finds them), so that their
+        subscribers match before the first frame."""
+        for tid in ids:
+            self._subscribe_target(tid)
 
     def _subscribe_target(self, tid: str) -> str | None:
         """Subscribe to ``targets/<tid>/point_cov`` and make the ``target/<tid>/pose(_cov)``
@@ -99,7 +110,7 @@ class EveryTargetMixin:
         if len(self._target_subs) >= self.config.max_targets:
             return "too_many_targets"
         topic = f"{self._targets_prefix}/{tid}/point_cov"
-        self._target_subs[tid] = self.create_subscription(
+        self._target_subs[tid] = None if self.in_process else self.create_subscription(
             PoseWithCovarianceStamped, topic, lambda m, t=tid: self._on_target_point(t, m),
             self._target_point_qos(topic))
         base = f"{self._poses_prefix}/{tid}"
@@ -120,36 +131,50 @@ class EveryTargetMixin:
 
     def _on_target_point(self, tid: str, msg: PoseWithCovarianceStamped) -> None:
         """A target's point and covariance (``targets/<id>/point_cov``), kept for its frame."""
-        self.diag.count("target_points_received")
-        self.waits.point_arrived()
-        topic = f"targets/{tid}/point_cov"
         try:
             stamp = header_stamp_ns(msg)
-            frame = msg.header.frame_id
-            if frame and frame.lstrip("/") != self.config.camera_frame:
-                raise InputError(f"frame {frame!r}, expected {self.config.camera_frame!r}")
             p = point_to_xyz(msg.pose.pose.position)
             cov = np.asarray(msg.pose.covariance, dtype=np.float64).reshape(6, 6)[:3, :3]
-            if not np.all(np.isfinite(cov)):
-                raise InputError("covariance contains NaN")
         except (ConversionError, InputError, ValueError) as exc:
-            # its frame then misses the point and refuses the target (counted there)
-            self.diag.report("bad_target_point", f"{topic}: {exc}")
+            self.diag.count("target_points_received")
+            self.waits.point_arrived()
+            self.diag.report("bad_target_point", f"targets/{tid}/point_cov: {exc}")
             return
-        self._target_points[(tid, stamp)] = (p, cov)
-        while len(self._target_points) > 4000:
-            self._target_points.pop(next(iter(self._target_points)))
-            self.diag.count("orphan_target_points")
+        self._take_target_point(tid, stamp, msg.header.frame_id, p, cov)
         self._drain_frames()
+
+    def _take_target_point(self, tid: str, stamp: int, frame: str, p: np.ndarray,
+                           cov: np.ndarray) -> None:
+        """Keep a target's camera point and covariance for its frame (a wrong frame or a
+        NaN covariance is reported; its frame then misses the point and refuses the target,
+        counted there)."""
+        self.diag.count("target_points_received")
+        self.waits.point_arrived()
+        if frame and frame.lstrip("/") != self.config.camera_frame:
+            problem = f"frame {frame!r}, expected {self.config.camera_frame!r}"
+        elif not np.all(np.isfinite(cov)):
+            problem = "covariance contains NaN"
+        else:
+            self._target_points[(tid, stamp)] = (p, cov)
+            while len(self._target_points) > 4000:
+                self._target_points.pop(next(iter(self._target_points)))
+                self.diag.count("orphan_target_points")
+            return
+        self.diag.report("bad_target_point", f"targets/{tid}/point_cov: {problem}")
 
     def _on_markers(self, msg: Any) -> None:
         """A frame's list of targets (``targets/markers``)."""
-        self.diag.count("target_frames")
         try:
             stamp, frame, spheres = spheres_from_marker_array(msg)
         except ConversionError as exc:
+            self.diag.count("target_frames")
             self.diag.report("bad_markers", f"targets/markers: {exc}")
             return
+        self._take_markers(stamp, frame, spheres)
+
+    def _take_markers(self, stamp: int, frame: str, spheres: list[Sphere]) -> None:
+        """A frame's list of targets: it waits for their points and the robot pose."""
+        self.diag.count("target_frames")
         self.first_data(stamp)
         self.diag.count("target_points", len(spheres))
         if frame and frame.lstrip("/") != self.config.camera_frame:

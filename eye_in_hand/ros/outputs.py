@@ -28,7 +28,8 @@ import numpy as np
 from eye_in_hand.core.transforms import matrix_to_quat_xyzw
 from eye_in_hand.errors import ConfigError, ConversionError
 
-__all__ = ["Sphere", "OutputSettings", "DEFAULT_RGBA", "TARGET_FRAME_PREFIX", "MARKER_LIFETIME_S",
+__all__ = ["Sphere", "LocatedFrame", "OutputSettings", "DEFAULT_RGBA", "TARGET_FRAME_PREFIX",
+           "MARKER_LIFETIME_S",
            "MARKER_DIAMETER_M", "RIGHT_CAMERA_FRAME", "UNKNOWN_ROTATION_VARIANCE",
            "RosbagsTypes", "rclpy_types",
            "time_msg", "header", "point_stamped", "pose_with_covariance", "pose_stamped",
@@ -71,6 +72,26 @@ class Sphere:
     xyz: np.ndarray
     diameter_m: float
     rgba: tuple[float, float, float, float] = DEFAULT_RGBA
+
+
+@dataclass(frozen=True)
+class LocatedFrame:
+    """One located stereo pair, handed from a detector to ``hand_eye`` in the same process
+    (:meth:`eye_in_hand.nodes.hand_eye.HandEyeNode.deliver`): what ``target/point(_cov)``,
+    ``targets/<id>/point_cov`` and ``targets/markers`` carry over DDS.
+
+    Attributes:
+        stamp_ns: the left image's stamp.
+        frame_id: the camera frame of the points.
+        first: the first configured target's point (3,) and covariance (3, 3), or None.
+        targets: every published target: its sphere (id, centre = camera point, diameter,
+            colour) and covariance (3, 3), in the order of ``targets/markers``.
+    """
+
+    stamp_ns: int
+    frame_id: str
+    first: tuple[np.ndarray, np.ndarray] | None
+    targets: tuple[tuple[Sphere, np.ndarray], ...]
 
 
 @dataclass(frozen=True)

@@ -255,3 +255,75 @@ def test_calibration_and_hand_eye_flags_become_node_parameters(tmp_path):
         assert "--hand-eye" in str(exc) and "file not found" in str(exc)
     else:
         raise AssertionError("a missing hand_eye.yaml was accepted")
+
+
+def test_launch_composed_runs_the_chain_in_one_process(tmp_path, ros_env, ros_context, executor,
+                                                       spin_until, namespace):
+    """``launch --composed``: detect_triangulate + hand_eye in one process (``localize``),
+    started with the launcher's namespace, parameter file and --calibration/--hand-eye; images
+    and robot poses in, the target in the base frame out, and the camera-frame topics still
+    there for other subscribers."""
+    from geometry_msgs.msg import PointStamped, PoseStamped
+    from sensor_msgs.msg import Image
+
+    from eye_in_hand.core.localization import target_in_base
+    from eye_in_hand.ros.conversions import matrix_to_pose_stamped, numpy_to_image
+    from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS
+    from test.nodes.test_every_target import BOTH, CAM, EE_T_CAM, RIG, T0, TARGETS, _robot_pose
+
+    RIG.save(tmp_path / "calib")
+    he = tmp_path / "hand_eye.yaml"
+    save_hand_eye(he, HandEyeCalibration("eye_in_hand", "tool0", CAM, EE_T_CAM))
+    params = tmp_path / "params.yaml"
+    params.write_text("/**/hand_eye:\n  ros__parameters:\n    hand_eye_file: /nonexistent\n"
+                      "/**/detect_triangulate:\n  ros__parameters:\n    sync.slop_s: 0.0\n"
+                      f"    frame_id: {CAM}\n")
+    proc = subprocess.Popen([sys.executable, "-m", "eye_in_hand.cli", "launch", "--params",
+                             str(params), "--skip", "stereo_capture", "--composed",
+                             "--namespace", namespace, "--calibration", str(tmp_path / "calib"),
+                             "--hand-eye", str(he), "--no-respawn"],
+                            env=ros_env, text=True, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT)
+    out = _Lines(proc)
+    import rclpy
+
+    node = rclpy.create_node("io", context=ros_context, namespace=namespace)
+    executor.add_node(node)
+    pub_l = node.create_publisher(Image, "stereo/left/image_raw", SENSOR_QOS)
+    pub_r = node.create_publisher(Image, "stereo/right/image_raw", SENSOR_QOS)
+    pub_ee = node.create_publisher(PoseStamped, "ee_pose", SENSOR_QOS)
+    poses: list = []
+    points: list = []
+    node.create_subscription(PoseStamped, "target/pose", poses.append, RESULT_QOS)
+    node.create_subscription(PointStamped, "target/point", points.append, RESULT_QOS)
+    try:
+        assert out.wait_for(lambda t: "[localize]" in t and "started in localization" in t), \
+            out.text
+        assert "[launch] started localize" in out.text and "started detect" not in out.text
+        assert spin_until(executor, lambda: pub_l.get_subscription_count() > 0
+                          and pub_ee.get_subscription_count() > 0
+                          and node.count_publishers("target/pose") > 0, 30.0), out.text
+        spin_until(executor, lambda: False, 0.5)
+        stamp = T0
+        deadline = time.monotonic() + 40.0
+        while not poses and time.monotonic() < deadline:   # images are reliable, poses not
+            for dt in (-10_000_000, 10_000_000):
+                pub_ee.publish(matrix_to_pose_stamped(_robot_pose(stamp + dt),
+                                                      stamp_ns=stamp + dt, frame_id="base_link"))
+            pub_l.publish(numpy_to_image(BOTH[0], "bgr8", stamp_ns=stamp, frame_id=CAM))
+            pub_r.publish(numpy_to_image(BOTH[1], "bgr8", stamp_ns=stamp, frame_id=CAM))
+            spin_until(executor, lambda: bool(poses), 2.0)
+            stamp += 50_000_000
+        assert poses, out.text
+        from eye_in_hand.ros.conversions import header_stamp_ns
+
+        s = header_stamp_ns(poses[0])
+        got = np.array([poses[0].pose.position.x, poses[0].pose.position.y,
+                        poses[0].pose.position.z])
+        truth, _ = target_in_base(_robot_pose(s), EE_T_CAM, TARGETS["red"][0])
+        assert np.linalg.norm(got - truth) < 3e-3
+        assert spin_until(executor, lambda: bool(points), 5.0)   # camera-frame topic too
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=60)
+    assert proc.returncode == 0, out.text
