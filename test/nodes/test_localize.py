@@ -158,6 +158,7 @@ def test_composed_chain_refuses_points_in_another_frame(tmp_path, ros_context, e
     c = chain.hand_eye.diag.snapshot().counters
     assert c["points"] == 1 and c["refused.point_frame"] == 1 and c["rejected"] == 1
     assert c["target_refused.point_frame"] == 2 and c.get("poses_published", 0) == 0
+    assert "bad_target_point" in chain.hand_eye.diag.causes   # each target's point refused too
     assert np.isfinite(list(c.values())).all()
     for n in (*chain.nodes, io):
         executor.remove_node(n)
