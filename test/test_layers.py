@@ -16,8 +16,9 @@ Two rooms of one floor may not import each other's modules,
 except where listed (a piece two rooms share moves down a floor); each command and each node is
 a room of its own: commands share only ``commands.common`` and ``commands.calibration_inputs``
 (and the floors below), nodes share nothing but the floors below (``nodes.localize``, which
-composes detect_triangulate and hand_eye in one process, builds both). A node split into parts keeps
-them in its room (``NODE_PARTS``): ``nodes.hand_eye_targets`` belongs to ``nodes.hand_eye``.
+composes detect_triangulate and hand_eye in one process, builds both). A node split into
+parts keeps them in its room (``NODE_PARTS``): ``nodes.hand_eye_targets`` belongs to
+``nodes.hand_eye``.
 """
 from __future__ import annotations
 
