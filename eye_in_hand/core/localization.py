@@ -49,13 +49,27 @@ def _as_cov(value, name: str, n: int) -> np.ndarray:
     arr = np.asarray(value, dtype=np.float64)
     if arr.shape != (n, n):
         raise InputError(f"{name}: expected shape ({n}, {n}), got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise InputError(f"{name}: contains NaN or infinite values")
-    if np.max(np.abs(arr - arr.T)) > 1e-9 * max(1.0, float(np.max(np.abs(arr)))):
+    scale = max(1.0, float(np.abs(arr).max()))
+    if float(np.abs(arr - arr.T).max()) > 1e-9 * scale:
         raise InputError(f"{name}: covariance is not symmetric")
-    if np.min(np.linalg.eigvalsh(arr)) < -1e-12 * max(1.0, float(np.max(np.abs(arr)))):
+    if n == 3 and _positive_definite_3x3(arr):
+        return arr     # the usual case, per point: no eigen-decomposition needed
+    if np.min(np.linalg.eigvalsh(arr)) < -1e-12 * scale:
         raise InputError(f"{name}: covariance is not positive semi-definite")
     return arr
+
+
+def _positive_definite_3x3(a: np.ndarray) -> bool:
+    """Sylvester's criterion: every leading minor > 0 (then every eigenvalue is > 0). False
+    means "not shown here", and the caller decides with the eigenvalues. The lower triangle,
+    as ``eigvalsh`` reads it."""
+    (a00, _, _), (a01, a11, _), (a02, a12, a22) = a.tolist()
+    m2 = a00 * a11 - a01 * a01
+    det = (a00 * (a11 * a22 - a12 * a12) - a01 * (a01 * a22 - a12 * a02)
+           + a02 * (a01 * a12 - a11 * a02))
+    return a00 > 0.0 and m2 > 0.0 and det > 0.0
 
 
 @dataclass(frozen=True)

@@ -78,3 +78,30 @@ def test_bad_inputs_are_named():
         Localizer(np.zeros((4, 4)))
     with pytest.raises(InputError, match="max_gap_ns"):
         LocalizerConfig(max_gap_ns=0)
+
+
+def test_point_covariance_check_refuses_what_is_not_a_covariance():
+    """The localizer's per-point check (Sylvester's criterion first, the eigenvalues when it
+    cannot decide): positive definite and semi-definite covariances pass; an indefinite one,
+    also one whose leading 2x2 block is positive definite, is refused, as is an asymmetric one;
+    the values used are the ones given."""
+    from eye_in_hand.core.localization import Localizer, LocalizerConfig
+
+    loc = Localizer(np.eye(4), None, LocalizerConfig(max_gap_ns=10**9))
+    loc.add_robot_pose(0, np.eye(4))
+    loc.add_robot_pose(10**8, np.eye(4))
+    p = np.array([0.1, 0.0, 0.5])
+    pd = np.array([[4e-6, 1e-6, 0.5e-6], [1e-6, 3e-6, -0.2e-6], [0.5e-6, -0.2e-6, 9e-6]])
+    psd = np.diag([1e-6, 1e-6, 0.0])                       # singular: Sylvester cannot tell
+    for cov in (pd, psd):
+        res = loc.locate(5 * 10**7, p, cov)
+        np.testing.assert_allclose(res.covariance, cov, rtol=0, atol=1e-21)
+    indefinite_3 = np.array([[2e-6, 0.0, 1.9e-6], [0.0, 1e-6, 0.0], [1.9e-6, 0.0, 1e-6]])
+    assert np.linalg.det(indefinite_3[:2, :2]) > 0 and np.linalg.eigvalsh(indefinite_3)[0] < 0
+    for cov in (np.diag([1e-6, -1e-6, 1e-6]), indefinite_3, -pd):
+        with pytest.raises(InputError, match="not positive semi-definite"):
+            loc.locate(5 * 10**7, p, cov)
+    asym = pd.copy()
+    asym[0, 2] += 1e-3
+    with pytest.raises(InputError, match="not symmetric"):
+        loc.locate(5 * 10**7, p, asym)
