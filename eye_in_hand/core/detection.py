@@ -1,7 +1,9 @@
 """Colour-target detection: HSV/HSI threshold, morphology, blob selection, sub-pixel centre.
 
-Pipeline per image (the hot path; a 1280x720 pair costs well under the cvtColor + inRange
-floor on the full images):
+Pipeline per image (the hot path: the only pass over every pixel is the downscale of step 1;
+everything after it works on a blob's region of interest, its contour or its image moments.
+A 1280x720 pair with one target costs about the cvtColor + inRange floor on the two full
+images, with four targets 2.5-3 times it; docs/detection.md#figures):
 
 1. A coarse pass on a ``downscale``-times smaller copy (nearest-neighbour, no float images):
    colour conversion, threshold, connected components. Blobs big enough to be a target become
