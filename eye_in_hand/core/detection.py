@@ -1,7 +1,9 @@
 """Colour-target detection: HSV/HSI threshold, morphology, blob selection, sub-pixel centre.
 
-Pipeline per image (the hot path; a 1280x720 pair costs well under the cvtColor + inRange
-floor on the full images):
+Pipeline per image (the hot path: the only pass over every pixel is the downscale of step 1;
+everything after it works on a blob's region of interest, its contour or its image moments.
+A 1280x720 pair with one target costs about the cvtColor + inRange floor on the two full
+images, with four targets 2.5-3 times it; docs/detection.md#figures):
 
 1. A coarse pass on a ``downscale``-times smaller copy (nearest-neighbour, no float images):
    colour conversion, threshold, connected components. Blobs big enough to be a target become
@@ -133,6 +135,8 @@ CUT_BLUR_GAIN = 2.0
 #: Half-length (px) of :func:`edge_width`'s profiles across the edge, and their number.
 _EDGE_BAND_PX = 4
 _EDGE_PROFILES = 64
+#: Lags of the edge residuals' autocorrelation summed directly before the FFT takes over.
+_DIRECT_LAGS = 8
 
 #: Supported colour spaces for thresholds.
 COLOR_SPACES = ("hsv", "hsi")
@@ -611,8 +615,8 @@ class ColorDetector:
                 y1 = int(math.ceil((by + bh) * sy)) + cfg.roi_margin_px
                 box = (int(bx * sx), int(by * sy), int(math.ceil((bx + bw) * sx)),
                        int(math.ceil((by + bh) * sy)))
-                blob = self._fine_blob(image, target, x0, y0, x1, y1, box)
-                if blob is None or blob.bbox in seen:
+                blob = self._fine_blob(image, target, x0, y0, x1, y1, box, seen)
+                if blob is None:
                     continue
                 seen.append(blob.bbox)
                 det = self._make_detection(target, blob, camera)
@@ -674,11 +678,13 @@ class ColorDetector:
                 scored[: 2 * limit]]
 
     def _fine_blob(self, image: np.ndarray, target: TargetSpec, x0: int, y0: int,
-                   x1: int, y1: int, box: tuple[int, int, int, int] | None = None
-                   ) -> _Blob | None:
+                   x1: int, y1: int, box: tuple[int, int, int, int] | None = None,
+                   seen: Sequence[tuple[int, int, int, int]] = ()) -> _Blob | None:
         """The blob of the coarse ``box`` (x0, y0, x1, y1, full-image pixels) inside the ROI:
         the component covering most of the box (the largest when only one is there), so that a
-        neighbouring blob of the same colour reaching into the ROI is not taken instead."""
+        neighbouring blob of the same colour reaching into the ROI is not taken instead.
+        None when it fails a gate or its bounding box is in ``seen`` (found already from
+        another coarse blob: the caller drops it, so it is not measured again)."""
         h, w = image.shape[:2]
         for _ in range(3):  # grow the ROI when the blob reaches its edge
             x0, y0, x1, y1 = max(0, x0), max(0, y0), min(w, x1), min(h, y1)
@@ -705,6 +711,8 @@ class ColorDetector:
         else:
             return None
         bbox = (x0 + bx, y0 + by, bw, bh)
+        if bbox in seen:
+            return None
         if self.config.reject_border and (bbox[0] == 0 or bbox[1] == 0 or
                                           bbox[0] + bw == w or bbox[1] + bh == h):
             return None
@@ -718,11 +726,14 @@ class ColorDetector:
         circ = 4.0 * math.pi * area / (perimeter * perimeter) if perimeter > 0 else 0.0
         if circ < target.min_circularity:
             return None
-        mom = cv2.moments(comp, binaryImage=True)
+        # comp is 0/1: the plain moments are the binary ones (m00, m10, m01 exact integers)
+        # without the binary pass's conversion of the mask
+        mom = cv2.moments(comp)
         centroid = np.array([x0 + bx + mom["m10"] / mom["m00"], y0 + by + mom["m01"] / mom["m00"]])
-        pts = contour.reshape(-1, 2).astype(np.float64) + (x0 + bx, y0 + by)
+        local = contour.reshape(-1, 2).astype(np.float64)
+        pts = local + (x0 + bx, y0 + by)
         grey = cv2.cvtColor(roi[by:by + bh, bx:bx + bw], cv2.COLOR_BGR2GRAY)
-        edge, shade = center_sigma_parts(comp, grey, contour.reshape(-1, 2).astype(np.float64))
+        edge, shade = center_sigma_parts(comp, grey, local, moments=mom)
         width = edge_width(roi, contour.reshape(-1, 2) + (bx, by),
                            np.array([bx + mom["m10"] / mom["m00"], by + mom["m01"] / mom["m00"]]))
         blur = math.sqrt(max(width * width - BLUR_W0_PX ** 2, 0.0)) if math.isfinite(width) \
@@ -771,15 +782,22 @@ class ColorDetector:
         return dets[:limit]
 
 
-def center_sigma_parts(mask: np.ndarray, grey: np.ndarray,
-                       contour: np.ndarray) -> tuple[float, np.ndarray]:
+def center_sigma_parts(mask: np.ndarray, grey: np.ndarray, contour: np.ndarray, *,
+                       moments: Mapping[str, float] | None = None
+                       ) -> tuple[float, np.ndarray]:
     """Estimated 1-sigma error (px, per axis) of a blob's centre (see the module docstring),
     as its two parts: ``sigma_edge`` (per axis) and the shading vector ``SHADE_GAIN * g``.
 
+    The brightness asymmetry ``g`` comes from two sets of image moments over the blob's own
+    pixels (``cv2.moments`` of the mask and of the grey image inside it): their ``m00``,
+    ``m10`` and ``m01`` are integer sums, exact in float64, so ``g`` is the same to the last
+    bit as from the pixel lists, without building them.
+
     Args:
-        mask: the blob's 0/1 mask, shape (h, w).
-        grey: the grey image over the same pixels, shape (h, w).
+        mask: the blob's 0/1 mask, uint8, shape (h, w).
+        grey: the grey image over the same pixels, uint8, shape (h, w).
         contour: the blob's outer contour in the same coordinates, shape (K, 2).
+        moments: ``cv2.moments(mask)`` when the caller has it already.
 
     Returns:
         ``(sigma_edge, shade (2,))``; ``(nan, 0)`` for fewer than 12 contour points.
@@ -798,26 +816,49 @@ def center_sigma_parts(mask: np.ndarray, grey: np.ndarray,
     res = (rho - 1.0) * np.hypot(u, v) / np.maximum(rho, 1e-12)
     res = res - res.mean()
     var = float(np.mean(res * res))
-    tau = 1.0
-    if var > 0:
-        spec = np.fft.rfft(res)
-        ac = np.fft.irfft(spec * np.conj(spec), n) / (n * var)   # circular autocorrelation
-        for k in range(1, n // 4):
-            if ac[k] < 0.05:
-                break
-            tau += 2.0 * float(ac[k])
+    tau = _correlation_time(res, var) if var > 0 else 1.0
     sigma_edge2 = var * 2.0 * tau / n
-    ys, xs = np.nonzero(mask)
-    wgt = grey[ys, xs].astype(np.float64)
-    total = float(wgt.sum())
+    # g = brightness-weighted centroid - area centroid, from moments: m00 the weight (pixel
+    # count), m10 / m01 the weighted sums of x / y. For uint8 images every one is an integer
+    # below 2^53, summed exactly, so the result does not depend on the summation order.
+    weighted = cv2.moments(cv2.bitwise_and(grey, grey, mask=mask))
+    total = weighted["m00"]
     shade = np.zeros(2)
     if total > 0:
-        # elementwise products summed, not ``wgt @ xs``: a dot product this long goes to
-        # OpenBLAS's thread pool, whose spinning threads cost several times the work on cores
-        # shared with other jobs
-        shade = np.array([float((wgt * xs).sum()) / total - float(xs.mean()),
-                          float((wgt * ys).sum()) / total - float(ys.mean())])
+        m = cv2.moments(mask, binaryImage=True) if moments is None else moments
+        shade = np.array([weighted["m10"] / total - m["m10"] / m["m00"],
+                          weighted["m01"] / total - m["m01"] / m["m00"]])
     return math.sqrt(sigma_edge2), SHADE_GAIN * shade
+
+
+def _correlation_time(res: np.ndarray, var: float) -> float:
+    """Integrated autocorrelation ``tau = 1 + 2 sum_k ac[k]`` of the (zero-mean) contour
+    residuals ``res`` (circular, ``var`` their variance), summed over the lags k = 1, 2, ...
+    below ``n / 4`` until ``ac[k]`` drops under 0.05.
+
+    Most edges decorrelate within a few points: the first ``_DIRECT_LAGS`` lags are summed
+    directly (a few microseconds each); an edge correlated longer gets the whole circular
+    autocorrelation from an FFT (which costs 0.1-0.2 ms at the contour lengths of a target).
+    The two agree to rounding (about 1e-16 relative).
+    """
+    n = len(res)
+    norm = n * var
+    tau = 1.0
+    for k in range(1, min(n // 4, _DIRECT_LAGS + 1)):
+        ac = (float((res[:n - k] * res[k:]).sum()) + float((res[n - k:] * res[:k]).sum())) / norm
+        if ac < 0.05:
+            return tau
+        tau += 2.0 * ac
+    if n // 4 <= _DIRECT_LAGS + 1:
+        return tau
+    tau = 1.0
+    spec = np.fft.rfft(res)
+    acf = np.fft.irfft(spec * np.conj(spec), n) / norm   # circular autocorrelation
+    for k in range(1, n // 4):
+        if acf[k] < 0.05:
+            break
+        tau += 2.0 * float(acf[k])
+    return tau
 
 
 def edge_width(image: np.ndarray, contour: np.ndarray, center: np.ndarray) -> float:
@@ -844,24 +885,30 @@ def edge_width(image: np.ndarray, contour: np.ndarray, center: np.ndarray) -> fl
     n = len(contour)
     if n < 12:
         return float("nan")
+    # (the hot path: plain ufuncs on the 64 profiles; np.clip, np.diff and np.mean would give
+    # the same numbers through slower generic wrappers)
     pts = contour[np.linspace(0, n, min(n, _EDGE_PROFILES), endpoint=False).astype(int)]
     nrm = pts - center
-    horiz = np.abs(nrm[:, 0]) >= np.abs(nrm[:, 1])
-    cos = np.abs(nrm).max(axis=1) / np.maximum(np.hypot(nrm[:, 0], nrm[:, 1]), 1e-9)
-    sign = np.where(horiz, np.sign(nrm[:, 0]), np.sign(nrm[:, 1]))
+    anrm = np.abs(nrm)
+    horiz = anrm[:, 0] >= anrm[:, 1]
+    cos = np.maximum(anrm[:, 0], anrm[:, 1]) / np.maximum(np.hypot(nrm[:, 0], nrm[:, 1]), 1e-9)
+    sign = np.sign(np.where(horiz, nrm[:, 0], nrm[:, 1]))
     j = np.arange(-_EDGE_BAND_PX, _EDGE_BAND_PX + 2)
     step = (sign[:, None] * j[None, :]).astype(np.intp)
+    along = np.where(horiz[:, None], step, 0)
     h, w = image.shape[:2]
-    xs = np.clip(pts[:, :1].astype(int) + np.where(horiz[:, None], step, 0), 0, w - 1)
-    ys = np.clip(pts[:, 1:].astype(int) + np.where(horiz[:, None], 0, step), 0, h - 1)
+    ipts = pts.astype(int)
+    xs = np.minimum(np.maximum(ipts[:, :1] + along, 0), w - 1)
+    ys = np.minimum(np.maximum(ipts[:, 1:] + (step - along), 0), h - 1)
     prof = image[ys, xs].astype(np.float32)                  # (P, samples[, 3])
-    d = np.diff(prof, axis=1)
+    d = prof[:, 1:] - prof[:, :-1]
     d = np.sqrt((d * d).sum(axis=2)) if d.ndim == 3 else np.abs(d)
     s1, s2 = d.sum(axis=1), (d * d).sum(axis=1)
     ok = s2 > 0
-    if not ok.any():
+    k = int(np.count_nonzero(ok))
+    if k == 0:
         return float("nan")
-    return float(np.mean(s1[ok] ** 2 / s2[ok] * cos[ok])) / (2.0 * math.sqrt(math.pi))
+    return float((s1[ok] ** 2 / s2[ok] * cos[ok]).sum() / k) / (2.0 * math.sqrt(math.pi))
 
 
 def _polygon_center_and_minor_axis(contour_norm: np.ndarray,
@@ -877,7 +924,8 @@ def _polygon_center_and_minor_axis(contour_norm: np.ndarray,
     c0 = contour_norm.mean(axis=0)
     p = (contour_norm - c0) * scale  # well-conditioned units (about pixels)
     x, y = p[:, 0], p[:, 1]
-    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    nxt = np.concatenate((p[1:], p[:1]))      # the next vertex (np.roll by -1, cheaper)
+    xn, yn = nxt[:, 0], nxt[:, 1]
     cross = x * yn - xn * y
     a = cross.sum() / 2.0
     if abs(a) < 1e-9:

@@ -600,8 +600,8 @@ class StereoLocator:
         pix = self._pixel_cov(dl, dr)
         pt = self._point(dl.center_px, dr.center_px, xl, xr, pix)
         left_px, right_px = dl.center_px, dr.center_px
-        if spec.radius_m is not None and np.all(np.isfinite(dl.ellipse_norm)) \
-                and np.all(np.isfinite(dr.ellipse_norm)):
+        if spec.radius_m is not None and np.isfinite(dl.ellipse_norm).all() \
+                and np.isfinite(dr.ellipse_norm).all():
             # refine the sphere-centre correction with alpha from the known radius and range
             rng_l = float(np.linalg.norm(pt.point))
             rng_r = float(np.linalg.norm(self.rig.R @ pt.point + self.rig.T))

@@ -92,7 +92,7 @@ def _check_rig(rig: StereoRig) -> None:
 
 def _px(value, name: str) -> np.ndarray:
     arr = np.asarray(value, dtype=np.float64).reshape(-1)
-    if arr.shape != (2,) or not np.all(np.isfinite(arr)):
+    if arr.shape != (2,) or not (math.isfinite(arr[0]) and math.isfinite(arr[1])):
         raise InputError(f"{name}: expected two finite pixel coordinates, got {value!r}")
     return arr
 
@@ -178,7 +178,7 @@ def _finish(rig: StereoRig, X_rect: np.ndarray, cov_rect: np.ndarray, residual: 
     R1 = rig.R1
     X = R1.T @ X_rect  # rectified-left -> left optical frame
     X_right = rig.R @ X + rig.T
-    if not (np.all(np.isfinite(X)) and X[2] > 0 and X_right[2] > 0):
+    if not (np.isfinite(X).all() and X[2] > 0 and X_right[2] > 0):
         raise Rejected("behind_camera",
                        f"triangulated point {np.round(X, 4).tolist()} m is behind a camera "
                        f"(z_left = {X[2]:.4f}, z_right = {X_right[2]:.4f})")
@@ -199,7 +199,11 @@ def _pixel_cov(sigma_px: float | Sequence[float], pixel_cov=None) -> np.ndarray:
         S = np.asarray(pixel_cov, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise InputError("pixel_cov: expected a 4x4 matrix") from exc
-    if S.shape != (4, 4) or not np.all(np.isfinite(S)) or not np.allclose(S, S.T) \
+    # np.allclose(S, S.T) spelled out for finite S (its defaults rtol 1e-5, atol 1e-8):
+    # the same test without isclose's generic broadcasting and NaN handling, which cost more
+    # than the triangulation itself
+    if S.shape != (4, 4) or not np.isfinite(S).all() \
+            or not (np.abs(S - S.T) <= 1e-8 + 1e-5 * np.abs(S.T)).all() \
             or np.linalg.eigvalsh(0.5 * (S + S.T)).min() < -1e-12 * max(1.0, np.abs(S).max()):
         raise InputError("pixel_cov: expected a symmetric positive semi-definite 4x4 matrix")
     return S
