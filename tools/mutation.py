@@ -202,7 +202,7 @@ MUTANTS: tuple[Mutant, ...] = (
       "max(width * width - BLUR_W0_PX ** 2, 0.0)", "max(width * width, 0.0)",
       "the unblurred edge width is not subtracted from the blur estimate"),
     M("detection-edge-tau", "core/detection.py",
-      "        tau += 2.0 * ac\n", "        tau += ac\n",
+      "            tau += 2.0 * float(ac[k])\n", "            tau += float(ac[k])\n",
       "the edge term's correlation time counts each lag once, not on both sides"),
     M("detection-edge-variance", "core/detection.py",
       "    sigma_edge2 = var * 2.0 * tau / n\n", "    sigma_edge2 = var * tau / n\n",

@@ -135,8 +135,6 @@ CUT_BLUR_GAIN = 2.0
 #: Half-length (px) of :func:`edge_width`'s profiles across the edge, and their number.
 _EDGE_BAND_PX = 4
 _EDGE_PROFILES = 64
-#: Lags of the edge residuals' autocorrelation summed directly before the FFT takes over.
-_DIRECT_LAGS = 8
 
 #: Supported colour spaces for thresholds.
 COLOR_SPACES = ("hsv", "hsi")
@@ -816,7 +814,14 @@ def center_sigma_parts(mask: np.ndarray, grey: np.ndarray, contour: np.ndarray, 
     res = (rho - 1.0) * np.hypot(u, v) / np.maximum(rho, 1e-12)
     res = res - res.mean()
     var = float(np.mean(res * res))
-    tau = _correlation_time(res, var) if var > 0 else 1.0
+    tau = 1.0
+    if var > 0:
+        spec = np.fft.rfft(res)
+        ac = np.fft.irfft(spec * np.conj(spec), n) / (n * var)   # circular autocorrelation
+        for k in range(1, n // 4):
+            if ac[k] < 0.05:
+                break
+            tau += 2.0 * float(ac[k])
     sigma_edge2 = var * 2.0 * tau / n
     # g = brightness-weighted centroid - area centroid, from moments: m00 the weight (pixel
     # count), m10 / m01 the weighted sums of x / y. For uint8 images every one is an integer
@@ -829,36 +834,6 @@ def center_sigma_parts(mask: np.ndarray, grey: np.ndarray, contour: np.ndarray, 
         shade = np.array([weighted["m10"] / total - m["m10"] / m["m00"],
                           weighted["m01"] / total - m["m01"] / m["m00"]])
     return math.sqrt(sigma_edge2), SHADE_GAIN * shade
-
-
-def _correlation_time(res: np.ndarray, var: float) -> float:
-    """Integrated autocorrelation ``tau = 1 + 2 sum_k ac[k]`` of the (zero-mean) contour
-    residuals ``res`` (circular, ``var`` their variance), summed over the lags k = 1, 2, ...
-    below ``n / 4`` until ``ac[k]`` drops under 0.05.
-
-    Most edges decorrelate within a few points: the first ``_DIRECT_LAGS`` lags are summed
-    directly (a few microseconds each); an edge correlated longer gets the whole circular
-    autocorrelation from an FFT (which costs 0.1-0.2 ms at the contour lengths of a target).
-    The two agree to rounding (about 1e-16 relative).
-    """
-    n = len(res)
-    norm = n * var
-    tau = 1.0
-    for k in range(1, min(n // 4, _DIRECT_LAGS + 1)):
-        ac = (float((res[:n - k] * res[k:]).sum()) + float((res[n - k:] * res[:k]).sum())) / norm
-        if ac < 0.05:
-            return tau
-        tau += 2.0 * ac
-    if n // 4 <= _DIRECT_LAGS + 1:
-        return tau
-    tau = 1.0
-    spec = np.fft.rfft(res)
-    acf = np.fft.irfft(spec * np.conj(spec), n) / norm   # circular autocorrelation
-    for k in range(1, n // 4):
-        if acf[k] < 0.05:
-            break
-        tau += 2.0 * float(acf[k])
-    return tau
 
 
 def edge_width(image: np.ndarray, contour: np.ndarray, center: np.ndarray) -> float:
