@@ -1,6 +1,14 @@
-"""Speed of the image conversions on the hot path (per call, median of repeated runs).
+"""Speed of the image conversions on the hot path (per call, median of repeated runs), and
+the executor's CPU per received message.
 
-Run: ``.venv/bin/python benchmarks/bench_ros_glue.py``
+Run: ``.venv/bin/python benchmarks/bench_ros_glue.py [--wakeups]``
+
+``--wakeups``: another process publishes 2000 small messages at 500 Hz to a node on rclpy's
+``SingleThreadedExecutor`` (what every node here spins on); printed is the node process's CPU
+per received message with 0 publishers (the floor: a bare wake-up and take), with 12 and 24
+publishers made the default way (two QoS-event handlers each, rebuilt into the wait set at
+every wake-up) and without handlers (``eye_in_hand.ros.publishers.OutputPublishers``), the
+layouts alternating, median of ``--rounds`` rounds.
 
 Prints, for a 1280x720 stereo-camera frame: numpy -> Image (one copy into the message),
 Image -> numpy for rclpy and rosbags messages (zero-copy views, padded rows included),
@@ -77,5 +85,90 @@ def main() -> None:
         print(f"  {name:<44s} {bench(fn):9.3f} ms")
 
 
+def _wakeup_publisher() -> None:
+    import rclpy
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.node import Node
+
+    rclpy.init()
+    node = Node("wakeup_source")
+    pub = node.create_publisher(PoseStamped, "wakeup", 100)
+    while pub.get_subscription_count() == 0:
+        time.sleep(0.05)
+    time.sleep(0.5)
+    msg = PoseStamped()
+    for _ in range(2000):
+        pub.publish(msg)
+        time.sleep(0.002)
+    time.sleep(0.5)
+
+
+def _wakeup_cost(publishers: int, quiet: bool) -> float:
+    """CPU microseconds of this process per message received (see the module docstring)."""
+    import subprocess
+    import sys
+
+    import rclpy
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.event_handler import PublisherEventCallbacks
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = Node("wakeup_sink", context=context)
+    extra = {"event_callbacks": PublisherEventCallbacks(use_default_callbacks=False)} \
+        if quiet else {}
+    for k in range(publishers):
+        node.create_publisher(PoseStamped, f"out{k}", 10, **extra)
+    got: list[object] = []
+    node.create_subscription(PoseStamped, "wakeup", got.append, 100)
+    ex = SingleThreadedExecutor(context=context)
+    ex.add_node(node)
+    src = subprocess.Popen([sys.executable, __file__, "--wakeup-source"])
+    while not got and src.poll() is None:
+        ex.spin_once(timeout_sec=0.05)
+    c0, n0 = time.process_time(), len(got)
+    while src.poll() is None:
+        ex.spin_once(timeout_sec=0.05)
+    cpu, n = time.process_time() - c0, len(got) - n0
+    ex.shutdown()
+    node.destroy_node()
+    rclpy.try_shutdown(context=context)
+    return cpu / max(1, n) * 1e6
+
+
+def wakeups(rounds: int) -> None:
+    import os
+    import random
+
+    os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(120, 200)))
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    layouts = [(0, False), (12, False), (12, True), (24, False), (24, True)]
+    runs: dict[tuple[int, bool], list[float]] = {k: [] for k in layouts}
+    for _ in range(rounds):
+        for key in layouts:
+            runs[key].append(_wakeup_cost(*key))
+    floor = statistics.median(runs[(0, False)])
+    print(f"executor CPU per received message, median of {rounds} rounds "
+          f"(floor: no publisher, {floor:.0f} us)")
+    for (n, quiet), values in runs.items():
+        med = statistics.median(values)
+        kind = "without QoS-event handlers" if quiet else "default handlers"
+        print(f"  {n:2d} publishers, {kind:<27s} {med:7.0f} us  ({med / floor:.2f}x the floor)")
+
+
 if __name__ == "__main__":
-    main()
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--wakeups", action="store_true", help="the executor part only")
+    parser.add_argument("--rounds", type=int, default=3, help="--wakeups rounds (default 3)")
+    parser.add_argument("--wakeup-source", action="store_true", help=argparse.SUPPRESS)
+    opts = parser.parse_args()
+    if opts.wakeup_source:
+        _wakeup_publisher()
+    elif opts.wakeups:
+        wakeups(opts.rounds)
+    else:
+        main()

@@ -117,6 +117,7 @@ from eye_in_hand.ros.outputs import (
     rclpy_types,
 )
 from eye_in_hand.ros.params import Param, declare_params
+from eye_in_hand.ros.publishers import OutputPublishers
 from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS, TARGET_POINT_QOS
 
 __all__ = ["NODE_PARAMETERS", "DetectTriangulateNode", "parameter_names", "parameter_hint",
@@ -311,8 +312,11 @@ class DetectTriangulateNode(Node):
         self._queue_max = 0
 
         names = [t.name for t in self.config.detector.targets]
-        self._pub_point = self.create_publisher(_point_type(), "target/point", RESULT_QOS)
-        self._pub_point_cov = self.create_publisher(_point_cov_type(), "target/point_cov",
+        # output publishers without per-publisher QoS-event handlers (a small wait set at every
+        # executor wake-up); their subscribers' QoS is checked periodically instead
+        self.outputs = OutputPublishers(self, lambda cause, text: self.diag.report(cause, text))
+        self._pub_point = self.outputs.create(_point_type(), "target/point", RESULT_QOS)
+        self._pub_point_cov = self.outputs.create(_point_cov_type(), "target/point_cov",
                                                     RESULT_QOS)
         # per-target publishers, by target id: the configured names now, others when they
         # first appear (worker thread), at most max_targets ids
@@ -323,12 +327,12 @@ class DetectTriangulateNode(Node):
         self._marker_diameter_m = float(node_values["markers.diameter_m"])
         self._specs = {t.name: t for t in self.config.detector.targets}
         self._styles: dict[str, tuple[float, tuple[float, float, float, float]]] = {}
-        self._pub_markers = self.create_publisher(marker_classes()[1], "targets/markers",
+        self._pub_markers = self.outputs.create(marker_classes()[1], "targets/markers",
                                                   RESULT_QOS)
         # targets/<id>/... live next to targets/markers, wherever a remapping put it (launch
         # remaps it to the root namespace: dynamic ids cannot be remapped one by one)
         self._targets_prefix = self.resolve_topic_name("targets/markers").rsplit("/", 1)[0]
-        self._pub_debug = self.create_publisher(Image, "target/debug_image", SENSOR_QOS)
+        self._pub_debug = self.outputs.create(Image, "target/debug_image", SENSOR_QOS)
         self.diag = NodeDiagnostics(self, period_s=node_values["diagnostics_period_s"])
         self.diag.declare_counter("pairs", "detections", "dropped_pairs", "sync_dropped",
                                   "left_frames", "right_frames", "sync_pairs",
@@ -606,8 +610,8 @@ class DetectTriangulateNode(Node):
                                  "ids have publishers already (max_targets): not published")
                 return None
             base = f"{self._targets_prefix}/{tid}"
-            pubs = (self.create_publisher(_point_type(), f"{base}/point", TARGET_POINT_QOS),
-                    self.create_publisher(_point_cov_type(), f"{base}/point_cov",
+            pubs = (self.outputs.create(_point_type(), f"{base}/point", TARGET_POINT_QOS),
+                    self.outputs.create(_point_cov_type(), f"{base}/point_cov",
                                           TARGET_POINT_QOS))
             self._pub_targets[tid] = pubs
             return pubs

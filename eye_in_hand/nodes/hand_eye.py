@@ -112,6 +112,7 @@ from eye_in_hand.ros.outputs import (
     transform_stamped,
 )
 from eye_in_hand.ros.params import load_config, param, params_of
+from eye_in_hand.ros.publishers import OutputPublishers
 from eye_in_hand.ros.qos import LATCHED_QOS, RESULT_QOS, ROBOT_POSE_QOS
 
 __all__ = ["HandEyeNodeConfig", "HandEyeNode", "load_kinematics", "parameter_names", "main"]
@@ -287,6 +288,9 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
         self.config: HandEyeNodeConfig = load_config(self, HandEyeNodeConfig)
         cfg = self.config
         self.diag = NodeDiagnostics(self, hardware_id=NODE_NAME)
+        # output publishers without per-publisher QoS-event handlers: the wait set of every
+        # executor wake-up stays small; their subscribers' QoS is checked periodically instead
+        self.outputs = OutputPublishers(self, self.diag.report)
         self.calibration_mode: CalibrationMode | None = None
         self._chain: Any = None    # load_kinematics: a DHChain or a UrdfChain
         self._joint_index: np.ndarray | None = None
@@ -442,10 +446,10 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
             self.create_subscription(PointStamped, "target/point", self._on_point, RESULT_QOS)
             self.create_subscription(PoseWithCovarianceStamped, "target/point_cov",
                                      self._on_point_cov, RESULT_QOS)
-        self.pub_pose = self.create_publisher(PoseStamped, "target/pose", RESULT_QOS)
-        self.pub_pose_cov = self.create_publisher(PoseWithCovarianceStamped, "target/pose_cov",
+        self.pub_pose = self.outputs.create(PoseStamped, "target/pose", RESULT_QOS)
+        self.pub_pose_cov = self.outputs.create(PoseWithCovarianceStamped, "target/pose_cov",
                                                   RESULT_QOS)
-        self.pub_transform = self.create_publisher(TransformStamped, "hand_eye/transform",
+        self.pub_transform = self.outputs.create(TransformStamped, "hand_eye/transform",
                                                    LATCHED_QOS)
         self._data_stamp_ns: int | None = None   # the first image stamp this node received
         self.diag.declare_counter("points", "poses_published", "rejected", "refused.stale_pose",

@@ -68,8 +68,8 @@ class EveryTargetMixin:
         if not self.in_process:
             self.create_subscription(MarkerArray, "targets/markers", self._on_markers,
                                      RESULT_QOS)
-        self.pub_poses = self.create_publisher(pose_array_class(), "target/poses", RESULT_QOS)
-        self.pub_markers = self.create_publisher(MarkerArray, "target/markers", RESULT_QOS)
+        self.pub_poses = self.outputs.create(pose_array_class(), "target/poses", RESULT_QOS)
+        self.pub_markers = self.outputs.create(MarkerArray, "target/markers", RESULT_QOS)
         self.diag.declare_counter("target_frames", "target_points", "target_points_received",
                                   "target_poses_published", "targets_rejected",
                                   "target_frames_published", "orphan_target_points",
@@ -115,8 +115,8 @@ class EveryTargetMixin:
             self._target_point_qos(topic))
         base = f"{self._poses_prefix}/{tid}"
         self._target_pubs[tid] = (
-            self.create_publisher(PoseStamped, f"{base}/pose", RESULT_QOS),
-            self.create_publisher(PoseWithCovarianceStamped, f"{base}/pose_cov", RESULT_QOS))
+            self.outputs.create(PoseStamped, f"{base}/pose", RESULT_QOS),
+            self.outputs.create(PoseWithCovarianceStamped, f"{base}/pose_cov", RESULT_QOS))
         return None
 
     def _target_point_qos(self, topic: str) -> Any:

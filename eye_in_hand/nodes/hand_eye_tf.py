@@ -88,8 +88,8 @@ class TfMixin:
                                       "published (run 'make venv' to build it)")
             return
         TFMessage = ros_tf.tf_message_class()
-        self.pub_tf = self.create_publisher(TFMessage, TF_TOPIC, tf_qos())
-        self.pub_tf_static = self.create_publisher(TFMessage, TF_STATIC_TOPIC,
+        self.pub_tf = self.outputs.create(TFMessage, TF_TOPIC, tf_qos())
+        self.pub_tf_static = self.outputs.create(TFMessage, TF_STATIC_TOPIC,
                                                    tf_static_pub_qos())
         rig = None
         cdir = cfg.stereo_calibration_dir or (cfg.calibration_dir if cfg.mode == "calibration"
