@@ -1,9 +1,9 @@
 """``localize``: the localization chain in one process (``detect_triangulate`` + ``hand_eye``).
 
-The two nodes of ``eye-in-hand launch`` (docs/ros.md), built in one process on one executor,
-with their usual names, namespaces, parameters and topics. The difference is the hand-off: each
-located stereo pair goes from ``detect_triangulate``'s worker thread straight to ``hand_eye``
-(:meth:`~eye_in_hand.nodes.hand_eye.HandEyeNode.deliver`, a
+The two nodes of ``eye-in-hand launch`` (docs/ros.md), built in one process (an executor per
+node, each on its own thread), with their usual names, namespaces, parameters and topics. The
+difference is the hand-off: each located stereo pair goes from ``detect_triangulate``'s
+worker thread straight to ``hand_eye`` (:meth:`~eye_in_hand.nodes.hand_eye.HandEyeNode.deliver`, a
 :class:`~eye_in_hand.ros.outputs.LocatedFrame`), where the separate processes send it through
 DDS as ``target/point``, ``target/point_cov``, ``targets/<id>/point_cov`` and
 ``targets/markers``, and ``hand_eye`` takes it from there. No serialisation, no DDS hop and
@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import threading
 from collections.abc import Sequence
 from typing import Any
 
@@ -114,6 +115,13 @@ def _overrides(items: Sequence[str]) -> dict[str, list[tuple[str, str]]]:
     return out
 
 
+def _spin(executor: Any) -> None:
+    try:
+        executor.spin()
+    except ExternalShutdownException:
+        pass
+
+
 def main(args: list[str] | None = None) -> None:
     """Console entry point: ``ros2 run eye_in_hand localize``."""
     argv = list(sys.argv[1:] if args is None else args)
@@ -126,19 +134,28 @@ def main(args: list[str] | None = None) -> None:
         use_large_data_profile()
         rclpy.init(args=[NAME, *ros_args])
         chain = None
-        executor = SingleThreadedExecutor()
+        # one executor per node, each on its own thread: a wake-up for a robot pose then
+        # builds hand_eye's wait set only, one for an image detect_triangulate's only
+        executors = [SingleThreadedExecutor(), SingleThreadedExecutor()]
+        spinner = None
         try:
             chain = LocalizationChain(opts.namespace, overrides)
-            for node in chain.nodes:
+            for node, executor in zip(chain.nodes, executors, strict=True):
                 refuse_undeclared_overrides(node, ros_args)
                 executor.add_node(node)
-            executor.spin()
+            spinner = threading.Thread(target=_spin, args=(executors[0],),
+                                       name="detect_triangulate_executor", daemon=True)
+            spinner.start()
+            executors[1].spin()
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
         finally:
+            for executor in executors:
+                executor.shutdown(timeout_sec=5.0)
+            if spinner is not None:
+                spinner.join(timeout=5.0)
             if chain is not None:
                 chain.destroy()
-            executor.shutdown()
             rclpy.try_shutdown()
 
     code = guard(NAME, body, argv)
