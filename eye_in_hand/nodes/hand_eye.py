@@ -121,6 +121,8 @@ __all__ = ["HandEyeNodeConfig", "HandEyeNode", "load_kinematics", "parameter_nam
 _SESSION = SessionConfig()
 
 NODE_NAME = "hand_eye"
+#: period of the waits' check while a point or a frame waits, and of the idle check (s)
+WAIT_CHECK_PERIOD_S, IDLE_CHECK_PERIOD_S = 0.02, 0.2
 
 
 def _existing_file(value: str) -> str | None:
@@ -458,9 +460,15 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
         self.diag.stale_after("points", cfg.stale_after_s)
         self._setup_targets()
         # Steady time: waiting points expire and stopped pose streams are noticed also while
-        # simulated time (use_sim_time) stands still.
-        self.create_timer(0.02, self._expire_pending,
-                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        # simulated time (use_sim_time) stands still. The waits are checked at 50 Hz only
+        # while a point or a frame waits (a node that keeps up would wake 50 times a second
+        # for nothing, each wake-up costing as much as a message's); a stopped pose stream and
+        # the queue gauges are checked at 5 Hz.
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._wait_timer = self.create_timer(WAIT_CHECK_PERIOD_S, self._expire_pending,
+                                             clock=steady)
+        self._wait_timer.cancel()
+        self.create_timer(IDLE_CHECK_PERIOD_S, self._idle_check, clock=steady)
 
     def first_data(self, stamp_ns: int) -> None:
         """At the first image stamp received (a point or a frame's list of targets): latch
@@ -530,6 +538,7 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
                          f"for robot poses: the oldest (at {old.stamp_ns} ns) was dropped")
         self._pending.append(_Pending(stamp, p, cov, time.monotonic()))
         self._drain_pending()
+        self._arm_waits()
 
     def _on_point_cov(self, msg: PoseWithCovarianceStamped) -> None:
         """Triangulation covariance for the point with the same stamp (position block)."""
@@ -568,8 +577,12 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
             # FIFO: output stays in stamp order.
             self._locate(self._pending.popleft())
 
+    def _arm_waits(self) -> None:
+        """Run the waits' check while a point or a frame waits (called where they queue)."""
+        if (self._pending or self._frames) and self._wait_timer.is_canceled():
+            self._wait_timer.reset()
+
     def _expire_pending(self) -> None:
-        self._expire_poses()
         now = time.monotonic()
         oldest = min([q[0].arrived for q in (self._pending, self._frames) if q], default=now)
         self.waits.tick(now - oldest)     # FIFO queues: the first item waited longest
@@ -577,6 +590,12 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
             self._drain_pending()
         if self._frames:
             self._drain_frames()
+        if not (self._pending or self._frames):
+            self.waits.tick(0.0)          # as an idle check would: nothing waits
+            self._wait_timer.cancel()
+
+    def _idle_check(self) -> None:
+        self._expire_poses()
         self.diag.gauge("pending", len(self._pending))
         self.diag.gauge("targets_pending", sum(len(f.spheres) for f in self._frames))
 

@@ -198,6 +198,7 @@ class EveryTargetMixin:
                                     "frames wait: the oldest was dropped")
         self._frames.append(_Frame(stamp, kept, time.monotonic()))
         self._drain_frames()
+        self._arm_waits()
 
     def _refuse_target(self, tid: str, reason: str, message: str,
                        cause: str | None = None) -> None:
