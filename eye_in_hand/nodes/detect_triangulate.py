@@ -8,6 +8,8 @@ Subscribes (relative names, :data:`~eye_in_hand.ros.qos.SENSOR_QOS`):
 Publishes:
     ``target/point`` (geometry_msgs/PointStamped, RESULT_QOS): the first configured target, in
     the left optical frame, stamped with the left image's stamp; nothing when it is not found.
+    ``target/point``, ``target/point_cov`` and ``targets/markers`` are volatile: a message
+    is built and sent only while someone subscribes (counted all the same).
     ``target/point_cov`` (geometry_msgs/PoseWithCovarianceStamped, RESULT_QOS): the same point
     with its triangulation covariance (position block, m^2; orientation variances 1e6),
     published just before ``target/point``; ``hand_eye`` propagates it into ``target/pose_cov``.
@@ -563,8 +565,12 @@ class DetectTriangulateNode(Node):
             first_msgs = (point_cov_message(first.point_m, first.covariance, stamp_ns=stamp,
                                             frame_id=frame),
                           point_stamped(rclpy_types(), first.point_m, stamp, frame))
-            self._pub_point_cov.publish(first_msgs[0])
-            self._pub_point.publish(first_msgs[1])
+            # volatile topics: a message nobody subscribes to reaches no one, now or later
+            # (as in hand_eye); the transient-local targets/<id>/... below always go out
+            if self._pub_point_cov.get_subscription_count() > 0:
+                self._pub_point_cov.publish(first_msgs[0])
+            if self._pub_point.get_subscription_count() > 0:
+                self._pub_point.publish(first_msgs[1])
             self.diag.count("detections")
             self.diag.gauge("residual_px", float(first.residual_px))
             self.diag.gauge("sigma_z_mm", float(math.sqrt(first.covariance[2, 2]) * 1e3))
@@ -643,8 +649,9 @@ class DetectTriangulateNode(Node):
             diameter, rgba = self._sphere_style(t.name)
             spheres.append(Sphere(t.id, t.point_m, diameter, rgba))
             delivered.append((spheres[-1], t.covariance))
-        self._pub_markers.publish(sphere_marker_array(
-            spheres, stamp_ns=stamp, frame_id=frame, lifetime_s=self._marker_lifetime_s))
+        if self._pub_markers.get_subscription_count() > 0:     # volatile, as above
+            self._pub_markers.publish(sphere_marker_array(
+                spheres, stamp_ns=stamp, frame_id=frame, lifetime_s=self._marker_lifetime_s))
         self.diag.count("marker_frames")
         return delivered
 
