@@ -116,3 +116,13 @@ def test_save_refuses_invalid_covariance(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="NaN"):
         save_hand_eye(tmp_path / "x.yaml", bad)
     assert not (tmp_path / "x.yaml").exists()
+
+
+def test_robot_pose_noise_of_zero_is_valid(tmp_path: Path) -> None:
+    """``robot_pose_noise`` values are finite numbers >= 0: an exact robot (0) loads."""
+    import dataclasses
+
+    noise = {"translation_sigma_m": 0.0, "rotation_sigma_rad": 0.0}
+    path = save_hand_eye(tmp_path / "hand_eye.yaml",
+                         dataclasses.replace(_calib(), robot_pose_noise=noise))
+    assert load_hand_eye(path).robot_pose_noise == noise
