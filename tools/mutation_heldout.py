@@ -649,8 +649,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"--batch: one of {', '.join(BATCHES)}")
         return 2
     table = BATCHES[batch]
+    # batch 1's survivors joined the table (with their tests); later batches stay apart
     clash = sorted({m.name for m in table} & {m.name for m in mutation.MUTANTS})
-    if clash:
+    if clash and batch != "1":
         print(f"batch {batch}: names also in tools/mutation.py: {clash}")
         return 2
     mutation.MUTANTS = table
