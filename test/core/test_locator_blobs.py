@@ -369,3 +369,19 @@ def test_the_size_gate_refuses_a_sphere_too_small_for_its_disparity():
     res = StereoLocator(RIG, config(size_tol=0.5, **{"targets.red.count": 1})).locate(
         *render([(X, 0.012, RED)]))
     assert len(res.targets) == 1
+
+
+def test_ids_follow_the_nearest_known_blob_when_both_are_within_the_gate():
+    """With a wide gate (10 cm) both known blobs are candidates for both new ones: each id
+    goes to the blob nearest its last position (smallest summed distance), as A and B pass
+    each other left to right 6 cm apart in height."""
+    loc = StereoLocator(RIG, config(**{"tracking.gate_m": 0.1}))
+    owner: dict[str, int] = {}
+    for k, x in enumerate(np.linspace(-0.04, 0.04, 5)):
+        XA, XB = np.array([x, -0.03, 0.45]), np.array([-x, 0.03, 0.45])
+        res = loc.locate(*render([(XA, 0.012, RED), (XB, 0.012, RED)], seed=k))
+        assert len(res.targets) == 2
+        for t in res.targets:
+            truth = min((0, 1), key=lambda w: np.linalg.norm(t.point_m - (XA, XB)[w]))
+            assert owner.setdefault(t.id, truth) == truth, f"frame {k}: {t.id} swapped"
+    assert sorted(owner) == ["red_0", "red_1"]
