@@ -194,3 +194,15 @@ def test_detection_sigma_is_the_median_of_the_corner_sigmas() -> None:
     s = out.meta["corner_sigma_px"]
     assert np.all(np.isfinite(s)) and abs(np.mean(s) - np.median(s)) > 0.05 * np.median(s)
     assert out.meta["sigma_px"] == pytest.approx(float(np.median(s)))
+
+
+def test_subpixel_window_spacing_is_the_smaller_direction() -> None:
+    """The classic detector's subpixel window stays inside one square: the corner spacing is
+    the smaller of the two grid directions (a board foreshortened to 8 px rows, 20 px
+    columns gives 8)."""
+    from eye_in_hand.core.calibration.detection import _min_corner_spacing
+
+    cols, rows = 5, 4
+    grid = np.array([[30.0 + 20.0 * i, 40.0 + 8.0 * j] for j in range(rows) for i in range(cols)])
+    assert _min_corner_spacing(grid, cols, rows) == pytest.approx(8.0)
+    assert _min_corner_spacing(grid[:, ::-1].copy(), cols, rows) == pytest.approx(8.0)
