@@ -703,6 +703,10 @@ MUTANTS: tuple[Mutant, ...] = (
       '        if current and not close(current[0][1], T):\n',
       '        if current and not close(current[-1][1], T):\n',
       'a stop compared with its latest pose, not its first (a slow drift stays one stop)'),
+    M("config2-flat-covariance", "io/config.py",
+      '        if cov.shape == (36,):\n            cov = cov.reshape(6, 6)\n',
+      '        if False:\n            cov = cov.reshape(6, 6)\n',
+      'a flat 36-number covariance refused'),
 )
 
 #: Left out of the workers' copies of the tree (symlinked when ``_LINKED``).
