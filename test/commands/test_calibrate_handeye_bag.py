@@ -238,3 +238,78 @@ def test_a_board_given_in_squares_is_named_with_the_fix(calib_bag, tmp_path: Pat
     assert (f"no board chessboard:10x7:0.025 found in the first {n_stops} still stops' "
             f"images; a 9x6 chessboard (inner corners) is found in {n_stops - 1} of them") in err
     assert "Pass --board chessboard:9x6:0.025" in err and not out.exists()
+
+
+def _legs_bag(path: Path, legs) -> None:
+    """A bag of robot poses at 100 Hz along ``legs`` ``(t0, t1, P0, P1)`` (linear from P0 to
+    P1; P0 alone when they are the same object) and tiny blank images at 20 Hz."""
+    cam = CameraModel(K=np.array([[50.0, 0, 32], [0, 50.0, 20], [0, 0, 1]]),
+                      dist=np.zeros(5), width=64, height=40, name="camera")
+    end = legs[-1][1]
+
+    def robot_at(t: int) -> np.ndarray:
+        for t0, t1, P0, P1 in legs:
+            if t <= t1:
+                return P0 if P0 is P1 else interpolate(t - t0, 0, P0, t1 - t0, P1)
+        return legs[-1][3]
+
+    m = _Msgs()
+    w = BagWriter(path)
+    for topic, kind in (("/cam/image_raw", "sensor_msgs/msg/Image"),
+                        ("/cam/camera_info", "sensor_msgs/msg/CameraInfo"),
+                        ("/ee_pose", "geometry_msgs/msg/PoseStamped")):
+        w.add_topic(topic, kind)
+    events = [(T0 + t, "/ee_pose", m.pose_stamped(robot_at(t), T0 + t))
+              for t in range(0, end + 1, ROBOT_PERIOD_NS)]
+    for t in range(IMAGE_PERIOD_NS, end, IMAGE_PERIOD_NS):
+        events.append((T0 + t, "/cam/image_raw", m.image(np.full((40, 64), 90, np.uint8),
+                                                         T0 + t)))
+        events.append((T0 + t, "/cam/camera_info", m.camera_info(cam, T0 + t)))
+    for stamp, topic, msg in sorted(events, key=lambda e: e[0]):
+        w.write(topic, stamp, msg)
+    w.close()
+
+
+@pytest.fixture(scope="module")
+def stops_bag(tmp_path_factory):
+    """Two stops of 1 s joined by a 0.5 s turn in place (20 deg about z, no translation),
+    a 0.5 s straight move, and a third stop."""
+    A = from_rotvec([np.pi, 0.0, 0.0], [0.4, 0.0, 0.3])
+    B = A @ from_rotvec([0.0, 0.0, np.radians(20.0)], [0.0, 0.0, 0.0])
+    C = from_rotvec([0.0, 0.0, 0.1], [0.0, 0.0, 0.0]) @ B
+    C[:3, 3] = B[:3, 3] + [0.1, 0.0, 0.0]
+    S = 1_000_000_000
+    path = tmp_path_factory.mktemp("stops") / "stops"
+    _legs_bag(path, [(0, S, A, A), (S, S + S // 2, A, B), (S + S // 2, 5 * S // 2, B, B),
+                     (5 * S // 2, 3 * S, B, C), (3 * S, 4 * S, C, C)])
+    return path, S
+
+
+def test_a_slow_drift_is_not_one_stop(tmp_path: Path) -> None:
+    """Still at every image (2 mm/s: 0.2 mm within the window), but a stop is the poses
+    within the stillness limits of its first one: 4 mm of drift are several stops."""
+    A = from_rotvec([np.pi, 0.0, 0.0], [0.4, 0.0, 0.3])
+    B = A.copy()
+    B[:3, 3] += [0.004, 0.0, 0.0]
+    S = 1_000_000_000
+    _legs_bag(tmp_path / "drift", [(0, 2 * S, A, B)])
+    found = read_bag_samples(tmp_path / "drift")
+    assert not [d for d in found.skipped if d["reason"] == "robot moving"]
+    assert len(found.samples) >= 4
+
+
+def test_bag_stops_rotation_window_and_middle_image(stops_bag) -> None:
+    """A turn in place is motion (still = within both the translation and the rotation
+    limit); the stillness window is ``still_window_s`` wide, centred on the image stamp; a stop
+    is represented by its middle still image."""
+    path, S = stops_bag
+    found = read_bag_samples(path, still_window_s=0.2)
+    stamps = [s.stamp_ns - T0 for s in found.samples]
+    assert len(stamps) == 3, stamps
+    moving = {d["stamp_ns"] - T0 for d in found.skipped if d["reason"] == "robot moving"}
+    # 100 ms half window: 0.9 s is still (poses up to 1.0 s), 0.95 s sees the turn
+    assert S - S // 20 in moving and S - S // 10 not in moving
+    assert all(S + k * S // 20 in moving for k in range(1, 10))     # during the turn
+    # the first stop's still images run 0.05-0.9 s: the middle one of 18 is the 10th, 0.5 s
+    assert stamps[0] == S // 2
+    assert abs(stamps[1] - 2 * S) <= S // 20

@@ -337,3 +337,51 @@ def test_a_blob_that_jumps_beyond_the_gate_gets_a_new_id():
     assert b_id not in got and "red_2" in got, got
     assert np.linalg.norm(got["red_2"] - XB3) < 2e-3
     assert res.rejected == {b_id: "not_detected"}
+
+
+def test_a_blob_after_a_retired_id_gets_a_fresh_id():
+    """Ids count up over the whole run: a new blob after an id retired gets the next id, not
+    the retired one's number nor one counted from the blobs now known."""
+    loc = StereoLocator(RIG, config(**{"tracking.max_missed": 1, "targets.red.count": 0}))
+    XA, XB = np.array([-0.05, 0.0, 0.45]), np.array([0.05, 0.0, 0.45])
+    XC, XD = np.array([0.0, 0.06, 0.5]), np.array([0.02, -0.06, 0.5])
+    res = loc.locate(*render([(XA, 0.012, RED), (XB, 0.012, RED)]))
+    assert sorted(t.id for t in res.targets) == ["red_0", "red_1"]
+    a_id = min(res.targets, key=lambda t: np.linalg.norm(t.point_m - XA)).id
+    for k in range(2):                                   # B missed twice: retired
+        res = loc.locate(*render([(XA, 0.012, RED)], seed=k + 1))
+    assert [t.id for t in res.targets] == [a_id] and res.rejected == {}
+    res = loc.locate(*render([(XA, 0.012, RED), (XC, 0.012, RED)], seed=5))
+    assert [t.id for t in res.targets] == [a_id, "red_2"]
+    res = loc.locate(*render([(XA, 0.012, RED), (XC, 0.012, RED), (XD, 0.012, RED)], seed=6))
+    assert [t.id for t in res.targets] == [a_id, "red_2", "red_3"]
+
+
+def test_the_size_gate_refuses_a_sphere_too_small_for_its_disparity():
+    """The size check is two-sided: a sphere half the configured radius looks twice as far
+    as its disparity says (factor 2 > 1 + size_tol = 1.5), and is refused like one twice as
+    big."""
+    X = np.array([0.0, 0.0, 0.45])
+    for r in (0.006, 0.024):
+        loc = StereoLocator(RIG, config(size_tol=0.5, **{"targets.red.count": 1}))
+        res = loc.locate(*render([(X, r, RED)]))
+        assert res.targets == () and set(res.rejected.values()) == {"size"}, (r, res.rejected)
+    res = StereoLocator(RIG, config(size_tol=0.5, **{"targets.red.count": 1})).locate(
+        *render([(X, 0.012, RED)]))
+    assert len(res.targets) == 1
+
+
+def test_ids_follow_the_nearest_known_blob_when_both_are_within_the_gate():
+    """With a wide gate (10 cm) both known blobs are candidates for both new ones: each id
+    goes to the blob nearest its last position (smallest summed distance), as A and B pass
+    each other left to right 6 cm apart in height."""
+    loc = StereoLocator(RIG, config(**{"tracking.gate_m": 0.1}))
+    owner: dict[str, int] = {}
+    for k, x in enumerate(np.linspace(-0.04, 0.04, 5)):
+        XA, XB = np.array([x, -0.03, 0.45]), np.array([-x, 0.03, 0.45])
+        res = loc.locate(*render([(XA, 0.012, RED), (XB, 0.012, RED)], seed=k))
+        assert len(res.targets) == 2
+        for t in res.targets:
+            truth = min((0, 1), key=lambda w: np.linalg.norm(t.point_m - (XA, XB)[w]))
+            assert owner.setdefault(t.id, truth) == truth, f"frame {k}: {t.id} swapped"
+    assert sorted(owner) == ["red_0", "red_1"]

@@ -116,3 +116,24 @@ def test_save_refuses_invalid_covariance(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="NaN"):
         save_hand_eye(tmp_path / "x.yaml", bad)
     assert not (tmp_path / "x.yaml").exists()
+
+
+def test_robot_pose_noise_of_zero_is_valid(tmp_path: Path) -> None:
+    """``robot_pose_noise`` values are finite numbers >= 0: an exact robot (0) loads."""
+    import dataclasses
+
+    noise = {"translation_sigma_m": 0.0, "rotation_sigma_rad": 0.0}
+    path = save_hand_eye(tmp_path / "hand_eye.yaml",
+                         dataclasses.replace(_calib(), robot_pose_noise=noise))
+    assert load_hand_eye(path).robot_pose_noise == noise
+
+
+def test_flat_covariance_and_zero_samples_load(tmp_path: Path) -> None:
+    """A covariance may be written as 36 numbers (row-major, as in ROS messages); a
+    sample_count of 0 (unknown) is a non-negative integer."""
+    c = _calib()
+    assert c.covariance is not None
+    p = _write(tmp_path, covariance=c.covariance.reshape(36).tolist(), sample_count=0)
+    back = load_hand_eye(p)
+    assert back.covariance is not None and np.allclose(back.covariance, c.covariance)
+    assert back.sample_count == 0

@@ -322,3 +322,16 @@ def test_stale_stamps_are_in_the_one_loss_total(executor, ros_context, namespace
     lost_now = sum(node.diag.counter(k) for k in ("sync_unpaired_left", "sync_unpaired_right",
                                                    "dropped_pairs", "failed_pairs"))
     assert 2 <= gauges["sync_stale"] <= gauges["frames_lost"] <= lost_now
+
+
+def test_sync_slop_is_in_seconds(ros_context, namespace):
+    """``sync.slop_s`` is seconds: 0.004 pairs frames up to 4 ms apart."""
+    node = DetectTriangulateNode(context=ros_context, namespace=namespace,
+                                 parameter_overrides=[Parameter("sync.slop_s", value=0.004)])
+    try:
+        assert node._sync.slop_ns == 4_000_000
+        pairs = node._sync.push_left(10**9, None) + node._sync.push_right(10**9 + 3_900_000, None)
+        pairs += node._sync.push_left(2 * 10**9, None)
+        assert len(pairs) == 1 and pairs[0].skew_ns == 3_900_000
+    finally:
+        node.destroy_node()
