@@ -6,10 +6,9 @@ Speed: per 1280x720 stereo pair, ``StereoLocator.locate`` against the floor meas
 run (``cv2.cvtColor`` BGR->HSV + one ``cv2.inRange`` on both full images), the two timed in
 turns within each of ``--rounds`` rounds; the ratio is the median over the rounds. Targets
 (issue 24): one target at most 1x the floor, four targets at most 1.5x. Latest figures
-(docs/detection.md#figures; shared 2-core machine, load average about 7, floor 6.8-9.3 ms per
-pair): one target 1.07x the floor (6.8 ms per pair), four targets 2.70x (26.2 ms); three
-alternating runs before / after the issue-24 changes: one target median 1.32x / 1.19x, four
-targets 3.76x / 2.58x.
+(docs/detection.md#figures; idle 2-core machine, runs alternating with the code before):
+one target 1.44-1.46x the floor (4.6-4.7 ms per pair; before 1.81-2.02x, 6.9-7.1 ms), four
+targets 4.0-4.1x (12.6-13.4 ms; before 4.7-4.8x, 14.3-14.5 ms).
 
 Accuracy: simulator renders (``eye_in_hand.sim``, default world: 35 mm red sphere, distorted
 1280x720 rig, f ~ 900 px, B = 60 mm, sensor noise 2 grey levels) at 0.3-0.6 m range with the
