@@ -629,12 +629,13 @@ MUTANTS: tuple[Mutant, ...] = (
       "a target's largest error in metres, reported as mm"),
     # core/detection.py
     M("detection-edge-width-cosine", "core/detection.py",
-      '    return float(np.mean(s1[ok] ** 2 / s2[ok] * cos[ok])) / (2.0 * math.sqrt(math.pi))\n',
-      '    return float(np.mean(s1[ok] ** 2 / s2[ok])) / (2.0 * math.sqrt(math.pi))\n',
+      '    return float((s1[ok] ** 2 / s2[ok] * cos[ok]).sum() / k) / '
+      '(2.0 * math.sqrt(math.pi))\n',
+      '    return float((s1[ok] ** 2 / s2[ok]).sum() / k) / (2.0 * math.sqrt(math.pi))\n',
       "the edge width without the normal's cosine to the sampling axis"),
     M("detection-shade-y-mean", "core/detection.py",
-      '                          float((wgt * ys).sum()) / total - float(ys.mean())])\n',
-      '                          float((wgt * ys).sum()) / total - float(xs.mean())])\n',
+      '                          weighted["m01"] / total - m["m01"] / m["m00"]])\n',
+      '                          weighted["m01"] / total - m["m10"] / m["m00"]])\n',
       "the shading shift's y part relative to the x mean"),
     # core/sync.py
     M("sync-skew-abs", "core/sync.py",
