@@ -25,6 +25,7 @@ NODES = {
     "hand_eye": "HandEyeNode",
     "stereo_capture": "StereoCaptureNode",
     "detect_triangulate": "DetectTriangulateNode",
+    "localize": "LocalizationChain",
 }
 
 

@@ -136,10 +136,13 @@ def _key_problems(path: Path) -> str:
 
 
 def test_every_node_has_a_parameter_list():
-    """The nodes whose files are checked are the package's node executables."""
+    """The nodes whose files are checked are the package's node executables (``localize``
+    runs two of them, detect_triangulate and hand_eye, under their own names)."""
+    from eye_in_hand.nodes.localize import LocalizationChain  # noqa: F401 - it exists
     from eye_in_hand.nodes.parameters import NODE_NAMES, declared_parameters
 
-    assert set(NODE_NAMES) == node_names()
+    assert set(NODE_NAMES) == node_names() - {"localize"}
+    assert {"detect_triangulate", "hand_eye"} <= set(NODE_NAMES)
     for node in NODE_NAMES:
         assert declared_parameters(node, {}), node
 
