@@ -28,7 +28,14 @@ camera_info.
 
 Usage: .venv/bin/python benchmarks/bench_scaling.py [--quick] [--storage zstd|none]
            [--curves length,targets,size] [--repeat N] [--fresh]
-(--quick: 5 s / 10 s / 20 s bags, 320x240 / 640x480 / 960x540: a few minutes.)
+           [--compare OTHER_CHECKOUT] [--prepare]
+(--compare: OTHER_CHECKOUT's process on the same bags, runs alternating; --prepare: only the
+bags.
+--quick: 5 s / 10 s / 20 s bags, 320x240 / 640x480 / 960x540: a few minutes.)
+       .venv/bin/python benchmarks/bench_scaling.py --startup [--compare OTHER] [--repeat N]
+(--startup: the CPU of each phase of `process` on the shortest bag: interpreter and imports,
+the --params key check, the rig, the pass over the bag with its worker processes, the
+ground-truth matching, the output files.)
        .venv/bin/python benchmarks/bench_scaling.py --identity OTHER_CHECKOUT
 (--identity: runs ``eye-in-hand process`` of this checkout and of OTHER_CHECKOUT (its
 ``eye_in_hand`` first on ``PYTHONPATH``, same interpreter) on the bundled bags and on the test
@@ -37,7 +44,19 @@ suite's chunked and damaged-bag fixtures, rebuilt here (zstd, lz4 and uncompress
 workers, and compares ``results.csv``, ``summary.json``, ``metadata.yaml`` and the output
 bag's file byte for byte.)
 
-Figures: see docs/localization.md ("Scaling").
+Figures (docs/localization.md, "The whole process command"), 06:45-07:05 UTC on the shared
+2-core machine at load 2.3-5.4, zstd bags, this code (the code before in brackets, runs
+alternating on the same bag):
+
+* 20 s 640x480: 11.28 CPU-s (10.64), floor 2.77 -> 4.07x the floor, CPU/wall 1.18; peak RSS of
+  the tree 450 MB (532); 10 min: 184.7 CPU-s (181.2), floor 64.1 -> 2.88x, CPU/wall 1.25; peak
+  RSS 1265 MB (3525), of it anonymous 463 MB (473).
+* bag length: CPU 0.301 s per s of bag (R^2 0.9997), wall 0.240 (0.9998), floor 0.106
+  (0.9999), tree RSS 1.41 MB per s of bag (0.9997), anonymous 0.27 MB (1.0000);
+* targets 1/4/8 (20 s, 640x480): CPU 2.06 s per target (0.982), floor 0.278 (0.999);
+* image size 640x480/1280x720/1920x1080 (20 s): CPU 3.96 s per Mpx (R^2 0.73: not linear, the
+  locator barely depends on the size), floor 6.39 s per Mpx (0.9997); CPU / floor 4.07, 1.41,
+  1.24.
 """
 from __future__ import annotations
 
@@ -168,9 +187,12 @@ def _restamp(raw: bytes, shift_ns: int) -> bytes:
 
 
 def long_bag(p: Point, storage: str, distinct: int) -> Path:
-    """A ``p.seconds`` bag cycling the base bag's pairs with new stamps, cached."""
+    """A ``p.seconds`` bag cycling the base bag's pairs with new stamps, cached. ``distinct``
+    pairs at 640x480, fewer for larger images (as many pixels, at least 20 pairs): rendering
+    is what costs here."""
     from eye_in_hand.io.bags import BagWriter, bag_info, iter_messages
 
+    distinct = max(20, min(distinct, round(distinct * 640 * 480 / (p.width * p.height))))
     pairs = int(round(p.seconds * RATE_HZ))
     d = DATA / f"{p.key}_{pairs}p_{storage}"
     if (d / "metadata.yaml").exists():
@@ -244,6 +266,17 @@ def _mem(pid: int) -> tuple[int, int, int]:
     return got["VmRSS:"], got["VmHWM:"], got["RssAnon:"]
 
 
+def _env(code: Path | None) -> dict[str, str]:
+    """The environment of a measured run: this one, with ``code`` first on ``PYTHONPATH``, and
+    without the ROS wheels' re-exec guard, so that the command starts as from a shell (the
+    venv's ``ros_wheels_bootstrapper.pth`` re-executes a fresh interpreter once, with the ROS
+    libraries on ``LD_LIBRARY_PATH``)."""
+    env = {k: v for k, v in os.environ.items() if k != "_ROS_WHEELS_BOOTSTRAP_COMPLETE"}
+    if code is not None:
+        env["PYTHONPATH"] = str(code)
+    return env
+
+
 def run_process(bag: Path, he: Path, params: Path, out: Path,
                 code: Path | None = None) -> dict[str, float]:
     """One ``eye-in-hand process`` run: wall, CPU of the tree, peak RSS (sum, largest);
@@ -256,9 +289,8 @@ def run_process(bag: Path, he: Path, params: Path, out: Path,
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     peak = [0, 0, 0]          # tree RSS sum, largest process's peak (VmHWM), tree anonymous
     t0 = time.perf_counter()
-    env = None if code is None else {**os.environ, "PYTHONPATH": str(code)}
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=env)
+                            env=_env(code))
     done = threading.Event()
 
     def sample() -> None:
@@ -319,6 +351,80 @@ def floor(bag: Path, targets: int) -> dict[str, float]:
         cv2.setNumThreads(threads)
     return {"floor_cpu": time.process_time() - t_cpu, "floor_wall": time.perf_counter() - t0,
             "images": float(n)}
+
+
+#: run in a child interpreter by --startup: `eye-in-hand process` with timers around its phases
+_PHASES = r"""
+import resource, sys, time
+def now():
+    ch = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time(), ch.ru_utime + ch.ru_stime
+rows = [("interpreter start-up", time.process_time(), 0.0)]
+c0 = now()
+import eye_in_hand.cli as cli
+import eye_in_hand.commands.process as P
+c1 = now()
+import eye_in_hand.nodes.parameters as NP, eye_in_hand.offline as O, eye_in_hand.io.results as R
+c2 = now()
+rows += [("CLI imports", c1[0] - c0[0], 0.0), ("`process` imports", c2[0] - c1[0], 0.0)]
+def wrap(mod, attr, label):
+    fn = getattr(mod, attr)
+    def timed(*a, **k):
+        t0 = now()
+        try:
+            return fn(*a, **k)
+        finally:
+            t1 = now()
+            rows.append((label, t1[0] - t0[0], t1[1] - t0[1]))
+    setattr(mod, attr, timed)
+wrap(NP, "check_parameter_file_keys", "--params key check")
+wrap(O, "_rig_from_camera_info", "  of which: rig from camera_info")
+wrap(R, "assign_truth", "  of which: ground-truth matching")
+wrap(O, "process_bag", "the pass over the bag (main + worker processes)")
+wrap(O, "write_results", "output files")
+sys.argv = ["eye-in-hand"] + sys.argv[1:]
+try:
+    cli.main()
+except SystemExit:
+    pass
+end = now()
+rows.append(("whole main process", end[0], end[1]))
+for name, main, children in rows:
+    print(f"PHASE\t{name}\t{main:.3f}\t{children:.3f}")
+"""
+
+
+def startup(bag: Path, he: Path, params: Path, code: Path | None, repeat: int) -> None:
+    """CPU of the phases of one `process` run (the main process; worker processes as the
+    children's CPU), the least of ``repeat`` runs per phase."""
+    env = _env(code)
+    best: dict[str, tuple[float, float]] = {}
+    order: list[str] = []
+    for _ in range(repeat):
+        out = DATA / "out-startup"
+        shutil.rmtree(out, ignore_errors=True)
+        t0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        proc = subprocess.run([sys.executable, "-c", _PHASES, "process", str(bag), "--hand-eye",
+                               str(he), "--params", str(params), "-o", str(out), "--quiet"],
+                              capture_output=True, text=True, env=env)
+        t1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        if proc.returncode != 0:
+            raise SystemExit(proc.stdout + proc.stderr)
+        total = t1.ru_utime + t1.ru_stime - t0.ru_utime - t0.ru_stime
+        rows = [line.split("\t")[1:] for line in proc.stdout.splitlines()
+                if line.startswith("PHASE\t")] + [["whole tree (getrusage)", f"{total:.3f}",
+                                                    "0"]]
+        for name, main, children in rows:
+            if name not in best:
+                order.append(name)
+            old = best.get(name)
+            if old is None or float(main) + float(children) < sum(old):
+                best[name] = (float(main), float(children))
+    print(f"start-up and phases of `eye-in-hand process` ({code or 'this checkout'}), CPU s, "
+          f"least of {repeat} runs (main process + its worker processes):")
+    for name in order:
+        main, children = best[name]
+        print(f"  {name:45s} {main:6.3f}" + (f" + {children:6.3f}" if children else ""))
 
 
 def fit(x: list[float], y: list[float]) -> tuple[float, float, float]:
@@ -475,8 +581,14 @@ def main() -> int:
     parser.add_argument("--repeat", type=int, default=1,
                         help="process runs per point; the one of least CPU counts")
     parser.add_argument("--distinct", type=int, default=60,
-                        help="distinct rendered pairs cycled in every bag (default 60: 2 s)")
+                        help="distinct rendered pairs cycled in a 640x480 bag (default 60: "
+                             "2 s; fewer for larger images, at least 20)")
     parser.add_argument("--fresh", action="store_true", help="render and write the bags again")
+    parser.add_argument("--startup", action="store_true",
+                        help="only the CPU of the phases of process runs on the shortest bag "
+                             "of the chosen curves (with --compare: the other checkout too)")
+    parser.add_argument("--prepare", action="store_true",
+                        help="only render and write the bags (cached), measure nothing")
     parser.add_argument("--compare", metavar="OTHER_CHECKOUT", type=Path,
                         help="also run OTHER_CHECKOUT's process on every point, alternating "
                              "with this checkout's (--repeat runs each; least CPU counts)")
@@ -506,6 +618,17 @@ def main() -> int:
                     key=lambda p: (p.seconds, p.width, p.targets))
     bags = {p: long_bag(p, args.storage, args.distinct) for p in points}
     he = hand_eye_file(points[0])
+    if args.prepare:
+        return 0
+    if args.startup:
+        p = points[0]
+        params = DATA / f"params_t{p.targets}.yaml"
+        params.write_text(params_text(p.targets))
+        print(f"bag: {bags[p].name}; load {os.getloadavg()[0]:.2f}")
+        for code in [None] + ([args.compare.resolve()] if args.compare else []):
+            startup(bags[p], he, params, code, max(1, args.repeat))
+        print(f"load {os.getloadavg()[0]:.2f}")
+        return 0
     results: dict[Point, dict[str, float]] = {}
     load = os.getloadavg()
     print(f"load average before: {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; "
@@ -514,9 +637,14 @@ def main() -> int:
         params = DATA / f"params_t{p.targets}.yaml"
         params.write_text(params_text(p.targets))
         runs, other = [], []
-        for _ in range(args.repeat):
+        for k in range(args.repeat):
+            # alternating, the other checkout first every second round (the first run of a
+            # large uncompressed bag may find it partly out of the page cache)
+            if args.compare is not None and k % 2:
+                other.append(run_process(bags[p], he, params, DATA / "out",
+                                         args.compare.resolve()))
             runs.append(run_process(bags[p], he, params, DATA / "out"))
-            if args.compare is not None:
+            if args.compare is not None and not k % 2:
                 other.append(run_process(bags[p], he, params, DATA / "out",
                                          args.compare.resolve()))
         r = min(runs, key=lambda r: r["cpu"])
