@@ -33,38 +33,35 @@ from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
 
 from eye_in_hand.core.camera import StereoRig
-from eye_in_hand.core.eye_to_hand import EyeToHandLocalizer
-from eye_in_hand.core.localization import Localizer, LocalizerConfig
 from eye_in_hand.core.locator import LocatorConfig, StereoLocator
-from eye_in_hand.core.sync import ApproximateStereoSync
 from eye_in_hand.errors import BagError, ConversionError, InputError, LocalizationError
-from eye_in_hand.io.bags import (
-    DamageLog,
-    bag_info,
-    deserialize,
-    iter_messages,
-    memory_mappable,
-    require_topics,
-    typestore_for,
-)
-from eye_in_hand.io.results import (
-    FrameResult,
-    ProcessResult,
-    TargetResult,
-    assign_truth,
-    target_order,
-)
-from eye_in_hand.io.results import write_results as _write_results
-from eye_in_hand.ros.outputs import OutputSettings
+
+if TYPE_CHECKING:
+    from eye_in_hand.core.localization import Localizer
+    from eye_in_hand.core.sync import ApproximateStereoSync
+    from eye_in_hand.io.results import FrameResult, ProcessResult
+    from eye_in_hand.ros.outputs import OutputSettings
+
+# A `process` worker process imports this module for _worker_init and _worker_locate, which
+# need OpenCV, numpy and the locator only. What the reading process alone uses is imported
+# where it is used (marked `# local: reader only`): the bag reader, the results, the output
+# messages, the robot-pose buffers (io.bags, io.results with ros.outputs and core.distances,
+# core.localization, core.eye_to_hand, core.sync: about 0.1 s of CPU at each worker's start).
 
 __all__ = ["ProcessOptions", "process_bag", "loss_total", "error_stats", "top_reasons",
            "write_results"]
+
+
+def _output_settings() -> OutputSettings:
+    from eye_in_hand.ros.outputs import OutputSettings  # local: reader only
+
+    return OutputSettings()
 
 
 @dataclass(frozen=True)
@@ -130,7 +127,7 @@ class ProcessOptions:
     task_timeout_s: float = 20.0
     verify_crc: bool = False
     setup: str = "eye_in_hand"
-    outputs: OutputSettings = field(default_factory=OutputSettings)
+    outputs: OutputSettings = field(default_factory=_output_settings)
 
     def __post_init__(self) -> None:
         if self.setup not in ("eye_in_hand", "eye_to_hand"):
@@ -213,7 +210,18 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         BagError: the bag cannot be read or lacks a required topic.
         InputError: malformed settings.
     """
-    # local: ros.conversions adds ~12 ms to each `process` worker's start-up (module import)
+    # local: reader only (see the imports at the top); ros.conversions adds ~12 ms too
+    from eye_in_hand.core.eye_to_hand import EyeToHandLocalizer
+    from eye_in_hand.core.localization import Localizer, LocalizerConfig
+    from eye_in_hand.core.sync import ApproximateStereoSync
+    from eye_in_hand.io.bags import (
+        DamageLog,
+        bag_info,
+        memory_mappable,
+        require_topics,
+        typestore_for,
+    )
+    from eye_in_hand.io.results import ProcessResult, assign_truth, target_order
     from eye_in_hand.ros.conversions import header_stamp_ns, point_to_xyz, pose_to_matrix
 
     opts = options or ProcessOptions()
@@ -246,8 +254,16 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     for key in ("pairs", "located", "localized", "no_target", "no_robot_pose", "bad_messages"):
         counts[key] = 0
     ledger = _Ledger(counts, int(opts.pose_jump_back_s * 1e9))
+    typestore: Any = None
     if rig is None:
-        rig = _rig_from_camera_info(path, opts, result.damage)
+        # one type store for the camera_info and the main pass (building the whole Jazzy
+        # store for camera_info alone cost ~0.1-0.15 s of CPU at every start)
+        try:
+            typestore = typestore_for(path, {info.topics[t].msgtype for t in topics} | {
+                info.topics[t].msgtype for t in (opts.left_info_topic, opts.right_info_topic)})
+        except BagError:
+            typestore = None       # as before: the main pass names the problem
+        rig = _rig_from_camera_info(path, opts, result.damage, typestore)
         result.rig = rig
     truth: dict[int, list[np.ndarray]] = {}
     pending: list[FrameResult] = []      # located, waiting for a robot pose after the stamp
@@ -309,7 +325,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         in_workers = pool.parallel and not mappable and worker_readable(path)   # compressed
         if in_workers or mappable:
             pool.start_processes()     # they import and initialise while this process sets up
-        typestore = typestore_for(path, {info.topics[t].msgtype for t in topics})
+        if typestore is None:
+            typestore = typestore_for(path, {info.topics[t].msgtype for t in topics})
         source = decoded_stream(path, topics, typestore, verify_crc=opts.verify_crc,
                                 damage=result.damage, image_topics=(opts.left_topic,
                                                                     opts.right_topic),
@@ -497,10 +514,13 @@ def loss_total(counts: dict[str, int], damage: Any = None,
             "complete": damaged is not None}
 
 
-def _rig_from_camera_info(path: Path, opts: ProcessOptions, damage: Any = None) -> StereoRig:
+def _rig_from_camera_info(path: Path, opts: ProcessOptions, damage: Any = None,
+                          typestore: Any = None) -> StereoRig:
     """The stereo rig from the first readable camera_info message of each side (damaged and
-    undecodable ones are skipped, recorded in ``damage`` when given)."""
-    # local: ros.conversions adds ~12 ms to each `process` worker's start-up (module import)
+    undecodable ones are skipped, recorded in ``damage`` when given); ``typestore``: as for
+    :func:`eye_in_hand.io.bags.deserialize` (None: the Jazzy definitions)."""
+    # local: reader only (see the imports at the top); ros.conversions adds ~12 ms too
+    from eye_in_hand.io.bags import DamageLog, deserialize, iter_messages
     from eye_in_hand.ros.conversions import camera_info_to_model
 
     infos: dict[str, Any] = {}
@@ -510,7 +530,7 @@ def _rig_from_camera_info(path: Path, opts: ProcessOptions, damage: Any = None) 
                                                           opts.right_info_topic], damage=log):
         if topic not in infos:
             try:
-                infos[topic] = camera_info_to_model(deserialize(raw, msgtype))
+                infos[topic] = camera_info_to_model(deserialize(raw, msgtype, typestore))
             except (BagError, ConversionError) as exc:
                 first_error = first_error or f"{topic} at {t_ns} ns: {exc}"
                 if damage is not None:
@@ -526,30 +546,52 @@ def _rig_from_camera_info(path: Path, opts: ProcessOptions, damage: Any = None) 
                                    source=f"{path} {opts.right_info_topic}")
 
 
-def _locate_pair(locator: StereoLocator, stamp_ns: int, left_msg: Any,
-                 right_msg: Any) -> FrameResult:
-    # local: ros.conversions adds ~12 ms to each `process` worker's start-up (module import)
-    from eye_in_hand.ros.conversions import image_to_numpy
+def _locate_values(locator: StereoLocator, stamp_ns: int, left_msg: Any,
+                   right_msg: Any) -> tuple[Any, ...]:
+    """Locate one stereo pair; the outcome as plain values (what a worker process sends back,
+    without importing the result classes): ``(stamp_ns, status, reason, targets, missing)``,
+    each target ``(id, name, point, covariance, residual_px, left_px, right_px)``, the first
+    target first. :func:`_frame_of` makes the :class:`FrameResult`."""
+    # local: ros.images alone (not every ros.conversions family: ~10 ms at a worker's start)
+    from eye_in_hand.ros.images import image_to_numpy
 
     try:
         left = image_to_numpy(left_msg, desired_encoding="bgr8")
         right = image_to_numpy(right_msg, desired_encoding="bgr8")
         res = locator.locate(left, right)
     except (ConversionError, InputError) as exc:
-        return FrameResult(stamp_ns, "bad_image", str(exc))
+        return (stamp_ns, "bad_image", str(exc), [], {})
     first = res.first
-    targets = [TargetResult(t.id, t.name, np.asarray(t.point_m), np.asarray(t.covariance),
-                            float(t.residual_px), np.asarray(t.left_px), np.asarray(t.right_px))
+    targets = [(t.id, t.name, np.asarray(t.point_m), np.asarray(t.covariance),
+                float(t.residual_px), np.asarray(t.left_px), np.asarray(t.right_px))
                for t in sorted(res.targets, key=lambda t: t is not first)]  # the first first
     missing = {name: res.messages.get(name, reason) for name, reason in res.rejected.items()}
     if first is None:
-        return FrameResult(stamp_ns, "no_target",
-                           res.messages.get(res.first_name, res.rejected.get(res.first_name, "")),
-                           targets=targets, missing=missing)
+        return (stamp_ns, "no_target",
+                res.messages.get(res.first_name, res.rejected.get(res.first_name, "")),
+                targets, missing)
+    return (stamp_ns, "located", "", targets, missing)
+
+
+def _frame_of(values: tuple[Any, ...]) -> FrameResult:
+    """The :class:`FrameResult` of :func:`_locate_values`' outcome."""
+    from eye_in_hand.io.results import FrameResult, TargetResult  # local: reader only
+
+    stamp_ns, status, reason, located, missing = values
+    if status == "bad_image":
+        return FrameResult(stamp_ns, "bad_image", reason)
+    targets = [TargetResult(*t) for t in located]
+    if status == "no_target":
+        return FrameResult(stamp_ns, "no_target", reason, targets=targets, missing=missing)
     t0 = targets[0]
     return FrameResult(stamp_ns, "located", point_cam=t0.point_cam, cov_cam=t0.cov_cam,
                        residual_px=t0.residual_px, left_px=t0.left_px, right_px=t0.right_px,
                        targets=targets, missing=missing)
+
+
+def _locate_pair(locator: StereoLocator, stamp_ns: int, left_msg: Any,
+                 right_msg: Any) -> FrameResult:
+    return _frame_of(_locate_values(locator, stamp_ns, left_msg, right_msg))
 
 
 # -- worker processes ------------------------------------------------------------------------
@@ -599,7 +641,8 @@ def _worker_init(rig: StereoRig, config: LocatorConfig) -> None:
     _WORKER["maps"] = {}
 
 
-def _worker_locate(stamp_ns: int, left: _MappedImage, right: _MappedImage) -> FrameResult:
+def _worker_locate(stamp_ns: int, left: _MappedImage, right: _MappedImage
+                   ) -> tuple[Any, ...]:
     maps: dict[str, Any] = _WORKER["maps"]
 
     def view(ref: Any) -> Any:
@@ -611,7 +654,24 @@ def _worker_locate(stamp_ns: int, left: _MappedImage, right: _MappedImage) -> Fr
                 mapped = maps[ref.path] = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
         return _ImageView(ref, mapped)
 
-    return _locate_pair(_WORKER["locator"], stamp_ns, view(left), view(right))
+    values = _locate_values(_WORKER["locator"], stamp_ns, view(left), view(right))
+    for ref in (left, right):   # read once: out of the resident set (flat on a long bag)
+        if isinstance(ref, _MappedImage):
+            _drop_pages(maps[ref.path], ref.offset, ref.nbytes)
+    return values
+
+
+def _drop_pages(mapped: mmap.mmap, start: int, length: int) -> None:
+    """``madvise(MADV_DONTNEED)`` over the whole pages of ``[start, start + length)`` of a
+    read-only file mapping: out of this process's resident set; a page read again is mapped
+    again from the page cache. (:func:`eye_in_hand.io.mcap_chunks.drop_pages`, without
+    loading ``eye_in_hand.io`` into a worker.)"""
+    lo = start - start % mmap.PAGESIZE
+    hi = min(len(mapped), -(-(start + length) // mmap.PAGESIZE) * mmap.PAGESIZE)
+    try:
+        mapped.madvise(mmap.MADV_DONTNEED, lo, hi - lo)
+    except (AttributeError, OSError, ValueError):
+        pass
 
 
 class _PairPool:
@@ -732,7 +792,7 @@ class _PairPool:
         from eye_in_hand.workers import WorkerError  # local: as ProcessPool (~11 ms)
 
         try:
-            return fut.result()
+            got = fut.result()
         except WorkerError as exc:
             # a worker died (or its task failed in the worker): locate the pair here, where
             # a real problem with it raises normally
@@ -743,9 +803,12 @@ class _PairPool:
                 self.notes.append(f"a worker process failed ({first}); its pairs were located "
                                   "again in this process")
             return self._work(pair)
+        return got if not isinstance(got, tuple) else _frame_of(got)   # a worker's values
 
     def ready(self, wait: bool = False) -> Iterator[FrameResult]:
         """Finished results at the head of the queue (all of them with ``wait``), in order."""
+        from eye_in_hand.io.results import FrameResult  # local: reader only
+
         while self._inflight:
             head, pair = self._inflight[0]
             if isinstance(head, FrameResult):
@@ -784,6 +847,8 @@ def write_results(out: str | Path, result: ProcessResult, opts: ProcessOptions |
     Raises:
         BagError: OUT exists or cannot be written.
     """
+    from eye_in_hand.io.results import write_results as _write_results  # local: reader only
+
     return _write_results(out, result, opts or ProcessOptions(), storage=storage,
                           summary_extra={"error": error_stats(result.frames),
                                          **(summary_extra or {})})

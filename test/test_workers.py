@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import math
 import os
+import subprocess
+import sys
 import time
 
 import pytest
@@ -121,3 +123,18 @@ def test_a_slow_but_answering_worker_is_not_killed():
         futs = [pool.submit("time:sleep", 0.4) for _ in range(5)]   # 2 s in all, 0.4 s each
         assert [f.result(timeout=30) for f in futs] == [None] * 5
         assert pool.timeouts == 0 and pool.alive()
+
+
+def test_a_process_worker_imports_only_what_locating_needs():
+    """A `process` worker imports eye_in_hand.offline for _worker_init and _worker_locate:
+    not the bag reader, the results and output messages, the robot-pose code, rosbags or
+    SciPy, which only the reading process uses (each costs start-up CPU in every worker)."""
+    code = ("import sys, eye_in_hand.workers, eye_in_hand.offline\n"
+            "print(' '.join(sorted(sys.modules)))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.split()
+    for name in ("eye_in_hand.io", "eye_in_hand.io.results", "eye_in_hand.ros.outputs",
+                 "eye_in_hand.core.localization", "eye_in_hand.core.sync", "rosbags", "scipy",
+                 "rclpy"):
+        assert name not in out, name
+    assert "cv2" in out and "eye_in_hand.core.locator" in out

@@ -59,6 +59,25 @@ def _address(buffer: Any) -> int:
     return int(np.frombuffer(buffer, dtype=np.uint8, count=1).ctypes.data) if len(buffer) else 0
 
 
+_PAGE = mmap.PAGESIZE
+
+
+def drop_pages(mapped: Any, start: int, length: int) -> None:
+    """Release this process's resident pages of ``[start, start + length)`` of a read-only
+    file mapping (``madvise(MADV_DONTNEED)``, widened to whole pages), so that a long bag
+    read once does not stay in the process's resident set. The data are not affected: a
+    page read again is mapped again from the page cache (or the file). Does nothing where
+    ``madvise`` is not available."""
+    if length <= 0:
+        return
+    lo = start - start % _PAGE
+    hi = min(len(mapped), -(-(start + length) // _PAGE) * _PAGE)
+    try:
+        mapped.madvise(mmap.MADV_DONTNEED, lo, hi - lo)
+    except (AttributeError, OSError, ValueError):
+        pass
+
+
 def file_location(array: Any) -> tuple[str, int] | None:
     """``(path, byte offset)`` of a buffer (a numpy array or memoryview of message data) that
     lies in an MCAP file being read by :func:`chunk_messages`; None otherwise (a decompressed
@@ -408,6 +427,12 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
 
         pending: list[tuple[int, int, int, Any, memoryview]] = []
         for i, chunk in enumerate(chunks):
+            old = chunks[i - 2] if i >= 2 else None
+            if old is not None and not old.compression:
+                # read two chunks ago: its pages out of this process's resident set (views
+                # still in use map them again from the page cache), so that it stays flat
+                # however long the bag is
+                drop_pages(mapped, old.offset, int(old.info.chunk_length))
             t0 = infos[i].message_start_time
             while pending and pending[0][0] < t0:     # nothing later can come before these
                 m = heapq.heappop(pending)

@@ -48,6 +48,7 @@ from eye_in_hand.io.mcap_chunks import (
     _may_hold,
     _messages_of,
     chunk_damage,
+    drop_pages,
 )
 
 __all__ = ["ChunkRef", "ImageRef", "plan_groups", "open_group", "worker_messages", "release",
@@ -90,6 +91,7 @@ class _Cache:
         self.capacity = capacity
         self._lock = threading.Lock()
         self._files: dict[str, memoryview] = {}
+        self._maps: dict[str, mmap.mmap] = {}
         self._chunks: OrderedDict[tuple[str, int], tuple[_Chunk, memoryview]] = OrderedDict()
         self._bytes = 0
         self.decompressed = 0                 # chunks decompressed (for tests and figures)
@@ -99,8 +101,9 @@ class _Cache:
             view = self._files.get(path)
             if view is None:
                 with open(path, "rb") as fh:
-                    view = self._files[path] = memoryview(
-                        mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ))
+                    mapped = self._maps[path] = mmap.mmap(fh.fileno(), 0,
+                                                          access=mmap.ACCESS_READ)
+                view = self._files[path] = memoryview(mapped)
             return view
 
     def records(self, ref: ChunkRef, verify_crc: bool) -> tuple[_Chunk, memoryview]:
@@ -117,6 +120,13 @@ class _Cache:
                 return hit
         chunk = _Chunk(ref, self.file(ref.path))
         recs = chunk.records(verify_crc)             # decompressors release the GIL
+        if chunk.compression:
+            # the compressed bytes are not read again (or, for a chunk dropped from the cache,
+            # mapped again from the page cache): out of the resident set, which then stays
+            # flat however long the bag is
+            mapped = self._maps.get(ref.path)
+            if mapped is not None:
+                drop_pages(mapped, ref.chunk_start_offset, ref.chunk_length)
         with self._lock:
             self.decompressed += 1
             if chunk.compression and key not in self._chunks:
@@ -134,6 +144,7 @@ class _Cache:
             self._chunks.clear()
             self._bytes = 0
             self._files.clear()
+            self._maps.clear()
 
 
 _CACHE = _Cache(CACHE_BYTES)
