@@ -44,6 +44,7 @@ from eye_in_hand.errors import BagError, ConversionError, InputError, Localizati
 
 if TYPE_CHECKING:
     from eye_in_hand.core.localization import Localizer
+    from eye_in_hand.core.pose_correction import RobotPoseCorrection
     from eye_in_hand.core.sync import ApproximateStereoSync
     from eye_in_hand.io.results import FrameResult, ProcessResult
     from eye_in_hand.ros.outputs import OutputSettings
@@ -191,7 +192,8 @@ def available_cpus() -> int:
 def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: LocatorConfig,
                 rig: StereoRig | None = None, hand_eye_cov: np.ndarray | None = None,
                 options: ProcessOptions | None = None,
-                progress: Callable[[int], object] | None = None) -> ProcessResult:
+                progress: Callable[[int], object] | None = None,
+                pose_correction: RobotPoseCorrection | None = None) -> ProcessResult:
     """Run detection, triangulation and localization over a bag.
 
     Args:
@@ -202,6 +204,9 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         hand_eye_cov: optional (6, 6) covariance of ``hand_eye_T``.
         options: topics and settings.
         progress: called with the number of messages read since the last call.
+        pose_correction: the calibration's correction of the reported robot poses
+            (``hand_eye.yaml``'s ``robot_pose_correction``; eye-in-hand only), applied by the
+            :class:`~eye_in_hand.core.localization.Localizer` as in the live node.
 
     Returns:
         Every stereo pair's :class:`FrameResult`, in stamp order, and counters.
@@ -241,7 +246,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         hand_eye_T, hand_eye_cov, LocalizerConfig(
         max_gap_ns=int(opts.max_pose_gap_s * 1e9), buffer_size=max(2, n_poses + 2),
         robot_sigma_pos_m=opts.robot_sigma_pos_m, robot_sigma_rot_rad=opts.robot_sigma_rot_rad,
-        max_age_ns=int(opts.max_pose_age_s * 1e9), jump_back_ns=int(opts.pose_jump_back_s * 1e9)))
+        max_age_ns=int(opts.max_pose_age_s * 1e9), jump_back_ns=int(opts.pose_jump_back_s * 1e9)),
+        pose_correction=pose_correction)
 
     def newest() -> int | None:
         return None if fixed else localizer.poses.newest_ns

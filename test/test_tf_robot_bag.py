@@ -30,12 +30,23 @@ def tf_bag(tmp_path_factory):
     return out, world
 
 
-def _hand_eye(tmp_path, world):
+def _hand_eye(tmp_path, world, correction=None):
     path = tmp_path / "hand_eye.yaml"
     save_hand_eye(path, HandEyeCalibration(
         setup="eye_in_hand", parent_frame="tool0", child_frame="camera_left_optical_frame",
-        transform=world.ee_T_cam, method="ground_truth"))
+        transform=world.ee_T_cam, method="ground_truth", robot_pose_correction=correction))
     return path
+
+
+def _correction():
+    """A robot pose correction of a few mm over the bag's orientations (systematic model)."""
+    from eye_in_hand.core.pose_correction import RobotPoseCorrection
+    from eye_in_hand.core.transforms import from_rotvec
+
+    return RobotPoseCorrection(
+        np.array([[0.02, -0.015, 0.0], [0.015, -0.01, -0.008], [-0.005, 0.002, 0.002]]),
+        np.array([[0.004, 0.002, 0.0], [-0.003, 0.001, 0.002], [0.0, 0.003, -0.002]]),
+        from_rotvec(np.array([np.pi, 0.0, 0.0]))[:3, :3])
 
 
 def _base_points(out):
@@ -131,11 +142,19 @@ def test_live_replay_with_tf_gives_the_offline_numbers(tf_bag, tmp_path, ros_con
     from eye_in_hand.ros.qos import RESULT_QOS
 
     bag, world = tf_bag
-    he = _hand_eye(tmp_path, world)
+    # with a robot pose correction (systematic model): both paths apply it, the same way
+    he = _hand_eye(tmp_path, world, _correction())
     off = tmp_path / "offline"
     assert main(["process", str(bag), "--hand-eye", str(he), "-o", str(off), "--quiet",
                  "--robot-pose", "tf", "--workers", "1"]) == 0
     offline = _base_points(off)
+    plain = tmp_path / "plain"
+    assert main(["process", str(bag), "--hand-eye", str(_hand_eye(plain, world)), "-o",
+                 str(plain / "out"), "--quiet", "--robot-pose", "tf", "--workers", "1"]) == 0
+    uncorrected = _base_points(plain / "out")
+    assert set(uncorrected) == set(offline)
+    moved = [np.linalg.norm(offline[k] - uncorrected[k]) for k in offline]
+    assert min(moved) > 1e-4, moved           # the correction is applied offline
     detect = DetectTriangulateNode(context=ros_context, namespace="/stereo")
     hand_eye = HandEyeNode(context=ros_context, namespace="/stereo", parameter_overrides=[
         Parameter("hand_eye_file", value=str(he)), Parameter("robot_pose_source", value="tf"),

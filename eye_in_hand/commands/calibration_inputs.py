@@ -438,8 +438,12 @@ def view_entries(frames: Sequence[Frame], cal_views: Sequence[Any]) -> list[dict
 # ------------------------------------------------------------------------------------------------
 # hand-eye inputs (calibrate handeye, calibrate plan)
 # ------------------------------------------------------------------------------------------------
+# core.handeye's METHODS and ROBOT_MODELS, written out so that --help does not load SciPy
+# (test_calibrate_handeye checks they are the same)
 _METHOD_CHOICES = ("all", "tsai", "park", "horaud", "daniilidis", "andreff", "kronecker",
-                   "average", "refined_exact", "refined")
+                   "average", "refined_exact", "refined", "refined_systematic")
+_ROBOT_MODEL_CHOICES = ("per_pose", "systematic")
+_DEFAULT_ROBOT_MODEL = "per_pose"
 
 
 def add_handeye_input_arguments(parser: argparse.ArgumentParser, *, pairs: bool = True) -> None:
@@ -513,6 +517,13 @@ def add_handeye_calibration_arguments(group: Any, *, method_help: str) -> None:
                        help="skip the joint refinements (refined, refined_exact)")
     group.add_argument("--no-outlier-rejection", action="store_true",
                        help="keep every sample")
+    group.add_argument("--robot-model", choices=_ROBOT_MODEL_CHOICES,
+                       default=_DEFAULT_ROBOT_MODEL,
+                       help="robot pose error model: per_pose (independent noise per pose) or "
+                            "systematic (also a pose-dependent error, linear in the flange "
+                            "orientation, fitted with X: candidate refined_systematic; when "
+                            "selected, hand_eye.yaml carries the robot pose correction that "
+                            "the hand_eye node and process apply) (default: %(default)s)")
     factor = group.add_argument(
         "--outlier-factor", type=bounded(0, 1000, "x the median", lo_open=True), default=5.0,
         metavar="K",
@@ -552,7 +563,7 @@ def solve_handeye_inputs(args: argparse.Namespace) -> tuple[dict[str, Any], Any]
     result = calibrate_hand_eye(
         samples, inputs["setup"], cameras=inputs["views"], method=args.method,
         refine=not args.no_refine, reject_outliers=not args.no_outlier_rejection,
-        outlier_threshold=args.outlier_factor,
+        outlier_threshold=args.outlier_factor, robot_model=args.robot_model,
         **({} if args.average_solver is None else {"average_solver": args.average_solver}))
     return inputs, result
 

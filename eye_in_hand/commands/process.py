@@ -361,7 +361,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         result = process_bag(args.bag, hand_eye_T=calib.transform, locator_config=config,
                              rig=rig, hand_eye_cov=calib.covariance, options=opts,
-                             progress=bar.update)
+                             progress=bar.update,
+                             pose_correction=calib.robot_pose_correction)
     finally:
         bar.close()
     wall = time.perf_counter() - t0

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from eye_in_hand.core.pose_correction import RobotPoseCorrection
 from eye_in_hand.core.sync import PoseBuffer
 from eye_in_hand.core.transforms import as_points, as_transform
 from eye_in_hand.errors import InputError
@@ -80,7 +81,8 @@ class TargetInBase:
         stamp_ns: the image stamp (int ns).
         point_base: shape (3,), metres, base frame.
         covariance: shape (3, 3), m^2, base frame.
-        base_T_ee: the robot pose used (interpolated at ``stamp_ns``), shape (4, 4).
+        base_T_ee: the robot pose used (interpolated at ``stamp_ns``, then corrected by the
+            calibration's ``pose_correction`` when it has one), shape (4, 4).
     """
 
     stamp_ns: int
@@ -239,10 +241,15 @@ class Localizer:
         ee_T_cam: shape (4, 4), the hand-eye calibration (tool frame <- left optical frame).
         cov_hand_eye: optional (6, 6) covariance of ``ee_T_cam``.
         config: :class:`LocalizerConfig`.
+        pose_correction: the calibration's correction of the reported robot poses
+            (``hand_eye.yaml``'s ``robot_pose_correction``), applied to the pose interpolated
+            at each image stamp before ``ee_T_cam``; None: the reported poses as they are.
     """
 
     def __init__(self, ee_T_cam, cov_hand_eye=None,
-                 config: LocalizerConfig | None = None) -> None:
+                 config: LocalizerConfig | None = None,
+                 pose_correction: RobotPoseCorrection | None = None) -> None:
+        self.pose_correction = pose_correction
         self.config = config or LocalizerConfig()
         self.ee_T_cam = as_transform(ee_T_cam, "ee_T_cam").copy()
         self.cov_hand_eye = (None if cov_hand_eye is None
@@ -277,6 +284,8 @@ class Localizer:
         """
         base_T_ee = self.poses.lookup(stamp_ns, int(self.config.max_gap_ns), now_ns=now_ns,
                                       max_age_ns=self.config.max_age_ns)
+        if self.pose_correction is not None:
+            base_T_ee = self.pose_correction.apply(base_T_ee)
         p_c = as_points(point_cam, "point_cam")
         if p_c.shape[0] != 1:
             raise InputError(f"point_cam: expected one point, got {p_c.shape[0]}")

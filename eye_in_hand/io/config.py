@@ -19,6 +19,11 @@ Format (YAML, safe_load; every length in metres, angles in radians)::
     robot_pose_noise:                  # optional: the robot-pose noise the calibration
       translation_sigma_m: 0.0002      #   estimated (1 sigma per axis, flange frame)
       rotation_sigma_rad: 0.0003
+    robot_pose_correction:             # optional (eye_in_hand): the systematic robot error
+      model: flange_orientation_linear #   model's correction; X holds with the robot poses
+      reference_quat_xyzw: [x, y, z, w]  #   corrected by it (core.pose_correction):
+      rotation_rad_per_rad: [[...], [...], [...]]   # A_r, 3x3
+      translation_m_per_rad: [[...], [...], [...]]  # A_t, 3x3
 
 ``translation`` and ``quat_xyzw`` sit at the top level so that other tools can read the file
 without knowing the rest.
@@ -35,7 +40,9 @@ from typing import Any
 import numpy as np
 import yaml
 
-from eye_in_hand.core.transforms import from_xyz_quat, to_xyz_quat
+from eye_in_hand.core.pose_correction import MODEL as CORRECTION_MODEL
+from eye_in_hand.core.pose_correction import RobotPoseCorrection
+from eye_in_hand.core.transforms import from_xyz_quat, matrix_to_quat_xyzw, to_xyz_quat
 from eye_in_hand.errors import ConfigError, InputError
 from eye_in_hand.yamlfile import read_yaml_file
 
@@ -72,6 +79,10 @@ class HandEyeCalibration:
         robot_pose_noise: the estimated robot-pose noise, ``{"translation_sigma_m": float,
             "rotation_sigma_rad": float}`` (1 sigma per axis, flange frame), or None (files
             written before it existed, or without the errors-in-variables refinement).
+        robot_pose_correction: the systematic robot error model's correction of the reported
+            flange poses (:class:`~eye_in_hand.core.pose_correction.RobotPoseCorrection`),
+            written when ``refined_systematic`` was selected: ``transform`` holds with the
+            corrected poses. None: use the reported poses as they are.
     """
 
     setup: str
@@ -84,6 +95,7 @@ class HandEyeCalibration:
     residuals: Mapping[str, float | None] = field(default_factory=dict)
     stamp: str = ""
     robot_pose_noise: Mapping[str, float] | None = None
+    robot_pose_correction: RobotPoseCorrection | None = None
 
     @property
     def translation(self) -> np.ndarray:
@@ -116,6 +128,13 @@ class HandEyeCalibration:
             out["stamp"] = self.stamp
         if self.robot_pose_noise is not None:
             out["robot_pose_noise"] = {k: float(v) for k, v in self.robot_pose_noise.items()}
+        c = self.robot_pose_correction
+        if c is not None:
+            out["robot_pose_correction"] = {
+                "model": CORRECTION_MODEL,
+                "reference_quat_xyzw": [float(v) for v in matrix_to_quat_xyzw(c.R_ref)],
+                "rotation_rad_per_rad": [[float(v) for v in row] for row in c.A_r],
+                "translation_m_per_rad": [[float(v) for v in row] for row in c.A_t]}
         return out
 
 
@@ -218,10 +237,53 @@ def hand_eye_from_dict(data: Any, source: str = "<hand_eye>") -> HandEyeCalibrat
                 raise _fail(source, f"robot_pose_noise.{k}: expected a finite number >= 0, got "
                                     f"{v!r}")
         noise = {k: float(noise[k]) for k in _NOISE_KEYS}
+    correction = _correction(data.get("robot_pose_correction"), source)
+    if correction is not None and setup != "eye_in_hand":
+        raise _fail(source, "'robot_pose_correction' is for eye_in_hand calibrations (an "
+                            "eye-to-hand localization uses no robot pose); remove the block")
     return HandEyeCalibration(setup=setup, parent_frame=frames[0], child_frame=frames[1],
                               transform=T, method=method, covariance=cov,
                               sample_count=count, residuals=clean,
-                              stamp=str(data.get("stamp", "") or ""), robot_pose_noise=noise)
+                              stamp=str(data.get("stamp", "") or ""), robot_pose_noise=noise,
+                              robot_pose_correction=correction)
+
+
+_CORRECTION_KEYS = ("model", "reference_quat_xyzw", "rotation_rad_per_rad",
+                    "translation_m_per_rad")
+
+
+def _correction(block: Any, source: str) -> RobotPoseCorrection | None:
+    """The ``robot_pose_correction`` block, validated (None when absent)."""
+    if block is None:
+        return None
+    where = "robot_pose_correction"
+    if not isinstance(block, Mapping) or set(block) != set(_CORRECTION_KEYS):
+        got = sorted(block) if isinstance(block, Mapping) else repr(block)
+        raise _fail(source, f"'{where}' must be a mapping with exactly the keys "
+                            f"{', '.join(_CORRECTION_KEYS)}, got {got}")
+    if block["model"] != CORRECTION_MODEL:
+        raise _fail(source, f"{where}.model: only '{CORRECTION_MODEL}' is known, got "
+                            f"{block['model']!r} (written by a newer eye_in_hand?)")
+    q = _vector(block, "reference_quat_xyzw", 4, f"{source}: {where}")
+    norm = float(np.linalg.norm(q))
+    if abs(norm - 1.0) > _QUAT_NORM_TOL:
+        raise _fail(source, f"{where}.reference_quat_xyzw is not a unit quaternion (norm "
+                            f"{norm:.9f})")
+    mats = {}
+    for key in ("rotation_rad_per_rad", "translation_m_per_rad"):
+        try:
+            arr = np.asarray(block[key], dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise _fail(source, f"{where}.{key} must be a 3x3 list of numbers") from exc
+        if arr.shape != (3, 3):
+            raise _fail(source, f"{where}.{key} must be 3x3 (3 rows of 3 numbers), got shape "
+                                f"{arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise _fail(source, f"{where}.{key} contains NaN or infinite values")
+        mats[key] = arr
+    R_ref = from_xyz_quat(np.zeros(3), q / norm)[:3, :3]
+    return RobotPoseCorrection(mats["rotation_rad_per_rad"], mats["translation_m_per_rad"],
+                               R_ref)
 
 
 def save_hand_eye(path: str | os.PathLike[str], calibration: HandEyeCalibration) -> Path:

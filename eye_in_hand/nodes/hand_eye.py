@@ -88,6 +88,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
 from eye_in_hand.core.eye_to_hand import EyeToHandLocalizer
+from eye_in_hand.core.handeye.calibrate import ROBOT_MODELS
 from eye_in_hand.core.handeye.session import SessionConfig
 from eye_in_hand.core.localization import Localizer, LocalizerConfig, robot_pose_sigmas
 from eye_in_hand.core.sync import InputWaits
@@ -246,6 +247,11 @@ class HandEyeNodeConfig:
     target_std_deg: float = param(
         _SESSION.target_std_deg, "status: ... and its 1-sigma rotation at most this (deg)",
         range=(0.0, 180.0))
+    robot_model: str = param(
+        _SESSION.robot_model, "hand_eye/compute: robot pose error model, per_pose or "
+        "systematic (a pose-dependent error fitted with X; when selected, hand_eye.yaml "
+        "carries the robot pose correction that localization applies)",
+        choices=ROBOT_MODELS)
     suggest_count: int = param(3, "next poses suggested after each capture (0 = none)",
                                range=(0, 20))
     debug_image_rate_hz: float = param(2.0, "largest rate of ~/debug_image (only while "
@@ -322,7 +328,9 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
             max_gap_ns=int(cfg.max_pose_gap_s * 1e9), buffer_size=cfg.pose_buffer_size,
             robot_sigma_pos_m=sig_pos, robot_sigma_rot_rad=sig_rot,
             max_age_ns=int(cfg.max_pose_age_s * 1e9),
-            jump_back_ns=int(cfg.pose_jump_back_s * 1e9)))
+            jump_back_ns=int(cfg.pose_jump_back_s * 1e9)),
+            pose_correction=(None if self.calibration is None or self.eye_to_hand
+                             else self.calibration.robot_pose_correction))
         # eye-to-hand: base_T_cam and its covariance, the same code as `process`
         self.fixed_localizer: EyeToHandLocalizer | None = None
         if self.eye_to_hand:

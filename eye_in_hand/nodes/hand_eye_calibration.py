@@ -141,7 +141,7 @@ class CalibrationMode:
                 duplicate_rotation_rad=cfg.duplicate_rotation_rad,
                 min_samples=cfg.min_samples, min_rotation_deg=cfg.min_rotation_deg,
                 min_axis_diversity=cfg.min_axis_diversity, target_std_mm=cfg.target_std_mm,
-                target_std_deg=cfg.target_std_deg)
+                target_std_deg=cfg.target_std_deg, robot_model=cfg.robot_model)
         except InputError as exc:
             raise ConfigError(str(exc)) from exc
         self.session = CalibrationSession(

@@ -285,7 +285,10 @@ def write_outputs(out: Path, result: Any, samples: list[Any], *, setup: str, par
                                transform=result.X, method=result.selected,
                                covariance=result.covariance,
                                sample_count=len(result.sample_names), residuals=residuals,
-                               robot_pose_noise=result.robot_pose_noise)
+                               robot_pose_noise=result.robot_pose_noise,
+                               # eye-to-hand: X = base_T_cam is used without robot poses
+                               robot_pose_correction=(result.pose_correction
+                                                      if setup == "eye_in_hand" else None))
     save_hand_eye(out / "hand_eye.yaml", calib)
     report = result.to_report()
     report["input"] = input_meta

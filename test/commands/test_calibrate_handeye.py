@@ -224,3 +224,45 @@ def test_a_board_given_in_squares_stops_after_the_first_samples(stereo_dataset, 
             "chessboard (inner corners) is found in 8 of them") in err
     assert "dataset.yaml board: chessboard:9x6:0.025" in err
     assert "skipped" not in err and not (tmp_path / "out").exists()
+
+
+def test_robot_model_systematic_writes_the_pose_correction(tmp_path: Path, capsys) -> None:
+    """``--robot-model systematic`` on poses with a pose-dependent robot error: the method is
+    refined_systematic and hand_eye.yaml carries the correction its X holds with; the default
+    model writes none. The CLI's choices are core.handeye's."""
+    from eye_in_hand.commands import calibration_inputs
+    from eye_in_hand.commands.calibration_inputs import _METHOD_CHOICES, _ROBOT_MODEL_CHOICES
+    from eye_in_hand.core.handeye import METHODS, calibrate_hand_eye
+    from eye_in_hand.core.handeye.calibrate import DEFAULT_ROBOT_MODEL, ROBOT_MODELS
+
+    from ..core.test_handeye_systematic import A_R, A_T, _problem
+
+    assert _METHOD_CHOICES == ("all", *METHODS)
+    assert _ROBOT_MODEL_CHOICES == ROBOT_MODELS
+    assert calibration_inputs._DEFAULT_ROBOT_MODEL == DEFAULT_ROBOT_MODEL
+    samples = _problem(12, 5, A_R, A_T)
+    pairs = tmp_path / "pairs.json"
+    pairs.write_text(json.dumps([[s.base_T_ee.tolist(), s.cam_T_board.tolist()]
+                                 for s in samples]))
+    out = tmp_path / "sys"
+    assert main(["calibrate", "handeye", "--pairs", str(pairs), "--robot-model", "systematic",
+                 "--no-html", "-o", str(out)]) == 0
+    calib = load_hand_eye(out / "hand_eye.yaml")
+    want = calibrate_hand_eye(samples, robot_model="systematic")
+    assert calib.method == "refined_systematic" == want.selected
+    assert calib.robot_pose_correction is not None
+    assert np.allclose(calib.robot_pose_correction.A_r, want.systematic.A_r, atol=1e-12)
+    bte = np.stack([s.base_T_ee for s in samples])
+    assert np.allclose(calib.robot_pose_correction.apply(bte), want.correct_robot_pose(bte),
+                       atol=1e-12)
+    report = json.loads((out / "report.json").read_text())
+    assert report["robot_model"] == "systematic"
+    plain = tmp_path / "plain"
+    assert main(["calibrate", "handeye", "--pairs", str(pairs), "--robot-model", "per_pose",
+                 "--no-html", "-o", str(plain)]) == 0
+    assert load_hand_eye(plain / "hand_eye.yaml").robot_pose_correction is None
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        main(["calibrate", "handeye", "--pairs", str(pairs), "--robot-model", "kinematic",
+              "-o", str(tmp_path / "x")])
+    assert "invalid choice: 'kinematic'" in capsys.readouterr().err

@@ -362,3 +362,30 @@ def test_robot_pose_noise_from_hand_eye_file_raises_the_parameters(
                                  robot_sigma_rot_rad=0.003)
     got_cov = np.asarray(rig.covs[0].pose.covariance).reshape(6, 6)
     assert np.allclose(got_cov[:3, :3], want_cov, rtol=1e-9, atol=1e-18)
+
+
+def test_robot_pose_correction_from_hand_eye_file_is_applied(
+        tmp_path, ros_context, executor, namespace, spin_until):
+    """hand_eye.yaml's robot_pose_correction (the systematic robot model's): target/pose is
+    the corrected robot pose at the image stamp, then X, then the point."""
+    from dataclasses import replace
+
+    from eye_in_hand.core.pose_correction import RobotPoseCorrection
+    from eye_in_hand.io.config import load_hand_eye
+
+    corr = RobotPoseCorrection(np.diag([0.05, -0.03, 0.04]), np.full((3, 3), 0.01),
+                               _robot_pose(0.0)[:3, :3])
+    path = _hand_eye_file(tmp_path)
+    save_hand_eye(path, replace(load_hand_eye(path), robot_pose_correction=corr))
+    rig = _Rig(ros_context, executor, namespace, _overrides(path))
+    assert spin_until(executor, rig.connected, 10.0)
+    for k in range(11):
+        rig.send_pose(0.1 * k)
+    p_cam = np.array([0.02, -0.01, 0.45])
+    rig.send_point(0.5, p_cam)
+    assert spin_until(executor, lambda: len(rig.poses) == 1, 10.0)
+    got = rig.poses[0].pose.position
+    want, _ = target_in_base(corr.apply(_robot_pose(0.5)), EE_T_CAM, p_cam)
+    plain, _ = target_in_base(_robot_pose(0.5), EE_T_CAM, p_cam)
+    assert np.linalg.norm(want - plain) > 1e-3
+    assert np.allclose([got.x, got.y, got.z], want, atol=1e-9)

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from eye_in_hand.core.pose_correction import RobotPoseCorrection
 from eye_in_hand.core.transforms import average_transforms, invert_many, to_xyz_quat
 from eye_in_hand.errors import HandEyeError
 
@@ -77,6 +78,8 @@ METHODS = (*CLOSED_FORM_METHODS, "average", "refined_exact", "refined", "refined
 #: ``refined_systematic`` model is a candidate too: its X holds only with the robot poses
 #: corrected by :meth:`HandEyeResult.correct_robot_pose`).
 ROBOT_MODELS = ("per_pose", "systematic")
+#: The robot error model of ``calibrate handeye``, the live calibration and the API.
+DEFAULT_ROBOT_MODEL = "per_pose"
 
 # A reading of the poses whose AX = XB rotation residual is this many times lower than the
 # given one (which is above the floor, degrees) means the given conventions are wrong.
@@ -209,7 +212,7 @@ class HandEyeResult:
     selection_scores: dict[str, float] = field(default_factory=dict)
     held_out_sigma_m: float | None = None
     systematic: SystematicResult | None = None
-    robot_model: str = "per_pose"
+    robot_model: str = DEFAULT_ROBOT_MODEL
     error_budget: dict[str, Any] | None = None
 
     @property
@@ -231,7 +234,13 @@ class HandEyeResult:
         The rotation is the refinement's estimate; the translation the larger of the
         refinement's and the per-pose position scatter of the held-out board positions
         (``held_out_sigma_m``), which also holds what the model leaves unexplained between
-        poses (e.g. a camera calibration error seen from another distance and angle)."""
+        poses (e.g. a camera calibration error seen from another distance and angle).
+
+        With ``refined_systematic`` selected: that model's per-pose noise, what is left of the
+        robot's error once its poses are corrected (:attr:`pose_correction`)."""
+        if self.selected == "refined_systematic" and self.systematic is not None:
+            return {"translation_sigma_m": float(self.systematic.sigmas["robot_t"]),
+                    "rotation_sigma_rad": float(self.systematic.sigmas["robot_r"])}
         if self.refinement is None:
             return None
         t = self.refinement.robot_translation_sigma_m
@@ -239,6 +248,16 @@ class HandEyeResult:
             t = max(t, self.held_out_sigma_m)
         return {"translation_sigma_m": t,
                 "rotation_sigma_rad": self.refinement.robot_rotation_sigma_rad}
+
+    @property
+    def pose_correction(self) -> RobotPoseCorrection | None:
+        """The correction of the robot's reported poses that the selected X holds with
+        (``hand_eye.yaml``'s ``robot_pose_correction``): the systematic model's when
+        ``refined_systematic`` is selected with a systematic term, else None."""
+        if self.selected != "refined_systematic" or self.systematic is None:
+            return None
+        c = self.systematic.pose_correction()
+        return None if c.is_zero else c
 
     def correct_robot_pose(self, base_T_ee: np.ndarray) -> np.ndarray:
         """The robot pose(s) (4, 4) or (N, 4, 4) the selected X is to be used with: corrected
@@ -494,7 +513,7 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                        leave_one_out: bool = True,
                        check_conventions: bool = True,
                        average_solver: str = DEFAULT_AVERAGE_SOLVER,
-                       robot_model: str = "per_pose") -> HandEyeResult:
+                       robot_model: str = DEFAULT_ROBOT_MODEL) -> HandEyeResult:
     """Solve AX = XB with every method, refine, and assess the result.
 
     Args:

@@ -38,7 +38,7 @@ import numpy as np
 from eye_in_hand.core.transforms import rotation_angle
 from eye_in_hand.errors import EyeInHandError, HandEyeError, InputError, LocalizationError
 
-from .calibrate import HandEyeResult, calibrate_hand_eye
+from .calibrate import DEFAULT_ROBOT_MODEL, ROBOT_MODELS, HandEyeResult, calibrate_hand_eye
 from .observe import board_pose_pnp, observe_sample
 from .samples import MIN_SAMPLES, CameraView, HandEyeSample, motion_diagnostics
 from .solvers import SETUPS
@@ -69,6 +69,8 @@ class SessionConfig:
         min_axis_diversity: smallest normalised eigenvalue of the motion-axis scatter needed
             (0: one axis only, 1/3: axes in every direction).
         target_std_mm, target_std_deg: the 1-sigma of X at which the set is good enough.
+        robot_model: the robot pose error model of the solve (``calibrate_hand_eye``'s
+            ``robot_model``: ``per_pose`` or ``systematic``).
     """
 
     setup: str = "eye_in_hand"
@@ -84,10 +86,14 @@ class SessionConfig:
     min_axis_diversity: float = 0.05
     target_std_mm: float = 0.5
     target_std_deg: float = 0.05
+    robot_model: str = DEFAULT_ROBOT_MODEL
 
     def __post_init__(self) -> None:
         if self.setup not in SETUPS:
             raise InputError(f"setup must be one of {', '.join(SETUPS)}, got {self.setup!r}")
+        if self.robot_model not in ROBOT_MODELS:
+            raise InputError(f"robot_model must be one of {', '.join(ROBOT_MODELS)}, got "
+                             f"{self.robot_model!r}")
         for name in ("still_window_s", "still_max_speed_m_s", "still_max_rot_speed_rad_s",
                      "duplicate_translation_m", "duplicate_rotation_rad", "min_rotation_deg",
                      "min_axis_diversity", "target_std_mm", "target_std_deg"):
@@ -468,7 +474,8 @@ class CalibrationSession:
         if len(snap) < MIN_SAMPLES:
             raise HandEyeError(f"{len(snap)} sample(s): need at least {MIN_SAMPLES} (capture "
                                "more poses)")
-        result = calibrate_hand_eye(snap, self.config.setup, cameras=self.views)
+        result = calibrate_hand_eye(snap, self.config.setup, cameras=self.views,
+                                    robot_model=self.config.robot_model)
         if samples is None or [s.name for s in snap] == [s.name for s in self.samples]:
             self.result = result
         return result

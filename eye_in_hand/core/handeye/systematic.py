@@ -35,6 +35,12 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from eye_in_hand.core.pose_correction import (
+    RobotPoseCorrection,
+    exp_rotations,
+    log_rotations,
+    orientation_features,
+)
 from eye_in_hand.core.transforms import invert_many
 from eye_in_hand.errors import HandEyeError
 
@@ -51,34 +57,8 @@ _SIGMA_FLOOR_R = np.radians(0.001)
 _SIGMA_FLOOR_T = 1e-5
 
 
-def _exp_rot(w: np.ndarray) -> np.ndarray:
-    """Rodrigues' formula, rotation vectors (N, 3) -> matrices (N, 3, 3) (plain numpy: this
-    runs inside the least-squares residual, where scipy's Rotation overhead dominates)."""
-    th2 = np.sum(w * w, axis=1)
-    th = np.sqrt(th2)
-    small = th < 1e-6
-    safe = np.where(small, 1.0, th)
-    a = np.where(small, 1.0 - th2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
-    K = np.zeros((w.shape[0], 3, 3))
-    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
-    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
-    return np.eye(3) + a[:, None, None] * K + b[:, None, None] * (K @ K)
-
-
-def _log_rot(R: np.ndarray) -> np.ndarray:
-    """Rotation matrices (N, 3, 3) -> rotation vectors (N, 3); scipy near a half turn."""
-    c = np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    th = np.arccos(c)
-    v = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]],
-                 axis=1)
-    small = th < 1e-6
-    f = np.where(small, 0.5 + th * th / 12.0, th / (2.0 * np.sin(np.where(small, 1.0, th))))
-    out = f[:, None] * v
-    big = th > 3.0
-    if np.any(big):
-        out[big] = Rotation.from_matrix(R[big]).as_rotvec()
-    return out
+_exp_rot = exp_rotations
+_log_rot = log_rotations
 
 
 def _se3(v: np.ndarray) -> np.ndarray:
@@ -145,17 +125,18 @@ class SystematicResult:
     # the solution's parameters, whitened residuals, Jacobian and parameter unpacker
     _state: tuple | None = field(default=None, repr=False, compare=False)
 
+    def pose_correction(self) -> RobotPoseCorrection:
+        """The model's correction of reported poses, as ``hand_eye.yaml`` stores it and the
+        localizer applies it."""
+        return RobotPoseCorrection(self.A_r, self.A_t, self.R_ref)
+
     def correction(self, base_T_ee: np.ndarray) -> np.ndarray:
         """The modelled error ``[A_t r | A_r r]`` of each reported pose, shape (N, 6)."""
-        return _correction(self.A_r, self.A_t, self.R_ref, base_T_ee)
+        return self.pose_correction().delta(base_T_ee)
 
     def correct(self, base_T_ee: np.ndarray) -> np.ndarray:
         """The reported poses (N, 4, 4) or (4, 4) corrected by the model."""
-        bte = np.asarray(base_T_ee, dtype=np.float64)
-        one = bte.ndim == 2
-        b = bte[None] if one else bte
-        out = b @ _se3(self.correction(b))
-        return out[0] if one else out
+        return self.pose_correction().apply(base_T_ee)
 
     def held_out_nees(self, base_T_ee: np.ndarray, cam_T_board: np.ndarray,
                       setup: str) -> np.ndarray:
@@ -198,14 +179,7 @@ class SystematicResult:
                 "converged": self.converged, "nfev": self.nfev}
 
 
-def _features(R_ref: np.ndarray, base_T_ee: np.ndarray) -> np.ndarray:
-    return Rotation.from_matrix(np.einsum("ji,njk->nik", R_ref, base_T_ee[:, :3, :3])).as_rotvec()
-
-
-def _correction(A_r: np.ndarray, A_t: np.ndarray, R_ref: np.ndarray,
-                base_T_ee: np.ndarray) -> np.ndarray:
-    r = _features(R_ref, np.asarray(base_T_ee, dtype=np.float64).reshape(-1, 4, 4))
-    return np.concatenate([r @ A_t.T, r @ A_r.T], axis=1)
+_features = orientation_features
 
 
 def _implied(X: np.ndarray, Y: np.ndarray, cam_T_board: np.ndarray, setup: str) -> np.ndarray:
