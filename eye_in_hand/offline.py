@@ -39,7 +39,9 @@ import cv2
 import numpy as np
 
 from eye_in_hand.core.camera import StereoRig
+from eye_in_hand.core.localization import POSE_RULES
 from eye_in_hand.core.locator import LocatorConfig, StereoLocator
+from eye_in_hand.core.sync import DEFAULT_SYNC_QUEUE_SIZE, DEFAULT_SYNC_SLOP_S
 from eye_in_hand.errors import BagError, ConversionError, InputError, LocalizationError
 
 if TYPE_CHECKING:
@@ -117,13 +119,13 @@ class ProcessOptions:
     ground_truth_topic: str = "/ground_truth/target"
     base_frame: str = "base_link"
     camera_frame: str = "camera_left_optical_frame"
-    sync_slop_s: float = 0.005
-    sync_queue_size: int = 5
-    max_pose_gap_s: float = 0.05
-    robot_sigma_pos_m: float = 0.00015
-    robot_sigma_rot_rad: float = 0.0004
-    max_pose_age_s: float = 1.0
-    pose_jump_back_s: float = 1.0
+    sync_slop_s: float = DEFAULT_SYNC_SLOP_S
+    sync_queue_size: int = DEFAULT_SYNC_QUEUE_SIZE
+    max_pose_gap_s: float = POSE_RULES.max_pose_gap_s
+    robot_sigma_pos_m: float = POSE_RULES.robot_sigma_pos_m
+    robot_sigma_rot_rad: float = POSE_RULES.robot_sigma_rot_rad
+    max_pose_age_s: float = POSE_RULES.max_pose_age_s
+    pose_jump_back_s: float = POSE_RULES.pose_jump_back_s
     workers: int | None = None
     task_timeout_s: float = 20.0
     verify_crc: bool = False

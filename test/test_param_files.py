@@ -326,3 +326,22 @@ def test_a_wildcard_section_is_checked_against_the_nodes_a_command_runs(tmp_path
 
     with pytest.raises(ConfigError, match="did you mean `method`"):
         check_parameter_file_keys(bad, used=["detect_triangulate"])
+
+
+def test_process_defaults_are_the_live_nodes_defaults():
+    """Without a --params file, process runs on the hand_eye and detect_triangulate nodes'
+    defaults: the pose rules, the robot sigmas and the stereo pairing are written once."""
+    import dataclasses
+
+    from eye_in_hand.nodes.detect_triangulate import NODE_PARAMETERS
+    from eye_in_hand.nodes.hand_eye import HandEyeNodeConfig
+    from eye_in_hand.offline import ProcessOptions
+
+    opts = ProcessOptions()
+    hand_eye = {f.name: f.default for f in dataclasses.fields(HandEyeNodeConfig)}
+    for key in ("max_pose_gap_s", "max_pose_age_s", "pose_jump_back_s", "robot_sigma_pos_m",
+                "robot_sigma_rot_rad"):
+        assert hand_eye[key] == getattr(opts, key), key
+    detect = {p.name: p.default for p in NODE_PARAMETERS}
+    assert detect["sync.slop_s"] == opts.sync_slop_s
+    assert detect["sync.queue_size"] == opts.sync_queue_size

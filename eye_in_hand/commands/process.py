@@ -322,11 +322,11 @@ def run(args: argparse.Namespace) -> int:
             ee_frame=ee_frame, ground_truth_topic=args.ground_truth_topic,
             base_frame=base_frame,
             camera_frame=calib.child_frame,
-            sync_slop_s=float(detect.get("sync.slop_s", 0.005)),
-            sync_queue_size=int(detect.get("sync.queue_size", 5)),
-            max_pose_gap_s=float(hand_eye_params.get("max_pose_gap_s", 0.05)),
-            max_pose_age_s=float(hand_eye_params.get("max_pose_age_s", 1.0)),
-            pose_jump_back_s=float(hand_eye_params.get("pose_jump_back_s", 1.0)),
+            sync_slop_s=float(detect.get("sync.slop_s", ProcessOptions.sync_slop_s)),
+            sync_queue_size=int(detect.get("sync.queue_size", ProcessOptions.sync_queue_size)),
+            # a --params file's hand_eye section, else the node's defaults (POSE_RULES)
+            **{k: float(hand_eye_params.get(k, getattr(ProcessOptions, k)))
+               for k in ("max_pose_gap_s", "max_pose_age_s", "pose_jump_back_s")},
             # the arm's stated accuracy (hand_eye parameters), raised to hand_eye.yaml's
             # robot_pose_noise where that is larger (core.localization.robot_pose_sigmas)
             robot_sigma_pos_m=robot_sigmas[0], robot_sigma_rot_rad=robot_sigmas[1],

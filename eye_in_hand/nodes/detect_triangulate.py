@@ -98,7 +98,12 @@ from eye_in_hand.core.locator import (
     StereoLocator,
     locator_config_from_params,
 )
-from eye_in_hand.core.sync import ApproximateStereoSync, StereoPair
+from eye_in_hand.core.sync import (
+    DEFAULT_SYNC_QUEUE_SIZE,
+    DEFAULT_SYNC_SLOP_S,
+    ApproximateStereoSync,
+    StereoPair,
+)
 from eye_in_hand.errors import ConfigError, ConversionError, EyeInHandError, InputError
 from eye_in_hand.ros.conversions import (
     camera_info_to_model,
@@ -140,9 +145,10 @@ NODE_PARAMETERS: tuple[Param, ...] = (
           "files; stereo.yaml optional); empty = use the camera_info topics"),
     Param("frame_id", "", "frame of the published points; empty = the left image's frame_id "
           f"(or {DEFAULT_FRAME} when that is empty)"),
-    Param("sync.slop_s", 0.005, "largest left/right stamp difference of a stereo pair (s); "
-          "0 = exact stamps only", range=(0.0, 1.0)),
-    Param("sync.queue_size", 5, "frames per side waiting for a partner", range=(1, 100)),
+    Param("sync.slop_s", DEFAULT_SYNC_SLOP_S, "largest left/right stamp difference of a "
+          "stereo pair (s); 0 = exact stamps only", range=(0.0, 1.0)),
+    Param("sync.queue_size", DEFAULT_SYNC_QUEUE_SIZE, "frames per side waiting for a partner",
+          range=(1, 100)),
     Param("queue_depth", 6, "stereo pairs waiting for the worker (6: 0.2 s at 30 Hz, enough "
           "for a burst of late DDS deliveries); when full the oldest is dropped (counted as "
           "dropped_pairs). 1 = only ever the newest pair", range=(1, 30)),

@@ -90,7 +90,12 @@ from sensor_msgs.msg import JointState
 from eye_in_hand.core.eye_to_hand import EyeToHandLocalizer
 from eye_in_hand.core.handeye.calibrate import ROBOT_MODELS
 from eye_in_hand.core.handeye.session import SessionConfig
-from eye_in_hand.core.localization import Localizer, LocalizerConfig, robot_pose_sigmas
+from eye_in_hand.core.localization import (
+    POSE_RULES,
+    Localizer,
+    LocalizerConfig,
+    robot_pose_sigmas,
+)
 from eye_in_hand.core.sync import InputWaits
 from eye_in_hand.errors import ConversionError, EyeInHandError, InputError, LocalizationError
 from eye_in_hand.io.config import load_hand_eye
@@ -152,26 +157,29 @@ class HandEyeNodeConfig:
     ee_frame: str = param("tool0", "end-effector frame id (parent of the camera)")
     camera_frame: str = param("camera_left_optical_frame", "left optical frame id; points in "
                               "another non-empty frame are rejected")
-    max_pose_gap_s: float = param(0.05, "largest gap between the two robot poses that bracket "
-                                  "an image stamp (s)", range=(1e-4, 10.0))
+    max_pose_gap_s: float = param(
+        POSE_RULES.max_pose_gap_s, "largest gap between the two robot poses that bracket an "
+        "image stamp (s)", range=(1e-4, 10.0))
     max_pose_wait_s: float = param(0.2, "how long a point waits for a robot pose newer than "
                                    "its stamp before it is dropped as stale (s)",
                                    range=(0.0, 10.0))
-    max_pose_age_s: float = param(1.0, "largest receive age of the robot poses used for a "
-                                  "point, on the node's clock (sim time under use_sim_time); "
-                                  "older poses are refused as stale (s)", range=(0.001, 3600.0))
-    pose_jump_back_s: float = param(1.0, "a robot pose stamp (or the node's clock) this far "
-                                    "behind the newest is a time jump (bag loop or replay, sim "
-                                    "reset): the pose buffer is cleared (s)",
-                                    range=(0.001, 3600.0))
+    max_pose_age_s: float = param(
+        POSE_RULES.max_pose_age_s, "largest receive age of the robot poses used for a point, "
+        "on the node's clock (sim time under use_sim_time); older poses are refused as stale "
+        "(s)", range=(0.001, 3600.0))
+    pose_jump_back_s: float = param(
+        POSE_RULES.pose_jump_back_s, "a robot pose stamp (or the node's clock) this far behind "
+        "the newest is a time jump (bag loop or replay, sim reset): the pose buffer is cleared "
+        "(s)", range=(0.001, 3600.0))
     pose_buffer_size: int = param(4000, "robot poses kept for interpolation",
                                   range=(2, 1_000_000))
-    robot_sigma_pos_m: float = param(0.00015, "the arm's position accuracy per axis, 1 sigma (m); "
-                                     "hand_eye.yaml's robot_pose_noise raises it when larger",
-                                     range=(0.0, 1.0))
-    robot_sigma_rot_rad: float = param(0.0004, "the arm's rotation accuracy about the flange per "
-                                       "axis, 1 sigma (rad); hand_eye.yaml's robot_pose_noise "
-                                       "raises it when larger", range=(0.0, 1.0))
+    robot_sigma_pos_m: float = param(
+        POSE_RULES.robot_sigma_pos_m, "the arm's position accuracy per axis, 1 sigma (m); "
+        "hand_eye.yaml's robot_pose_noise raises it when larger", range=(0.0, 1.0))
+    robot_sigma_rot_rad: float = param(
+        POSE_RULES.robot_sigma_rot_rad, "the arm's rotation accuracy about the flange per "
+        "axis, 1 sigma (rad); hand_eye.yaml's robot_pose_noise raises it when larger",
+        range=(0.0, 1.0))
     publish_tf: bool = param(True, "publish /tf_static (ee_frame -> camera_frame, camera_frame "
                              "-> right_camera_frame) at the first image stamp and /tf "
                              "(base_frame -> <target_frame_prefix><id> per located target); "
