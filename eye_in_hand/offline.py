@@ -275,7 +275,11 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         result.rig = rig
     truth: dict[int, list[np.ndarray]] = {}
     pending: list[FrameResult] = []      # located, waiting for a robot pose after the stamp
-    joint_index: np.ndarray | None = None
+    joints = None
+    if not fixed and opts.robot_pose_source == "joint_states":
+        from eye_in_hand.core.kinematics import JointIndex  # local: SciPy, joint_states only
+
+        joints = JointIndex(opts.kinematics.joint_names)
 
     def finish(frame: FrameResult) -> None:
         now_ns = arrived.pop(id(frame), None)
@@ -354,15 +358,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
                     if opts.robot_pose_source == "ee_pose":
                         T = pose_to_matrix(msg.pose)
                     else:
-                        names = list(msg.name)
-                        if joint_index is None:
-                            missing = [n for n in opts.kinematics.joint_names if n not in names]
-                            if missing:
-                                raise InputError(f"joint_states lacks {', '.join(missing)}")
-                            joint_index = np.array([names.index(n)
-                                                    for n in opts.kinematics.joint_names])
-                        T = opts.kinematics.fk(
-                            np.asarray(msg.position, dtype=np.float64)[joint_index])
+                        assert joints is not None
+                        T = opts.kinematics.fk(joints.positions(msg.name, msg.position))
                     localizer.add_robot_pose(stamp, T, received_ns=_t)
                     flush(localizer.poses.newest_ns)
                 elif topic == opts.ground_truth_topic:

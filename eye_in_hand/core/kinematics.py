@@ -36,6 +36,8 @@ from eye_in_hand.core.transforms import as_transform, rotation_angle
 from eye_in_hand.errors import InputError, KinematicsError
 
 __all__ = [
+    "JointIndex",
+    "MissingJointsError",
     "KinematicChain",
     "DHChain",
     "UrdfJoint",
@@ -67,6 +69,51 @@ UR_BASE_LINK_T_BASE.setflags(write=False)
 UR5E_LINK_NAMES: tuple[str, ...] = (
     "shoulder_link", "upper_arm_link", "forearm_link", "wrist_1_link", "wrist_2_link", "tool0",
 )
+
+
+class MissingJointsError(InputError):
+    """A joint state message lacks joints of the kinematic chain."""
+
+
+class JointIndex:
+    """A chain's joint positions out of ``sensor_msgs/JointState`` name and position lists:
+    any order, extra joints ignored; the index is rebuilt whenever a message's names differ
+    from the previous message's. The one rule of the ``hand_eye`` node, ``process`` and
+    ``calibrate handeye --bag`` for ``joint_states``.
+
+    Args:
+        joint_names: the chain's joint names, in the order of its ``q``.
+    """
+
+    def __init__(self, joint_names: Sequence[str]) -> None:
+        self.joint_names = tuple(joint_names)
+        self._names: tuple[str, ...] | None = None
+        self._index = np.zeros(0, dtype=np.intp)
+
+    def positions(self, names: Sequence[str], position: Sequence[float]) -> np.ndarray:
+        """The chain's ``q`` (n,) from one message.
+
+        Raises:
+            MissingJointsError: a joint of the chain is not in ``names`` (the message's names
+                are listed).
+            InputError: ``position`` does not have one value per name, or a value of the
+                chain's joints is NaN or infinite.
+        """
+        names = tuple(names)
+        if names != self._names:
+            missing = [n for n in self.joint_names if n not in names]
+            if missing:
+                raise MissingJointsError(f"joint_states lacks joint(s) {', '.join(missing)} "
+                                         f"(has {', '.join(names) or 'none'})")
+            self._index = np.array([names.index(n) for n in self.joint_names], dtype=np.intp)
+            self._names = names
+        pos = np.asarray(position, dtype=np.float64)
+        if pos.shape != (len(names),):
+            raise InputError(f"joint_states: {pos.size} positions for {len(names)} names")
+        q: np.ndarray = pos[self._index]
+        if not np.all(np.isfinite(q)):
+            raise InputError("joint_states: joint positions are not finite")
+        return q
 
 
 class KinematicChain(Protocol):

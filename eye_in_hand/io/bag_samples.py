@@ -265,21 +265,23 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
                               "chain)")
         jt = _resolve_topic(topics, joint_topic, "joint state", source)
         pose_source = f"{jt} (JointState) + forward kinematics"
-        names = list(kinematics.joint_names)
+        # local: core.kinematics loads SciPy, needed with joint_states only
+        from eye_in_hand.core.kinematics import JointIndex, MissingJointsError
+
+        joints = JointIndex(kinematics.joint_names)
         for topic, msgtype, log_ns, raw in iter_messages(path, [jt]):
             try:
                 msg = deserialize(raw, msgtype, store)
             except unusable as exc:
                 log.bad_message(topic, log_ns, str(exc))
                 continue
-            pos = dict(zip(list(msg.name), np.asarray(msg.position, dtype=float), strict=False))
-            missing = [n for n in names if n not in pos]
-            if missing:
-                raise ConfigError(f"{source}: {jt} lacks joints {missing} of the kinematic "
-                                  "chain")
-            q = [pos[n] for n in names]
-            if not np.all(np.isfinite(q)):
-                log.bad_message(topic, header_stamp_ns(msg), "joint positions are not finite")
+            try:
+                q = joints.positions(msg.name, msg.position)
+            except MissingJointsError as exc:
+                raise ConfigError(f"{source}: {jt}: {exc}, which the kinematic chain "
+                                  "needs") from exc
+            except InputError as exc:
+                log.bad_message(topic, header_stamp_ns(msg), str(exc))
                 continue
             series.add(header_stamp_ns(msg), kinematics.fk(q))
     else:

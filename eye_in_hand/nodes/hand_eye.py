@@ -90,6 +90,7 @@ from sensor_msgs.msg import JointState
 from eye_in_hand.core.eye_to_hand import EyeToHandLocalizer
 from eye_in_hand.core.handeye.calibrate import ROBOT_MODELS
 from eye_in_hand.core.handeye.session import SessionConfig
+from eye_in_hand.core.kinematics import JointIndex
 from eye_in_hand.core.localization import (
     POSE_RULES,
     Localizer,
@@ -309,10 +310,11 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
         self.outputs = OutputPublishers(self, self.diag.report)
         self.calibration_mode: CalibrationMode | None = None
         self._chain: Any = None    # load_kinematics: a DHChain or a UrdfChain
-        self._joint_index: np.ndarray | None = None
+        self._joints: JointIndex | None = None
         if cfg.robot_pose_source == "joint_states":
             self._chain = load_kinematics(cfg.kinematics_file, cfg.urdf_base_link,
                                           cfg.urdf_tip_link)
+            self._joints = JointIndex(self._chain.joint_names)
         self.calibration = None
         self.eye_to_hand = False       # a fixed camera: base_T_cam, no robot pose needed
         ee_T_cam = np.eye(4)
@@ -391,29 +393,13 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
         assert self._chain is not None
         try:
             stamp = header_stamp_ns(msg)
-            names = list(msg.name)
-            if self._joint_index is None or len(names) != len(self._joint_index_names):
-                self._index_joints(names)
-            q = np.asarray(msg.position, dtype=np.float64)[self._joint_index]
-            if not np.all(np.isfinite(q)):
-                raise InputError("joint_states: position contains NaN")
+            assert self._joints is not None
+            q = self._joints.positions(msg.name, msg.position)
             self._add_pose(stamp, self._chain.fk(q))
-        except (ConversionError, InputError, IndexError, EyeInHandError) as exc:
-            self._joint_index = None
+        except (ConversionError, InputError, EyeInHandError) as exc:
             self.diag.report("bad_joint_states", f"joint_states: {exc}")
             return
         self._after_pose()
-
-    _joint_index_names: tuple[str, ...] = ()
-
-    def _index_joints(self, names: list[str]) -> None:
-        want = list(self._chain.joint_names)
-        missing = [n for n in want if n not in names]
-        if missing:
-            raise InputError(f"joint_states lacks joint(s) {', '.join(missing)} "
-                             f"(has {', '.join(names)})")
-        self._joint_index = np.array([names.index(n) for n in want])
-        self._joint_index_names = tuple(names)
 
     # -- staleness: receive times, time jumps, stopped streams ------------------------------
     def _now_ns(self) -> int:

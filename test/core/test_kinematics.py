@@ -128,3 +128,26 @@ def test_dh_dict_round_trip_and_validation():
     with pytest.raises(InputError, match="lower joint limit"):
         DHChain.from_dict({**arm.to_dict(), "lower": [1.0] * 6, "upper": [0.0] * 6})
     assert invert(arm.fk(q)).shape == (4, 4)
+
+
+def test_joint_index_picks_the_chains_joints_in_any_order():
+    """One rule for joint_states (hand_eye node, process, calibrate handeye --bag): extra
+    joints ignored, any order, and a message whose names change (same count, new order) is
+    indexed again, not read through the previous message's index."""
+    from eye_in_hand.core.kinematics import JointIndex, MissingJointsError
+    from eye_in_hand.errors import InputError
+
+    idx = JointIndex(("a", "b", "c"))
+    assert idx.positions(["c", "x", "a", "b"], [3.0, 9.0, 1.0, 2.0]).tolist() == [1.0, 2.0, 3.0]
+    # same count, another order: must not reuse the first index
+    assert idx.positions(["b", "a", "x", "c"], [2.0, 1.0, 9.0, 3.0]).tolist() == [1.0, 2.0, 3.0]
+    assert idx.positions(("a", "b", "c"), (1.0, 2.0, 3.0)).tolist() == [1.0, 2.0, 3.0]
+    with pytest.raises(MissingJointsError, match=r"lacks joint\(s\) c \(has a, b, x\)"):
+        idx.positions(["a", "b", "x"], [1.0, 2.0, 3.0])
+    with pytest.raises(InputError, match="2 positions for 3 names"):
+        idx.positions(["a", "b", "c"], [1.0, 2.0])
+    with pytest.raises(InputError, match="not finite"):
+        idx.positions(["a", "b", "c"], [1.0, float("nan"), 3.0])
+    # a NaN in a joint the chain does not use is no error
+    assert idx.positions(["a", "b", "c", "x"], [1.0, 2.0, 3.0, float("nan")]).tolist() == [
+        1.0, 2.0, 3.0]
