@@ -26,7 +26,7 @@ sys.path.insert(0, str(ROOT))
 from eye_in_hand.demo import LEFT, live_step  # noqa: E402
 from eye_in_hand.io.bags import bag_info, iter_messages  # noqa: E402
 from eye_in_hand.io.cdr import image_from_cdr  # noqa: E402
-from eye_in_hand.ros.conversions import header_stamp_ns  # noqa: E402
+from eye_in_hand.ros.stamps import header_stamp_ns  # noqa: E402
 
 LEDGER = ("left_frames", "right_frames", "sync_unpaired_left", "sync_unpaired_right",
           "dropped_pairs", "no_target", "failed_pairs", "points_published", "points",

@@ -126,7 +126,8 @@ def params_file(paths: dict[str, Path]) -> Path:
 
 def truth_of(bag: Path) -> tuple[dict[int, np.ndarray], np.ndarray]:
     from eye_in_hand.io.bags import deserialize, iter_messages
-    from eye_in_hand.ros.conversions import header_stamp_ns, point_to_xyz, transform_to_matrix
+    from eye_in_hand.ros.geometry import point_to_xyz, transform_to_matrix
+    from eye_in_hand.ros.stamps import header_stamp_ns
 
     targets: dict[int, np.ndarray] = {}
     X = np.eye(4)
@@ -403,9 +404,9 @@ def live(paths: dict[str, Path], composed: bool = False
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
 
-    from eye_in_hand.ros.conversions import header_stamp_ns
     from eye_in_hand.ros.dds import use_large_data_profile
     from eye_in_hand.ros.qos import RESULT_QOS
+    from eye_in_hand.ros.stamps import header_stamp_ns
 
     env = dict(os.environ)
     # the caller's domain when set (a shared machine), else a random one

@@ -24,7 +24,13 @@ from collections.abc import Callable
 import numpy as np
 
 from eye_in_hand.core.camera import CameraModel
-from eye_in_hand.ros import conversions as conv
+from eye_in_hand.ros.camera_info import camera_info_to_model, model_to_camera_info
+from eye_in_hand.ros.images import (
+    compressed_to_numpy,
+    image_to_numpy,
+    numpy_to_compressed,
+    numpy_to_image,
+)
 
 
 def bench(fn: Callable[[], object], repeat: int = 30) -> float:
@@ -51,34 +57,34 @@ def main() -> None:
     mono16 = rng.integers(0, 65535, size=(h, w), dtype=np.uint16)
     typestore = get_typestore(Stores.ROS2_JAZZY)
 
-    msg = conv.numpy_to_image(bgr, "bgr8")
+    msg = numpy_to_image(bgr, "bgr8")
     raw = serialize_message(msg)
     rb_msg = typestore.deserialize_cdr(raw, "sensor_msgs/msg/Image")
     padded = Image(height=h, width=w, encoding="bgr8", step=w * 3 + 64)
     padded.data = np.zeros(h * (w * 3 + 64), np.uint8).tobytes()
     big = Image(height=h, width=w, encoding="mono16", is_bigendian=1, step=w * 2)
     big.data = mono16.astype(">u2").tobytes()
-    jpeg = conv.numpy_to_compressed(bgr, "jpeg")
-    png = conv.numpy_to_compressed(bgr, "png")
+    jpeg = numpy_to_compressed(bgr, "jpeg")
+    png = numpy_to_compressed(bgr, "png")
     cam = CameraModel(K=np.array([[900.0, 0, 640], [0, 900.0, 360], [0, 0, 1]]),
                       dist=np.zeros(5), width=w, height=h)
-    info = conv.model_to_camera_info(cam)
+    info = model_to_camera_info(cam)
 
     rows = [
-        ("numpy_to_image bgr8 (1 copy)", lambda: conv.numpy_to_image(bgr, "bgr8")),
-        ("image_to_numpy rclpy bgr8 (view)", lambda: conv.image_to_numpy(msg)),
-        ("image_to_numpy rosbags bgr8 (view)", lambda: conv.image_to_numpy(rb_msg)),
-        ("image_to_numpy padded rows (view)", lambda: conv.image_to_numpy(padded)),
-        ("image_to_numpy big-endian mono16 (swap)", lambda: conv.image_to_numpy(big)),
-        ("image_to_numpy bgr8 -> rgb8", lambda: conv.image_to_numpy(msg, desired_encoding="rgb8")),
-        ("image_to_numpy copy=True", lambda: conv.image_to_numpy(msg, copy=True)),
+        ("numpy_to_image bgr8 (1 copy)", lambda: numpy_to_image(bgr, "bgr8")),
+        ("image_to_numpy rclpy bgr8 (view)", lambda: image_to_numpy(msg)),
+        ("image_to_numpy rosbags bgr8 (view)", lambda: image_to_numpy(rb_msg)),
+        ("image_to_numpy padded rows (view)", lambda: image_to_numpy(padded)),
+        ("image_to_numpy big-endian mono16 (swap)", lambda: image_to_numpy(big)),
+        ("image_to_numpy bgr8 -> rgb8", lambda: image_to_numpy(msg, desired_encoding="rgb8")),
+        ("image_to_numpy copy=True", lambda: image_to_numpy(msg, copy=True)),
         ("rclpy serialize + deserialize (reference)",
          lambda: deserialize_message(serialize_message(msg), Image)),
-        ("numpy_to_compressed jpeg q95", lambda: conv.numpy_to_compressed(bgr, "jpeg")),
-        ("compressed_to_numpy jpeg", lambda: conv.compressed_to_numpy(jpeg)),
-        ("numpy_to_compressed png level 3", lambda: conv.numpy_to_compressed(bgr, "png")),
-        ("compressed_to_numpy png", lambda: conv.compressed_to_numpy(png)),
-        ("camera_info_to_model", lambda: conv.camera_info_to_model(info)),
+        ("numpy_to_compressed jpeg q95", lambda: numpy_to_compressed(bgr, "jpeg")),
+        ("compressed_to_numpy jpeg", lambda: compressed_to_numpy(jpeg)),
+        ("numpy_to_compressed png level 3", lambda: numpy_to_compressed(bgr, "png")),
+        ("compressed_to_numpy png", lambda: compressed_to_numpy(png)),
+        ("camera_info_to_model", lambda: camera_info_to_model(info)),
     ]
     print(f"image {w}x{h} bgr8 ({bgr.nbytes / 1e6:.2f} MB); median of 30 runs")
     for name, fn in rows:

@@ -40,12 +40,9 @@ from eye_in_hand.errors import EXIT_UNEXPECTED, debug_enabled, unexpected_error_
 from eye_in_hand.io.bags import bag_info, deserialize, iter_messages
 from eye_in_hand.io.config import load_hand_eye
 from eye_in_hand.io.results import compare_outputs, output_messages
-from eye_in_hand.ros.conversions import (
-    camera_info_to_model,
-    header_stamp_ns,
-    point_to_xyz,
-    transform_to_matrix,
-)
+from eye_in_hand.ros.camera_info import camera_info_to_model
+from eye_in_hand.ros.geometry import point_to_xyz, transform_to_matrix
+from eye_in_hand.ros.stamps import header_stamp_ns
 
 ROOT = Path(__file__).resolve().parent.parent
 BOARD = "chessboard:9x6:0.025"

@@ -217,7 +217,7 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         BagError: the bag cannot be read or lacks a required topic.
         InputError: malformed settings.
     """
-    # local: reader only (see the imports at the top); ros.conversions adds ~12 ms too
+    # local: reader only (see the imports at the top); the ros message modules add ~12 ms too
     from eye_in_hand.core.eye_to_hand import EyeToHandLocalizer
     from eye_in_hand.core.localization import Localizer, LocalizerConfig
     from eye_in_hand.core.sync import ApproximateStereoSync
@@ -229,7 +229,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         typestore_for,
     )
     from eye_in_hand.io.results import ProcessResult, assign_truth, target_order
-    from eye_in_hand.ros.conversions import header_stamp_ns, point_to_xyz, pose_to_matrix
+    from eye_in_hand.ros.geometry import point_to_xyz, pose_to_matrix
+    from eye_in_hand.ros.stamps import header_stamp_ns
 
     opts = options or ProcessOptions()
     path = Path(path)
@@ -524,9 +525,9 @@ def _rig_from_camera_info(path: Path, opts: ProcessOptions, damage: Any = None,
     """The stereo rig from the first readable camera_info message of each side (damaged and
     undecodable ones are skipped, recorded in ``damage`` when given); ``typestore``: as for
     :func:`eye_in_hand.io.bags.deserialize` (None: the Jazzy definitions)."""
-    # local: reader only (see the imports at the top); ros.conversions adds ~12 ms too
+    # local: reader only (see the imports at the top); the ros message modules add ~12 ms too
     from eye_in_hand.io.bags import DamageLog, deserialize, iter_messages
-    from eye_in_hand.ros.conversions import camera_info_to_model
+    from eye_in_hand.ros.camera_info import camera_info_to_model
 
     infos: dict[str, Any] = {}
     log = DamageLog()           # the main pass reads these chunks again and records them
@@ -557,7 +558,7 @@ def _locate_values(locator: StereoLocator, stamp_ns: int, left_msg: Any,
     without importing the result classes): ``(stamp_ns, status, reason, targets, missing)``,
     each target ``(id, name, point, covariance, residual_px, left_px, right_px)``, the first
     target first. :func:`_frame_of` makes the :class:`FrameResult`."""
-    # local: ros.images alone (not every ros.conversions family: ~10 ms at a worker's start)
+    # local: ros.images alone (not every message family's module: ~10 ms at a worker's start)
     from eye_in_hand.ros.images import image_to_numpy
 
     try:

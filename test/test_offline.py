@@ -12,7 +12,7 @@ from eye_in_hand.io.bags import BagWriter, bag_info, iter_messages, memory_mappa
 from eye_in_hand.io.cdr import image_from_cdr
 from eye_in_hand.io.config import HandEyeCalibration
 from eye_in_hand.offline import ProcessOptions, _PairPool, process_bag
-from eye_in_hand.ros.conversions import header_stamp_ns
+from eye_in_hand.ros.stamps import header_stamp_ns
 from eye_in_hand.sim import World
 from eye_in_hand.sim.output import write_bag
 

@@ -142,7 +142,7 @@ def test_a_stopped_worker_costs_no_chunk_and_no_pair(bags, monkeypatch):
     from eye_in_hand.io.bags import typestore_for
     from eye_in_hand.io.bags.streams import decoded_stream
     from eye_in_hand.offline import _PairPool
-    from eye_in_hand.ros.conversions import header_stamp_ns
+    from eye_in_hand.ros.stamps import header_stamp_ns
 
     world, zstd, _raw = bags
     cfg = load_locator_config(None)

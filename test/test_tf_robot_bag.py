@@ -138,8 +138,8 @@ def test_live_replay_with_tf_gives_the_offline_numbers(tf_bag, tmp_path, ros_con
 
     from eye_in_hand.nodes.detect_triangulate import DetectTriangulateNode
     from eye_in_hand.nodes.hand_eye import HandEyeNode
-    from eye_in_hand.ros.conversions import header_stamp_ns
     from eye_in_hand.ros.qos import RESULT_QOS
+    from eye_in_hand.ros.stamps import header_stamp_ns
 
     bag, world = tf_bag
     # with a robot pose correction (systematic model): both paths apply it, the same way

@@ -73,7 +73,7 @@ def image_from_cdr(raw: bytes | bytearray | memoryview) -> CdrImage | None:
 
     Returns:
         The image, ``data`` a view of ``raw`` (``height * step`` bytes, checked by
-        :func:`eye_in_hand.ros.conversions.image_to_numpy`); None when ``raw`` is not
+        :func:`eye_in_hand.ros.images.image_to_numpy`); None when ``raw`` is not
         little-endian plain CDR.
 
     Raises:

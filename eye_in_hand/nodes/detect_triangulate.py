@@ -105,13 +105,9 @@ from eye_in_hand.core.sync import (
     StereoPair,
 )
 from eye_in_hand.errors import ConfigError, ConversionError, EyeInHandError, InputError
-from eye_in_hand.ros.conversions import (
-    camera_info_to_model,
-    header_stamp_ns,
-    image_to_numpy,
-    numpy_to_image,
-)
+from eye_in_hand.ros.camera_info import camera_info_to_model
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
+from eye_in_hand.ros.images import image_to_numpy, numpy_to_image
 from eye_in_hand.ros.markers import Sphere, marker_classes, sphere_marker_array, sphere_style
 from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.node_main import run_node
@@ -126,6 +122,7 @@ from eye_in_hand.ros.outputs import (
 from eye_in_hand.ros.params import Param, declare_params
 from eye_in_hand.ros.publishers import OutputPublishers
 from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS, TARGET_POINT_QOS
+from eye_in_hand.ros.stamps import header_stamp_ns
 
 __all__ = ["NODE_PARAMETERS", "DetectTriangulateNode", "parameter_names", "parameter_hint",
            "main"]

@@ -104,8 +104,8 @@ from eye_in_hand.io.kinematics import load_kinematics
 from eye_in_hand.nodes.hand_eye_calibration import CalibrationMode
 from eye_in_hand.nodes.hand_eye_targets import EveryTargetMixin
 from eye_in_hand.nodes.hand_eye_tf import TfMixin
-from eye_in_hand.ros.conversions import header_stamp_ns, point_to_xyz, pose_to_matrix
 from eye_in_hand.ros.diagnostics import NodeDiagnostics
+from eye_in_hand.ros.geometry import point_to_xyz, pose_to_matrix
 from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.ros.outputs import (
     MARKER_LIFETIME_S,
@@ -121,6 +121,7 @@ from eye_in_hand.ros.outputs import (
 from eye_in_hand.ros.params import load_config, param, params_of
 from eye_in_hand.ros.publishers import OutputPublishers
 from eye_in_hand.ros.qos import LATCHED_QOS, RESULT_QOS, ROBOT_POSE_QOS
+from eye_in_hand.ros.stamps import header_stamp_ns
 
 __all__ = ["HandEyeNodeConfig", "HandEyeNode", "load_kinematics", "parameter_names", "main"]
 

@@ -21,7 +21,7 @@ from rclpy.qos import DurabilityPolicy
 
 from eye_in_hand.errors import ConversionError, InputError, LocalizationError
 from eye_in_hand.nodes.hand_eye_tf import translation_tf_message
-from eye_in_hand.ros.conversions import header_stamp_ns, point_to_xyz
+from eye_in_hand.ros.geometry import point_to_xyz
 from eye_in_hand.ros.markers import (
     Sphere,
     marker_classes,
@@ -32,6 +32,7 @@ from eye_in_hand.ros.markers import (
 )
 from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.qos import RESULT_QOS, TARGET_POINT_QOS
+from eye_in_hand.ros.stamps import header_stamp_ns
 
 __all__ = ["EveryTargetMixin"]
 

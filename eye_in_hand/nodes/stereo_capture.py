@@ -61,16 +61,13 @@ from sensor_msgs.msg import CameraInfo, Image, JointState
 from eye_in_hand.core.camera import CameraModel, StereoRig
 from eye_in_hand.errors import ConfigError, ConversionError, EyeInHandError, InputError
 from eye_in_hand.io.images import read_image_file
-from eye_in_hand.ros.conversions import (
-    header_stamp_ns,
-    make_header,
-    matrix_to_pose_stamped,
-    model_to_camera_info,
-    numpy_to_image,
-)
+from eye_in_hand.ros.camera_info import model_to_camera_info
 from eye_in_hand.ros.diagnostics import ERROR, WARN, NodeDiagnostics
+from eye_in_hand.ros.geometry import matrix_to_pose_stamped
+from eye_in_hand.ros.images import numpy_to_image
 from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.ros.params import Param, declare_params
+from eye_in_hand.ros.stamps import header_stamp_ns, make_header
 from eye_in_hand.ros.tf import (
     TF_STATIC_TOPIC,
     TF_TOPIC,

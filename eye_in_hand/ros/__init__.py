@@ -1,13 +1,15 @@
 """rclpy glue: message conversions, QoS profiles, parameter and diagnostics helpers.
 
 Submodules (import them directly; this package imports none of them, so that the rclpy-free
-:mod:`eye_in_hand.ros.conversions` works in offline processing without ROS installed):
+message conversions work in offline processing without ROS installed):
 
-* :mod:`eye_in_hand.ros.conversions` - numpy <-> ``sensor_msgs`` / ``geometry_msgs`` messages and
-  ``CameraInfo`` <-> :class:`~eye_in_hand.core.camera.CameraModel` (no rclpy needed to decode);
-  it re-exports the per-family modules :mod:`~eye_in_hand.ros.stamps`,
-  :mod:`~eye_in_hand.ros.images`, :mod:`~eye_in_hand.ros.camera_info` and
-  :mod:`~eye_in_hand.ros.geometry` (built on :mod:`~eye_in_hand.ros.fields`).
+* the message conversions, one module per message family (no rclpy needed to decode):
+  :mod:`~eye_in_hand.ros.stamps` (int ns <-> ``Time``, ``Header``),
+  :mod:`~eye_in_hand.ros.images` (``Image``, ``CompressedImage`` <-> numpy),
+  :mod:`~eye_in_hand.ros.camera_info` (``CameraInfo`` <->
+  :class:`~eye_in_hand.core.camera.CameraModel`) and :mod:`~eye_in_hand.ros.geometry`
+  (``Pose``, ``Transform``, ``Point`` <-> matrices and xyz), built on
+  :mod:`~eye_in_hand.ros.fields`.
 * :mod:`eye_in_hand.ros.qos` - ``SENSOR_QOS``, ``RESULT_QOS``, ``LATCHED_QOS``.
 * :mod:`eye_in_hand.ros.params` - declare parameters with descriptors and load them into a
   frozen config dataclass.

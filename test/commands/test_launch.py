@@ -91,7 +91,7 @@ def test_a_killed_node_is_restarted_and_messages_flow_again(tmp_path, ros_env, r
 
     from geometry_msgs.msg import PointStamped, PoseStamped
 
-    from eye_in_hand.ros.conversions import matrix_to_pose_stamped, xyz_to_point_stamped
+    from eye_in_hand.ros.geometry import matrix_to_pose_stamped, xyz_to_point_stamped
     from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS
 
     he = tmp_path / "hand_eye.yaml"
@@ -267,7 +267,8 @@ def test_launch_composed_runs_the_chain_in_one_process(tmp_path, ros_env, ros_co
     from sensor_msgs.msg import Image
 
     from eye_in_hand.core.localization import target_in_base
-    from eye_in_hand.ros.conversions import matrix_to_pose_stamped, numpy_to_image
+    from eye_in_hand.ros.geometry import matrix_to_pose_stamped
+    from eye_in_hand.ros.images import numpy_to_image
     from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS
     from test.nodes.test_every_target import BOTH, CAM, EE_T_CAM, RIG, T0, TARGETS, _robot_pose
 
@@ -315,7 +316,7 @@ def test_launch_composed_runs_the_chain_in_one_process(tmp_path, ros_env, ros_co
             spin_until(executor, lambda: bool(poses), 2.0)
             stamp += 50_000_000
         assert poses, out.text
-        from eye_in_hand.ros.conversions import header_stamp_ns
+        from eye_in_hand.ros.stamps import header_stamp_ns
 
         s = header_stamp_ns(poses[0])
         got = np.array([poses[0].pose.position.x, poses[0].pose.position.y,

@@ -7,7 +7,8 @@ import pytest
 from eye_in_hand.errors import ConversionError
 from eye_in_hand.io.bags import default_typestore, deserialize, serialize
 from eye_in_hand.io.cdr import image_from_cdr, is_image_type
-from eye_in_hand.ros.conversions import header_stamp_ns, image_to_numpy
+from eye_in_hand.ros.images import image_to_numpy
+from eye_in_hand.ros.stamps import header_stamp_ns
 
 IMAGE = "sensor_msgs/msg/Image"
 

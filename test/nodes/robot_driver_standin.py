@@ -31,8 +31,9 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Int32
 
-from eye_in_hand.ros.conversions import make_header, matrix_to_pose_stamped
+from eye_in_hand.ros.geometry import matrix_to_pose_stamped
 from eye_in_hand.ros.qos import LATCHED_QOS, SENSOR_QOS
+from eye_in_hand.ros.stamps import make_header
 from eye_in_hand.ros.tf import TF_TOPIC, chain_tf_edges, make_tf_message, tf_message_class, tf_qos
 from eye_in_hand.sim import World
 from eye_in_hand.sim.robot_error import reported_joints

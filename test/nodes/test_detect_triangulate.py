@@ -19,10 +19,8 @@ from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 from eye_in_hand.core.camera import CameraModel, StereoRig  # noqa: E402
 from eye_in_hand.errors import ConfigError, InputError  # noqa: E402
 from eye_in_hand.nodes.detect_triangulate import DetectTriangulateNode, _PairQueue  # noqa: E402
-from eye_in_hand.ros.conversions import (  # noqa: E402
-    model_to_camera_info,
-    numpy_to_image,
-)
+from eye_in_hand.ros.camera_info import model_to_camera_info
+from eye_in_hand.ros.images import numpy_to_image
 from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS  # noqa: E402
 from eye_in_hand.sim.sphere import render_sphere
 

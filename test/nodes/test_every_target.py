@@ -25,9 +25,11 @@ from eye_in_hand.core.transforms import from_rotvec, interpolate  # noqa: E402
 from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye  # noqa: E402
 from eye_in_hand.nodes.detect_triangulate import DetectTriangulateNode  # noqa: E402
 from eye_in_hand.nodes.hand_eye import HandEyeNode  # noqa: E402
-from eye_in_hand.ros.conversions import header_stamp_ns, matrix_to_pose_stamped, numpy_to_image  # noqa: E402
+from eye_in_hand.ros.geometry import matrix_to_pose_stamped
+from eye_in_hand.ros.images import numpy_to_image
 from eye_in_hand.ros.markers import Sphere, sphere_marker_array  # noqa: E402
 from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS  # noqa: E402
+from eye_in_hand.ros.stamps import header_stamp_ns
 from eye_in_hand.sim.sphere import render_sphere  # noqa: E402
 
 W, H = 640, 360
@@ -266,7 +268,7 @@ def test_eye_to_hand_localizes_every_target_without_a_robot_pose(
     feed.frame(T0, pts, covs=covs)
     # the first-target topic too: target/point (+ _cov) -> target/pose
     from eye_in_hand.nodes.detect_triangulate import point_cov_message
-    from eye_in_hand.ros.conversions import xyz_to_point_stamped
+    from eye_in_hand.ros.geometry import xyz_to_point_stamped
     pub_pc = feed.io.create_publisher(PoseWithCovarianceStamped, "target/point_cov", RESULT_QOS)
     pub_p = feed.io.create_publisher(PointStamped, "target/point", RESULT_QOS)
     assert spin_until(executor, lambda: pub_p.get_subscription_count() > 0
@@ -351,7 +353,7 @@ def test_dropped_targets_are_counted_by_reason(tmp_path, ros_context, executor, 
 
 def test_eye_to_hand_tf_one_child_frame_per_target(tmp_path, ros_context, executor, namespace,
                                                    spin_until):
-    from eye_in_hand.ros.conversions import transform_to_matrix
+    from eye_in_hand.ros.geometry import transform_to_matrix
     from eye_in_hand.ros.tf import have_tf2_msgs, tf_qos, tf_static_sub_qos
 
     if not have_tf2_msgs():
@@ -371,7 +373,7 @@ def test_eye_to_hand_tf_one_child_frame_per_target(tmp_path, ros_context, execut
     assert spin_until(executor, lambda: feed.node.pub_tf.get_subscription_count() > 0, 10.0)
     from geometry_msgs.msg import PointStamped
 
-    from eye_in_hand.ros.conversions import xyz_to_point_stamped
+    from eye_in_hand.ros.geometry import xyz_to_point_stamped
     from eye_in_hand.ros.qos import RESULT_QOS
     pub_first = feed.io.create_publisher(PointStamped, "target/point", RESULT_QOS)
     assert spin_until(executor, lambda: pub_first.get_subscription_count() > 0, 10.0)

@@ -13,13 +13,9 @@ from eye_in_hand.core.transforms import from_rotvec, interpolate
 from eye_in_hand.errors import ConfigError
 from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye
 from eye_in_hand.nodes.hand_eye import HandEyeNode
-from eye_in_hand.ros.conversions import (
-    header_stamp_ns,
-    make_header,
-    matrix_to_pose_stamped,
-    xyz_to_point_stamped,
-)
+from eye_in_hand.ros.geometry import matrix_to_pose_stamped, xyz_to_point_stamped
 from eye_in_hand.ros.qos import LATCHED_QOS, RESULT_QOS, SENSOR_QOS
+from eye_in_hand.ros.stamps import header_stamp_ns, make_header
 
 EE_T_CAM = from_rotvec([0.1, -0.2, 0.05], [0.03, -0.05, 0.08])
 T0 = 1_700_000_000_000_000_000

@@ -11,7 +11,8 @@ from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
 from eye_in_hand.nodes.hand_eye import HandEyeNode  # noqa: E402
-from eye_in_hand.ros.conversions import matrix_to_pose_stamped, numpy_to_image  # noqa: E402
+from eye_in_hand.ros.geometry import matrix_to_pose_stamped
+from eye_in_hand.ros.images import numpy_to_image
 from eye_in_hand.ros.qos import LATCHED_QOS, SENSOR_QOS  # noqa: E402
 
 T0 = 1_700_000_000_000_000_000

@@ -12,8 +12,9 @@ from eye_in_hand.core.kinematics import DHChain
 from eye_in_hand.core.localization import target_in_base
 from eye_in_hand.core.transforms import from_rotvec, interpolate, invert
 from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye
-from eye_in_hand.ros.conversions import header_stamp_ns, transform_to_matrix, xyz_to_point_stamped
+from eye_in_hand.ros.geometry import transform_to_matrix, xyz_to_point_stamped
 from eye_in_hand.ros.qos import RESULT_QOS
+from eye_in_hand.ros.stamps import header_stamp_ns
 from eye_in_hand.ros.tf import (
     chain_tf_edges,
     have_tf2_msgs,

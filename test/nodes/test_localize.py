@@ -27,7 +27,8 @@ from eye_in_hand.launcher import NODES, Launcher, node_command, node_ros_args  #
 from eye_in_hand.nodes.detect_triangulate import DetectTriangulateNode  # noqa: E402
 from eye_in_hand.nodes.hand_eye import HandEyeNode  # noqa: E402
 from eye_in_hand.nodes.localize import LocalizationChain  # noqa: E402
-from eye_in_hand.ros.conversions import matrix_to_pose_stamped, numpy_to_image  # noqa: E402
+from eye_in_hand.ros.geometry import matrix_to_pose_stamped
+from eye_in_hand.ros.images import numpy_to_image
 from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS  # noqa: E402
 
 from .test_every_target import (  # noqa: E402

@@ -128,7 +128,7 @@ def test_sim_source_publishes_paired_frames_with_robot_state(ros_context, execut
     from geometry_msgs.msg import PoseStamped
 
     from eye_in_hand.nodes.stereo_capture import StereoCaptureNode
-    from eye_in_hand.ros.conversions import pose_to_matrix
+    from eye_in_hand.ros.geometry import pose_to_matrix
     from eye_in_hand.sim import World
 
     node = StereoCaptureNode(context=ros_context, namespace=namespace,
@@ -224,7 +224,7 @@ def test_followed_pair_carries_the_stamp_of_the_joint_state_it_shows(ros_context
     from sensor_msgs.msg import JointState
 
     from eye_in_hand.nodes.stereo_capture import StereoCaptureNode
-    from eye_in_hand.ros.conversions import header_stamp_ns, make_header
+    from eye_in_hand.ros.stamps import header_stamp_ns, make_header
     from eye_in_hand.sim import World
     from eye_in_hand.sim.scenarios import localization_trajectory
 

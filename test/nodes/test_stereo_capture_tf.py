@@ -24,7 +24,8 @@ def test_sim_tf_chain_matches_ee_pose_and_static_extrinsic_is_latched(
 
     from eye_in_hand.core.tf import TfBuffer
     from eye_in_hand.nodes.stereo_capture import StereoCaptureNode
-    from eye_in_hand.ros.conversions import header_stamp_ns, pose_to_matrix
+    from eye_in_hand.ros.geometry import pose_to_matrix
+    from eye_in_hand.ros.stamps import header_stamp_ns
     from eye_in_hand.ros.tf import add_tf_message
     from eye_in_hand.sim import World
 
@@ -59,7 +60,7 @@ def test_sim_tf_chain_matches_ee_pose_and_static_extrinsic_is_latched(
     for m in statics:
         add_tf_message(buf, m, static=True)
     edges = {(t.header.frame_id, t.child_frame_id): t for t in statics[0].transforms}
-    from eye_in_hand.ros.conversions import transform_to_matrix
+    from eye_in_hand.ros.geometry import transform_to_matrix
     assert ("base_link", "base") in edges   # ur_description's fixed joint: static
     assert not any(t.child_frame_id == "base" for m in dynamic for t in m.transforms)
     first_static = header_stamp_ns(statics[0].transforms[0])

@@ -1,4 +1,5 @@
-"""Tests of eye_in_hand.ros.conversions on rclpy messages, rosbags messages and CDR bytes."""
+"""Tests of the message conversions (eye_in_hand.ros.stamps, images, camera_info, geometry)
+on rclpy messages, rosbags messages and CDR bytes."""
 from __future__ import annotations
 
 import subprocess
@@ -10,7 +11,24 @@ import pytest
 from eye_in_hand.core.camera import CameraModel
 from eye_in_hand.core.transforms import from_rotvec
 from eye_in_hand.errors import ConversionError
-from eye_in_hand.ros import conversions as conv
+from eye_in_hand.ros.camera_info import camera_info_to_model, model_to_camera_info
+from eye_in_hand.ros.geometry import (
+    matrix_to_pose,
+    matrix_to_pose_stamped,
+    matrix_to_transform_stamped,
+    point_to_xyz,
+    pose_to_matrix,
+    transform_to_matrix,
+    xyz_to_point,
+    xyz_to_point_stamped,
+)
+from eye_in_hand.ros.images import (
+    compressed_to_numpy,
+    image_to_numpy,
+    numpy_to_compressed,
+    numpy_to_image,
+)
+from eye_in_hand.ros.stamps import header_stamp_ns, make_header, ns_to_stamp, stamp_to_ns
 
 pytest.importorskip("rclpy")
 
@@ -46,15 +64,15 @@ def rosbags_image(typestore, arr_bytes: np.ndarray, *, height: int, width: int, 
 def test_image_round_trip_rclpy_is_zero_copy(encoding):
     rng = np.random.default_rng(1)
     img = random_image(rng, encoding)
-    msg = conv.numpy_to_image(img, encoding, stamp_ns=5_000_000_123, frame_id="cam")
+    msg = numpy_to_image(img, encoding, stamp_ns=5_000_000_123, frame_id="cam")
     assert msg.encoding == encoding
     assert msg.step == img.shape[1] * img.itemsize * (img.shape[2] if img.ndim == 3 else 1)
-    assert conv.header_stamp_ns(msg) == 5_000_000_123 and msg.header.frame_id == "cam"
-    out = conv.image_to_numpy(msg)
+    assert header_stamp_ns(msg) == 5_000_000_123 and msg.header.frame_id == "cam"
+    out = image_to_numpy(msg)
     assert out.dtype == img.dtype and out.shape == img.shape
     np.testing.assert_array_equal(out, img)
     assert np.shares_memory(out, np.frombuffer(msg.data, dtype=np.uint8))
-    copied = conv.image_to_numpy(msg, copy=True)
+    copied = image_to_numpy(msg, copy=True)
     assert not np.shares_memory(copied, np.frombuffer(msg.data, dtype=np.uint8))
 
 
@@ -71,10 +89,10 @@ def test_padded_rows_rosbags_message_decode_as_view(typestore, encoding, pad):
     data = raw.reshape(-1)
     msg = rosbags_image(typestore, data, height=img.shape[0], width=img.shape[1], step=step,
                         encoding=encoding)
-    out = conv.image_to_numpy(msg)
+    out = image_to_numpy(msg)
     np.testing.assert_array_equal(out, img)
     assert np.shares_memory(out, data)  # padding is skipped by strides, not copied
-    assert conv.header_stamp_ns(msg) == 12 * 10**9 + 345
+    assert header_stamp_ns(msg) == 12 * 10**9 + 345
 
 
 def test_padded_rows_with_colour_conversion(typestore):
@@ -83,11 +101,11 @@ def test_padded_rows_with_colour_conversion(typestore):
     raw = np.zeros((5, 7 * 3 + 3), np.uint8)
     raw[:, :21] = img.reshape(5, 21)
     msg = rosbags_image(typestore, raw.reshape(-1), height=5, width=7, step=24, encoding="bgr8")
-    np.testing.assert_array_equal(conv.image_to_numpy(msg, desired_encoding="rgb8"),
+    np.testing.assert_array_equal(image_to_numpy(msg, desired_encoding="rgb8"),
                                   img[:, :, ::-1])
     mosaic = rosbags_image(typestore, rng.integers(0, 255, 4 * 13, dtype=np.uint8), height=4,
                            width=10, step=13, encoding="bayer_rggb8")
-    assert conv.image_to_numpy(mosaic, desired_encoding="bgr8").shape == (4, 10, 3)
+    assert image_to_numpy(mosaic, desired_encoding="bgr8").shape == (4, 10, 3)
 
 
 @pytest.mark.parametrize("encoding", ["mono16", "16UC1", "bgr16"])
@@ -102,12 +120,12 @@ def test_big_endian_16_bit_is_byte_swapped(typestore, encoding):
         img.shape[0], -1)
     msg = rosbags_image(typestore, raw.reshape(-1), height=img.shape[0], width=img.shape[1],
                         step=step, encoding=encoding, bigendian=1)
-    out = conv.image_to_numpy(msg)
+    out = image_to_numpy(msg)
     assert out.dtype == np.dtype("=u2")
     np.testing.assert_array_equal(out, img)
     # The same bytes read as little endian would be wrong: the flag is honoured.
     msg.is_bigendian = 0
-    assert not np.array_equal(conv.image_to_numpy(msg), img)
+    assert not np.array_equal(image_to_numpy(msg), img)
 
 
 def test_bytes_data_decodes_read_only_view():
@@ -118,7 +136,7 @@ def test_bytes_data_decodes_read_only_view():
         height, width, encoding, is_bigendian, step = 7, 5, "bgr8", 0, 15
         data = img.tobytes()
 
-    out = conv.image_to_numpy(Msg())
+    out = image_to_numpy(Msg())
     np.testing.assert_array_equal(out, img)
     assert not out.flags.writeable
 
@@ -129,47 +147,47 @@ def test_rclpy_serialize_round_trip_and_rosbags_deserialize(typestore):
 
     rng = np.random.default_rng(5)
     img = random_image(rng, "rgb8", h=33, w=17)
-    msg = conv.numpy_to_image(img, "rgb8", stamp_ns=1_700_000_000_123_456_789, frame_id="left")
+    msg = numpy_to_image(img, "rgb8", stamp_ns=1_700_000_000_123_456_789, frame_id="left")
     raw = serialize_message(msg)
     back = deserialize_message(raw, Image)
-    np.testing.assert_array_equal(conv.image_to_numpy(back), img)
-    assert conv.header_stamp_ns(back) == 1_700_000_000_123_456_789
+    np.testing.assert_array_equal(image_to_numpy(back), img)
+    assert header_stamp_ns(back) == 1_700_000_000_123_456_789
     # rosbags reads the same CDR bytes (as it does from a bag): data is a numpy uint8 array.
     rb = typestore.deserialize_cdr(raw, "sensor_msgs/msg/Image")
     assert isinstance(rb.data, np.ndarray)
-    out = conv.image_to_numpy(rb)
+    out = image_to_numpy(rb)
     np.testing.assert_array_equal(out, img)
     assert np.shares_memory(out, rb.data)
-    assert conv.header_stamp_ns(rb) == 1_700_000_000_123_456_789
+    assert header_stamp_ns(rb) == 1_700_000_000_123_456_789
     # and rosbags-serialized bytes deserialize in rclpy.
     again = deserialize_message(bytes(typestore.serialize_cdr(rb, "sensor_msgs/msg/Image")),
                                 Image)
-    np.testing.assert_array_equal(conv.image_to_numpy(again), img)
+    np.testing.assert_array_equal(image_to_numpy(again), img)
 
 
 def test_colour_conversions():
     rng = np.random.default_rng(6)
     bgr = random_image(rng, "bgr8")
-    msg = conv.numpy_to_image(bgr, "bgr8")
-    np.testing.assert_array_equal(conv.image_to_numpy(msg, desired_encoding="rgb8"),
+    msg = numpy_to_image(bgr, "bgr8")
+    np.testing.assert_array_equal(image_to_numpy(msg, desired_encoding="rgb8"),
                                   bgr[:, :, ::-1])
-    rgba = conv.image_to_numpy(msg, desired_encoding="rgba8")
+    rgba = image_to_numpy(msg, desired_encoding="rgba8")
     np.testing.assert_array_equal(rgba[:, :, :3], bgr[:, :, ::-1])
     assert np.all(rgba[:, :, 3] == 255)
-    grey = conv.image_to_numpy(msg, desired_encoding="mono8")
+    grey = image_to_numpy(msg, desired_encoding="mono8")
     expected = np.rint(bgr @ np.array([0.114, 0.587, 0.299]))
     assert grey.shape == bgr.shape[:2] and np.max(np.abs(grey - expected)) <= 1
-    mono = conv.numpy_to_image(grey, "mono8")
-    assert np.all(conv.image_to_numpy(mono, desired_encoding="bgr8") == grey[:, :, None])
+    mono = numpy_to_image(grey, "mono8")
+    assert np.all(image_to_numpy(mono, desired_encoding="bgr8") == grey[:, :, None])
     # A generic alias relabels without copying.
-    generic = conv.numpy_to_image(bgr, "8UC3")
-    out = conv.image_to_numpy(generic, desired_encoding="bgr8")
+    generic = numpy_to_image(bgr, "8UC3")
+    out = image_to_numpy(generic, desired_encoding="bgr8")
     assert np.shares_memory(out, np.frombuffer(generic.data, np.uint8))
     with pytest.raises(ConversionError, match="desired_encoding.*mono16 to mono8"):
-        conv.image_to_numpy(conv.numpy_to_image(np.zeros((2, 2), np.uint16)),
+        image_to_numpy(numpy_to_image(np.zeros((2, 2), np.uint16)),
                             desired_encoding="mono8")
     with pytest.raises(ConversionError, match="desired_encoding: unsupported.*yuv422"):
-        conv.image_to_numpy(msg, desired_encoding="yuv422")
+        image_to_numpy(msg, desired_encoding="yuv422")
 
 
 @pytest.mark.parametrize("pattern", ["rggb", "bggr", "gbrg", "grbg"])
@@ -179,12 +197,12 @@ def test_bayer_demosaic_recovers_a_flat_colour(pattern):
     mosaic = np.zeros((h, w), np.uint8)
     for k, (dy, dx) in enumerate([(0, 0), (0, 1), (1, 0), (1, 1)]):
         mosaic[dy::2, dx::2] = bgr[pattern[k]]
-    msg = conv.numpy_to_image(mosaic, f"bayer_{pattern}8")
-    np.testing.assert_array_equal(conv.image_to_numpy(msg), mosaic)
-    out = conv.image_to_numpy(msg, desired_encoding="bgr8")
+    msg = numpy_to_image(mosaic, f"bayer_{pattern}8")
+    np.testing.assert_array_equal(image_to_numpy(msg), mosaic)
+    out = image_to_numpy(msg, desired_encoding="bgr8")
     np.testing.assert_array_equal(out[4:-4, 4:-4].reshape(-1, 3).min(axis=0), (40, 120, 200))
     np.testing.assert_array_equal(out[4:-4, 4:-4].reshape(-1, 3).max(axis=0), (40, 120, 200))
-    rgb = conv.image_to_numpy(msg, desired_encoding="rgb8")
+    rgb = image_to_numpy(msg, desired_encoding="rgb8")
     np.testing.assert_array_equal(rgb[8, 8], (200, 120, 40))
 
 
@@ -211,7 +229,7 @@ def _image_msg(**fields):
 ])
 def test_malformed_image_messages_name_the_field(fields, match):
     with pytest.raises(ConversionError, match=match):
-        conv.image_to_numpy(_image_msg(**fields))
+        image_to_numpy(_image_msg(**fields))
 
 
 def test_missing_field_is_named():
@@ -219,27 +237,27 @@ def test_missing_field_is_named():
         height, width, step, is_bigendian, encoding = 1, 1, 1, 0, "mono8"
 
     with pytest.raises(ConversionError, match=r"^data: missing field"):
-        conv.image_to_numpy(NotAnImage())
+        image_to_numpy(NotAnImage())
 
 
 def test_numpy_to_image_validation_and_inference():
-    assert conv.numpy_to_image(np.zeros((2, 3), np.uint8)).encoding == "mono8"
-    assert conv.numpy_to_image(np.zeros((2, 3, 3), np.uint8)).encoding == "bgr8"
-    assert conv.numpy_to_image(np.zeros((2, 3, 4), np.uint8)).encoding == "bgra8"
-    assert conv.numpy_to_image(np.zeros((2, 3), np.uint16)).encoding == "mono16"
-    assert conv.numpy_to_image(np.zeros((2, 3, 1), np.uint8), "mono8").width == 3
+    assert numpy_to_image(np.zeros((2, 3), np.uint8)).encoding == "mono8"
+    assert numpy_to_image(np.zeros((2, 3, 3), np.uint8)).encoding == "bgr8"
+    assert numpy_to_image(np.zeros((2, 3, 4), np.uint8)).encoding == "bgra8"
+    assert numpy_to_image(np.zeros((2, 3), np.uint16)).encoding == "mono16"
+    assert numpy_to_image(np.zeros((2, 3, 1), np.uint8), "mono8").width == 3
     big = np.arange(6, dtype=">u2").reshape(2, 3)
-    np.testing.assert_array_equal(conv.image_to_numpy(conv.numpy_to_image(big)), big)
+    np.testing.assert_array_equal(image_to_numpy(numpy_to_image(big)), big)
     with pytest.raises(ConversionError, match="dtype uint16 does not match encoding bgr8"):
-        conv.numpy_to_image(np.zeros((2, 3, 3), np.uint16), "bgr8")
+        numpy_to_image(np.zeros((2, 3, 3), np.uint16), "bgr8")
     with pytest.raises(ConversionError, match=r"shape \(2, 3\) does not match encoding rgb8"):
-        conv.numpy_to_image(np.zeros((2, 3), np.uint8), "rgb8")
+        numpy_to_image(np.zeros((2, 3), np.uint8), "rgb8")
     with pytest.raises(ConversionError, match="cannot infer an encoding"):
-        conv.numpy_to_image(np.zeros((2, 3), np.float64))
+        numpy_to_image(np.zeros((2, 3), np.float64))
     with pytest.raises(ConversionError, match="^encoding: unsupported"):
-        conv.numpy_to_image(np.zeros((2, 3), np.uint8), "jpeg")
+        numpy_to_image(np.zeros((2, 3), np.uint8), "jpeg")
     with pytest.raises(ConversionError, match="stamp_ns"):
-        conv.numpy_to_image(np.zeros((2, 3), np.uint8), stamp_ns=1.5)
+        numpy_to_image(np.zeros((2, 3), np.uint8), stamp_ns=1.5)
 
 
 # -- compressed images ------------------------------------------------------------------------
@@ -253,10 +271,10 @@ def smooth_bgr(h: int = 48, w: int = 64) -> np.ndarray:
 def test_png_round_trip_is_lossless(encoding):
     rng = np.random.default_rng(7)
     img = random_image(rng, encoding, h=12, w=10)
-    msg = conv.numpy_to_compressed(img, "png", encoding=encoding, stamp_ns=42, frame_id="f")
+    msg = numpy_to_compressed(img, "png", encoding=encoding, stamp_ns=42, frame_id="f")
     assert msg.format.startswith(f"{encoding}; png compressed ")
-    assert conv.header_stamp_ns(msg) == 42
-    out = conv.compressed_to_numpy(msg)
+    assert header_stamp_ns(msg) == 42
+    out = compressed_to_numpy(msg)
     assert out.dtype == img.dtype
     np.testing.assert_array_equal(out, img)
 
@@ -265,20 +283,20 @@ def test_png_round_trip_is_lossless(encoding):
 def test_jpeg_round_trip_is_close(encoding):
     bgr = smooth_bgr()
     img = {"bgr8": bgr, "rgb8": bgr[:, :, ::-1].copy(), "mono8": bgr[:, :, 1].copy()}[encoding]
-    msg = conv.numpy_to_compressed(img, "jpeg", encoding=encoding, jpeg_quality=95)
+    msg = numpy_to_compressed(img, "jpeg", encoding=encoding, jpeg_quality=95)
     raw = "mono8" if encoding == "mono8" else "bgr8"
     assert msg.format == f"{encoding}; jpeg compressed {raw}"
-    out = conv.compressed_to_numpy(msg)
+    out = compressed_to_numpy(msg)
     assert out.shape == img.shape
     assert np.mean(np.abs(out.astype(int) - img)) < 2.0  # channel order restored, not swapped
-    bgr_out = conv.compressed_to_numpy(msg, desired_encoding="bgr8")
+    bgr_out = compressed_to_numpy(msg, desired_encoding="bgr8")
     if encoding == "rgb8":
         assert np.mean(np.abs(bgr_out.astype(int) - bgr)) < 2.0
 
 
 def test_compressed_plain_formats_and_rosbags_message(typestore):
     img = smooth_bgr()
-    png = conv.numpy_to_compressed(img, "png")
+    png = numpy_to_compressed(img, "png")
     CompressedImage = typestore.types["sensor_msgs/msg/CompressedImage"]
     Header = typestore.types["std_msgs/msg/Header"]
     Time = typestore.types["builtin_interfaces/msg/Time"]
@@ -286,26 +304,26 @@ def test_compressed_plain_formats_and_rosbags_message(typestore):
     for fmt in ("png", "PNG", ""):
         rb = CompressedImage(header=Header(stamp=Time(sec=1, nanosec=2), frame_id=""),
                              format=fmt, data=data)
-        np.testing.assert_array_equal(conv.compressed_to_numpy(rb), img)
+        np.testing.assert_array_equal(compressed_to_numpy(rb), img)
     with pytest.raises(ConversionError, match="^format: unsupported compressed image format"):
-        conv.compressed_to_numpy(CompressedImage(header=rb.header, format="tiff", data=data))
+        compressed_to_numpy(CompressedImage(header=rb.header, format="tiff", data=data))
     with pytest.raises(ConversionError, match="^data: 10 bytes could not be decoded as png"):
-        conv.compressed_to_numpy(CompressedImage(header=rb.header, format="png",
+        compressed_to_numpy(CompressedImage(header=rb.header, format="png",
                                                  data=data[:10]))
     with pytest.raises(ConversionError, match="^data: empty"):
-        conv.compressed_to_numpy(CompressedImage(header=rb.header, format="png",
+        compressed_to_numpy(CompressedImage(header=rb.header, format="png",
                                                  data=np.zeros(0, np.uint8)))
 
 
 def test_numpy_to_compressed_refusals():
     with pytest.raises(ConversionError, match="^format: unsupported"):
-        conv.numpy_to_compressed(smooth_bgr(), "webp")
+        numpy_to_compressed(smooth_bgr(), "webp")
     with pytest.raises(ConversionError, match="JPEG takes 8-bit"):
-        conv.numpy_to_compressed(np.zeros((4, 4), np.uint16), "jpeg")
+        numpy_to_compressed(np.zeros((4, 4), np.uint16), "jpeg")
     with pytest.raises(ConversionError, match="JPEG takes 8-bit"):
-        conv.numpy_to_compressed(np.zeros((4, 4, 4), np.uint8), "jpeg")
+        numpy_to_compressed(np.zeros((4, 4, 4), np.uint8), "jpeg")
     with pytest.raises(ConversionError, match="jpeg_quality"):
-        conv.numpy_to_compressed(smooth_bgr(), "jpeg", jpeg_quality=101)
+        numpy_to_compressed(smooth_bgr(), "jpeg", jpeg_quality=101)
 
 
 # -- camera info ------------------------------------------------------------------------------
@@ -324,11 +342,11 @@ def test_camera_info_round_trip_rclpy_and_rosbags(typestore, model):
     from rclpy.serialization import serialize_message
 
     cam = make_model(model)
-    msg = conv.model_to_camera_info(cam, stamp_ns=77, frame_id="camera_left_optical_frame")
+    msg = model_to_camera_info(cam, stamp_ns=77, frame_id="camera_left_optical_frame")
     assert msg.distortion_model == model and len(msg.d) == len(cam.dist)
     for source in (msg, typestore.deserialize_cdr(serialize_message(msg),
                                                   "sensor_msgs/msg/CameraInfo")):
-        back = conv.camera_info_to_model(source, name="left")
+        back = camera_info_to_model(source, name="left")
         assert back.name == "left" and back.distortion_model == model
         assert (back.width, back.height) == (640, 480)
         for attr in ("K", "dist", "R", "P"):
@@ -336,17 +354,17 @@ def test_camera_info_round_trip_rclpy_and_rosbags(typestore, model):
 
 
 def _info(**fields):
-    msg = conv.model_to_camera_info(make_model())
+    msg = model_to_camera_info(make_model())
     for k, v in fields.items():
         setattr(msg, k, v)
     return msg
 
 
 def test_camera_info_defaults_for_unset_r_and_p():
-    back = conv.camera_info_to_model(_info(r=np.zeros(9), p=np.zeros(12)))
+    back = camera_info_to_model(_info(r=np.zeros(9), p=np.zeros(12)))
     np.testing.assert_array_equal(back.R, np.eye(3))
     np.testing.assert_array_equal(back.P, np.hstack([back.K, np.zeros((3, 1))]))
-    four = conv.camera_info_to_model(_info(d=[0.1, 0.2, 0.0, 0.0]))  # 4-coefficient plumb_bob
+    four = camera_info_to_model(_info(d=[0.1, 0.2, 0.0, 0.0]))  # 4-coefficient plumb_bob
     np.testing.assert_array_equal(four.dist, [0.1, 0.2, 0.0, 0.0, 0.0])
 
 
@@ -361,16 +379,16 @@ def test_camera_info_defaults_for_unset_r_and_p():
 ])
 def test_camera_info_errors_name_the_field(fields, match):
     with pytest.raises(ConversionError, match=match):
-        conv.camera_info_to_model(_info(**fields))
+        camera_info_to_model(_info(**fields))
 
 
 def test_camera_info_roi_is_refused():
     msg = _info()
     msg.roi.x_offset, msg.roi.width, msg.roi.height = 10, 100, 100
     with pytest.raises(ConversionError, match="^roi: a region of interest"):
-        conv.camera_info_to_model(msg)
+        camera_info_to_model(msg)
     msg.roi.x_offset, msg.roi.width, msg.roi.height = 0, 640, 480
-    assert conv.camera_info_to_model(msg).width == 640
+    assert camera_info_to_model(msg).width == 640
 
 
 # -- poses, transforms, points, time ----------------------------------------------------------
@@ -388,22 +406,22 @@ def test_pose_transform_point_round_trips():
 
     rng = np.random.default_rng(8)
     for T in random_transforms(rng, 20):
-        ps = conv.matrix_to_pose_stamped(T, stamp_ns=9, frame_id="base_link")
+        ps = matrix_to_pose_stamped(T, stamp_ns=9, frame_id="base_link")
         assert ps.header.frame_id == "base_link" and ps.pose.orientation.w >= 0
-        np.testing.assert_allclose(conv.pose_to_matrix(ps), T, atol=1e-12)
-        np.testing.assert_allclose(conv.pose_to_matrix(ps.pose), T, atol=1e-12)
+        np.testing.assert_allclose(pose_to_matrix(ps), T, atol=1e-12)
+        np.testing.assert_allclose(pose_to_matrix(ps.pose), T, atol=1e-12)
         cov = PoseWithCovarianceStamped()
         cov.pose.pose = ps.pose
-        np.testing.assert_allclose(conv.pose_to_matrix(cov), T, atol=1e-12)
-        ts = conv.matrix_to_transform_stamped(T, stamp_ns=9, frame_id="tool0",
+        np.testing.assert_allclose(pose_to_matrix(cov), T, atol=1e-12)
+        ts = matrix_to_transform_stamped(T, stamp_ns=9, frame_id="tool0",
                                               child_frame_id="camera_left_optical_frame")
         assert ts.child_frame_id == "camera_left_optical_frame"
-        np.testing.assert_allclose(conv.transform_to_matrix(ts), T, atol=1e-12)
-        np.testing.assert_allclose(conv.transform_to_matrix(ts.transform), T, atol=1e-12)
-        p = conv.xyz_to_point_stamped(T[:3, 3], stamp_ns=3, frame_id="cam")
-        np.testing.assert_array_equal(conv.point_to_xyz(p), T[:3, 3])
-        np.testing.assert_array_equal(conv.point_to_xyz(p.point), T[:3, 3])
-        np.testing.assert_array_equal(conv.point_to_xyz(ts.transform.translation), T[:3, 3])
+        np.testing.assert_allclose(transform_to_matrix(ts), T, atol=1e-12)
+        np.testing.assert_allclose(transform_to_matrix(ts.transform), T, atol=1e-12)
+        p = xyz_to_point_stamped(T[:3, 3], stamp_ns=3, frame_id="cam")
+        np.testing.assert_array_equal(point_to_xyz(p), T[:3, 3])
+        np.testing.assert_array_equal(point_to_xyz(p.point), T[:3, 3])
+        np.testing.assert_array_equal(point_to_xyz(ts.transform.translation), T[:3, 3])
 
 
 def test_rosbags_pose_and_transform_messages(typestore):
@@ -411,63 +429,63 @@ def test_rosbags_pose_and_transform_messages(typestore):
 
     rng = np.random.default_rng(9)
     T = random_transforms(rng, 1)[0]
-    ps = conv.matrix_to_pose_stamped(T, stamp_ns=1_234_000_000_005, frame_id="base_link")
+    ps = matrix_to_pose_stamped(T, stamp_ns=1_234_000_000_005, frame_id="base_link")
     rb = typestore.deserialize_cdr(serialize_message(ps), "geometry_msgs/msg/PoseStamped")
-    np.testing.assert_allclose(conv.pose_to_matrix(rb), T, atol=1e-12)
-    assert conv.header_stamp_ns(rb) == 1_234_000_000_005
-    ts = conv.matrix_to_transform_stamped(T, frame_id="a", child_frame_id="b")
+    np.testing.assert_allclose(pose_to_matrix(rb), T, atol=1e-12)
+    assert header_stamp_ns(rb) == 1_234_000_000_005
+    ts = matrix_to_transform_stamped(T, frame_id="a", child_frame_id="b")
     rb = typestore.deserialize_cdr(serialize_message(ts), "geometry_msgs/msg/TransformStamped")
-    np.testing.assert_allclose(conv.transform_to_matrix(rb), T, atol=1e-12)
-    pt = conv.xyz_to_point_stamped([1.0, -2.0, 3.5])
+    np.testing.assert_allclose(transform_to_matrix(rb), T, atol=1e-12)
+    pt = xyz_to_point_stamped([1.0, -2.0, 3.5])
     rb = typestore.deserialize_cdr(serialize_message(pt), "geometry_msgs/msg/PointStamped")
-    np.testing.assert_array_equal(conv.point_to_xyz(rb), [1.0, -2.0, 3.5])
+    np.testing.assert_array_equal(point_to_xyz(rb), [1.0, -2.0, 3.5])
 
 
 def test_bad_poses_name_the_field():
-    ps = conv.matrix_to_pose_stamped(np.eye(4))
+    ps = matrix_to_pose_stamped(np.eye(4))
     ps.pose.position.y = float("nan")
     with pytest.raises(ConversionError, match=r"^pose\.position\.y: is nan"):
-        conv.pose_to_matrix(ps)
-    ps = conv.matrix_to_pose_stamped(np.eye(4))
+        pose_to_matrix(ps)
+    ps = matrix_to_pose_stamped(np.eye(4))
     ps.pose.orientation.w = 0.0
     with pytest.raises(ConversionError, match=r"^pose\.orientation: quaternion has zero norm"):
-        conv.pose_to_matrix(ps)
+        pose_to_matrix(ps)
     ps.pose.orientation.w = 2.0
     with pytest.raises(ConversionError, match=r"^pose\.orientation: quaternion norm is 2"):
-        conv.pose_to_matrix(ps)
-    ts = conv.matrix_to_transform_stamped(np.eye(4))
+        pose_to_matrix(ps)
+    ts = matrix_to_transform_stamped(np.eye(4))
     ts.transform.translation.z = float("inf")
     with pytest.raises(ConversionError, match=r"^transform\.translation\.z: is inf"):
-        conv.transform_to_matrix(ts)
+        transform_to_matrix(ts)
     bad = np.eye(4)
     bad[0, 3] = np.nan
     with pytest.raises(ConversionError, match="NaN"):
-        conv.matrix_to_pose(bad)
+        matrix_to_pose(bad)
     with pytest.raises(ConversionError, match="not orthonormal"):
-        conv.matrix_to_pose(np.diag([1.0, 2.0, 1.0, 1.0]))
+        matrix_to_pose(np.diag([1.0, 2.0, 1.0, 1.0]))
     with pytest.raises(ConversionError, match=r"^xyz: contains NaN"):
-        conv.xyz_to_point([0.0, np.nan, 1.0])
+        xyz_to_point([0.0, np.nan, 1.0])
     with pytest.raises(ConversionError, match=r"^xyz: expected 3 values"):
-        conv.xyz_to_point([0.0, 1.0])
+        xyz_to_point([0.0, 1.0])
 
 
 def test_time_conversions():
     for ns in (0, 1, 999_999_999, 1_000_000_000, 1_700_000_000_123_456_789, -1, -1_500_000_000):
-        stamp = conv.ns_to_stamp(ns)
+        stamp = ns_to_stamp(ns)
         assert 0 <= stamp.nanosec < 10**9
-        assert conv.stamp_to_ns(stamp) == ns
-    assert conv.ns_to_stamp(np.int64(5)).nanosec == 5
+        assert stamp_to_ns(stamp) == ns
+    assert ns_to_stamp(np.int64(5)).nanosec == 5
     with pytest.raises(ConversionError, match="stamp_ns: expected int nanoseconds"):
-        conv.ns_to_stamp(1.0)
+        ns_to_stamp(1.0)
     with pytest.raises(ConversionError, match="does not fit"):
-        conv.ns_to_stamp(2**31 * 10**9)
+        ns_to_stamp(2**31 * 10**9)
 
     class Stamp:
         sec, nanosec = 1, 10**9
 
     with pytest.raises(ConversionError, match=r"^stamp\.nanosec: 1000000000 is outside"):
-        conv.stamp_to_ns(Stamp())
-    header = conv.make_header(1_000_000_007, "base_link")
+        stamp_to_ns(Stamp())
+    header = make_header(1_000_000_007, "base_link")
     assert (header.stamp.sec, header.stamp.nanosec, header.frame_id) == (1, 7, "base_link")
 
 
@@ -488,8 +506,10 @@ class Block(importlib.abc.MetaPathFinder):
 
 sys.meta_path.insert(0, Block())
 import numpy as np
+from eye_in_hand.ros.geometry import pose_to_matrix
+from eye_in_hand.ros.images import image_to_numpy
+from eye_in_hand.ros.stamps import header_stamp_ns
 from rosbags.typesys import Stores, get_typestore
-from eye_in_hand.ros import conversions as conv
 
 ts = get_typestore(Stores.ROS2_JAZZY)
 T = ts.types
@@ -498,13 +518,13 @@ hdr = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=3, nan
                                frame_id="c")
 msg = T["sensor_msgs/msg/Image"](header=hdr, height=2, width=4, encoding="rgb8",
                                  is_bigendian=0, step=12, data=img.reshape(-1))
-out = conv.image_to_numpy(msg, desired_encoding="bgr8")
+out = image_to_numpy(msg, desired_encoding="bgr8")
 assert (out == img[:, :, ::-1]).all()
 pose = T["geometry_msgs/msg/Pose"](
     position=T["geometry_msgs/msg/Point"](x=1.0, y=2.0, z=3.0),
     orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
-assert conv.pose_to_matrix(pose)[0, 3] == 1.0
-assert conv.header_stamp_ns(msg) == 3_000_000_004
+assert pose_to_matrix(pose)[0, 3] == 1.0
+assert header_stamp_ns(msg) == 3_000_000_004
 assert not any(m.split(".")[0] in BLOCKED for m in sys.modules)
 print("ok")
 """
