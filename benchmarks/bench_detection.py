@@ -35,7 +35,8 @@ import cv2
 import numpy as np
 
 from eye_in_hand.core.detection import ColorRange
-from eye_in_hand.core.locator import StereoLocator, load_locator_config
+from eye_in_hand.core.locator import StereoLocator
+from eye_in_hand.core.locator_params import load_locator_config
 from eye_in_hand.core.transforms import compose, invert
 from eye_in_hand.errors import KinematicsError
 from eye_in_hand.sim import World

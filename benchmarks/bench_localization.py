@@ -152,7 +152,7 @@ def errors_mm(points: dict[int, np.ndarray], truth: dict[int, np.ndarray]) -> st
 def offline(paths: dict[str, Path], trials: int = 3
             ) -> tuple[dict[int, np.ndarray], dict[str, float]]:
     from eye_in_hand.core.camera import StereoRig
-    from eye_in_hand.core.locator import load_locator_config
+    from eye_in_hand.core.locator_params import load_locator_config
     from eye_in_hand.io.config import load_hand_eye
     from eye_in_hand.offline import process_bag
 
@@ -237,7 +237,7 @@ def compare_paths(paths: dict[str, Path], rounds: int = 2) -> None:
     threads there), alternating, so that both see the same machine load."""
     import eye_in_hand.io.bags.streams as streams
     from eye_in_hand.core.camera import StereoRig
-    from eye_in_hand.core.locator import load_locator_config
+    from eye_in_hand.core.locator_params import load_locator_config
     from eye_in_hand.io.config import load_hand_eye
     from eye_in_hand.offline import process_bag
 
@@ -288,7 +288,7 @@ def bag_consistency(paths: dict[str, Path]) -> dict[str, float]:
     (the arm's stated accuracy set to 0) for comparison."""
     from eye_in_hand.core.camera import StereoRig
     from eye_in_hand.core.localization import robot_pose_sigmas
-    from eye_in_hand.core.locator import load_locator_config, load_parameter_file
+    from eye_in_hand.core.locator_params import load_locator_config, load_parameter_file
     from eye_in_hand.io.config import load_hand_eye
     from eye_in_hand.offline import ProcessOptions, process_bag
 
@@ -495,7 +495,7 @@ def consistency(pairs: int, fresh: bool) -> dict[str, dict[str, float]]:
     """NEES, 95 % coverage and error of the base-frame point, robot error 0 and default."""
     from eye_in_hand.core.camera import StereoRig
     from eye_in_hand.core.localization import robot_pose_sigmas
-    from eye_in_hand.core.locator import load_locator_config, load_parameter_file
+    from eye_in_hand.core.locator_params import load_locator_config, load_parameter_file
     from eye_in_hand.io.config import load_hand_eye
     from eye_in_hand.offline import ProcessOptions, process_bag
     from eye_in_hand.sim import World

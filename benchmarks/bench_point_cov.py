@@ -45,7 +45,8 @@ from pathlib import Path
 import numpy as np
 
 import eye_in_hand.core.detection as detection
-from eye_in_hand.core.locator import StereoLocator, load_locator_config
+from eye_in_hand.core.locator import StereoLocator
+from eye_in_hand.core.locator_params import load_locator_config
 from eye_in_hand.sim import World
 from eye_in_hand.sim.output import _IMAGE_CLOCK_OFFSET_NS, _interp_q, joint_samples
 from eye_in_hand.sim.robot_error import RobotErrorSpec

@@ -6,7 +6,7 @@ import time
 import numpy as np
 import pytest
 
-from eye_in_hand.core.locator import load_locator_config
+from eye_in_hand.core.locator_params import load_locator_config
 from eye_in_hand.core.sync import ApproximateStereoSync
 from eye_in_hand.io.bags import BagWriter, bag_info, iter_messages, memory_mappable
 from eye_in_hand.io.cdr import image_from_cdr

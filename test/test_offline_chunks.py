@@ -7,7 +7,7 @@ import struct
 import numpy as np
 import pytest
 
-from eye_in_hand.core.locator import load_locator_config
+from eye_in_hand.core.locator_params import load_locator_config
 from eye_in_hand.io import mcap_tasks
 from eye_in_hand.io.bags import BagWriter, bag_info, iter_messages
 from eye_in_hand.io.bags.streams import worker_readable

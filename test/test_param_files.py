@@ -284,7 +284,7 @@ def test_commands_refuse_an_unknown_key_before_any_work(tmp_path, capsys, comman
 
 def test_a_radius_in_millimetres_is_refused_with_the_value_in_metres(tmp_path):
     """A 20 mm sphere written `radius_m: 20.0` is a 20 m sphere."""
-    from eye_in_hand.core.locator import load_locator_config
+    from eye_in_hand.core.locator_params import load_locator_config
     from eye_in_hand.errors import ConfigError
 
     path = _write(tmp_path, "/**/detect_triangulate:\n  ros__parameters:\n    targets:\n"

@@ -586,7 +586,8 @@ def load_handeye_inputs(args: argparse.Namespace) -> dict[str, Any]:
     from eye_in_hand.core.calibration.board_check import BoardCheck
     from eye_in_hand.core.handeye import HandEyeSample
     from eye_in_hand.core.handeye.observe import observe_sample, rig_views
-    from eye_in_hand.io.datasets import load_dataset, load_pose_pairs
+    from eye_in_hand.io.datasets import load_dataset
+    from eye_in_hand.io.pose_pairs import load_pose_pairs
 
     pairs_file = getattr(args, "pairs", None)      # None: the command takes no pose pairs
     given = [x for x in (args.dataset, pairs_file, args.bag) if x]
@@ -646,7 +647,7 @@ def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
     from eye_in_hand.core.calibration.board_check import BoardCheck
     from eye_in_hand.core.camera import CameraModel, StereoRig
     from eye_in_hand.core.handeye.observe import observe_sample, rig_views
-    from eye_in_hand.io.datasets import read_bag_samples
+    from eye_in_hand.io.bag_samples import read_bag_samples
 
     if not args.board:
         raise ConfigError("--bag needs --board (e.g. chessboard:9x6:0.025)")

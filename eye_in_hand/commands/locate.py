@@ -80,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
     """Locate the targets; print them (text or JSON). Returns the exit code."""
     # local: core.locator and core.camera (OpenCV) cost ~85 ms at CLI start-up
     from eye_in_hand.core.camera import StereoRig
-    from eye_in_hand.core.locator import StereoLocator, load_locator_config
+    from eye_in_hand.core.locator import StereoLocator
+    from eye_in_hand.core.locator_params import load_locator_config
 
     if args.params:  # a mistyped key would run on its default, as the live node refuses it
         # local: the nodes' parameter lists load rclpy and the node modules (~1 s)

@@ -267,7 +267,7 @@ def run(args: argparse.Namespace) -> int:
     from eye_in_hand.core.camera import StereoRig
     from eye_in_hand.core.distances import distance_table
     from eye_in_hand.core.localization import robot_pose_sigmas
-    from eye_in_hand.core.locator import locator_config_from_params
+    from eye_in_hand.core.locator_params import locator_config_from_params
     from eye_in_hand.io.config import load_hand_eye
     from eye_in_hand.io.results import load_known_distances, run_figures
     from eye_in_hand.offline import (

@@ -3,7 +3,8 @@
 The public API shared by the ``detect_triangulate`` node, ``eye-in-hand locate`` and users::
 
     from eye_in_hand.core.camera import StereoRig
-    from eye_in_hand.core.locator import StereoLocator, load_locator_config
+    from eye_in_hand.core.locator import StereoLocator
+    from eye_in_hand.core.locator_params import load_locator_config
 
     rig = StereoRig.load("calib/")                      # ROS left.yaml + right.yaml work as-is
     locator = StereoLocator(rig, load_locator_config("config/detect_triangulate.yaml"))
@@ -29,8 +30,8 @@ left optical frame, within ``tracking.gate_m``) the id's last position; an id un
 Parameters: :data:`LOCATOR_PARAMETERS` and :data:`TARGET_PARAMETERS` describe every setting
 (name, default, description, range) once; the node declares them as ROS parameters and the CLI
 reads the same names from the node's parameter file (:func:`load_parameter_file`). They, the
-:class:`LocatorConfig` and its loaders live in :mod:`eye_in_hand.core.locator_params` and are
-re-exported here.
+:class:`~eye_in_hand.core.locator_params.LocatorConfig` and its loaders live in
+:mod:`eye_in_hand.core.locator_params`.
 """
 from __future__ import annotations
 
@@ -51,14 +52,8 @@ from eye_in_hand.core.detection import (
 )
 from eye_in_hand.core.locator_params import (
     FALLBACK_PIXEL_SIGMA,
-    LOCATOR_PARAMETERS,
     MIN_PIXEL_SIGMA,
-    TARGET_PARAMETERS,
     LocatorConfig,
-    ParamSpec,
-    load_locator_config,
-    load_parameter_file,
-    locator_config_from_params,
 )
 from eye_in_hand.core.triangulation import (
     Rejected,
@@ -70,16 +65,9 @@ from eye_in_hand.core.triangulation import (
 from eye_in_hand.errors import InputError
 
 __all__ = [
-    "ParamSpec",
-    "LOCATOR_PARAMETERS",
-    "TARGET_PARAMETERS",
-    "LocatorConfig",
     "TargetLocation",
     "LocateResult",
     "StereoLocator",
-    "locator_config_from_params",
-    "load_parameter_file",
-    "load_locator_config",
 ]
 
 

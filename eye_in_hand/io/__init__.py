@@ -1,35 +1,11 @@
 """eye_in_hand.io: files and bags (no rclpy).
 
-:mod:`eye_in_hand.io.bags` reads and writes rosbag2 bags (sqlite3 and MCAP) with ``rosbags``.
+Import each module directly: :mod:`eye_in_hand.io.bags` reads and writes rosbag2 bags (sqlite3
+and MCAP) with ``rosbags``; :mod:`~eye_in_hand.io.config` the hand-eye calibration file;
+:mod:`~eye_in_hand.io.datasets`, :mod:`~eye_in_hand.io.pose_pairs` and
+:mod:`~eye_in_hand.io.bag_samples` the hand-eye inputs; :mod:`~eye_in_hand.io.results` the
+outputs of ``process``. This package imports none of them.
 """
 from __future__ import annotations
 
-from eye_in_hand.io.bags import (
-    BagInfo,
-    BagMessage,
-    BagWriter,
-    OfferedQos,
-    TopicInfo,
-    bag_info,
-    deserialize,
-    iter_decoded,
-    iter_messages,
-    require_topics,
-    serialize,
-    typestore_for,
-)
-
-__all__ = [
-    "BagInfo",
-    "BagMessage",
-    "BagWriter",
-    "OfferedQos",
-    "TopicInfo",
-    "bag_info",
-    "deserialize",
-    "iter_decoded",
-    "iter_messages",
-    "require_topics",
-    "serialize",
-    "typestore_for",
-]
+__all__: list[str] = []

@@ -1,7 +1,7 @@
 """Offline calibration datasets on disk (images + robot poses).
 
-The hand-eye pose-pair files live in :mod:`eye_in_hand.io.pose_pairs` and the calibration
-samples read from a bag in :mod:`eye_in_hand.io.bag_samples`; their names are re-exported here.
+The hand-eye pose-pair files are :mod:`eye_in_hand.io.pose_pairs`, the calibration samples read
+from a bag :mod:`eye_in_hand.io.bag_samples`.
 
 Dataset layout (``dataset.yaml``; paths are relative to the file's folder)::
 
@@ -34,9 +34,7 @@ import yaml
 from eye_in_hand.core.camera import CameraModel, StereoRig
 from eye_in_hand.core.transforms import as_transform, from_xyz_quat, to_xyz_quat
 from eye_in_hand.errors import ConfigError, InputError
-from eye_in_hand.io.bag_samples import BagSample, BagSamples, read_bag_samples
 from eye_in_hand.io.images import write_image_file
-from eye_in_hand.io.pose_pairs import load_pose_pairs, save_pose_pairs
 
 __all__ = [
     "DatasetSample",
@@ -45,11 +43,6 @@ __all__ = [
     "write_dataset",
     "pose_to_dict",
     "pose_from_dict",
-    "load_pose_pairs",
-    "save_pose_pairs",
-    "BagSample",
-    "BagSamples",
-    "read_bag_samples",
 ]
 
 _SETUPS = ("eye_in_hand", "eye_to_hand")

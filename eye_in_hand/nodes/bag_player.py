@@ -58,9 +58,9 @@ from eye_in_hand.io.bags import (
     Damage,
     DamageLog,
     OfferedQos,
-    _types_from_definition,
     bag_info,
     iter_messages,
+    types_from_definition,
 )
 from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
@@ -111,7 +111,7 @@ def installed_type_hash(msgtype: str) -> str | None:
     if msgtype not in _HASHES:
         try:
             store = get_typestore(Stores.EMPTY)
-            store.register(_types_from_definition(
+            store.register(types_from_definition(
                 msgtype, MessageDefinitionFormat.MSG, message_definition(msgtype)))
             _HASHES[msgtype] = store.hash_rihs01(msgtype)
         except (EyeInHandError, ValueError, KeyError):

@@ -89,13 +89,12 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 
 from eye_in_hand.core.camera import StereoRig
-from eye_in_hand.core.locator import (
+from eye_in_hand.core.locator import LocateResult, StereoLocator
+from eye_in_hand.core.locator_params import (
     LOCATOR_PARAMETERS,
     TARGET_PARAMETERS,
-    LocateResult,
     LocatorConfig,
     ParamSpec,
-    StereoLocator,
     locator_config_from_params,
 )
 from eye_in_hand.core.sync import (

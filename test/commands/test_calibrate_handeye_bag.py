@@ -19,9 +19,9 @@ from eye_in_hand.core.transforms import (
     transform_distance,
 )
 from eye_in_hand.errors import ConfigError
+from eye_in_hand.io.bag_samples import read_bag_samples
 from eye_in_hand.io.bags import BagWriter, default_typestore
 from eye_in_hand.io.config import load_hand_eye
-from eye_in_hand.io.datasets import read_bag_samples
 
 T0 = 1_700_000_000_000_000_000
 HOLD_NS, MOVE_NS = 300_000_000, 300_000_000

@@ -14,7 +14,7 @@ import pytest
 
 import eye_in_hand.offline as offline
 from eye_in_hand.cli import main
-from eye_in_hand.core.locator import load_locator_config
+from eye_in_hand.core.locator_params import load_locator_config
 from eye_in_hand.io.config import HandEyeCalibration, save_hand_eye
 from eye_in_hand.sim import World
 from eye_in_hand.sim.output import write_bag

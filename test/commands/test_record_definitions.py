@@ -12,7 +12,7 @@ from rosbags.interfaces import MessageDefinitionFormat  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from eye_in_hand.errors import BagError  # noqa: E402
-from eye_in_hand.io.bags import _types_from_definition, default_typestore  # noqa: E402
+from eye_in_hand.io.bags import default_typestore, types_from_definition  # noqa: E402
 from eye_in_hand.nodes.bag_recorder import (  # noqa: E402
     message_definition,
     offered_qos,
@@ -39,7 +39,7 @@ def test_generated_definition_has_the_jazzy_type_hash(msgtype: str) -> None:
     own .msg files: same RIHS01 hash (which covers field names, types and nesting)."""
     text = message_definition(msgtype)
     store = get_typestore(Stores.EMPTY)
-    store.register(_types_from_definition(msgtype, MessageDefinitionFormat.MSG, text))
+    store.register(types_from_definition(msgtype, MessageDefinitionFormat.MSG, text))
     assert store.hash_rihs01(msgtype) == default_typestore().hash_rihs01(msgtype)
 
 

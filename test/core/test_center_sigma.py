@@ -6,7 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eye_in_hand.core.locator import StereoLocator, load_locator_config
+from eye_in_hand.core.locator import StereoLocator
+from eye_in_hand.core.locator_params import load_locator_config
 from eye_in_hand.sim import World
 from eye_in_hand.sim.scenarios import localization_trajectory
 

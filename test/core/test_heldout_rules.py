@@ -17,7 +17,8 @@ from eye_in_hand.core.calibration.board import BoardDetection
 from eye_in_hand.core.calibration.detection import _refined, refine_saddle
 from eye_in_hand.core.detection import SHADE_GAIN, center_sigma_parts, edge_width
 from eye_in_hand.core.distances import target_stats
-from eye_in_hand.core.locator import LocatorConfig, StereoLocator
+from eye_in_hand.core.locator import StereoLocator
+from eye_in_hand.core.locator_params import LocatorConfig
 from eye_in_hand.core.sync import ApproximateStereoSync, PoseBuffer
 from eye_in_hand.core.tf import TfBuffer, TfPoseView
 from eye_in_hand.core.transforms import from_rotvec

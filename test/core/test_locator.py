@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from eye_in_hand.core.camera import CameraModel, StereoRig
-from eye_in_hand.core.locator import (
-    StereoLocator,
+from eye_in_hand.core.locator import StereoLocator
+from eye_in_hand.core.locator_params import (
     load_locator_config,
     load_parameter_file,
     locator_config_from_params,

@@ -13,11 +13,8 @@ import pytest
 
 from eye_in_hand.core.camera import CameraModel, StereoRig
 from eye_in_hand.core.detection import DetectorConfig
-from eye_in_hand.core.locator import (
-    TARGET_PARAMETERS,
-    StereoLocator,
-    locator_config_from_params,
-)
+from eye_in_hand.core.locator import StereoLocator
+from eye_in_hand.core.locator_params import TARGET_PARAMETERS, locator_config_from_params
 from eye_in_hand.errors import ConfigError, InputError
 from eye_in_hand.sim.sphere import render_sphere
 
@@ -276,7 +273,7 @@ def test_the_multi_target_world_and_its_parameter_file_work_together():
     Rendered at 640x360 (intrinsics scaled) to stay fast."""
     from pathlib import Path
 
-    from eye_in_hand.core.locator import load_locator_config
+    from eye_in_hand.core.locator_params import load_locator_config
     from eye_in_hand.sim import World
     from eye_in_hand.sim.scenarios import localization_trajectory
 

@@ -248,13 +248,13 @@ def test_stored_definition_that_fails_falls_back_to_jazzy(tmp_path: Path) -> Non
     from rosbags.interfaces import MessageDefinitionFormat
     from rosbags.typesys import Stores, get_typestore
 
-    from eye_in_hand.io.bags import _types_from_definition
+    from eye_in_hand.io.bags import types_from_definition
 
     jazzy = default_typestore()
     old = get_typestore(Stores.ROS2_JAZZY)
     old.fielddefs.pop("rcl_interfaces/msg/Log", None)
     old.types.pop("rcl_interfaces/msg/Log", None)
-    old.register(_types_from_definition("rcl_interfaces/msg/Log",
+    old.register(types_from_definition("rcl_interfaces/msg/Log",
                                         MessageDefinitionFormat.MSG, OLD_LOG))
     T = jazzy.types
     log_type = "rcl_interfaces/msg/Log"

@@ -11,7 +11,8 @@ import yaml
 from eye_in_hand.core.camera import CameraModel, StereoRig
 from eye_in_hand.core.transforms import from_rotvec
 from eye_in_hand.errors import ConfigError
-from eye_in_hand.io.datasets import load_dataset, load_pose_pairs, save_pose_pairs, write_dataset
+from eye_in_hand.io.datasets import load_dataset, write_dataset
+from eye_in_hand.io.pose_pairs import load_pose_pairs, save_pose_pairs
 
 
 def _camera(name: str = "camera") -> CameraModel:

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from eye_in_hand.core.localization import target_in_base
-from eye_in_hand.core.locator import StereoLocator, load_locator_config
+from eye_in_hand.core.locator import StereoLocator
+from eye_in_hand.core.locator_params import load_locator_config
 from eye_in_hand.offline import ProcessOptions
 from eye_in_hand.sim import World
 from eye_in_hand.sim.robot_error import RobotErrorSpec

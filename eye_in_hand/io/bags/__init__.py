@@ -39,8 +39,6 @@ from __future__ import annotations
 # The package: records (bag and topic information, damage), reading (log-time order, damaged
 # and interrupted files), decoding (type stores, definitions, the Jazzy fallback) and writing
 # (BagWriter with CRCs); every public name is re-exported here.
-# a private name, re-exported (an explicit alias) for nodes.bag_player and a test
-from eye_in_hand.io.bags.decoding import _types_from_definition as _types_from_definition
 from eye_in_hand.io.bags.decoding import (
     check_bag,
     default_typestore,
@@ -48,6 +46,7 @@ from eye_in_hand.io.bags.decoding import (
     iter_decoded,
     require_topics,
     serialize,
+    types_from_definition,
     typestore_for,
 )
 from eye_in_hand.io.bags.reading import bag_info, iter_messages, memory_mappable
@@ -81,6 +80,7 @@ __all__ = [
     "default_typestore",
     "deserialize",
     "serialize",
+    "types_from_definition",
     "require_topics",
     "BagWriter",
 ]

@@ -12,7 +12,7 @@ from types import TracebackType
 from typing import Any
 
 from eye_in_hand.errors import BagError, InputError
-from eye_in_hand.io.bags.decoding import _types_from_definition, serialize
+from eye_in_hand.io.bags.decoding import serialize, types_from_definition
 from eye_in_hand.io.bags.reading import _bag_error
 from eye_in_hand.io.bags.records import COMPRESSIONS, STORAGES, OfferedQos
 
@@ -309,7 +309,7 @@ class BagWriter:
                     # local: see _to_rosbags_qos
                     from rosbags.interfaces import MessageDefinitionFormat
 
-                    self._store.register(_types_from_definition(
+                    self._store.register(types_from_definition(
                         msgtype, MessageDefinitionFormat.MSG, msgdef))
                 except Exception as exc:
                     raise BagError(f"bag {self.path}: cannot parse the definition of "
