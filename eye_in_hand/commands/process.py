@@ -33,7 +33,7 @@ from eye_in_hand.commands.common import (
 )
 from eye_in_hand.errors import ConfigError, InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
-from eye_in_hand.io.bags import bag_info
+from eye_in_hand.io.bags import STORAGES, bag_info
 
 HELP = "run detection, triangulation and localization over a bag offline (no DDS)"
 
@@ -90,7 +90,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ground-truth-topic", metavar="TOPIC", default="/ground_truth/target",
                         help="geometry_msgs/PointStamped true target position, when the bag "
                              "has it: the error statistics are against it")
-    parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
+    parser.add_argument("--storage", choices=STORAGES, default=STORAGES[0],
                         help="output bag storage (default mcap)")
     parser.add_argument("--task-timeout", type=bounded(0, 3600, "s", lo_open=True), default=20.0,
                         metavar="S",

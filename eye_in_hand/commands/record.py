@@ -7,6 +7,7 @@ import shutil
 from eye_in_hand.commands.common import bounded
 from eye_in_hand.errors import BagError, InputError
 from eye_in_hand.io.atomic import check_output_dir
+from eye_in_hand.io.bags import COMPRESSIONS, STORAGES
 
 HELP = "record topics into a rosbag2 bag (mcap or sqlite3), like ros2 bag record"
 
@@ -26,9 +27,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-a", "--all", action="store_true",
                         help="record every topic, including ones that appear later, except "
                              "hidden ones (a name component starting with '_')")
-    parser.add_argument("-s", "--storage", choices=("mcap", "sqlite3"), default="mcap",
+    parser.add_argument("-s", "--storage", choices=STORAGES, default=STORAGES[0],
                         help="storage plugin (default mcap, as ros2 bag record on Jazzy)")
-    parser.add_argument("--compression", choices=("none", "zstd"), default="none",
+    parser.add_argument("--compression", choices=tuple(c or "none" for c in COMPRESSIONS),
+                        default="none",
                         help="zstd: compressed MCAP chunks (mcap) or per-message zstd "
                              "(sqlite3); default none")
     parser.add_argument("-d", "--duration", type=bounded(0, 1e7, "s"), default=0.0, metavar="S",

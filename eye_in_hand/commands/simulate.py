@@ -11,6 +11,7 @@ from pathlib import Path
 from eye_in_hand.commands.common import add_output_argument, bounded, deprecated_alias
 from eye_in_hand.errors import InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
+from eye_in_hand.io.bags import STORAGES
 
 HELP = "simulate the eye-in-hand world: write a bag or a calibration dataset with ground truth"
 
@@ -167,7 +168,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "1280x720)")
     parser.add_argument("--world", type=Path, default=None,
                         help="world YAML (default: the built-in world, = config/world.yaml)")
-    parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
+    parser.add_argument("--storage", choices=STORAGES, default=STORAGES[0],
                         help="bag storage (default mcap, zstd-compressed chunks)")
     parser.add_argument("--format", choices=("bag", "dataset"), default="bag",
                         help="bag (default) or dataset (PNG images + dataset.yaml; "
