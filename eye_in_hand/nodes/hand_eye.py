@@ -103,7 +103,7 @@ from eye_in_hand.io.config import load_hand_eye
 from eye_in_hand.io.kinematics import load_kinematics
 from eye_in_hand.nodes.hand_eye_calibration import CalibrationMode
 from eye_in_hand.nodes.hand_eye_targets import EveryTargetMixin
-from eye_in_hand.nodes.hand_eye_tf import TfMixin
+from eye_in_hand.nodes.hand_eye_tf import TfInput, TfOutput
 from eye_in_hand.ros.diagnostics import NodeDiagnostics
 from eye_in_hand.ros.geometry import point_to_xyz, pose_to_matrix
 from eye_in_hand.ros.node_main import run_node
@@ -289,7 +289,7 @@ class _Pending:
     arrived: float
 
 
-class HandEyeNode(EveryTargetMixin, TfMixin, Node):
+class HandEyeNode(EveryTargetMixin, Node):
     """See the module docstring. ``kwargs`` go to ``Node`` (context, namespace, overrides).
 
     Its parts: localization and the robot pose here; every target
@@ -356,7 +356,8 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
         elif cfg.robot_pose_source == "ee_pose":
             self.create_subscription(PoseStamped, "ee_pose", self._on_ee_pose, ROBOT_POSE_QOS)
         elif cfg.robot_pose_source == "tf":
-            self._setup_tf_input()
+            self.tf_input = TfInput(self, cfg, self.localizer, self.diag, self._now_ns,
+                                    self._after_pose)
         else:
             self.create_subscription(JointState, "joint_states", self._on_joint_state,
                                      ROBOT_POSE_QOS)
@@ -365,11 +366,12 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
         if not self.eye_to_hand or cfg.mode == "calibration":
             self.diag.stale_after("robot_poses", cfg.stale_after_s)
 
-        self._setup_tf_output()
+        self.tf_output = TfOutput(self, cfg, self.outputs.create, self._camera_parent)
         if cfg.mode == "localization":
-            self._setup_localization()
+            self._setup_localization()      # /tf_static at the first image stamp (first_data)
         else:
-            self.calibration_mode = CalibrationMode(self, self._publish_static_tf)
+            self.tf_output.publish_static(None)     # the stereo extrinsic, now
+            self.calibration_mode = CalibrationMode(self, self.tf_output.publish_static)
         self.get_logger().info(
             f"{NODE_NAME} started in {cfg.mode} mode, " + (
                 "eye-to-hand (fixed camera, no robot pose)" if self.eye_to_hand else
@@ -484,7 +486,7 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
         self.pub_transform.publish(transform_stamped(
             rclpy_types(), self.calibration.transform, stamp_ns, self._camera_parent,
             self.config.camera_frame))
-        self._publish_static_tf(self.calibration.transform, stamp_ns)
+        self.tf_output.publish_static(self.calibration.transform, stamp_ns)
 
     # -- in-process input (one process with the detector: nodes/localize.py) ---------------
     def deliver(self, frame: LocatedFrame) -> None:
@@ -660,7 +662,7 @@ class HandEyeNode(EveryTargetMixin, TfMixin, Node):
                 self.pub_pose.publish(msg)
             if want[1]:
                 self.pub_pose_cov.publish(cmsg)
-        self._publish_target_tf(stamp_ns, p)
+        self.tf_output.publish_target(stamp_ns, p)
         self.diag.count("poses_published")
         self.diag.gauge("latency_ms", round((self.get_clock().now().nanoseconds - stamp_ns) / 1e6,
                                             3))

@@ -20,7 +20,6 @@ from rclpy.clock import Clock, ClockType
 from rclpy.qos import DurabilityPolicy
 
 from eye_in_hand.errors import ConversionError, InputError, LocalizationError
-from eye_in_hand.nodes.hand_eye_tf import translation_tf_message
 from eye_in_hand.ros.geometry import point_to_xyz
 from eye_in_hand.ros.markers import (
     Sphere,
@@ -273,5 +272,4 @@ class EveryTargetMixin:
                 [Sphere(s.id, p, s.diameter_m, s.rgba) for s, p in located],
                 stamp_ns=f.stamp_ns, frame_id=cfg.base_frame, lifetime_s=cfg.marker_lifetime_s))
         self.diag.count("target_frames_published")
-        if tf_edges and self.pub_tf is not None:
-            self.pub_tf.publish(translation_tf_message(tf_edges))
+        self.tf_output.publish_edges(tf_edges)

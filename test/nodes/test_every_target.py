@@ -370,7 +370,8 @@ def test_eye_to_hand_tf_one_child_frame_per_target(tmp_path, ros_context, execut
     feed.io.create_subscription(TFMessage, "/tf", tf_out.append, tf_qos())
     feed.io.create_subscription(TFMessage, "/tf_static", static_out.append, tf_static_sub_qos())
     assert feed.ready(executor, spin_until)
-    assert spin_until(executor, lambda: feed.node.pub_tf.get_subscription_count() > 0, 10.0)
+    pub_tf = feed.node.tf_output.pub_tf
+    assert spin_until(executor, lambda: pub_tf.get_subscription_count() > 0, 10.0)
     from geometry_msgs.msg import PointStamped
 
     from eye_in_hand.ros.geometry import xyz_to_point_stamped
