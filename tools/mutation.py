@@ -523,7 +523,10 @@ MUTANTS: tuple[Mutant, ...] = (
       "            os.replace(f, out / f.name)\n",
       "--overwrite merges the new files into the old folder instead of replacing it whole"),
     M("config-quaternion-norm", "io/config.py",
-      "    if abs(norm - 1.0) > _QUAT_NORM_TOL:\n", "    if False:\n",
+      "    norm = float(np.linalg.norm(q))\n    if abs(norm - 1.0) > _QUAT_NORM_TOL:\n"
+      "        raise _fail(source, f\"'quat_xyzw'",
+      "    norm = float(np.linalg.norm(q))\n    if False:\n"
+      "        raise _fail(source, f\"'quat_xyzw'",
       "hand_eye.yaml with a non-unit quaternion accepted"),
     M("datasets-quaternion-norm", "io/datasets.py",
       "    if abs(norm - 1.0) > 1e-4:\n", "    if False:\n",
@@ -556,7 +559,7 @@ MUTANTS: tuple[Mutant, ...] = (
       "        self._drain_pending()\n",
       "a point that waits for its robot pose is never checked again until a pose arrives"),
     M("hand-eye-waits-disarmed-early", "nodes/hand_eye.py",
-      "        if not (self._pending or self._frames):\n            self.waits.tick(0.0)",
+      "        if not (self._pending or self.targets.frames):\n            self.waits.tick(0.0)",
       "        if not self._pending:\n            self.waits.tick(0.0)",
       "the waits' check stops while a frame of targets still waits"),
     M("hand-eye-in-process-frame", "nodes/hand_eye.py",

@@ -102,7 +102,7 @@ from eye_in_hand.errors import ConversionError, EyeInHandError, InputError, Loca
 from eye_in_hand.io.config import load_hand_eye
 from eye_in_hand.io.kinematics import load_kinematics
 from eye_in_hand.nodes.hand_eye_calibration import CalibrationMode
-from eye_in_hand.nodes.hand_eye_targets import EveryTargetMixin
+from eye_in_hand.nodes.hand_eye_targets import EveryTarget
 from eye_in_hand.nodes.hand_eye_tf import TfInput, TfOutput
 from eye_in_hand.ros.diagnostics import NodeDiagnostics
 from eye_in_hand.ros.geometry import point_to_xyz, pose_to_matrix
@@ -289,7 +289,7 @@ class _Pending:
     arrived: float
 
 
-class HandEyeNode(EveryTargetMixin, Node):
+class HandEyeNode(Node):
     """See the module docstring. ``kwargs`` go to ``Node`` (context, namespace, overrides).
 
     Its parts: localization and the robot pose here; every target
@@ -438,7 +438,7 @@ class HandEyeNode(EveryTargetMixin, Node):
             self.calibration_mode.poll()
         else:
             self._drain_pending()
-            self._drain_frames()
+            self.targets.drain()
 
     # -- localization -----------------------------------------------------------------------
     def _setup_localization(self) -> None:
@@ -463,7 +463,11 @@ class HandEyeNode(EveryTargetMixin, Node):
                                   "refused.pending_overflow", "pose_buffer_resets.time_jump",
                                   "pose_buffer_resets.stream_stopped")
         self.diag.stale_after("points", cfg.stale_after_s)
-        self._setup_targets()
+        self.targets = EveryTarget(
+            self, cfg, self.diag, self.outputs.create, self.waits,
+            lambda: self.localizer.poses.newest_ns, self._to_base, self._pose_messages,
+            self.first_data, self._arm_waits, self.tf_output, self.eye_to_hand,
+            self.in_process)
         # Steady time: waiting points expire and stopped pose streams are noticed also while
         # simulated time (use_sim_time) stands still. The waits are checked at 50 Hz only
         # while a point or a frame waits (a node that keeps up would wake 50 times a second
@@ -489,6 +493,12 @@ class HandEyeNode(EveryTargetMixin, Node):
         self.tf_output.publish_static(self.calibration.transform, stamp_ns)
 
     # -- in-process input (one process with the detector: nodes/localize.py) ---------------
+    def expect_targets(self, ids: list[str]) -> None:
+        """Make the ``target/<id>/pose(_cov)`` publishers of a detector's known target ids
+        now (in one process with it, where no graph search finds them), so that their
+        subscribers match before the first frame."""
+        self.targets.expect(ids)
+
     def deliver(self, frame: LocatedFrame) -> None:
         """Hand over one located stereo pair from a detector in this process (any thread):
         the same inputs as ``target/point(_cov)``, ``targets/<id>/point_cov`` and
@@ -509,8 +519,8 @@ class HandEyeNode(EveryTargetMixin, Node):
             if self._camera_frame_ok("target/point", f.frame_id):
                 self._take_point(f.stamp_ns, f.first[0], f.first[1])
         for sphere, cov in f.targets:
-            self._take_target_point(sphere.id, f.stamp_ns, f.frame_id, sphere.xyz, cov)
-        self._take_markers(f.stamp_ns, f.frame_id, [s for s, _ in f.targets])
+            self.targets.take_point(sphere.id, f.stamp_ns, f.frame_id, sphere.xyz, cov)
+        self.targets.take_markers(f.stamp_ns, f.frame_id, [s for s, _ in f.targets])
 
     # -- camera-frame topics ----------------------------------------------------------------
     def _camera_frame_ok(self, topic: str, frame: str) -> bool:
@@ -584,25 +594,26 @@ class HandEyeNode(EveryTargetMixin, Node):
 
     def _arm_waits(self) -> None:
         """Run the waits' check while a point or a frame waits (called where they queue)."""
-        if (self._pending or self._frames) and self._wait_timer.is_canceled():
+        if (self._pending or self.targets.frames) and self._wait_timer.is_canceled():
             self._wait_timer.reset()
 
     def _expire_pending(self) -> None:
         now = time.monotonic()
-        oldest = min([q[0].arrived for q in (self._pending, self._frames) if q], default=now)
+        queues = (self._pending, self.targets.frames)
+        oldest = min([q[0].arrived for q in queues if q], default=now)
         self.waits.tick(now - oldest)     # FIFO queues: the first item waited longest
         if self._pending:
             self._drain_pending()
-        if self._frames:
-            self._drain_frames()
-        if not (self._pending or self._frames):
+        if self.targets.frames:
+            self.targets.drain()
+        if not (self._pending or self.targets.frames):
             self.waits.tick(0.0)          # as an idle check would: nothing waits
             self._wait_timer.cancel()
 
     def _idle_check(self) -> None:
         self._expire_poses()
         self.diag.gauge("pending", len(self._pending))
-        self.diag.gauge("targets_pending", sum(len(f.spheres) for f in self._frames))
+        self.diag.gauge("targets_pending", sum(len(f.spheres) for f in self.targets.frames))
 
     @property
     def _camera_parent(self) -> str:

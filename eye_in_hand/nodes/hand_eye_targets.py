@@ -1,16 +1,17 @@
 """The ``hand_eye`` node's every-target outputs (docs/ros.md "Every target").
 
-:class:`EveryTargetMixin` is a part of :class:`eye_in_hand.nodes.hand_eye.HandEyeNode`: it reads
+:class:`EveryTarget` is a part of :class:`eye_in_hand.nodes.hand_eye.HandEyeNode` (an object with
+explicit constructor arguments): it reads
 each frame's list of targets from ``targets/markers`` and every target's point from
 ``targets/<id>/point_cov``, puts each into the base frame (the node's ``_to_base``) and
 publishes ``target/<id>/pose(_cov)``, ``/tf`` ``base_frame -> <target_frame_prefix><id>``,
-``target/poses`` and ``target/markers``. It uses the node's config, diagnostics, localizer and
-``_pose_messages``; it has no state of its own outside ``_setup_targets``.
+``target/poses`` and ``target/markers``.
 """
 from __future__ import annotations
 
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -33,7 +34,7 @@ from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.qos import RESULT_QOS, TARGET_POINT_QOS
 from eye_in_hand.ros.stamps import header_stamp_ns
 
-__all__ = ["EveryTargetMixin"]
+__all__ = ["EveryTarget"]
 
 
 
@@ -46,50 +47,87 @@ class _Frame:
     arrived: float
 
 
-class EveryTargetMixin:
-    """Every-target part of the ``hand_eye`` node (mixed into a ``rclpy`` ``Node``)."""
+class EveryTarget:
+    """Every-target part of the ``hand_eye`` node: frames of ``targets/markers``, the points of
+    ``targets/<id>/point_cov``, their outputs.
 
-    # -- every target ---------------------------------------------------------------------
-    def _setup_targets(self) -> None:
+    Args:
+        node: the rclpy node (subscriptions, timers, the ROS graph, topic name resolution).
+        config: the node's configuration (frames, ``max_targets``, ``max_target_wait_s``,
+            ``discovery_period_s``, ``marker_lifetime_s``, ``target_frame_prefix``).
+        diag: the node's diagnostics.
+        create: the node's output publisher factory (``OutputPublishers.create``).
+        waits: the node's :class:`~eye_in_hand.core.sync.InputWaits`.
+        newest_pose_ns: the newest robot pose stamp (None: none yet).
+        to_base: a camera point and covariance into the base frame at a stamp
+            (raises LocalizationError or InputError).
+        pose_messages: the ``(PoseStamped, PoseWithCovarianceStamped)`` of a located point.
+        first_data: called with each frame's stamp (the node latches its transforms once).
+        arm_waits: called when a frame starts to wait.
+        tf_output: the node's :class:`~eye_in_hand.nodes.hand_eye_tf.TfOutput`.
+        eye_to_hand: a fixed camera: a frame needs no robot pose.
+        in_process: fed by :meth:`take_point` and :meth:`take_markers` from a detector in this
+            process, not by subscriptions and graph discovery.
+    """
+
+    def __init__(self, node: Any, config: Any, diag: Any, create: Callable[..., Any],
+                 waits: Any, newest_pose_ns: Callable[[], int | None],
+                 to_base: Callable[[int, np.ndarray, np.ndarray | None],
+                                   tuple[np.ndarray, np.ndarray]],
+                 pose_messages: Callable[[int, np.ndarray, np.ndarray], tuple[Any, Any]],
+                 first_data: Callable[[int], None], arm_waits: Callable[[], None],
+                 tf_output: Any, eye_to_hand: bool, in_process: bool) -> None:
         """``targets/markers`` in (the frame's list of targets), ``targets/<id>/point_cov`` in
         per id, ``target/<id>/pose(_cov)``, ``target/poses`` and ``target/markers`` out."""
-        cfg = self.config
+        self._node = node
+        self.config = cfg = config
+        self.diag = diag
+        self._create = create
+        self.waits = waits
+        self._newest_pose_ns = newest_pose_ns
+        self._to_base = to_base
+        self._pose_messages = pose_messages
+        self._first_data = first_data
+        self._arm_waits = arm_waits
+        self._tf_output = tf_output
+        self.eye_to_hand = eye_to_hand
+        self.in_process = in_process
         _, MarkerArray = marker_classes()
-        self._frames: deque[_Frame] = deque()
+        self.frames: deque[_Frame] = deque()
         self._frames_max = 200
         # (id, image stamp) -> (point (3,), covariance (3, 3)), in arrival order
         self._target_points: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]] = {}
-        self._target_subs: dict[str, Any] = {}
+        self.subs: dict[str, Any] = {}
         self._target_pubs: dict[str, tuple[Any, Any]] = {}
         # per-target topics follow their list topic's remapping: targets/<id>/point_cov next to
         # targets/markers, target/<id>/pose(_cov) next to target/poses
-        self._targets_prefix = self.resolve_topic_name("targets/markers").rsplit("/", 1)[0]
-        self._poses_prefix = self.resolve_topic_name("target/poses").rsplit("/", 1)[0]
-        if not self.in_process:
-            self.create_subscription(MarkerArray, "targets/markers", self._on_markers,
+        self._targets_prefix = node.resolve_topic_name("targets/markers").rsplit("/", 1)[0]
+        self._poses_prefix = node.resolve_topic_name("target/poses").rsplit("/", 1)[0]
+        if not in_process:
+            node.create_subscription(MarkerArray, "targets/markers", self._on_markers,
                                      RESULT_QOS)
-        self.pub_poses = self.outputs.create(pose_array_class(), "target/poses", RESULT_QOS)
-        self.pub_markers = self.outputs.create(MarkerArray, "target/markers", RESULT_QOS)
-        self.diag.declare_counter("target_frames", "target_points", "target_points_received",
-                                  "target_poses_published", "targets_rejected",
-                                  "target_frames_published", "orphan_target_points",
-                                  "target_refused.stale_pose", "target_refused.no_point")
-        if not self.in_process:
-            self.create_timer(cfg.discovery_period_s, self._discover_targets,
+        self.pub_poses = create(pose_array_class(), "target/poses", RESULT_QOS)
+        self.pub_markers = create(MarkerArray, "target/markers", RESULT_QOS)
+        diag.declare_counter("target_frames", "target_points", "target_points_received",
+                             "target_poses_published", "targets_rejected",
+                             "target_frames_published", "orphan_target_points",
+                             "target_refused.stale_pose", "target_refused.no_point")
+        if not in_process:
+            node.create_timer(cfg.discovery_period_s, self._discover_targets,
                               clock=Clock(clock_type=ClockType.STEADY_TIME))
             self._discover_targets()
 
     def _discover_targets(self) -> None:
         """Subscribe to every ``targets/<id>/point_cov`` that has a publisher in the graph."""
         prefix, suffix = self._targets_prefix + "/", "/point_cov"
-        for name, _types in self.get_topic_names_and_types():
+        for name, _types in self._node.get_topic_names_and_types():
             if name.startswith(prefix) and name.endswith(suffix):
                 tid = name[len(prefix):-len(suffix)]
-                if tid and "/" not in tid and tid not in self._target_subs \
-                        and self.count_publishers(name) > 0:
+                if tid and "/" not in tid and tid not in self.subs \
+                        and self._node.count_publishers(name) > 0:
                     self._subscribe_target(tid)
 
-    def expect_targets(self, ids: list[str]) -> None:
+    def expect(self, ids: list[str]) -> None:
         """Make the ``target/<id>/pose(_cov)`` publishers of a detector's known target ids
         now (in one process with it, where no graph search finds them), so that their
         subscribers match before the first frame."""
@@ -101,22 +139,22 @@ class EveryTargetMixin:
         publishers (once, so that their subscribers match before the first frame); the
         refusal reason when ``tid`` names no valid topic or ``max_targets`` ids are subscribed
         already, else None."""
-        if tid in self._target_subs:
+        if tid in self.subs:
             return None
         problem = topic_name_problem(f"targets/{tid}/point_cov") if tid and "/" not in tid \
             else "empty or contains '/'"
         if problem is not None:
             return "bad_target_id"
-        if len(self._target_subs) >= self.config.max_targets:
+        if len(self.subs) >= self.config.max_targets:
             return "too_many_targets"
         topic = f"{self._targets_prefix}/{tid}/point_cov"
-        self._target_subs[tid] = None if self.in_process else self.create_subscription(
+        self.subs[tid] = None if self.in_process else self._node.create_subscription(
             PoseWithCovarianceStamped, topic, lambda m, t=tid: self._on_target_point(t, m),
             self._target_point_qos(topic))
         base = f"{self._poses_prefix}/{tid}"
         self._target_pubs[tid] = (
-            self.outputs.create(PoseStamped, f"{base}/pose", RESULT_QOS),
-            self.outputs.create(PoseWithCovarianceStamped, f"{base}/pose_cov", RESULT_QOS))
+            self._create(PoseStamped, f"{base}/pose", RESULT_QOS),
+            self._create(PoseWithCovarianceStamped, f"{base}/pose_cov", RESULT_QOS))
         return None
 
     def _target_point_qos(self, topic: str) -> Any:
@@ -124,7 +162,7 @@ class EveryTargetMixin:
         matched still come, so a new id's first frame is not lost), or RESULT_QOS (volatile)
         when a publisher of ``topic`` known in the graph is volatile (a detector that does not
         keep its points: a transient-local subscription would not match it)."""
-        infos = self.get_publishers_info_by_topic(topic)
+        infos = self._node.get_publishers_info_by_topic(topic)
         if any(i.qos_profile.durability != DurabilityPolicy.TRANSIENT_LOCAL for i in infos):
             return RESULT_QOS
         return TARGET_POINT_QOS
@@ -140,10 +178,10 @@ class EveryTargetMixin:
             self.waits.point_arrived()
             self.diag.report("bad_target_point", f"targets/{tid}/point_cov: {exc}")
             return
-        self._take_target_point(tid, stamp, msg.header.frame_id, p, cov)
-        self._drain_frames()
+        self.take_point(tid, stamp, msg.header.frame_id, p, cov)
+        self.drain()
 
-    def _take_target_point(self, tid: str, stamp: int, frame: str, p: np.ndarray,
+    def take_point(self, tid: str, stamp: int, frame: str, p: np.ndarray,
                            cov: np.ndarray) -> None:
         """Keep a target's camera point and covariance for its frame (a wrong frame or a
         NaN covariance is reported; its frame then misses the point and refuses the target,
@@ -170,12 +208,12 @@ class EveryTargetMixin:
             self.diag.count("target_frames")
             self.diag.report("bad_markers", f"targets/markers: {exc}")
             return
-        self._take_markers(stamp, frame, spheres)
+        self.take_markers(stamp, frame, spheres)
 
-    def _take_markers(self, stamp: int, frame: str, spheres: list[Sphere]) -> None:
+    def take_markers(self, stamp: int, frame: str, spheres: list[Sphere]) -> None:
         """A frame's list of targets: it waits for their points and the robot pose."""
         self.diag.count("target_frames")
-        self.first_data(stamp)
+        self._first_data(stamp)
         self.diag.count("target_points", len(spheres))
         if frame and frame.lstrip("/") != self.config.camera_frame:
             for s in spheres:
@@ -191,13 +229,13 @@ class EveryTargetMixin:
                 self._refuse_target(s.id, reason, f"target id {s.id!r}: " + (
                     "cannot name a topic" if reason == "bad_target_id" else
                     f"{self.config.max_targets} ids are subscribed already (max_targets)"))
-        if len(self._frames) >= self._frames_max:
-            old = self._frames.popleft()
+        if len(self.frames) >= self._frames_max:
+            old = self.frames.popleft()
             for s in old.spheres:
                 self._refuse_target(s.id, "pending_overflow", f"more than {self._frames_max} "
                                     "frames wait: the oldest was dropped")
-        self._frames.append(_Frame(stamp, kept, time.monotonic()))
-        self._drain_frames()
+        self.frames.append(_Frame(stamp, kept, time.monotonic()))
+        self.drain()
         self._arm_waits()
 
     def _refuse_target(self, tid: str, reason: str, message: str,
@@ -216,13 +254,13 @@ class EveryTargetMixin:
         return (newest is not None and f.stamp_ns <= newest) \
             or self.waits.pose_wait_over(now - f.arrived)
 
-    def _drain_frames(self) -> None:
-        if not self._frames:
+    def drain(self) -> None:
+        if not self.frames:
             return
-        newest = None if self.eye_to_hand else self.localizer.poses.newest_ns
+        newest = None if self.eye_to_hand else self._newest_pose_ns()
         now = time.monotonic()
-        while self._frames and self._frame_ready(self._frames[0], newest, now):
-            self._locate_frame(self._frames.popleft())     # FIFO: stamp order
+        while self.frames and self._frame_ready(self.frames[0], newest, now):
+            self._locate_frame(self.frames.popleft())     # FIFO: stamp order
 
     def _locate_frame(self, f: _Frame) -> None:
         """Every target of a frame into the base frame; per-target and per-frame outputs."""
@@ -272,4 +310,4 @@ class EveryTargetMixin:
                 [Sphere(s.id, p, s.diameter_m, s.rgba) for s, p in located],
                 stamp_ns=f.stamp_ns, frame_id=cfg.base_frame, lifetime_s=cfg.marker_lifetime_s))
         self.diag.count("target_frames_published")
-        self.tf_output.publish_edges(tf_edges)
+        self._tf_output.publish_edges(tf_edges)

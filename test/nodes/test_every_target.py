@@ -124,7 +124,7 @@ def test_two_targets_through_detect_triangulate_and_hand_eye(tmp_path, ros_conte
     first_point = _collect(io, PointStamped, "target/point")
     # hand_eye found both per-target topics in the graph before any frame (none is lost) and
     # offers target/<id>/pose from then on, so its subscribers match before the first frame
-    assert spin_until(executor, lambda: set(hand_eye._target_subs) == set(TARGETS)
+    assert spin_until(executor, lambda: set(hand_eye.targets.subs) == set(TARGETS)
                       and pub_l.get_subscription_count() and pub_ee.get_subscription_count()
                       and all(hand_eye.count_publishers(f"targets/{n}/point_cov") for n in
                               TARGETS) and io.count_publishers("target/poses")
@@ -236,7 +236,7 @@ class _Feed:
         self.first = _collect(self.io, PoseStamped, "target/pose")
 
     def ready(self, executor, spin_until) -> bool:
-        return spin_until(executor, lambda: set(self.node._target_subs) >= {"a", "b"}
+        return spin_until(executor, lambda: set(self.node.targets.subs) >= {"a", "b"}
                           and self.pub_markers.get_subscription_count() > 0
                           and self.io.count_publishers("target/poses") > 0, 15.0)
 
@@ -329,7 +329,7 @@ def test_dropped_targets_are_counted_by_reason(tmp_path, ros_context, executor, 
     feed.frame(T0 + 40_000_000, pts, listed=["a", "b", "c", "9bad"])  # c: over max_targets
     feed.frame(T0 + 500_000_000, pts)                                 # no robot pose there
     assert spin_until(executor, lambda: node.diag.counter("target_frames_published") == 4
-                      and not node._frames, 10.0), node.diag.snapshot().counters
+                      and not node.targets.frames, 10.0), node.diag.snapshot().counters
     c = node.diag.snapshot().counters
     refused = {k: v for k, v in c.items() if k.startswith("target_refused.") and v}
     assert refused == {"target_refused.no_point": 1, "target_refused.too_many_targets": 1,
@@ -492,7 +492,7 @@ def test_per_target_topics_follow_the_remapped_marker_topic_as_the_launch_lays_t
         "hand_eye_file": str(_hand_eye_file(tmp_path, "eye_to_hand", np.eye(4), None))})
     executor.add_node(detect)
     red_1 = _collect(feed.io, PoseStamped, "target/red_1/pose")
-    assert spin_until(executor, lambda: "red" in feed.node._target_subs
+    assert spin_until(executor, lambda: "red" in feed.node.targets.subs
                       and detect._pub_markers.get_subscription_count() > 0, 15.0)
     assert detect.count_publishers(f"{namespace}/targets/red/point_cov") == 1
 
@@ -503,7 +503,7 @@ def test_per_target_topics_follow_the_remapped_marker_topic_as_the_launch_lays_t
     detect._publish_targets(SimpleNamespace(targets=(loc("red_1", p),)), T0, CAM)
     # red_1 is new: hand_eye subscribes when the frame lists it, under the remapped prefix,
     # and still gets that frame's point (transient local); the next frame comes through too
-    assert spin_until(executor, lambda: feed.node._target_subs.get("red_1") is not None and
+    assert spin_until(executor, lambda: feed.node.targets.subs.get("red_1") is not None and
                       detect._pub_targets["red_1"][1].get_subscription_count() > 0
                       and len(red_1) == 1, 15.0)
     detect._publish_targets(SimpleNamespace(targets=(loc("red_1", p),)), T0 + PERIOD_NS, CAM)
@@ -542,11 +542,11 @@ def test_first_frame_of_a_new_target_id_is_not_lost(tmp_path, ros_context, execu
     executor.add_node(hand_eye)
     poses = {t: _collect(io, PoseStamped, f"target/{t}/pose") for t in ("red", "red_1")}
     arrays = _collect(io, PoseArray, "target/poses")
-    assert spin_until(executor, lambda: "red" in hand_eye._target_subs
+    assert spin_until(executor, lambda: "red" in hand_eye.targets.subs
                       and detect._pub_markers.get_subscription_count() > 0
                       and io.count_publishers("target/poses") > 0
                       and io.count_publishers("target/red/pose") > 0, 15.0)
-    assert "red_1" not in hand_eye._target_subs and "red_1" not in detect._pub_targets
+    assert "red_1" not in hand_eye.targets.subs and "red_1" not in detect._pub_targets
     stamps = [T0 + k * PERIOD_NS for k in (1, 2, 3)]
     frame(stamps[0], ["red", "red_1"])     # red_1 appears: publisher made, point sent at once
     assert spin_until(executor, lambda: len(arrays) == 1, 15.0), (

@@ -97,7 +97,7 @@ def _run(composed: bool, tmp_path, context, executor, ns, spin_until):
     def ready() -> bool:
         return bool(pub_l.get_subscription_count() and pub_ee.get_subscription_count()
                     and all(io.count_publishers(t) for _, t in OUTPUTS)
-                    and (composed or set(hand_eye._target_subs) == set(TARGETS)))
+                    and (composed or set(hand_eye.targets.subs) == set(TARGETS)))
 
     assert spin_until(executor, ready, 15.0)
     spin_until(executor, lambda: False, 0.3)    # every subscription matched both ways

@@ -64,7 +64,7 @@ def ledger(player: BagPlayer, detect: DetectTriangulateNode, hand_eye: HandEyeNo
         "target_points_received": h.counters["target_points_received"],
         "target_poses_published": h.counters["target_poses_published"],
         "targets_rejected": h.counters["targets_rejected"],
-        "targets_pending": sum(len(f.spheres) for f in hand_eye._frames),
+        "targets_pending": sum(len(f.spheres) for f in hand_eye.targets.frames),
         **{k: v for k, v in h.counters.items() if k.startswith("target_refused.") and v},
     }
 
