@@ -30,6 +30,23 @@ corners; ``eye_to_hand``: the camera fixed, the board on the flange, X = ``base_
 that the errors-in-variables refinement is measured on every input it takes (with ``--pairs``:
 pose pairs of the same datasets).
 
+``--case kinematic``: the simulator's real-like arm (:mod:`eye_in_hand.sim.robot_error`)
+instead of per-pose random noise. Per dataset a true arm is drawn from ``World.default()``'s
+nominal UR5e with ``RobotErrorSpec.default()`` scaled by 1x and 3x (perturbed DH parameters,
+the arm's seed the dataset's seed: the same arm shape at both scales); the corners come from
+the true arm's flange pose at the true joints, the robot reports the nominal FK at the encoder
+reading (the spec's encoder noise). Per level, medians over the datasets of: the error of X
+against the true ``ee_T_cam`` (part of a kinematic error is a constant flange offset that no
+method can tell from X: only the held-out figures judge the robot model fairly) and the k-fold
+held-out prediction of the board (:mod:`eye_in_hand.core.handeye.kfold`: base-frame RMS mm and
+image RMS px over the held-out corners, ``refined_systematic`` applying its correction to the
+held-out poses, as ``bench_handeye_real.py``), for the selected result, every method it
+computed and OpenCV 4.12's five methods; the selected result over the best OpenCV method; with
+``--robot-model systematic`` the held-out NEES of the systematic model.
+
+``--robot-model {per_pose,systematic}``: ``calibrate_hand_eye``'s robot error model in every
+calibration of the run (default ``systematic``, the package's default).
+
 Usage::
 
     .venv/bin/python benchmarks/bench_handeye.py [--trials 8] [--samples 15] [--noise 0.5]
@@ -37,6 +54,9 @@ Usage::
     .venv/bin/python benchmarks/bench_handeye.py --case stereo --no-opencv
     .venv/bin/python benchmarks/bench_handeye.py --case eye_to_hand
     .venv/bin/python benchmarks/bench_handeye.py --nees 102
+    .venv/bin/python benchmarks/bench_handeye.py --robot-model per_pose
+    .venv/bin/python benchmarks/bench_handeye.py --case kinematic [--robot-model per_pose]
+        [--k 5]
 """
 from __future__ import annotations
 
@@ -114,7 +134,42 @@ def make_trial(world, seed: int, n: int, noise_px: float, robot_mm: float = 0.0,
     return samples
 
 
-CASES = ("world", "stereo", "eye_to_hand")
+def make_kinematic_trial(world, seed: int, n: int, noise_px: float, spec):
+    """One dataset of the real-like arm: the true arm drawn from ``world.arm`` with ``spec``
+    (its seed), corners from the true flange poses, the nominal FK of the encoder reading
+    reported. Returns ``(samples, flange translation errors m, rotation errors rad)``, the
+    flange errors reported vs true per sample."""
+    from eye_in_hand.core.handeye import CornerObservation, HandEyeSample
+    from eye_in_hand.core.handeye.observe import board_pose_pnp
+    from eye_in_hand.core.transforms import invert
+    from eye_in_hand.sim.robot_error import (
+        draw_true_arm,
+        flange_poses,
+        pose_error,
+        reported_joints,
+    )
+    from eye_in_hand.sim.scenarios import calibration_poses
+
+    rng = np.random.default_rng(seed)
+    true_arm = draw_true_arm(world.arm, spec)
+    cam = world.rig.left
+    obj = world.board_points()
+    samples, err = [], []
+    for k, q in enumerate(calibration_poses(world, n, seed=seed)):
+        true_T_ee, reported = flange_poses(world.arm, true_arm, q,
+                                           reported_joints(q, spec, rng))
+        cam_T_board = invert(true_T_ee @ world.ee_T_cam) @ world.base_T_board
+        px = cam.project(obj @ cam_T_board[:3, :3].T + cam_T_board[:3, 3])
+        px = px + rng.normal(scale=noise_px, size=px.shape)
+        C, _ = board_pose_pnp(cam, obj, px)
+        samples.append(HandEyeSample(f"{k:02d}", reported, C,
+                                     (CornerObservation("left", obj, px),)))
+        err.append(pose_error(true_T_ee, reported))
+    e = np.asarray(err)
+    return samples, e[:, 0], e[:, 1]
+
+
+CASES = ("world", "stereo", "eye_to_hand", "kinematic")
 
 
 def bench_camera():
@@ -149,16 +204,16 @@ def errors(X_true: np.ndarray, X: np.ndarray) -> tuple[float, float]:
     return float(np.degrees(dr)), 1000.0 * dt
 
 
-def moveit_figures() -> None:
+def moveit_figures(robot_model: str = "systematic") -> None:
     """Real eye-to-hand data (MoveIt Calibration's pose pairs) against the published reference."""
     from scipy.spatial.transform import Rotation
 
     from eye_in_hand.core.handeye import HandEyeSample, calibrate_hand_eye
-    from eye_in_hand.io.datasets import load_pose_pairs
+    from eye_in_hand.io.pose_pairs import load_pose_pairs
 
     pairs = load_pose_pairs(ROOT / "test" / "data" / "moveit_eye_to_hand" / "pose_samples.json")
     samples = [HandEyeSample(f"{i:02d}", a, b) for i, (a, b) in enumerate(pairs)]
-    res = calibrate_hand_eye(samples, "eye_to_hand")
+    res = calibrate_hand_eye(samples, "eye_to_hand", robot_model=robot_model)
     ref = np.eye(4)
     ref[:3, :3] = Rotation.from_euler("XYZ", [0.230, -2.540, 1.950]).as_matrix()
     ref[:3, 3] = [0.659, -0.249, 0.830]
@@ -174,7 +229,7 @@ def moveit_figures() -> None:
         deg, mm = errors(ref, mr.X)
         h = mr.held_out.summary() if mr.held_out is not None else {}
         nan = float("nan")
-        print(f"  {name:14s} {mm:6.2f} mm {deg:6.3f} deg   held-out "
+        print(f"  {name:18s} {mm:6.2f} mm {deg:6.3f} deg   held-out "
               f"{h.get('mm_rms', nan):6.2f} mm {h.get('deg_rms', nan):6.3f} deg, score "
               f"{res.selection_scores.get(name, float('nan')):.3f}"
               + ("  <- selected" if name == res.selected else ""))
@@ -235,7 +290,7 @@ def accuracy(args: argparse.Namespace) -> None:
     print(f"hand-eye benchmark: {what}, {args.samples} samples, 640x480, {args.noise} px "
           f"corner noise, {args.trials} datasets per robot error level"
           + (", pose pairs only (corners dropped)" if args.pairs else "")
-          + "; medians of |error| (mm, deg)")
+          + f", robot model {args.robot_model}; medians of |error| (mm, deg)")
     t_ours = 0.0
     for mm_sig, deg_sig in LEVELS:
         errs: dict[str, list[tuple[float, float]]] = {}
@@ -254,7 +309,8 @@ def accuracy(args: argparse.Namespace) -> None:
             t1 = time.perf_counter()
             if args.pairs:
                 samples = [HandEyeSample(s.name, s.base_T_ee, s.cam_T_board) for s in samples]
-            res = calibrate_hand_eye(samples, setup, cameras=None if args.pairs else views)
+            res = calibrate_hand_eye(samples, setup, cameras=None if args.pairs else views,
+                                     robot_model=args.robot_model)
             t_ours += time.perf_counter() - t1
             picked[res.selected] = picked.get(res.selected, 0) + 1
             errs.setdefault("selected", []).append(errors(X_true, res.X))
@@ -271,14 +327,15 @@ def accuracy(args: argparse.Namespace) -> None:
 
         print(f"robot error {mm_sig} mm / {deg_sig} deg (1 sigma per axis, per pose); selected: "
               + ", ".join(f"{k} {v}x" for k, v in sorted(picked.items())))
-        rows = ["selected", "refined", "refined_exact", *CLOSED_FORM_METHODS, "average",
+        rows = ["selected", "refined_systematic", "refined", "refined_exact",
+                *CLOSED_FORM_METHODS, "average",
                 *[f"avg_{k}" for k in AVERAGE_SOLVERS]]
         for name in rows:
             if name in errs:
                 d, m = med(errs[name])
                 extra = "" if len(errs[name]) == args.trials else \
                     f"  (ran on {len(errs[name])} of {args.trials})"
-                print(f"  {name:14s} {m:8.3f} mm {d:8.4f} deg{extra}")
+                print(f"  {name:18s} {m:8.3f} mm {d:8.4f} deg{extra}")
         closed = [k for k in CLOSED_FORM_METHODS if k in errs]
         best_mm = min(closed, key=lambda k: med(errs[k])[1])
         best_deg = min(closed, key=lambda k: med(errs[k])[0])
@@ -304,10 +361,166 @@ def accuracy(args: argparse.Namespace) -> None:
             print(f"  OpenCV {cv_out['version']} best: {med(theirs[cv_mm])[1]:.3f} mm ({cv_mm}), "
                   f"{med(theirs[cv_deg])[0]:.4f} deg ({cv_deg}); OpenCV park "
                   f"{med(theirs['park'])[1]:.3f} mm / {med(theirs['park'])[0]:.4f} deg")
+            print(f"  selected / OpenCV best: translation {s_mm / med(theirs[cv_mm])[1]:.2f}x, "
+                  f"rotation {s_deg / med(theirs[cv_deg])[0]:.2f}x")
     print(f"time: {1000 * t_ours / (3 * args.trials):.0f} ms per calibration (all methods, "
           "refinements, leave-one-out selection)")
     if args.case == "world":
-        moveit_figures()
+        moveit_figures(args.robot_model)
+
+
+#: ``--case kinematic``: scales of ``RobotErrorSpec.default()``.
+KINEMATIC_SCALES = (1.0, 3.0)
+
+
+def kinematic(args: argparse.Namespace) -> None:
+    """``--case kinematic``: X against the truth and k-fold held-out prediction, per scale of
+    the simulator's robot error, for the selected result, its methods and OpenCV's."""
+    from dataclasses import replace
+
+    from eye_in_hand.core.handeye import CameraView, calibrate_hand_eye
+    from eye_in_hand.core.handeye.calibrate import METHODS
+    from eye_in_hand.core.handeye.kfold import fold_indices, kfold_held_out, rms
+    from eye_in_hand.core.handeye.solvers import board_in_fixed_frame
+    from eye_in_hand.core.transforms import average_transforms
+    from eye_in_hand.sim import World
+    from eye_in_hand.sim.robot_error import RobotErrorSpec
+
+    world = World.default().with_image_size(640, 480)
+    views = [CameraView("left", world.rig.left)]
+    base_spec = RobotErrorSpec.default()
+    print(f"hand-eye benchmark: the simulator's real-like arm (World.default() eye-in-hand, "
+          f"UR5e), {args.samples} samples, 640x480, {args.noise} px corner noise, "
+          f"{args.trials} datasets per robot error level (a true arm drawn per dataset, seed = "
+          f"the dataset's), robot model {args.robot_model}, {args.k}-fold held-out prediction")
+    print(f"default robot error: {base_spec.describe().split(': ', 1)[1].rsplit(' (seed', 1)[0]}"
+          "; levels " + ", ".join(f"{s:g}x" for s in KINEMATIC_SCALES) + " of it")
+    print("per level, medians over the datasets: |X - true ee_T_cam| (mm, deg); held-out board "
+          "RMS over the k folds' held-out corners, base frame (mm) and image (px)")
+    t_ours, n_cal = 0.0, 0
+    for scale in KINEMATIC_SCALES:
+        data = []
+        payload = []
+        for trial in range(args.trials):
+            spec = replace(base_spec.scaled(scale), seed=args.seed + trial)
+            samples, dt, dr = make_kinematic_trial(world, args.seed + trial, args.samples,
+                                                   args.noise, spec)
+            trains = [[s for i, s in enumerate(samples) if i not in set(idx.tolist())]
+                      for idx in fold_indices(len(samples), args.k)]
+            for t in [samples, *trains]:
+                payload.append({"base_T_ee": [s.base_T_ee.tolist() for s in t],
+                                "cam_T_board": [s.cam_T_board.tolist() for s in t]})
+            data.append((samples, dt, dr))
+        cv_out = None if args.no_opencv else run_opencv(payload)
+        cv_sols = None if cv_out is None else [
+            {f"cv_{k}": np.array(v) for k, v in tr.items()} for tr in cv_out["trials"]]
+
+        x_err: dict[str, list[tuple[float, float]]] = {}
+        held: dict[str, list[tuple[float, float]]] = {}
+        picked: dict[str, int] = {}
+        fold_picked: dict[str, int] = {}
+        nees_all: list[float] = []
+        nees_sel: list[float] = []
+        flange = []
+        for trial, (samples, dt, dr) in enumerate(data):
+            flange.append((1000.0 * float(np.sqrt(np.mean(dt ** 2))),
+                           float(np.degrees(np.sqrt(np.mean(dr ** 2))))))
+            t1 = time.perf_counter()
+            res = calibrate_hand_eye(samples, "eye_in_hand", cameras=views,
+                                     robot_model=args.robot_model)
+            t_ours += time.perf_counter() - t1
+            n_cal += 1
+            picked[res.selected] = picked.get(res.selected, 0) + 1
+            x_err.setdefault("selected", []).append(errors(world.ee_T_cam, res.X))
+            for name, mr in res.methods.items():
+                x_err.setdefault(name, []).append(errors(world.ee_T_cam, mr.X))
+            cv_trial = None if cv_sols is None else cv_sols[trial * (args.k + 1):
+                                                            (trial + 1) * (args.k + 1)]
+            if cv_trial is not None:
+                for name, X in cv_trial[0].items():
+                    x_err.setdefault(name, []).append(errors(world.ee_T_cam, X))
+            fold_no = iter(range(args.k))
+
+            def fit(train, cv_trial=cv_trial, fold_no=fold_no):
+                nonlocal t_ours, n_cal
+                f = next(fold_no)
+                t1 = time.perf_counter()
+                r = calibrate_hand_eye(train, "eye_in_hand", cameras=views,
+                                       robot_model=args.robot_model)
+                t_ours += time.perf_counter() - t1
+                n_cal += 1
+                sols = {"selected": (r.X, r.methods[r.selected].Y, r.correct_robot_pose)}
+                for name, mr in r.methods.items():
+                    sols[name] = ((mr.X, mr.Y, r.systematic.correct)
+                                  if name == "refined_systematic" and r.systematic is not None
+                                  else (mr.X, mr.Y))
+                if cv_trial is not None:
+                    bte = np.stack([s.base_T_ee for s in train])
+                    ctb = np.stack([s.cam_T_board for s in train])
+                    for name, X in cv_trial[1 + f].items():
+                        sols[name] = (X, average_transforms(
+                            board_in_fixed_frame(X, bte, ctb, "eye_in_hand")))
+                return sols, {"selected": r.selected, "warnings": r.warnings,
+                              "extra": {"systematic": r.systematic}}
+
+            folds = kfold_held_out(samples, fit, k=args.k, cameras=views)
+            for m in folds[0].errors:
+                held.setdefault(m, []).append(
+                    (rms([v.mm for f in folds for v in f.errors.get(m, [])]),
+                     rms([v.px for f in folds for v in f.errors.get(m, [])])))
+            by_name = {s.name: s for s in samples}
+            for f in folds:
+                fold_picked[f.selected] = fold_picked.get(f.selected, 0) + 1
+                fit_s = f.extra.get("systematic")
+                if fit_s is None:
+                    continue
+                hs = [by_name[n] for n in f.held_out]
+                v = fit_s.held_out_nees(np.stack([s.base_T_ee for s in hs]),
+                                        np.stack([s.cam_T_board for s in hs]),
+                                        "eye_in_hand").tolist()
+                nees_all.extend(v)
+                if f.selected == "refined_systematic":
+                    nees_sel.extend(v)
+
+        def med(v: list[tuple[float, float]], i: int) -> float:
+            return float(np.median(np.asarray(v)[:, i]))
+
+        fl = np.asarray(flange)
+        print(f"\nrobot error {scale:g}x default: reported vs true flange RMS per dataset, median "
+              f"{np.median(fl[:, 0]):.3f} mm / {np.median(fl[:, 1]):.4f} deg; selected: "
+              + ", ".join(f"{k} {v}x" for k, v in sorted(picked.items()))
+              + "; selected per fold: "
+              + ", ".join(f"{k} {v}x" for k, v in sorted(fold_picked.items())))
+        print(f"  {'method':20s} {'X mm':>8s} {'X deg':>8s} {'held mm':>9s} {'held px':>9s}")
+        cv_names = sorted(k for k in x_err if k.startswith("cv_"))
+        rows = ["selected", *[m for m in METHODS if m in x_err], *cv_names]
+        for name in rows:
+            n_ok = len(x_err[name])
+            extra = "" if n_ok == args.trials else f"  (ran on {n_ok} of {args.trials})"
+            h = held.get(name)
+            hm = f"{med(h, 0):9.3f} {med(h, 1):9.3f}" if h else f"{'-':>9s} {'-':>9s}"
+            print(f"  {name:20s} {med(x_err[name], 1):8.3f} {med(x_err[name], 0):8.4f} "
+                  f"{hm}{extra}")
+        if cv_names:
+            best = {i: min(cv_names, key=lambda k, i=i: med(x_err[k], i)) for i in (0, 1)}
+            hbest = {i: min(cv_names, key=lambda k, i=i: med(held[k], i)) for i in (0, 1)}
+            print("  selected / best OpenCV (by median): X translation "
+                  f"{med(x_err['selected'], 1) / med(x_err[best[1]], 1):.2f}x ({best[1]}), "
+                  f"rotation {med(x_err['selected'], 0) / med(x_err[best[0]], 0):.2f}x "
+                  f"({best[0]}); held-out base frame "
+                  f"{med(held['selected'], 0) / med(held[hbest[0]], 0):.2f}x ({hbest[0]}), "
+                  f"image {med(held['selected'], 1) / med(held[hbest[1]], 1):.2f}x "
+                  f"({hbest[1]})")
+        if nees_all:
+            line = (f"  refined_systematic uncertainty on the held-out views: mean NEES "
+                    f"{np.mean(nees_all):.2f} over {len(nees_all)} views (6 dof: 6 when right; "
+                    f"{np.mean(nees_all) / 6:.2f}x dof), median {np.median(nees_all):.2f}")
+            if nees_sel:
+                line += (f"; on the folds that selected it {np.mean(nees_sel):.2f} "
+                         f"({np.mean(nees_sel) / 6:.2f}x dof, {len(nees_sel)} views)")
+            print(line)
+    print(f"time: {1000 * t_ours / max(n_cal, 1):.0f} ms per calibration (all methods, "
+          f"refinements, leave-one-out selection; {n_cal} calibrations incl. the folds)")
 
 
 def nees(args: argparse.Namespace) -> None:
@@ -328,7 +541,8 @@ def nees(args: argparse.Namespace) -> None:
                                                   args.samples, px, mm_sig, deg_sig)
         if args.pairs:
             samples = [HandEyeSample(s.name, s.base_T_ee, s.cam_T_board) for s in samples]
-        res = calibrate_hand_eye(samples, setup, cameras=None if args.pairs else views)
+        res = calibrate_hand_eye(samples, setup, cameras=None if args.pairs else views,
+                                 robot_model=args.robot_model)
         C = res.covariance
         e = np.concatenate([res.X[:3, 3] - X_true[:3, 3], Rotation.from_matrix(
             res.X[:3, :3] @ X_true[:3, :3].T).as_rotvec()])
@@ -337,7 +551,8 @@ def nees(args: argparse.Namespace) -> None:
         n6 = float(e @ np.linalg.solve(C, e))
         rows.append((i % len(cells), nt, nr, n6, res.selected))
     a = np.array([r[1:4] for r in rows])
-    print(f"uncertainty check ({args.case}{', pose pairs' if args.pairs else ''}): "
+    print(f"uncertainty check ({args.case}{', pose pairs' if args.pairs else ''}, robot model "
+          f"{args.robot_model}): "
           f"{len(rows)} datasets ({args.samples} samples, 640x480), robot "
           "error {0, 0.2 mm/0.02 deg, 1 mm/0.1 deg} x pixel noise {0.3, 1.0} px; covariance of "
           "the selected result")
@@ -363,7 +578,8 @@ def main() -> int:
                              "datasets move by tens of per cent between seeds at 1 mm)")
     parser.add_argument("--case", choices=CASES, default="world",
                         help="world: World.default() eye-in-hand (default); stereo, "
-                             "eye_to_hand: synthetic datasets of that kind")
+                             "eye_to_hand: synthetic datasets of that kind; kinematic: the "
+                             "simulator's real-like arm (perturbed DH parameters)")
     parser.add_argument("--samples", type=int, default=15)
     parser.add_argument("--noise", type=float, default=0.5, help="corner noise, px")
     parser.add_argument("--seed", type=int, default=1000)
@@ -373,8 +589,18 @@ def main() -> int:
                         help="calibrate from the pose pairs only (no corners)")
     parser.add_argument("--nees", type=int, default=0, metavar="N",
                         help="instead: the uncertainty check over N datasets")
+    parser.add_argument("--robot-model", choices=("per_pose", "systematic"),
+                        default="systematic",
+                        help="calibrate_hand_eye's robot error model (default: systematic, "
+                             "the package's default)")
+    parser.add_argument("--k", type=int, default=5,
+                        help="--case kinematic: number of folds of the held-out prediction")
     args = parser.parse_args()
-    if args.nees:
+    if args.case == "kinematic" and (args.nees or args.pairs):
+        parser.error("--case kinematic takes neither --nees nor --pairs")
+    if args.case == "kinematic":
+        kinematic(args)
+    elif args.nees:
         nees(args)
     else:
         accuracy(args)

@@ -78,7 +78,9 @@ def test_dataset_end_to_end(stereo_dataset, tmp_path: Path, capsys) -> None:
     assert calib.method == report["selected"] in ("refined", "refined_exact")
     scores = report["selection"]["scores"]
     assert f"selected {report['selected']}: " in printed.out
-    assert "held-out corner RMS" in report["selection"]["reason"]
+    # the default (systematic) robot model scores corners and board position together
+    assert "held-out corners (px) and board position (mm)" in report["selection"]["reason"]
+    assert report["robot_model"] == "systematic" and calib.robot_pose_correction is None
     assert calib.sample_count == 10 and calib.covariance is not None
     noise = calib.robot_pose_noise
     assert noise is not None and noise == report["robot_pose_noise"]
@@ -87,7 +89,7 @@ def test_dataset_end_to_end(stereo_dataset, tmp_path: Path, capsys) -> None:
     assert dt < 0.0005 and np.degrees(dr) < 0.05, (dt, np.degrees(dr))
     assert set(report["methods"]) == set(scores) == {
         "tsai", "park", "horaud", "daniilidis", "andreff", "kronecker", "average",
-        "refined_exact", "refined"}
+        "refined_exact", "refined", "refined_systematic"}
     for m in report["methods"].values():
         assert len(m["translation"]) == 3 and len(m["quat_xyzw"]) == 4
         assert m["residuals"]["reproj_px_rms"] < 1.0

@@ -152,8 +152,8 @@ def test_quality_figures_shapes_and_meaning() -> None:
     assert set(scores) == set(report["methods"])
     assert report["selected"] in report["selection"]["reason"]
     assert all(m["held_out"]["px_rms"] > 0 for m in report["methods"].values())
-    assert set(report["methods"]) == set(CLOSED_FORM_METHODS) | {"average", "refined",
-                                                                  "refined_exact"}
+    assert set(report["methods"]) == set(CLOSED_FORM_METHODS) | {
+        "average", "refined", "refined_exact", "refined_systematic"}   # the default model
     assert report["diagnostics"]["n_samples"] == n
 
 

@@ -69,7 +69,7 @@ def test_rotation_log_and_exp_match_scipy_up_to_a_half_turn(angle: float) -> Non
 
 def test_systematic_fit_and_its_correction_are_one_rule() -> None:
     samples = _problem(12, 5, A_R, A_T)
-    res = calibrate_hand_eye(samples, robot_model="systematic")
+    res = calibrate_hand_eye(samples)       # the default model: systematic
     assert res.selected == "refined_systematic"
     corr = res.pose_correction
     assert corr is not None
@@ -78,7 +78,7 @@ def test_systematic_fit_and_its_correction_are_one_rule() -> None:
     assert res.robot_pose_noise == {"translation_sigma_m": res.systematic.sigmas["robot_t"],
                                     "rotation_sigma_rad": res.systematic.sigmas["robot_r"]}
     # the per-pose model has no correction
-    assert calibrate_hand_eye(samples).pose_correction is None
+    assert calibrate_hand_eye(samples, robot_model="per_pose").pose_correction is None
 
 
 @pytest.mark.parametrize("bad, match", [

@@ -36,9 +36,10 @@ __all__ = ["error_budget"]
 
 _ADVICE = {
     "camera_mm": "the camera dominates: recalibrate the intrinsics, with sharper images",
-    "robot_mm": "the per-pose scatter dominates: the robot's pose error (try "
-                "robot_model='systematic', check that the arm is still at each capture) or "
-                "an intrinsics or board error that changes with distance and angle",
+    "robot_mm": "the per-pose scatter dominates: the robot's pose error (with "
+                "--robot-model per_pose try the default, systematic; check that the arm is "
+                "still at each capture) or an intrinsics or board error that changes with "
+                "distance and angle",
     "estimate_mm": "the estimate's own uncertainty dominates: take more poses with larger "
                    "rotations",
 }

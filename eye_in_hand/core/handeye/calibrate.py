@@ -75,11 +75,12 @@ METHODS = (*CLOSED_FORM_METHODS, "average", "refined_exact", "refined", "refined
 
 #: The robot error models ``calibrate_hand_eye`` accepts: ``per_pose`` (independent noise per
 #: pose; the result's X is used with the robot's reported poses), ``systematic`` (the
-#: ``refined_systematic`` model is a candidate too: its X holds only with the robot poses
-#: corrected by :meth:`HandEyeResult.correct_robot_pose`).
+#: ``refined_systematic`` model is a candidate too, written only when it predicts the held-out
+#: samples significantly better than ``refined``: its X holds only with the robot poses
+#: corrected by :attr:`HandEyeResult.pose_correction`).
 ROBOT_MODELS = ("per_pose", "systematic")
 #: The robot error model of ``calibrate handeye``, the live calibration and the API.
-DEFAULT_ROBOT_MODEL = "per_pose"
+DEFAULT_ROBOT_MODEL = "systematic"
 
 # A reading of the poses whose AX = XB rotation residual is this many times lower than the
 # given one (which is above the floor, degrees) means the given conventions are wrong.
@@ -536,10 +537,11 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
         check_conventions: refuse input that fits AX = XB far better read another way (the
             other setup, or ``cam_T_board`` inverted): a wrong setup or pose direction.
         average_solver: the per-pair solver of ``average`` (``"tsai"`` or ``"kronecker"``).
-        robot_model: ``"per_pose"`` or ``"systematic"`` (:data:`ROBOT_MODELS`): with
-            ``systematic``, ``refined_systematic`` (a pose-dependent robot error fitted with X,
-            :mod:`.systematic`) is computed and is a candidate of the selection; when selected,
-            X is to be used with :meth:`HandEyeResult.correct_robot_pose`.
+        robot_model: ``"systematic"`` (default) or ``"per_pose"`` (:data:`ROBOT_MODELS`):
+            with ``systematic``, ``refined_systematic`` (a pose-dependent robot error fitted
+            with X, :mod:`.systematic`) is computed and is a candidate of the selection, written
+            only when it predicts the held-out samples significantly better than ``refined``;
+            when selected, X is to be used with :attr:`HandEyeResult.pose_correction`.
 
     Returns:
         The result; ``result.X`` is the selected method's transform.
@@ -698,7 +700,10 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
             raise HandEyeError(f"method {method!r} failed on these samples: "
                                + "; ".join(w for w in warnings if w.startswith(method)))
     elif candidates:
-        reference = "refined_systematic" if "refined_systematic" in candidates else "refined"
+        # refined stays the reference with the systematic model too: refined_systematic (a
+        # pose-space fit of 30 parameters) is written only where the held-out samples show
+        # it clearly better, never on the strength of the comparison's noise
+        reference = "refined" if "refined" in candidates else "refined_systematic"
         selected, reason = choose(held, list(candidates), reference=reference,
                                   combine=combine)
     else:
@@ -707,10 +712,14 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                   + ("the errors-in-variables refinement" if selected == "refined"
                      else "the closed form with the lowest residuals"))
 
-    # Disagreement beyond the combined uncertainty (3 sigma).
+    # Disagreement beyond the combined uncertainty (3 sigma). refined_systematic's X holds with
+    # the corrected robot poses, every other X with the reported ones: the two kinds differ by
+    # the mean of the systematic error by design, so only Xs of one kind are compared.
     sel = results[selected]
     for name, mr in results.items():
         if name == selected or not (np.isfinite(mr.std_mm) and np.isfinite(sel.std_mm)):
+            continue
+        if (name == "refined_systematic") != (selected == "refined_systematic"):
             continue
         diff_mm, diff_deg = _x_delta(mr.X, sel.X)
         lim_mm = 3.0 * float(np.hypot(mr.std_mm, sel.std_mm)) + 1e-6
