@@ -39,10 +39,9 @@ import cv2
 import numpy as np
 
 from eye_in_hand.core.camera import StereoRig
-from eye_in_hand.core.localization import POSE_RULES
+from eye_in_hand.core.defaults import DEFAULT_SYNC_QUEUE_SIZE, DEFAULT_SYNC_SLOP_S, POSE_RULES
 from eye_in_hand.core.locator import StereoLocator
 from eye_in_hand.core.locator_params import LocatorConfig
-from eye_in_hand.core.sync import DEFAULT_SYNC_QUEUE_SIZE, DEFAULT_SYNC_SLOP_S
 from eye_in_hand.errors import BagError, ConversionError, InputError, LocalizationError
 
 if TYPE_CHECKING:

@@ -38,8 +38,8 @@ from eye_in_hand.core.sync import PoseBuffer
 from eye_in_hand.core.transforms import as_points, as_transform
 from eye_in_hand.errors import InputError
 
-__all__ = ["POSE_RULES", "PoseRules", "LocalizerConfig", "TargetInBase", "target_in_base",
-           "robot_pose_sigmas", "Localizer"]
+__all__ = ["LocalizerConfig", "TargetInBase", "target_in_base", "robot_pose_sigmas",
+           "Localizer"]
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -191,32 +191,6 @@ def robot_pose_sigmas(stated_pos_m: float, stated_rot_rad: float,
         pos = max(pos, float(estimated["translation_sigma_m"]))
         rot = max(rot, float(estimated["rotation_sigma_rad"]))
     return pos, rot
-
-
-@dataclass(frozen=True)
-class PoseRules:
-    """The robot pose rules of localization and their defaults, written once: the
-    ``hand_eye`` node's parameters of these names, ``process``'s options
-    (:class:`eye_in_hand.offline.ProcessOptions`) and its ``--params`` file fallbacks all take
-    their defaults from :data:`POSE_RULES`.
-
-    Attributes:
-        max_pose_gap_s: largest gap between the two robot poses that bracket an image stamp.
-        max_pose_age_s: largest receive age (live) or log-time age (offline) of those poses.
-        pose_jump_back_s: a stamp this far behind the newest restarts the pose buffer.
-        robot_sigma_pos_m, robot_sigma_rot_rad: the arm's stated accuracy (1 sigma per axis;
-            :func:`robot_pose_sigmas`).
-    """
-
-    max_pose_gap_s: float = 0.05
-    max_pose_age_s: float = 1.0
-    pose_jump_back_s: float = 1.0
-    robot_sigma_pos_m: float = 0.00015
-    robot_sigma_rot_rad: float = 0.0004
-
-
-#: The defaults of :class:`PoseRules`.
-POSE_RULES = PoseRules()
 
 
 @dataclass(frozen=True)

@@ -32,8 +32,6 @@ from eye_in_hand.core.transforms import as_transform, interpolate_unchecked
 from eye_in_hand.errors import InputError, LocalizationError
 
 __all__ = [
-    "DEFAULT_SYNC_SLOP_S",
-    "DEFAULT_SYNC_QUEUE_SIZE",
     "StereoPair",
     "SyncStats",
     "ApproximateStereoSync",
@@ -108,12 +106,6 @@ class SyncStats:
     def dropped(self) -> int:
         """Total frames dropped on both sides."""
         return self.dropped_left + self.dropped_right
-
-
-#: Stereo pairing defaults: detect_triangulate's ``sync.slop_s`` and ``sync.queue_size``
-#: parameters and ``process``'s (:class:`eye_in_hand.offline.ProcessOptions`).
-DEFAULT_SYNC_SLOP_S = 0.005
-DEFAULT_SYNC_QUEUE_SIZE = 5
 
 
 class ApproximateStereoSync(Generic[T]):

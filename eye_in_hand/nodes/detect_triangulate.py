@@ -89,6 +89,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 
 from eye_in_hand.core.camera import StereoRig
+from eye_in_hand.core.defaults import DEFAULT_SYNC_QUEUE_SIZE, DEFAULT_SYNC_SLOP_S
 from eye_in_hand.core.locator import LocateResult, StereoLocator
 from eye_in_hand.core.locator_params import (
     LOCATOR_PARAMETERS,
@@ -97,12 +98,7 @@ from eye_in_hand.core.locator_params import (
     ParamSpec,
     locator_config_from_params,
 )
-from eye_in_hand.core.sync import (
-    DEFAULT_SYNC_QUEUE_SIZE,
-    DEFAULT_SYNC_SLOP_S,
-    ApproximateStereoSync,
-    StereoPair,
-)
+from eye_in_hand.core.sync import ApproximateStereoSync, StereoPair
 from eye_in_hand.errors import ConfigError, ConversionError, EyeInHandError, InputError
 from eye_in_hand.ros.camera_info import camera_info_to_model
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics

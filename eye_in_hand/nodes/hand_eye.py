@@ -87,12 +87,12 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
+from eye_in_hand.core.defaults import POSE_RULES
 from eye_in_hand.core.eye_to_hand import EyeToHandLocalizer
 from eye_in_hand.core.handeye.calibrate import ROBOT_MODELS
 from eye_in_hand.core.handeye.session import SessionConfig
 from eye_in_hand.core.kinematics import JointIndex
 from eye_in_hand.core.localization import (
-    POSE_RULES,
     Localizer,
     LocalizerConfig,
     robot_pose_sigmas,

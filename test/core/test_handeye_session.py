@@ -272,6 +272,24 @@ def test_a_frame_stamped_before_the_request_is_not_used():
     assert s.complete(s.ready(0.1)[0]).ok
 
 
+def test_a_frame_stamped_exactly_at_the_request_or_the_newest_frame_is_not_used():
+    """"Newer than" is strict: the frame already seen when the capture was asked (a second
+    delivery of it, e.g. the in-process and the topic path both) and a frame stamped at the
+    request's own time show the arm before the request, and are not bound."""
+    cell = Cell()
+    s = cell.session
+    cell.stream(0, 3000 * MS, 0)
+    s.add_frame(1000 * MS, {"stop": 0})
+    req = s.request_capture(0.0)                      # after the newest frame, 1000 ms
+    s.add_frame(1000 * MS, {"stop": 0})               # the same stamp again
+    assert req.frame_stamp_ns is None
+    req2 = s.request_capture(0.0, now_ns=2000 * MS)
+    s.add_frame(2000 * MS, {"stop": 0})               # exactly at the request's time
+    assert req2.frame_stamp_ns is None and req.frame_stamp_ns == 2000 * MS
+    s.add_frame(2000 * MS + 1, {"stop": 0})
+    assert req2.frame_stamp_ns == 2000 * MS + 1
+
+
 def test_receive_age_is_measured_at_the_frame_arrival():
     """pose_kwargs gets the request: the node measures the poses' receive age against the
     frame's arrival, not against when a busy worker got to it."""
