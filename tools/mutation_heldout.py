@@ -15,6 +15,7 @@ Usage::
     .venv/bin/python tools/mutation_heldout.py --batch 2          # run batch 2, 2 workers
     .venv/bin/python tools/mutation_heldout.py --batch 1 -k select
     .venv/bin/python tools/mutation_heldout.py --batch 2 --list   # mutants and their tests
+    .venv/bin/python tools/mutation_heldout.py --batch 3 --list   # the third batch (a record)
 
 Options other than ``--batch`` are those of ``tools/mutation.py`` (``-k``, ``-j``, ``-v``,
 ``--list``, ``--baseline``, ``--timeout``); it runs with the same machinery (private copies of
@@ -634,8 +635,119 @@ B2: tuple[M, ...] = (
       "queue_depth 1 refused"),
 )
 
+# Batch 3: 26 bugs written by a reviewer who had read neither the tests nor the tables above
+# (at most 2 per module), run against test/core (+ test/io for io/) and the survivors against
+# the rest of the suite: 25 of 26 caught (the survivor, b3-m11, has a test since and its twin
+# joined tools/mutation.py as session-frame-not-newer). A record: not re-anchored.
+B3: tuple[M, ...] = (
+    M('b3-m01', 'core/handeye/select.py',
+      '    if float(np.mean(d)) < -2.0 * se:',
+      '    if float(np.mean(d)) < 2.0 * se:',
+      'choose(): another method replaces the reference only if mean paired difference is ...'),
+    M('b3-m02', 'core/handeye/select.py',
+      '    excess = float(np.mean(m - 2.0 * rotation_sigma_rad ** 2 * np.asarray(lever_sq)',
+      '    excess = float(np.mean(m - 2.0 * rotation_sigma_rad * np.asarray(lever_sq)',
+      'held_out_position_sigma(): s_t^2 = max(0, mean(|e|^2 - 2 s_r^2 |l|^2 - v))/3; square ...'),
+    M('b3-m03', 'core/handeye/eiv.py',
+      '    return bte @ D',
+      '    return D @ bte',
+      'EIV model: correction applied on the right (flange frame), true = B_i @ ...'),
+    M('b3-m04', 'core/handeye/eiv.py',
+      '            r_g = float(rows.sum() - h[rows].sum())',
+      '            r_g = float(rows.sum())',
+      'Forstner variance components: redundancy r_g = n_g - trace(H_gg); trace term dropped ...'),
+    M('b3-m05', 'core/handeye/systematic.py',
+      '        true = bte @ _se3(corr)',
+      '        true = _se3(corr) @ bte',
+      'systematic model: true_i = reported_i @ [exp(A_r r_i) | A_t r_i], error on the right ...'),
+    M('b3-m06', 'core/handeye/systematic.py',
+      '        corr = np.concatenate([r @ A_t.T, r @ A_r.T], axis=1)',
+      '        corr = np.concatenate([r @ A_t.T, r @ A_r], axis=1)',
+      'systematic model rotation error is A_r r (fit must match RobotPoseCorrection.delta); ...'),
+    M('b3-m07', 'core/handeye/average.py',
+      '    cos = np.abs(np.einsum("ki,ki->k", axis[pp], axis[qq]))',
+      '    cos = np.einsum("ki,ki->k", axis[pp], axis[qq])',
+      'usable pairs: axis angle is between axes as lines (in [0, 90] deg); abs dropped so ...'),
+    M('b3-m08', 'core/handeye/average.py',
+      '            step = Rotation.from_matrix(np.einsum("ji,kjl->kil", M, R)).as_rotvec().mean(axis=0)',  # noqa: E501
+      '            step = Rotation.from_matrix(np.einsum("ij,kjl->kil", M, R)).as_rotvec().mean(axis=0)',  # noqa: E501
+      'geodesic (Karcher) rotation mean: step from M^T R_k; transposed M gives a wrong mean'),
+    M('b3-m09', 'core/handeye/budget.py',
+      '        moved = d[:, :3] + np.cross(d[:, 3:], np.asarray(lev))',
+      '        moved = d[:, :3] + np.cross(np.asarray(lev), d[:, 3:])',
+      'robot_systematic_mm: RMS at board origin of the correction (t + r x lever); cross ...'),
+    M('b3-m10', 'core/handeye/kfold.py',
+      '    pred = obj @ Y[:3, :3].T + Y[:3, 3]',
+      '    pred = obj @ Y[:3, :3] + Y[:3, 3]',
+      'predict_view: base-frame corners predicted from the fitted Y, R p + t; transposed rotation'),  # noqa: E501
+    M('b3-m11', 'core/handeye/session.py',
+      '            if req.frame_stamp_ns is None and (req.after_ns is None or stamp_ns > req.after_ns):',  # noqa: E501
+      '            if req.frame_stamp_ns is None and (req.after_ns is None or stamp_ns >= req.after_ns):',  # noqa: E501
+      'capture rule 1: the request is answered from the first frame stamped *after* the ...'),
+    M('b3-m12', 'core/handeye/session.py',
+      '            if d <= cfg.duplicate_translation_m and a <= cfg.duplicate_rotation_rad:',
+      '            if d <= cfg.duplicate_translation_m or a <= cfg.duplicate_rotation_rad:',
+      "rule 4: duplicate only when within both translation and rotation thresholds; 'or' ..."),
+    M('b3-m13', 'core/tf.py',
+      '            T = self._edges[child].at(stamp_ns, max_gap_ns) @ T',
+      '            T = T @ self._edges[child].at(stamp_ns, max_gap_ns)',
+      'lookup composes edges up the chain: ancestor_T_frame = parent_T_child ... ; ...'),
+    M('b3-m14', 'core/tf.py',
+      '            newest = min(newest, n)',
+      '            newest = max(newest, n)',
+      'newest_ns: the newest stamp *every* dynamic edge has reached (min over edges); max ...'),
+    M('b3-m15', 'core/locator.py',
+      '                if factor > 1.0 + cfg.size_tol:',
+      '                if factor > cfg.size_tol:',
+      'size gate: reject when size/range disagree by more than factor 1 + size_tol; dropped ...'),
+    M('b3-m16', 'core/locator.py',
+      '            if tr.missed > cfg.track_max_missed:',
+      '            if tr.missed >= cfg.track_max_missed:',
+      'tracking.max_missed: frames an unseen blob keeps its id reserved; >= retires one frame ...'),  # noqa: E501
+    M('b3-m17', 'core/distances.py',
+      '            err = 1000.0 * (p.mean_m - m) if p.frames else math.nan',
+      '            err = 1000.0 * (m - p.mean_m) if p.frames else math.nan',
+      'error_mm = mean(measured - true) (mm); sign reversed for known distances'),
+    M('b3-m18', 'core/eye_to_hand.py',
+      '        p, cov = target_in_base(_IDENTITY, self.base_T_cam, point_cam, cov_cam=cov_cam,',
+      '        p, cov = target_in_base(self.base_T_cam, _IDENTITY, point_cam, cov_cam=cov_cam,',
+      'covariance R cov_cam R^T + J cov_hand_eye J^T with J = [I, -[R p]x]; swapping robot ...'),
+    M('b3-m19', 'core/localization.py',
+      '        J = -Rb @ _skew(p_ee)         # d p_base = -R_b [p_ee]x dr (flange-frame perturbation)',  # noqa: E501
+      '        J = -Rb @ _skew(p_base)         # d p_base = -R_b [p_ee]x dr (flange-frame perturbation)',  # noqa: E501
+      'robot rotation noise about the flange: lever is p_ee (point in flange frame); wrong ...'),
+    M('b3-m20', 'core/localization.py',
+      '        pos = max(pos, float(estimated["translation_sigma_m"]))',
+      '        pos = min(pos, float(estimated["translation_sigma_m"]))',
+      'robot_pose_sigmas: per component the larger of stated and estimated; min lowers the ...'),
+    M('b3-m21', 'core/pose_correction.py',
+      '        return np.concatenate([r @ self.A_t.T, r @ self.A_r.T], axis=1)',
+      '        return np.concatenate([r @ self.A_t, r @ self.A_r.T], axis=1)',
+      'delta = [A_t r | A_r r]; A_t transposed in the batch path (apply of N poses, ...'),
+    M('b3-m22', 'core/sync.py',
+      '        oldest = min(received)',
+      '        oldest = max(received)',
+      'receive-age rule: refuse a bracket whose *older* pose was received more than ...'),
+    M('b3-m23', 'io/config.py',
+      '    R_ref = from_xyz_quat(np.zeros(3), q / norm)[:3, :3]',
+      '    R_ref = from_xyz_quat(np.zeros(3), q / norm)[:3, :3].T',
+      'robot_pose_correction.reference_quat_xyzw is R_ref; loaded transposed -> round trip ...'),
+    M('b3-m24', 'io/config.py',
+      '                "translation_m_per_rad": [[float(v) for v in row] for row in c.A_t]}',
+      '                "translation_m_per_rad": [[float(v) for v in row] for row in c.A_r]}',
+      'to_dict writes translation_m_per_rad = A_t; copy-paste writes A_r'),
+    M('b3-m25', 'core/detection.py',
+      '        shade = shade * (1.0 + SHADE_BLUR_GAIN * blur * blur)',
+      '        shade = shade * (1.0 + SHADE_BLUR_GAIN * blur)',
+      'shading term grows as SHADE_GAIN (1 + SHADE_BLUR_GAIN b^2) g; b instead of b^2'),
+    M('b3-m26', 'core/detection.py',
+      '        blur = math.sqrt(max(width * width - BLUR_W0_PX ** 2, 0.0)) if math.isfinite(width) \\',  # noqa: E501
+      '        blur = math.sqrt(max(width * width - BLUR_W0_PX, 0.0)) if math.isfinite(width) \\',
+      'blur b = sqrt(max(w^2 - BLUR_W0_PX^2, 0)); square of BLUR_W0_PX dropped -> blur ...'),
+)
 
-BATCHES = {"1": B1, "2": B2}
+
+BATCHES = {"1": B1, "2": B2, "3": B3}
 
 
 def main(argv: list[str] | None = None) -> int:
