@@ -87,6 +87,14 @@ def run(args: argparse.Namespace) -> int:
                           if budget.get(k) is not None)
         print(f"error budget (held-out board position {budget['held_out_mm']:.2f} mm RMS): "
               f"{parts} mm; {budget['advice']}")
+    corr = result.pose_correction if setup == "eye_in_hand" else None
+    if corr is not None:
+        bte = np.stack([by.base_T_ee for by in samples if by.name in set(result.sample_names)])
+        d = corr.delta(bte)
+        print(f"robot pose correction (systematic model) in hand_eye.yaml: up to "
+              f"{1000 * float(np.max(np.linalg.norm(d[:, :3], axis=1))):.2f} mm, "
+              f"{float(np.degrees(np.max(np.linalg.norm(d[:, 3:], axis=1)))):.3f} deg over the "
+              "samples; the hand_eye node and process apply it (/tf_static carries X alone)")
     rejected = {f"sample {r.name!r} rejected: {r.reason}" for r in result.rejected}
     for r in result.rejected:
         print(f"rejected sample {r.name!r}: {r.reason}")

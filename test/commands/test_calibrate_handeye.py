@@ -259,6 +259,10 @@ def test_robot_model_systematic_writes_the_pose_correction(tmp_path: Path, capsy
                        atol=1e-12)
     report = json.loads((out / "report.json").read_text())
     assert report["robot_model"] == "systematic"
+    printed = capsys.readouterr().out
+    d = want.pose_correction.delta(bte)
+    assert (f"robot pose correction (systematic model) in hand_eye.yaml: up to "
+            f"{1000 * np.max(np.linalg.norm(d[:, :3], axis=1)):.2f} mm") in printed
     plain = tmp_path / "plain"
     assert main(["calibrate", "handeye", "--pairs", str(pairs), "--robot-model", "per_pose",
                  "--no-html", "-o", str(plain)]) == 0
