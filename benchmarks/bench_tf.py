@@ -9,7 +9,10 @@ Figures printed:
   (6 interpolated edges + 1 static edge), against ``PoseBuffer.lookup`` of the composed pose
   (the ``ee_pose`` source);
 * agreement with forward kinematics at the interpolated joint vector (max position error, um),
-  which is what interpolating each joint's transform instead of the tool pose costs.
+  which is what interpolating each joint's transform instead of the tool pose costs;
+* ``Localizer.locate`` of one point with covariance, with and without ``hand_eye.yaml``'s
+  ``robot_pose_correction`` (the systematic robot model), against its floor, the
+  ``PoseBuffer.lookup`` it starts with (best of 5 repeats).
 """
 from __future__ import annotations
 
@@ -18,6 +21,8 @@ import time
 import numpy as np
 
 from eye_in_hand.core.kinematics import DHChain
+from eye_in_hand.core.localization import Localizer, LocalizerConfig
+from eye_in_hand.core.pose_correction import RobotPoseCorrection
 from eye_in_hand.core.sync import PoseBuffer
 from eye_in_hand.core.tf import TfBuffer
 from eye_in_hand.core.transforms import from_rotvec
@@ -66,6 +71,36 @@ def main() -> None:
     print(f"TfBuffer.lookup base_link -> tool0 (6 interpolated + 1 static edges): {tf_us:.1f} us;"
           f" PoseBuffer.lookup of the composed pose: {pb_us:.1f} us")
     print(f"TF chain at 500 Hz vs FK at the exact joint vector: max {err * 1e6:.2f} um")
+    locate_figures(poses, queries)
+
+
+def locate_figures(poses: PoseBuffer, queries: list[int]) -> None:
+    """The localizer's cost per point with and without a robot pose correction."""
+    ee_T_cam = from_rotvec([0.02, -0.03, 1.6], [0.05, 0.01, -0.04])
+    corr = RobotPoseCorrection(np.diag([0.02, -0.01, 0.015]), np.full((3, 3), 0.003),
+                               from_rotvec([np.pi, 0.0, 0.0])[:3, :3])
+    p, cov = np.array([0.02, -0.01, 0.45]), np.diag([1e-8, 1e-8, 4e-7])
+
+    def best(fn) -> float:
+        runs = []
+        for _ in range(5):
+            t = time.perf_counter()
+            for s in queries:
+                fn(s)
+            runs.append((time.perf_counter() - t) / len(queries) * 1e6)
+        return min(runs)
+
+    floor = best(lambda s: poses.lookup(s, 50_000_000))
+    out = {}
+    for name, c in (("without", None), ("with", corr)):
+        loc = Localizer(ee_T_cam, np.eye(6) * 1e-8, LocalizerConfig(
+            max_gap_ns=50_000_000, robot_sigma_pos_m=1.5e-4, robot_sigma_rot_rad=4e-4),
+            pose_correction=c)
+        loc.poses = poses
+        out[name] = best(lambda s, loc=loc: loc.locate(s, p, cov))
+    print(f"Localizer.locate, one point with covariance: {out['without']:.1f} us without a robot "
+          f"pose correction, {out['with']:.1f} us with one (+{out['with'] - out['without']:.1f}"
+          f" us); floor PoseBuffer.lookup {floor:.1f} us")
 
 
 if __name__ == "__main__":

@@ -89,8 +89,8 @@ def run(args: argparse.Namespace) -> int:
               f"{parts} mm; {budget['advice']}")
     corr = result.pose_correction if setup == "eye_in_hand" else None
     if corr is not None:
-        bte = np.stack([by.base_T_ee for by in samples if by.name in set(result.sample_names)])
-        d = corr.delta(bte)
+        used = set(result.sample_names)
+        d = corr.delta(np.stack([s.base_T_ee for s in samples if s.name in used]))
         print(f"robot pose correction (systematic model) in hand_eye.yaml: up to "
               f"{1000 * float(np.max(np.linalg.norm(d[:, :3], axis=1))):.2f} mm, "
               f"{float(np.degrees(np.max(np.linalg.norm(d[:, 3:], axis=1)))):.3f} deg over the "

@@ -263,9 +263,8 @@ class HandEyeResult:
     def correct_robot_pose(self, base_T_ee: np.ndarray) -> np.ndarray:
         """The robot pose(s) (4, 4) or (N, 4, 4) the selected X is to be used with: corrected
         by the systematic error model when ``refined_systematic`` is selected, else as given."""
-        if self.selected == "refined_systematic" and self.systematic is not None:
-            return self.systematic.correct(base_T_ee)
-        return np.asarray(base_T_ee, dtype=np.float64)
+        c = self.pose_correction
+        return np.asarray(base_T_ee, dtype=np.float64) if c is None else c.apply(base_T_ee)
 
     def sample_table(self) -> list[dict[str, Any]]:
         """Per-sample rows for the selected method (report.json ``samples``)."""

@@ -57,15 +57,11 @@ _SIGMA_FLOOR_R = np.radians(0.001)
 _SIGMA_FLOOR_T = 1e-5
 
 
-_exp_rot = exp_rotations
-_log_rot = log_rotations
-
-
 def _se3(v: np.ndarray) -> np.ndarray:
     """``[exp(v[3:]) | v[:3]]`` for (N, 6) -> (N, 4, 4)."""
     v = np.asarray(v, dtype=np.float64).reshape(-1, 6)
     T = np.zeros((v.shape[0], 4, 4))
-    T[:, :3, :3] = _exp_rot(v[:, 3:])
+    T[:, :3, :3] = exp_rotations(v[:, 3:])
     T[:, :3, 3] = v[:, :3]
     T[:, 3, 3] = 1.0
     return T
@@ -84,14 +80,14 @@ def _inv(T: np.ndarray) -> np.ndarray:
 def _perturb(T0: np.ndarray, p: np.ndarray) -> np.ndarray:
     """``[exp([dr]x) R0 | t]`` from ``p = [t (3), dr (3)]`` (as :func:`.refine.perturb`)."""
     T = np.eye(4)
-    T[:3, :3] = _exp_rot(p[None, 3:6])[0] @ T0[:3, :3]
+    T[:3, :3] = exp_rotations(p[None, 3:6])[0] @ T0[:3, :3]
     T[:3, 3] = p[:3]
     return T
 
 
 def _log(T: np.ndarray) -> np.ndarray:
     """``[t, rotvec]`` of (N, 4, 4) -> (N, 6)."""
-    return np.concatenate([T[:, :3, 3], _log_rot(T[:, :3, :3])], axis=1)
+    return np.concatenate([T[:, :3, 3], log_rotations(T[:, :3, :3])], axis=1)
 
 
 @dataclass
@@ -179,9 +175,6 @@ class SystematicResult:
                 "converged": self.converged, "nfev": self.nfev}
 
 
-_features = orientation_features
-
-
 def _implied(X: np.ndarray, Y: np.ndarray, cam_T_board: np.ndarray, setup: str) -> np.ndarray:
     """The flange pose (base frame) each board pose implies, (N, 4, 4)."""
     if setup == "eye_in_hand":
@@ -209,7 +202,7 @@ def _residual_fn(X0: np.ndarray, Y0: np.ndarray, bte: np.ndarray, ctb: np.ndarra
                  level: float, R_ref: np.ndarray, s_t: float, s_r: float):
     """The whitened residual (6 per sample, then the prior rows) and the parameter unpacker."""
     n_sys = 18 if level > 0 else 0
-    r = _features(R_ref, bte)
+    r = orientation_features(R_ref, bte)
     Cinv = _inv(ctb)
     w = np.array([1 / s_t] * 3 + [1 / s_r] * 3)
 
