@@ -4,11 +4,12 @@ the executor's CPU per received message.
 Run: ``.venv/bin/python benchmarks/bench_ros_glue.py [--wakeups]``
 
 ``--wakeups``: another process publishes 2000 small messages at 500 Hz to a node on rclpy's
-``SingleThreadedExecutor`` (what every node here spins on); printed is the node process's CPU
-per received message with 0 publishers (the floor: a bare wake-up and take), with 12 and 24
-publishers made the default way (two QoS-event handlers each, rebuilt into the wait set at
-every wake-up) and without handlers (``eye_in_hand.ros.publishers.OutputPublishers``), the
-layouts alternating, median of ``--rounds`` rounds.
+``SingleThreadedExecutor``; printed is the node process's CPU per received message with 0
+publishers (the floor: a bare wake-up and take), with 12 and 24 publishers made the default
+way (two QoS-event handlers each, rebuilt into the wait set at every wake-up) and without
+handlers (``eye_in_hand.ros.publishers.OutputPublishers``), then the same node on
+``eye_in_hand.ros.executor.LeanExecutor`` (what the package's nodes spin on), the layouts
+alternating, median of ``--rounds`` rounds.
 
 Prints, for a 1280x720 stereo-camera frame: numpy -> Image (one copy into the message),
 Image -> numpy for rclpy and rosbags messages (zero-copy views, padded rows included),
@@ -109,7 +110,7 @@ def _wakeup_publisher() -> None:
     time.sleep(0.5)
 
 
-def _wakeup_cost(publishers: int, quiet: bool) -> float:
+def _wakeup_cost(publishers: int, quiet: bool, lean: bool = False) -> float:
     """CPU microseconds of this process per message received (see the module docstring)."""
     import subprocess
     import sys
@@ -120,6 +121,8 @@ def _wakeup_cost(publishers: int, quiet: bool) -> float:
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
 
+    from eye_in_hand.ros.executor import LeanExecutor
+
     context = rclpy.Context()
     rclpy.init(context=context)
     node = Node("wakeup_sink", context=context)
@@ -129,7 +132,7 @@ def _wakeup_cost(publishers: int, quiet: bool) -> float:
         node.create_publisher(PoseStamped, f"out{k}", 10, **extra)
     got: list[object] = []
     node.create_subscription(PoseStamped, "wakeup", got.append, 100)
-    ex = SingleThreadedExecutor(context=context)
+    ex = (LeanExecutor if lean else SingleThreadedExecutor)(context=context)
     ex.add_node(node)
     src = subprocess.Popen([sys.executable, __file__, "--wakeup-source"])
     while not got and src.poll() is None:
@@ -150,18 +153,21 @@ def wakeups(rounds: int) -> None:
 
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(120, 200)))
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    layouts = [(0, False), (12, False), (12, True), (24, False), (24, True)]
-    runs: dict[tuple[int, bool], list[float]] = {k: [] for k in layouts}
+    layouts = [(0, False, False), (12, False, False), (12, True, False), (24, False, False),
+               (24, True, False), (0, False, True), (12, True, True)]
+    runs: dict[tuple[int, bool, bool], list[float]] = {k: [] for k in layouts}
     for _ in range(rounds):
         for key in layouts:
             runs[key].append(_wakeup_cost(*key))
-    floor = statistics.median(runs[(0, False)])
+    floor = statistics.median(runs[(0, False, False)])
     print(f"executor CPU per received message, median of {rounds} rounds "
-          f"(floor: no publisher, {floor:.0f} us)")
-    for (n, quiet), values in runs.items():
+          f"(floor: rclpy's executor, no publisher, {floor:.0f} us)")
+    for (n, quiet, lean), values in runs.items():
         med = statistics.median(values)
         kind = "without QoS-event handlers" if quiet else "default handlers"
-        print(f"  {n:2d} publishers, {kind:<27s} {med:7.0f} us  ({med / floor:.2f}x the floor)")
+        name = "LeanExecutor" if lean else "rclpy's executor"
+        print(f"  {name:<17s} {n:2d} publishers, {kind:<27s} {med:7.0f} us  "
+              f"({med / floor:.2f}x the floor)")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,248 @@
+"""LeanExecutor: rclpy's single-threaded semantics for what the nodes use, a cheaper wake-up."""
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from std_msgs.msg import Int32  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+
+from eye_in_hand.ros.executor import LeanExecutor  # noqa: E402
+from eye_in_hand.ros.spin import spin_until  # noqa: E402
+
+QOS = 50
+
+
+@pytest.fixture
+def lean(ros_context):
+    ex = LeanExecutor(context=ros_context)
+    nodes: list[Node] = []
+
+    def make(name: str, namespace: str) -> Node:
+        node = Node(name, namespace=namespace, context=ros_context)
+        nodes.append(node)
+        ex.add_node(node)
+        return node
+
+    try:
+        yield ex, make
+    finally:
+        for node in nodes:
+            ex.remove_node(node)
+            node.destroy_node()
+        ex.shutdown()
+
+
+def _matched(ex, pub, timeout_s: float = 10.0) -> bool:
+    return spin_until(ex, lambda: pub.get_subscription_count() > 0, timeout_s)
+
+
+def test_a_subscription_gets_every_message_in_order_and_queued_ones_in_one_spin(
+        lean, namespace):
+    ex, make = lean
+    node = make("sink", namespace)
+    got: list[int] = []
+    node.create_subscription(Int32, "numbers", lambda m: got.append(m.data), QOS)
+    pub = node.create_publisher(Int32, "numbers", QOS)
+    assert _matched(ex, pub)
+    for k in range(5):
+        pub.publish(Int32(data=k))
+    # the five messages are queued before the wait: one wake-up takes them all
+    assert spin_until(ex, lambda: len(got) > 0, 10.0)
+    assert spin_until(ex, lambda: len(got) == 5, 10.0)
+    assert got == [0, 1, 2, 3, 4]
+    time.sleep(0.2)
+    for k in range(5, 9):
+        pub.publish(Int32(data=k))
+    time.sleep(0.3)                       # delivered to the subscription's queue meanwhile
+    ex.spin_once(timeout_sec=2.0)
+    assert got == list(range(9)), "a ready subscription is drained in one wake-up"
+
+
+def test_a_subscription_made_while_spinning_is_waited_on(lean, namespace):
+    ex, make = lean
+    node = make("late", namespace)
+    pub = node.create_publisher(Int32, "late_topic", QOS)
+    ex.spin_once(timeout_sec=0.05)        # entities built without the subscription
+    got: list[int] = []
+    node.create_subscription(Int32, "late_topic", lambda m: got.append(m.data), QOS)
+    assert _matched(ex, pub)
+    pub.publish(Int32(data=7))
+    assert spin_until(ex, lambda: got == [7], 10.0)
+
+
+def test_a_destroyed_subscription_gets_nothing_more(lean, namespace):
+    ex, make = lean
+    node = make("gone", namespace)
+    got: list[int] = []
+    sub = node.create_subscription(Int32, "gone_topic", lambda m: got.append(m.data), QOS)
+    pub = node.create_publisher(Int32, "gone_topic", QOS)
+    assert _matched(ex, pub)
+    pub.publish(Int32(data=1))
+    assert spin_until(ex, lambda: got == [1], 10.0)
+    node.destroy_subscription(sub)
+    pub.publish(Int32(data=2))
+    for _ in range(10):
+        ex.spin_once(timeout_sec=0.02)
+    assert got == [1]
+
+
+def test_timers_fire_and_a_cancelled_timer_does_not(lean, namespace):
+    ex, make = lean
+    node = make("timers", namespace)
+    ticks = {"a": 0, "b": 0}
+    node.create_timer(0.01, lambda: ticks.__setitem__("a", ticks["a"] + 1))
+    b = node.create_timer(0.01, lambda: ticks.__setitem__("b", ticks["b"] + 1))
+    b.cancel()
+    assert spin_until(ex, lambda: ticks["a"] >= 5, 5.0)
+    assert ticks["b"] == 0
+    b.reset()
+    assert spin_until(ex, lambda: ticks["b"] >= 2, 5.0)
+
+
+def _call(ros_context, namespace: str, name: str) -> Trigger.Response:
+    """Call ``name`` from another node on rclpy's own executor, in another thread."""
+    client_node = Node("caller", namespace=namespace, context=ros_context)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(client_node)
+    try:
+        cli = client_node.create_client(Trigger, name)
+        assert cli.wait_for_service(timeout_sec=10.0)
+        future = cli.call_async(Trigger.Request())
+        ex.spin_until_future_complete(future, timeout_sec=10.0)
+        assert future.done()
+        return future.result()
+    finally:
+        ex.remove_node(client_node)
+        client_node.destroy_node()
+        ex.shutdown()
+
+
+def _serve_in_thread(ex):
+    stop = threading.Event()
+
+    def loop() -> None:
+        while not stop.is_set():
+            ex.spin_once(timeout_sec=0.02)
+
+    t = threading.Thread(target=loop, daemon=True)
+    t.start()
+    return stop, t
+
+
+def test_a_plain_service_answers(lean, namespace, ros_context):
+    ex, make = lean
+    node = make("server", namespace)
+
+    def answer(request, response):
+        response.success, response.message = True, "plain"
+        return response
+
+    node.create_service(Trigger, "plain", answer)
+    stop, t = _serve_in_thread(ex)
+    try:
+        res = _call(ros_context, namespace, f"{namespace}/plain")
+    finally:
+        stop.set()
+        t.join(5.0)
+    assert res.success and res.message == "plain"
+
+
+def test_an_async_service_answers_after_its_await(lean, namespace, ros_context):
+    ex, make = lean
+    node = make("async_server", namespace)
+    from rclpy.task import Future
+
+    pending: list[Future] = []
+
+    async def answer(request, response):
+        f = Future(executor=ex)
+        pending.append(f)
+        threading.Timer(0.1, lambda: f.set_result("later")).start()
+        response.message = await f
+        response.success = True
+        return response
+
+    node.create_service(Trigger, "slow", answer)
+    stop, t = _serve_in_thread(ex)
+    try:
+        res = _call(ros_context, namespace, f"{namespace}/slow")
+    finally:
+        stop.set()
+        t.join(5.0)
+    assert res.success and res.message == "later"
+    assert pending and pending[0].done()
+
+
+def test_a_guard_condition_triggered_from_another_thread_runs_its_callback(lean, namespace):
+    ex, make = lean
+    node = make("guarded", namespace)
+    hits: list[str] = []
+    gc = node.create_guard_condition(lambda: hits.append(threading.current_thread().name))
+    threading.Timer(0.05, gc.trigger).start()
+    assert spin_until(ex, lambda: len(hits) == 1, 5.0)
+    assert hits == [threading.current_thread().name], "callbacks run on the spinning thread"
+
+
+def test_shutdown_from_another_thread_ends_spin(ros_context, namespace):
+    ex = LeanExecutor(context=ros_context)
+    node = Node("spinner", namespace=namespace, context=ros_context)
+    ex.add_node(node)
+    t = threading.Thread(target=ex.spin, daemon=True)
+    t.start()
+    time.sleep(0.1)
+    assert ex.shutdown(timeout_sec=5.0)
+    t.join(5.0)
+    assert not t.is_alive()
+    node.destroy_node()
+
+
+def test_a_callback_exception_propagates(lean, namespace):
+    ex, make = lean
+    node = make("raiser", namespace)
+
+    def boom() -> None:
+        raise RuntimeError("callback failed")
+
+    node.create_timer(0.01, boom)
+    with pytest.raises(RuntimeError, match="callback failed"):
+        spin_until(ex, lambda: False, 5.0)
+
+
+def test_external_shutdown_is_reported(namespace):
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    ex = LeanExecutor(context=context)
+    node = Node("external", namespace=namespace, context=context)
+    ex.add_node(node)
+    threading.Timer(0.1, lambda: rclpy.shutdown(context=context)).start()
+    try:
+        with pytest.raises(ExternalShutdownException):
+            for _ in range(500):
+                ex.spin_once(timeout_sec=0.02)
+    finally:
+        ex.remove_node(node)
+        node.destroy_node()
+        ex.shutdown()
+        rclpy.try_shutdown(context=context)
+
+
+def test_an_async_subscription_callback_runs(lean, namespace):
+    ex, make = lean
+    node = make("async_sink", namespace)
+    got: list[int] = []
+
+    async def take(msg) -> None:
+        got.append(msg.data)
+
+    node.create_subscription(Int32, "async_numbers", take, QOS)
+    pub = node.create_publisher(Int32, "async_numbers", QOS)
+    assert _matched(ex, pub)
+    pub.publish(Int32(data=3))
+    assert spin_until(ex, lambda: got == [3], 10.0)
