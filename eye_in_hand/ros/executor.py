@@ -155,11 +155,12 @@ class LeanExecutor(SingleThreadedExecutor):
                     self._held.enter_context(entity.handle)
             for waitable in entities.waitables:
                 self._held.enter_context(waitable)
-            self._held.enter_context(self._context.handle)
+            context_handle: Any = self._context.handle
+            self._held.enter_context(context_handle)
         except _rclpy.InvalidHandle:
             self._held.close()
             return None
-        self._wait_set = _rclpy.WaitSet(*entities.counts, self._context.handle)
+        self._wait_set = _rclpy.WaitSet(*entities.counts, context_handle)
         self._entities = entities
         return entities
 
