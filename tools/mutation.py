@@ -593,10 +593,14 @@ MUTANTS: tuple[Mutant, ...] = (
       "                compat, reason = qos_check_compatible(pub.qos_profile, info.qos_profile)\n",
       "the check compares the requested profile (system defaults), flagging every subscriber"),
     M("lean-executor-no-drain", "ros/executor.py",
-      "                self._run(callback(*taken) if info_too else callback(taken[0]))\n",
-      "                self._run(callback(*taken) if info_too else callback(taken[0]))\n"
-      "                break\n",
+      "        while (one := handle.take_message(msg_type, raw)) is not None:\n"
+      "            self._deliver(sub, one)\n",
+      "        if (one := handle.take_message(msg_type, raw)) is not None:\n"
+      "            self._deliver(sub, one)\n",
       "a ready subscription gives one message per wake-up: a backlog is taken one wake-up each"),
+    M("lean-executor-topic-by-topic", "ros/executor.py",
+      "            taken.sort(key=_arrival)\n", "",
+      "queued messages of several topics are delivered topic by topic, not in arrival order"),
     M("lean-executor-stale-entities", "ros/executor.py",
       "    def wake(self) -> None:\n        self._entities = None\n",
       "    def wake(self) -> None:\n",

@@ -13,9 +13,10 @@ per wake-up:
   handle-to-entity maps are rebuilt only when an entity or a node is added or removed (rclpy
   calls :meth:`wake` then);
 - one wait set object is kept and refilled in C;
-- each ready entity's callback is called directly, and a ready subscription is drained of
-  every message it holds (in arrival order), so messages that queued together cost one
-  wake-up.
+- each ready entity's callback is called directly, and the ready subscriptions are drained
+  of every message they hold, delivered in the order they arrived across topics (as taking
+  one message per wake-up would interleave them: a stereo pair's left and right images), so
+  messages that queued together cost one wake-up.
 
 The handles of the entities are held (``with handle``) from one rebuild to the next, so an
 entity destroyed while the executor waits on it is destroyed at the next rebuild, which its
@@ -172,17 +173,22 @@ class LeanExecutor(SingleThreadedExecutor):
             if tmr is not None and tmr.handle.is_timer_ready():
                 tmr.handle.call_timer()
                 self._run(tmr.callback())
-        for ptr in ws.get_ready_entities("subscription"):
-            sub = entities.sub_by_ptr.get(ptr)
-            if sub is None:
-                continue
-            handle, msg_type, raw, callback = sub.handle, sub.msg_type, sub.raw, sub.callback
-            info_too = sub._callback_type is not type(sub).CallbackType.MessageOnly
-            while True:
-                taken = handle.take_message(msg_type, raw)
-                if taken is None:
-                    break
-                self._run(callback(*taken) if info_too else callback(taken[0]))
+        ready = [entities.sub_by_ptr.get(ptr)
+                 for ptr in ws.get_ready_entities("subscription")]
+        ready = [sub for sub in ready if sub is not None]
+        if len(ready) == 1:
+            self._drain(ready[0])
+        elif ready:
+            # several topics: every queued message, in the order they arrived across topics
+            # (as one-per-wake-up would interleave them: a stereo pair's left and right)
+            taken: list[tuple[int, int, Any, Any]] = []
+            for sub in ready:
+                handle, msg_type, raw = sub.handle, sub.msg_type, sub.raw
+                while (one := handle.take_message(msg_type, raw)) is not None:
+                    taken.append((one[1]["received_timestamp"], len(taken), sub, one))
+            taken.sort(key=_arrival)
+            for _, _, sub, one in taken:
+                self._deliver(sub, one)
         for ptr in ws.get_ready_entities("guard_condition"):
             gc = entities.guard_by_ptr.get(ptr)
             if gc is not None and gc.callback is not None:
@@ -204,6 +210,18 @@ class LeanExecutor(SingleThreadedExecutor):
                 data = waitable.take_data()
                 self.create_task(waitable.execute(data))
 
+    def _drain(self, sub: Any) -> None:
+        """Every message queued on one subscription, oldest first."""
+        handle, msg_type, raw = sub.handle, sub.msg_type, sub.raw
+        while (one := handle.take_message(msg_type, raw)) is not None:
+            self._deliver(sub, one)
+
+    def _deliver(self, sub: Any, taken: Any) -> None:
+        if sub._callback_type is type(sub).CallbackType.MessageOnly:
+            self._run(sub.callback(taken[0]))
+        else:
+            self._run(sub.callback(*taken))
+
     def _run(self, result: Any) -> None:
         """A callback's result: a coroutine goes on to rclpy's task machinery."""
         if inspect.iscoroutine(result):
@@ -220,6 +238,10 @@ class LeanExecutor(SingleThreadedExecutor):
             finally:
                 self._spin_lock.release()
         return done
+
+
+def _arrival(item: tuple[int, int, Any, Any]) -> tuple[int, int]:
+    return item[0], item[1]
 
 
 async def _respond_later(srv: Any, pending: Any, header: Any) -> None:

@@ -246,3 +246,23 @@ def test_an_async_subscription_callback_runs(lean, namespace):
     assert _matched(ex, pub)
     pub.publish(Int32(data=3))
     assert spin_until(ex, lambda: got == [3], 10.0)
+
+
+def test_queued_messages_of_several_topics_come_in_arrival_order(lean, namespace):
+    ex, make = lean
+    node = make("pairs", namespace)
+    got: list[tuple[str, int]] = []
+    node.create_subscription(Int32, "left", lambda m: got.append(("left", m.data)), QOS)
+    node.create_subscription(Int32, "right", lambda m: got.append(("right", m.data)), QOS)
+    left = node.create_publisher(Int32, "left", QOS)
+    right = node.create_publisher(Int32, "right", QOS)
+    assert _matched(ex, left) and _matched(ex, right)
+    sent = []
+    for k in range(4):
+        for side, pub in (("left", left), ("right", right)):
+            pub.publish(Int32(data=k))
+            sent.append((side, k))
+            time.sleep(0.01)
+    time.sleep(0.3)                       # all eight queued before the executor looks
+    ex.spin_once(timeout_sec=2.0)
+    assert got == sent, "the pairs interleave as they arrived, not left x4 then right x4"
