@@ -598,6 +598,10 @@ MUTANTS: tuple[Mutant, ...] = (
       "        if (one := handle.take_message(msg_type, raw)) is not None:\n"
       "            self._deliver(sub, one)\n",
       "a ready subscription gives one message per wake-up: a backlog is taken one wake-up each"),
+    M("lean-executor-no-events", "ros/executor.py",
+      "                self.create_task(waitable.execute(waitable.take_data()))\n",
+      "                waitable.take_data()\n",
+      "a QoS event (an incompatible publisher) is taken but its callback never runs"),
     M("lean-executor-topic-by-topic", "ros/executor.py",
       "            taken.sort(key=_arrival)\n", "",
       "queued messages of several topics are delivered topic by topic, not in arrival order"),

@@ -45,7 +45,8 @@ class _Entities:
     lists (``pointer -> entity``)."""
 
     __slots__ = ("subs", "timers", "services", "clients", "guards", "own_guards", "waitables",
-                 "sub_by_ptr", "timer_by_ptr", "service_by_ptr", "guard_by_ptr", "counts")
+                 "events", "sub_by_ptr", "timer_by_ptr", "service_by_ptr", "guard_by_ptr",
+                 "counts")
 
     def __init__(self, nodes: list[Any], own_guards: list[Any]) -> None:
         self.subs = [s for n in nodes for s in n.subscriptions]
@@ -54,13 +55,19 @@ class _Entities:
         self.clients = [c for n in nodes for c in n.clients]
         self.guards = [g for n in nodes for g in n.guards]
         self.own_guards = own_guards
-        self.waitables = [w for n in nodes for w in n.waitables]
+        waitables = [w for n in nodes for w in n.waitables]
+        #: QoS event handlers (one or two per subscription by default) with their event
+        #: handle, added to the wait set in C; every other waitable through its own methods
+        self.events = [(w, h) for w in waitables
+                       if (h := getattr(w, "_EventHandler__event", None)) is not None]
+        self.waitables = [w for w in waitables
+                          if getattr(w, "_EventHandler__event", None) is None]
         self.sub_by_ptr = {s.handle.pointer: s for s in self.subs}
         self.timer_by_ptr = {t.handle.pointer: t for t in self.timers}
         self.service_by_ptr = {s.handle.pointer: s for s in self.services}
         self.guard_by_ptr = {g.handle.pointer: g for g in self.guards}
-        events = sum(w.get_num_entities().num_events for w in self.waitables)
         extra = [w.get_num_entities() for w in self.waitables]
+        events = len(self.events) + sum(e.num_events for e in extra)
         self.counts = (
             len(self.subs) + sum(e.num_subscriptions for e in extra),
             len(self.guards) + len(own_guards) + sum(e.num_guard_conditions for e in extra),
@@ -132,6 +139,8 @@ class LeanExecutor(SingleThreadedExecutor):
                 ws.add_guard_condition(gc.handle)
             for gc in entities.own_guards:
                 ws.add_guard_condition(gc.handle)
+            for waitable, event in entities.events:
+                waitable._event_index = ws.add_event(event)
             for waitable in entities.waitables:
                 waitable.add_to_wait_set(ws)
             ws.wait(timeout_ns)
@@ -156,6 +165,8 @@ class LeanExecutor(SingleThreadedExecutor):
                     self._held.enter_context(entity.handle)
             for waitable in entities.waitables:
                 self._held.enter_context(waitable)
+            for waitable, _ in entities.events:
+                self._held.enter_context(waitable)
             context_handle: Any = self._context.handle
             self._held.enter_context(context_handle)
         except _rclpy.InvalidHandle:
@@ -173,9 +184,8 @@ class LeanExecutor(SingleThreadedExecutor):
             if tmr is not None and tmr.handle.is_timer_ready():
                 tmr.handle.call_timer()
                 self._run(tmr.callback())
-        ready = [entities.sub_by_ptr.get(ptr)
-                 for ptr in ws.get_ready_entities("subscription")]
-        ready = [sub for sub in ready if sub is not None]
+        ready: list[Any] = [sub for ptr in ws.get_ready_entities("subscription")
+                            if (sub := entities.sub_by_ptr.get(ptr)) is not None]
         if len(ready) == 1:
             self._drain(ready[0])
         elif ready:
@@ -205,6 +215,9 @@ class LeanExecutor(SingleThreadedExecutor):
                 self.create_task(_respond_later(srv, response, header))
             else:
                 srv.send_response(response, header)
+        for waitable, _ in entities.events:
+            if ws.is_ready("event", waitable._event_index) and waitable.is_ready(ws):
+                self.create_task(waitable.execute(waitable.take_data()))
         for waitable in entities.waitables:
             if waitable.is_ready(ws):
                 data = waitable.take_data()

@@ -266,3 +266,19 @@ def test_queued_messages_of_several_topics_come_in_arrival_order(lean, namespace
     time.sleep(0.3)                       # all eight queued before the executor looks
     ex.spin_once(timeout_sec=2.0)
     assert got == sent, "the pairs interleave as they arrived, not left x4 then right x4"
+
+
+def test_a_qos_event_reaches_its_callback(lean, namespace):
+    from rclpy.event_handler import SubscriptionEventCallbacks
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    ex, make = lean
+    node = make("events", namespace)
+    seen: list[object] = []
+    node.create_subscription(
+        Int32, "strict", lambda m: None,
+        QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE),
+        event_callbacks=SubscriptionEventCallbacks(incompatible_qos=seen.append))
+    node.create_publisher(Int32, "strict",
+                          QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT))
+    assert spin_until(ex, lambda: len(seen) > 0, 10.0), "incompatible QoS not reported"
