@@ -257,46 +257,16 @@ def estimate(pairs: int, out: Path, *, force: bool = False) -> str:
     return line
 
 
-def run(args: argparse.Namespace) -> int:
-    """Process the bag and write the results; prints counts and error statistics."""
-    # local: at CLI start-up offline costs ~115 ms (OpenCV), core.locator ~85 ms,
-    # core.camera ~40 ms, tqdm ~35 ms, io.results/core.localization/io.config ~10-20 ms each,
-    # core.distances ~5 ms
-    from tqdm import tqdm
-
-    from eye_in_hand.core.camera import StereoRig
-    from eye_in_hand.core.distances import distance_table
+def _options(args: argparse.Namespace, detect: dict, hand_eye_params: dict, config,
+             calib, ee_frame: str, base_frame: str):
+    """The ``ProcessOptions`` of a run: the flags, then a ``--params`` file's
+    ``detect_triangulate`` and ``hand_eye`` sections, then the nodes' defaults."""
+    # local: as in run (offline ~115 ms, core.localization ~15 ms at CLI start-up)
     from eye_in_hand.core.localization import robot_pose_sigmas
-    from eye_in_hand.core.locator_params import locator_config_from_params
-    from eye_in_hand.io.config import load_hand_eye
-    from eye_in_hand.io.results import load_known_distances, run_figures
-    from eye_in_hand.offline import (
-        ProcessOptions,
-        error_stats,
-        process_bag,
-        top_reasons,
-        write_results,
-    )
+    from eye_in_hand.offline import ProcessOptions
 
-    if args.params:  # a mistyped key would run on its default, as the live node refuses it
-        # local: the nodes' parameter lists load rclpy and the node modules (~1 s)
-        from eye_in_hand.nodes.parameters import check_parameter_file_keys
-
-        check_parameter_file_keys(args.params, used=["detect_triangulate", "hand_eye"])
-    detect = _node_params(args.params, "detect_triangulate")
-    hand_eye_params = _node_params(args.params, "hand_eye")
-    config = apply_overrides(locator_config_from_params(
-        {k: v for k, v in detect.items() if not k.startswith("sync.")
-         and k not in ("calibration_dir", "frame_id") and not k.startswith("debug_image.")}),
-        radius=args.radius, method=args.method)
-    calib = load_hand_eye(args.hand_eye)
-    noise = calib.robot_pose_noise
     fixed = calib.setup == "eye_to_hand"
-    known = load_known_distances(args.truth) if args.truth else []
-    rig = StereoRig.load(args.calibration) if args.calibration else None
-    ee_frame = str(args.ee_frame or hand_eye_params.get("ee_frame", calib.parent_frame))
-    base_frame = str(args.base_frame or (calib.parent_frame if fixed else
-                                         hand_eye_params.get("base_frame", "base_link")))
+    noise = calib.robot_pose_noise
     kinematics = None
     if args.robot_pose == "joint_states":
         if not args.kinematics:
@@ -336,6 +306,41 @@ def run(args: argparse.Namespace) -> int:
                                     camera_parent=calib.parent_frame if fixed else ee_frame))
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{args.params}: {exc}") from exc
+    return opts
+
+
+def run(args: argparse.Namespace) -> int:
+    """Process the bag and write the results; prints counts and error statistics."""
+    # local: at CLI start-up offline costs ~115 ms (OpenCV), core.locator ~85 ms,
+    # core.camera ~40 ms, tqdm ~35 ms, io.results/core.localization/io.config ~10-20 ms each,
+    # core.distances ~5 ms
+    from tqdm import tqdm
+
+    from eye_in_hand.core.camera import StereoRig
+    from eye_in_hand.core.locator_params import locator_config_from_params
+    from eye_in_hand.io.config import load_hand_eye
+    from eye_in_hand.io.results import load_known_distances, run_figures
+    from eye_in_hand.offline import process_bag, write_results
+
+    if args.params:  # a mistyped key would run on its default, as the live node refuses it
+        # local: the nodes' parameter lists load rclpy and the node modules (~1 s)
+        from eye_in_hand.nodes.parameters import check_parameter_file_keys
+
+        check_parameter_file_keys(args.params, used=["detect_triangulate", "hand_eye"])
+    detect = _node_params(args.params, "detect_triangulate")
+    hand_eye_params = _node_params(args.params, "hand_eye")
+    config = apply_overrides(locator_config_from_params(
+        {k: v for k, v in detect.items() if not k.startswith("sync.")
+         and k not in ("calibration_dir", "frame_id") and not k.startswith("debug_image.")}),
+        radius=args.radius, method=args.method)
+    calib = load_hand_eye(args.hand_eye)
+    fixed = calib.setup == "eye_to_hand"
+    known = load_known_distances(args.truth) if args.truth else []
+    rig = StereoRig.load(args.calibration) if args.calibration else None
+    ee_frame = str(args.ee_frame or hand_eye_params.get("ee_frame", calib.parent_frame))
+    base_frame = str(args.base_frame or (calib.parent_frame if fixed else
+                                         hand_eye_params.get("base_frame", "base_link")))
+    opts = _options(args, detect, hand_eye_params, config, calib, ee_frame, base_frame)
     check_output_dir(args.output, overwrite=args.overwrite,  # refuse now, not after the work
                      inputs=[args.bag, args.hand_eye, args.calibration, args.params,
                              args.kinematics, args.truth])
@@ -377,6 +382,23 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.output)
     paths = {"bag": out, "csv": out / written["csv"].name,
              "summary": out / written["summary"].name}
+    _report(args, result, wall, known, pairs, stats_by_target, unmatched)
+    print(f"wrote {paths['bag']} (bag), {paths['csv']}, {paths['summary']}")
+    if not any(t.status == "ok" for f in result.frames for t in f.targets):
+        print(f"eye-in-hand: error: nothing located in the base frame in {args.bag}: "
+              + _nothing_reasons(result.counts, result.loss, result), file=sys.stderr)
+        return EXIT_NOTHING_LOCATED
+    return 0
+
+
+def _report(args: argparse.Namespace, result, wall: float, known: list, pairs: list,
+            stats_by_target: list, unmatched: list) -> None:
+    """What a run printed: the counts, why pairs gave nothing, the losses, the damage, the
+    error against the ground truth and the distances between targets."""
+    # local: as in run (offline ~115 ms, core.distances ~5 ms at CLI start-up)
+    from eye_in_hand.core.distances import distance_table
+    from eye_in_hand.offline import error_stats, top_reasons
+
     c = result.counts
     speed = result.duration_s / wall if wall > 0 else math.inf
     print(f"processed {c['pairs']} stereo pairs in {wall:.2f} s ({speed:.1f}x real time): "
@@ -414,12 +436,6 @@ def run(args: argparse.Namespace) -> int:
     for a, b, _m in unmatched:
         print(f"warning: {args.truth}: no measured distance {a} - {b} (targets located: "
               f"{', '.join(result.target_ids)})", file=sys.stderr)
-    print(f"wrote {paths['bag']} (bag), {paths['csv']}, {paths['summary']}")
-    if not any(t.status == "ok" for f in result.frames for t in f.targets):
-        print(f"eye-in-hand: error: nothing located in the base frame in {args.bag}: "
-              + _nothing_reasons(c, loss, result), file=sys.stderr)
-        return EXIT_NOTHING_LOCATED
-    return 0
 
 
 #: Exit code of a ``process`` run that wrote its outputs but located no target in the base
