@@ -497,7 +497,7 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
 
     Messages of several storage files (split bags, or a directory of loose ``.mcap`` files)
     are merged by log time; ties keep storage order. Indexed MCAP files are memory-mapped and
-    read without copies (:mod:`eye_in_hand.io.mcap_chunks`); other storage goes through
+    read without copies (:mod:`eye_in_hand.io.bags.mcap_chunks`); other storage goes through
     ``rosbags``.
 
     Args:
@@ -565,8 +565,8 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
 def memory_mappable(path: str | Path) -> bool:
     """Whether every storage file of a bag is an indexed MCAP file with uncompressed chunks,
     i.e. whether ``iter_messages(..., views=True)`` yields views of the files themselves."""
-    # local: io.mcap_chunks costs ~8 ms at CLI start-up and at each `process` worker's start
-    from eye_in_hand.io import mcap_chunks
+    # local: io.bags.mcap_chunks costs ~8 ms at CLI start-up and at each `process` worker's start
+    from eye_in_hand.io.bags import mcap_chunks
 
     with _OpenBag(path) as bag:
         for reader in bag.readers:
@@ -582,7 +582,7 @@ def memory_mappable(path: str | Path) -> bool:
 
 def chunk_damage_record(file: str, by_id: dict[int, Any], cd: Any) -> Damage:
     """The :class:`Damage` record of an MCAP chunk that could not be read (``cd``: an
-    :class:`eye_in_hand.io.mcap_chunks.ChunkDamage`; ``by_id``: the connections read, by
+    :class:`eye_in_hand.io.bags.mcap_chunks.ChunkDamage`; ``by_id``: the connections read, by
     channel id)."""
     topics: dict[str, int] = {}
     for cid, n in (cd.lost or {}).items():
@@ -608,8 +608,8 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
 
     Damage goes to ``damage`` (see :func:`iter_messages`); without it, it raises.
     """
-    # local: io.mcap_chunks costs ~8 ms at CLI and worker start-up (see memory_mappable)
-    from eye_in_hand.io import mcap_chunks
+    # local: io.bags.mcap_chunks costs ~8 ms at CLI and worker start-up (see memory_mappable)
+    from eye_in_hand.io.bags import mcap_chunks
 
     name = Path(getattr(storage, "path", "")).name
     by_id = {c.id: c for c in conns}

@@ -7,11 +7,11 @@ order, images as views that are never copied, from a reader thread
 processes, from :func:`decoded_in_workers`.
 
 :func:`worker_readable` says whether a bag is one indexed MCAP file with zstd or lz4 chunks;
-:func:`iter_in_workers` then reads it through :func:`eye_in_hand.io.mcap_tasks.worker_messages`:
-the same messages, in the same order, with the same damage records as
-``iter_messages(path, topics, views=True, damage=...)``, images as
-:class:`eye_in_hand.io.mcap_tasks.ImageRef` (decoded where they are used, never copied between
-processes) and other messages as CDR bytes.
+:func:`iter_in_workers` then reads it through
+:func:`eye_in_hand.io.bags.mcap_tasks.worker_messages`: the same messages, in the same order,
+with the same damage records as ``iter_messages(path, topics, views=True, damage=...)``,
+images as :class:`eye_in_hand.io.bags.mcap_tasks.ImageRef` (decoded where they are used,
+never copied between processes) and other messages as CDR bytes.
 """
 from __future__ import annotations
 
@@ -22,12 +22,12 @@ from pathlib import Path
 from typing import Any, cast
 
 from eye_in_hand.errors import BagError, ConversionError
-from eye_in_hand.io import mcap_chunks
+from eye_in_hand.io.bags import mcap_chunks
 from eye_in_hand.io.bags.decoding import deserialize
+from eye_in_hand.io.bags.mcap_tasks import worker_messages
 from eye_in_hand.io.bags.reading import _OpenBag, chunk_damage_record, iter_messages
 from eye_in_hand.io.bags.records import DamageLog
 from eye_in_hand.io.cdr import image_from_cdr, is_image_type
-from eye_in_hand.io.mcap_tasks import worker_messages
 
 __all__ = ["decoded_stream", "decoded_on_thread", "worker_readable", "iter_in_workers",
            "decoded_in_workers"]
@@ -66,7 +66,7 @@ def iter_in_workers(path: str | Path, topics: Iterable[str], submit: Any, *,
                     damage: DamageLog | None = None) -> Iterator[tuple[str, str, int, Any]]:
     """``(topic, msgtype, log_time_ns, payload)`` of a :func:`worker_readable` bag, in log-time
     order, chunks opened by ``submit``'s workers (see
-    :func:`eye_in_hand.io.mcap_tasks.worker_messages`).
+    :func:`eye_in_hand.io.bags.mcap_tasks.worker_messages`).
 
     Args:
         topics: the topics to read.

@@ -10,7 +10,7 @@ parsed (the file's summary section) and
 * decompresses zstd / lz4 chunks on a small thread pool a few chunks ahead of the consumer
   (the decompressors release the GIL), each message then a view of its decompressed chunk
   (offline processing has worker processes open compressed chunks instead:
-  :mod:`eye_in_hand.io.mcap_tasks`);
+  :mod:`eye_in_hand.io.bags.mcap_tasks`);
 * checks chunk CRCs unless told not to (``verify_crc=False``, what offline processing uses: the
   MCAP reference readers skip them by default too, and CRC-32 runs at ~0.35 GB/s here).
 
