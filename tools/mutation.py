@@ -103,6 +103,8 @@ TESTS: dict[str, tuple[str, ...]] = {
         "test/commands/test_calibrate_handeye_bag.py"),
     "io/bags/reading.py": ("test/io/test_mcap_recovery_order.py", "test/io/test_bags.py"),
     "io/bags/writing.py": ("test/io/test_bags.py",),
+    "io/bags/mcap_records.py": ("test/io/test_mcap_recovery_order.py",
+                                "test/io/test_mcap_chunks.py"),
     "io/bags/mcap_chunks.py": ("test/io/test_mcap_recovery_order.py",
                                "test/io/test_mcap_chunks.py"),
     "io/cdr.py": ("test/io/test_cdr.py",),
@@ -513,9 +515,10 @@ MUTANTS: tuple[Mutant, ...] = (
       '                "rotation_sigma_rad": self.refinement.robot_translation_sigma_m}\n',
       "hand_eye.yaml's rotation noise written from the translation estimate"),
     # -- io/
-    M("scan-chunk-order", "io/bags/reading.py",
-      "            msgs.sort(key=lambda r: r[1][1])\n", "            pass\n",
-      "messages recovered from an interrupted MCAP file not sorted by time"),
+    M("chunk-record-order", "io/bags/mcap_records.py",
+      "    out.sort(key=lambda m: (m[0], m[2]))\n    return out\n", "    return out\n",
+      "messages of an MCAP chunk not sorted by time (an indexed file's and one recovered "
+      "from an interrupted recording alike)"),
     M("read-end-inclusive", "io/bags/reading.py",
       "    stop = None if end_ns is None else end_ns + 1\n",
       "    stop = None if end_ns is None else end_ns\n",

@@ -43,12 +43,12 @@ from eye_in_hand.io.bags.mcap_chunks import (
     ChunkDamage,
     _address,
     _Chunk,
-    _DamagedRecords,
     _may_hold,
     _messages_of,
     chunk_damage,
     drop_pages,
 )
+from eye_in_hand.io.bags.mcap_records import DamagedRecords
 from eye_in_hand.io.cdr import CdrHeader, image_from_cdr
 
 __all__ = ["ChunkRef", "ImageRef", "plan_groups", "open_group", "worker_messages", "release",
@@ -223,7 +223,7 @@ def _open_chunk(ref: ChunkRef, channels: dict[int, bool], verify_crc: bool,
     damage = None
     try:
         found = _messages_of(chunk, recs, wanted, 0, 2**64)
-    except _DamagedRecords as exc:
+    except DamagedRecords as exc:
         found = exc.kept
         damage = chunk_damage(ref, exc, wanted, exc.kept)
     base = _address(recs) if len(recs) else 0

@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import heapq
-import struct
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from types import TracebackType
 from typing import Any, cast
@@ -12,6 +11,7 @@ from typing import Any, cast
 import yaml
 
 from eye_in_hand.errors import BagError, InputError
+from eye_in_hand.io.bags.mcap_scan import ScannedMcap
 from eye_in_hand.io.bags.records import (
     _STORAGE_SUFFIX,
     BagInfo,
@@ -88,229 +88,6 @@ def _storage_paths(path: Path, notes: list[str] | None = None) -> list[Path]:
     return [path]
 
 
-_MCAP_MAGIC = b"\x89MCAP0\r\n"
-
-
-class _ScannedMcap:
-    """An MCAP file whose summary/footer is missing (recording killed), read by a linear scan.
-
-    ``rosbags`` needs the footer; ``ros2 bag`` (the mcap library) falls back to scanning. This
-    does the same: records are read in file order up to the first incomplete or invalid one
-    (the damaged tail); a chunk whose data cannot be read is skipped (its record length says
-    where the next record starts). Messages of each chunk are sorted by log time (rosbag2
-    writes chunks in time order). It offers the subset of the ``rosbags`` reader interface
-    this module uses; :attr:`damage` lists what the scan skipped.
-    """
-
-    compression_format = None
-    compression_mode = None
-
-    def __init__(self, path: Path) -> None:
-        # local: rosbags.interfaces and rosbags.rosbag2.storage_mcap cost ~10 and ~40 ms at CLI
-        # start-up (every command loads io.bags); only damaged or unindexed MCAP files need them
-        from rosbags.interfaces import Connection, ConnectionExtRosbag2
-        from rosbags.rosbag2.storage_mcap import Schema, get_msgdef, get_qos
-
-        self.path = path
-        self.storage = self
-        #: per-topic counts and end time stated by the bag's metadata.yaml (None: not known);
-        #: they give the size and the end of a lost tail
-        self.expected: dict[str, int] | None = None
-        self.expected_end: int | None = None
-        self.stopped_at: int | None = None
-        self.stop_reason = ""
-        self.damage: list[Damage] = []
-        schemas: dict[int, Any] = {}
-        counts: dict[int, int] = {}
-        conns: dict[int, Any] = {}
-        start, end, count = 2**63 - 1, 0, 0
-        for kind, rec in self._records():
-            if kind == 0x03:
-                schemas[rec[0]] = Schema(*rec)
-            elif kind == 0x04:
-                cid, schema_id, topic, encoding, meta = rec
-                schema = schemas.get(schema_id)
-                conns[cid] = Connection(
-                    cid, topic, schema.name if schema else "", get_msgdef(schema), "", 0,
-                    ConnectionExtRosbag2(encoding, get_qos(meta)), self)
-            elif kind == -1:
-                self.damage.append(rec)
-            elif kind == 0x05:
-                cid, stamp, _data = rec
-                counts[cid] = counts.get(cid, 0) + 1
-                start, end, count = min(start, stamp), max(end, stamp), count + 1
-        self.connections = [c._replace(msgcount=counts.get(c.id, 0)) for c in conns.values()]
-        self.message_count = count
-        self.start_time = start if count else 2**63 - 1
-        self.end_time = end + 1 if count else 0
-
-    @property
-    def tail_note(self) -> str:
-        text = "" if self.stopped_at is None else \
-            f"; stopped at byte {self.stopped_at}: {self.stop_reason}"
-        chunks = sum(1 for d in self.damage if d.where.startswith("chunk"))
-        if chunks:
-            text += f"; {chunks} damaged chunk(s) skipped"
-        return text
-
-    @classmethod
-    def try_open(cls, path: Path) -> _ScannedMcap | None:
-        """A scanned reader when ``path`` starts like a ros2 MCAP file, else None."""
-        if path.suffix != ".mcap":
-            return None
-        with open(path, "rb") as fh:
-            head = fh.read(64)
-        if not head.startswith(_MCAP_MAGIC) or len(head) < 18 or head[8] != 0x01:
-            return None
-        scanned = cls(path)
-        return scanned if scanned.connections else None
-
-    def close(self) -> None:
-        """Nothing to release (each scan opens and closes the file)."""
-
-    def _records(self) -> Iterator[tuple[int, Any]]:
-        """(opcode, parsed) for schemas, channels and messages, chunks expanded; ``(-1,
-        Damage)`` for a chunk that cannot be read and for a damaged tail."""
-        # local: rosbags.rosbag2.storage_mcap (~40 ms at CLI start-up), as in __init__
-        from rosbags.rosbag2.storage_mcap import decompress
-
-        def string(buf: bytes, pos: int) -> tuple[str, int]:
-            (n,) = struct.unpack_from("<I", buf, pos)
-            return buf[pos + 4:pos + 4 + n].decode(), pos + 4 + n
-
-        def parse(op: int, body: bytes) -> tuple[int, Any] | None:
-            if op == 0x03:
-                (sid,) = struct.unpack_from("<H", body, 0)
-                name, pos = string(body, 2)
-                enc, pos = string(body, pos)
-                (n,) = struct.unpack_from("<I", body, pos)
-                return op, (sid, name, enc, body[pos + 4:pos + 4 + n].decode())
-            if op == 0x04:
-                cid, schema_id = struct.unpack_from("<HH", body, 0)
-                topic, pos = string(body, 4)
-                enc, pos = string(body, pos)
-                (n,) = struct.unpack_from("<I", body, pos)
-                return op, (cid, schema_id, topic, enc, body[pos + 4:pos + 4 + n])
-            if op == 0x05:
-                cid, _seq, log_time, _pub = struct.unpack_from("<HIQQ", body, 0)
-                return op, (cid, log_time, body[22:])
-            return None
-
-        with open(self.path, "rb") as fh:
-            data = fh.read()
-        pos = 8
-        last = [0]
-
-        def tail(at: int, reason: str) -> tuple[int, Any]:
-            self.stopped_at, self.stop_reason = at, reason
-            # the lost range starts at the cut: the first message time of the chunk that was
-            # cut (its header survived), else just after the last message read
-            # (the file is in write order, not in time order: an early chunk may hold a whole
-            # run's small messages, so the newest message read is not the cut)
-            cut = last[0] + 1 if last[0] else None
-            if data[at] == 0x06 and at + 9 + 16 <= len(data):
-                cut = struct.unpack_from("<Q", data, at + 9)[0]
-            return -1, Damage(self.path.name, f"file tail from byte {at}",
-                              f"{reason} (the file ends at byte {len(data)})",
-                              start_ns=cut, end_ns=self.expected_end)
-
-        while pos < len(data):
-            if pos + 9 > len(data):
-                yield tail(pos, "incomplete record header")
-                return
-            op, length = data[pos], struct.unpack_from("<Q", data, pos + 1)[0]
-            if op == 0 or op > 0x0F:
-                yield tail(pos, f"invalid record opcode {op}")
-                return
-            if pos + 9 + length > len(data):
-                yield tail(pos, "incomplete record")
-                return
-            body = data[pos + 9:pos + 9 + length]
-            pos += 9 + length
-            if op in (0x02, 0x0F):  # footer / data end: the data section is complete
-                return
-            if op != 0x06:
-                if (rec := parse(op, body)) is not None:
-                    if op == 0x05:
-                        last[0] = rec[1][1]
-                    yield rec
-                continue
-            chunk_at = pos - 9 - length
-            t0 = t1 = None
-            try:  # chunk: expand its records, messages sorted by log time
-                t0, t1, size, crc = struct.unpack_from("<QQQI", body, 0)
-                compression, cpos = string(body, 28)
-                (n,) = struct.unpack_from("<Q", body, cpos)
-                inner = decompress(body[cpos + 8:cpos + 8 + n], compression, size, crc)
-            except Exception as exc:
-                yield -1, Damage(self.path.name, f"chunk at byte {chunk_at}",
-                                 f"{str(exc) or type(exc).__name__}", start_ns=t0, end_ns=t1)
-                continue
-            ipos, msgs = 0, []
-            try:
-                while ipos + 9 <= len(inner):
-                    iop, ilen = inner[ipos], struct.unpack_from("<Q", inner, ipos + 1)[0]
-                    if ipos + 9 + ilen > len(inner) or iop not in (0x03, 0x04, 0x05):
-                        raise ValueError(f"record at {ipos} of the chunk makes no sense "
-                                         f"(opcode {iop:#04x}, {ilen} bytes)")
-                    rec = parse(iop, inner[ipos + 9:ipos + 9 + ilen])
-                    ipos += 9 + ilen
-                    if rec is not None and iop == 0x05:
-                        msgs.append(rec)
-                    elif rec is not None:
-                        yield rec
-            except Exception as exc:
-                yield -1, Damage(self.path.name, f"chunk at byte {chunk_at}",
-                                 f"{str(exc) or type(exc).__name__}; the messages before it "
-                                 "are kept", start_ns=t0, end_ns=t1)
-            msgs.sort(key=lambda r: r[1][1])
-            if msgs:
-                last[0] = msgs[-1][1][1]   # the end of the chunk read last
-            yield from msgs
-
-    def messages(self, connections: Sequence[Any], start: int | None = None,
-                 stop: int | None = None, on_damage: Any = None,
-                 ) -> Iterator[tuple[Any, int, bytes]]:
-        """Messages of ``connections`` in ``[start, stop)``; damage to ``on_damage``
-        (a damaged chunk without it raises :class:`BagError`; the damaged tail never does,
-        it is what scanning is for)."""
-        by_id = {c.id: c for c in connections}
-        lo = start if start is not None else 0
-        hi = stop if stop is not None else 2**63
-        for kind, rec in self._records():
-            if kind == 0x05 and rec[0] in by_id and lo <= rec[1] < hi:
-                yield by_id[rec[0]], rec[1], rec[2]
-            elif kind == -1:
-                if rec.where.startswith("file tail"):
-                    rec = self._tail_with_counts(rec, connections, start, stop)
-                if on_damage is not None:
-                    on_damage(rec)
-                elif not rec.where.startswith("file tail"):
-                    raise BagError(f"{rec.where} of {rec.file}: {rec.reason}")
-
-
-    def _tail_with_counts(self, rec: Damage, connections: Sequence[Any], start: int | None,
-                          stop: int | None) -> Damage:
-        """The lost tail with its per-topic counts: what metadata.yaml says each topic holds,
-        less what the file still has (for the topics read; without a time window, where
-        the counts apply)."""
-        if self.expected is None or start is not None or stop is not None:
-            return rec
-        seen: dict[str, int] = {}
-        for c in self.connections:
-            seen[c.topic] = seen.get(c.topic, 0) + int(c.msgcount)
-        topics = {}
-        for topic in {c.topic for c in connections}:
-            if topic in self.expected:
-                lost = self.expected[topic] - seen.get(topic, 0)
-                if lost > 0:
-                    topics[topic] = lost
-        end = rec.end_ns if rec.end_ns is None or rec.start_ns is None or \
-            rec.end_ns >= rec.start_ns else None
-        return Damage(rec.file, rec.where, rec.reason + "; counts from metadata.yaml",
-                      topics, rec.start_ns, end, sum(topics.values()))
-
-
 class _OpenBag:
     """The rosbags readers of one bag, opened; a context manager."""
 
@@ -331,7 +108,7 @@ class _OpenBag:
                     # scan it, also when it belongs to a bag directory with metadata.yaml
                     files = [target] if target.is_file() else \
                         sorted(f for f in target.glob("*.mcap") if f.is_file())
-                    scanned_all = [_ScannedMcap.try_open(f) for f in files]
+                    scanned_all = [ScannedMcap.try_open(f) for f in files]
                     if not scanned_all or any(x is None for x in scanned_all):
                         raise
                     expected = _expected_counts(target) if len(files) == 1 else None
@@ -631,7 +408,7 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
             from compression import zstd  # type: ignore[import-not-found]  # Python >= 3.14
         except ImportError:
             from backports import zstd
-    if isinstance(storage, _ScannedMcap):
+    if isinstance(storage, ScannedMcap):
         source: Iterator[tuple[Any, int, Any]] = storage.messages(
             conns, start, stop, on_damage=damage.add if damage is not None else None)
     else:
