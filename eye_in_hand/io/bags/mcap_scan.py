@@ -27,6 +27,7 @@ class ScannedMcap:
 
     compression_format = None
     compression_mode = None
+    scanned = True
 
     def __init__(self, path: Path) -> None:
         # local: rosbags.interfaces and rosbags.rosbag2.storage_mcap cost ~10 and ~40 ms at CLI
@@ -75,6 +76,12 @@ class ScannedMcap:
         if chunks:
             text += f"; {chunks} damaged chunk(s) skipped"
         return text
+
+    def note(self, error: BaseException) -> str:
+        """What ``bag info`` says about this file (``error``: why ``rosbags`` could not open
+        it)."""
+        return (f"{self.path.name}: {error} (no MCAP summary: the recording was interrupted "
+                f"or the file is truncated); read by scanning the file{self.tail_note}")
 
     @classmethod
     def try_open(cls, path: Path) -> ScannedMcap | None:
