@@ -16,7 +16,7 @@ Figures printed:
   ``benchmarks/bench_localization.py`` has made it, of its 1280x720 bag with sensor noise:
   without the uncompressed size (``backports.zstd.decompress``), with it
   (``backports.zstd.ZstdDecompressor(max_length=size)``), and the function
-  ``eye_in_hand.io.mcap_chunks`` uses.
+  ``eye_in_hand.io.bags.mcap_chunks`` uses.
 
 Run ``--zstd`` for the decompression figures only.
 """
@@ -184,7 +184,7 @@ def bench_zstd(bag: Path) -> None:
 
     from rosbags.rosbag2 import Reader
 
-    from eye_in_hand.io import mcap_chunks
+    from eye_in_hand.io.bags import mcap_chunks
 
     with Reader(bag) as reader:
         storage = reader.storage.storages[0]

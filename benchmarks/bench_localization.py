@@ -210,8 +210,8 @@ def decompression_cpu(bag: Path, duration_s: float) -> tuple[float, float]:
     chunk of ``bag`` in this process, as the workers do (best of two passes)."""
     import mmap
 
+    from eye_in_hand.io.bags.mcap_chunks import _Chunk
     from eye_in_hand.io.bags.reading import _OpenBag
-    from eye_in_hand.io.mcap_chunks import _Chunk
 
     with _OpenBag(bag) as opened:
         storage = opened.readers[0].storage
@@ -323,8 +323,8 @@ def bag_consistency(paths: dict[str, Path]) -> dict[str, float]:
 
 
 def zstd_binding() -> str:
-    """The module that decompresses zstd chunks (eye_in_hand.io.mcap_chunks picks it)."""
-    from eye_in_hand.io import mcap_chunks
+    """The module that decompresses zstd chunks (eye_in_hand.io.bags.mcap_chunks picks it)."""
+    from eye_in_hand.io.bags import mcap_chunks
 
     return mcap_chunks.zstd_binding()
 

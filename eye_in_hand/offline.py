@@ -330,8 +330,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     pool = _PairPool(rig, locator_config, 1 if getattr(locator_config, "stateful", False)
                      else opts.workers or available_cpus(), task_timeout_s=opts.task_timeout_s)
     try:
-        # local: io.bags.streams loads io.mcap_chunks and io.mcap_tasks (~20 ms more at each
-        # `process` worker's start-up, which does not use them)
+        # local: io.bags.streams loads io.bags.mcap_chunks and io.bags.mcap_tasks (~20 ms more
+        # at each `process` worker's start-up, which does not use them)
         from eye_in_hand.io.bags.streams import decoded_stream, worker_readable
 
         mappable = memory_mappable(path)                       # uncompressed MCAP
@@ -616,8 +616,8 @@ class _MappedImage:
 
     @classmethod
     def of(cls, msg: Any) -> _MappedImage | None:
-        # local: io.mcap_chunks adds ~14 ms to each `process` worker's start-up
-        from eye_in_hand.io.mcap_chunks import file_location
+        # local: io.bags.mcap_chunks adds ~14 ms to each `process` worker's start-up
+        from eye_in_hand.io.bags.mcap_chunks import file_location
 
         data = getattr(msg, "data", None)
         if not isinstance(data, np.ndarray):
@@ -834,7 +834,7 @@ class _PairPool:
     _timeouts = 0
 
     def close(self) -> None:
-        from eye_in_hand.io.mcap_tasks import release  # local: ~14 ms, as io.mcap_chunks
+        from eye_in_hand.io.bags.mcap_tasks import release  # local: ~14 ms, as mcap_chunks
 
         if self._threads is not None:
             self._threads.shutdown(wait=True, cancel_futures=True)

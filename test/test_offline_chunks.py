@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 
 from eye_in_hand.core.locator_params import load_locator_config
-from eye_in_hand.io import mcap_tasks
-from eye_in_hand.io.bags import BagWriter, bag_info, iter_messages
+from eye_in_hand.io.bags import BagWriter, bag_info, iter_messages, mcap_tasks
 from eye_in_hand.io.bags.streams import worker_readable
 from eye_in_hand.offline import ProcessOptions, process_bag, write_results
 from eye_in_hand.sim import World

@@ -1,4 +1,4 @@
-"""eye_in_hand.io.mcap_chunks: the memory-mapped MCAP reader behind ``iter_messages``.
+"""eye_in_hand.io.bags.mcap_chunks: the memory-mapped MCAP reader behind ``iter_messages``.
 
 The files here are written record by record (MCAP spec, https://mcap.dev/spec) so that the
 cases real writers produce but ``rosbags``' writer does not are covered: chunk CRCs, lz4 chunks,
@@ -210,7 +210,7 @@ def test_views_outlive_the_iteration(tmp_path: Path) -> None:
 
 
 def test_zstd_chunks_decompress_with_their_size(tmp_path: Path) -> None:
-    from eye_in_hand.io import mcap_chunks
+    from eye_in_hand.io.bags import mcap_chunks
 
     chunks = _chunks()
     write_mcap(tmp_path / "x.mcap", chunks, compression="zstd")
@@ -231,7 +231,7 @@ def test_dropped_pages_read_back_the_same_bytes(tmp_path):
     resident set) never changes what a view reads, with ranges that are not page-aligned."""
     import mmap
 
-    from eye_in_hand.io.mcap_chunks import drop_pages
+    from eye_in_hand.io.bags.mcap_chunks import drop_pages
 
     data = np.random.default_rng(3).integers(0, 256, 5 * mmap.PAGESIZE + 123,
                                              dtype=np.uint8).tobytes()

@@ -1,4 +1,4 @@
-"""eye_in_hand.io.mcap_tasks / io.bags.chunked: chunks opened by workers give the serial
+"""eye_in_hand.io.bags.mcap_tasks / io.bags.chunked: chunks opened by workers give the serial
 reader's messages, in its order, with its damage records."""
 from __future__ import annotations
 
@@ -8,8 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eye_in_hand.io import mcap_tasks
-from eye_in_hand.io.bags import BagWriter, DamageLog, default_typestore, iter_messages, serialize
+from eye_in_hand.io.bags import (
+    BagWriter,
+    DamageLog,
+    default_typestore,
+    iter_messages,
+    mcap_tasks,
+    serialize,
+)
 from eye_in_hand.io.bags.streams import iter_in_workers, worker_readable
 from eye_in_hand.workers import ProcessPool
 

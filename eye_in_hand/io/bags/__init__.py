@@ -38,7 +38,8 @@ from __future__ import annotations
 
 # The package: records (bag and topic information, damage), reading (log-time order, damaged
 # and interrupted files), decoding (type stores, definitions, the Jazzy fallback) and writing
-# (BagWriter with CRCs); every public name is re-exported here.
+# (BagWriter); every public name is re-exported here. Storage formats (MCAP, sqlite3) sit
+# behind one interface (storage.StorageFormat), registered in formats.FORMATS.
 from eye_in_hand.io.bags.decoding import (
     check_bag,
     default_typestore,
@@ -49,10 +50,10 @@ from eye_in_hand.io.bags.decoding import (
     types_from_definition,
     typestore_for,
 )
+from eye_in_hand.io.bags.formats import STORAGES
 from eye_in_hand.io.bags.reading import bag_info, iter_messages, memory_mappable
 from eye_in_hand.io.bags.records import (
     COMPRESSIONS,
-    STORAGES,
     BagInfo,
     BagMessage,
     Damage,

@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import heapq
-import struct
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from types import TracebackType
 from typing import Any, cast
@@ -12,8 +11,8 @@ from typing import Any, cast
 import yaml
 
 from eye_in_hand.errors import BagError, InputError
+from eye_in_hand.io.bags.formats import FORMATS, SUFFIXES, format_of
 from eye_in_hand.io.bags.records import (
-    _STORAGE_SUFFIX,
     BagInfo,
     BagMessage,
     Damage,
@@ -71,244 +70,52 @@ def _storage_paths(path: Path, notes: list[str] | None = None) -> list[Path]:
         problem = metadata_problem(path) if meta.is_file() else None
         if meta.is_file() and problem is None:
             return [path]
-        files = sorted(p for p in path.iterdir() if p.suffix in _STORAGE_SUFFIX and p.is_file())
+        files = sorted(p for p in path.iterdir() if p.suffix in SUFFIXES and p.is_file())
         if not files:
+            kinds = " or ".join(SUFFIXES)
             raise BagError(
-                f"bag {path} has no metadata.yaml and no .mcap or .db3 storage file"
+                f"bag {path} has no metadata.yaml and no {kinds} storage file"
                 if problem is None else
-                f"bag {path}: metadata.yaml {problem}, and there is no .mcap or .db3 storage "
+                f"bag {path}: metadata.yaml {problem}, and there is no {kinds} storage "
                 "file to read instead")
         if problem is not None and notes is not None:
             notes.append(f"{meta}: damaged: {problem}; ignored, the bag is read from its "
                          f"storage file(s) ({', '.join(f.name for f in files)})")
         return files
-    if path.suffix not in _STORAGE_SUFFIX:
+    if path.suffix not in SUFFIXES:
         raise BagError(
-            f"bag {path} is neither a bag directory nor a .mcap / .db3 storage file")
+            f"bag {path} is neither a bag directory nor a {' / '.join(SUFFIXES)} storage file")
     return [path]
 
 
-_MCAP_MAGIC = b"\x89MCAP0\r\n"
+_READER_CLASS: Any = None
 
 
-class _ScannedMcap:
-    """An MCAP file whose summary/footer is missing (recording killed), read by a linear scan.
+def _reader_class() -> Any:
+    """``rosbags.rosbag2.Reader`` whose storage plugins (of files and of bag directories)
+    are those of :data:`eye_in_hand.io.bags.formats.FORMATS`."""
+    global _READER_CLASS
+    if _READER_CLASS is not None:
+        return _READER_CLASS
+    # local: rosbags.rosbag2 costs ~40 ms at CLI start-up (every command loads io.bags)
+    from rosbags.rosbag2 import Reader
+    from rosbags.rosbag2.reader import DirectoryReader
 
-    ``rosbags`` needs the footer; ``ros2 bag`` (the mcap library) falls back to scanning. This
-    does the same: records are read in file order up to the first incomplete or invalid one
-    (the damaged tail); a chunk whose data cannot be read is skipped (its record length says
-    where the next record starts). Messages of each chunk are sorted by log time (rosbag2
-    writes chunks in time order). It offers the subset of the ``rosbags`` reader interface
-    this module uses; :attr:`damage` lists what the scan skipped.
-    """
+    class FormatsDirectoryReader(DirectoryReader):
+        STORAGE_PLUGINS = {name: f.reader_class() for name, f in FORMATS.items()}
 
-    compression_format = None
-    compression_mode = None
+    class FormatsReader(Reader):
+        STORAGE_PLUGINS = {"dir": FormatsDirectoryReader,
+                           **{f.suffix: f.reader_class() for f in FORMATS.values()}}
 
-    def __init__(self, path: Path) -> None:
-        # local: rosbags.interfaces and rosbags.rosbag2.storage_mcap cost ~10 and ~40 ms at CLI
-        # start-up (every command loads io.bags); only damaged or unindexed MCAP files need them
-        from rosbags.interfaces import Connection, ConnectionExtRosbag2
-        from rosbags.rosbag2.storage_mcap import Schema, get_msgdef, get_qos
-
-        self.path = path
-        self.storage = self
-        #: per-topic counts and end time stated by the bag's metadata.yaml (None: not known);
-        #: they give the size and the end of a lost tail
-        self.expected: dict[str, int] | None = None
-        self.expected_end: int | None = None
-        self.stopped_at: int | None = None
-        self.stop_reason = ""
-        self.damage: list[Damage] = []
-        schemas: dict[int, Any] = {}
-        counts: dict[int, int] = {}
-        conns: dict[int, Any] = {}
-        start, end, count = 2**63 - 1, 0, 0
-        for kind, rec in self._records():
-            if kind == 0x03:
-                schemas[rec[0]] = Schema(*rec)
-            elif kind == 0x04:
-                cid, schema_id, topic, encoding, meta = rec
-                schema = schemas.get(schema_id)
-                conns[cid] = Connection(
-                    cid, topic, schema.name if schema else "", get_msgdef(schema), "", 0,
-                    ConnectionExtRosbag2(encoding, get_qos(meta)), self)
-            elif kind == -1:
-                self.damage.append(rec)
-            elif kind == 0x05:
-                cid, stamp, _data = rec
-                counts[cid] = counts.get(cid, 0) + 1
-                start, end, count = min(start, stamp), max(end, stamp), count + 1
-        self.connections = [c._replace(msgcount=counts.get(c.id, 0)) for c in conns.values()]
-        self.message_count = count
-        self.start_time = start if count else 2**63 - 1
-        self.end_time = end + 1 if count else 0
-
-    @property
-    def tail_note(self) -> str:
-        text = "" if self.stopped_at is None else \
-            f"; stopped at byte {self.stopped_at}: {self.stop_reason}"
-        chunks = sum(1 for d in self.damage if d.where.startswith("chunk"))
-        if chunks:
-            text += f"; {chunks} damaged chunk(s) skipped"
-        return text
-
-    @classmethod
-    def try_open(cls, path: Path) -> _ScannedMcap | None:
-        """A scanned reader when ``path`` starts like a ros2 MCAP file, else None."""
-        if path.suffix != ".mcap":
-            return None
-        with open(path, "rb") as fh:
-            head = fh.read(64)
-        if not head.startswith(_MCAP_MAGIC) or len(head) < 18 or head[8] != 0x01:
-            return None
-        scanned = cls(path)
-        return scanned if scanned.connections else None
-
-    def close(self) -> None:
-        """Nothing to release (each scan opens and closes the file)."""
-
-    def _records(self) -> Iterator[tuple[int, Any]]:
-        """(opcode, parsed) for schemas, channels and messages, chunks expanded; ``(-1,
-        Damage)`` for a chunk that cannot be read and for a damaged tail."""
-        # local: rosbags.rosbag2.storage_mcap (~40 ms at CLI start-up), as in __init__
-        from rosbags.rosbag2.storage_mcap import decompress
-
-        def string(buf: bytes, pos: int) -> tuple[str, int]:
-            (n,) = struct.unpack_from("<I", buf, pos)
-            return buf[pos + 4:pos + 4 + n].decode(), pos + 4 + n
-
-        def parse(op: int, body: bytes) -> tuple[int, Any] | None:
-            if op == 0x03:
-                (sid,) = struct.unpack_from("<H", body, 0)
-                name, pos = string(body, 2)
-                enc, pos = string(body, pos)
-                (n,) = struct.unpack_from("<I", body, pos)
-                return op, (sid, name, enc, body[pos + 4:pos + 4 + n].decode())
-            if op == 0x04:
-                cid, schema_id = struct.unpack_from("<HH", body, 0)
-                topic, pos = string(body, 4)
-                enc, pos = string(body, pos)
-                (n,) = struct.unpack_from("<I", body, pos)
-                return op, (cid, schema_id, topic, enc, body[pos + 4:pos + 4 + n])
-            if op == 0x05:
-                cid, _seq, log_time, _pub = struct.unpack_from("<HIQQ", body, 0)
-                return op, (cid, log_time, body[22:])
-            return None
-
-        with open(self.path, "rb") as fh:
-            data = fh.read()
-        pos = 8
-        last = [0]
-
-        def tail(at: int, reason: str) -> tuple[int, Any]:
-            self.stopped_at, self.stop_reason = at, reason
-            # the lost range starts at the cut: the first message time of the chunk that was
-            # cut (its header survived), else just after the last message read
-            # (the file is in write order, not in time order: an early chunk may hold a whole
-            # run's small messages, so the newest message read is not the cut)
-            cut = last[0] + 1 if last[0] else None
-            if data[at] == 0x06 and at + 9 + 16 <= len(data):
-                cut = struct.unpack_from("<Q", data, at + 9)[0]
-            return -1, Damage(self.path.name, f"file tail from byte {at}",
-                              f"{reason} (the file ends at byte {len(data)})",
-                              start_ns=cut, end_ns=self.expected_end)
-
-        while pos < len(data):
-            if pos + 9 > len(data):
-                yield tail(pos, "incomplete record header")
-                return
-            op, length = data[pos], struct.unpack_from("<Q", data, pos + 1)[0]
-            if op == 0 or op > 0x0F:
-                yield tail(pos, f"invalid record opcode {op}")
-                return
-            if pos + 9 + length > len(data):
-                yield tail(pos, "incomplete record")
-                return
-            body = data[pos + 9:pos + 9 + length]
-            pos += 9 + length
-            if op in (0x02, 0x0F):  # footer / data end: the data section is complete
-                return
-            if op != 0x06:
-                if (rec := parse(op, body)) is not None:
-                    if op == 0x05:
-                        last[0] = rec[1][1]
-                    yield rec
-                continue
-            chunk_at = pos - 9 - length
-            t0 = t1 = None
-            try:  # chunk: expand its records, messages sorted by log time
-                t0, t1, size, crc = struct.unpack_from("<QQQI", body, 0)
-                compression, cpos = string(body, 28)
-                (n,) = struct.unpack_from("<Q", body, cpos)
-                inner = decompress(body[cpos + 8:cpos + 8 + n], compression, size, crc)
-            except Exception as exc:
-                yield -1, Damage(self.path.name, f"chunk at byte {chunk_at}",
-                                 f"{str(exc) or type(exc).__name__}", start_ns=t0, end_ns=t1)
-                continue
-            ipos, msgs = 0, []
-            try:
-                while ipos + 9 <= len(inner):
-                    iop, ilen = inner[ipos], struct.unpack_from("<Q", inner, ipos + 1)[0]
-                    if ipos + 9 + ilen > len(inner) or iop not in (0x03, 0x04, 0x05):
-                        raise ValueError(f"record at {ipos} of the chunk makes no sense "
-                                         f"(opcode {iop:#04x}, {ilen} bytes)")
-                    rec = parse(iop, inner[ipos + 9:ipos + 9 + ilen])
-                    ipos += 9 + ilen
-                    if rec is not None and iop == 0x05:
-                        msgs.append(rec)
-                    elif rec is not None:
-                        yield rec
-            except Exception as exc:
-                yield -1, Damage(self.path.name, f"chunk at byte {chunk_at}",
-                                 f"{str(exc) or type(exc).__name__}; the messages before it "
-                                 "are kept", start_ns=t0, end_ns=t1)
-            msgs.sort(key=lambda r: r[1][1])
-            if msgs:
-                last[0] = msgs[-1][1][1]   # the end of the chunk read last
-            yield from msgs
-
-    def messages(self, connections: Sequence[Any], start: int | None = None,
-                 stop: int | None = None, on_damage: Any = None,
-                 ) -> Iterator[tuple[Any, int, bytes]]:
-        """Messages of ``connections`` in ``[start, stop)``; damage to ``on_damage``
-        (a damaged chunk without it raises :class:`BagError`; the damaged tail never does,
-        it is what scanning is for)."""
-        by_id = {c.id: c for c in connections}
-        lo = start if start is not None else 0
-        hi = stop if stop is not None else 2**63
-        for kind, rec in self._records():
-            if kind == 0x05 and rec[0] in by_id and lo <= rec[1] < hi:
-                yield by_id[rec[0]], rec[1], rec[2]
-            elif kind == -1:
-                if rec.where.startswith("file tail"):
-                    rec = self._tail_with_counts(rec, connections, start, stop)
-                if on_damage is not None:
-                    on_damage(rec)
-                elif not rec.where.startswith("file tail"):
-                    raise BagError(f"{rec.where} of {rec.file}: {rec.reason}")
+    _READER_CLASS = FormatsReader
+    return FormatsReader
 
 
-    def _tail_with_counts(self, rec: Damage, connections: Sequence[Any], start: int | None,
-                          stop: int | None) -> Damage:
-        """The lost tail with its per-topic counts: what metadata.yaml says each topic holds,
-        less what the file still has (for the topics read; without a time window, where
-        the counts apply)."""
-        if self.expected is None or start is not None or stop is not None:
-            return rec
-        seen: dict[str, int] = {}
-        for c in self.connections:
-            seen[c.topic] = seen.get(c.topic, 0) + int(c.msgcount)
-        topics = {}
-        for topic in {c.topic for c in connections}:
-            if topic in self.expected:
-                lost = self.expected[topic] - seen.get(topic, 0)
-                if lost > 0:
-                    topics[topic] = lost
-        end = rec.end_ns if rec.end_ns is None or rec.start_ns is None or \
-            rec.end_ns >= rec.start_ns else None
-        return Damage(rec.file, rec.where, rec.reason + "; counts from metadata.yaml",
-                      topics, rec.start_ns, end, sum(topics.values()))
+def _scan(path: Path) -> Any | None:
+    """A scanning reader of a storage file (see ``StorageFormat.scan``), or None."""
+    fmt = format_of(path)
+    return None if fmt is None else fmt.scan(path)
 
 
 class _OpenBag:
@@ -319,31 +126,29 @@ class _OpenBag:
         self.readers: list[Any] = []
         self.notes: list[str] = []
         targets = _storage_paths(self.path, self.notes)
-        from rosbags.rosbag2 import Reader
+        reader_class = _reader_class()
 
         try:
             for target in targets:
                 try:
-                    reader: Any = Reader(target)
+                    reader: Any = reader_class(target)
                     reader.open()
                 except Exception as exc:
                     # a storage file without summary (recording interrupted, file truncated):
                     # scan it, also when it belongs to a bag directory with metadata.yaml
-                    files = [target] if target.is_file() else \
-                        sorted(f for f in target.glob("*.mcap") if f.is_file())
-                    scanned_all = [_ScannedMcap.try_open(f) for f in files]
+                    files = [target] if target.is_file() else sorted(
+                        f for suffix in SUFFIXES for f in target.glob(f"*{suffix}")
+                        if f.is_file())
+                    scanned_all = [_scan(f) for f in files]
                     if not scanned_all or any(x is None for x in scanned_all):
                         raise
                     expected = _expected_counts(target) if len(files) == 1 else None
-                    for f, scanned in zip(files, scanned_all, strict=True):
+                    for scanned in scanned_all:
                         assert scanned is not None
                         if expected is not None:
                             scanned.expected, scanned.expected_end = expected
                         self.readers.append(scanned)
-                        self.notes.append(
-                            f"{f.name}: {exc} (no MCAP summary: the recording was interrupted "
-                            f"or the file is truncated); read by scanning the file"
-                            f"{scanned.tail_note}")
+                        self.notes.append(scanned.note(exc))
                     continue
                 self.readers.append(reader)
         except Exception as exc:
@@ -412,7 +217,7 @@ def bag_info(path: str | Path) -> BagInfo:
                                          for f in meta.get("relative_file_paths", []))
                     distro = str(meta.get("ros_distro") or "")
                 else:
-                    storages.add(_STORAGE_SUFFIX[Path(reader.path).suffix])
+                    storages.add(SUFFIXES[Path(reader.path).suffix].name)
                     storage_files.append(Path(reader.path))
                 compression_format = reader.compression_format or compression_format
                 compression_mode = reader.compression_mode or compression_mode
@@ -496,8 +301,9 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
     """Iterate over a bag's messages in log-time order, as raw CDR bytes.
 
     Messages of several storage files (split bags, or a directory of loose ``.mcap`` files)
-    are merged by log time; ties keep storage order. Indexed MCAP files are memory-mapped and
-    read without copies (:mod:`eye_in_hand.io.mcap_chunks`); other storage goes through
+    are merged by log time; ties keep storage order. A storage format with its own reader
+    (``StorageFormat.direct_messages``: indexed MCAP files, memory-mapped and read without
+    copies by :mod:`eye_in_hand.io.bags.mcap_chunks`) is read by it; other storage goes through
     ``rosbags``.
 
     Args:
@@ -563,11 +369,9 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None,
 
 
 def memory_mappable(path: str | Path) -> bool:
-    """Whether every storage file of a bag is an indexed MCAP file with uncompressed chunks,
-    i.e. whether ``iter_messages(..., views=True)`` yields views of the files themselves."""
-    # local: io.mcap_chunks costs ~8 ms at CLI start-up and at each `process` worker's start
-    from eye_in_hand.io import mcap_chunks
-
+    """Whether every storage file of a bag is read as views of the file itself (indexed MCAP
+    files with uncompressed chunks: ``StorageFormat.mappable``), i.e. whether
+    ``iter_messages(..., views=True)`` yields views of the files themselves."""
     with _OpenBag(path) as bag:
         for reader in bag.readers:
             inner = reader.storage
@@ -575,23 +379,10 @@ def memory_mappable(path: str | Path) -> bool:
                     getattr(inner.metadata, "compression_mode", "") == "message":
                 return False
             for part in (list(inner.storages) if hasattr(inner, "storages") else [inner]):
-                if not mcap_chunks.supports(part) or any(c.compression for c in part.chunks):
+                fmt = format_of(part)
+                if fmt is None or not fmt.mappable(part):
                     return False
     return True
-
-
-def chunk_damage_record(file: str, by_id: dict[int, Any], cd: Any) -> Damage:
-    """The :class:`Damage` record of an MCAP chunk that could not be read (``cd``: an
-    :class:`eye_in_hand.io.mcap_chunks.ChunkDamage`; ``by_id``: the connections read, by
-    channel id)."""
-    topics: dict[str, int] = {}
-    for cid, n in (cd.lost or {}).items():
-        topic = by_id[cid].topic
-        topics[topic] = topics.get(topic, 0) + n
-    where = f"chunk at byte {cd.offset}"
-    reason = cd.reason[len(where) + 2:] if cd.reason.startswith(where + ": ") else cd.reason
-    return Damage(file, where, reason, topics, cd.start_ns, cd.end_ns,
-                  None if cd.lost is None else sum(topics.values()))
 
 
 def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int | None,
@@ -608,19 +399,12 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
 
     Damage goes to ``damage`` (see :func:`iter_messages`); without it, it raises.
     """
-    # local: io.mcap_chunks costs ~8 ms at CLI and worker start-up (see memory_mappable)
-    from eye_in_hand.io import mcap_chunks
-
     name = Path(getattr(storage, "path", "")).name
-    by_id = {c.id: c for c in conns}
+    fmt = format_of(storage)
 
-    if not per_message_zstd and mcap_chunks.supports(storage):
-        def chunk_damage(cd: mcap_chunks.ChunkDamage) -> None:
-            assert damage is not None
-            damage.add(chunk_damage_record(name, by_id, cd))
-
-        chunks = mcap_chunks.chunk_messages(storage, conns, start, stop, verify_crc=verify_crc,
-                                            on_damage=None if damage is None else chunk_damage)
+    if not per_message_zstd and fmt is not None and fmt.reads_directly(storage):
+        chunks = fmt.direct_messages(storage, conns, start, stop, verify_crc=verify_crc,
+                                     on_damage=None if damage is None else damage.add)
         for order, (conn, stamp, view) in enumerate(chunks):
             # views: the memoryview itself, read as bytes by the callers that ask for it
             raw = cast(bytes, view) if views else bytes(view)
@@ -631,7 +415,7 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
             from compression import zstd  # type: ignore[import-not-found]  # Python >= 3.14
         except ImportError:
             from backports import zstd
-    if isinstance(storage, _ScannedMcap):
+    if getattr(storage, "scanned", False):     # a reader from StorageFormat.scan
         source: Iterator[tuple[Any, int, Any]] = storage.messages(
             conns, start, stop, on_damage=damage.add if damage is not None else None)
     else:
@@ -639,7 +423,7 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
     read: dict[int, int] = {}
     last = start
     at_last = 0          # messages read so far with log time ``last``
-    reading_on = False   # past a damaged sqlite3 page
+    reading_on = False   # past a failure (StorageFormat.read_on: a damaged sqlite3 page)
     order = 0
     while True:
         try:
@@ -647,11 +431,14 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
         except Exception as exc:
             if damage is None:
                 raise
-            if getattr(storage, "dbconn", None) is not None and not reading_on:
-                # a damaged sqlite3 page: read on past it, row by row; it costs only its rows
+            rest = None if reading_on or fmt is None else fmt.read_on(
+                storage, conns, start, stop, last=last, at_last=at_last, read=read,
+                damage=damage, name=name, error=exc)
+            if rest is not None:
+                # e.g. a damaged sqlite3 page: read on past it, row by row; it costs only its
+                # rows
                 reading_on = True
-                source = _sqlite_read_on(storage, conns, start, stop, last, at_last, read,
-                                         damage, name, exc)
+                source = rest
                 continue
             # the storage fails part-way: the rest of the file is lost
             lost = {c.topic: int(c.msgcount) - read.get(c.id, 0) for c in conns
@@ -682,75 +469,3 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
             data = bytes(raw)
         yield stamp, stream, order, conn.topic, conn.msgtype, data
         order += 1
-
-
-def _sqlite_read_on(storage: Any, conns: list[Any], start: int | None, stop: int | None,
-                    last: int | None, at_last: int, read: dict[int, int],
-                    damage: DamageLog, name: str, first_error: BaseException,
-                    ) -> Iterator[tuple[Any, int, bytes]]:
-    """The rest of a sqlite3 storage file whose time-ordered read failed on a damaged page.
-
-    Rows are looked up by their id (the table's B-tree key), in blocks, and one by one in a
-    block that fails: a damaged page then costs only the rows stored on it. The rows still
-    to come (log time after ``last``; at ``last``, after the ``at_last`` already read) are
-    read in log-time order. What could not be read becomes one :class:`Damage` record with
-    its per-topic count: the topic's count in the file's topic table less the messages read.
-    """
-    db = storage.dbconn
-    by_id = {c.id: c for c in conns}
-
-    def rows(sql: str, args: tuple[Any, ...]) -> list[tuple[Any, ...]] | None:
-        try:
-            return list(db.execute(sql, args))
-        except Exception:  # noqa: BLE001 - a damaged page: the caller narrows it down
-            return None
-
-    top = rows("SELECT max(id) FROM messages", ())
-    expected = sum(int(c.msgcount) for c in getattr(storage, "connections", conns))
-    hi_id = max(int(top[0][0]) if top and top[0][0] is not None else 0, expected)
-    found: list[tuple[int, int, int]] = []    # (log time, row id, topic id)
-    unreadable = 0
-    block = 256
-    for lo_id in range(1, hi_id + 1, block):
-        span = (lo_id, min(hi_id, lo_id + block - 1))
-        got = rows("SELECT id, topic_id, timestamp FROM messages WHERE id BETWEEN ? AND ?",
-                   span)
-        if got is None:
-            got = []
-            for rid in range(span[0], span[1] + 1):
-                one = rows("SELECT id, topic_id, timestamp FROM messages WHERE id = ?",
-                           (rid,))
-                if one is None:
-                    unreadable += 1
-                else:
-                    got.extend(one)
-        for rid, tid, stamp in got:
-            if tid in by_id and (start is None or stamp >= start) and \
-                    (stop is None or stamp < stop):
-                found.append((int(stamp), int(rid), int(tid)))
-    found.sort()
-    skip = at_last
-    damaged_stamps: list[int] = []
-    for stamp, rid, tid in found:
-        if last is not None and stamp < last:
-            continue
-        if last is not None and stamp == last and skip > 0:
-            skip -= 1
-            continue
-        data = rows("SELECT data FROM messages WHERE id = ?", (rid,))
-        if not data:
-            damaged_stamps.append(stamp)
-            continue
-        yield by_id[tid], stamp, bytes(data[0][0])    # the caller counts it in ``read``
-    windowed = start is not None or stop is not None
-    lost = {c.topic: int(c.msgcount) - read.get(c.id, 0) for c in conns
-            if not windowed and int(c.msgcount) > read.get(c.id, 0)}
-    if lost or damaged_stamps or unreadable:
-        known = not windowed
-        damage.add(Damage(
-            name, "damaged pages",
-            f"{str(first_error) or type(first_error).__name__}; read on past them row by row "
-            f"({unreadable} row(s) unreadable, {len(damaged_stamps)} with unreadable data)",
-            lost, min(damaged_stamps) if damaged_stamps else last,
-            max(damaged_stamps) if damaged_stamps else None,
-            sum(lost.values()) if known else None))

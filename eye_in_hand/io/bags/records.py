@@ -1,4 +1,4 @@
-"""Bag records: storage choices, topic and bag information, damage records."""
+"""Bag records: compression choices, topic and bag information, damage records."""
 from __future__ import annotations
 
 import threading
@@ -7,13 +7,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-STORAGES: tuple[str, ...] = ("mcap", "sqlite3")
-"""Storage plugins :class:`BagWriter` can write (both are readable)."""
-
 COMPRESSIONS: tuple[str | None, ...] = (None, "zstd")
 """Compression choices of :class:`BagWriter`."""
-
-_STORAGE_SUFFIX = {".mcap": "mcap", ".db3": "sqlite3"}
 
 BagMessage = tuple[str, str, int, bytes]
 """One message as read from a bag: ``(topic, msgtype, log_time_ns, raw_cdr_bytes)``."""

@@ -7,11 +7,11 @@ order, images as views that are never copied, from a reader thread
 processes, from :func:`decoded_in_workers`.
 
 :func:`worker_readable` says whether a bag is one indexed MCAP file with zstd or lz4 chunks;
-:func:`iter_in_workers` then reads it through :func:`eye_in_hand.io.mcap_tasks.worker_messages`:
-the same messages, in the same order, with the same damage records as
-``iter_messages(path, topics, views=True, damage=...)``, images as
-:class:`eye_in_hand.io.mcap_tasks.ImageRef` (decoded where they are used, never copied between
-processes) and other messages as CDR bytes.
+:func:`iter_in_workers` then reads it through
+:func:`eye_in_hand.io.bags.mcap_tasks.worker_messages`: the same messages, in the same order,
+with the same damage records as ``iter_messages(path, topics, views=True, damage=...)``,
+images as :class:`eye_in_hand.io.bags.mcap_tasks.ImageRef` (decoded where they are used,
+never copied between processes) and other messages as CDR bytes.
 """
 from __future__ import annotations
 
@@ -22,33 +22,32 @@ from pathlib import Path
 from typing import Any, cast
 
 from eye_in_hand.errors import BagError, ConversionError
-from eye_in_hand.io import mcap_chunks
 from eye_in_hand.io.bags.decoding import deserialize
-from eye_in_hand.io.bags.reading import _OpenBag, chunk_damage_record, iter_messages
+from eye_in_hand.io.bags.formats import format_of
+from eye_in_hand.io.bags.reading import _OpenBag, iter_messages
 from eye_in_hand.io.bags.records import DamageLog
+from eye_in_hand.io.bags.storage import StorageFormat
 from eye_in_hand.io.cdr import image_from_cdr, is_image_type
-from eye_in_hand.io.mcap_tasks import worker_messages
 
 __all__ = ["decoded_stream", "decoded_on_thread", "worker_readable", "iter_in_workers",
            "decoded_in_workers"]
 
-_COMPRESSIONS = ("zstd", "lz4")
-
-
-def _storage(bag: _OpenBag) -> Any | None:
-    """The bag's one storage file when it is an indexed MCAP file with chunk compression."""
+def _storage(bag: _OpenBag) -> tuple[Any, StorageFormat] | None:
+    """The bag's one storage file and its format, when the format reads it in worker
+    processes (``StorageFormat.worker_readable``: an indexed MCAP file with chunk
+    compression)."""
     parts: list[Any] = []
     for reader in bag.readers:
         inner = reader.storage
         if getattr(getattr(inner, "metadata", None), "compression_mode", "") == "message":
             return None
         parts.extend(list(inner.storages) if hasattr(inner, "storages") else [inner])
-    if len(parts) != 1 or not mcap_chunks.supports(parts[0]):
+    if len(parts) != 1:
         return None
-    comp = {c.compression for c in parts[0].chunks}
-    if not comp & set(_COMPRESSIONS) or not comp <= {"", *_COMPRESSIONS}:
+    fmt = format_of(parts[0])
+    if fmt is None or not fmt.worker_readable(parts[0]):
         return None
-    return parts[0]
+    return parts[0], fmt
 
 
 def worker_readable(path: str | Path) -> bool:
@@ -66,7 +65,7 @@ def iter_in_workers(path: str | Path, topics: Iterable[str], submit: Any, *,
                     damage: DamageLog | None = None) -> Iterator[tuple[str, str, int, Any]]:
     """``(topic, msgtype, log_time_ns, payload)`` of a :func:`worker_readable` bag, in log-time
     order, chunks opened by ``submit``'s workers (see
-    :func:`eye_in_hand.io.mcap_tasks.worker_messages`).
+    :func:`eye_in_hand.io.bags.mcap_tasks.worker_messages`).
 
     Args:
         topics: the topics to read.
@@ -82,22 +81,19 @@ def iter_in_workers(path: str | Path, topics: Iterable[str], submit: Any, *,
     """
     wanted = set(topics)
     with _OpenBag(path) as bag:
-        storage = _storage(bag)
-        if storage is None:
+        found = _storage(bag)
+        if found is None:
             raise BagError(f"{path}: not one MCAP file with compressed chunks")
+        storage, fmt = found
         conns = [c for c in storage.connections if c.topic in wanted]
-        by_id = {c.id: c for c in conns}
-        name = Path(storage.path).name
         images = {c.id for c in conns if c.topic in image_topics and is_image_type(c.msgtype)}
         ids = [next((c.id for c in conns if c.topic == t), None) for t in image_topics]
         pair = cast(tuple[int, int] | None, (ids[0], ids[1]) if None not in ids else None)
-        on_damage = None if damage is None else \
-            (lambda cd: damage.add(chunk_damage_record(name, by_id, cd)))
         index = 0
         try:
-            for conn, stamp, payload in worker_messages(
+            for conn, stamp, payload in fmt.worker_messages(
                     storage, conns, submit, image_channels=images, pair_channels=pair,
-                    verify_crc=verify_crc, on_damage=on_damage):
+                    verify_crc=verify_crc, on_damage=None if damage is None else damage.add):
                 yield conn.topic, conn.msgtype, stamp, payload
                 index += 1
         except BagError:

@@ -1,20 +1,19 @@
-"""Writing bags: ``BagWriter`` over rosbags, with real MCAP CRCs and ``ros_distro: jazzy``."""
+"""Writing bags: ``BagWriter`` over rosbags, through the storage formats' writers (MCAP with
+real CRCs), with ``ros_distro: jazzy``."""
 from __future__ import annotations
 
 import threading
-import zlib
-from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass
-from io import BytesIO
 from pathlib import Path
 from types import TracebackType
 from typing import Any
 
 from eye_in_hand.errors import BagError, InputError
 from eye_in_hand.io.bags.decoding import serialize, types_from_definition
+from eye_in_hand.io.bags.formats import FORMATS, STORAGES
 from eye_in_hand.io.bags.reading import _bag_error
-from eye_in_hand.io.bags.records import COMPRESSIONS, STORAGES, OfferedQos
+from eye_in_hand.io.bags.records import COMPRESSIONS, OfferedQos
 
 
 def _to_rosbags_qos(qos: OfferedQos) -> Any:
@@ -41,35 +40,16 @@ ROS_DISTRO = "jazzy"
 """The distribution written bags name in ``metadata.yaml`` (the package targets ROS 2 Jazzy)."""
 
 
-class _CrcFile:
-    """A write-only file that keeps the CRC-32 of everything written through it."""
-
-    def __init__(self, fh: Any, crc: int) -> None:
-        self._fh = fh
-        self.crc = crc
-
-    def write(self, data: Any) -> int:
-        self.crc = zlib.crc32(data, self.crc)
-        written: int = self._fh.write(data)
-        return written
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._fh, name)
-
-
 _WRITER_CLASS: Any = None
 
 
 def _rosbags_writer() -> Any:
-    """``rosbags.rosbag2.Writer`` whose MCAP files carry CRCs and whose metadata names the
-    distribution.
+    """``rosbags.rosbag2.Writer`` whose storage plugins are those of the writable formats
+    (:data:`eye_in_hand.io.bags.formats.FORMATS`: MCAP files with CRCs) and whose metadata
+    names the distribution.
 
-    ``rosbags`` writes 0 (not computed) in every CRC field of an MCAP file and
-    ``ros_distro: rosbags`` in the metadata. Here each chunk gets the CRC-32 of its
-    uncompressed records, the data-end record the CRC-32 of the data section, and the footer
-    the CRC-32 of the summary section, as the MCAP specification defines them, so that
-    corruption can be detected (``--verify-crc``); the metadata (``metadata.yaml`` and the
-    copy inside the storage file) says ``ros_distro: jazzy``.
+    ``rosbags`` writes ``ros_distro: rosbags`` in the metadata; here ``metadata.yaml`` and the
+    copy inside the storage file say ``ros_distro: jazzy``.
     """
     global _WRITER_CLASS
     if _WRITER_CLASS is not None:
@@ -77,82 +57,17 @@ def _rosbags_writer() -> Any:
     # local: the rosbags writer (rosbag2 + storage_mcap) costs ~55 ms at CLI start-up (every
     # command loads io.bags), and only commands that write bags need it
     from rosbags.rosbag2 import Writer
-    from rosbags.rosbag2.enums import StoragePlugin
-    from rosbags.rosbag2.storage_mcap import (
-        McapWriter,
-        PendingChunk,
-        write_record,
-        write_string,
-        write_uint16,
-        write_uint32,
-        write_uint64,
-    )
 
     def jazzy(metadata: str) -> str:
         return metadata.replace("ros_distro: rosbags", f"ros_distro: {ROS_DISTRO}")
 
-    class CrcMcapWriter(McapWriter):
-        def __init__(self, path: Path, compression: Any) -> None:
-            super().__init__(path, compression)
-            self.bio.flush()
-            head = self.path.read_bytes()[:self.bio.tell()]     # magic and header record
-            self.crc_file = _CrcFile(self.bio, zlib.crc32(head))
-            # the writer's file, wrapped: every byte written goes through the CRC
-            self.bio = self.crc_file  # type: ignore[assignment]
-
-        def close_chunk(self) -> None:
-            # rosbags' close_chunk, with the CRC-32 of the uncompressed records
-            rec = BytesIO()
-            write_uint64(rec, self.chunk.message_start_time)
-            write_uint64(rec, self.chunk.message_end_time)
-            write_uint64(rec, self.chunk.bio.tell())
-            write_uint32(rec, zlib.crc32(self.chunk.bio.getbuffer()))
-            compressed = self.compressor(self.chunk.bio.getvalue())
-            write_string(rec, self.compression)
-            write_uint64(rec, len(compressed))
-            rec.write(compressed)
-            chunk_start = self.bio.tell()
-            write_record(self.bio, 0x06, rec)
-            chunk_end = self.bio.tell()
-            offsets: list[tuple[int, int]] = []
-            for cid, msgs in self.chunk.msgs.items():
-                offsets.append((cid, self.bio.tell()))
-                rec = BytesIO()
-                write_uint16(rec, cid)
-                write_uint32(rec, len(msgs) * 16)
-                for ts, offset in msgs:
-                    write_uint64(rec, ts)
-                    write_uint64(rec, offset)
-                write_record(self.bio, 0x07, rec)
-            rec = BytesIO()
-            write_uint64(rec, self.chunk.message_start_time)
-            write_uint64(rec, self.chunk.message_end_time)
-            write_uint64(rec, chunk_start)
-            write_uint64(rec, chunk_end - chunk_start)
-            write_uint32(rec, len(offsets) * 10)
-            for cid, offset in offsets:
-                write_uint16(rec, cid)
-                write_uint64(rec, offset)
-            write_uint64(rec, self.bio.tell() - chunk_end)
-            write_string(rec, self.compression)
-            write_uint64(rec, len(compressed))
-            write_uint64(rec, self.chunk.bio.tell())
-            self.chunks.append(rec)
-            self.chunk = PendingChunk(2**63 - 1, 0, BytesIO(), defaultdict(list))
-
-        def close(self, version: int, metadata: str) -> None:
-            if self.chunk.bio.tell():
-                self.close_chunk()
-            pos, crc = self.bio.tell(), self.crc_file.crc
-            super().close(version, jazzy(metadata))
-            _patch_mcap_crcs(self.path, pos, crc)
-
-    class CrcWriter(Writer):
-        STORAGE_PLUGINS = {**Writer.STORAGE_PLUGINS, StoragePlugin.MCAP: CrcMcapWriter}
+    class FormatsWriter(Writer):
+        STORAGE_PLUGINS = {**Writer.STORAGE_PLUGINS,
+                           **dict(f.writer_plugin() for f in FORMATS.values() if f.writable)}
 
         def close(self) -> None:
             storage = self.storage
-            if storage is not None and not isinstance(storage, CrcMcapWriter):
+            if storage is not None:
                 close = storage.close
                 # the storage's own close, with this package's ros_distro in its metadata
                 storage.close = lambda version, metadata: close(  # type: ignore[method-assign]
@@ -162,39 +77,8 @@ def _rosbags_writer() -> Any:
             if meta.is_file():
                 meta.write_text(jazzy(meta.read_text("utf8")), "utf8")
 
-    _WRITER_CLASS = CrcWriter
-    return CrcWriter
-
-
-def _patch_mcap_crcs(path: Path, pos: int, crc: int) -> None:
-    """Write the data-section and summary CRCs of a finished MCAP file.
-
-    ``crc`` is the CRC-32 of the file's first ``pos`` bytes (everything up to the end of the
-    last chunk and its message indexes); the rest of the data section (the metadata record)
-    and the summary are read back, they are small.
-    """
-    with open(path, "r+b") as fh:
-        fh.seek(0, 2)
-        size = fh.tell()
-        footer = size - 8 - 29
-        fh.seek(footer)
-        tail = fh.read(29)
-        if tail[0] != 0x02:
-            raise BagError(f"{path}: no MCAP footer where expected (byte {footer})")
-        summary_start = int.from_bytes(tail[9:17], "little")
-        data_end = (summary_start or footer) - 13
-        fh.seek(pos)
-        rest = fh.read(data_end - pos)
-        end_rec = fh.read(13)
-        if end_rec[0] != 0x0F:
-            raise BagError(f"{path}: no MCAP data-end record where expected (byte {data_end})")
-        fh.seek(data_end + 9)
-        fh.write(zlib.crc32(rest, crc).to_bytes(4, "little"))
-        if summary_start:
-            fh.seek(summary_start)
-            summary = fh.read(footer + 25 - summary_start)
-            fh.seek(footer + 25)
-            fh.write(zlib.crc32(summary).to_bytes(4, "little"))
+    _WRITER_CLASS = FormatsWriter
+    return FormatsWriter
 
 
 @dataclass
@@ -235,7 +119,7 @@ class BagWriter:
         if self.path.exists():
             raise BagError(f"cannot write bag {self.path}: it exists already")
         # local: rosbags.rosbag2 and rosbags.typesys cost ~50 ms at CLI start-up (see above)
-        from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
+        from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
         from rosbags.typesys import Stores, get_typestore
 
         self.storage = storage
@@ -244,11 +128,12 @@ class BagWriter:
         self._lock = threading.Lock()
         self._topics: dict[str, _Topic] = {}
         self._closed = False
-        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+        fmt = FORMATS[storage]
         try:
+            plugin, _writer_class = fmt.writer_plugin()
             self._writer = _rosbags_writer()(self.path, version=9, storage_plugin=plugin)
             if compression == "zstd":
-                mode = CompressionMode.STORAGE if storage == "mcap" else CompressionMode.MESSAGE
+                mode = CompressionMode[fmt.zstd_mode.upper()]
                 self._writer.set_compression(mode, CompressionFormat.ZSTD)
             self._writer.open()
         except Exception as exc:

@@ -10,7 +10,7 @@ parsed (the file's summary section) and
 * decompresses zstd / lz4 chunks on a small thread pool a few chunks ahead of the consumer
   (the decompressors release the GIL), each message then a view of its decompressed chunk
   (offline processing has worker processes open compressed chunks instead:
-  :mod:`eye_in_hand.io.mcap_tasks`);
+  :mod:`eye_in_hand.io.bags.mcap_tasks`);
 * checks chunk CRCs unless told not to (``verify_crc=False``, what offline processing uses: the
   MCAP reference readers skip them by default too, and CRC-32 runs at ~0.35 GB/s here).
 
@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import heapq
 import mmap
-import struct
 import threading
 import zlib
 from collections.abc import Callable, Iterator, Sequence
@@ -41,15 +40,17 @@ from typing import Any
 
 import numpy as np
 
+from eye_in_hand.io.bags.mcap_records import (
+    OP_CHUNK,
+    RECORD,
+    DamagedRecords,
+    Found,
+    chunk_head,
+)
+from eye_in_hand.io.bags.mcap_records import chunk_messages as _chunk_records
+
 __all__ = ["supports", "chunk_messages", "file_location", "ChunkDamage", "chunk_damage",
            "zstd_binding"]
-
-_RECORD = struct.Struct("<BQ")           # opcode, record length
-_MESSAGE = struct.Struct("<HIQQ")        # channel id, sequence, log time, publish time
-_CHUNK_HEAD = struct.Struct("<QQQI")     # start, end, uncompressed size, uncompressed crc
-_U32 = struct.Struct("<I")
-_U64 = struct.Struct("<Q")
-
 
 _MAPPED: dict[int, tuple[int, int, str]] = {}     # id -> (base address, length, path)
 _MAPPED_LOCK = threading.Lock()
@@ -207,23 +208,17 @@ class _Chunk:
         if end > len(file_view):
             raise ValueError(f"chunk at byte {start}: extends past the end of the file "
                              f"({end} > {len(file_view)} bytes)")
-        op, length = _RECORD.unpack_from(file_view, start)
-        if op != 0x06 or 9 + length != int(info.chunk_length):
+        op, length = RECORD.unpack_from(file_view, start)
+        if op != OP_CHUNK or 9 + length != int(info.chunk_length):
             raise ValueError(f"chunk at byte {start}: the index points at a record with opcode "
                              f"{op:#04x} and length {length}, not a chunk")
         body = file_view[start + 9:end]
         try:
-            _s, _e, self.size, self.crc = _CHUNK_HEAD.unpack_from(body, 0)
-            (n,) = _U32.unpack_from(body, 28)
-            self.compression = bytes(body[32:32 + n]).decode()
-            (csize,) = _U64.unpack_from(body, 32 + n)
-        except (struct.error, UnicodeDecodeError) as exc:
-            raise ValueError(f"chunk at byte {start}: malformed chunk header ({exc})") from exc
-        data_at = 32 + n + 8
-        if data_at + csize > len(body):
-            raise ValueError(f"chunk at byte {start}: compressed data of {csize} bytes exceeds "
-                             "its record")
-        self.data = body[data_at:data_at + csize]
+            head = chunk_head(body)
+        except ValueError as exc:
+            raise ValueError(f"chunk at byte {start}: {exc}") from exc
+        self.size, self.crc, self.compression = head.size, head.crc, head.compression
+        self.data = body[head.data_at:head.data_at + head.data_size]
 
     def records(self, verify_crc: bool) -> memoryview:
         """The chunk's uncompressed records (a view of the file when not compressed)."""
@@ -247,56 +242,17 @@ class _Chunk:
         return memoryview(raw)
 
 
-class _DamagedRecords(ValueError):
-    """Records of a chunk stop making sense part-way; the messages before that are kept."""
-
-    def __init__(self, text: str, kept: list[tuple[int, int, int, Any, memoryview]]) -> None:
-        super().__init__(text)
-        self.kept = kept
-
-
 def _messages_of(chunk: _Chunk, records: memoryview, channels: dict[int, Any], lo: int,
-                 hi: int) -> list[tuple[int, int, int, Any, memoryview]]:
-    """(log time, chunk offset, index, connection, data view) of the wanted messages.
+                 hi: int) -> list[Found]:
+    """(log time, chunk offset, index, connection, data view) of the wanted messages
+    (:func:`eye_in_hand.io.bags.mcap_records.chunk_messages` over the chunk's records, with
+    its time range from the chunk index).
 
     Raises:
-        _DamagedRecords: a record that cannot be in a valid chunk (truncated, longer than
-            the chunk, an opcode that chunks do not hold, a message outside the chunk's time
-            range); it carries the wanted messages read before it.
+        DamagedRecords: records that stop making sense; it carries the messages before.
     """
-    out: list[tuple[int, int, int, Any, memoryview]] = []
-    pos, end, index = 0, len(records), 0
-    t_lo = int(chunk.info.message_start_time)
-    t_hi = int(chunk.info.message_end_time)
-
-    def damaged(text: str) -> _DamagedRecords:
-        out.sort(key=lambda m: (m[0], m[2]))
-        return _DamagedRecords(f"chunk at byte {chunk.offset}: {text}", out)
-
-    while pos < end:
-        if pos + 9 > end:
-            raise damaged(f"truncated record at {pos}")
-        op, length = _RECORD.unpack_from(records, pos)
-        body_at, pos = pos + 9, pos + 9 + length
-        if pos > end:
-            raise damaged(f"record at {body_at - 9} is longer than the chunk")
-        if op in (0x03, 0x04):               # schema, channel
-            continue
-        if op != 0x05:
-            raise damaged(f"record at {body_at - 9} has opcode {op:#04x}, which a chunk "
-                          "does not hold")
-        if length < _MESSAGE.size:
-            raise damaged(f"message record of {length} bytes")
-        cid, _seq, log_time, _pub = _MESSAGE.unpack_from(records, body_at)
-        if not t_lo <= log_time <= t_hi:
-            raise damaged(f"message at {body_at - 9} has log time {log_time}, outside the "
-                          f"chunk's [{t_lo}, {t_hi}]")
-        conn = channels.get(cid)
-        if conn is not None and lo <= log_time < hi:
-            out.append((log_time, chunk.offset, index, conn, records[body_at + _MESSAGE.size:pos]))
-            index += 1
-    out.sort(key=lambda m: (m[0], m[2]))
-    return out
+    return _chunk_records(records, chunk.offset, int(chunk.info.message_start_time),
+                          int(chunk.info.message_end_time), channels, lo, hi)
 
 
 @dataclass(frozen=True)
@@ -319,7 +275,7 @@ class ChunkDamage:
 
 
 def _lost(info: Any, channels: dict[int, Any],
-          kept: Sequence[tuple[int, int, int, Any, memoryview]] = ()) -> dict[int, int] | None:
+          kept: Sequence[Found] = ()) -> dict[int, int] | None:
     """Messages of ``channels`` the chunk's index announces, less the ones ``kept``."""
     counts = getattr(info, "channel_count", None)
     if not counts or not getattr(info, "message_index_offsets", None):
@@ -333,7 +289,7 @@ def _lost(info: Any, channels: dict[int, Any],
 
 
 def chunk_damage(info: Any, exc: BaseException, channels: dict[int, Any],
-                 kept: Sequence[tuple[int, int, int, Any, memoryview]] = ()) -> ChunkDamage:
+                 kept: Sequence[Found] = ()) -> ChunkDamage:
     """The :class:`ChunkDamage` of a chunk that failed with ``exc`` (``kept``: the messages
     read before a bad record; ``channels``: the wanted ones, by channel id)."""
     offset = int(info.chunk_start_offset)
@@ -398,7 +354,7 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
     ahead = 2 * max(1, threads)
 
     def damage(info: Any, exc: BaseException,
-               kept: Sequence[tuple[int, int, int, Any, memoryview]] = ()) -> None:
+               kept: Sequence[Found] = ()) -> None:
         record = chunk_damage(info, exc, channels, kept)
         if on_damage is None:
             raise ValueError(record.reason) from exc
@@ -441,7 +397,7 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
                 continue
             try:
                 msgs = _messages_of(chunk, records(i), channels, lo, hi)
-            except _DamagedRecords as exc:
+            except DamagedRecords as exc:
                 damage(chunk.info, exc, exc.kept)
                 msgs = exc.kept
             except Exception as exc:  # decompression, size, CRC

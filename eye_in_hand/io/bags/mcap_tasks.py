@@ -15,14 +15,14 @@ Here the reading process only plans and merges; the work is done where the image
   chunk's small messages as bytes and each image as an :class:`ImageRef`: its header, size
   fields and where its bytes lie in the decompressed chunk;
 * the reading process merges the messages in exactly the order
-  :func:`eye_in_hand.io.mcap_chunks.chunk_messages` gives (log time, ties by chunk position,
+  :func:`eye_in_hand.io.bags.mcap_chunks.chunk_messages` gives (log time, ties by chunk position,
   then by record order), so pairing and everything after it see the same stream;
 * an image is used where its chunk was opened: ``ImageRef.data`` gives the pixels from the
   process's cache, decompressing the chunk again when it is not there (a pair whose images lie
   in two groups, a chunk evicted from the cache, a pair located in the reading process after a
   worker failed). Correctness never depends on the cache, only speed.
 
-Damaged chunks are reported as :class:`eye_in_hand.io.mcap_chunks.ChunkDamage`, the same
+Damaged chunks are reported as :class:`eye_in_hand.io.bags.mcap_chunks.ChunkDamage`, the same
 records (and the same messages kept before a bad record) as the serial reader.
 """
 from __future__ import annotations
@@ -39,17 +39,17 @@ from typing import Any
 import numpy as np
 
 from eye_in_hand.errors import ConversionError
-from eye_in_hand.io.cdr import CdrHeader, image_from_cdr
-from eye_in_hand.io.mcap_chunks import (
+from eye_in_hand.io.bags.mcap_chunks import (
     ChunkDamage,
     _address,
     _Chunk,
-    _DamagedRecords,
     _may_hold,
     _messages_of,
     chunk_damage,
     drop_pages,
 )
+from eye_in_hand.io.bags.mcap_records import DamagedRecords
+from eye_in_hand.io.cdr import CdrHeader, image_from_cdr
 
 __all__ = ["ChunkRef", "ImageRef", "plan_groups", "open_group", "worker_messages", "release",
            "GROUP_BYTES", "CACHE_BYTES"]
@@ -223,7 +223,7 @@ def _open_chunk(ref: ChunkRef, channels: dict[int, bool], verify_crc: bool,
     damage = None
     try:
         found = _messages_of(chunk, recs, wanted, 0, 2**64)
-    except _DamagedRecords as exc:
+    except DamagedRecords as exc:
         found = exc.kept
         damage = chunk_damage(ref, exc, wanted, exc.kept)
     base = _address(recs) if len(recs) else 0
@@ -307,7 +307,7 @@ def worker_messages(storage: Any, connections: Sequence[Any], submit: Submit, *,
                     on_damage: Callable[[ChunkDamage], None] | None = None,
                     ) -> Iterator[tuple[Any, int, Any]]:
     """``(connection, log_time_ns, payload)`` of an indexed MCAP file, in the order of
-    :func:`eye_in_hand.io.mcap_chunks.chunk_messages`, its chunks opened by ``submit``'s
+    :func:`eye_in_hand.io.bags.mcap_chunks.chunk_messages`, its chunks opened by ``submit``'s
     workers (:func:`open_group`) ``ahead`` groups in advance (groups of ``group_bytes``,
     default :data:`GROUP_BYTES`).
 

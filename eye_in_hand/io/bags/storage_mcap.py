@@ -1,0 +1,242 @@
+"""MCAP storage: ``rosbags``' reader and writer, with this package's memory-mapped reader
+(:mod:`~eye_in_hand.io.bags.mcap_chunks`), chunk workers
+(:mod:`~eye_in_hand.io.bags.mcap_tasks`), the scan of an interrupted file
+(:mod:`~eye_in_hand.io.bags.mcap_scan`) and real CRCs in written files."""
+from __future__ import annotations
+
+import zlib
+from collections import defaultdict
+from collections.abc import Iterator, Sequence
+from io import BytesIO
+from pathlib import Path
+from typing import Any
+
+from eye_in_hand.errors import BagError
+from eye_in_hand.io.bags import mcap_records as rec
+from eye_in_hand.io.bags.mcap_scan import ScannedMcap
+from eye_in_hand.io.bags.records import Damage
+from eye_in_hand.io.bags.storage import OnDamage, StorageFormat
+
+__all__ = ["McapFormat", "chunk_damage_record"]
+
+_WORKER_COMPRESSIONS = ("zstd", "lz4")
+
+
+def chunk_damage_record(file: str, by_id: dict[int, Any], cd: Any) -> Damage:
+    """The :class:`Damage` record of an MCAP chunk that could not be read (``cd``: an
+    :class:`eye_in_hand.io.bags.mcap_chunks.ChunkDamage`; ``by_id``: the connections read, by
+    channel id)."""
+    topics: dict[str, int] = {}
+    for cid, n in (cd.lost or {}).items():
+        topic = by_id[cid].topic
+        topics[topic] = topics.get(topic, 0) + n
+    where = f"chunk at byte {cd.offset}"
+    reason = cd.reason[len(where) + 2:] if cd.reason.startswith(where + ": ") else cd.reason
+    return Damage(file, where, reason, topics, cd.start_ns, cd.end_ns,
+                  None if cd.lost is None else sum(topics.values()))
+
+
+def _on_chunk_damage(storage: Any, connections: Sequence[Any], on_damage: OnDamage) -> Any:
+    """``on_damage`` for :class:`~eye_in_hand.io.bags.mcap_chunks.ChunkDamage` records."""
+    if on_damage is None:
+        return None
+    name = Path(getattr(storage, "path", "")).name
+    by_id = {c.id: c for c in connections}
+    report = on_damage
+    return lambda cd: report(chunk_damage_record(name, by_id, cd))
+
+
+class McapFormat(StorageFormat):
+    """MCAP (``ros2 bag record``'s default on Jazzy)."""
+
+    name = "mcap"
+    suffix = ".mcap"
+    writable = True
+    zstd_mode = "storage"        # zstd-compressed chunks
+
+    def reader_class(self) -> Any:
+        # local: rosbags.rosbag2.storage_mcap costs ~40 ms at CLI start-up (every command loads
+        # io.bags); rosbags.rosbag2.Reader, which the caller has loaded, imports it anyway
+        from rosbags.rosbag2.storage_mcap import McapReader
+
+        return McapReader
+
+    def scan(self, path: Path) -> Any | None:
+        return ScannedMcap.try_open(path)
+
+    def reads_directly(self, storage: Any) -> bool:
+        # local: io.bags.mcap_chunks costs ~8 ms at CLI start-up and at each `process` worker's
+        # start
+        from eye_in_hand.io.bags import mcap_chunks
+
+        return mcap_chunks.supports(storage)
+
+    def direct_messages(self, storage: Any, connections: Sequence[Any], start: int | None,
+                        stop: int | None, *, verify_crc: bool, on_damage: OnDamage,
+                        ) -> Iterator[tuple[Any, int, Any]]:
+        # local: as in reads_directly (~8 ms)
+        from eye_in_hand.io.bags import mcap_chunks
+
+        return mcap_chunks.chunk_messages(
+            storage, connections, start, stop, verify_crc=verify_crc,
+            on_damage=_on_chunk_damage(storage, connections, on_damage))
+
+    def mappable(self, storage: Any) -> bool:
+        return self.reads_directly(storage) and not any(c.compression for c in storage.chunks)
+
+    def worker_readable(self, storage: Any) -> bool:
+        if not self.reads_directly(storage):
+            return False
+        comp = {c.compression for c in storage.chunks}
+        return bool(comp & set(_WORKER_COMPRESSIONS)) and comp <= {"", *_WORKER_COMPRESSIONS}
+
+    def worker_messages(self, storage: Any, connections: Sequence[Any], submit: Any, *,
+                        image_channels: set[int], pair_channels: tuple[int, int] | None,
+                        verify_crc: bool, on_damage: OnDamage,
+                        ) -> Iterator[tuple[Any, int, Any]]:
+        # local: io.bags.mcap_tasks costs ~14 ms at CLI start-up and at each `process`
+        # worker's start (as mcap_chunks, and io.cdr)
+        from eye_in_hand.io.bags.mcap_tasks import worker_messages
+
+        return worker_messages(storage, connections, submit, image_channels=image_channels,
+                               pair_channels=pair_channels, verify_crc=verify_crc,
+                               on_damage=_on_chunk_damage(storage, connections, on_damage))
+
+    def writer_plugin(self) -> tuple[Any, Any]:
+        # local: rosbags.rosbag2.enums is loaded with the rosbags writer (see _crc_writer)
+        from rosbags.rosbag2.enums import StoragePlugin
+
+        return StoragePlugin.MCAP, _crc_writer()
+
+
+class _CrcFile:
+    """A write-only file that keeps the CRC-32 of everything written through it."""
+
+    def __init__(self, fh: Any, crc: int) -> None:
+        self._fh = fh
+        self.crc = crc
+
+    def write(self, data: Any) -> int:
+        self.crc = zlib.crc32(data, self.crc)
+        written: int = self._fh.write(data)
+        return written
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._fh, name)
+
+
+_WRITER_CLASS: Any = None
+
+
+def _crc_writer() -> Any:
+    """``rosbags``' MCAP writer, with CRCs.
+
+    ``rosbags`` writes 0 (not computed) in every CRC field of an MCAP file. Here each chunk
+    gets the CRC-32 of its uncompressed records, the data-end record the CRC-32 of the data
+    section, and the footer the CRC-32 of the summary section, as the MCAP specification
+    defines them, so that corruption can be detected (``--verify-crc``).
+    """
+    global _WRITER_CLASS
+    if _WRITER_CLASS is not None:
+        return _WRITER_CLASS
+    # local: the rosbags writer (rosbag2 + storage_mcap) costs ~55 ms at CLI start-up (every
+    # command loads io.bags), and only commands that write bags need it
+    from rosbags.rosbag2.storage_mcap import (
+        McapWriter,
+        PendingChunk,
+        write_record,
+        write_string,
+        write_uint16,
+        write_uint32,
+        write_uint64,
+    )
+
+    class CrcMcapWriter(McapWriter):
+        def __init__(self, path: Path, compression: Any) -> None:
+            super().__init__(path, compression)
+            self.bio.flush()
+            head = self.path.read_bytes()[:self.bio.tell()]     # magic and header record
+            self.crc_file = _CrcFile(self.bio, zlib.crc32(head))
+            # the writer's file, wrapped: every byte written goes through the CRC
+            self.bio = self.crc_file  # type: ignore[assignment]
+
+        def close_chunk(self) -> None:
+            # rosbags' close_chunk, with the CRC-32 of the uncompressed records
+            out = BytesIO()
+            write_uint64(out, self.chunk.message_start_time)
+            write_uint64(out, self.chunk.message_end_time)
+            write_uint64(out, self.chunk.bio.tell())
+            write_uint32(out, zlib.crc32(self.chunk.bio.getbuffer()))
+            compressed = self.compressor(self.chunk.bio.getvalue())
+            write_string(out, self.compression)
+            write_uint64(out, len(compressed))
+            out.write(compressed)
+            chunk_start = self.bio.tell()
+            write_record(self.bio, rec.OP_CHUNK, out)
+            chunk_end = self.bio.tell()
+            offsets: list[tuple[int, int]] = []
+            for cid, msgs in self.chunk.msgs.items():
+                offsets.append((cid, self.bio.tell()))
+                out = BytesIO()
+                write_uint16(out, cid)
+                write_uint32(out, len(msgs) * 16)
+                for ts, offset in msgs:
+                    write_uint64(out, ts)
+                    write_uint64(out, offset)
+                write_record(self.bio, 0x07, out)        # message index
+            out = BytesIO()
+            write_uint64(out, self.chunk.message_start_time)
+            write_uint64(out, self.chunk.message_end_time)
+            write_uint64(out, chunk_start)
+            write_uint64(out, chunk_end - chunk_start)
+            write_uint32(out, len(offsets) * 10)
+            for cid, offset in offsets:
+                write_uint16(out, cid)
+                write_uint64(out, offset)
+            write_uint64(out, self.bio.tell() - chunk_end)
+            write_string(out, self.compression)
+            write_uint64(out, len(compressed))
+            write_uint64(out, self.chunk.bio.tell())
+            self.chunks.append(out)
+            self.chunk = PendingChunk(2**63 - 1, 0, BytesIO(), defaultdict(list))
+
+        def close(self, version: int, metadata: str) -> None:
+            if self.chunk.bio.tell():
+                self.close_chunk()
+            pos, crc = self.bio.tell(), self.crc_file.crc
+            super().close(version, metadata)
+            _patch_mcap_crcs(self.path, pos, crc)
+
+    _WRITER_CLASS = CrcMcapWriter
+    return CrcMcapWriter
+
+
+def _patch_mcap_crcs(path: Path, pos: int, crc: int) -> None:
+    """Write the data-section and summary CRCs of a finished MCAP file.
+
+    ``crc`` is the CRC-32 of the file's first ``pos`` bytes (everything up to the end of the
+    last chunk and its message indexes); the rest of the data section (the metadata record)
+    and the summary are read back, they are small.
+    """
+    with open(path, "r+b") as fh:
+        fh.seek(0, 2)
+        size = fh.tell()
+        footer = size - 8 - 29
+        fh.seek(footer)
+        tail = fh.read(29)
+        if tail[0] != rec.OP_FOOTER:
+            raise BagError(f"{path}: no MCAP footer where expected (byte {footer})")
+        summary_start = int.from_bytes(tail[9:17], "little")
+        data_end = (summary_start or footer) - 13
+        fh.seek(pos)
+        rest = fh.read(data_end - pos)
+        end_rec = fh.read(13)
+        if end_rec[0] != rec.OP_DATA_END:
+            raise BagError(f"{path}: no MCAP data-end record where expected (byte {data_end})")
+        fh.seek(data_end + 9)
+        fh.write(zlib.crc32(rest, crc).to_bytes(4, "little"))
+        if summary_start:
+            fh.seek(summary_start)
+            summary = fh.read(footer + 25 - summary_start)
+            fh.seek(footer + 25)
+            fh.write(zlib.crc32(summary).to_bytes(4, "little"))
