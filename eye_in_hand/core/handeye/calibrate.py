@@ -550,19 +550,7 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
             poses that only fit with another setup or pose direction, unknown setup or
             method, or a solver failure.
     """
-    if setup not in SETUPS:
-        raise HandEyeError(f"setup: expected one of {', '.join(SETUPS)}, got {setup!r}")
-    if method != "all" and method not in METHODS:
-        raise HandEyeError(f"method: expected 'all' or one of {', '.join(METHODS)}, "
-                           f"got {method!r}")
-    if average_solver not in AVERAGE_SOLVERS:
-        raise HandEyeError(f"average solver: expected one of {', '.join(AVERAGE_SOLVERS)}, "
-                           f"got {average_solver!r}")
-    if robot_model not in ROBOT_MODELS:
-        raise HandEyeError(f"robot model: expected one of {', '.join(ROBOT_MODELS)}, "
-                           f"got {robot_model!r}")
-    if method in ("refined", "refined_exact", "refined_systematic") and not refine:
-        raise HandEyeError(f"method {method!r} requested with refinement disabled")
+    _check_options(setup, method, average_solver, robot_model, refine)
     kept, warnings = validate_samples(samples)
     if len(kept) < MIN_SAMPLES:
         raise HandEyeError(f"hand-eye calibration needs at least {MIN_SAMPLES} samples, got "
@@ -595,8 +583,77 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
     loo = leave_one_out and len(kept) > MIN_SAMPLES
     if leave_one_out and not loo:
         warnings.append(f"leave-one-out figures need more than {MIN_SAMPLES} samples")
-    results: dict[str, MethodResult] = {}
     held: dict[str, HeldOut] = {}
+    results = _closed_forms(kept, bte, ctb, cameras, setup, average_solver, use_corners, loo,
+                            warnings, held)
+    if not results:
+        raise HandEyeError("every closed-form solver failed on these samples: "
+                           + "; ".join(w for w in warnings if " failed on these samples" in w))
+
+    # Best closed form: lowest reprojection RMS, else lowest normalised board spread.
+    def score(mr: MethodResult) -> float:
+        if mr.reproj_rms_px is not None:
+            return float(np.sqrt(np.mean(mr.reproj_rms_px ** 2)))
+        ref_mm = np.median([np.sqrt(np.mean(r.board_dev_mm ** 2)) for r in results.values()])
+        ref_deg = np.median([np.sqrt(np.mean(r.board_dev_deg ** 2)) for r in results.values()])
+        return float(np.sqrt(np.mean(mr.board_dev_mm ** 2)) / max(ref_mm, 1e-12)
+                     + np.sqrt(np.mean(mr.board_dev_deg ** 2)) / max(ref_deg, 1e-12))
+
+    # The refinements start from a classical closed form (the average when it alone solved).
+    best = min([k for k in results if k in CLOSED_FORM_METHODS] or list(results),
+               key=lambda k: score(results[k]))
+    refinement, refinement_exact, systematic, held_out_sigma = _refinements(
+        results[best], kept, cameras, setup, use_corners, loo, refine,
+        robot_model == "systematic" or method == "refined_systematic", warnings, held,
+        results)
+    selected, reason, scores = _select(method, robot_model, results, held, best, warnings)
+    sel = results[selected]
+    warnings.extend(_disagreements(results, selected))
+    budget = None
+    if sel.held_out is not None:
+        used = kept
+        if selected == "refined_systematic" and systematic is not None:
+            used = [replace(s, base_T_ee=b)
+                    for s, b in zip(kept, systematic.correct(bte), strict=True)]
+        budget = error_budget(used, cameras if use_corners else None, setup, sel.Y,
+                              sel.board_dev_mm, sel.held_out.mm,
+                              None if systematic is None else systematic.correction(bte))
+    return HandEyeResult(setup=setup, sample_names=[s.name for s in kept], rejected=rejected,
+                         diagnostics=diag, methods=results, selected=selected,
+                         warnings=warnings, refinement=refinement,
+                         refinement_exact=refinement_exact, selection_reason=reason,
+                         selection_scores=scores, held_out_sigma_m=held_out_sigma,
+                         systematic=systematic, robot_model=robot_model,
+                         error_budget=budget)
+
+
+def _check_options(setup: str, method: str, average_solver: str, robot_model: str,
+                   refine: bool) -> None:
+    """Refuse an unknown setup, method, average solver or robot model, and a refined method
+    without refinement (:class:`HandEyeError` naming the choices)."""
+    if setup not in SETUPS:
+        raise HandEyeError(f"setup: expected one of {', '.join(SETUPS)}, got {setup!r}")
+    if method != "all" and method not in METHODS:
+        raise HandEyeError(f"method: expected 'all' or one of {', '.join(METHODS)}, "
+                           f"got {method!r}")
+    if average_solver not in AVERAGE_SOLVERS:
+        raise HandEyeError(f"average solver: expected one of {', '.join(AVERAGE_SOLVERS)}, "
+                           f"got {average_solver!r}")
+    if robot_model not in ROBOT_MODELS:
+        raise HandEyeError(f"robot model: expected one of {', '.join(ROBOT_MODELS)}, "
+                           f"got {robot_model!r}")
+    if method in ("refined", "refined_exact", "refined_systematic") and not refine:
+        raise HandEyeError(f"method {method!r} requested with refinement disabled")
+
+
+def _closed_forms(kept: Sequence[HandEyeSample], bte: np.ndarray, ctb: np.ndarray,
+                  cameras: Sequence[CameraView] | None, setup: str, average_solver: str,
+                  use_corners: bool, loo: bool, warnings: list[str],
+                  held: dict[str, HeldOut]) -> dict[str, MethodResult]:
+    """Every closed-form method (and the average) with its residuals, board spread,
+    reprojection RMS and, with leave-one-out, its jackknife uncertainty and held-out
+    prediction (into ``held``). A method that fails is left out with a warning."""
+    results: dict[str, MethodResult] = {}
     keep_masks = [np.arange(len(kept)) != i for i in range(len(kept))]
     for name in (*CLOSED_FORM_METHODS, "average"):
         try:
@@ -628,28 +685,24 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                                                  cameras, setup)
                 mr.held_out = held[name]
         results[name] = mr
-    if not results:
-        raise HandEyeError("every closed-form solver failed on these samples: "
-                           + "; ".join(w for w in warnings if " failed on these samples" in w))
+    return results
 
-    # Best closed form: lowest reprojection RMS, else lowest normalised board spread.
-    def score(mr: MethodResult) -> float:
-        if mr.reproj_rms_px is not None:
-            return float(np.sqrt(np.mean(mr.reproj_rms_px ** 2)))
-        ref_mm = np.median([np.sqrt(np.mean(r.board_dev_mm ** 2)) for r in results.values()])
-        ref_deg = np.median([np.sqrt(np.mean(r.board_dev_deg ** 2)) for r in results.values()])
-        return float(np.sqrt(np.mean(mr.board_dev_mm ** 2)) / max(ref_mm, 1e-12)
-                     + np.sqrt(np.mean(mr.board_dev_deg ** 2)) / max(ref_deg, 1e-12))
 
-    # The refinements start from a classical closed form (the average when it alone solved).
-    best = min([k for k in results if k in CLOSED_FORM_METHODS] or list(results),
-               key=lambda k: score(results[k]))
+def _refinements(start: MethodResult, kept: Sequence[HandEyeSample],
+                 cameras: Sequence[CameraView] | None, setup: str, use_corners: bool,
+                 loo: bool, refine: bool, with_systematic: bool, warnings: list[str],
+                 held: dict[str, HeldOut], results: dict[str, MethodResult]
+                 ) -> tuple[EivResult | None, RefinementResult | None,
+                            SystematicResult | None, float | None]:
+    """The joint refinements from the best closed form ``start``: ``refined_exact``,
+    ``refined`` (errors in variables) and, ``with_systematic``, ``refined_systematic``, each
+    into ``results`` (and its held-out prediction into ``held``); a failure is a warning.
+    Returns the refinements and the held-out position sigma of ``refined``."""
     refinement: EivResult | None = None
     refinement_exact: RefinementResult | None = None
     systematic: SystematicResult | None = None
     held_out_sigma: float | None = None
     if refine:
-        start = results[best]
         # Today's refinement: the robot poses taken as exact.
         try:
             refinement_exact = _refine(start.X, start.Y, kept, cameras, setup, use_corners)
@@ -682,9 +735,17 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
             if not refinement.converged:
                 warnings.append("refined: the noise levels did not settle in "
                                 f"{refinement.iterations} iterations")
-        if robot_model == "systematic" or method == "refined_systematic":
+        if with_systematic:
             systematic = _systematic(start.X, start.Y, kept, cameras, setup, use_corners, loo,
                                      warnings, held, results)
+    return refinement, refinement_exact, systematic, held_out_sigma
+
+
+def _select(method: str, robot_model: str, results: dict[str, MethodResult],
+            held: dict[str, HeldOut], best: str, warnings: list[str]
+            ) -> tuple[str, str, dict[str, float]]:
+    """The selected method, the reason and the selection scores (:mod:`.select`): forced by
+    ``method``, else the best held-out prediction, else ``refined`` or the best closed form."""
     combine = robot_model == "systematic"
     scores, _ = selection_scores(held, combine) if held else ({}, "")
     # refined_exact is listed with its figures but not a candidate when the errors-in-variables
@@ -710,11 +771,17 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
         reason = ("no leave-one-out figures (leave-one-out off or too few samples): "
                   + ("the errors-in-variables refinement" if selected == "refined"
                      else "the closed form with the lowest residuals"))
+    return selected, reason, scores
 
-    # Disagreement beyond the combined uncertainty (3 sigma). refined_systematic's X holds with
-    # the corrected robot poses, every other X with the reported ones: the two kinds differ by
-    # the mean of the systematic error by design, so only Xs of one kind are compared.
+
+def _disagreements(results: dict[str, MethodResult], selected: str) -> list[str]:
+    """Warnings for the methods whose X differs from the selected one's beyond 3 sigma of
+    their combined uncertainty."""
+    # refined_systematic's X holds with the corrected robot poses, every other X with the
+    # reported ones: the two kinds differ by the mean of the systematic error by design, so
+    # only Xs of one kind are compared.
     sel = results[selected]
+    out: list[str] = []
     for name, mr in results.items():
         if name == selected or not (np.isfinite(mr.std_mm) and np.isfinite(sel.std_mm)):
             continue
@@ -724,26 +791,11 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
         lim_mm = 3.0 * float(np.hypot(mr.std_mm, sel.std_mm)) + 1e-6
         lim_deg = 3.0 * float(np.hypot(mr.std_deg, sel.std_deg)) + 1e-7
         if diff_mm > lim_mm or diff_deg > lim_deg:
-            warnings.append(
+            out.append(
                 f"methods disagree: {name} differs from {selected} by {diff_mm:.2f} mm / "
                 f"{diff_deg:.3f} deg, beyond 3 sigma of their uncertainties ({lim_mm:.2f} mm / "
                 f"{lim_deg:.3f} deg): check for bad samples or unmodelled errors")
-    budget = None
-    if sel.held_out is not None:
-        used = kept
-        if selected == "refined_systematic" and systematic is not None:
-            used = [replace(s, base_T_ee=b)
-                    for s, b in zip(kept, systematic.correct(bte), strict=True)]
-        budget = error_budget(used, cameras if use_corners else None, setup, sel.Y,
-                              sel.board_dev_mm, sel.held_out.mm,
-                              None if systematic is None else systematic.correction(bte))
-    return HandEyeResult(setup=setup, sample_names=[s.name for s in kept], rejected=rejected,
-                         diagnostics=diag, methods=results, selected=selected,
-                         warnings=warnings, refinement=refinement,
-                         refinement_exact=refinement_exact, selection_reason=reason,
-                         selection_scores=scores, held_out_sigma_m=held_out_sigma,
-                         systematic=systematic, robot_model=robot_model,
-                         error_budget=budget)
+    return out
 
 
 def _systematic(X0: np.ndarray, Y0: np.ndarray, kept: Sequence[HandEyeSample],
