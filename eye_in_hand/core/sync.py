@@ -489,6 +489,12 @@ class PoseBuffer:
         self._check_age(stamp, (i - 1, i), now_ns, max_age_ns)
         return interpolate_unchecked(stamp, s0, self._poses[i - 1], s1, self._poses[i])
 
+    def between(self, lo_ns: int, hi_ns: int) -> list[np.ndarray]:
+        """The buffered poses stamped in ``[lo_ns, hi_ns]``, oldest first (read-only)."""
+        a = bisect.bisect_left(self._stamps, _as_stamp(lo_ns, "lo_ns"))
+        b = bisect.bisect_right(self._stamps, _as_stamp(hi_ns, "hi_ns"))
+        return self._poses[a:b]
+
 
 class InputWaits:
     """When a wait for inputs is over, on a consumer that may fall behind its inputs.

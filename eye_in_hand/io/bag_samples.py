@@ -3,7 +3,6 @@ robot pose at each image stamp (from a pose topic, joint states + kinematics, or
 """
 from __future__ import annotations
 
-import bisect
 import os
 import struct
 from collections.abc import Iterator, Mapping
@@ -14,8 +13,15 @@ from typing import Any
 import numpy as np
 
 from eye_in_hand.core.camera import CameraModel, StereoRig
-from eye_in_hand.core.transforms import interpolate
-from eye_in_hand.errors import BagError, ConfigError, ConversionError, InputError
+from eye_in_hand.core.sync import PoseBuffer
+from eye_in_hand.core.tf import TfBuffer
+from eye_in_hand.errors import (
+    BagError,
+    ConfigError,
+    ConversionError,
+    InputError,
+    LocalizationError,
+)
 from eye_in_hand.io.bags import DamageLog, bag_info, deserialize, typestore_for
 from eye_in_hand.io.bags import iter_messages as _iter_messages
 from eye_in_hand.ros.camera_info import camera_info_to_model
@@ -73,36 +79,17 @@ class BagSamples:
     damage: Any = None
 
 
-class _PoseSeries:
-    """Stamped poses of one frame pair, interpolated at a stamp (never extrapolated)."""
+def _robot_series(topics: Mapping[str, Any], topic: str) -> PoseBuffer:
+    """A buffer for every robot pose of ``topic`` (its message count)."""
+    return PoseBuffer(max(2, topics[topic].count), name="robot pose")
 
-    def __init__(self, name: str) -> None:
-        self.name = name
-        self.stamps: list[int] = []
-        self.poses: list[np.ndarray] = []
 
-    def add(self, stamp_ns: int, T: np.ndarray) -> None:
-        self.stamps.append(int(stamp_ns))
-        self.poses.append(T)
-
-    def finish(self) -> None:
-        order = np.argsort(np.asarray(self.stamps, dtype=np.int64), kind="stable")
-        self.stamps = [self.stamps[i] for i in order]
-        self.poses = [self.poses[i] for i in order]
-
-    def at(self, stamp_ns: int) -> np.ndarray | None:
-        if not self.stamps or stamp_ns < self.stamps[0] or stamp_ns > self.stamps[-1]:
-            return None
-        k = bisect.bisect_left(self.stamps, stamp_ns)
-        if self.stamps[k] == stamp_ns:
-            return self.poses[k]
-        return interpolate(stamp_ns, self.stamps[k - 1], self.poses[k - 1], self.stamps[k],
-                           self.poses[k])
-
-    def window(self, lo_ns: int, hi_ns: int) -> list[np.ndarray]:
-        a = bisect.bisect_left(self.stamps, lo_ns)
-        b = bisect.bisect_right(self.stamps, hi_ns)
-        return self.poses[a:b]
+def _pose_at(series: PoseBuffer, stamp_ns: int) -> np.ndarray | None:
+    """The robot pose interpolated at ``stamp_ns``, None outside the poses' time range."""
+    try:
+        return series.lookup(stamp_ns, _ANY_GAP_NS)
+    except LocalizationError:
+        return None
 
 
 def _cdr_header_stamp_ns(raw: bytes) -> int:
@@ -130,25 +117,36 @@ def _info_topic(image_topic: str) -> str:
     return image_topic.rsplit("/", 1)[0] + "/camera_info"
 
 
-def _tf_chain(edges: Mapping[tuple[str, str], _PoseSeries],
-              static: Mapping[tuple[str, str], np.ndarray], base: str, tip: str,
-              source: str) -> tuple[list[tuple[str, str]], tuple[str, str]]:
-    parent_of = {c: p for (p, c) in list(edges) + list(static)}
-    chain = []
+#: calibration stops take the robot pose interpolated between any two poses: the stillness test
+#: checks the poses around each image
+_ANY_GAP_NS = 2 ** 62
+
+
+def _tf_series(tf: TfBuffer, stamps_by_child: Mapping[str, list[int]], base: str, tip: str,
+               source: str) -> PoseBuffer:
+    """``base_T_tip`` at every stamp of the dynamic /tf edge nearest the tip (the chain's
+    clock), looked up in ``tf``; a stamp where an edge of the chain has no bracket is left
+    out."""
+    chain: list[str] = []                   # frames from the tip up to the base
     frame = tip
     while frame != base:
-        if frame not in parent_of:
+        parent = tf.parent(frame)
+        if parent is None:
             raise ConfigError(f"{source}: /tf has no chain from {base!r} to {tip!r} (stuck at "
                               f"{frame!r})")
-        chain.append((parent_of[frame], frame))
-        frame = parent_of[frame]
-        if len(chain) > 64:
-            raise ConfigError(f"{source}: /tf has a loop between {base!r} and {tip!r}")
-    chain.reverse()
-    dynamic = [e for e in chain if e in edges]
+        chain.append(frame)
+        frame = parent
+    dynamic = [f for f in chain if not tf.is_static(f)]
     if not dynamic:
         raise ConfigError(f"{source}: the /tf chain {base!r} -> {tip!r} is static")
-    return chain, dynamic[-1]
+    stamps = sorted(set(stamps_by_child.get(dynamic[0], ())))
+    series = PoseBuffer(max(2, len(stamps)), name=f"{base} -> {tip}")
+    for stamp in stamps:
+        try:
+            series.add(stamp, tf.lookup(base, tip, stamp, _ANY_GAP_NS))
+        except LocalizationError:
+            continue
+    return series
 
 
 def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = None,
@@ -208,12 +206,16 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
         """The bag's messages, damaged parts skipped and recorded."""
         return _iter_messages(bag, wanted, damage=log)
 
-    def usable(topic: str, stamp_ns: int, T: Any) -> bool:
-        """Whether a robot pose is finite (else it is recorded as a bad message)."""
-        if T is not None and np.all(np.isfinite(T)):
-            return True
-        log.bad_message(topic, stamp_ns, "robot pose is not finite (NaN or inf)")
-        return False
+    def add(series: PoseBuffer, topic: str, stamp_ns: int, T: Any) -> None:
+        """Buffer a robot pose; one that is not finite or not rigid is recorded as a bad
+        message instead."""
+        if T is None or not np.all(np.isfinite(T)):
+            log.bad_message(topic, stamp_ns, "robot pose is not finite (NaN or inf)")
+            return
+        try:
+            series.add(stamp_ns, T)
+        except InputError as exc:
+            log.bad_message(topic, stamp_ns, str(exc))
     images = [t for t, ti in topics.items() if ti.msgtype == "sensor_msgs/msg/Image"]
     if image_topic is None:
         lefts = [t for t in images if "left" in t.split("/")]
@@ -237,7 +239,6 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
     views = {"left": left_topic, "right": right_topic} if right_topic else {"image": left_topic}
 
     # Robot pose source.
-    series = _PoseSeries("robot")
     if pose_topic is None and joint_topic is None and not use_tf:
         if "/ee_pose" in topics:
             pose_topic = "/ee_pose"
@@ -250,6 +251,7 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
     if pose_topic is not None:
         pt = _resolve_topic(topics, pose_topic, "pose", source)
         pose_source = f"{pt} (PoseStamped)"
+        series = _robot_series(topics, pt)
         for topic, msgtype, log_ns, raw in iter_messages(path, [pt]):
             try:
                 msg = deserialize(raw, msgtype, store)
@@ -257,8 +259,7 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
             except unusable as exc:
                 log.bad_message(topic, log_ns, str(exc))
                 continue
-            if usable(topic, stamp, T):
-                series.add(stamp, T)
+            add(series, topic, stamp, T)
     elif joint_topic is not None:
         if kinematics is None:
             raise ConfigError("--robot-pose joint_states needs --kinematics (a kinematic "
@@ -269,6 +270,7 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
         from eye_in_hand.core.kinematics import JointIndex, MissingJointsError
 
         joints = JointIndex(kinematics.joint_names)
+        series = _robot_series(topics, jt)
         for topic, msgtype, log_ns, raw in iter_messages(path, [jt]):
             try:
                 msg = deserialize(raw, msgtype, store)
@@ -283,11 +285,11 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
             except InputError as exc:
                 log.bad_message(topic, header_stamp_ns(msg), str(exc))
                 continue
-            series.add(header_stamp_ns(msg), kinematics.fk(q))
+            add(series, topic, header_stamp_ns(msg), kinematics.fk(q))
     else:
         pose_source = f"{tf_topic} {base_frame} -> {ee_frame}"
-        edges: dict[tuple[str, str], _PoseSeries] = {}
-        static: dict[tuple[str, str], np.ndarray] = {}
+        tf = TfBuffer(max(2, topics[tf_topic].count if tf_topic in topics else 0))
+        stamps_by_child: dict[str, list[int]] = {}
         for topic, msgtype, log_ns, raw in iter_messages(path, [tf_topic, tf_static_topic]):
             try:
                 msg = deserialize(raw, msgtype, store)
@@ -297,30 +299,16 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
             for tr in msg.transforms:
                 key = (tr.header.frame_id.lstrip("/"), tr.child_frame_id.lstrip("/"))
                 try:
-                    T = transform_to_matrix(tr)
+                    stamp = header_stamp_ns(tr)
+                    tf.set_transform(key[0], key[1], stamp, transform_to_matrix(tr),
+                                     static=topic == tf_static_topic)
                 except unusable as exc:
                     log.bad_message(topic, log_ns, f"{key[0]} -> {key[1]}: {exc}")
                     continue
-                if topic == tf_static_topic:
-                    static[key] = T
-                else:
-                    edges.setdefault(key, _PoseSeries(f"{key[0]}->{key[1]}")).add(
-                        header_stamp_ns(tr), T)
-        for s in edges.values():
-            s.finish()
-        chain, clock = _tf_chain(edges, static, base_frame, ee_frame, source)
-        for stamp in edges[clock].stamps:
-            T = np.eye(4)
-            for e in chain:
-                part = static[e] if e not in edges else edges[e].at(stamp)
-                if part is None:
-                    T = None
-                    break
-                T = T @ part
-            if T is not None:
-                series.add(stamp, T)
-    series.finish()
-    if not series.stamps:
+                if topic != tf_static_topic:
+                    stamps_by_child.setdefault(key[1], []).append(stamp)
+        series = _tf_series(tf, stamps_by_child, base_frame, ee_frame, source)
+    if not len(series):
         raise ConfigError(f"{source}: no robot poses from {pose_source}")
 
     # Image stamps of the reference view (pass 1), stillness and grouping.
@@ -332,6 +320,7 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
             log.bad_message(topic, log_ns, str(exc))
     stamps.sort()
     half = int(round(still_window_s * 0.5e9))
+    first, last = series.oldest_ns or 0, series.newest_ns or 0     # the series is not empty
     skipped: list[dict[str, Any]] = []
     groups: list[list[tuple[int, np.ndarray]]] = []
     current: list[tuple[int, np.ndarray]] = []
@@ -343,13 +332,13 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
         return dt <= still_translation_m and float(np.arccos(c)) <= rot_tol
 
     for stamp in stamps:
-        T = series.at(stamp)
+        at = _pose_at(series, stamp)
         reason = ""
-        if T is None:
+        if at is None:
             reason = "no robot pose at the image stamp (outside the robot's time range)"
-        elif series.stamps[0] > stamp - half or series.stamps[-1] < stamp + half:
+        elif first > stamp - half or last < stamp + half:
             reason = "robot poses do not cover the stillness window"
-        elif not all(close(T, P) for P in series.window(stamp - half, stamp + half)):
+        elif not all(close(at, P) for P in series.between(stamp - half, stamp + half)):
             reason = "robot moving"
         if reason:
             skipped.append({"stamp_ns": stamp, "reason": reason})
@@ -357,11 +346,11 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
                 groups.append(current)
                 current = []
             continue
-        assert T is not None
-        if current and not close(current[0][1], T):
+        assert at is not None
+        if current and not close(current[0][1], at):
             groups.append(current)
             current = []
-        current.append((stamp, T))
+        current.append((stamp, at))
     if current:
         groups.append(current)
     chosen = {g[len(g) // 2][0]: (f"stop{k:03d}", g[len(g) // 2][1])
