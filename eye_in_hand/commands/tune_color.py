@@ -20,6 +20,10 @@ from eye_in_hand.errors import InputError
 
 HELP = "print HSV/HSI colour ranges that capture an image region (for the parameter file)"
 
+# core.detection's COLOR_SPACES, written out so that --help does not load OpenCV
+# (test_tune_color checks they are the same)
+_SPACES = ("hsv", "hsi")
+
 
 def _roi(text: str) -> tuple[int, int, int, int]:
     try:
@@ -37,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("image", metavar="IMG", help="a colour image showing the target")
     parser.add_argument("--roi", required=True, type=_roi, metavar="x,y,w,h",
                         help="region inside the target (pixels)")
-    parser.add_argument("--space", choices=("hsv", "hsi", "both"), default="both",
+    parser.add_argument("--space", choices=(*_SPACES, "both"), default="both",
                         help="colour space(s) to print (default: both)")
     parser.add_argument("--name", default="red", help="target name in the printed block")
     parser.add_argument("--percentile", type=bounded(0, 49), default=5.0, metavar="P",

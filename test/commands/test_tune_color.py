@@ -17,6 +17,13 @@ from eye_in_hand.core.detection import (
 from eye_in_hand.errors import InputError
 
 
+def test_space_choices_are_the_detectors_colour_spaces():
+    from eye_in_hand.commands.tune_color import _SPACES
+    from eye_in_hand.core.detection import COLOR_SPACES
+
+    assert _SPACES == COLOR_SPACES
+
+
 def test_range_from_samples_wraps_for_red_and_not_for_green():
     rng = np.random.default_rng(5)
     n = 2000

@@ -46,7 +46,7 @@ def test_color_range_validation_and_wrap():
     with pytest.raises(InputError, match=r"exceeds upper\[1\]"):
         ColorRange((0, 200, 0), (10, 100, 255))
     with pytest.raises(InputError, match="space"):
-        ColorRange((0, 0, 0), (10, 255, 255), "lab")
+        ColorRange((0, 0, 0), (10, 255, 255), "xyz")
 
 
 def test_wrapped_red_threshold_takes_both_ends_of_the_hue_circle():
