@@ -287,12 +287,12 @@ class HandEyeNode(Node):
     """See the module docstring. ``kwargs`` go to ``Node`` (context, namespace, overrides).
 
     Its parts: the ROS-free :class:`~eye_in_hand.core.pipeline.LocalizationPipeline` (pose
-    waiting, staleness, interpolation, the localizer), fed here and by every target
-    (:mod:`~eye_in_hand.nodes.hand_eye_targets`); what it emits is published here (the first
-    target: :meth:`point_located`, :meth:`point_refused`) and there; every target
-    (:mod:`~eye_in_hand.nodes.hand_eye_targets`), TF in and out
-    (:mod:`~eye_in_hand.nodes.hand_eye_tf`) and calibration mode
-    (:mod:`~eye_in_hand.nodes.hand_eye_calibration`) in their own modules.
+    waiting, staleness, interpolation, the localizer), fed with the robot poses and the first
+    target here, its output for that target published here (:meth:`point_located`,
+    :meth:`point_refused`); every target (:mod:`~eye_in_hand.nodes.hand_eye_targets`, the
+    pipeline's other feeder and sink), TF in and out (:mod:`~eye_in_hand.nodes.hand_eye_tf`)
+    and calibration mode (:mod:`~eye_in_hand.nodes.hand_eye_calibration`) in their own
+    modules.
     """
 
     def __init__(self, *, in_process: bool = False, **kwargs: Any) -> None:
