@@ -12,7 +12,10 @@ Figures printed:
   which is what interpolating each joint's transform instead of the tool pose costs;
 * ``Localizer.locate`` of one point with covariance, with and without ``hand_eye.yaml``'s
   ``robot_pose_correction`` (the systematic robot model), against its floor, the
-  ``PoseBuffer.lookup`` it starts with (best of 5 repeats).
+  ``PoseBuffer.lookup`` it starts with (best of 5 repeats);
+* ``LocalizationPipeline.add_point`` of the same point, its robot pose buffered (queued, the
+  wait rule, located, handed to a sink: what the ``hand_eye`` node pays per point before
+  publishing), against ``Localizer.locate`` alone.
 """
 from __future__ import annotations
 
@@ -22,6 +25,7 @@ import numpy as np
 
 from eye_in_hand.core.kinematics import DHChain
 from eye_in_hand.core.localization import Localizer, LocalizerConfig
+from eye_in_hand.core.pipeline import LocalizationPipeline, PipelineRules
 from eye_in_hand.core.pose_correction import RobotPoseCorrection
 from eye_in_hand.core.sync import PoseBuffer
 from eye_in_hand.core.tf import TfBuffer
@@ -101,6 +105,39 @@ def locate_figures(poses: PoseBuffer, queries: list[int]) -> None:
     print(f"Localizer.locate, one point with covariance: {out['without']:.1f} us without a robot "
           f"pose correction, {out['with']:.1f} us with one (+{out['with'] - out['without']:.1f}"
           f" us); floor PoseBuffer.lookup {floor:.1f} us")
+    pipeline_figure(poses, queries, ee_T_cam, p, cov)
+
+
+class _Sink:
+    def point_located(self, item, point_base, cov_base) -> None:
+        pass
+
+    def point_refused(self, item, reason, detail) -> None:
+        raise AssertionError(f"{reason}: {detail}")
+
+
+def pipeline_figure(poses: PoseBuffer, queries: list[int], ee_T_cam: np.ndarray,
+                    p: np.ndarray, cov: np.ndarray) -> None:
+    """The pipeline's cost per point over the localizer's (the queue and its rules)."""
+    loc = Localizer(ee_T_cam, np.eye(6) * 1e-8, LocalizerConfig(
+        max_gap_ns=50_000_000, robot_sigma_pos_m=1.5e-4, robot_sigma_rot_rad=4e-4))
+    loc.poses = poses
+    pipe = LocalizationPipeline(loc, PipelineRules(), wait_clock=time.monotonic,
+                                points=_Sink())
+    runs: dict[str, list[float]] = {"locate": [], "pipeline": []}
+    for _ in range(5):
+        t = time.perf_counter()
+        for s in queries:
+            loc.locate(s, p, cov)
+        runs["locate"].append((time.perf_counter() - t) / len(queries) * 1e6)
+        t = time.perf_counter()
+        for s in queries:
+            pipe.add_point(s, p, cov)
+        runs["pipeline"].append((time.perf_counter() - t) / len(queries) * 1e6)
+    best = {k: min(v) for k, v in runs.items()}
+    print(f"LocalizationPipeline.add_point, one point with covariance, its pose buffered: "
+          f"{best['pipeline']:.1f} us; Localizer.locate alone {best['locate']:.1f} us "
+          f"(+{best['pipeline'] - best['locate']:.1f} us for the queue and its rules)")
 
 
 if __name__ == "__main__":

@@ -10,9 +10,9 @@ One pass over the bag in log-time order:
 * left/right images are paired by :class:`~eye_in_hand.core.sync.ApproximateStereoSync` and
   located by :class:`~eye_in_hand.core.locator.StereoLocator`, exactly as ``detect_triangulate``
   does;
-* each located point waits until a robot pose at or after its stamp has been read (as the live
-  ``hand_eye`` node waits for one), then is mapped into the base frame, exactly as ``hand_eye``
-  does.
+* each located pair waits in the :class:`~eye_in_hand.core.pipeline.LocalizationPipeline`, the
+  one the live ``hand_eye`` node feeds, until a robot pose at or after its stamp has been read
+  (or the bag ends), then its targets are mapped into the base frame by the same rules.
 
 The bag is read without copying pixels: uncompressed MCAP chunks are memory-mapped and images
 decoded straight from their CDR bytes into views; compressed chunks are decompressed a few
@@ -42,10 +42,11 @@ from eye_in_hand.core.camera import StereoRig
 from eye_in_hand.core.defaults import DEFAULT_SYNC_QUEUE_SIZE, DEFAULT_SYNC_SLOP_S, POSE_RULES
 from eye_in_hand.core.locator import StereoLocator
 from eye_in_hand.core.locator_params import LocatorConfig
-from eye_in_hand.errors import BagError, ConversionError, InputError, LocalizationError
+from eye_in_hand.errors import BagError, ConversionError, InputError
 
 if TYPE_CHECKING:
     from eye_in_hand.core.localization import Localizer
+    from eye_in_hand.core.pipeline import WaitingFrame
     from eye_in_hand.core.pose_correction import RobotPoseCorrection
     from eye_in_hand.core.sync import ApproximateStereoSync
     from eye_in_hand.io.results import FrameResult, ProcessResult
@@ -55,7 +56,8 @@ if TYPE_CHECKING:
 # need OpenCV, numpy and the locator only. What the reading process alone uses is imported
 # where it is used (marked `# local: reader only`): the bag reader, the results, the output
 # messages, the robot-pose buffers (io.bags, io.results with ros.outputs and core.distances,
-# core.localization, core.eye_to_hand, core.sync: about 0.1 s of CPU at each worker's start).
+# core.pipeline with core.localization, core.eye_to_hand and core.sync: about 0.1 s of CPU at
+# each worker's start).
 
 __all__ = ["ProcessOptions", "process_bag", "loss_total", "error_stats", "top_reasons",
            "write_results"]
@@ -219,7 +221,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     """
     # local: reader only (see the imports at the top); the ros message modules add ~12 ms too
     from eye_in_hand.core.eye_to_hand import EyeToHandLocalizer
-    from eye_in_hand.core.localization import Localizer, LocalizerConfig
+    from eye_in_hand.core.localization import Localizer
+    from eye_in_hand.core.pipeline import LocalizationPipeline, PipelineRules, localizer_config
     from eye_in_hand.core.sync import ApproximateStereoSync
     from eye_in_hand.io.bags import (
         DamageLog,
@@ -246,14 +249,12 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         topics.append(opts.tf_static_topic)
     n_poses = 0 if fixed else info.topics[opts.pose_topic].count
     localizer: Any = EyeToHandLocalizer(hand_eye_T, hand_eye_cov) if fixed else Localizer(
-        hand_eye_T, hand_eye_cov, LocalizerConfig(
-        max_gap_ns=int(opts.max_pose_gap_s * 1e9), buffer_size=max(2, n_poses + 2),
-        robot_sigma_pos_m=opts.robot_sigma_pos_m, robot_sigma_rot_rad=opts.robot_sigma_rot_rad,
-        max_age_ns=int(opts.max_pose_age_s * 1e9), jump_back_ns=int(opts.pose_jump_back_s * 1e9)),
+        hand_eye_T, hand_eye_cov, localizer_config(
+            max_pose_gap_s=opts.max_pose_gap_s, max_pose_age_s=opts.max_pose_age_s,
+            pose_jump_back_s=opts.pose_jump_back_s, buffer_size=max(2, n_poses + 2),
+            robot_sigma_pos_m=opts.robot_sigma_pos_m,
+            robot_sigma_rot_rad=opts.robot_sigma_rot_rad),
         pose_correction=pose_correction)
-
-    def newest() -> int | None:
-        return None if fixed else localizer.poses.newest_ns
     tf_buffer = _use_tf(localizer, opts, n_poses) if use_tf else None
     sync: ApproximateStereoSync[Any] = ApproximateStereoSync(int(round(opts.sync_slop_s * 1e9)),
                                                              opts.sync_queue_size)
@@ -275,41 +276,18 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         rig = _rig_from_camera_info(path, opts, result.damage, typestore)
         result.rig = rig
     truth: dict[int, list[np.ndarray]] = {}
-    pending: list[FrameResult] = []      # located, waiting for a robot pose after the stamp
-    joints = None
-    if not fixed and opts.robot_pose_source == "joint_states":
-        from eye_in_hand.core.kinematics import JointIndex  # local: SciPy, joint_states only
-
-        joints = JointIndex(opts.kinematics.joint_names)
-
-    def finish(frame: FrameResult) -> None:
-        now_ns = arrived.pop(id(frame), None)
-        for target in frame.targets:     # every target; the first one also fills the frame
-            try:
-                res = localizer.locate(frame.stamp_ns, target.point_cam, target.cov_cam,
-                                       now_ns=now_ns)
-            except LocalizationError as exc:
-                target.status, target.reason = "no_robot_pose", str(exc)
-                if target is frame.targets[0] and frame.status == "located":
-                    frame.status, frame.reason = "no_robot_pose", str(exc)
-                    counts["no_robot_pose"] += 1
-                    ledger.refused(exc.reason)
-                continue
-            target.status, target.point_base, target.cov_base = "ok", res.point_base, \
-                res.covariance
-            if target is frame.targets[0] and frame.status == "located":
-                frame.point_base, frame.cov_base = res.point_base, res.covariance
-                counts["localized"] += 1
-
-    def flush(newest: int | None) -> None:
-        while pending and (newest is None or pending[0].stamp_ns <= newest):
-            finish(pending.pop(0))
+    # the live node's pipeline: a pair waits for a robot pose at or after its stamp, however
+    # long (the bag's poses are all read before its end: no wait clock), FIFO, unbounded (the
+    # frames are kept in result.frames anyway); receive ages on the bag's log time
+    pipeline = LocalizationPipeline(
+        localizer, PipelineRules(max_pose_wait_s=None, max_waiting_frames=None),
+        wait_clock=_no_wait_clock, frames=_FrameResults(counts, ledger),
+        kinematics=opts.kinematics if not fixed and opts.robot_pose_source == "joint_states"
+        else None)
 
     def note(text: str) -> None:
         if len(result.notes) < 20:
             result.notes.append(text)
-
-    arrived: dict[int, int | None] = {}  # id(pending frame) -> its pair's arrival (log time)
 
     def take(frame: FrameResult) -> None:
         result.frames.append(frame)
@@ -321,9 +299,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
             return
         counts["located" if frame.status == "located" else "no_target"] += 1
         if frame.targets:
-            arrived[id(frame)] = t_arrival
-            pending.append(frame)
-            flush(newest())
+            pipeline.add_frame(frame.stamp_ns, frame.targets, received_ns=t_arrival,
+                               carried=True, tag=frame)
 
     # a locator whose results depend on earlier frames (tracked blob-set ids,
     # LocatorConfig.stateful where it exists) sees the stream in order, in one thread
@@ -353,16 +330,15 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
                 if tf_buffer is not None and topic in (opts.tf_topic, opts.tf_static_topic):
                     _add_tf(tf_buffer, msg, topic == opts.tf_static_topic, topic, _t, counts,
                             note)
-                    flush(localizer.poses.newest_ns)
+                    pipeline.pose_arrived()
+                    pipeline.drain()
                 elif topic == opts.pose_topic:
                     stamp = header_stamp_ns(msg)
                     if opts.robot_pose_source == "ee_pose":
-                        T = pose_to_matrix(msg.pose)
+                        pipeline.add_pose(stamp, pose_to_matrix(msg.pose), received_ns=_t)
                     else:
-                        assert joints is not None
-                        T = opts.kinematics.fk(joints.positions(msg.name, msg.position))
-                    localizer.add_robot_pose(stamp, T, received_ns=_t)
-                    flush(localizer.poses.newest_ns)
+                        pipeline.add_joint_state(stamp, msg.name, msg.position, received_ns=_t)
+                    pipeline.drain()
                 elif topic == opts.ground_truth_topic:
                     truth.setdefault(header_stamp_ns(msg), []).append(point_to_xyz(msg.point))
                 elif topic in (opts.left_topic, opts.right_topic):
@@ -387,7 +363,7 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     result.notes.extend(pool.notes)
     counts["worker_timeouts"] = pool.timeouts        # their pairs were located again here
     counts["pairs_relocated"] = pool.relocated
-    flush(None)  # end of bag: the last points are resolved (or refused) now
+    pipeline.flush()  # end of bag: the last points are resolved (or refused) now
     ledger.close(sync, None if fixed else localizer)
     for frame in result.frames:
         if frame.status == "located":
@@ -401,6 +377,43 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     result.loss = loss_total(counts, result.damage, (opts.left_topic, opts.right_topic))
     counts["lost"] = result.loss["total"]
     return result
+
+
+def _no_wait_clock() -> float:
+    """The pipeline's wait clock offline: waits never run out (the bag's end flushes them)."""
+    return 0.0
+
+
+class _FrameResults:
+    """The pipeline's frame sink offline: each target's outcome into its
+    :class:`~eye_in_hand.io.results.FrameResult`; the first target of a located pair also
+    fills the frame and the counts (``localized``, ``no_robot_pose``, ``refused.<reason>``)."""
+
+    def __init__(self, counts: dict[str, int], ledger: _Ledger) -> None:
+        self._counts = counts
+        self._ledger = ledger
+
+    def target_located(self, f: WaitingFrame, target: Any, point_base: np.ndarray,
+                       cov_base: np.ndarray) -> None:
+        frame = f.tag
+        target.status, target.point_base, target.cov_base = "ok", point_base, cov_base
+        if target is frame.targets[0] and frame.status == "located":
+            frame.point_base, frame.cov_base = point_base, cov_base
+            self._counts["localized"] += 1
+
+    def target_refused(self, f: WaitingFrame, target: Any, reason: str, detail: str) -> None:
+        frame = f.tag
+        target.status, target.reason = "no_robot_pose", detail
+        if target is frame.targets[0] and frame.status == "located":
+            frame.status, frame.reason = "no_robot_pose", detail
+            self._counts["no_robot_pose"] += 1
+            self._ledger.refused(reason)
+
+    def frame_done(self, f: WaitingFrame) -> None:
+        pass
+
+    def orphan_points(self, n: int) -> None:
+        pass             # the targets come with their frame: none
 
 
 def _use_tf(localizer: Localizer, opts: ProcessOptions, n_messages: int) -> Any:

@@ -165,6 +165,31 @@ def test_images_replayed_after_the_robot_poses_give_no_pose(bags, tmp_path):
     assert loose.counts["localized"] == 16
 
 
+def test_pairs_still_waiting_for_a_robot_pose_at_the_end_are_refused(bags, tmp_path):
+    """The robot poses stop before the images: the last pairs wait in the pipeline for a pose
+    at or after their stamp until the bag ends, then are refused (no_newer_pose), counted."""
+    world, zstd, _raw = bags
+    info = bag_info(zstd)
+    lefts = sorted(s for _t, _mt, s, _d in iter_messages(zstd, [LEFT]))
+    cut_ns = (lefts[4] + lefts[5]) // 2            # between the 5th and the 6th pair
+    cut = tmp_path / "poses_stop"
+    with BagWriter(cut) as w:
+        for name, t in info.topics.items():
+            w.add_topic(name, t.msgtype)
+        for topic, _mt, stamp, data in iter_messages(zstd):
+            if topic == "/ee_pose" and stamp > cut_ns:
+                continue
+            w.write(topic, stamp, data)
+    res = process_bag(cut, hand_eye_T=world.ee_T_cam, locator_config=load_locator_config(None),
+                      rig=world.rig, options=ProcessOptions(workers=1))
+    c = res.counts
+    assert c["localized"] == 5 and c["no_robot_pose"] == 3, c
+    assert c["refused.no_newer_pose"] == 3, c
+    assert [f.status for f in res.frames] == ["ok"] * 5 + ["no_robot_pose"] * 3
+    assert all(f.point_base is None for f in res.frames[5:])
+    _ledger_ok(c)
+
+
 def test_every_unpaired_image_is_counted(bags, tmp_path):
     world, zstd, _raw = bags
     info = bag_info(zstd)

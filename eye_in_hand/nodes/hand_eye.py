@@ -13,11 +13,13 @@ Localization mode (``mode: localization``)
     ``max_pose_wait_s`` for it; the pose is never extrapolated and never taken across a gap
     over ``max_pose_gap_s``, so when robot poses stop arriving no ``target/pose`` is published
     and ``diagnostics`` says why. Never stale: the robot poses used for a point must also have
-    been *received* within ``max_pose_age_s`` (on the node's clock: wall time, or ``/clock``
-    under ``use_sim_time``), and the pose buffer is cleared when robot pose stamps (or the
-    clock) jump back more than ``pose_jump_back_s`` (a bag replayed again) or no pose arrived
-    for ``max_pose_age_s`` (the stream stopped). Every point that gives no ``target/pose`` is
-    counted on ``diagnostics`` by reason (``refused.<reason>``). ``hand_eye/transform``
+    been *received* within ``max_pose_age_s`` before the point arrived (on the node's clock:
+    wall time, or ``/clock`` under ``use_sim_time``), and the pose buffer is cleared when
+    robot pose stamps (or the clock) jump back more than ``pose_jump_back_s`` (a bag replayed
+    again) or no pose arrived for ``max_pose_age_s`` (the stream stopped). Every point that
+    gives no ``target/pose`` is counted on ``diagnostics`` by reason (``refused.<reason>``).
+    These rules are :class:`eye_in_hand.core.pipeline.LocalizationPipeline`'s, the same as
+    ``process``'s: the node feeds it and publishes what it emits. ``hand_eye/transform``
     (TransformStamped tool0 -> camera, transient local) is published once at start-up.
 
 Every target (see docs/ros.md "Every target")
@@ -91,14 +93,14 @@ from eye_in_hand.core.defaults import POSE_RULES
 from eye_in_hand.core.eye_to_hand import EyeToHandLocalizer
 from eye_in_hand.core.handeye.calibrate import ROBOT_MODELS
 from eye_in_hand.core.handeye.session import SessionConfig
-from eye_in_hand.core.kinematics import JointIndex
-from eye_in_hand.core.localization import (
-    Localizer,
-    LocalizerConfig,
-    robot_pose_sigmas,
+from eye_in_hand.core.localization import Localizer, robot_pose_sigmas
+from eye_in_hand.core.pipeline import (
+    LocalizationPipeline,
+    PipelineRules,
+    WaitingPoint,
+    localizer_config,
 )
-from eye_in_hand.core.sync import InputWaits
-from eye_in_hand.errors import ConversionError, EyeInHandError, InputError, LocalizationError
+from eye_in_hand.errors import ConversionError, EyeInHandError, InputError
 from eye_in_hand.io.config import load_hand_eye
 from eye_in_hand.io.kinematics import load_kinematics
 from eye_in_hand.nodes.hand_eye_calibration import CalibrationMode
@@ -281,21 +283,16 @@ def parameter_names(values: Mapping[str, Any]) -> list[str]:
     return [p.name for p in params_of(HandEyeNodeConfig)]
 
 
-@dataclass
-class _Pending:
-    stamp_ns: int
-    point: np.ndarray
-    cov: np.ndarray | None
-    arrived: float
-
-
 class HandEyeNode(Node):
     """See the module docstring. ``kwargs`` go to ``Node`` (context, namespace, overrides).
 
-    Its parts: localization and the robot pose here; every target
-    (:mod:`~eye_in_hand.nodes.hand_eye_targets`), TF in and out
-    (:mod:`~eye_in_hand.nodes.hand_eye_tf`) and calibration mode
-    (:mod:`~eye_in_hand.nodes.hand_eye_calibration`) in their own modules.
+    Its parts: the ROS-free :class:`~eye_in_hand.core.pipeline.LocalizationPipeline` (pose
+    waiting, staleness, interpolation, the localizer), fed with the robot poses and the first
+    target here, its output for that target published here (:meth:`point_located`,
+    :meth:`point_refused`); every target (:mod:`~eye_in_hand.nodes.hand_eye_targets`, the
+    pipeline's other feeder and sink), TF in and out (:mod:`~eye_in_hand.nodes.hand_eye_tf`)
+    and calibration mode (:mod:`~eye_in_hand.nodes.hand_eye_calibration`) in their own
+    modules.
     """
 
     def __init__(self, *, in_process: bool = False, **kwargs: Any) -> None:
@@ -311,11 +308,9 @@ class HandEyeNode(Node):
         self.outputs = OutputPublishers(self, self.diag.report)
         self.calibration_mode: CalibrationMode | None = None
         self._chain: Any = None    # load_kinematics: a DHChain or a UrdfChain
-        self._joints: JointIndex | None = None
         if cfg.robot_pose_source == "joint_states":
             self._chain = load_kinematics(cfg.kinematics_file, cfg.urdf_base_link,
                                           cfg.urdf_tip_link)
-            self._joints = JointIndex(self._chain.joint_names)
         self.calibration = None
         self.eye_to_hand = False       # a fixed camera: base_T_cam, no robot pose needed
         ee_T_cam = np.eye(4)
@@ -335,11 +330,10 @@ class HandEyeNode(Node):
         sig_pos, sig_rot = robot_pose_sigmas(
             cfg.robot_sigma_pos_m, cfg.robot_sigma_rot_rad,
             None if self.calibration is None else self.calibration.robot_pose_noise)
-        self.localizer = Localizer(ee_T_cam, cov, LocalizerConfig(
-            max_gap_ns=int(cfg.max_pose_gap_s * 1e9), buffer_size=cfg.pose_buffer_size,
-            robot_sigma_pos_m=sig_pos, robot_sigma_rot_rad=sig_rot,
-            max_age_ns=int(cfg.max_pose_age_s * 1e9),
-            jump_back_ns=int(cfg.pose_jump_back_s * 1e9)),
+        self.localizer = Localizer(ee_T_cam, cov, localizer_config(
+            max_pose_gap_s=cfg.max_pose_gap_s, max_pose_age_s=cfg.max_pose_age_s,
+            pose_jump_back_s=cfg.pose_jump_back_s, buffer_size=cfg.pose_buffer_size,
+            robot_sigma_pos_m=sig_pos, robot_sigma_rot_rad=sig_rot),
             pose_correction=(None if self.calibration is None or self.eye_to_hand
                              else self.calibration.robot_pose_correction))
         # eye-to-hand: base_T_cam and its covariance, the same code as `process`
@@ -349,6 +343,16 @@ class HandEyeNode(Node):
             self.fixed_localizer = EyeToHandLocalizer(self.calibration.transform,
                                                       self.calibration.covariance)
 
+        # the one localization pipeline: robot poses (every source) in; points and frames of
+        # targets wait there for their robot pose, on a steady clock (waits end also while
+        # simulated time stands still); its sinks are set in _setup_localization
+        self.pipeline = LocalizationPipeline(
+            self.fixed_localizer or self.localizer,
+            PipelineRules(max_pose_wait_s=cfg.max_pose_wait_s,
+                          max_target_wait_s=cfg.max_target_wait_s),
+            wait_clock=time.monotonic, kinematics=self._chain,
+            cov_expected=None if in_process else self._cov_expected)
+
         if cfg.mode == "calibration":
             self.eye_to_hand = cfg.setup == "eye_to_hand"   # the flange holds the board
         if self.eye_to_hand and cfg.mode == "localization":
@@ -357,12 +361,11 @@ class HandEyeNode(Node):
             self.create_subscription(PoseStamped, "ee_pose", self._on_ee_pose, ROBOT_POSE_QOS)
         elif cfg.robot_pose_source == "tf":
             self.tf_input = TfInput(self, cfg, self.localizer, self.diag, self._now_ns,
-                                    self._after_pose)
+                                    self._after_tf_pose)
         else:
             self.create_subscription(JointState, "joint_states", self._on_joint_state,
                                      ROBOT_POSE_QOS)
         self.diag.declare_counter("robot_poses")
-        self.waits = InputWaits(cfg.max_pose_wait_s, cfg.max_target_wait_s)
         if not self.eye_to_hand or cfg.mode == "calibration":
             self.diag.stale_after("robot_poses", cfg.stale_after_s)
 
@@ -386,19 +389,18 @@ class HandEyeNode(Node):
                 self.diag.report("ee_pose_frame", f"ee_pose in frame {frame!r}, expected "
                                  f"{self.config.base_frame!r}: ignored")
                 return
-            self._add_pose(stamp, pose_to_matrix(msg.pose))
+            self._pose_added(stamp, self.pipeline.add_pose(stamp, pose_to_matrix(msg.pose),
+                                                           received_ns=self._now_ns()))
         except (ConversionError, InputError) as exc:
             self.diag.report("bad_ee_pose", f"ee_pose: {exc}")
             return
         self._after_pose()
 
     def _on_joint_state(self, msg: JointState) -> None:
-        assert self._chain is not None
         try:
             stamp = header_stamp_ns(msg)
-            assert self._joints is not None
-            q = self._joints.positions(msg.name, msg.position)
-            self._add_pose(stamp, self._chain.fk(q))
+            self._pose_added(stamp, self.pipeline.add_joint_state(
+                stamp, msg.name, msg.position, received_ns=self._now_ns()))
         except (ConversionError, InputError, EyeInHandError) as exc:
             self.diag.report("bad_joint_states", f"joint_states: {exc}")
             return
@@ -409,9 +411,10 @@ class HandEyeNode(Node):
         """The node's clock (sim time under use_sim_time): the clock of receive ages."""
         return self.get_clock().now().nanoseconds
 
-    def _add_pose(self, stamp: int, base_T_ee: np.ndarray) -> None:
-        """Buffer a robot pose with its receive time; a time jump back clears the buffer."""
-        if self.localizer.add_robot_pose(stamp, base_T_ee, received_ns=self._now_ns()):
+    def _pose_added(self, stamp: int, jumped: bool) -> None:
+        """A robot pose went into the pipeline (with its receive time); ``jumped``: a time
+        jump back cleared the pose buffer first."""
+        if jumped:
             self.diag.count("pose_buffer_resets.time_jump")
             self.get_logger().info(f"robot pose time jumped back (stamp {stamp} ns): pose "
                                    "buffer cleared, earlier poses are never used again")
@@ -431,20 +434,21 @@ class HandEyeNode(Node):
         self.diag.count(f"refused.{reason}")
         self.diag.report(cause or reason, message)
 
+    def _after_tf_pose(self) -> None:
+        self.pipeline.pose_arrived()     # the TF view in the localizer reached a newer stamp
+        self._after_pose()
+
     def _after_pose(self) -> None:
         self.diag.count("robot_poses")
-        self.waits.pose_arrived()
         if self.calibration_mode is not None:
             self.calibration_mode.poll()
         else:
-            self._drain_pending()
-            self.targets.drain()
+            self.pipeline.drain()
 
     # -- localization -----------------------------------------------------------------------
     def _setup_localization(self) -> None:
         cfg = self.config
-        self._pending: deque[_Pending] = deque(maxlen=1000)
-        self._covs: dict[int, np.ndarray] = {}
+        self.pipeline.point_sink = self
         if self.in_process:
             # frames handed over by a detector thread, taken on the executor's thread
             self._inbox: deque[LocatedFrame] = deque()
@@ -464,9 +468,8 @@ class HandEyeNode(Node):
                                   "pose_buffer_resets.stream_stopped")
         self.diag.stale_after("points", cfg.stale_after_s)
         self.targets = EveryTarget(
-            self, cfg, self.diag, self.outputs.create, self.waits,
-            lambda: self.localizer.poses.newest_ns, self._to_base, self._pose_messages,
-            self.first_data, self._arm_waits, self.tf_output, self.eye_to_hand,
+            self, cfg, self.diag, self.outputs.create, self.pipeline, self._now_ns,
+            self._pose_messages, self.first_data, self._arm_waits, self.tf_output,
             self.in_process)
         # Steady time: waiting points expire and stopped pose streams are noticed also while
         # simulated time (use_sim_time) stands still. The waits are checked at 50 Hz only
@@ -474,7 +477,7 @@ class HandEyeNode(Node):
         # for nothing, each wake-up costing as much as a message's); a stopped pose stream and
         # the queue gauges are checked at 5 Hz.
         steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self._wait_timer = self.create_timer(WAIT_CHECK_PERIOD_S, self._expire_pending,
+        self._wait_timer = self.create_timer(WAIT_CHECK_PERIOD_S, self._check_waits,
                                              clock=steady)
         self._wait_timer.cancel()
         self.create_timer(IDLE_CHECK_PERIOD_S, self._idle_check, clock=steady)
@@ -542,17 +545,12 @@ class HandEyeNode(Node):
         except (ConversionError, InputError) as exc:
             self._refuse("bad_point", f"target/point: {exc}")
             return
-        self._take_point(stamp, p, self._covs.pop(stamp, None))
+        self._take_point(stamp, p, None)    # its covariance, when that came first
 
     def _take_point(self, stamp: int, p: np.ndarray, cov: np.ndarray | None) -> None:
-        """Queue the first target's camera point (and covariance, when it came first) until
-        its robot pose is there."""
-        if len(self._pending) == self._pending.maxlen:
-            old = self._pending[0]
-            self._refuse("pending_overflow", f"more than {self._pending.maxlen} points wait "
-                         f"for robot poses: the oldest (at {old.stamp_ns} ns) was dropped")
-        self._pending.append(_Pending(stamp, p, cov, time.monotonic()))
-        self._drain_pending()
+        """Queue the first target's camera point (and covariance) in the pipeline until its
+        robot pose is there."""
+        self.pipeline.add_point(stamp, p, cov, received_ns=self._now_ns())
         self._arm_waits()
 
     def _on_point_cov(self, msg: PoseWithCovarianceStamped) -> None:
@@ -565,90 +563,47 @@ class HandEyeNode(Node):
         except (ConversionError, InputError, ValueError) as exc:
             self.diag.report("bad_point_cov", f"target/point_cov: {exc}")
             return
-        for item in self._pending:
-            if item.stamp_ns == stamp:
-                item.cov = cov
-                break
-        else:
-            self._covs[stamp] = cov
-            while len(self._covs) > 200:
-                self._covs.pop(next(iter(self._covs)))
-        self._drain_pending()
+        self.pipeline.add_point_cov(stamp, cov)
 
-    def _ready(self, item: _Pending, newest: int | None, now: float) -> bool:
-        """Whether a pending point can be processed now (or must be, its wait being over)."""
-        if self.waits.pose_wait_over(now - item.arrived):
-            return True
-        if not self.eye_to_hand and (newest is None or item.stamp_ns > newest):
-            return False  # wait for a robot pose at or after the image stamp
-        # Wait for the triangulation covariance when a detector publishes one.
-        return item.cov is not None or self.in_process \
-            or self.count_publishers("target/point_cov") == 0
-
-    def _drain_pending(self) -> None:
-        newest = self.localizer.poses.newest_ns
-        now = time.monotonic()
-        while self._pending and self._ready(self._pending[0], newest, now):
-            # FIFO: output stays in stamp order.
-            self._locate(self._pending.popleft())
+    def _cov_expected(self) -> bool:
+        """Whether a point waits for its covariance: a detector publishes them."""
+        return self.count_publishers("target/point_cov") > 0
 
     def _arm_waits(self) -> None:
         """Run the waits' check while a point or a frame waits (called where they queue)."""
-        if (self._pending or self.targets.frames) and self._wait_timer.is_canceled():
+        if self.pipeline.waiting and self._wait_timer.is_canceled():
             self._wait_timer.reset()
 
-    def _expire_pending(self) -> None:
-        now = time.monotonic()
-        queues = (self._pending, self.targets.frames)
-        oldest = min([q[0].arrived for q in queues if q], default=now)
-        self.waits.tick(now - oldest)     # FIFO queues: the first item waited longest
-        if self._pending:
-            self._drain_pending()
-        if self.targets.frames:
-            self.targets.drain()
-        if not (self._pending or self.targets.frames):
-            self.waits.tick(0.0)          # as an idle check would: nothing waits
+    def _check_waits(self) -> None:
+        """The waits' check: emit what is ready or waited long enough; stop when none waits."""
+        if not self.pipeline.tick():
             self._wait_timer.cancel()
 
     def _idle_check(self) -> None:
         self._expire_poses()
-        self.diag.gauge("pending", len(self._pending))
-        self.diag.gauge("targets_pending", sum(len(f.spheres) for f in self.targets.frames))
+        self.diag.gauge("pending", len(self.pipeline.points))
+        self.diag.gauge("targets_pending", self.pipeline.targets_waiting)
 
     @property
     def _camera_parent(self) -> str:
         """The parent frame of the camera: base_frame (eye-to-hand) or ee_frame."""
         return self.config.base_frame if self.eye_to_hand else self.config.ee_frame
 
-    def _to_base(self, stamp_ns: int, point: np.ndarray, cov: np.ndarray | None
-                 ) -> tuple[np.ndarray, np.ndarray]:
-        """A camera point (3,) and its covariance (3, 3) in the base frame.
-
-        Eye-in-hand: through the robot pose at ``stamp_ns`` (the localizer: interpolated,
-        never stale). Eye-to-hand: through ``base_T_cam`` alone; the covariance is the camera
-        covariance rotated into the base frame plus the hand-eye covariance.
-
-        Raises:
-            LocalizationError: eye-in-hand, no usable robot pose (``reason`` says why).
-            InputError: a malformed point or covariance.
-        """
-        if self.fixed_localizer is not None:
-            res = self.fixed_localizer.locate(stamp_ns, point, cov)
-            return res.point_base, res.covariance
-        res = self.localizer.locate(stamp_ns, point, cov, now_ns=self._now_ns())
-        return res.point_base, res.covariance
-
-    def _locate(self, item: _Pending) -> None:
-        try:
-            p, cov = self._to_base(item.stamp_ns, item.point, item.cov)
-        except LocalizationError as exc:
-            self._refuse(exc.reason, f"no target/pose for the point at {item.stamp_ns} ns: "
-                         f"{exc}", cause="no_robot_pose")
-            return
-        except InputError as exc:
-            self._refuse("bad_point_cov", f"target/point_cov at {item.stamp_ns} ns: {exc}")
-            return
+    # -- what the pipeline emits (the first target) ---------------------------------------
+    def point_located(self, item: WaitingPoint, p: np.ndarray, cov: np.ndarray) -> None:
+        """A point in the base frame: ``target/pose(_cov)`` and ``/tf``."""
         self._publish(item.stamp_ns, p, cov)
+
+    def point_refused(self, item: WaitingPoint, reason: str, detail: str) -> None:
+        """A point that gives no ``target/pose``: counted and reported by reason."""
+        if reason == "pending_overflow":
+            self._refuse(reason, f"more than {self.pipeline.rules.max_waiting_points} points "
+                         f"wait for robot poses: the oldest (at {item.stamp_ns} ns) was dropped")
+        elif reason == "bad_point_cov":
+            self._refuse(reason, f"target/point_cov at {item.stamp_ns} ns: {detail}")
+        else:
+            self._refuse(reason, f"no target/pose for the point at {item.stamp_ns} ns: "
+                         f"{detail}", cause="no_robot_pose")
 
     def _pose_messages(self, stamp_ns: int, p: np.ndarray, cov: np.ndarray
                        ) -> tuple[PoseStamped, PoseWithCovarianceStamped]:

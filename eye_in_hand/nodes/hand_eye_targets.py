@@ -3,16 +3,15 @@
 :class:`EveryTarget` is a part of :class:`eye_in_hand.nodes.hand_eye.HandEyeNode` (an object with
 explicit constructor arguments): it reads
 each frame's list of targets from ``targets/markers`` and every target's point from
-``targets/<id>/point_cov``, puts each into the base frame (the node's ``_to_base``) and
-publishes ``target/<id>/pose(_cov)``, ``/tf`` ``base_frame -> <target_frame_prefix><id>``,
+``targets/<id>/point_cov``, hands them to the node's
+:class:`~eye_in_hand.core.pipeline.LocalizationPipeline` (which waits for the points and the
+robot pose, and puts each into the base frame) and publishes what it emits:
+``target/<id>/pose(_cov)``, ``/tf`` ``base_frame -> <target_frame_prefix><id>``,
 ``target/poses`` and ``target/markers``.
 """
 from __future__ import annotations
 
-import time
-from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -20,7 +19,8 @@ from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rclpy.clock import Clock, ClockType
 from rclpy.qos import DurabilityPolicy
 
-from eye_in_hand.errors import ConversionError, InputError, LocalizationError
+from eye_in_hand.core.pipeline import LocalizationPipeline, WaitingFrame
+from eye_in_hand.errors import ConversionError, InputError
 from eye_in_hand.ros.geometry import point_to_xyz
 from eye_in_hand.ros.markers import (
     Sphere,
@@ -37,16 +37,6 @@ from eye_in_hand.ros.stamps import header_stamp_ns
 __all__ = ["EveryTarget"]
 
 
-
-@dataclass
-class _Frame:
-    """One frame of ``targets/markers`` waiting for its targets' points and the robot pose."""
-
-    stamp_ns: int
-    spheres: list[Sphere]
-    arrived: float
-
-
 class EveryTarget:
     """Every-target part of the ``hand_eye`` node: frames of ``targets/markers``, the points of
     ``targets/<id>/point_cov``, their outputs.
@@ -57,46 +47,40 @@ class EveryTarget:
             ``discovery_period_s``, ``marker_lifetime_s``, ``target_frame_prefix``).
         diag: the node's diagnostics.
         create: the node's output publisher factory (``OutputPublishers.create``).
-        waits: the node's :class:`~eye_in_hand.core.sync.InputWaits`.
-        newest_pose_ns: the newest robot pose stamp (None: none yet).
-        to_base: a camera point and covariance into the base frame at a stamp
-            (raises LocalizationError or InputError).
+        pipeline: the node's :class:`~eye_in_hand.core.pipeline.LocalizationPipeline`: this
+            feeds it frames and target points and is its frame sink.
+        now_ns: the node's clock (the receive-age clock of the robot poses).
         pose_messages: the ``(PoseStamped, PoseWithCovarianceStamped)`` of a located point.
         first_data: called with each frame's stamp (the node latches its transforms once).
         arm_waits: called when a frame starts to wait.
         tf_output: the node's :class:`~eye_in_hand.nodes.hand_eye_tf.TfOutput`.
-        eye_to_hand: a fixed camera: a frame needs no robot pose.
         in_process: fed by :meth:`take_point` and :meth:`take_markers` from a detector in this
             process, not by subscriptions and graph discovery.
     """
 
     def __init__(self, node: Any, config: Any, diag: Any, create: Callable[..., Any],
-                 waits: Any, newest_pose_ns: Callable[[], int | None],
-                 to_base: Callable[[int, np.ndarray, np.ndarray | None],
-                                   tuple[np.ndarray, np.ndarray]],
+                 pipeline: LocalizationPipeline, now_ns: Callable[[], int],
                  pose_messages: Callable[[int, np.ndarray, np.ndarray], tuple[Any, Any]],
                  first_data: Callable[[int], None], arm_waits: Callable[[], None],
-                 tf_output: Any, eye_to_hand: bool, in_process: bool) -> None:
+                 tf_output: Any, in_process: bool) -> None:
         """``targets/markers`` in (the frame's list of targets), ``targets/<id>/point_cov`` in
         per id, ``target/<id>/pose(_cov)``, ``target/poses`` and ``target/markers`` out."""
         self._node = node
         self.config = cfg = config
         self.diag = diag
         self._create = create
-        self.waits = waits
-        self._newest_pose_ns = newest_pose_ns
-        self._to_base = to_base
+        self.pipeline = pipeline
+        pipeline.frame_sink = self
+        self._now_ns = now_ns
         self._pose_messages = pose_messages
         self._first_data = first_data
         self._arm_waits = arm_waits
         self._tf_output = tf_output
-        self.eye_to_hand = eye_to_hand
         self.in_process = in_process
         _, MarkerArray = marker_classes()
-        self.frames: deque[_Frame] = deque()
-        self._frames_max = 200
-        # (id, image stamp) -> (point (3,), covariance (3, 3)), in arrival order
-        self._target_points: dict[tuple[str, int], tuple[np.ndarray, np.ndarray]] = {}
+        # the frame being emitted: its located targets and their /tf edges (reused lists)
+        self._located: list[tuple[Sphere, np.ndarray]] = []
+        self._tf_edges: list[tuple[str, str, int, np.ndarray]] = []
         self.subs: dict[str, Any] = {}
         self._target_pubs: dict[str, tuple[Any, Any]] = {}
         # per-target topics follow their list topic's remapping: targets/<id>/point_cov next to
@@ -175,11 +159,11 @@ class EveryTarget:
             cov = np.asarray(msg.pose.covariance, dtype=np.float64).reshape(6, 6)[:3, :3]
         except (ConversionError, InputError, ValueError) as exc:
             self.diag.count("target_points_received")
-            self.waits.point_arrived()
+            self.pipeline.target_point_arrived()
             self.diag.report("bad_target_point", f"targets/{tid}/point_cov: {exc}")
             return
         self.take_point(tid, stamp, msg.header.frame_id, p, cov)
-        self.drain()
+        self.pipeline.drain()
 
     def take_point(self, tid: str, stamp: int, frame: str, p: np.ndarray,
                            cov: np.ndarray) -> None:
@@ -187,17 +171,14 @@ class EveryTarget:
         NaN covariance is reported; its frame then misses the point and refuses the target,
         counted there)."""
         self.diag.count("target_points_received")
-        self.waits.point_arrived()
         if frame and frame.lstrip("/") != self.config.camera_frame:
             problem = f"frame {frame!r}, expected {self.config.camera_frame!r}"
         elif not np.all(np.isfinite(cov)):
             problem = "covariance contains NaN"
         else:
-            self._target_points[(tid, stamp)] = (p, cov)
-            while len(self._target_points) > 4000:
-                self._target_points.pop(next(iter(self._target_points)))
-                self.diag.count("orphan_target_points")
+            self.pipeline.add_target_point(tid, stamp, p, cov)
             return
+        self.pipeline.target_point_arrived()
         self.diag.report("bad_target_point", f"targets/{tid}/point_cov: {problem}")
 
     def _on_markers(self, msg: Any) -> None:
@@ -229,13 +210,7 @@ class EveryTarget:
                 self._refuse_target(s.id, reason, f"target id {s.id!r}: " + (
                     "cannot name a topic" if reason == "bad_target_id" else
                     f"{self.config.max_targets} ids are subscribed already (max_targets)"))
-        if len(self.frames) >= self._frames_max:
-            old = self.frames.popleft()
-            for s in old.spheres:
-                self._refuse_target(s.id, "pending_overflow", f"more than {self._frames_max} "
-                                    "frames wait: the oldest was dropped")
-        self.frames.append(_Frame(stamp, kept, time.monotonic()))
-        self.drain()
+        self.pipeline.add_frame(stamp, kept, received_ns=self._now_ns())
         self._arm_waits()
 
     def _refuse_target(self, tid: str, reason: str, message: str,
@@ -245,62 +220,49 @@ class EveryTarget:
         self.diag.count(f"target_refused.{reason}")
         self.diag.report(cause or f"target_{reason}", message)
 
-    def _frame_ready(self, f: _Frame, newest: int | None, now: float) -> bool:
-        have_points = all((s.id, f.stamp_ns) in self._target_points for s in f.spheres)
-        if not have_points:
-            return self.waits.point_wait_over(now - f.arrived)
-        if self.eye_to_hand or not f.spheres:
-            return True
-        return (newest is not None and f.stamp_ns <= newest) \
-            or self.waits.pose_wait_over(now - f.arrived)
+    # -- what the pipeline emits (every target) ---------------------------------------------
+    def orphan_points(self, n: int) -> None:
+        """Target points that no frame listed, dropped."""
+        self.diag.count("orphan_target_points", n)
 
-    def drain(self) -> None:
-        if not self.frames:
-            return
-        newest = None if self.eye_to_hand else self._newest_pose_ns()
-        now = time.monotonic()
-        while self.frames and self._frame_ready(self.frames[0], newest, now):
-            self._locate_frame(self.frames.popleft())     # FIFO: stamp order
+    def target_refused(self, f: WaitingFrame, s: Sphere, reason: str, detail: str) -> None:
+        """A listed target that gives no ``target/<id>/pose``: counted and reported."""
+        if reason == "no_point":
+            self._refuse_target(s.id, reason, f"targets/{s.id}/point_cov at {f.stamp_ns} ns "
+                                f"did not arrive within {self.config.max_target_wait_s} s")
+        elif reason == "pending_overflow":
+            self._refuse_target(s.id, reason, detail)
+        elif reason == "bad_point_cov":
+            self._refuse_target(s.id, reason, f"targets/{s.id}/point_cov at {f.stamp_ns} ns: "
+                                f"{detail}")
+        else:
+            self._refuse_target(s.id, reason, f"no target/{s.id}/pose at {f.stamp_ns} ns: "
+                                f"{detail}", cause="no_robot_pose")
 
-    def _locate_frame(self, f: _Frame) -> None:
-        """Every target of a frame into the base frame; per-target and per-frame outputs."""
+    def target_located(self, f: WaitingFrame, s: Sphere, p: np.ndarray,
+                       cov: np.ndarray) -> None:
+        """A target in the base frame: ``target/<id>/pose(_cov)``; kept for the frame's
+        outputs."""
+        pubs = self._target_pubs[s.id]      # made with the subscription
+        # volatile: unsubscribed messages reach no one, now or later (not built, not sent)
+        want = (pubs[0].get_subscription_count() > 0, pubs[1].get_subscription_count() > 0)
+        if any(want):
+            pose_msg, cov_msg = self._pose_messages(f.stamp_ns, p, cov)
+            if want[1]:
+                pubs[1].publish(cov_msg)
+            if want[0]:
+                pubs[0].publish(pose_msg)
+        self.diag.count("target_poses_published")
+        self._located.append((s, p))
         cfg = self.config
-        located: list[tuple[Sphere, np.ndarray]] = []
-        tf_edges = []
-        for s in f.spheres:
-            data = self._target_points.pop((s.id, f.stamp_ns), None)
-            if data is None:
-                self._refuse_target(s.id, "no_point", f"targets/{s.id}/point_cov at "
-                                    f"{f.stamp_ns} ns did not arrive within "
-                                    f"{cfg.max_target_wait_s} s")
-                continue
-            try:
-                p, cov = self._to_base(f.stamp_ns, data[0], data[1])
-            except LocalizationError as exc:
-                self._refuse_target(s.id, exc.reason, f"no target/{s.id}/pose at "
-                                    f"{f.stamp_ns} ns: {exc}", cause="no_robot_pose")
-                continue
-            except InputError as exc:
-                self._refuse_target(s.id, "bad_point_cov", f"targets/{s.id}/point_cov at "
-                                    f"{f.stamp_ns} ns: {exc}")
-                continue
-            pubs = self._target_pubs[s.id]      # made with the subscription
-            # volatile: unsubscribed messages reach no one, now or later (not built, not sent)
-            want = (pubs[0].get_subscription_count() > 0, pubs[1].get_subscription_count() > 0)
-            if any(want):
-                pose_msg, cov_msg = self._pose_messages(f.stamp_ns, p, cov)
-                if want[1]:
-                    pubs[1].publish(cov_msg)
-                if want[0]:
-                    pubs[0].publish(pose_msg)
-            self.diag.count("target_poses_published")
-            located.append((s, p))
-            if cfg.target_frame_prefix:
-                tf_edges.append((cfg.base_frame, cfg.target_frame_prefix + s.id, f.stamp_ns, p))
-        # points of this stamp (or older) that no frame listed are never used
-        for key in [k for k in self._target_points if k[1] <= f.stamp_ns]:
-            del self._target_points[key]
-            self.diag.count("orphan_target_points")
+        if cfg.target_frame_prefix:
+            self._tf_edges.append((cfg.base_frame, cfg.target_frame_prefix + s.id, f.stamp_ns,
+                                   p))
+
+    def frame_done(self, f: WaitingFrame) -> None:
+        """Every target of a frame went out: ``target/poses``, ``target/markers``, ``/tf``."""
+        cfg = self.config
+        located = self._located
         if self.pub_poses.get_subscription_count() > 0:
             self.pub_poses.publish(points_to_pose_array([p for _, p in located],
                                                         stamp_ns=f.stamp_ns,
@@ -310,4 +272,6 @@ class EveryTarget:
                 [Sphere(s.id, p, s.diameter_m, s.rgba) for s, p in located],
                 stamp_ns=f.stamp_ns, frame_id=cfg.base_frame, lifetime_s=cfg.marker_lifetime_s))
         self.diag.count("target_frames_published")
-        self._tf_output.publish_edges(tf_edges)
+        self._tf_output.publish_edges(self._tf_edges)
+        located.clear()
+        self._tf_edges.clear()

@@ -329,7 +329,7 @@ def test_dropped_targets_are_counted_by_reason(tmp_path, ros_context, executor, 
     feed.frame(T0 + 40_000_000, pts, listed=["a", "b", "c", "9bad"])  # c: over max_targets
     feed.frame(T0 + 500_000_000, pts)                                 # no robot pose there
     assert spin_until(executor, lambda: node.diag.counter("target_frames_published") == 4
-                      and not node.targets.frames, 10.0), node.diag.snapshot().counters
+                      and not node.pipeline.frames, 10.0), node.diag.snapshot().counters
     c = node.diag.snapshot().counters
     refused = {k: v for k, v in c.items() if k.startswith("target_refused.") and v}
     assert refused == {"target_refused.no_point": 1, "target_refused.too_many_targets": 1,

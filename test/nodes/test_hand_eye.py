@@ -135,7 +135,7 @@ def test_a_busy_executor_does_not_refuse_points_whose_poses_wait_in_its_queue(
     for k in range(3):
         rig.send_pose(0.01 * k)
     rig.send_point(0.05, [0.0, 0.0, 0.5])            # newer than every pose: it waits
-    assert spin_until(executor, lambda: len(rig.node._pending) == 1, 10.0)
+    assert spin_until(executor, lambda: len(rig.node.pipeline.points) == 1, 10.0)
     for k in range(3, 8):                            # the poses come ...
         rig.send_pose(0.01 * k)
     time.sleep(0.4)                                  # ... while the executor is busy

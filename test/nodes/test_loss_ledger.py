@@ -53,7 +53,7 @@ def ledger(player: BagPlayer, detect: DetectTriangulateNode, hand_eye: HandEyeNo
         "no_target": c["no_target"], "failed_pairs": c["failed_pairs"],
         "points_published": c["points_published"], "points_received": h.counters["points"],
         "poses_published": h.counters["poses_published"], "rejected": h.counters["rejected"],
-        "pending": len(hand_eye._pending),
+        "pending": len(hand_eye.pipeline.points),
         "published_ee": player.published[EE], "robot_poses": h.counters["robot_poses"],
         **{k: v for k, v in h.counters.items() if k.startswith(("refused.", "pose_buffer"))},
         "targets_located": c["targets_located"],
@@ -64,7 +64,7 @@ def ledger(player: BagPlayer, detect: DetectTriangulateNode, hand_eye: HandEyeNo
         "target_points_received": h.counters["target_points_received"],
         "target_poses_published": h.counters["target_poses_published"],
         "targets_rejected": h.counters["targets_rejected"],
-        "targets_pending": sum(len(f.spheres) for f in hand_eye.targets.frames),
+        "targets_pending": hand_eye.pipeline.targets_waiting,
         **{k: v for k, v in h.counters.items() if k.startswith("target_refused.") and v},
     }
 
