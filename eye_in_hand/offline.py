@@ -683,7 +683,7 @@ def _worker_locate(stamp_ns: int, left: _MappedImage, right: _MappedImage
 def _drop_pages(mapped: mmap.mmap, start: int, length: int) -> None:
     """``madvise(MADV_DONTNEED)`` over the whole pages of ``[start, start + length)`` of a
     read-only file mapping: out of this process's resident set; a page read again is mapped
-    again from the page cache. (:func:`eye_in_hand.io.mcap_chunks.drop_pages`, without
+    again from the page cache. (:func:`eye_in_hand.io.bags.mcap_chunks.drop_pages`, without
     loading ``eye_in_hand.io`` into a worker.)"""
     lo = start - start % mmap.PAGESIZE
     hi = min(len(mapped), -(-(start + length) // mmap.PAGESIZE) * mmap.PAGESIZE)
@@ -756,7 +756,7 @@ class _PairPool:
         return _locate_pair(self._locator(), pair.stamp_ns, pair.left, pair.right)
 
     def submit_chunks(self, group: int, fn: str, args: tuple[Any, ...]) -> Any:
-        """Open compressed chunks (:mod:`eye_in_hand.io.mcap_tasks`) on worker ``group``
+        """Open compressed chunks (:mod:`eye_in_hand.io.bags.mcap_tasks`) on worker ``group``
         (modulo): ``(future, worker)``, or None (no worker: the caller opens them)."""
         return None if self._procs is None else self._procs.try_submit_to(group, fn, *args,
                                                                           wait_s=10.0)
