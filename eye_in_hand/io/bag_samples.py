@@ -149,6 +149,236 @@ def _tf_series(tf: TfBuffer, stamps_by_child: Mapping[str, list[int]], base: str
     return series
 
 
+
+#: what makes a message of the bag unusable: recorded in the damage log, the rest is read
+_UNUSABLE = (BagError, ConversionError, InputError, ConfigError, ValueError)
+
+
+@dataclass
+class _Bag:
+    """The bag being read, as its passes share it: topics, type store, damage log."""
+
+    path: str | os.PathLike[str]
+    topics: Mapping[str, Any]
+    store: Any
+    log: Any
+
+    @property
+    def source(self) -> str:
+        return str(self.path)
+
+    def messages(self, wanted: list[str]) -> Iterator[tuple[str, str, int, Any]]:
+        """The bag's messages, damaged parts skipped and recorded."""
+        return _iter_messages(Path(self.path), wanted, damage=self.log)
+
+    def add_pose(self, series: PoseBuffer, topic: str, stamp_ns: int, T: Any) -> None:
+        """Buffer a robot pose; one that is not finite or not rigid is recorded as a bad
+        message instead."""
+        if T is None or not np.all(np.isfinite(T)):
+            self.log.bad_message(topic, stamp_ns, "robot pose is not finite (NaN or inf)")
+            return
+        try:
+            series.add(stamp_ns, T)
+        except InputError as exc:
+            self.log.bad_message(topic, stamp_ns, str(exc))
+
+
+def _views(bag: _Bag, image_topic: str | None, right_image_topic: str | None,
+           stereo: bool | None) -> dict[str, str]:
+    """The image topic of each view (``image`` mono; ``left`` and ``right`` stereo): see
+    :func:`read_bag_samples`."""
+    source = bag.source
+    images = [t for t, ti in bag.topics.items() if ti.msgtype == "sensor_msgs/msg/Image"]
+    if image_topic is None:
+        lefts = [t for t in images if "left" in t.split("/")]
+        if len(images) == 1:
+            image_topic = images[0]
+        elif len(lefts) == 1:
+            image_topic = lefts[0]
+        else:
+            raise ConfigError(f"{source}: give the image topic (image topics: "
+                              f"{', '.join(images) or 'none'})")
+    left_topic = _resolve_topic(bag.topics, image_topic, "image", bag.source)
+    right_topic = None
+    if stereo is not False:
+        if right_image_topic is not None:
+            right_topic = _resolve_topic(bag.topics, right_image_topic, "right image", bag.source)
+        elif "left" in left_topic:
+            candidate = left_topic.replace("left", "right")
+            right_topic = candidate if candidate in bag.topics else None
+        if stereo and right_topic is None:
+            raise ConfigError(f"{source}: stereo requested but no right image topic found")
+    views = {"left": left_topic, "right": right_topic} if right_topic else {"image": left_topic}
+    return views
+
+
+def _robot_poses(bag: _Bag, pose_topic: str | None, joint_topic: str | None,
+                 kinematics: Any, use_tf: bool, base_frame: str, ee_frame: str,
+                 tf_topic: str, tf_static_topic: str) -> tuple[PoseBuffer, str]:
+    """Every robot pose of the bag from its source (see :func:`read_bag_samples`), and the
+    source's description."""
+    source = bag.source
+    if pose_topic is None and joint_topic is None and not use_tf:
+        if "/ee_pose" in bag.topics:
+            pose_topic = "/ee_pose"
+        elif tf_topic in bag.topics:
+            use_tf = True
+        else:
+            raise ConfigError(f"{source}: no robot pose source (no /ee_pose, no /tf): give "
+                              "--robot-pose ee_pose --ee-pose-topic T, --robot-pose "
+                              "joint_states with --kinematics, or --robot-pose tf")
+    if pose_topic is not None:
+        pt = _resolve_topic(bag.topics, pose_topic, "pose", bag.source)
+        pose_source = f"{pt} (PoseStamped)"
+        series = _robot_series(bag.topics, pt)
+        for topic, msgtype, log_ns, raw in bag.messages([pt]):
+            try:
+                msg = deserialize(raw, msgtype, bag.store)
+                stamp, T = header_stamp_ns(msg), pose_to_matrix(msg)
+            except _UNUSABLE as exc:
+                bag.log.bad_message(topic, log_ns, str(exc))
+                continue
+            bag.add_pose(series, topic, stamp, T)
+    elif joint_topic is not None:
+        if kinematics is None:
+            raise ConfigError("--robot-pose joint_states needs --kinematics (a kinematic "
+                              "chain)")
+        jt = _resolve_topic(bag.topics, joint_topic, "joint state", bag.source)
+        pose_source = f"{jt} (JointState) + forward kinematics"
+        # local: core.kinematics loads SciPy, needed with joint_states only
+        from eye_in_hand.core.kinematics import JointIndex, MissingJointsError
+
+        joints = JointIndex(kinematics.joint_names)
+        series = _robot_series(bag.topics, jt)
+        for topic, msgtype, log_ns, raw in bag.messages([jt]):
+            try:
+                msg = deserialize(raw, msgtype, bag.store)
+            except _UNUSABLE as exc:
+                bag.log.bad_message(topic, log_ns, str(exc))
+                continue
+            try:
+                q = joints.positions(msg.name, msg.position)
+            except MissingJointsError as exc:
+                raise ConfigError(f"{source}: {jt}: {exc}, which the kinematic chain "
+                                  "needs") from exc
+            except InputError as exc:
+                bag.log.bad_message(topic, header_stamp_ns(msg), str(exc))
+                continue
+            bag.add_pose(series, topic, header_stamp_ns(msg), kinematics.fk(q))
+    else:
+        pose_source = f"{tf_topic} {base_frame} -> {ee_frame}"
+        tf = TfBuffer(max(2, bag.topics[tf_topic].count if tf_topic in bag.topics else 0))
+        stamps_by_child: dict[str, list[int]] = {}
+        for topic, msgtype, log_ns, raw in bag.messages([tf_topic, tf_static_topic]):
+            try:
+                msg = deserialize(raw, msgtype, bag.store)
+            except _UNUSABLE as exc:
+                bag.log.bad_message(topic, log_ns, str(exc))
+                continue
+            for tr in msg.transforms:
+                key = (tr.header.frame_id.lstrip("/"), tr.child_frame_id.lstrip("/"))
+                try:
+                    stamp = header_stamp_ns(tr)
+                    tf.set_transform(key[0], key[1], stamp, transform_to_matrix(tr),
+                                     static=topic == tf_static_topic)
+                except _UNUSABLE as exc:
+                    bag.log.bad_message(topic, log_ns, f"{key[0]} -> {key[1]}: {exc}")
+                    continue
+                if topic != tf_static_topic:
+                    stamps_by_child.setdefault(key[1], []).append(stamp)
+        series = _tf_series(tf, stamps_by_child, base_frame, ee_frame, bag.source)
+    if not len(series):
+        raise ConfigError(f"{source}: no robot poses from {pose_source}")
+    return series, pose_source
+
+
+def _stops(stamps: list[int], series: PoseBuffer, still_window_s: float,
+           still_translation_m: float, still_rotation_deg: float
+           ) -> tuple[dict[int, tuple[str, np.ndarray]], list[dict[str, Any]]]:
+    """The still robot stops among the image ``stamps`` (sorted): the chosen (middle) image
+    stamp of each stop with its name and robot pose, and the images not used and why."""
+    half = int(round(still_window_s * 0.5e9))
+    first, last = series.oldest_ns or 0, series.newest_ns or 0     # the series is not empty
+    skipped: list[dict[str, Any]] = []
+    groups: list[list[tuple[int, np.ndarray]]] = []
+    current: list[tuple[int, np.ndarray]] = []
+    rot_tol = np.radians(still_rotation_deg)
+
+    def close(Ta: np.ndarray, Tb: np.ndarray) -> bool:
+        dt = float(np.linalg.norm(Ta[:3, 3] - Tb[:3, 3]))
+        c = np.clip((np.trace(Ta[:3, :3].T @ Tb[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+        return dt <= still_translation_m and float(np.arccos(c)) <= rot_tol
+
+    for stamp in stamps:
+        at = _pose_at(series, stamp)
+        reason = ""
+        if at is None:
+            reason = "no robot pose at the image stamp (outside the robot's time range)"
+        elif first > stamp - half or last < stamp + half:
+            reason = "robot poses do not cover the stillness window"
+        elif not all(close(at, P) for P in series.between(stamp - half, stamp + half)):
+            reason = "robot moving"
+        if reason:
+            skipped.append({"stamp_ns": stamp, "reason": reason})
+            if current:
+                groups.append(current)
+                current = []
+            continue
+        assert at is not None
+        if current and not close(current[0][1], at):
+            groups.append(current)
+            current = []
+        current.append((stamp, at))
+    if current:
+        groups.append(current)
+    chosen = {g[len(g) // 2][0]: (f"stop{k:03d}", g[len(g) // 2][1])
+              for k, g in enumerate(groups)}
+    return chosen, skipped
+
+
+def _decode(bag: _Bag, views: Mapping[str, str], chosen: Mapping[int, Any]
+            ) -> tuple[dict[int, dict[str, np.ndarray]], dict[str, Any], dict[str, np.ndarray],
+                       dict[int, str]]:
+    """Pass 2: the chosen images decoded per view, the first camera_info of each view, the
+    simulator's ground truth when the bag has it, and why a chosen image could not be used."""
+    bad_images: dict[int, str] = {}
+    decoded: dict[int, dict[str, np.ndarray]] = {s: {} for s in chosen}
+    infos: dict[str, Any] = {}
+    info_topics = {_info_topic(t): v for v, t in views.items() if _info_topic(t) in bag.topics}
+    truth: dict[str, np.ndarray] = {}
+    wanted = list(views.values()) + list(info_topics)
+    if "/ground_truth/hand_eye" in bag.topics:
+        wanted.append("/ground_truth/hand_eye")
+    topic_view = {t: v for v, t in views.items()}
+    for topic, msgtype, log_ns, raw in bag.messages(wanted):
+        try:
+            if topic in info_topics:
+                if info_topics[topic] not in infos:
+                    infos[info_topics[topic]] = deserialize(raw, msgtype, bag.store)
+                continue
+            if topic == "/ground_truth/hand_eye":
+                truth["ee_T_cam"] = transform_to_matrix(deserialize(raw, msgtype, bag.store))
+                continue
+            stamp = _cdr_header_stamp_ns(raw)
+        except _UNUSABLE as exc:
+            bag.log.bad_message(topic, log_ns, str(exc))
+            continue
+        if stamp in decoded:
+            try:
+                msg = deserialize(raw, msgtype, bag.store)
+                img = image_to_numpy(msg, copy=True)
+            except _UNUSABLE as exc:
+                bag.log.bad_message(topic, stamp, str(exc))
+                bad_images[stamp] = f"the {topic_view[topic]} image at {stamp} ns is damaged " \
+                    f"({exc})"
+                continue
+            enc = str(msg.encoding).lower()
+            if enc == "rgb8":
+                img = img[..., ::-1].copy()
+            decoded[stamp][topic_view[topic]] = img
+    return decoded, infos, truth, bad_images
+
+
 def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = None,
                      right_image_topic: str | None = None, pose_topic: str | None = None,
                      joint_topic: str | None = None, kinematics: Any = None,
@@ -194,203 +424,25 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
         ConfigError: missing or ambiguous topics, no pose source, broken /tf chain.
         BagError: unreadable bag.
     """
-    source = str(path)
-    info = bag_info(Path(path))
-    topics = info.topics
-    store = typestore_for(Path(path))
-    log = damage if damage is not None else DamageLog()
-    unusable = (BagError, ConversionError, InputError, ConfigError, ValueError)
-    bad_images: dict[int, str] = {}
-
-    def iter_messages(bag: Any, wanted: list[str]) -> Iterator[tuple[str, str, int, Any]]:
-        """The bag's messages, damaged parts skipped and recorded."""
-        return _iter_messages(bag, wanted, damage=log)
-
-    def add(series: PoseBuffer, topic: str, stamp_ns: int, T: Any) -> None:
-        """Buffer a robot pose; one that is not finite or not rigid is recorded as a bad
-        message instead."""
-        if T is None or not np.all(np.isfinite(T)):
-            log.bad_message(topic, stamp_ns, "robot pose is not finite (NaN or inf)")
-            return
-        try:
-            series.add(stamp_ns, T)
-        except InputError as exc:
-            log.bad_message(topic, stamp_ns, str(exc))
-    images = [t for t, ti in topics.items() if ti.msgtype == "sensor_msgs/msg/Image"]
-    if image_topic is None:
-        lefts = [t for t in images if "left" in t.split("/")]
-        if len(images) == 1:
-            image_topic = images[0]
-        elif len(lefts) == 1:
-            image_topic = lefts[0]
-        else:
-            raise ConfigError(f"{source}: give the image topic (image topics: "
-                              f"{', '.join(images) or 'none'})")
-    left_topic = _resolve_topic(topics, image_topic, "image", source)
-    right_topic = None
-    if stereo is not False:
-        if right_image_topic is not None:
-            right_topic = _resolve_topic(topics, right_image_topic, "right image", source)
-        elif "left" in left_topic:
-            candidate = left_topic.replace("left", "right")
-            right_topic = candidate if candidate in topics else None
-        if stereo and right_topic is None:
-            raise ConfigError(f"{source}: stereo requested but no right image topic found")
-    views = {"left": left_topic, "right": right_topic} if right_topic else {"image": left_topic}
-
-    # Robot pose source.
-    if pose_topic is None and joint_topic is None and not use_tf:
-        if "/ee_pose" in topics:
-            pose_topic = "/ee_pose"
-        elif tf_topic in topics:
-            use_tf = True
-        else:
-            raise ConfigError(f"{source}: no robot pose source (no /ee_pose, no /tf): give "
-                              "--robot-pose ee_pose --ee-pose-topic T, --robot-pose "
-                              "joint_states with --kinematics, or --robot-pose tf")
-    if pose_topic is not None:
-        pt = _resolve_topic(topics, pose_topic, "pose", source)
-        pose_source = f"{pt} (PoseStamped)"
-        series = _robot_series(topics, pt)
-        for topic, msgtype, log_ns, raw in iter_messages(path, [pt]):
-            try:
-                msg = deserialize(raw, msgtype, store)
-                stamp, T = header_stamp_ns(msg), pose_to_matrix(msg)
-            except unusable as exc:
-                log.bad_message(topic, log_ns, str(exc))
-                continue
-            add(series, topic, stamp, T)
-    elif joint_topic is not None:
-        if kinematics is None:
-            raise ConfigError("--robot-pose joint_states needs --kinematics (a kinematic "
-                              "chain)")
-        jt = _resolve_topic(topics, joint_topic, "joint state", source)
-        pose_source = f"{jt} (JointState) + forward kinematics"
-        # local: core.kinematics loads SciPy, needed with joint_states only
-        from eye_in_hand.core.kinematics import JointIndex, MissingJointsError
-
-        joints = JointIndex(kinematics.joint_names)
-        series = _robot_series(topics, jt)
-        for topic, msgtype, log_ns, raw in iter_messages(path, [jt]):
-            try:
-                msg = deserialize(raw, msgtype, store)
-            except unusable as exc:
-                log.bad_message(topic, log_ns, str(exc))
-                continue
-            try:
-                q = joints.positions(msg.name, msg.position)
-            except MissingJointsError as exc:
-                raise ConfigError(f"{source}: {jt}: {exc}, which the kinematic chain "
-                                  "needs") from exc
-            except InputError as exc:
-                log.bad_message(topic, header_stamp_ns(msg), str(exc))
-                continue
-            add(series, topic, header_stamp_ns(msg), kinematics.fk(q))
-    else:
-        pose_source = f"{tf_topic} {base_frame} -> {ee_frame}"
-        tf = TfBuffer(max(2, topics[tf_topic].count if tf_topic in topics else 0))
-        stamps_by_child: dict[str, list[int]] = {}
-        for topic, msgtype, log_ns, raw in iter_messages(path, [tf_topic, tf_static_topic]):
-            try:
-                msg = deserialize(raw, msgtype, store)
-            except unusable as exc:
-                log.bad_message(topic, log_ns, str(exc))
-                continue
-            for tr in msg.transforms:
-                key = (tr.header.frame_id.lstrip("/"), tr.child_frame_id.lstrip("/"))
-                try:
-                    stamp = header_stamp_ns(tr)
-                    tf.set_transform(key[0], key[1], stamp, transform_to_matrix(tr),
-                                     static=topic == tf_static_topic)
-                except unusable as exc:
-                    log.bad_message(topic, log_ns, f"{key[0]} -> {key[1]}: {exc}")
-                    continue
-                if topic != tf_static_topic:
-                    stamps_by_child.setdefault(key[1], []).append(stamp)
-        series = _tf_series(tf, stamps_by_child, base_frame, ee_frame, source)
-    if not len(series):
-        raise ConfigError(f"{source}: no robot poses from {pose_source}")
+    bag = _Bag(path, bag_info(Path(path)).topics, typestore_for(Path(path)),
+               damage if damage is not None else DamageLog())
+    source, log = bag.source, bag.log
+    views = _views(bag, image_topic, right_image_topic, stereo)
+    left_topic = views.get("left", views.get("image", ""))
+    series, pose_source = _robot_poses(bag, pose_topic, joint_topic, kinematics, use_tf,
+                                       base_frame, ee_frame, tf_topic, tf_static_topic)
 
     # Image stamps of the reference view (pass 1), stillness and grouping.
     stamps: list[int] = []
-    for topic, _msgtype, log_ns, raw in iter_messages(path, [left_topic]):
+    for topic, _msgtype, log_ns, raw in bag.messages([left_topic]):
         try:
             stamps.append(_cdr_header_stamp_ns(raw))
-        except unusable as exc:
+        except _UNUSABLE as exc:
             log.bad_message(topic, log_ns, str(exc))
     stamps.sort()
-    half = int(round(still_window_s * 0.5e9))
-    first, last = series.oldest_ns or 0, series.newest_ns or 0     # the series is not empty
-    skipped: list[dict[str, Any]] = []
-    groups: list[list[tuple[int, np.ndarray]]] = []
-    current: list[tuple[int, np.ndarray]] = []
-    rot_tol = np.radians(still_rotation_deg)
-
-    def close(Ta: np.ndarray, Tb: np.ndarray) -> bool:
-        dt = float(np.linalg.norm(Ta[:3, 3] - Tb[:3, 3]))
-        c = np.clip((np.trace(Ta[:3, :3].T @ Tb[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
-        return dt <= still_translation_m and float(np.arccos(c)) <= rot_tol
-
-    for stamp in stamps:
-        at = _pose_at(series, stamp)
-        reason = ""
-        if at is None:
-            reason = "no robot pose at the image stamp (outside the robot's time range)"
-        elif first > stamp - half or last < stamp + half:
-            reason = "robot poses do not cover the stillness window"
-        elif not all(close(at, P) for P in series.between(stamp - half, stamp + half)):
-            reason = "robot moving"
-        if reason:
-            skipped.append({"stamp_ns": stamp, "reason": reason})
-            if current:
-                groups.append(current)
-                current = []
-            continue
-        assert at is not None
-        if current and not close(current[0][1], at):
-            groups.append(current)
-            current = []
-        current.append((stamp, at))
-    if current:
-        groups.append(current)
-    chosen = {g[len(g) // 2][0]: (f"stop{k:03d}", g[len(g) // 2][1])
-              for k, g in enumerate(groups)}
-
-    # Pass 2: decode the chosen images (and the first camera_info of each view).
-    decoded: dict[int, dict[str, np.ndarray]] = {s: {} for s in chosen}
-    infos: dict[str, Any] = {}
-    info_topics = {_info_topic(t): v for v, t in views.items() if _info_topic(t) in topics}
-    truth: dict[str, np.ndarray] = {}
-    wanted = list(views.values()) + list(info_topics)
-    if "/ground_truth/hand_eye" in topics:
-        wanted.append("/ground_truth/hand_eye")
-    topic_view = {t: v for v, t in views.items()}
-    for topic, msgtype, log_ns, raw in iter_messages(path, wanted):
-        try:
-            if topic in info_topics:
-                if info_topics[topic] not in infos:
-                    infos[info_topics[topic]] = deserialize(raw, msgtype, store)
-                continue
-            if topic == "/ground_truth/hand_eye":
-                truth["ee_T_cam"] = transform_to_matrix(deserialize(raw, msgtype, store))
-                continue
-            stamp = _cdr_header_stamp_ns(raw)
-        except unusable as exc:
-            log.bad_message(topic, log_ns, str(exc))
-            continue
-        if stamp in decoded:
-            try:
-                msg = deserialize(raw, msgtype, store)
-                img = image_to_numpy(msg, copy=True)
-            except unusable as exc:
-                log.bad_message(topic, stamp, str(exc))
-                bad_images[stamp] = f"the {topic_view[topic]} image at {stamp} ns is damaged " \
-                    f"({exc})"
-                continue
-            enc = str(msg.encoding).lower()
-            if enc == "rgb8":
-                img = img[..., ::-1].copy()
-            decoded[stamp][topic_view[topic]] = img
+    chosen, skipped = _stops(stamps, series, still_window_s, still_translation_m,
+                             still_rotation_deg)
+    decoded, infos, truth, bad_images = _decode(bag, views, chosen)
     samples = []
     for stamp in sorted(chosen):
         name, T = chosen[stamp]
