@@ -70,24 +70,13 @@ def run_node(name: str, factory: Callable[[], Any], args: Sequence[str] | None =
     parameter or calibration file) is printed as ``<name>: error: ...`` and exits with code 1;
     any other exception is one line as well (:func:`guard`).
     """
-    def body() -> None:
+    def spin(node: Any, executor: Any) -> int:
+        rclpy.spin(node, executor)
+        return 0
+
+    def body() -> int:
         use_large_data_profile()
-        rclpy.init(args=None if args is None else list(args))
-        node = None
-        executor = None
-        try:
-            executor = LeanExecutor()
-            node = factory()
-            refuse_undeclared_overrides(node, args)
-            rclpy.spin(node, executor)
-        except (KeyboardInterrupt, ExternalShutdownException):
-            pass
-        finally:
-            if executor is not None:
-                executor.shutdown()
-            if node is not None:
-                node.destroy_node()
-            rclpy.try_shutdown()
+        return run_with_executor(factory, spin, args)
 
     code = guard(name, body, args)
     if code:
