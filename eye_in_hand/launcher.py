@@ -47,7 +47,8 @@ from typing import IO
 from eye_in_hand.errors import ConfigError, InputError
 
 __all__ = ["NodeSpec", "NODES", "CALIBRATION_NODES", "COMPOSED", "node_command", "node_ros_args",
-           "Launcher", "default_params_file"]
+           "node_namespace", "node_remappings", "node_parameters", "Launcher",
+           "default_params_file"]
 
 
 @dataclass(frozen=True)
@@ -114,20 +115,42 @@ def _yaml_string(value: str) -> str:
     return "'" + value.replace("'", "''") + "'"
 
 
+def node_namespace(spec: NodeSpec, *, root_namespace: str = "/") -> str:
+    """The absolute namespace of one node under ``root_namespace``."""
+    return _join(root_namespace, spec.namespace)
+
+
+def node_remappings(spec: NodeSpec, *, root_namespace: str = "/") -> list[tuple[str, str]]:
+    """The remappings ``(from, to)`` of one node under ``root_namespace``: its own (a 'to'
+    without a leading '/' is relative to the root namespace) and ``diagnostics`` to the root;
+    only those that change a name. The one source of the bring-up's remappings for
+    ``eye-in-hand launch``, the composed process and ``launch/eye_in_hand.launch.py``."""
+    ns = node_namespace(spec, root_namespace=root_namespace)
+    out = []
+    for src, dst in list(spec.remaps) + [(t, t) for t in _TO_ROOT]:
+        target = _join(root_namespace, dst)
+        if target != _join(ns, src):
+            out.append((src, target))
+    return out
+
+
+def node_parameters(spec: NodeSpec) -> dict[str, str]:
+    """The parameters a node is started with besides the parameter file (``-p name:=value``
+    of :attr:`NodeSpec.extra_args`), e.g. ``{"mode": "calibration"}``."""
+    args = list(spec.extra_args)
+    return dict(args[i + 1].split(":=", 1) for i in range(len(args) - 1) if args[i] == "-p")
+
+
 def node_ros_args(spec: NodeSpec, *, root_namespace: str = "/",
                   overrides: Sequence[tuple[str, str]] = ()) -> list[str]:
     """The ROS arguments of one node after ``--ros-args`` and the parameter file: its
     namespace, ``overrides`` (string parameters ``(name, value)``, ``-p name:=value``) and
     remappings; as a process's arguments or a node's own ``cli_args`` in a composed process."""
-    ns = _join(root_namespace, spec.namespace)
-    args = ["-r", f"__ns:={ns}"]
+    args = ["-r", f"__ns:={node_namespace(spec, root_namespace=root_namespace)}"]
     for name, value in overrides:
         args += ["-p", f"{name}:={_yaml_string(value)}"]
-    remaps = list(spec.remaps) + [(t, t) for t in _TO_ROOT]
-    for src, dst in remaps:
-        target = _join(root_namespace, dst)
-        if target != _join(ns, src):
-            args += ["-r", f"{src}:={target}"]
+    for src, target in node_remappings(spec, root_namespace=root_namespace):
+        args += ["-r", f"{src}:={target}"]
     return args + list(spec.extra_args)
 
 

@@ -2,7 +2,9 @@
 [start_capture:=true|false] [respawn:=true|false] [respawn_delay:=S]
 [mode:=localization|calibration] [composed:=true|false]
 
-The same bring-up as ``eye-in-hand launch`` (eye_in_hand/launcher.py: keep the two equal):
+The same bring-up as ``eye-in-hand launch``: the nodes, their namespaces, remappings and
+calibration-mode parameters come from eye_in_hand/launcher.py (``NODES``,
+``CALIBRATION_NODES``, ``COMPOSED``), as they are now:
 
 * stereo_capture      in <ns>/stereo; ee_pose, joint_states -> <ns>
 * detect_triangulate  in <ns>/stereo; target/point, target/point_cov, target/debug_image,
@@ -31,12 +33,17 @@ from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+import eye_in_hand.launcher as launcher
+import eye_in_hand.ros.dds as dds
 from launch import LaunchDescription
+
+
+def _truthy(name, context):
+    return LaunchConfiguration(name).perform(context).lower() in ("true", "1", "yes")
 
 
 def _nodes(context):
     ns = "/" + LaunchConfiguration("namespace").perform(context).strip("/")
-    root = ns.rstrip("/")
     params = LaunchConfiguration("params_file").perform(context)
     mode = LaunchConfiguration("mode").perform(context)
     if mode not in ("localization", "calibration"):
@@ -49,44 +56,30 @@ def _nodes(context):
     if not (os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE")
             or os.environ.get("FASTDDS_DEFAULT_PROFILES_FILE")):
         # Large images over shared memory (see eye_in_hand/ros/dds.py).
-        import eye_in_hand.ros.dds as dds
         env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(dds.PROFILE)
-    diag = ("diagnostics", f"{root}/diagnostics")
-    respawn = LaunchConfiguration("respawn").perform(context).lower() in ("true", "1", "yes")
-    delay = float(LaunchConfiguration("respawn_delay").perform(context))
-    again = {"respawn": respawn, "respawn_delay": delay}
-    camera_images = [("left/image_raw", f"{root}/stereo/left/image_raw"),
-                     ("right/image_raw", f"{root}/stereo/right/image_raw"),
-                     ("image_raw", f"{root}/stereo/left/image_raw")]
-    hand_eye = Node(package="eye_in_hand", executable="hand_eye", name="hand_eye", namespace=ns,
-                    parameters=[params, {"mode": mode}] if calibrate else [params],
-                    additional_env=env,
-                    remappings=[*camera_images, diag] if calibrate else [diag],
-                    output="screen", **again)
-    nodes = [
-        Node(package="eye_in_hand", executable="stereo_capture", name="stereo_capture",
-             namespace=f"{root}/stereo", parameters=[params], additional_env=env,
-             remappings=[("ee_pose", f"{root}/ee_pose"),
-                         ("joint_states", f"{root}/joint_states"), diag],
-             condition=IfCondition(LaunchConfiguration("start_capture")), output="screen",
-             **again),
-        Node(package="eye_in_hand", executable="detect_triangulate", name="detect_triangulate",
-             namespace=f"{root}/stereo", parameters=[params], additional_env=env,
-             remappings=[("target/point", f"{root}/target/point"),
-                         ("target/point_cov", f"{root}/target/point_cov"),
-                         ("target/debug_image", f"{root}/target/debug_image"),
-                         ("targets/markers", f"{root}/targets/markers"), diag],
-             output="screen", **again),
-        hand_eye,
-    ]
+    again = {"respawn": _truthy("respawn", context),
+             "respawn_delay": float(LaunchConfiguration("respawn_delay").perform(context))}
+
+    def node(spec):
+        extra = launcher.node_parameters(spec)
+        kwargs = {}
+        if spec.name == launcher.NODES[0].name:   # the camera
+            kwargs["condition"] = IfCondition(LaunchConfiguration("start_capture"))
+        return Node(package="eye_in_hand", executable=spec.name, name=spec.name,
+                    namespace=launcher.node_namespace(spec, root_namespace=ns),
+                    parameters=[params, extra] if extra else [params],
+                    remappings=launcher.node_remappings(spec, root_namespace=ns),
+                    additional_env=env, output="screen", **again, **kwargs)
+
     if calibrate:
-        return [nodes[0], nodes[2]]
-    if LaunchConfiguration("composed").perform(context).lower() in ("true", "1", "yes"):
+        return [node(spec) for spec in launcher.CALIBRATION_NODES]
+    if _truthy("composed", context):
         # one process; it gives each node its namespace and remappings (as the launcher)
-        return [nodes[0], Node(package="eye_in_hand", executable="localize",
-                               arguments=["--namespace", ns], parameters=[params],
-                               additional_env=env, output="screen", **again)]
-    return nodes
+        return [node(launcher.NODES[0]),
+                Node(package="eye_in_hand", executable=launcher.COMPOSED.name,
+                     arguments=["--namespace", ns], parameters=[params],
+                     additional_env=env, output="screen", **again)]
+    return [node(spec) for spec in launcher.NODES]
 
 
 def generate_launch_description():
