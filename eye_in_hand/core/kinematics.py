@@ -29,10 +29,8 @@ from pathlib import Path
 from typing import Protocol
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
 
-from eye_in_hand.core.transforms import as_transform, rotation_angle
+from eye_in_hand.core.transforms import as_transform, rotation_angle, rotation_class
 from eye_in_hand.errors import InputError, KinematicsError
 
 __all__ = [
@@ -147,11 +145,11 @@ def _as_q(q, n: int, name: str = "q") -> np.ndarray:
 def rpy_to_matrix(rpy: Sequence[float] | np.ndarray) -> np.ndarray:
     """URDF roll-pitch-yaw (fixed axes X, then Y, then Z) to a rotation matrix (3, 3)."""
     r, p, y = (float(v) for v in rpy)
-    return Rotation.from_euler("xyz", [r, p, y]).as_matrix()
+    return rotation_class().from_euler("xyz", [r, p, y]).as_matrix()
 
 
 def _axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
-    return Rotation.from_rotvec(axis * angle).as_matrix()
+    return rotation_class().from_rotvec(axis * angle).as_matrix()
 
 
 def _dh_matrix(theta: float, d: float, a: float, alpha: float) -> np.ndarray:
@@ -247,7 +245,7 @@ class DHChain:
         if data.get("base_T_dh") is not None:
             node = data["base_T_dh"]
             try:
-                base_T_dh[:3, :3] = Rotation.from_quat(
+                base_T_dh[:3, :3] = rotation_class().from_quat(
                     np.asarray(node["quat_xyzw"], dtype=float)).as_matrix()
                 base_T_dh[:3, 3] = np.asarray(node["translation"], dtype=float)
             except (KeyError, TypeError, ValueError) as exc:
@@ -275,8 +273,8 @@ class DHChain:
             "base_frame": self.base_frame,
             "dh_frame": self.dh_frame,
             "base_T_dh": {"translation": self.base_T_dh[:3, 3].tolist(),
-                          "quat_xyzw": Rotation.from_matrix(self.base_T_dh[:3, :3]).as_quat()
-                          .tolist()},
+                          "quat_xyzw": rotation_class().from_matrix(self.base_T_dh[:3, :3])
+                          .as_quat().tolist()},
         }
 
     @property
@@ -538,7 +536,7 @@ def _pose_residual(q: np.ndarray, chain: KinematicChain, target: np.ndarray,
                    rot_weight: float) -> np.ndarray:
     T = chain.fk(q)
     dp = T[:3, 3] - target[:3, 3]
-    dR = Rotation.from_matrix(target[:3, :3].T @ T[:3, :3]).as_rotvec()
+    dR = rotation_class().from_matrix(target[:3, :3].T @ T[:3, :3]).as_rotvec()
     return np.concatenate([dp, rot_weight * dR])
 
 
@@ -583,6 +581,10 @@ def solve_ik(chain: KinematicChain, base_T_tip, seed_q=None, *, seed: int = 0,
         raise KinematicsError(
             f"inverse kinematics: pose at {np.round(target[:3, 3], 4).tolist()} m is "
             f"{distance:.3f} m from the base, beyond the arm's reach of {reach:.3f} m")
+    # scipy.optimize costs 0.8 s at import (python -X importtime); only inverse kinematics
+    # needs it, not forward kinematics of joint states (the nodes, `process`)
+    from scipy.optimize import least_squares
+
     rng = np.random.default_rng(seed)
     best: np.ndarray | None = None
     best_dist = math.inf
