@@ -2,25 +2,32 @@
 
 Each sub-command lives in its own module under :mod:`eye_in_hand.commands` and provides::
 
-    HELP: str                                        # one line for ``eye-in-hand --help``
+    HELP: str                          # one line for ``eye-in-hand --help``, a literal
     def add_arguments(parser: argparse.ArgumentParser) -> None
     def run(args: argparse.Namespace) -> int          # the process exit code
 
-Command modules import heavy dependencies (rclpy, OpenCV, matplotlib) inside ``run`` so that
-``eye-in-hand --help`` stays fast. Errors derived from :class:`eye_in_hand.errors.EyeInHandError`
-are printed as one line on stderr (``eye-in-hand: error: ...``) with exit code 1, never a
-traceback; so is any ``OSError`` that reaches the top (e.g. a full disk), with the file it
-names. Any other exception (a bug) is one line too, ``eye-in-hand: internal error: <Type>:
-<message> (run with --debug ...)``, exit code 70; ``--debug`` (or ``EYE_IN_HAND_DEBUG=1``) shows
-its traceback and is passed on to worker processes and launched nodes.
+:func:`build_parser` imports only the module of the command that the command line names; the
+others appear in the help with their ``HELP`` line, read from their source without importing
+them. So a command module imports what it uses at its top, and ``eye-in-hand --help`` (or one
+command's) never loads another command's dependencies (rclpy, OpenCV, SciPy, matplotlib).
+
+Errors derived from :class:`eye_in_hand.errors.EyeInHandError` are printed as one line on stderr
+(``eye-in-hand: error: ...``) with exit code 1, never a traceback; so is any ``OSError`` that
+reaches the top (e.g. a full disk), with the file it names. Any other exception (a bug) is one line
+too, ``eye-in-hand: internal error: <Type>: <message> (run with --debug ...)``, exit code 70;
+``--debug`` (or ``EYE_IN_HAND_DEBUG=1``) shows its traceback and is passed on to worker processes
+and launched nodes.
 """
 from __future__ import annotations
 
 import argparse
+import ast
 import codecs
 import importlib
+import importlib.util
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import NoReturn
 
 from eye_in_hand import __version__
@@ -72,8 +79,38 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {text} (see {self.prog} --help)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Build the full argument parser, importing every command module."""
+def _help_line(module_name: str) -> str:
+    """The ``HELP`` string of a command module, read from its source without importing it (a
+    literal ``HELP = "..."`` at its top level, the contract of :data:`COMMANDS`)."""
+    spec = importlib.util.find_spec(module_name)
+    if spec is None or spec.origin is None:
+        raise ImportError(f"no command module {module_name}")
+    tree = ast.parse(Path(spec.origin).read_text(encoding="utf-8"), spec.origin)
+    for node in tree.body:
+        if (isinstance(node, ast.Assign) and len(node.targets) == 1
+                and isinstance(node.targets[0], ast.Name) and node.targets[0].id == "HELP"):
+            return str(ast.literal_eval(node.value))
+    raise ImportError(f"{module_name}: no literal HELP = '...' at its top level")
+
+
+def _named_command(argv: Sequence[str]) -> str | None:
+    """The words of the command that ``argv`` names (``"calibrate camera"``), or None (no
+    command, only a group, or an unknown one: argparse says so)."""
+    words = list(argv[:list(argv).index("--")]) if "--" in argv else list(argv)
+    positional = [a for a in words if not a.startswith("-")][:2]
+    known = {w for w, _ in COMMANDS}
+    for n in (1, 2):
+        if len(positional) >= n and " ".join(positional[:n]) in known:
+            return " ".join(positional[:n])
+    return None
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The argument parser for ``argv``: the module of the command ``argv`` names is imported
+    and adds its arguments; every other command is listed with its ``HELP`` line only (so its
+    module is not imported). ``argv=None`` imports every command module and builds the whole
+    parser (the docs and tests walk it)."""
+    chosen = None if argv is None else _named_command(argv)
     parser = _Parser(
         prog="eye-in-hand",
         description="Eye-in-hand stereo target localization, calibration and bag tools.",
@@ -86,7 +123,6 @@ def build_parser() -> argparse.ArgumentParser:
                                 parser_class=_Parser)
     groups: dict[str, argparse._SubParsersAction] = {}
     for words, module_name in COMMANDS:
-        module = importlib.import_module(module_name)
         parts = words.split()
         sub = top
         if len(parts) == 2:
@@ -97,10 +133,14 @@ def build_parser() -> argparse.ArgumentParser:
                     dest=f"{group}_command", metavar="SUBCOMMAND", required=True,
                     parser_class=_Parser)
             sub = groups[group]
-        cmd = sub.add_parser(parts[-1], help=module.HELP, description=module.HELP,
-                             formatter_class=HelpFormatter)
-        module.add_arguments(cmd)
-        cmd.set_defaults(_run=module.run)
+        if argv is None or words == chosen:
+            module = importlib.import_module(module_name)
+            cmd = sub.add_parser(parts[-1], help=module.HELP, description=module.HELP,
+                                 formatter_class=HelpFormatter)
+            module.add_arguments(cmd)
+            cmd.set_defaults(_run=module.run)
+        else:   # not on this command line: listed in the help, never run
+            sub.add_parser(parts[-1], help=_help_line(module_name))
     return parser
 
 
@@ -167,7 +207,7 @@ def _main(argv: list[str]) -> int:
     for stream in (sys.stdout, sys.stderr):
         if hasattr(stream, "reconfigure"):
             stream.reconfigure(errors="eye_in_hand_escape")
-    parser = build_parser()
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     try:
         return int(args._run(args) or 0)

@@ -33,9 +33,12 @@ from eye_in_hand.commands.calibration_inputs import (
     write_json,
 )
 from eye_in_hand.commands.common import add_image_topic_arguments, deprecated_alias
+from eye_in_hand.core.calibration import BoardSpec, calibrate_camera, detect_board
+from eye_in_hand.core.calibration.board_check import BoardCheck
 from eye_in_hand.errors import BagError, CalibrationError, InputError
 from eye_in_hand.io.atomic import atomic_output_dir
 from eye_in_hand.io.bags import DamageLog
+from eye_in_hand.report.calibration import camera_report
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -58,8 +61,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _gather(args: argparse.Namespace, board) -> ImageSource:
     # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
-    from eye_in_hand.core.calibration import detect_board
-    from eye_in_hand.core.calibration.board_check import BoardCheck
 
     if bool(args.images) == bool(args.bag):
         raise InputError("give either --images GLOB or --bag BAG --left-topic TOPIC")
@@ -100,7 +101,6 @@ def _gather(args: argparse.Namespace, board) -> ImageSource:
 def run(args: argparse.Namespace) -> int:
     """Run ``calibrate camera``; returns the exit code."""
     # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
-    from eye_in_hand.core.calibration import BoardSpec, calibrate_camera
 
     check_common_arguments(args)
     board = BoardSpec.parse(args.board)
@@ -126,7 +126,6 @@ def run(args: argparse.Namespace) -> int:
         write_json(tmp / "report.json", report)
         if not args.no_html:
             # local: the report loads matplotlib (~0.6 s at CLI start-up)
-            from eye_in_hand.report.calibration import camera_report
 
             sample = next((f for f in source.frames if f.image is not None), None)
             camera_report(cal, source, board, sample_image=None if sample is None

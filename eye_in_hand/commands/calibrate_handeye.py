@@ -15,6 +15,8 @@ from eye_in_hand.commands.calibration_inputs import (
     solve_handeye_inputs,
 )
 from eye_in_hand.commands.common import add_output_argument
+from eye_in_hand.core.handeye import FRAMES
+from eye_in_hand.core.transforms import matrix_to_quat_xyzw
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 from eye_in_hand.report.handeye import write_outputs
 
@@ -45,8 +47,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the calibration and write hand_eye.yaml, report.json and report.html."""
     # local: core.handeye loads SciPy (~0.45 s at CLI start-up); core.transforms ~3 ms
-    from eye_in_hand.core.handeye import FRAMES
-    from eye_in_hand.core.transforms import matrix_to_quat_xyzw
 
     check_output_dir(args.output, overwrite=args.overwrite,  # refuse now, not after the work
                      inputs=[args.dataset, args.pairs, args.bag, args.calibration,

@@ -14,12 +14,18 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import yaml
+
 from eye_in_hand.commands.calibration_inputs import (
     add_handeye_calibration_arguments,
     add_handeye_input_arguments,
     solve_handeye_inputs,
 )
 from eye_in_hand.commands.common import add_output_argument, bounded
+from eye_in_hand.core.handeye import suggest_next_poses
+from eye_in_hand.core.handeye.plan import CRITERIA, PlanConfig
+from eye_in_hand.core.transforms import to_xyz_quat
 from eye_in_hand.errors import InputError
 from eye_in_hand.io.atomic import OutputError, OutputExistsError, atomic_write_text
 
@@ -60,7 +66,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="admissible candidate poses scored (default 500)")
     add("--seed", type=bounded(0, 2147483647, integer=True),
         help="random seed of the candidates (default 0)")
-    add("--criterion", choices=("trace", "logdet"), default=None,
+    add("--criterion", choices=CRITERIA, default=None,
         help="trace: (std_mm / target_mm)^2 + (std_deg / target_deg)^2; logdet: log det of "
              "the covariance of X (default trace)")
     add("--target-mm", type=bounded(0, 1000, "mm", lo_open=True), metavar="MM",
@@ -107,7 +113,6 @@ def _check_output(args: argparse.Namespace) -> Path | None:
 
 def _config(args: argparse.Namespace, noise_px: float | None = None):
     """The :class:`PlanConfig` of the options given; a bad value names its option."""
-    from eye_in_hand.core.handeye.plan import PlanConfig
 
     fields: dict[str, Any] = {}
     for option, (field, factor) in _OPTIONS.items():
@@ -133,11 +138,7 @@ def _config(args: argparse.Namespace, noise_px: float | None = None):
 def run(args: argparse.Namespace) -> int:
     """Calibrate, plan, print the suggestions and write them (``-o``)."""
     # local: core.handeye loads SciPy (~0.45 s at CLI start-up)
-    import numpy as np
-    import yaml
 
-    from eye_in_hand.core.handeye import suggest_next_poses
-    from eye_in_hand.core.transforms import to_xyz_quat
 
     if bool(args.dataset) == bool(args.bag):                  # before any work
         raise InputError("give exactly one input: DATASET_DIR or --bag BAG")

@@ -33,8 +33,16 @@ from eye_in_hand.commands.calibration_inputs import (
     write_json,
 )
 from eye_in_hand.commands.common import add_image_topic_arguments, bounded
+from eye_in_hand.core.calibration import (
+    STEREO_METHODS,
+    BoardSpec,
+    calibrate_stereo,
+    detect_board,
+)
+from eye_in_hand.core.calibration.board_check import BoardCheck
 from eye_in_hand.errors import BagError, CalibrationError, InputError
 from eye_in_hand.io.bags import DamageLog
+from eye_in_hand.report.calibration import stereo_report
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -56,7 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fix-intrinsics", action="store_true",
                         help="keep each camera's own calibration in the joint step (only the "
                              "extrinsic and board poses are refined)")
-    parser.add_argument("--method", choices=("bundle", "opencv"), default="bundle",
+    parser.add_argument("--method", choices=STEREO_METHODS, default="bundle",
                         help="joint refinement: bundle (all views, both cameras, our "
                              "Levenberg-Marquardt) or opencv (cv2.stereoCalibrate on the pairs "
                              "seen by both cameras); default bundle")
@@ -67,8 +75,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _gather(args: argparse.Namespace, board) -> tuple[list[Frame], list[Frame], str, int]:
     # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
-    from eye_in_hand.core.calibration import detect_board
-    from eye_in_hand.core.calibration.board_check import BoardCheck
 
     files_mode = bool(args.left or args.right)
     if files_mode == bool(args.bag):
@@ -151,7 +157,6 @@ def _pair_image(args: argparse.Namespace, left: list[Frame], right: list[Frame],
 def run(args: argparse.Namespace) -> int:
     """Run ``calibrate stereo``; returns the exit code."""
     # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
-    from eye_in_hand.core.calibration import BoardSpec, calibrate_stereo
 
     check_common_arguments(args)
     board = BoardSpec.parse(args.board)
@@ -191,7 +196,6 @@ def run(args: argparse.Namespace) -> int:
         write_json(tmp / "report.json", report)
         if not args.no_html:
             # local: the report loads matplotlib (~0.6 s at CLI start-up)
-            from eye_in_hand.report.calibration import stereo_report
 
             images, corners, pair_name = _pair_image(args, left, right, cal)
             names = [(lf.name, rf.name) for lf, rf in zip(left, right, strict=True)]

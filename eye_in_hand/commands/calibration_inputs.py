@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 from eye_in_hand.commands.common import (
     add_image_topic_arguments,
@@ -23,6 +24,13 @@ from eye_in_hand.commands.common import (
     bounded,
     deprecated_alias,
 )
+from eye_in_hand.core.calibration import DETECTORS, BoardSpec, CalibrationOptions, detect_board
+from eye_in_hand.core.calibration.board_check import BoardCheck
+from eye_in_hand.core.camera import CameraModel, StereoRig
+from eye_in_hand.core.handeye import METHODS, SETUPS, HandEyeSample, calibrate_hand_eye
+from eye_in_hand.core.handeye.average import AVERAGE_SOLVERS
+from eye_in_hand.core.handeye.calibrate import DEFAULT_ROBOT_MODEL, ROBOT_MODELS
+from eye_in_hand.core.handeye.observe import observe_sample, rig_views
 from eye_in_hand.errors import (
     BagError,
     CalibrationError,
@@ -32,7 +40,13 @@ from eye_in_hand.errors import (
     InputError,
 )
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
+from eye_in_hand.io.bag_samples import read_bag_samples
 from eye_in_hand.io.bags import bag_info, deserialize, iter_messages, require_topics
+from eye_in_hand.io.datasets import load_dataset
+from eye_in_hand.io.images import read_image_file
+from eye_in_hand.io.kinematics import load_kinematics
+from eye_in_hand.io.pose_pairs import load_pose_pairs
+from eye_in_hand.ros.images import compressed_to_numpy, image_to_numpy
 from eye_in_hand.ros.stamps import header_stamp_ns
 from eye_in_hand.yamlfile import printable
 
@@ -79,7 +93,7 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--bag", type=Path, metavar="BAG", help="read images from this bag")
     parser.add_argument("--every", type=bounded(1, 1e6, integer=True), default=1, metavar="N",
                         help="bag input: use every N-th frame (or stereo pair); default 1")
-    parser.add_argument("--detector", choices=("auto", "classic", "sb"), default="auto",
+    parser.add_argument("--detector", choices=DETECTORS, default="auto",
                         help="chessboard detector: classic (findChessboardCorners + "
                              "cornerSubPix), sb (findChessboardCornersSB), auto (classic, "
                              "falling back to sb per image); default auto")
@@ -112,7 +126,6 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
 def options_from_args(args: argparse.Namespace):
     """The :class:`CalibrationOptions` selected on the command line."""
     # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
-    from eye_in_hand.core.calibration import CalibrationOptions
 
     return CalibrationOptions(rational=args.rational, fix_k3=args.fix_k3,
                               zero_tangent=args.zero_tangent, fix_aspect=args.fix_aspect,
@@ -164,7 +177,6 @@ class ImageSource:
 def progress(total: int | None, desc: str):
     """A tqdm progress bar on stderr (silent when stderr is not a terminal)."""
     # local: tqdm costs ~30 ms at CLI start-up
-    from tqdm import tqdm
 
     return tqdm(total=total, desc=desc, unit="img", file=sys.stderr, disable=None,
                 dynamic_ncols=True, leave=False)
@@ -195,7 +207,6 @@ def read_image(path: Path) -> np.ndarray:
         InputError: the file cannot be read or decoded.
     """
     # local: io.images loads OpenCV (~16 ms at CLI start-up)
-    from eye_in_hand.io.images import read_image_file
 
     return read_image_file(path)
 
@@ -216,8 +227,6 @@ def detect_files(files: Sequence[Path], board, args: argparse.Namespace, desc: s
         CalibrationError: images of different sizes (naming two of them).
     """
     # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
-    from eye_in_hand.core.calibration import detect_board
-    from eye_in_hand.core.calibration.board_check import BoardCheck
 
     frames: list[Frame] = []
     first: tuple[str, tuple[int, int]] | None = None
@@ -244,7 +253,6 @@ def detect_files(files: Sequence[Path], board, args: argparse.Namespace, desc: s
 
 def _decode(msgtype: str, raw: bytes, topic: str, stamp: int) -> tuple[np.ndarray, int]:
     # local: ros.images loads OpenCV (~16 ms at CLI start-up)
-    from eye_in_hand.ros.images import compressed_to_numpy, image_to_numpy
 
     msg = deserialize(raw, msgtype)
     try:
@@ -438,14 +446,6 @@ def view_entries(frames: Sequence[Frame], cal_views: Sequence[Any]) -> list[dict
 # ------------------------------------------------------------------------------------------------
 # hand-eye inputs (calibrate handeye, calibrate plan)
 # ------------------------------------------------------------------------------------------------
-# core.handeye's METHODS and ROBOT_MODELS, written out so that --help does not load SciPy
-# (test_calibrate_handeye checks they are the same)
-_METHOD_CHOICES = ("all", "tsai", "park", "horaud", "daniilidis", "andreff", "kronecker",
-                   "average", "refined_exact", "refined", "refined_systematic")
-_ROBOT_MODEL_CHOICES = ("per_pose", "systematic")
-_DEFAULT_ROBOT_MODEL = "systematic"
-
-
 def add_handeye_input_arguments(parser: argparse.ArgumentParser, *, pairs: bool = True) -> None:
     """The input options of the hand-eye commands: a dataset, pose pairs (``pairs``) or a
     bag, and the bag's topics, robot pose source and stillness test."""
@@ -505,20 +505,20 @@ def add_handeye_input_arguments(parser: argparse.ArgumentParser, *, pairs: bool 
 def add_handeye_calibration_arguments(group: Any, *, method_help: str) -> None:
     """The hand-eye calibration options (setup, method, refinement, outlier rejection) into
     ``group`` (a parser or an argument group)."""
-    group.add_argument("--setup", choices=("eye_in_hand", "eye_to_hand"), default=None,
+    group.add_argument("--setup", choices=SETUPS, default=None,
                        help="camera on the flange (X = ee_T_cam) or fixed (X = base_T_cam); "
                             "default: the dataset's, else eye_in_hand")
-    group.add_argument("--method", choices=_METHOD_CHOICES, default="all",
+    group.add_argument("--method", choices=("all", *METHODS), default="all",
                        help=method_help)
-    group.add_argument("--average-solver", choices=("tsai", "kronecker"), default=None,
+    group.add_argument("--average-solver", choices=AVERAGE_SOLVERS, default=None,
                        help="per-pair solver of the 'average' method (X from each pair of "
                             "motions, averaged; default: tsai)")
     group.add_argument("--no-refine", action="store_true",
                        help="skip the joint refinements (refined, refined_exact)")
     group.add_argument("--no-outlier-rejection", action="store_true",
                        help="keep every sample")
-    group.add_argument("--robot-model", choices=_ROBOT_MODEL_CHOICES,
-                       default=_DEFAULT_ROBOT_MODEL,
+    group.add_argument("--robot-model", choices=ROBOT_MODELS,
+                       default=DEFAULT_ROBOT_MODEL,
                        help="robot pose error model: systematic (also a pose-dependent error, "
                             "linear in the flange orientation, fitted with X: candidate "
                             "refined_systematic, written only when it predicts the held-out "
@@ -547,7 +547,6 @@ def solve_handeye_inputs(args: argparse.Namespace) -> tuple[dict[str, Any], Any]
         HandEyeError: fewer than 3 usable samples, or the solvers' own refusals.
     """
     # local: core.handeye loads SciPy (~0.35 s at CLI start-up)
-    from eye_in_hand.core.handeye import calibrate_hand_eye
 
     inputs = load_handeye_inputs(args)
     samples = inputs["samples"]
@@ -584,12 +583,6 @@ def load_handeye_inputs(args: argparse.Namespace) -> dict[str, Any]:
     """
     # local: core.handeye and core.calibration load SciPy and OpenCV (~0.45 s at CLI
     # start-up), io.datasets ~90 ms
-    from eye_in_hand.core.calibration import BoardSpec
-    from eye_in_hand.core.calibration.board_check import BoardCheck
-    from eye_in_hand.core.handeye import HandEyeSample
-    from eye_in_hand.core.handeye.observe import observe_sample, rig_views
-    from eye_in_hand.io.datasets import load_dataset
-    from eye_in_hand.io.pose_pairs import load_pose_pairs
 
     pairs_file = getattr(args, "pairs", None)      # None: the command takes no pose pairs
     given = [x for x in (args.dataset, pairs_file, args.bag) if x]
@@ -606,7 +599,6 @@ def load_handeye_inputs(args: argparse.Namespace) -> dict[str, Any]:
     if args.bag:
         return _load_handeye_bag(args)
     # local: io.images loads OpenCV (~25 ms at CLI start-up)
-    from eye_in_hand.io.images import read_image_file
 
     ds = load_dataset(args.dataset)
     board = BoardSpec.parse(ds.board)
@@ -645,11 +637,6 @@ def _view_images(views: Sequence[Any]) -> str:
 def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
     """Still robot stops of a bag -> detected boards -> samples."""
     # local: as in _load_inputs (SciPy and OpenCV, ~0.45 s at CLI start-up)
-    from eye_in_hand.core.calibration import BoardSpec
-    from eye_in_hand.core.calibration.board_check import BoardCheck
-    from eye_in_hand.core.camera import CameraModel, StereoRig
-    from eye_in_hand.core.handeye.observe import observe_sample, rig_views
-    from eye_in_hand.io.bag_samples import read_bag_samples
 
     if not args.board:
         raise ConfigError("--bag needs --board (e.g. chessboard:9x6:0.025)")
@@ -662,7 +649,6 @@ def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
         else:
             camera = CameraModel.load_yaml(cal)
     # local: io.kinematics loads scipy.optimize (~0.3 s); only --kinematics needs it
-    from eye_in_hand.io.kinematics import load_kinematics
 
     source = args.robot_pose
     if source == "joint_states" and not args.kinematics:

@@ -8,6 +8,8 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import os
+import sys
 
 from eye_in_hand.errors import InputError
 
@@ -149,7 +151,6 @@ class DeprecatedAlias(argparse.Action):
         self.value = value
 
     def __call__(self, parser, namespace, values, option_string=None) -> None:
-        import sys
 
         print(DEPRECATED.format(old=option_string, new=self.new), file=sys.stderr)
         for key, val in self.sets.items():
@@ -202,7 +203,6 @@ def parse_known_args_with_aliases(parser: argparse.ArgumentParser, parse, args, 
 def kinematics_spec(text: str) -> str:
     """The argparse ``type=`` of ``--kinematics``, the same in every command: a built-in chain
     (``ur5e``, any case) or an existing URDF (``.urdf``, ``.xml``) or DH YAML file."""
-    import os
 
     if text.strip().lower() in KINEMATICS_BUILTIN:
         return text.strip().lower()

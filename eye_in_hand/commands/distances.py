@@ -18,7 +18,9 @@ import argparse
 import json
 import sys
 
+from eye_in_hand.core.distances import distance_table
 from eye_in_hand.errors import InputError
+from eye_in_hand.io.results import load_known_distances, load_tracks, summary_figures
 
 HELP = "pairwise target distances (mean, std, error against the truth) from process results"
 
@@ -38,8 +40,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Print the distance table; one error line for unusable input."""
     # local: io.results and core.distances cost ~17 ms at CLI start-up
-    from eye_in_hand.core.distances import distance_table
-    from eye_in_hand.io.results import load_known_distances, load_tracks, summary_figures
 
     known = load_known_distances(args.truth) if args.truth else []
     tracks, truth, source = load_tracks(args.results)

@@ -16,9 +16,14 @@ the first node that exits stops everything.
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from eye_in_hand.commands.common import bounded
 from eye_in_hand.errors import ConfigError, InputError
+from eye_in_hand.launcher import CALIBRATION_NODES, NODES, Launcher, default_params_file
+from eye_in_hand.nodes.parameters import check_parameter_file_keys
+from eye_in_hand.ros.names import check_namespace, check_parameter_text
+from eye_in_hand.ros.params import check_parameter_file
 from eye_in_hand.yamlfile import printable, read_yaml_file
 
 HELP = "start stereo_capture, detect_triangulate and hand_eye as separate processes"
@@ -69,15 +74,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Start the nodes and supervise them until Ctrl-C, --duration or a node's exit."""
     # local: the launcher loads subprocess and threading (~12 ms at CLI start-up)
-    from eye_in_hand.launcher import CALIBRATION_NODES, NODES, Launcher, default_params_file
 
     params = args.params or default_params_file(
         "hand_eye_calibration.yaml" if args.calibrate else "eye_in_hand.yaml")
     # bad input is one line here, not a traceback from rcl in every node
     # local: ros.names loads rclpy (~50 ms at CLI start-up)
-    from eye_in_hand.nodes.parameters import check_parameter_file_keys
-    from eye_in_hand.ros.names import check_namespace, check_parameter_text
-    from eye_in_hand.ros.params import check_parameter_file
 
     ns = check_namespace(args.namespace)
     check_parameter_text(str(params), "--params")  # rcl takes it as UTF-8 text
@@ -104,9 +105,7 @@ def run(args: argparse.Namespace) -> int:
 def _overrides(args: argparse.Namespace) -> dict[str, list[tuple[str, str]]]:
     """``--calibration`` / ``--hand-eye`` as node parameters, checked here: a missing file is
     one line now, not a node that refuses to start."""
-    from pathlib import Path
 
-    from eye_in_hand.ros.names import check_parameter_text
 
     out: dict[str, list[tuple[str, str]]] = {}
     if args.calibration is not None:

@@ -23,10 +23,17 @@ import json
 import math
 import sys
 
+import cv2
 import numpy as np
 
 from eye_in_hand.commands.common import apply_overrides, bounded
+from eye_in_hand.core.camera import StereoRig
+from eye_in_hand.core.locator import StereoLocator
+from eye_in_hand.core.locator_params import load_locator_config
+from eye_in_hand.core.triangulation import METHODS as TRIANGULATION_METHODS
 from eye_in_hand.errors import ConfigError, InputError
+from eye_in_hand.io.images import read_image_file
+from eye_in_hand.nodes.parameters import check_parameter_file_keys
 
 HELP = "locate the targets in one stereo pair from image files"
 
@@ -47,7 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--radius", type=bounded(0, 10, "m", lo_open=True), metavar="R",
                         help="sphere radius of the first target in metres (default: the "
                              "parameter file's, else 0.02)")
-    parser.add_argument("--method", choices=("dlt", "disparity", "optimal"),
+    parser.add_argument("--method", choices=TRIANGULATION_METHODS,
                         help="triangulation method (default: the parameter file's, else "
                              "dlt)")
     parser.add_argument("--json", action="store_true",
@@ -57,9 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _read(path: str, side: str):
     # local: OpenCV (with io.images) costs ~30 ms at CLI start-up
-    import cv2
 
-    from eye_in_hand.io.images import read_image_file
 
     try:
         img = read_image_file(path)
@@ -79,13 +84,9 @@ def _read(path: str, side: str):
 def run(args: argparse.Namespace) -> int:
     """Locate the targets; print them (text or JSON). Returns the exit code."""
     # local: core.locator and core.camera (OpenCV) cost ~85 ms at CLI start-up
-    from eye_in_hand.core.camera import StereoRig
-    from eye_in_hand.core.locator import StereoLocator
-    from eye_in_hand.core.locator_params import load_locator_config
 
     if args.params:  # a mistyped key would run on its default, as the live node refuses it
         # local: the nodes' parameter lists load rclpy and the node modules (~1 s)
-        from eye_in_hand.nodes.parameters import check_parameter_file_keys
 
         check_parameter_file_keys(args.params, used=["detect_triangulate"])
     config = apply_overrides(load_locator_config(args.params), radius=args.radius,

@@ -19,9 +19,14 @@ from __future__ import annotations
 
 import argparse
 import math
+import shutil
+import struct
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
 
 from eye_in_hand.commands.common import (
     MAX_WORKERS,
@@ -31,9 +36,34 @@ from eye_in_hand.commands.common import (
     apply_overrides,
     bounded,
 )
+from eye_in_hand.core.camera import StereoRig
+from eye_in_hand.core.distances import distance_table
+from eye_in_hand.core.localization import robot_pose_sigmas
+from eye_in_hand.core.locator_params import load_parameter_file, locator_config_from_params
+from eye_in_hand.core.triangulation import METHODS as TRIANGULATION_METHODS
 from eye_in_hand.errors import ConfigError, InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
-from eye_in_hand.io.bags import STORAGES, bag_info
+from eye_in_hand.io.bags import STORAGES, DamageLog, bag_info, iter_messages
+from eye_in_hand.io.config import load_hand_eye
+from eye_in_hand.io.kinematics import load_kinematics
+from eye_in_hand.io.results import load_known_distances, run_figures
+from eye_in_hand.nodes.parameters import check_parameter_file_keys
+from eye_in_hand.offline import (
+    ProcessOptions,
+    error_stats,
+    process_bag,
+    top_reasons,
+    write_results,
+)
+from eye_in_hand.ros.markers import sphere_style
+from eye_in_hand.ros.outputs import (
+    DEFAULT_RGBA,
+    MARKER_DIAMETER_M,
+    MARKER_LIFETIME_S,
+    RIGHT_CAMERA_FRAME,
+    TARGET_FRAME_PREFIX,
+    OutputSettings,
+)
 
 HELP = "run detection, triangulation and localization over a bag offline (no DDS)"
 
@@ -65,7 +95,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--radius", type=bounded(0, 10, "m", lo_open=True), metavar="R",
                         help="sphere radius of the first target in metres, (0, 10] "
                              "(default: the --params file's, else 0.02)")
-    parser.add_argument("--method", choices=("dlt", "disparity", "optimal"),
+    parser.add_argument("--method", choices=TRIANGULATION_METHODS,
                         help="triangulation method (default: the --params file's, else dlt)")
     add_image_topic_arguments(parser, left_help="left image topic",
                               right_help="right image topic",
@@ -112,7 +142,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _image_head(raw: bytes) -> tuple[int, int, str] | None:
     """(width, height, frame_id) of a CDR ``sensor_msgs/Image`` without decoding its pixels."""
-    import struct
 
     try:
         little = raw[1] == 1
@@ -142,7 +171,6 @@ def check_calibration_against_bag(rig, calibration: str, bag: str,
     Raises:
         ConfigError: ``DIR/left.yaml: image_width x image_height 640x360 ...``.
     """
-    from eye_in_hand.io.bags import DamageLog, iter_messages
 
     models = {"left": rig.left, "right": rig.right}
     if rig.left.size != rig.right.size:
@@ -183,7 +211,6 @@ def _node_params(path: str | None, node: str) -> dict:
     if path is None:
         return {}
     # local: core.locator_params loads core.detection and OpenCV (~80 ms at CLI start-up)
-    from eye_in_hand.core.locator_params import load_parameter_file
 
     try:
         return load_parameter_file(path, node)
@@ -199,18 +226,7 @@ def output_settings(detect: dict, hand_eye: dict, config, calib, *, camera_paren
     sphere), /tf names, /tf_static (the hand-eye transform, and the stereo extrinsic of
     hand_eye's ``stereo_calibration_dir``)."""
     # local: the builders' module and core.camera, only when processing
-    import numpy as np
 
-    from eye_in_hand.core.camera import StereoRig
-    from eye_in_hand.ros.markers import sphere_style
-    from eye_in_hand.ros.outputs import (
-        DEFAULT_RGBA,
-        MARKER_DIAMETER_M,
-        MARKER_LIFETIME_S,
-        RIGHT_CAMERA_FRAME,
-        TARGET_FRAME_PREFIX,
-        OutputSettings,
-    )
 
     diameter = float(detect.get("markers.diameter_m", MARKER_DIAMETER_M))
     styles = {t.name: sphere_style(t.radius_m, t.color, diameter)
@@ -241,7 +257,6 @@ _BYTES_FIXED = 1 << 16      # summary.json, metadata
 def estimate(pairs: int, out: Path, *, force: bool = False) -> str:
     """The run's estimated time and disk as one line; refuses (``InputError``) a run whose
     outputs cannot fit on the disk of ``out``, unless ``force``."""
-    import shutil
 
     seconds = _START_S + pairs * _S_PER_PAIR
     disk = _BYTES_FIXED + pairs * _BYTES_PER_PAIR
@@ -262,8 +277,6 @@ def _options(args: argparse.Namespace, detect: dict, hand_eye_params: dict, conf
     """The ``ProcessOptions`` of a run: the flags, then a ``--params`` file's
     ``detect_triangulate`` and ``hand_eye`` sections, then the nodes' defaults."""
     # local: as in run (offline ~115 ms, core.localization ~15 ms at CLI start-up)
-    from eye_in_hand.core.localization import robot_pose_sigmas
-    from eye_in_hand.offline import ProcessOptions
 
     fixed = calib.setup == "eye_to_hand"
     noise = calib.robot_pose_noise
@@ -272,7 +285,6 @@ def _options(args: argparse.Namespace, detect: dict, hand_eye_params: dict, conf
         if not args.kinematics:
             raise InputError("--kinematics: required with --robot-pose joint_states")
         # local: io.kinematics loads scipy.optimize (~0.3-0.4 s); only joint_states needs it
-        from eye_in_hand.io.kinematics import load_kinematics
 
         kinematics = load_kinematics(
             args.kinematics,
@@ -314,17 +326,10 @@ def run(args: argparse.Namespace) -> int:
     # local: at CLI start-up offline costs ~115 ms (OpenCV), core.locator ~85 ms,
     # core.camera ~40 ms, tqdm ~35 ms, io.results/core.localization/io.config ~10-20 ms each,
     # core.distances ~5 ms
-    from tqdm import tqdm
 
-    from eye_in_hand.core.camera import StereoRig
-    from eye_in_hand.core.locator_params import locator_config_from_params
-    from eye_in_hand.io.config import load_hand_eye
-    from eye_in_hand.io.results import load_known_distances, run_figures
-    from eye_in_hand.offline import process_bag, write_results
 
     if args.params:  # a mistyped key would run on its default, as the live node refuses it
         # local: the nodes' parameter lists load rclpy and the node modules (~1 s)
-        from eye_in_hand.nodes.parameters import check_parameter_file_keys
 
         check_parameter_file_keys(args.params, used=["detect_triangulate", "hand_eye"])
     detect = _node_params(args.params, "detect_triangulate")
@@ -396,8 +401,6 @@ def _report(args: argparse.Namespace, result, wall: float, known: list, pairs: l
     """What a run printed: the counts, why pairs gave nothing, the losses, the damage, the
     error against the ground truth and the distances between targets."""
     # local: as in run (offline ~115 ms, core.distances ~5 ms at CLI start-up)
-    from eye_in_hand.core.distances import distance_table
-    from eye_in_hand.offline import error_stats, top_reasons
 
     c = result.counts
     speed = result.duration_s / wall if wall > 0 else math.inf

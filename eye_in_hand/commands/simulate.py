@@ -5,13 +5,19 @@ from __future__ import annotations
 import argparse
 import math
 import re
+import shutil
 import sys
 from pathlib import Path
+
+from tqdm import tqdm
 
 from eye_in_hand.commands.common import add_output_argument, bounded, deprecated_alias
 from eye_in_hand.errors import InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 from eye_in_hand.io.bags import STORAGES
+from eye_in_hand.sim.output import RenderOptions, recording_counts, write_bag, write_dataset
+from eye_in_hand.sim.robot_error import RobotErrorSpec
+from eye_in_hand.sim.world import World
 
 HELP = "simulate the eye-in-hand world: write a bag or a calibration dataset with ground truth"
 
@@ -66,7 +72,6 @@ def _counts(args: argparse.Namespace, frames: int, *,
             still_images_only: bool | None = None) -> tuple[int, int]:
     """``(stereo pairs, robot samples)`` the run writes (a calibration bag films the moves
     between its poses unless ``--still-images-only``)."""
-    from eye_in_hand.sim.output import recording_counts
 
     if args.format == "dataset":
         return frames, 0
@@ -102,7 +107,6 @@ def estimate(args: argparse.Namespace, frames: int, size: tuple[int, int]) -> st
     """The run's estimated time, disk and memory, as one line; refuses (``InputError``) a run
     whose upper bound (uncompressed images) cannot fit on the disk, or that cannot fit in
     memory, unless ``--force``."""
-    import shutil
 
     pairs, robot = _counts(args, frames)
     px = size[0] * size[1]
@@ -214,11 +218,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Simulate and write; prints a one-paragraph summary."""
     # local: the simulator loads SciPy and OpenCV (~0.5 s at CLI start-up), tqdm ~30 ms
-    from tqdm import tqdm
 
-    from eye_in_hand.sim.output import RenderOptions, write_bag, write_dataset
-    from eye_in_hand.sim.robot_error import RobotErrorSpec
-    from eye_in_hand.sim.world import World
 
     frames = args.frames if args.frames is not None else _DEFAULT_FRAMES[args.scenario]
     check_output_dir(args.output, overwrite=args.overwrite, option="-o", inputs=[args.world])

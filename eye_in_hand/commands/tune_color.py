@@ -13,16 +13,15 @@ from __future__ import annotations
 
 import argparse
 
+import cv2
 import numpy as np
 
 from eye_in_hand.commands.common import bounded
+from eye_in_hand.core.detection import COLOR_SPACES, convert_color, range_from_samples
 from eye_in_hand.errors import InputError
+from eye_in_hand.io.images import read_image_file
 
 HELP = "print HSV/HSI colour ranges that capture an image region (for the parameter file)"
-
-# core.detection's COLOR_SPACES, written out so that --help does not load OpenCV
-# (test_tune_color checks they are the same)
-_SPACES = ("hsv", "hsi")
 
 
 def _roi(text: str) -> tuple[int, int, int, int]:
@@ -41,7 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("image", metavar="IMG", help="a colour image showing the target")
     parser.add_argument("--roi", required=True, type=_roi, metavar="x,y,w,h",
                         help="region inside the target (pixels)")
-    parser.add_argument("--space", choices=(*_SPACES, "both"), default="both",
+    parser.add_argument("--space", choices=(*COLOR_SPACES, "both"), default="both",
                         help="colour space(s) to print (default: both)")
     parser.add_argument("--name", default="red", help="target name in the printed block")
     parser.add_argument("--percentile", type=bounded(0, 49), default=5.0, metavar="P",
@@ -54,10 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Print the ranges. Returns the exit code."""
     # local: OpenCV (core.detection, io.images) costs ~20 ms at CLI start-up
-    import cv2
 
-    from eye_in_hand.core.detection import convert_color, range_from_samples
-    from eye_in_hand.io.images import read_image_file
 
     img = read_image_file(args.image, cv2.IMREAD_COLOR)
     x, y, w, h = args.roi

@@ -231,16 +231,18 @@ def test_robot_model_systematic_writes_the_pose_correction(tmp_path: Path, capsy
     """``--robot-model systematic`` on poses with a pose-dependent robot error: the method is
     refined_systematic and hand_eye.yaml carries the correction its X holds with; the default
     model writes none. The CLI's choices are core.handeye's."""
-    from eye_in_hand.commands import calibration_inputs
-    from eye_in_hand.commands.calibration_inputs import _METHOD_CHOICES, _ROBOT_MODEL_CHOICES
+    from eye_in_hand.cli import build_parser
     from eye_in_hand.core.handeye import calibrate_hand_eye
     from eye_in_hand.core.handeye.calibrate import DEFAULT_ROBOT_MODEL, ROBOT_MODELS
 
     from ..core.test_handeye_systematic import A_R, A_T, _problem
 
-    assert _METHOD_CHOICES == ("all", *METHODS)
-    assert _ROBOT_MODEL_CHOICES == ROBOT_MODELS
-    assert calibration_inputs._DEFAULT_ROBOT_MODEL == DEFAULT_ROBOT_MODEL
+    handeye = build_parser(["calibrate", "handeye"])._subparsers._group_actions[0] \
+        .choices["calibrate"]._subparsers._group_actions[0].choices["handeye"]
+    options = {a.dest: a for a in handeye._actions}
+    assert tuple(options["method"].choices) == ("all", *METHODS)
+    assert tuple(options["robot_model"].choices) == ROBOT_MODELS
+    assert options["robot_model"].default == DEFAULT_ROBOT_MODEL
     samples = _problem(12, 5, A_R, A_T)
     pairs = tmp_path / "pairs.json"
     pairs.write_text(json.dumps([[s.base_T_ee.tolist(), s.cam_T_board.tolist()]

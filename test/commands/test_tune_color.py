@@ -18,10 +18,12 @@ from eye_in_hand.errors import InputError
 
 
 def test_space_choices_are_the_detectors_colour_spaces():
-    from eye_in_hand.commands.tune_color import _SPACES
+    from eye_in_hand.cli import build_parser
     from eye_in_hand.core.detection import COLOR_SPACES
 
-    assert _SPACES == COLOR_SPACES
+    tune = build_parser(["tune-color"])._subparsers._group_actions[0].choices["tune-color"]
+    space = next(a for a in tune._actions if a.dest == "space")
+    assert tuple(space.choices) == (*COLOR_SPACES, "both")
 
 
 def test_range_from_samples_wraps_for_red_and_not_for_green():
