@@ -14,9 +14,12 @@ per wake-up:
   calls :meth:`wake` then);
 - one wait set object is kept and refilled in C;
 - each ready entity's callback is called directly, and the ready subscriptions are drained
-  of every message they hold, delivered in the order they arrived across topics (as taking
-  one message per wake-up would interleave them: a stereo pair's left and right images), so
-  messages that queued together cost one wake-up.
+  of every message they hold, so messages that queued together cost one wake-up. Messages of
+  several topics are delivered round by round, as rclpy's one message per subscription per
+  wake-up would: first the oldest message of every topic, then the second of every topic,
+  and so on, in the order they arrived within a round. A burst of one topic (six left images
+  that arrived before their six rights, as a reliable writer's resend after discovery brings
+  them) thus still reaches a stereo sync as pairs, not as six lefts that overflow its queue.
 
 The handles of the entities are held (``with handle``) from one rebuild to the next, so an
 entity destroyed while the executor waits on it is destroyed at the next rebuild, which its
@@ -85,6 +88,10 @@ class LeanExecutor(SingleThreadedExecutor):
     def __init__(self, *, context: Any = None) -> None:
         super().__init__(context=context)
         self._entities: _Entities | None = None
+        #: bumped whenever the entities change, so that a rebuild that raced a change (a
+        #: subscription made on another thread while the lists were read) is not kept
+        self._generation = 0
+        self._generation_lock = threading.Lock()
         self._wait_set: Any = None
         #: the handles of ``_entities``, held from one rebuild to the next
         self._held = ExitStack()
@@ -93,21 +100,26 @@ class LeanExecutor(SingleThreadedExecutor):
 
     # -- rclpy calls these when entities or nodes come and go -------------------------------
     def wake(self) -> None:
-        self._entities = None
+        self._stale()
         super().wake()
 
     def add_node(self, node: Any) -> bool:
-        self._entities = None
+        self._stale()
         return super().add_node(node)
 
     def remove_node(self, node: Any) -> None:
-        self._entities = None
+        self._stale()
         super().remove_node(node)
         if self._spin_lock.acquire(blocking=False):   # not spinning: let its handles go now
             try:
                 self._held.close()
             finally:
                 self._spin_lock.release()
+
+    def _stale(self) -> None:
+        with self._generation_lock:
+            self._generation += 1
+            self._entities = None
 
     # -- spinning -----------------------------------------------------------------------------
     def spin_once(self, timeout_sec: float | None = None) -> None:
@@ -157,6 +169,7 @@ class LeanExecutor(SingleThreadedExecutor):
         """The entities of the nodes now, their handles held until the next rebuild."""
         self._held.close()
         self._held = ExitStack()
+        generation = self._generation
         entities = _Entities(self.get_nodes(), [self._guard, self._sigint_gc])
         try:
             for group in (entities.subs, entities.timers, entities.services, entities.guards,
@@ -173,7 +186,9 @@ class LeanExecutor(SingleThreadedExecutor):
             self._held.close()
             return None
         self._wait_set = _rclpy.WaitSet(*entities.counts, context_handle)
-        self._entities = entities
+        # used for this wait; kept only if nothing changed meanwhile (else rebuilt next time)
+        with self._generation_lock:
+            self._entities = entities if generation == self._generation else None
         return entities
 
     def _dispatch(self, entities: _Entities, ws: Any) -> None:
@@ -189,15 +204,17 @@ class LeanExecutor(SingleThreadedExecutor):
         if len(ready) == 1:
             self._drain(ready[0])
         elif ready:
-            # several topics: every queued message, in the order they arrived across topics
-            # (as one-per-wake-up would interleave them: a stereo pair's left and right)
-            taken: list[tuple[int, int, Any, Any]] = []
+            # several topics: every queued message, round by round (the k-th of each topic
+            # before the (k+1)-th of any), in arrival order within a round (module docstring)
+            taken: list[tuple[int, int, int, Any, Any]] = []
             for sub in ready:
                 handle, msg_type, raw = sub.handle, sub.msg_type, sub.raw
+                k = 0
                 while (one := handle.take_message(msg_type, raw)) is not None:
-                    taken.append((one[1]["received_timestamp"], len(taken), sub, one))
-            taken.sort(key=_arrival)
-            for _, _, sub, one in taken:
+                    taken.append((k, one[1]["received_timestamp"], len(taken), sub, one))
+                    k += 1
+            taken.sort(key=_round_then_arrival)
+            for _, _, _, sub, one in taken:
                 self._deliver(sub, one)
         for ptr in ws.get_ready_entities("guard_condition"):
             gc = entities.guard_by_ptr.get(ptr)
@@ -253,8 +270,8 @@ class LeanExecutor(SingleThreadedExecutor):
         return done
 
 
-def _arrival(item: tuple[int, int, Any, Any]) -> tuple[int, int]:
-    return item[0], item[1]
+def _round_then_arrival(item: tuple[int, int, int, Any, Any]) -> tuple[int, int, int]:
+    return item[0], item[1], item[2]
 
 
 async def _respond_later(srv: Any, pending: Any, header: Any) -> None:

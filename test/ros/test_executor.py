@@ -77,6 +77,38 @@ def test_a_subscription_made_while_spinning_is_waited_on(lean, namespace):
     assert spin_until(ex, lambda: got == [7], 10.0)
 
 
+def test_a_subscription_made_during_a_rebuild_is_waited_on(lean, namespace, monkeypatch,
+                                                           ros_context):
+    """A subscription made on another thread after a rebuild read the entity lists (and before
+    it ended) is not lost: the rebuild is used for one wait, then done again."""
+    import eye_in_hand.ros.executor as executor_module
+
+    ex, make = lean
+    node = make("race", namespace)
+    got: list[int] = []
+    made: list[object] = []
+
+    class RacedEntities(executor_module._Entities):
+        def __init__(self, *args, **kwargs) -> None:
+            super().__init__(*args, **kwargs)
+            if not made:     # the lists are read: now the other thread makes its subscription
+                made.append(node.create_subscription(Int32, "late", lambda m: got.append(m.data),
+                                                     QOS))
+
+    # the publisher's node is not on the executor: making it wakes nothing
+    other = Node("race_pub", namespace=namespace, context=ros_context)
+    try:
+        pub = other.create_publisher(Int32, "late", QOS)
+        monkeypatch.setattr(executor_module, "_Entities", RacedEntities)
+        ex.spin_once(timeout_sec=0.1)
+        assert made
+        assert _matched(ex, pub)
+        pub.publish(Int32(data=7))
+        assert spin_until(ex, lambda: got == [7], 5.0)
+    finally:
+        other.destroy_node()
+
+
 def test_a_destroyed_subscription_gets_nothing_more(lean, namespace):
     ex, make = lean
     node = make("gone", namespace)
@@ -266,6 +298,40 @@ def test_queued_messages_of_several_topics_come_in_arrival_order(lean, namespace
     time.sleep(0.3)                       # all eight queued before the executor looks
     ex.spin_once(timeout_sec=2.0)
     assert got == sent, "the pairs interleave as they arrived, not left x4 then right x4"
+
+
+def test_a_burst_of_one_topic_is_delivered_round_by_round(lean, namespace):
+    """Six lefts that arrived before their six rights (a reliable writer's resend after
+    discovery brings them so) reach the callbacks as pairs: a stereo sync with a queue of five
+    per side loses none of them."""
+    from eye_in_hand.core.sync import ApproximateStereoSync
+
+    ex, make = lean
+    node = make("burst", namespace)
+    got: list[tuple[str, int]] = []
+    sync: ApproximateStereoSync[int] = ApproximateStereoSync(0, queue_size=5)
+    pairs: list[int] = []
+
+    def on(side: str):
+        def callback(m: Int32) -> None:
+            got.append((side, m.data))
+            push = sync.push_left if side == "left" else sync.push_right
+            pairs.extend(p.left_stamp_ns for p in push(m.data, m.data))
+        return callback
+
+    node.create_subscription(Int32, "left", on("left"), QOS)
+    node.create_subscription(Int32, "right", on("right"), QOS)
+    left = node.create_publisher(Int32, "left", QOS)
+    right = node.create_publisher(Int32, "right", QOS)
+    assert _matched(ex, left) and _matched(ex, right)
+    for pub in (left, right):
+        for k in range(6):
+            pub.publish(Int32(data=k))
+            time.sleep(0.01)
+    time.sleep(0.3)                       # all twelve queued before the executor looks
+    ex.spin_once(timeout_sec=2.0)
+    assert got == [(side, k) for k in range(6) for side in ("left", "right")]
+    assert pairs == list(range(6)) and sync.stats.dropped == 0
 
 
 def test_a_qos_event_reaches_its_callback(lean, namespace):
