@@ -158,7 +158,8 @@ class Launcher:
         nodes: which nodes (names from :data:`NODES`, or :data:`CALIBRATION_NODES` with
             ``calibrate``), in start order.
         root_namespace: prefix of every node's namespace.
-        env: environment of the children (default: this process's).
+        env: environment of the children (default: this process's), with
+            ``OPENBLAS_NUM_THREADS=1`` unless it sets the variable.
         out: where prefixed child output goes (default: stdout).
         respawn: restart a child that exits on its own (see the module docstring).
         respawn_delay_s: back-off before the first restart; doubled for each further restart
@@ -216,6 +217,9 @@ class Launcher:
         self.root_namespace = root_namespace
         self.env = dict(os.environ if env is None else env)
         self.env.setdefault("PYTHONUNBUFFERED", "1")
+        # one BLAS thread per node process unless the user chose a count (docs/localization.md
+        # "Live latency": OpenBLAS's idle pool threads spin and cost the live chain a core)
+        self.env.setdefault("OPENBLAS_NUM_THREADS", "1")
         self.out = out or sys.stdout
         self.procs: dict[str, subprocess.Popen[str]] = {}
         self._threads: list[threading.Thread] = []
