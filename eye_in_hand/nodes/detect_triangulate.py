@@ -77,7 +77,6 @@ import math
 import threading
 import time
 import traceback
-from collections import deque
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -89,13 +88,13 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 
 from eye_in_hand.core.camera import StereoRig
+from eye_in_hand.core.debug_image import draw_located_pair
 from eye_in_hand.core.defaults import DEFAULT_SYNC_QUEUE_SIZE, DEFAULT_SYNC_SLOP_S
 from eye_in_hand.core.locator import LocateResult, StereoLocator
 from eye_in_hand.core.locator_params import (
     LOCATOR_PARAMETERS,
     TARGET_PARAMETERS,
     LocatorConfig,
-    ParamSpec,
     locator_config_from_params,
 )
 from eye_in_hand.core.sync import ApproximateStereoSync, StereoPair
@@ -114,9 +113,10 @@ from eye_in_hand.ros.outputs import (
     pose_with_covariance,
     rclpy_types,
 )
-from eye_in_hand.ros.params import Param, declare_params
+from eye_in_hand.ros.params import Param, declare_params, param_from_spec
 from eye_in_hand.ros.publishers import OutputPublishers
 from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS, TARGET_POINT_QOS
+from eye_in_hand.ros.queues import DropOldestQueue
 from eye_in_hand.ros.stamps import header_stamp_ns
 
 __all__ = ["NODE_PARAMETERS", "DetectTriangulateNode", "parameter_names", "parameter_hint",
@@ -163,24 +163,12 @@ NODE_PARAMETERS: tuple[Param, ...] = (
 )
 
 
-def _to_param(spec: ParamSpec, name: str | None = None) -> Param:
-    default = tuple(spec.default) if isinstance(spec.default, list) else spec.default
-    rng = None
-    if spec.min is not None or spec.max is not None:
-        lo = spec.min if spec.min is not None else -1e300
-        hi = spec.max if spec.max is not None else 1e300
-        rng = (int(lo), int(hi)) if isinstance(spec.default, int) and not isinstance(
-            spec.default, bool) else (float(lo), float(hi))
-    return Param(name or spec.name, default, spec.description, range=rng,
-                 choices=spec.choices or None)
-
-
 def _parameter_groups(target_names: Any) -> list[tuple[str, list[Param]]]:
     """``(prefix, parameters)`` the node declares: its own, the locator's, and one group
     ``targets.<name>.`` per entry of ``target_names``."""
-    groups = [("", list(NODE_PARAMETERS)), ("", [_to_param(p) for p in LOCATOR_PARAMETERS])]
+    groups = [("", list(NODE_PARAMETERS)), ("", [param_from_spec(p) for p in LOCATOR_PARAMETERS])]
     for tname in target_names:
-        groups.append((f"targets.{tname}.", [_to_param(p) for p in TARGET_PARAMETERS]))
+        groups.append((f"targets.{tname}.", [param_from_spec(p) for p in TARGET_PARAMETERS]))
     return groups
 
 
@@ -206,56 +194,6 @@ def parameter_hint(name: str, values: Mapping[str, Any]) -> str | None:
     return (f"target '{parts[1]}' is not in target_names [{', '.join(map(str, names))}]: add it "
             "there, or remove its section (a node declares targets.<name>.* only for the "
             "names in target_names)")
-
-
-class _PairQueue:
-    """Bounded drop-oldest hand-over from the executor thread to the worker.
-
-    Holds at most ``depth`` pairs; putting one into a full queue drops the oldest waiting pair.
-    ``depth`` 1 keeps only the newest pair (lowest latency, drops on any hiccup); a few pairs
-    ride out a stall of the worker (a garbage collection, a burst of DDS deliveries) without
-    losing frames, at the cost of a little latency for the frames that waited.
-    """
-
-    def __init__(self, depth: int = 1) -> None:
-        if depth < 1:
-            raise InputError(f"queue depth must be >= 1, got {depth}")
-        self._cond = threading.Condition()
-        self._pairs: deque[StereoPair[Image]] = deque()
-        self._depth = depth
-        self._stop = False
-        self.dropped = 0
-
-    def put(self, pair: StereoPair[Image]) -> bool:
-        """Queue the pair; returns True when an unprocessed older pair was dropped for it."""
-        with self._cond:
-            dropped = len(self._pairs) >= self._depth
-            if dropped:
-                self._pairs.popleft()
-                self.dropped += 1
-            self._pairs.append(pair)
-            self._cond.notify()
-        return dropped
-
-    def take(self, timeout_s: float) -> StereoPair[Image] | None:
-        """The oldest waiting pair, waiting up to ``timeout_s`` for one (None: none came)."""
-        with self._cond:
-            if not self._pairs and not self._stop:
-                self._cond.wait(timeout_s)
-            return self._pairs.popleft() if self._pairs else None
-
-    def __len__(self) -> int:
-        with self._cond:
-            return len(self._pairs)
-
-    def stop(self) -> None:
-        with self._cond:
-            self._stop = True
-            self._cond.notify_all()
-
-    @property
-    def stopped(self) -> bool:
-        return self._stop
 
 
 class DetectTriangulateNode(Node):
@@ -299,7 +237,7 @@ class DetectTriangulateNode(Node):
             except InputError as exc:
                 raise ConfigError(f"calibration_dir '{node_values['calibration_dir']}': "
                                   f"{exc}") from exc
-            warm_up(self._locator)
+            self._locator.warm_up()
         self._info: dict[str, Any] = {"left": None, "right": None}
         self._info_key: tuple[Any, ...] | None = None
         self._lock = threading.Lock()
@@ -308,15 +246,16 @@ class DetectTriangulateNode(Node):
         self._sync: ApproximateStereoSync[Image] = ApproximateStereoSync(
             slop_ns, node_values["sync.queue_size"])
         self._sync_seen = (0, 0)
-        self._slot = _PairQueue(node_values["queue_depth"])
+        self._slot: DropOldestQueue[StereoPair[Image]] = DropOldestQueue(
+            node_values["queue_depth"])
         self._queue_max = 0
 
         names = [t.name for t in self.config.detector.targets]
         # output publishers without per-publisher QoS-event handlers (a small wait set at every
         # executor wake-up); their subscribers' QoS is checked periodically instead
         self.outputs = OutputPublishers(self, lambda cause, text: self.diag.report(cause, text))
-        self._pub_point = self.outputs.create(_point_type(), "target/point", RESULT_QOS)
-        self._pub_point_cov = self.outputs.create(_point_cov_type(), "target/point_cov",
+        self._pub_point = self.outputs.create(PointStamped, "target/point", RESULT_QOS)
+        self._pub_point_cov = self.outputs.create(PoseWithCovarianceStamped, "target/point_cov",
                                                     RESULT_QOS)
         # per-target publishers, by target id: the configured names now, others when they
         # first appear (worker thread), at most max_targets ids
@@ -498,7 +437,7 @@ class DetectTriangulateNode(Node):
                 rm = camera_info_to_model(right, name="right")
                 rig = StereoRig.from_ros_pair(lm, rm, source="left/right camera_info")
                 self._locator = StereoLocator(rig, self.config)
-                warm_up(self._locator)
+                self._locator.warm_up()
             except (ConversionError, ConfigError, InputError) as exc:
                 self._locator = None
                 self.diag.report("bad_camera_info", f"camera_info: {exc}")
@@ -560,8 +499,8 @@ class DetectTriangulateNode(Node):
         if first is not None:
             # The covariance first: hand_eye pairs the two by stamp and waits for the point.
             # The same two messages go to targets/<first id>/... below (built once).
-            first_msgs = (point_cov_message(first.point_m, first.covariance, stamp_ns=stamp,
-                                            frame_id=frame),
+            first_msgs = (pose_with_covariance(rclpy_types(), first.point_m, first.covariance,
+                                               stamp, frame),
                           point_stamped(rclpy_types(), first.point_m, stamp, frame))
             # volatile topics: a message nobody subscribes to reaches no one, now or later
             # (as in hand_eye); the transient-local targets/<id>/... below always go out
@@ -614,9 +553,9 @@ class DetectTriangulateNode(Node):
                                  "ids have publishers already (max_targets): not published")
                 return None
             base = f"{self._targets_prefix}/{tid}"
-            pubs = (self.outputs.create(_point_type(), f"{base}/point", TARGET_POINT_QOS),
-                    self.outputs.create(_point_cov_type(), f"{base}/point_cov",
-                                          TARGET_POINT_QOS))
+            pubs = (self.outputs.create(PointStamped, f"{base}/point", TARGET_POINT_QOS),
+                    self.outputs.create(PoseWithCovarianceStamped, f"{base}/point_cov",
+                                        TARGET_POINT_QOS))
             self._pub_targets[tid] = pubs
             return pubs
 
@@ -638,8 +577,8 @@ class DetectTriangulateNode(Node):
             if first_msgs is not None and t is result.first:
                 cov_msg, point_msg = first_msgs
             else:
-                cov_msg = point_cov_message(t.point_m, t.covariance, stamp_ns=stamp,
-                                            frame_id=frame)
+                cov_msg = pose_with_covariance(rclpy_types(), t.point_m, t.covariance, stamp,
+                                               frame)
                 point_msg = point_stamped(rclpy_types(), t.point_m, stamp, frame)
             pubs[1].publish(cov_msg)
             pubs[0].publish(point_msg)
@@ -671,7 +610,7 @@ class DetectTriangulateNode(Node):
                 self._pub_debug.get_subscription_count() == 0:
             return
         self._last_debug = now
-        canvas = draw_debug(left, right, result)
+        canvas = draw_located_pair(left, right, result)
         self._pub_debug.publish(numpy_to_image(canvas, "bgr8", stamp_ns=pair.stamp_ns,
                                                frame_id=pair.left.header.frame_id))
 
@@ -683,77 +622,6 @@ class DetectTriangulateNode(Node):
             self._worker.join(timeout=5.0)
         self.diag.destroy()
         super().destroy_node()
-
-
-def warm_up(locator: StereoLocator) -> None:
-    """Run the locator once on a synthetic pair (a disc of each target's colour).
-
-    The first call of the detection path pays one-off costs (OpenCV and NumPy initialisation,
-    lazy imports) of up to ~150 ms; paying them at start-up keeps the first camera frames from
-    overrunning the one-pair hand-over and being dropped.
-    """
-    w, h = locator.rig.left.size
-    img = np.zeros((h, w, 3), np.uint8)
-    for k, spec in enumerate(locator.config.detector.targets):
-        lo, hi = spec.color.lower, spec.color.upper
-        hue = ((lo[0] + hi[0] + (180 if spec.color.wraps else 0)) // 2) % 180
-        hsv = np.array([[[hue, (lo[1] + hi[1]) // 2, (lo[2] + hi[2]) // 2]]], np.uint8)
-        bgr = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)[0, 0]
-        cv2.circle(img, (w // 2 + 60 * k, h // 2), max(8, min(w, h) // 30),
-                   tuple(int(c) for c in bgr), -1)
-    locator.locate(img, img.copy())
-    locator.reset()
-
-
-def _point_cov_type() -> Any:
-    return PoseWithCovarianceStamped
-
-
-def point_cov_message(point_m: np.ndarray, covariance: np.ndarray, *, stamp_ns: int,
-                      frame_id: str) -> Any:
-    """``target/point_cov``: the point with its 3x3 triangulation covariance.
-
-    A PoseWithCovarianceStamped whose position is the point, orientation identity, covariance
-    position block the triangulation covariance (m^2) and orientation variances 1e6 (unknown):
-    :func:`eye_in_hand.ros.outputs.pose_with_covariance`, as ``process`` writes it.
-    """
-    return pose_with_covariance(rclpy_types(), point_m, covariance, stamp_ns, frame_id)
-
-
-def _point_type() -> Any:
-    return PointStamped
-
-
-def draw_debug(left: np.ndarray, right: np.ndarray, result: LocateResult) -> np.ndarray:
-    """Left|right side by side at half size, detections drawn (bbox, centre, 3-D point).
-
-    Args:
-        left, right: BGR uint8 images, shape (H, W, 3).
-        result: the locator's result for the pair.
-
-    Returns:
-        BGR uint8, shape (H // 2, W, 3) (two half-size images side by side).
-    """
-    h, w = left.shape[:2]
-    hw, hh = w // 2, h // 2
-    canvas = np.hstack([cv2.resize(left, (hw, hh), interpolation=cv2.INTER_AREA),
-                        cv2.resize(right, (hw, hh), interpolation=cv2.INTER_AREA)])
-    for t in result.targets:
-        for det, px, dx in ((t.left, t.left_px, 0), (t.right, t.right_px, hw)):
-            x, y, bw, bh = det.bbox
-            cv2.rectangle(canvas, (dx + x // 2, y // 2), (dx + (x + bw) // 2, (y + bh) // 2),
-                          (0, 255, 0), 1)
-            c = (int(round(dx + px[0] / 2)), int(round(px[1] / 2)))
-            cv2.drawMarker(canvas, c, (255, 255, 0), cv2.MARKER_CROSS, 10, 1)
-        x, y, _, _ = t.left.bbox
-        label = (f"{t.name} [{t.point_m[0]:+.3f} {t.point_m[1]:+.3f} {t.point_m[2]:.3f}] m "
-                 f"r={t.residual_px:.2f}px")
-        cv2.putText(canvas, label, (max(0, x // 2), max(12, y // 2 - 4)),
-                    cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
-    for name, reason in result.rejected.items():
-        cv2.putText(canvas, f"{name}: {reason}", (5, hh - 8 - 14 * list(result.rejected).index(
-            name)), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 255), 1, cv2.LINE_AA)
-    return canvas
 
 
 def main(args: list[str] | None = None) -> None:

@@ -28,6 +28,7 @@ from eye_in_hand.nodes.hand_eye import HandEyeNode  # noqa: E402
 from eye_in_hand.ros.geometry import matrix_to_pose_stamped
 from eye_in_hand.ros.images import numpy_to_image
 from eye_in_hand.ros.markers import Sphere, sphere_marker_array  # noqa: E402
+from eye_in_hand.ros.outputs import pose_with_covariance, rclpy_types  # noqa: E402
 from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS  # noqa: E402
 from eye_in_hand.ros.stamps import header_stamp_ns
 from eye_in_hand.sim.sphere import render_sphere  # noqa: E402
@@ -242,11 +243,9 @@ class _Feed:
 
     def frame(self, stamp, points: dict, listed=None, covs=None):
         """Publish the points (id -> (3,)) and a marker array listing ``listed`` ids."""
-        from eye_in_hand.nodes.detect_triangulate import point_cov_message
-
         for tid, p in points.items():
             cov = (covs or {}).get(tid, np.diag([1e-8, 2e-8, 4e-7]))
-            self.pub_cov[tid].publish(point_cov_message(p, cov, stamp_ns=stamp, frame_id=CAM))
+            self.pub_cov[tid].publish(pose_with_covariance(rclpy_types(), p, cov, stamp, CAM))
         listed = list(points) if listed is None else listed
         self.pub_markers.publish(sphere_marker_array(
             [Sphere(t, points.get(t, np.zeros(3)), 0.04) for t in listed], stamp_ns=stamp,
@@ -267,13 +266,12 @@ def test_eye_to_hand_localizes_every_target_without_a_robot_pose(
     covs = {"a": np.diag([1e-8, 2e-8, 4e-7]), "b": np.diag([3e-8, 1e-8, 9e-7])}
     feed.frame(T0, pts, covs=covs)
     # the first-target topic too: target/point (+ _cov) -> target/pose
-    from eye_in_hand.nodes.detect_triangulate import point_cov_message
     from eye_in_hand.ros.geometry import xyz_to_point_stamped
     pub_pc = feed.io.create_publisher(PoseWithCovarianceStamped, "target/point_cov", RESULT_QOS)
     pub_p = feed.io.create_publisher(PointStamped, "target/point", RESULT_QOS)
     assert spin_until(executor, lambda: pub_p.get_subscription_count() > 0
                       and pub_pc.get_subscription_count() > 0, 10.0)
-    pub_pc.publish(point_cov_message(pts["a"], covs["a"], stamp_ns=T0, frame_id=CAM))
+    pub_pc.publish(pose_with_covariance(rclpy_types(), pts["a"], covs["a"], T0, CAM))
     pub_p.publish(xyz_to_point_stamped(pts["a"], stamp_ns=T0, frame_id=CAM))
     assert spin_until(executor, lambda: len(feed.arrays) == 1 and len(feed.first) == 1
                       and all(len(feed.covs[n]) == 1 for n in "ab"), 10.0)
@@ -461,10 +459,8 @@ def test_the_node_takes_the_eye_to_hand_file_that_calibrate_handeye_writes(
         "hand_eye_file": str(out / "hand_eye.yaml"), "camera_frame": calib.child_frame})
     assert feed.node.eye_to_hand and feed.ready(executor, spin_until)
     p_cam = np.array([0.05, 0.02, 0.8])
-    from eye_in_hand.nodes.detect_triangulate import point_cov_message
-
-    feed.pub_cov["a"].publish(point_cov_message(p_cam, np.eye(3) * 1e-8, stamp_ns=T0,
-                                                frame_id=calib.child_frame))
+    feed.pub_cov["a"].publish(pose_with_covariance(rclpy_types(), p_cam, np.eye(3) * 1e-8, T0,
+                                                   calib.child_frame))
     feed.pub_markers.publish(sphere_marker_array([Sphere("a", p_cam, 0.04)], stamp_ns=T0,
                                                  frame_id=calib.child_frame))
     assert spin_until(executor, lambda: len(feed.covs["a"]) == 1, 10.0)
