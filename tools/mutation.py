@@ -810,8 +810,8 @@ MUTANTS: tuple[Mutant, ...] = (
       'a robot_pose_noise of 0 refused (documented >= 0)'),
     # nodes/detect_triangulate.py
     M("detect-slop-units", "nodes/detect_triangulate.py",
-      '        slop_ns = int(round(node_values["sync.slop_s"] * 1e9))\n',
-      '        slop_ns = int(round(node_values["sync.slop_s"] * 1e6))\n',
+      '        slop_ns = int(round(values["sync.slop_s"] * 1e9))\n',
+      '        slop_ns = int(round(values["sync.slop_s"] * 1e6))\n',
       'sync.slop_s converted with 1e6'),
     # -- held-out batch 2 (tools/mutation_heldout.py --batch 2): the bugs no test caught
     # when it was measured, with the tests written after

@@ -179,7 +179,7 @@ def test_calibration_files_and_debug_image(executor, ros_context, namespace, spi
 def test_no_debug_image_without_subscribers(executor, ros_context, namespace, spin_until):
     node, feeder = start(executor, ros_context, namespace)
     assert pump(executor, spin_until, feeder, lambda: len(feeder.points) >= 2)
-    assert node._last_debug == -math.inf
+    assert node.targets.last_debug == -math.inf
 
 
 def test_every_target_gets_its_own_topic_when_several_are_configured(
@@ -312,9 +312,10 @@ def test_sync_slop_is_in_seconds(ros_context, namespace):
     node = DetectTriangulateNode(context=ros_context, namespace=namespace,
                                  parameter_overrides=[Parameter("sync.slop_s", value=0.004)])
     try:
-        assert node._sync.slop_ns == 4_000_000
-        pairs = node._sync.push_left(10**9, None) + node._sync.push_right(10**9 + 3_900_000, None)
-        pairs += node._sync.push_left(2 * 10**9, None)
+        assert node.intake.sync.slop_ns == 4_000_000
+        sync = node.intake.sync
+        pairs = sync.push_left(10**9, None) + sync.push_right(10**9 + 3_900_000, None)
+        pairs += sync.push_left(2 * 10**9, None)
         assert len(pairs) == 1 and pairs[0].skew_ns == 3_900_000
     finally:
         node.destroy_node()
