@@ -46,7 +46,8 @@ from typing import IO
 
 from eye_in_hand.errors import ConfigError, InputError
 
-__all__ = ["NodeSpec", "NODES", "CALIBRATION_NODES", "COMPOSED", "node_command", "node_ros_args",
+__all__ = ["NodeSpec", "NODES", "CALIBRATION_NODES", "COMPOSED", "NODE_ENV_DEFAULTS",
+           "node_command", "node_ros_args",
            "node_namespace", "node_remappings", "node_parameters", "Launcher",
            "default_params_file"]
 
@@ -63,6 +64,11 @@ class NodeSpec:
 
 
 _TO_ROOT = ("diagnostics",)
+
+#: Environment every node process gets unless the user set the variable (here and in
+#: ``launch/eye_in_hand.launch.py``): one BLAS thread (docs/localization.md "Live latency":
+#: OpenBLAS's idle pool threads spin and cost the live chain a core).
+NODE_ENV_DEFAULTS = {"OPENBLAS_NUM_THREADS": "1"}
 
 #: The nodes, in start order.
 NODES: tuple[NodeSpec, ...] = (
@@ -181,7 +187,8 @@ class Launcher:
         nodes: which nodes (names from :data:`NODES`, or :data:`CALIBRATION_NODES` with
             ``calibrate``), in start order.
         root_namespace: prefix of every node's namespace.
-        env: environment of the children (default: this process's).
+        env: environment of the children (default: this process's), with
+            ``OPENBLAS_NUM_THREADS=1`` unless it sets the variable.
         out: where prefixed child output goes (default: stdout).
         respawn: restart a child that exits on its own (see the module docstring).
         respawn_delay_s: back-off before the first restart; doubled for each further restart
@@ -239,6 +246,8 @@ class Launcher:
         self.root_namespace = root_namespace
         self.env = dict(os.environ if env is None else env)
         self.env.setdefault("PYTHONUNBUFFERED", "1")
+        for name, value in NODE_ENV_DEFAULTS.items():
+            self.env.setdefault(name, value)
         self.out = out or sys.stdout
         self.procs: dict[str, subprocess.Popen[str]] = {}
         self._threads: list[threading.Thread] = []

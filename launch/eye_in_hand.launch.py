@@ -2,9 +2,9 @@
 [start_capture:=true|false] [respawn:=true|false] [respawn_delay:=S]
 [mode:=localization|calibration] [composed:=true|false]
 
-The same bring-up as ``eye-in-hand launch``: the nodes, their namespaces, remappings and
-calibration-mode parameters come from eye_in_hand/launcher.py (``NODES``,
-``CALIBRATION_NODES``, ``COMPOSED``), as they are now:
+The same bring-up as ``eye-in-hand launch``: the nodes, their namespaces, remappings,
+calibration-mode parameters and environment defaults come from eye_in_hand/launcher.py
+(``NODES``, ``CALIBRATION_NODES``, ``COMPOSED``, ``NODE_ENV_DEFAULTS``), as they are now:
 
 * stereo_capture      in <ns>/stereo; ee_pose, joint_states -> <ns>
 * detect_triangulate  in <ns>/stereo; target/point, target/point_cov, target/debug_image,
@@ -52,7 +52,7 @@ def _nodes(context):
     if not params:
         params = os.path.join(get_package_share_directory("eye_in_hand"), "config",
                               "hand_eye_calibration.yaml" if calibrate else "eye_in_hand.yaml")
-    env = {}
+    env = {k: v for k, v in launcher.NODE_ENV_DEFAULTS.items() if k not in os.environ}
     if not (os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE")
             or os.environ.get("FASTDDS_DEFAULT_PROFILES_FILE")):
         # Large images over shared memory (see eye_in_hand/ros/dds.py).

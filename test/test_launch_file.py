@@ -44,6 +44,7 @@ def _stand_ins() -> dict[str, types.ModuleType]:
 
 
 def _bring_up(monkeypatch: pytest.MonkeyPatch, **args: str) -> list[dict[str, Any]]:
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
     for name, mod in _stand_ins().items():
         monkeypatch.setitem(sys.modules, name, mod)
     spec = importlib.util.spec_from_file_location("eye_in_hand_launch_file", LAUNCH_FILE)
@@ -77,6 +78,7 @@ def test_localization_bring_up(monkeypatch: pytest.MonkeyPatch) -> None:
     assert all(n["parameters"] == ["/p.yaml"] for n in nodes)
     assert "condition" in nodes[0] and all("condition" not in n for n in nodes[1:])
     assert all(n["respawn"] is True and n["respawn_delay"] == 2.0 for n in nodes)
+    assert all(n["additional_env"]["OPENBLAS_NUM_THREADS"] == "1" for n in nodes)
 
 
 def test_calibration_and_composed_bring_up(monkeypatch: pytest.MonkeyPatch) -> None:

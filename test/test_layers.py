@@ -46,6 +46,9 @@ NODE_PARTS = {
     "nodes.hand_eye_targets": "nodes.hand_eye",
     "nodes.hand_eye_tf": "nodes.hand_eye",
     "nodes.hand_eye_calibration": "nodes.hand_eye",
+    "nodes.detect_triangulate_params": "nodes.detect_triangulate",
+    "nodes.detect_triangulate_inputs": "nodes.detect_triangulate",
+    "nodes.detect_triangulate_outputs": "nodes.detect_triangulate",
 }
 
 

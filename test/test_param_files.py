@@ -333,7 +333,7 @@ def test_process_defaults_are_the_live_nodes_defaults():
     defaults: the pose rules, the robot sigmas and the stereo pairing are written once."""
     import dataclasses
 
-    from eye_in_hand.nodes.detect_triangulate import NODE_PARAMETERS
+    from eye_in_hand.nodes.detect_triangulate_params import NODE_PARAMETERS
     from eye_in_hand.nodes.hand_eye import HandEyeNodeConfig
     from eye_in_hand.offline import ProcessOptions
 

@@ -120,6 +120,7 @@ TESTS: dict[str, tuple[str, ...]] = {
                           "test/nodes/test_every_target.py"),
     "nodes/detect_triangulate.py": ("test/nodes/test_detect_triangulate.py",),
     "nodes/localize.py": ("test/nodes/test_localize.py",),
+    "ros/queues.py": ("test/ros/test_queues.py",),
     "ros/publishers.py": ("test/ros/test_publishers.py",),
     "ros/executor.py": ("test/ros/test_executor.py",),
     "nodes/hand_eye_targets.py": ("test/nodes/test_localize.py",
@@ -667,9 +668,9 @@ MUTANTS: tuple[Mutant, ...] = (
       "            problem = f\"frame {frame!r}, expected {self.config.camera_frame!r}\"\n",
       "        if False:\n            problem = \"\"\n",
       "a target's point in another camera frame is kept for its frame"),
-    M("detect-queue-depth", "nodes/detect_triangulate.py",
-      "            dropped = len(self._pairs) >= self._depth\n",
-      "            dropped = len(self._pairs) > self._depth\n",
+    M("detect-queue-depth", "ros/queues.py",
+      "            dropped = len(self._items) >= self._depth\n",
+      "            dropped = len(self._items) > self._depth\n",
       "the pair queue holds one pair more than queue_depth"),
     M("offline-pipeline-no-flush", "offline.py",
       "    pipeline.flush()  # end of bag: the last points are resolved (or refused) now\n",
@@ -817,8 +818,8 @@ MUTANTS: tuple[Mutant, ...] = (
       'a robot_pose_noise of 0 refused (documented >= 0)'),
     # nodes/detect_triangulate.py
     M("detect-slop-units", "nodes/detect_triangulate.py",
-      '        slop_ns = int(round(node_values["sync.slop_s"] * 1e9))\n',
-      '        slop_ns = int(round(node_values["sync.slop_s"] * 1e6))\n',
+      '        slop_ns = int(round(values["sync.slop_s"] * 1e9))\n',
+      '        slop_ns = int(round(values["sync.slop_s"] * 1e6))\n',
       'sync.slop_s converted with 1e6'),
     # -- held-out batch 2 (tools/mutation_heldout.py --batch 2): the bugs no test caught
     # when it was measured, with the tests written after

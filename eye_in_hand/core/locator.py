@@ -41,6 +41,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import cv2
 import numpy as np
 
 from eye_in_hand.core.camera import StereoRig
@@ -283,6 +284,25 @@ class StereoLocator:
         blobs (their ids start again at ``<name>_0``)."""
         self._previous.clear()
         self._sets.clear()
+
+    def warm_up(self) -> None:
+        """Run once on a synthetic pair (a disc of each target's colour), then :meth:`reset`.
+
+        The first call of the detection path pays one-off costs (OpenCV and NumPy
+        initialisation, lazy imports) of up to ~150 ms; paying them at start-up keeps a live
+        node's first camera frames from overrunning its hand-over queue and being dropped.
+        """
+        w, h = self.rig.left.size
+        img = np.zeros((h, w, 3), np.uint8)
+        for k, spec in enumerate(self.config.detector.targets):
+            lo, hi = spec.color.lower, spec.color.upper
+            hue = ((lo[0] + hi[0] + (180 if spec.color.wraps else 0)) // 2) % 180
+            hsv = np.array([[[hue, (lo[1] + hi[1]) // 2, (lo[2] + hi[2]) // 2]]], np.uint8)
+            bgr = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)[0, 0]
+            cv2.circle(img, (w // 2 + 60 * k, h // 2), max(8, min(w, h) // 30),
+                       tuple(int(c) for c in bgr), -1)
+        self.locate(img, img.copy())
+        self.reset()
 
     def locate(self, left: np.ndarray, right: np.ndarray) -> LocateResult:
         """Locate every configured target in one stereo pair.

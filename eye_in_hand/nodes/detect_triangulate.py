@@ -77,189 +77,40 @@ import math
 import threading
 import time
 import traceback
-from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from typing import Any
 
 import cv2
 import numpy as np
-from geometry_msgs.msg import PointStamped, PoseWithCovarianceStamped
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 
-from eye_in_hand.core.camera import StereoRig
-from eye_in_hand.core.defaults import DEFAULT_SYNC_QUEUE_SIZE, DEFAULT_SYNC_SLOP_S
-from eye_in_hand.core.locator import LocateResult, StereoLocator
-from eye_in_hand.core.locator_params import (
-    LOCATOR_PARAMETERS,
-    TARGET_PARAMETERS,
-    LocatorConfig,
-    ParamSpec,
-    locator_config_from_params,
-)
 from eye_in_hand.core.sync import ApproximateStereoSync, StereoPair
-from eye_in_hand.errors import ConfigError, ConversionError, EyeInHandError, InputError
-from eye_in_hand.ros.camera_info import camera_info_to_model
+from eye_in_hand.errors import EyeInHandError
+from eye_in_hand.nodes.detect_triangulate_inputs import LocatorSource, StereoIntake, color_image
+from eye_in_hand.nodes.detect_triangulate_outputs import TargetPublishers
+from eye_in_hand.nodes.detect_triangulate_params import DEFAULT_FRAME, declare_parameters
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
-from eye_in_hand.ros.images import image_to_numpy, numpy_to_image
-from eye_in_hand.ros.markers import Sphere, marker_classes, sphere_marker_array, sphere_style
-from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.node_main import run_node
-from eye_in_hand.ros.outputs import (
-    MARKER_DIAMETER_M,
-    MARKER_LIFETIME_S,
-    LocatedFrame,
-    point_stamped,
-    pose_with_covariance,
-    rclpy_types,
-)
-from eye_in_hand.ros.params import Param, declare_params
+from eye_in_hand.ros.outputs import LocatedFrame
 from eye_in_hand.ros.publishers import OutputPublishers
-from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS, TARGET_POINT_QOS
-from eye_in_hand.ros.stamps import header_stamp_ns
+from eye_in_hand.ros.qos import SENSOR_QOS
+from eye_in_hand.ros.queues import DropOldestQueue
 
-__all__ = ["NODE_PARAMETERS", "DetectTriangulateNode", "parameter_names", "parameter_hint",
-           "main"]
+__all__ = ["DetectTriangulateNode", "main"]
 
 NODE_NAME = "detect_triangulate"
-#: A stamp this far behind the previous one on the same side is a time jump (bag loop, sim
-#: reset), not an out-of-order frame: pairing restarts.
-TIME_JUMP_BACK_NS = 1_000_000_000
-DEFAULT_FRAME = "camera_left_optical_frame"
-#: Encodings the detector accepts (converted to bgr8); anything else is "bad_encoding".
-COLOR_ENCODINGS = ("bgr8", "rgb8", "bgra8", "rgba8", "bayer_rggb8", "bayer_bggr8",
-                   "bayer_gbrg8", "bayer_grbg8", "8UC3")
-
-#: Node-only parameters (the locator's are in :data:`eye_in_hand.core.locator`).
-NODE_PARAMETERS: tuple[Param, ...] = (
-    Param("calibration_dir", "", "directory with left.yaml + right.yaml (ROS camera_calibration "
-          "files; stereo.yaml optional); empty = use the camera_info topics"),
-    Param("frame_id", "", "frame of the published points; empty = the left image's frame_id "
-          f"(or {DEFAULT_FRAME} when that is empty)"),
-    Param("sync.slop_s", DEFAULT_SYNC_SLOP_S, "largest left/right stamp difference of a "
-          "stereo pair (s); 0 = exact stamps only", range=(0.0, 1.0)),
-    Param("sync.queue_size", DEFAULT_SYNC_QUEUE_SIZE, "frames per side waiting for a partner",
-          range=(1, 100)),
-    Param("queue_depth", 6, "stereo pairs waiting for the worker (6: 0.2 s at 30 Hz, enough "
-          "for a burst of late DDS deliveries); when full the oldest is dropped (counted as "
-          "dropped_pairs). 1 = only ever the newest pair", range=(1, 30)),
-    Param("images.reliable", False, "subscribe to the images reliably: lost samples are sent "
-          "again (a bag replay loses nothing in transport) but only reliable publishers "
-          "match; false = best effort (sensor data QoS), which matches every camera driver"),
-    Param("images.depth", 5, "images kept per side until the executor takes them (a busy "
-          "machine may stall it for a few frames)", range=(1, 100)),
-    Param("debug_image.max_rate_hz", 5.0, "rate limit of target/debug_image (Hz); 0 = never "
-          "publish it", range=(0.0, 100.0)),
-    Param("diagnostics_period_s", 1.0, "diagnostics publication period (s)",
-          range=(0.05, 60.0)),
-    Param("max_targets", 64, "most target ids that get targets/<id>/point(_cov) publishers; "
-          "targets with further ids are refused (counted as targets_refused)",
-          range=(1, 10_000)),
-    Param("markers.lifetime_s", MARKER_LIFETIME_S, "lifetime of the spheres on "
-          "targets/markers (s); 0 = until the next frame's DELETEALL", range=(0.0, 3600.0)),
-    Param("markers.diameter_m", MARKER_DIAMETER_M, "sphere diameter on targets/markers for a "
-          "target of unknown radius (radius_m 0)", range=(1e-4, 10.0)),
-)
-
-
-def _to_param(spec: ParamSpec, name: str | None = None) -> Param:
-    default = tuple(spec.default) if isinstance(spec.default, list) else spec.default
-    rng = None
-    if spec.min is not None or spec.max is not None:
-        lo = spec.min if spec.min is not None else -1e300
-        hi = spec.max if spec.max is not None else 1e300
-        rng = (int(lo), int(hi)) if isinstance(spec.default, int) and not isinstance(
-            spec.default, bool) else (float(lo), float(hi))
-    return Param(name or spec.name, default, spec.description, range=rng,
-                 choices=spec.choices or None)
-
-
-def _parameter_groups(target_names: Any) -> list[tuple[str, list[Param]]]:
-    """``(prefix, parameters)`` the node declares: its own, the locator's, and one group
-    ``targets.<name>.`` per entry of ``target_names``."""
-    groups = [("", list(NODE_PARAMETERS)), ("", [_to_param(p) for p in LOCATOR_PARAMETERS])]
-    for tname in target_names:
-        groups.append((f"targets.{tname}.", [_to_param(p) for p in TARGET_PARAMETERS]))
-    return groups
-
-
-def parameter_names(values: Mapping[str, Any]) -> list[str]:
-    """Every parameter name the node declares, given its parameter values (flat, dotted) from
-    a parameter file: the per-target names follow ``target_names`` (default ``[red]``)."""
-    names = values.get("target_names")
-    if not isinstance(names, (list, tuple)):
-        names = [p for p in LOCATOR_PARAMETERS if p.name == "target_names"][0].default
-    return [prefix + p.name for prefix, group in _parameter_groups([str(n) for n in names])
-            for p in group]
-
-
-def parameter_hint(name: str, values: Mapping[str, Any]) -> str | None:
-    """Advice for an undeclared ``targets.<name>.*``: its target is not in ``target_names``."""
-    parts = name.split(".")
-    if len(parts) != 3 or parts[0] != "targets":
-        return None
-    names = [p for p in LOCATOR_PARAMETERS if p.name == "target_names"][0].default
-    names = values.get("target_names", names)
-    if parts[1] in names:
-        return None
-    return (f"target '{parts[1]}' is not in target_names [{', '.join(map(str, names))}]: add it "
-            "there, or remove its section (a node declares targets.<name>.* only for the "
-            "names in target_names)")
-
-
-class _PairQueue:
-    """Bounded drop-oldest hand-over from the executor thread to the worker.
-
-    Holds at most ``depth`` pairs; putting one into a full queue drops the oldest waiting pair.
-    ``depth`` 1 keeps only the newest pair (lowest latency, drops on any hiccup); a few pairs
-    ride out a stall of the worker (a garbage collection, a burst of DDS deliveries) without
-    losing frames, at the cost of a little latency for the frames that waited.
-    """
-
-    def __init__(self, depth: int = 1) -> None:
-        if depth < 1:
-            raise InputError(f"queue depth must be >= 1, got {depth}")
-        self._cond = threading.Condition()
-        self._pairs: deque[StereoPair[Image]] = deque()
-        self._depth = depth
-        self._stop = False
-        self.dropped = 0
-
-    def put(self, pair: StereoPair[Image]) -> bool:
-        """Queue the pair; returns True when an unprocessed older pair was dropped for it."""
-        with self._cond:
-            dropped = len(self._pairs) >= self._depth
-            if dropped:
-                self._pairs.popleft()
-                self.dropped += 1
-            self._pairs.append(pair)
-            self._cond.notify()
-        return dropped
-
-    def take(self, timeout_s: float) -> StereoPair[Image] | None:
-        """The oldest waiting pair, waiting up to ``timeout_s`` for one (None: none came)."""
-        with self._cond:
-            if not self._pairs and not self._stop:
-                self._cond.wait(timeout_s)
-            return self._pairs.popleft() if self._pairs else None
-
-    def __len__(self) -> int:
-        with self._cond:
-            return len(self._pairs)
-
-    def stop(self) -> None:
-        with self._cond:
-            self._stop = True
-            self._cond.notify_all()
-
-    @property
-    def stopped(self) -> bool:
-        return self._stop
 
 
 class DetectTriangulateNode(Node):
     """Detect the configured coloured targets and publish their 3-D points.
+
+    Its parameters are in :mod:`eye_in_hand.nodes.detect_triangulate_params`, its inputs
+    (stereo pairing, the locator of the current calibration) in
+    :mod:`eye_in_hand.nodes.detect_triangulate_inputs`, its outputs in
+    :mod:`eye_in_hand.nodes.detect_triangulate_outputs`; the node wires them up and runs the
+    worker thread that hands each stereo pair to the locator.
 
     Args:
         **kwargs: passed to ``rclpy.node.Node`` (``context``, ``namespace``,
@@ -272,94 +123,35 @@ class DetectTriangulateNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        (_, own), (_, locator) = _parameter_groups(())
-        node_values = declare_params(self, own)
-        loc_values = declare_params(self, locator)
-        flat: dict[str, Any] = dict(loc_values)
-        for tname in loc_values["target_names"]:
-            if not tname or not all(c.isalnum() or c == "_" for c in tname) \
-                    or not tname[0].isalpha():
-                raise ConfigError(f"parameter 'target_names': '{tname}' must start with a "
-                                  "letter and contain only letters, digits and underscores")
-            ((prefix, group),) = _parameter_groups((tname,))[2:]
-            vals = declare_params(self, group, prefix=prefix)
-            flat.update({f"{prefix}{k}": v for k, v in vals.items()})
-        self.config: LocatorConfig = locator_config_from_params(flat)
-        self._frame_id = str(node_values["frame_id"])
-        self._debug_period = (1.0 / node_values["debug_image.max_rate_hz"]
-                              if node_values["debug_image.max_rate_hz"] > 0 else math.inf)
-        self._last_debug = -math.inf
-
-        self._locator: StereoLocator | None = None
-        self._from_files = bool(node_values["calibration_dir"])
-        if self._from_files:
-            rig = StereoRig.load(node_values["calibration_dir"])
-            try:
-                self._locator = StereoLocator(rig, self.config)
-            except InputError as exc:
-                raise ConfigError(f"calibration_dir '{node_values['calibration_dir']}': "
-                                  f"{exc}") from exc
-            warm_up(self._locator)
-        self._info: dict[str, Any] = {"left": None, "right": None}
-        self._info_key: tuple[Any, ...] | None = None
-        self._lock = threading.Lock()
-
-        slop_ns = int(round(node_values["sync.slop_s"] * 1e9))
-        self._sync: ApproximateStereoSync[Image] = ApproximateStereoSync(
-            slop_ns, node_values["sync.queue_size"])
-        self._sync_seen = (0, 0)
-        self._slot = _PairQueue(node_values["queue_depth"])
-        self._queue_max = 0
-
-        names = [t.name for t in self.config.detector.targets]
-        # output publishers without per-publisher QoS-event handlers (a small wait set at every
-        # executor wake-up); their subscribers' QoS is checked periodically instead
-        self.outputs = OutputPublishers(self, lambda cause, text: self.diag.report(cause, text))
-        self._pub_point = self.outputs.create(_point_type(), "target/point", RESULT_QOS)
-        self._pub_point_cov = self.outputs.create(_point_cov_type(), "target/point_cov",
-                                                    RESULT_QOS)
-        # per-target publishers, by target id: the configured names now, others when they
-        # first appear (worker thread), at most max_targets ids
-        self._max_targets = int(node_values["max_targets"])
-        self._pub_targets: dict[str, tuple[Any, Any]] = {}
-        self._pub_targets_lock = threading.Lock()
-        self._marker_lifetime_s = float(node_values["markers.lifetime_s"])
-        self._marker_diameter_m = float(node_values["markers.diameter_m"])
-        self._specs = {t.name: t for t in self.config.detector.targets}
-        self._styles: dict[str, tuple[float, tuple[float, float, float, float]]] = {}
-        self._pub_markers = self.outputs.create(marker_classes()[1], "targets/markers",
-                                                  RESULT_QOS)
-        # targets/<id>/... live next to targets/markers, wherever a remapping put it (launch
-        # remaps it to the root namespace: dynamic ids cannot be remapped one by one)
-        self._targets_prefix = self.resolve_topic_name("targets/markers").rsplit("/", 1)[0]
-        self._pub_debug = self.outputs.create(Image, "target/debug_image", SENSOR_QOS)
-        self.diag = NodeDiagnostics(self, period_s=node_values["diagnostics_period_s"])
+        values, self.config = declare_parameters(self)
+        self._frame_id = str(values["frame_id"])
+        self.diag = NodeDiagnostics(self, period_s=values["diagnostics_period_s"])
         self.diag.declare_counter("pairs", "detections", "dropped_pairs", "sync_dropped",
                                   "left_frames", "right_frames", "sync_pairs",
                                   "sync_unpaired_left", "sync_unpaired_right",
                                   "points_published", "no_target", "failed_pairs",
                                   "targets_located", "target_points_published",
                                   "targets_refused", "marker_frames")
-        for n in names:
-            self._target_publishers(n)
         self.diag.warn_above("processing_ms", 50.0)
         self.diag.stale_after("pairs", 5.0)  # WARN when no stereo pair arrived for 5 s
-
-        image_qos = QoSProfile(depth=int(node_values["images.depth"]),
-                               history=HistoryPolicy.KEEP_LAST,
-                               reliability=ReliabilityPolicy.RELIABLE
-                               if node_values["images.reliable"] else SENSOR_QOS.reliability,
-                               durability=SENSOR_QOS.durability)
-        self.create_subscription(Image, "left/image_raw", self._on_left, image_qos,
-                                 event_callbacks=self._image_qos_events("left/image_raw"))
-        self.create_subscription(Image, "right/image_raw", self._on_right, image_qos,
-                                 event_callbacks=self._image_qos_events("right/image_raw"))
-        if not self._from_files:
-            self.create_subscription(CameraInfo, "left/camera_info",
-                                     lambda m: self._on_info("left", m), SENSOR_QOS)
-            self.create_subscription(CameraInfo, "right/camera_info",
-                                     lambda m: self._on_info("right", m), SENSOR_QOS)
-
+        self.locators = LocatorSource(self.config, self.diag, str(values["calibration_dir"]))
+        slop_ns = int(round(values["sync.slop_s"] * 1e9))
+        self._queue: DropOldestQueue[StereoPair[Image]] = DropOldestQueue(values["queue_depth"])
+        self.intake = StereoIntake(ApproximateStereoSync(slop_ns, values["sync.queue_size"]),
+                                   self._queue, self.diag, self.get_logger().info)
+        # output publishers without per-publisher QoS-event handlers (a small wait set at every
+        # executor wake-up); their subscribers' QoS is checked periodically instead
+        self.outputs = OutputPublishers(self, self.diag.report)
+        # targets/<id>/... live next to targets/markers, wherever a remapping put it (launch
+        # remaps it to the root namespace: dynamic ids cannot be remapped one by one)
+        self.targets = TargetPublishers(
+            self.outputs.create, self.diag,
+            self.resolve_topic_name("targets/markers").rsplit("/", 1)[0],
+            self.config.detector.targets, max_targets=values["max_targets"],
+            marker_lifetime_s=values["markers.lifetime_s"],
+            marker_diameter_m=values["markers.diameter_m"],
+            debug_rate_hz=values["debug_image.max_rate_hz"])
+        self._subscribe(values)
         #: called on the worker thread with each located pair, after its topics are sent
         #: (``hand_eye`` in the same process: :mod:`eye_in_hand.nodes.localize`)
         self.frame_sinks: list[Callable[[LocatedFrame], None]] = []
@@ -367,97 +159,52 @@ class DetectTriangulateNode(Node):
                                          daemon=True)
         self._worker.start()
         self.get_logger().info(
-            f"detecting {names} with method '{self.config.method}', calibration from "
-            f"{node_values['calibration_dir'] or 'camera_info topics'}")
+            f"detecting {[t.name for t in self.config.detector.targets]} with method "
+            f"'{self.config.method}', calibration from "
+            f"{values['calibration_dir'] or 'camera_info topics'}")
 
-    # -- executor-thread callbacks (cheap) -------------------------------------------------
-    def _on_left(self, msg: Image) -> None:
-        self._on_image(0, msg)
+    def _subscribe(self, values: dict[str, Any]) -> None:
+        """The image subscriptions (QoS from ``images.*``) and, without ``calibration_dir``,
+        the camera_info ones."""
+        image_qos = QoSProfile(depth=int(values["images.depth"]),
+                               history=HistoryPolicy.KEEP_LAST,
+                               reliability=ReliabilityPolicy.RELIABLE
+                               if values["images.reliable"] else SENSOR_QOS.reliability,
+                               durability=SENSOR_QOS.durability)
+        self.create_subscription(Image, "left/image_raw", self.intake.on_left, image_qos,
+                                 event_callbacks=self._image_qos_events("left/image_raw"))
+        self.create_subscription(Image, "right/image_raw", self.intake.on_right, image_qos,
+                                 event_callbacks=self._image_qos_events("right/image_raw"))
+        if not self.locators.from_files:
+            self.create_subscription(CameraInfo, "left/camera_info",
+                                     lambda m: self.locators.on_info("left", m), SENSOR_QOS)
+            self.create_subscription(CameraInfo, "right/camera_info",
+                                     lambda m: self.locators.on_info("right", m), SENSOR_QOS)
 
-    def _on_right(self, msg: Image) -> None:
-        self._on_image(1, msg)
+    def _image_qos_events(self, topic: str) -> Any:
+        """A camera whose publisher cannot match the image subscription's QoS (a best-effort
+        driver with ``images.reliable: true``) sends this node nothing: say so, with the fix,
+        in the log and on diagnostics, instead of waiting silently."""
+        from rclpy.event_handler import SubscriptionEventCallbacks
 
-    def _on_image(self, side: int, msg: Image) -> None:
-        topic = ("left", "right")[side] + "/image_raw"
-        self.diag.count(f"{('left', 'right')[side]}_frames")
-        try:
-            stamp = header_stamp_ns(msg)
-        except ConversionError as exc:
-            self.diag.count(f"sync_unpaired_{('left', 'right')[side]}")
-            self.diag.report("bad_image", f"{topic}: {exc}")
-            return
-        last = self._sync.last_stamps[side]
-        if last is not None and last - stamp > TIME_JUMP_BACK_NS:
-            # A bag replay restarted (--loop) or simulated time was reset: start pairing afresh
-            # instead of rejecting every frame until the stamps catch up.
-            self.get_logger().info(f"{topic}: time jumped back {(last - stamp) / 1e9:.3f} s: "
-                                   "stereo pairing and tracking reset")
-            self._count_unpaired(*self._sync.pending)   # frames waiting in the sync are lost
-            self._sync.reset()
-            self._sync_seen = (self._sync.stats.dropped, self._sync.stats.dropped_stale)
-            self.diag.count("time_jumps")
-        pairs = (self._sync.push_left if side == 0 else self._sync.push_right)(stamp, msg)
-        stats = self._sync.stats
-        seen = (stats.dropped, stats.dropped_stale)
-        self._count_sync_drops()
-        if seen != self._sync_seen:
-            self.diag.count("sync_dropped", seen[0] - self._sync_seen[0])
-            if seen[1] > self._sync_seen[1]:
-                self.diag.report("stale_stamp", f"{topic}: stamp {stamp} ns is not after the "
-                                 "previous frame's on the same side (out of order or repeated)")
-            if seen[0] - seen[1] > self._sync_seen[0] - self._sync_seen[1]:
-                self.diag.report(
-                    "unsynchronised", f"left/right frames without a partner within "
-                    f"{self._sync.slop_ns / 1e6:.3f} ms were dropped (last stamp {stamp} ns on "
-                    f"{topic})")
-            self._sync_seen = seen
-        for pair in pairs:
-            self.diag.count("sync_pairs")
-            if self._slot.put(pair):
-                self.diag.count("dropped_pairs")
-            waiting = len(self._slot)
-            if waiting > self._queue_max:     # the most pairs ever waiting: sizes queue_depth
-                self._queue_max = waiting
-                self.diag.gauge("queue_max", waiting)
-        self._ledger_gauges()
+        def incompatible(info: Any) -> None:
+            self.diag.report(
+                "image_qos", f"{self.resolve_topic_name(topic)}: a publisher offers a QoS this "
+                f"subscription cannot match (policy {info.last_policy_kind}): it sends no "
+                "images here; with a best-effort camera driver set images.reliable: false",
+                level=ERROR)
 
-    _sync_sides_seen = (0, 0)
+        return SubscriptionEventCallbacks(incompatible_qos=incompatible)
 
-    def _count_sync_drops(self) -> None:
-        """Frames the stereo sync dropped since the last call, per side."""
-        stats = self._sync.stats
-        now = (stats.dropped_left, stats.dropped_right)
-        self._count_unpaired(now[0] - self._sync_sides_seen[0],
-                             now[1] - self._sync_sides_seen[1])
-        self._sync_sides_seen = now
-
-    def _count_unpaired(self, left: int, right: int) -> None:
-        if left:
-            self.diag.count("sync_unpaired_left", left)
-        if right:
-            self.diag.count("sync_unpaired_right", right)
-
-    def _ledger_gauges(self) -> None:
-        """What is still in flight, so the counters reconcile at any moment; and the one loss
-        total, ``frames_lost``: images without a partner (``stale_stamp`` ones among them,
-        also counted on their own as ``sync_stale``), pairs dropped from the queue and pairs
-        that failed."""
-        pending = self._sync.pending
-        self.diag.gauge("sync_pending_left", pending[0])
-        self.diag.gauge("sync_pending_right", pending[1])
-        self.diag.gauge("queued", len(self._slot))
-        self.diag.gauge("sync_stale", self._sync.stats.dropped_stale)
-        self.diag.gauge("frames_lost", sum(self.diag.counter(k) for k in (
-            "sync_unpaired_left", "sync_unpaired_right", "dropped_pairs", "failed_pairs")))
-
-    def _on_info(self, side: str, msg: CameraInfo) -> None:
-        with self._lock:
-            self._info[side] = msg
+    @property
+    def target_ids(self) -> list[str]:
+        """The target ids that have publishers (the configured names from the start)."""
+        return self.targets.target_ids
 
     # -- worker thread ---------------------------------------------------------------------
     def _work(self) -> None:
-        while not self._slot.stopped:
-            pair = self._slot.take(0.1)
+        while not self._queue.stopped:
+            pair = self._queue.take(0.1)
             if pair is None:
                 continue
             if not self.context.ok():
@@ -476,106 +223,33 @@ class DetectTriangulateNode(Node):
                 self.diag.report("internal_error", f"{type(exc).__name__}: {exc}\n"
                                  f"{traceback.format_exc()}", level=ERROR)
             self.diag.count(outcome)
-            self._ledger_gauges()
+            self.intake.ledger_gauges()
             self.diag.gauge("processing_ms", (time.perf_counter() - t0) * 1e3)
-
-    def _current_locator(self) -> StereoLocator | None:
-        if self._from_files:
-            return self._locator
-        with self._lock:
-            left, right = self._info["left"], self._info["right"]
-        if left is None or right is None:
-            missing = [s for s, m in (("left", left), ("right", right)) if m is None]
-            self.diag.report("no_camera_info", f"no camera_info received on "
-                             f"{', '.join(f'{s}/camera_info' for s in missing)} yet: "
-                             "pairs are skipped until it arrives")
-            return None
-        key = tuple((m.width, m.height, m.distortion_model, tuple(m.d), tuple(m.k), tuple(m.r),
-                     tuple(m.p)) for m in (left, right))
-        if key != self._info_key:
-            try:
-                lm = camera_info_to_model(left, name="left")
-                rm = camera_info_to_model(right, name="right")
-                rig = StereoRig.from_ros_pair(lm, rm, source="left/right camera_info")
-                self._locator = StereoLocator(rig, self.config)
-                warm_up(self._locator)
-            except (ConversionError, ConfigError, InputError) as exc:
-                self._locator = None
-                self.diag.report("bad_camera_info", f"camera_info: {exc}")
-            self._info_key = key
-        if self._locator is None:
-            self.diag.report("bad_camera_info", "camera_info does not describe a usable "
-                             "calibrated stereo pair: pairs are skipped")
-        return self._locator
-
-    def _image(self, msg: Image, topic: str, size: tuple[int, int]) -> np.ndarray | None:
-        if msg.encoding not in COLOR_ENCODINGS:
-            self.diag.report("bad_encoding", f"{topic}: encoding '{msg.encoding}' is not a "
-                             f"colour image (accepted: {', '.join(COLOR_ENCODINGS)})")
-            return None
-        if (msg.width, msg.height) != size:
-            self.diag.report("size_mismatch", f"{topic}: image is {msg.width}x{msg.height} but "
-                             f"the calibration is {size[0]}x{size[1]}")
-            return None
-        try:
-            enc = "bgr8" if msg.encoding != "8UC3" else None
-            img = image_to_numpy(msg, desired_encoding=enc)
-        except ConversionError as exc:
-            self.diag.report("bad_image", f"{topic}: {exc}")
-            return None
-        return np.ascontiguousarray(img)
-
-    def _image_qos_events(self, topic: str) -> Any:
-        """A camera whose publisher cannot match the image subscription's QoS (a best-effort
-        driver with ``images.reliable: true``) sends this node nothing: say so, with the fix,
-        in the log and on diagnostics, instead of waiting silently."""
-        from rclpy.event_handler import SubscriptionEventCallbacks
-
-        def incompatible(info: Any) -> None:
-            self.diag.report(
-                "image_qos", f"{self.resolve_topic_name(topic)}: a publisher offers a QoS this "
-                f"subscription cannot match (policy {info.last_policy_kind}): it sends no "
-                "images here; with a best-effort camera driver set images.reliable: false",
-                level=ERROR)
-
-        return SubscriptionEventCallbacks(incompatible_qos=incompatible)
 
     def _process(self, pair: StereoPair[Image]) -> str:
         """Locate and publish one pair; the ledger counter of its outcome
         (``points_published``, ``no_target`` or ``failed_pairs``)."""
         self.diag.count("pairs")
-        locator = self._current_locator()
+        locator = self.locators.current()
         if locator is None:
             return "failed_pairs"
         rig = locator.rig
-        left = self._image(pair.left, "left/image_raw", rig.left.size)
-        right = self._image(pair.right, "right/image_raw", rig.right.size)
+        left = color_image(pair.left, "left/image_raw", rig.left.size, self.diag)
+        right = color_image(pair.right, "right/image_raw", rig.right.size, self.diag)
         if left is None or right is None:
             return "failed_pairs"
         result = locator.locate(left, right)
         stamp = pair.stamp_ns
         frame = self._frame_id or pair.left.header.frame_id or DEFAULT_FRAME
         first = result.first
-        first_msgs = None
+        delivered = self.targets.publish(result, stamp, frame)
         if first is not None:
-            # The covariance first: hand_eye pairs the two by stamp and waits for the point.
-            # The same two messages go to targets/<first id>/... below (built once).
-            first_msgs = (point_cov_message(first.point_m, first.covariance, stamp_ns=stamp,
-                                            frame_id=frame),
-                          point_stamped(rclpy_types(), first.point_m, stamp, frame))
-            # volatile topics: a message nobody subscribes to reaches no one, now or later
-            # (as in hand_eye); the transient-local targets/<id>/... below always go out
-            if self._pub_point_cov.get_subscription_count() > 0:
-                self._pub_point_cov.publish(first_msgs[0])
-            if self._pub_point.get_subscription_count() > 0:
-                self._pub_point.publish(first_msgs[1])
             self.diag.count("detections")
             self.diag.gauge("residual_px", float(first.residual_px))
             self.diag.gauge("sigma_z_mm", float(math.sqrt(first.covariance[2, 2]) * 1e3))
             self.diag.gauge("range_m", float(np.linalg.norm(first.point_m)))
         else:
             self.diag.gauge("last_miss", result.rejected.get(result.first_name, ""))
-        delivered = self._publish_targets(result, stamp, frame, first_msgs)
         if self.frame_sinks:
             located = LocatedFrame(
                 stamp, frame, None if first is None else (first.point_m, first.covariance),
@@ -585,175 +259,19 @@ class DetectTriangulateNode(Node):
         n_pairs = self.diag.counter("pairs")
         self.diag.gauge("detection_rate", self.diag.counter("detections") / max(1, n_pairs))
         try:
-            self._maybe_debug(left, right, result, pair)
+            self.targets.publish_debug(left, right, result, stamp, pair.left.header.frame_id)
         except (EyeInHandError, cv2.error, ValueError) as exc:  # the point is out already
             self.diag.report("debug_image", f"target/debug_image: {exc}")
         return "points_published" if first is not None else "no_target"
 
-    @property
-    def target_ids(self) -> list[str]:
-        """The target ids that have publishers (the configured names from the start)."""
-        with self._pub_targets_lock:
-            return list(self._pub_targets)
-
-    def _target_publishers(self, tid: str) -> tuple[Any, Any] | None:
-        """``(point, point_cov)`` publishers of ``targets/<tid>/...``, made on first use; None
-        (reported) when ``tid`` is no valid topic token or ``max_targets`` ids have some."""
-        with self._pub_targets_lock:
-            pubs = self._pub_targets.get(tid)
-            if pubs is not None:
-                return pubs
-            problem = topic_name_problem(f"targets/{tid}/point") if tid and "/" not in tid \
-                else "empty or contains '/'"
-            if problem is not None:
-                self.diag.report("bad_target_id", f"target id {tid!r} cannot name a topic "
-                                 f"({problem}): not published")
-                return None
-            if len(self._pub_targets) >= self._max_targets:
-                self.diag.report("too_many_targets", f"target id {tid!r}: {self._max_targets} "
-                                 "ids have publishers already (max_targets): not published")
-                return None
-            base = f"{self._targets_prefix}/{tid}"
-            pubs = (self.outputs.create(_point_type(), f"{base}/point", TARGET_POINT_QOS),
-                    self.outputs.create(_point_cov_type(), f"{base}/point_cov",
-                                          TARGET_POINT_QOS))
-            self._pub_targets[tid] = pubs
-            return pubs
-
-    def _publish_targets(self, result: LocateResult, stamp: int, frame: str,
-                         first_msgs: tuple[Any, Any] | None = None
-                         ) -> list[tuple[Sphere, np.ndarray]]:
-        """Every located target on its own topics, then the frame's ``targets/markers``.
-        ``first_msgs``: the ``(point_cov, point)`` messages already built for
-        ``result.first`` (``target/point_cov``, ``target/point``), sent again as they are.
-        Returns each published target's sphere (as on ``targets/markers``) and covariance."""
-        spheres = []
-        delivered = []
-        for t in result.targets:
-            self.diag.count("targets_located")
-            pubs = self._target_publishers(t.id)
-            if pubs is None:
-                self.diag.count("targets_refused")
-                continue
-            if first_msgs is not None and t is result.first:
-                cov_msg, point_msg = first_msgs
-            else:
-                cov_msg = point_cov_message(t.point_m, t.covariance, stamp_ns=stamp,
-                                            frame_id=frame)
-                point_msg = point_stamped(rclpy_types(), t.point_m, stamp, frame)
-            pubs[1].publish(cov_msg)
-            pubs[0].publish(point_msg)
-            self.diag.count("target_points_published")
-            diameter, rgba = self._sphere_style(t.name)
-            spheres.append(Sphere(t.id, t.point_m, diameter, rgba))
-            delivered.append((spheres[-1], t.covariance))
-        if self._pub_markers.get_subscription_count() > 0:     # volatile, as above
-            self._pub_markers.publish(sphere_marker_array(
-                spheres, stamp_ns=stamp, frame_id=frame, lifetime_s=self._marker_lifetime_s))
-        self.diag.count("marker_frames")
-        return delivered
-
-    def _sphere_style(self, name: str) -> tuple[float, tuple[float, float, float, float]]:
-        """Diameter (m) and RGBA of a target's sphere on ``targets/markers`` (per name, cached:
-        they depend on the configuration only)."""
-        style = self._styles.get(name)
-        if style is None:
-            spec = self._specs.get(name)
-            style = self._styles[name] = sphere_style(
-                spec.radius_m if spec is not None else None,
-                spec.color if spec is not None else None, self._marker_diameter_m)
-        return style
-
-    def _maybe_debug(self, left: np.ndarray, right: np.ndarray, result: LocateResult,
-                     pair: StereoPair[Image]) -> None:
-        now = time.monotonic()
-        if now - self._last_debug < self._debug_period or \
-                self._pub_debug.get_subscription_count() == 0:
-            return
-        self._last_debug = now
-        canvas = draw_debug(left, right, result)
-        self._pub_debug.publish(numpy_to_image(canvas, "bgr8", stamp_ns=pair.stamp_ns,
-                                               frame_id=pair.left.header.frame_id))
-
     # -- teardown --------------------------------------------------------------------------
     def destroy_node(self) -> None:
         """Stop the worker thread, then destroy the node."""
-        self._slot.stop()
+        self._queue.stop()
         if self._worker.is_alive():
             self._worker.join(timeout=5.0)
         self.diag.destroy()
         super().destroy_node()
-
-
-def warm_up(locator: StereoLocator) -> None:
-    """Run the locator once on a synthetic pair (a disc of each target's colour).
-
-    The first call of the detection path pays one-off costs (OpenCV and NumPy initialisation,
-    lazy imports) of up to ~150 ms; paying them at start-up keeps the first camera frames from
-    overrunning the one-pair hand-over and being dropped.
-    """
-    w, h = locator.rig.left.size
-    img = np.zeros((h, w, 3), np.uint8)
-    for k, spec in enumerate(locator.config.detector.targets):
-        lo, hi = spec.color.lower, spec.color.upper
-        hue = ((lo[0] + hi[0] + (180 if spec.color.wraps else 0)) // 2) % 180
-        hsv = np.array([[[hue, (lo[1] + hi[1]) // 2, (lo[2] + hi[2]) // 2]]], np.uint8)
-        bgr = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)[0, 0]
-        cv2.circle(img, (w // 2 + 60 * k, h // 2), max(8, min(w, h) // 30),
-                   tuple(int(c) for c in bgr), -1)
-    locator.locate(img, img.copy())
-    locator.reset()
-
-
-def _point_cov_type() -> Any:
-    return PoseWithCovarianceStamped
-
-
-def point_cov_message(point_m: np.ndarray, covariance: np.ndarray, *, stamp_ns: int,
-                      frame_id: str) -> Any:
-    """``target/point_cov``: the point with its 3x3 triangulation covariance.
-
-    A PoseWithCovarianceStamped whose position is the point, orientation identity, covariance
-    position block the triangulation covariance (m^2) and orientation variances 1e6 (unknown):
-    :func:`eye_in_hand.ros.outputs.pose_with_covariance`, as ``process`` writes it.
-    """
-    return pose_with_covariance(rclpy_types(), point_m, covariance, stamp_ns, frame_id)
-
-
-def _point_type() -> Any:
-    return PointStamped
-
-
-def draw_debug(left: np.ndarray, right: np.ndarray, result: LocateResult) -> np.ndarray:
-    """Left|right side by side at half size, detections drawn (bbox, centre, 3-D point).
-
-    Args:
-        left, right: BGR uint8 images, shape (H, W, 3).
-        result: the locator's result for the pair.
-
-    Returns:
-        BGR uint8, shape (H // 2, W, 3) (two half-size images side by side).
-    """
-    h, w = left.shape[:2]
-    hw, hh = w // 2, h // 2
-    canvas = np.hstack([cv2.resize(left, (hw, hh), interpolation=cv2.INTER_AREA),
-                        cv2.resize(right, (hw, hh), interpolation=cv2.INTER_AREA)])
-    for t in result.targets:
-        for det, px, dx in ((t.left, t.left_px, 0), (t.right, t.right_px, hw)):
-            x, y, bw, bh = det.bbox
-            cv2.rectangle(canvas, (dx + x // 2, y // 2), (dx + (x + bw) // 2, (y + bh) // 2),
-                          (0, 255, 0), 1)
-            c = (int(round(dx + px[0] / 2)), int(round(px[1] / 2)))
-            cv2.drawMarker(canvas, c, (255, 255, 0), cv2.MARKER_CROSS, 10, 1)
-        x, y, _, _ = t.left.bbox
-        label = (f"{t.name} [{t.point_m[0]:+.3f} {t.point_m[1]:+.3f} {t.point_m[2]:.3f}] m "
-                 f"r={t.residual_px:.2f}px")
-        cv2.putText(canvas, label, (max(0, x // 2), max(12, y // 2 - 4)),
-                    cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
-    for name, reason in result.rejected.items():
-        cv2.putText(canvas, f"{name}: {reason}", (5, hh - 8 - 14 * list(result.rejected).index(
-            name)), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 255), 1, cv2.LINE_AA)
-    return canvas
 
 
 def main(args: list[str] | None = None) -> None:

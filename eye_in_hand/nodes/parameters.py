@@ -1,6 +1,7 @@
 """The parameters of every node, for checking a parameter file before any node starts.
 
-Each node module has ``parameter_names(values)``: the names it declares, derived from the same
+Each node module (or its parameter part, :data:`PARAMETER_MODULES`) has
+``parameter_names(values)``: the names it declares, derived from the same
 :class:`~eye_in_hand.ros.params.Param` lists and config dataclasses it declares at start-up
 (``detect_triangulate``'s per-target names follow the file's ``target_names``). A node refuses
 an override it does not declare at start-up
@@ -17,25 +18,30 @@ from typing import Any
 
 from eye_in_hand.errors import ConfigError
 
-__all__ = ["NODE_NAMES", "declared_parameters", "check_parameter_file_keys"]
+__all__ = ["NODE_NAMES", "PARAMETER_MODULES", "declared_parameters", "check_parameter_file_keys"]
 
 #: The package's nodes (the executables of setup.py's NODE_SCRIPTS), each a module of this
 #: package of the same name.
 NODE_NAMES: tuple[str, ...] = ("stereo_capture", "detect_triangulate", "hand_eye",
                                "bag_player", "bag_recorder")
+#: The module of a node's ``parameter_names`` (and ``parameter_hint``) where it is not the
+#: node's own module: a part of the node.
+PARAMETER_MODULES: dict[str, str] = {"detect_triangulate": "detect_triangulate_params"}
+
+
+def _parameter_module(node: str) -> Any:
+    return importlib.import_module(f"eye_in_hand.nodes.{PARAMETER_MODULES.get(node, node)}")
 
 
 def declared_parameters(node: str, values: Mapping[str, Any]) -> list[str]:
     """The parameter names ``node`` declares, given its flat parameter values from a file."""
     if node not in NODE_NAMES:
         raise ConfigError(f"unknown node {node!r} (the nodes are {', '.join(NODE_NAMES)})")
-    module = importlib.import_module(f"eye_in_hand.nodes.{node}")
-    return list(module.parameter_names(values))
+    return list(_parameter_module(node).parameter_names(values))
 
 
 def _hint(node: str, name: str, values: Mapping[str, Any]) -> str | None:
-    module = importlib.import_module(f"eye_in_hand.nodes.{node}")
-    advise = getattr(module, "parameter_hint", None)
+    advise = getattr(_parameter_module(node), "parameter_hint", None)
     return advise(name, values) if advise is not None else None
 
 

@@ -41,7 +41,7 @@ import os
 import re
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rcl_interfaces.msg import (
     FloatingPointRange,
@@ -59,11 +59,15 @@ from rclpy.parameter import Parameter
 
 from eye_in_hand.errors import ConfigError
 
+if TYPE_CHECKING:
+    from eye_in_hand.core.locator_params import ParamSpec
+
 __all__ = [
     "PARAM_TYPES",
     "Param",
     "param",
     "params_of",
+    "param_from_spec",
     "declare_params",
     "load_config",
     "params_markdown",
@@ -293,6 +297,20 @@ def params_of(config_cls: type) -> list[Param]:
         name = spec.pop("name") or f.name
         out.append(Param(name=name, **spec))
     return out
+
+
+def param_from_spec(spec: ParamSpec) -> Param:
+    """The :class:`Param` of a ROS-free parameter description (the locator's, in
+    :mod:`eye_in_hand.core.locator_params`); an open end of its range becomes +-1e300."""
+    default = tuple(spec.default) if isinstance(spec.default, list) else spec.default
+    rng = None
+    if spec.min is not None or spec.max is not None:
+        lo = spec.min if spec.min is not None else -1e300
+        hi = spec.max if spec.max is not None else 1e300
+        rng = (int(lo), int(hi)) if isinstance(spec.default, int) and not isinstance(
+            spec.default, bool) else (float(lo), float(hi))
+    return Param(spec.name, default, spec.description, range=rng,
+                 choices=spec.choices or None)
 
 
 def _declare_one(node: Any, p: Param, full: str) -> Any:

@@ -37,6 +37,18 @@ def test_node_commands_put_topics_where_the_bags_have_them():
     assert "__ns:=/robot1/stereo" in ns and "target/point:=/robot1/target/point" in ns
 
 
+def test_node_processes_get_one_blas_thread_unless_the_user_chose(tmp_path):
+    """Every node process runs with ``OPENBLAS_NUM_THREADS=1`` (idle OpenBLAS pool threads
+    spin: docs/localization.md "Live latency"), also in calibration mode; a set value stays."""
+    from eye_in_hand.launcher import Launcher
+
+    params = tmp_path / "p.yaml"
+    params.write_text("{}\n")
+    assert Launcher(params, env={}).env["OPENBLAS_NUM_THREADS"] == "1"
+    assert Launcher(params, env={}, calibrate=True).env["OPENBLAS_NUM_THREADS"] == "1"
+    assert Launcher(params, env={"OPENBLAS_NUM_THREADS": "4"}).env["OPENBLAS_NUM_THREADS"] == "4"
+
+
 def test_a_node_that_dies_stops_the_launch_with_its_name(tmp_path, ros_env):
     proc = _launch(_params(tmp_path, tmp_path / "missing.yaml"), ros_env, "--no-respawn")
     out, _ = proc.communicate(timeout=60)

@@ -17,8 +17,8 @@ from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 
 from eye_in_hand.core.camera import CameraModel, StereoRig  # noqa: E402
-from eye_in_hand.errors import ConfigError, InputError  # noqa: E402
-from eye_in_hand.nodes.detect_triangulate import DetectTriangulateNode, _PairQueue  # noqa: E402
+from eye_in_hand.errors import ConfigError  # noqa: E402
+from eye_in_hand.nodes.detect_triangulate import DetectTriangulateNode  # noqa: E402
 from eye_in_hand.ros.camera_info import model_to_camera_info
 from eye_in_hand.ros.images import numpy_to_image
 from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS  # noqa: E402
@@ -179,7 +179,7 @@ def test_calibration_files_and_debug_image(executor, ros_context, namespace, spi
 def test_no_debug_image_without_subscribers(executor, ros_context, namespace, spin_until):
     node, feeder = start(executor, ros_context, namespace)
     assert pump(executor, spin_until, feeder, lambda: len(feeder.points) >= 2)
-    assert node._last_debug == -math.inf
+    assert node.targets.last_debug == -math.inf
 
 
 def test_every_target_gets_its_own_topic_when_several_are_configured(
@@ -207,21 +207,6 @@ def test_bad_parameters_stop_the_node_with_the_name(ros_context, namespace, para
         DetectTriangulateNode(context=ros_context, namespace=namespace,
                               parameter_overrides=[Parameter(k, value=v)
                                                    for k, v in params.items()])
-
-
-def test_pair_queue_of_one_keeps_only_the_newest():
-    slot = _PairQueue(1)
-    assert slot.put("a") is False and slot.put("b") is True
-    assert slot.take(0.0) == "b" and slot.dropped == 1 and slot.take(0.0) is None
-
-
-def test_pair_queue_rides_out_a_stall_then_drops_the_oldest():
-    q = _PairQueue(3)
-    assert [q.put(x) for x in "abc"] == [False, False, False] and len(q) == 3
-    assert q.put("d") is True and q.dropped == 1          # full: "a" goes
-    assert [q.take(0.0) for _ in range(4)] == ["b", "c", "d", None]
-    with pytest.raises(InputError, match="depth"):
-        _PairQueue(0)
 
 
 def test_node_process_publishes_across_dds(ros_context, executor, namespace, spin_until,
@@ -327,9 +312,10 @@ def test_sync_slop_is_in_seconds(ros_context, namespace):
     node = DetectTriangulateNode(context=ros_context, namespace=namespace,
                                  parameter_overrides=[Parameter("sync.slop_s", value=0.004)])
     try:
-        assert node._sync.slop_ns == 4_000_000
-        pairs = node._sync.push_left(10**9, None) + node._sync.push_right(10**9 + 3_900_000, None)
-        pairs += node._sync.push_left(2 * 10**9, None)
+        assert node.intake.sync.slop_ns == 4_000_000
+        sync = node.intake.sync
+        pairs = sync.push_left(10**9, None) + sync.push_right(10**9 + 3_900_000, None)
+        pairs += sync.push_left(2 * 10**9, None)
         assert len(pairs) == 1 and pairs[0].skew_ns == 3_900_000
     finally:
         node.destroy_node()

@@ -28,6 +28,7 @@ from eye_in_hand.nodes.hand_eye import HandEyeNode  # noqa: E402
 from eye_in_hand.ros.geometry import matrix_to_pose_stamped
 from eye_in_hand.ros.images import numpy_to_image
 from eye_in_hand.ros.markers import Sphere, sphere_marker_array  # noqa: E402
+from eye_in_hand.ros.outputs import pose_with_covariance, rclpy_types  # noqa: E402
 from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS  # noqa: E402
 from eye_in_hand.ros.stamps import header_stamp_ns
 from eye_in_hand.sim.sphere import render_sphere  # noqa: E402
@@ -242,11 +243,9 @@ class _Feed:
 
     def frame(self, stamp, points: dict, listed=None, covs=None):
         """Publish the points (id -> (3,)) and a marker array listing ``listed`` ids."""
-        from eye_in_hand.nodes.detect_triangulate import point_cov_message
-
         for tid, p in points.items():
             cov = (covs or {}).get(tid, np.diag([1e-8, 2e-8, 4e-7]))
-            self.pub_cov[tid].publish(point_cov_message(p, cov, stamp_ns=stamp, frame_id=CAM))
+            self.pub_cov[tid].publish(pose_with_covariance(rclpy_types(), p, cov, stamp, CAM))
         listed = list(points) if listed is None else listed
         self.pub_markers.publish(sphere_marker_array(
             [Sphere(t, points.get(t, np.zeros(3)), 0.04) for t in listed], stamp_ns=stamp,
@@ -267,13 +266,12 @@ def test_eye_to_hand_localizes_every_target_without_a_robot_pose(
     covs = {"a": np.diag([1e-8, 2e-8, 4e-7]), "b": np.diag([3e-8, 1e-8, 9e-7])}
     feed.frame(T0, pts, covs=covs)
     # the first-target topic too: target/point (+ _cov) -> target/pose
-    from eye_in_hand.nodes.detect_triangulate import point_cov_message
     from eye_in_hand.ros.geometry import xyz_to_point_stamped
     pub_pc = feed.io.create_publisher(PoseWithCovarianceStamped, "target/point_cov", RESULT_QOS)
     pub_p = feed.io.create_publisher(PointStamped, "target/point", RESULT_QOS)
     assert spin_until(executor, lambda: pub_p.get_subscription_count() > 0
                       and pub_pc.get_subscription_count() > 0, 10.0)
-    pub_pc.publish(point_cov_message(pts["a"], covs["a"], stamp_ns=T0, frame_id=CAM))
+    pub_pc.publish(pose_with_covariance(rclpy_types(), pts["a"], covs["a"], T0, CAM))
     pub_p.publish(xyz_to_point_stamped(pts["a"], stamp_ns=T0, frame_id=CAM))
     assert spin_until(executor, lambda: len(feed.arrays) == 1 and len(feed.first) == 1
                       and all(len(feed.covs[n]) == 1 for n in "ab"), 10.0)
@@ -427,7 +425,7 @@ def test_detect_triangulate_refuses_ids_that_cannot_name_a_topic_and_keeps_a_bou
         loc("green", "green", [0.0, 0.1, 0.5]), loc("green_2", "green", [0.2, 0.1, 0.5]),
         loc("9x", "red", [0.0, 0.2, 0.5]), loc("a/b", "red", [0.0, 0.3, 0.5])))
     assert spin_until(executor, lambda: io.count_publishers("targets/red/point") > 0, 10.0)
-    node._publish_targets(result, T0, CAM)
+    node.targets.publish_targets(result, T0, CAM)
     c = node.diag.snapshot().counters
     assert c["targets_located"] == 6 and c["target_points_published"] == 3
     assert c["targets_refused"] == 3 and c["marker_frames"] == 1
@@ -461,10 +459,8 @@ def test_the_node_takes_the_eye_to_hand_file_that_calibrate_handeye_writes(
         "hand_eye_file": str(out / "hand_eye.yaml"), "camera_frame": calib.child_frame})
     assert feed.node.eye_to_hand and feed.ready(executor, spin_until)
     p_cam = np.array([0.05, 0.02, 0.8])
-    from eye_in_hand.nodes.detect_triangulate import point_cov_message
-
-    feed.pub_cov["a"].publish(point_cov_message(p_cam, np.eye(3) * 1e-8, stamp_ns=T0,
-                                                frame_id=calib.child_frame))
+    feed.pub_cov["a"].publish(pose_with_covariance(rclpy_types(), p_cam, np.eye(3) * 1e-8, T0,
+                                                   calib.child_frame))
     feed.pub_markers.publish(sphere_marker_array([Sphere("a", p_cam, 0.04)], stamp_ns=T0,
                                                  frame_id=calib.child_frame))
     assert spin_until(executor, lambda: len(feed.covs["a"]) == 1, 10.0)
@@ -493,20 +489,21 @@ def test_per_target_topics_follow_the_remapped_marker_topic_as_the_launch_lays_t
     executor.add_node(detect)
     red_1 = _collect(feed.io, PoseStamped, "target/red_1/pose")
     assert spin_until(executor, lambda: "red" in feed.node.targets.subs
-                      and detect._pub_markers.get_subscription_count() > 0, 15.0)
+                      and detect.targets.pub_markers.get_subscription_count() > 0, 15.0)
     assert detect.count_publishers(f"{namespace}/targets/red/point_cov") == 1
 
     def loc(tid, x):
         return SimpleNamespace(id=tid, name="red", point_m=np.asarray(x, float),
                                covariance=np.eye(3) * 1e-8)
     p = [0.1, 0.0, 0.5]
-    detect._publish_targets(SimpleNamespace(targets=(loc("red_1", p),)), T0, CAM)
+    detect.targets.publish_targets(SimpleNamespace(targets=(loc("red_1", p),)), T0, CAM)
     # red_1 is new: hand_eye subscribes when the frame lists it, under the remapped prefix,
     # and still gets that frame's point (transient local); the next frame comes through too
     assert spin_until(executor, lambda: feed.node.targets.subs.get("red_1") is not None and
-                      detect._pub_targets["red_1"][1].get_subscription_count() > 0
+                      detect.targets.per_target["red_1"][1].get_subscription_count() > 0
                       and len(red_1) == 1, 15.0)
-    detect._publish_targets(SimpleNamespace(targets=(loc("red_1", p),)), T0 + PERIOD_NS, CAM)
+    detect.targets.publish_targets(SimpleNamespace(targets=(loc("red_1", p),)), T0 + PERIOD_NS,
+                                   CAM)
     assert spin_until(executor, lambda: len(red_1) == 2, 10.0)
     assert [header_stamp_ns(m) for m in red_1] == [T0, T0 + PERIOD_NS]
     assert red_1[1].pose.position.x == 0.1
@@ -529,7 +526,7 @@ def test_first_frame_of_a_new_target_id_is_not_lost(tmp_path, ros_context, execu
     executor.add_node(io)
 
     def frame(stamp, ids):
-        detect._publish_targets(SimpleNamespace(targets=tuple(
+        detect.targets.publish_targets(SimpleNamespace(targets=tuple(
             SimpleNamespace(id=t, name="red", point_m=np.array([0.01 * k, 0.0, 0.5]),
                             covariance=np.eye(3) * 1e-8) for k, t in enumerate(ids))),
             stamp, CAM)
@@ -543,10 +540,10 @@ def test_first_frame_of_a_new_target_id_is_not_lost(tmp_path, ros_context, execu
     poses = {t: _collect(io, PoseStamped, f"target/{t}/pose") for t in ("red", "red_1")}
     arrays = _collect(io, PoseArray, "target/poses")
     assert spin_until(executor, lambda: "red" in hand_eye.targets.subs
-                      and detect._pub_markers.get_subscription_count() > 0
+                      and detect.targets.pub_markers.get_subscription_count() > 0
                       and io.count_publishers("target/poses") > 0
                       and io.count_publishers("target/red/pose") > 0, 15.0)
-    assert "red_1" not in hand_eye.targets.subs and "red_1" not in detect._pub_targets
+    assert "red_1" not in hand_eye.targets.subs and "red_1" not in detect.targets.per_target
     stamps = [T0 + k * PERIOD_NS for k in (1, 2, 3)]
     frame(stamps[0], ["red", "red_1"])     # red_1 appears: publisher made, point sent at once
     assert spin_until(executor, lambda: len(arrays) == 1, 15.0), (

@@ -95,11 +95,12 @@ def test_replay_at_10x_reconciles(tmp_path, ros_context, executor, namespace, sp
         executor.add_node(node)
     assert spin_until(executor, lambda: detect.count_publishers("target/point") > 0
                       and hand_eye.count_subscribers("target/point") > 0, 10.0)
-    assert spin_until(executor, lambda: detect._pub_point.get_subscription_count() > 0, 10.0)
+    assert spin_until(executor, lambda: detect.targets.pub_point.get_subscription_count() > 0,
+                      10.0)
     # hand_eye found the per-target topic in the graph and listens to the frame lists
-    assert spin_until(executor, lambda: detect._pub_markers.get_subscription_count() > 0
+    assert spin_until(executor, lambda: detect.targets.pub_markers.get_subscription_count() > 0
                       and all(cov.get_subscription_count() > 0
-                              for _, cov in detect._pub_targets.values()), 10.0)
+                              for _, cov in detect.targets.per_target.values()), 10.0)
     player.start()
     assert spin_until(executor, lambda: player.finished, 60.0)
 
