@@ -46,6 +46,7 @@ NODE_PARTS = {
     "nodes.hand_eye_targets": "nodes.hand_eye",
     "nodes.hand_eye_tf": "nodes.hand_eye",
     "nodes.hand_eye_calibration": "nodes.hand_eye",
+    "nodes.bag_recorder_writer": "nodes.bag_recorder",
 }
 
 

@@ -102,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
     from rclpy.qos import QoSProfile
 
     from eye_in_hand.nodes.bag_player import import_message_type
-    from eye_in_hand.nodes.bag_recorder import subscription_qos
+    from eye_in_hand.ros.qos import subscription_qos
 
     rclpy.init(args=[])
     node = None

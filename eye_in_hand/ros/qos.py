@@ -22,9 +22,15 @@ sensor topics with :data:`SENSOR_QOS` works with any camera driver. A transient-
 subscriber only matches transient-local publishers: subscribe to latched topics with
 :data:`LATCHED_QOS` and publish them with it too.
 
+QoS adapted to the graph, as ``ros2 bag record`` does: :func:`subscription_qos` (record or
+echo a topic: match every publisher).
+
 This module imports rclpy.
 """
 from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
 
 from rclpy.qos import (
     DurabilityPolicy,
@@ -35,7 +41,7 @@ from rclpy.qos import (
 )
 
 __all__ = ["SENSOR_QOS", "RESULT_QOS", "LATCHED_QOS", "TARGET_POINT_QOS", "ROBOT_POSE_DEPTH",
-           "ROBOT_POSE_QOS"]
+           "ROBOT_POSE_QOS", "policy_name", "subscription_qos"]
 
 #: Sensor streams (``qos_profile_sensor_data``): best effort, volatile, keep last 5.
 SENSOR_QOS: QoSProfile = QoSProfile(
@@ -86,3 +92,32 @@ ROBOT_POSE_DEPTH = 500
 ROBOT_POSE_QOS: QoSProfile = QoSProfile(depth=ROBOT_POSE_DEPTH,
                                         reliability=ReliabilityPolicy.BEST_EFFORT,
                                         history=HistoryPolicy.KEEP_LAST)
+
+
+def policy_name(policy: Any) -> str:
+    """The lower-case name of a QoS policy value (``ReliabilityPolicy.BEST_EFFORT`` ->
+    ``"best_effort"``), as rosbag2 stores it."""
+    return str(getattr(policy, "name", policy)).lower()
+
+
+def subscription_qos(endpoints: Sequence[Any], depth: int = 100) -> QoSProfile:
+    """A subscription QoS that matches every given publisher and loses as little as possible.
+
+    Reliable when all publishers offer reliable, else best effort (compatible with both);
+    transient local when all publishers offer it (so latched data is received), else volatile.
+
+    Args:
+        endpoints: ``node.get_publishers_info_by_topic(topic)``.
+        depth: keep-last depth.
+
+    Returns:
+        The rclpy ``QoSProfile``.
+    """
+    offers = [ep.qos_profile for ep in endpoints]
+    reliable = bool(offers) and all(policy_name(q.reliability) == "reliable" for q in offers)
+    latched = bool(offers) and all(policy_name(q.durability) == "transient_local"
+                                   for q in offers)
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
