@@ -46,6 +46,8 @@ NODE_PARTS = {
     "nodes.hand_eye_targets": "nodes.hand_eye",
     "nodes.hand_eye_tf": "nodes.hand_eye",
     "nodes.hand_eye_calibration": "nodes.hand_eye",
+    "nodes.stereo_capture_params": "nodes.stereo_capture",
+    "nodes.stereo_capture_sim": "nodes.stereo_capture",
     "nodes.bag_player_config": "nodes.bag_player",
     "nodes.bag_player_pacing": "nodes.bag_player",
     "nodes.bag_player_topics": "nodes.bag_player",

@@ -118,6 +118,13 @@ TESTS: dict[str, tuple[str, ...]] = {
     "ros/qos.py": ("test/commands/test_record_definitions.py::"
                    "test_subscription_qos_matches_every_publisher",
                    "test/commands/test_play.py::test_playback_qos_follows_the_recording"),
+    "io/frame_sources.py": (
+        "test/nodes/test_stereo_capture.py::test_video_source_splits_side_by_side_frames",
+        "test/nodes/test_stereo_capture.py"),
+    "sim/frame_source.py": (
+        "test/nodes/test_stereo_capture.py::"
+        "test_followed_pair_carries_the_stamp_of_the_joint_state_it_shows",
+        "test/nodes/test_stereo_capture.py"),
     "nodes/hand_eye.py": ("test/nodes/test_hand_eye.py", "test/nodes/test_localize.py",
                           "test/nodes/test_every_target.py"),
     "nodes/detect_triangulate.py": ("test/nodes/test_detect_triangulate.py",),
@@ -569,6 +576,14 @@ MUTANTS: tuple[Mutant, ...] = (
     M("recorder-qos-reliable", "ros/qos.py",
       "    reliable = bool(offers) and all(", "    reliable = True or all(",
       "the recorder asks reliable of a best-effort publisher (and receives nothing)"),
+    M("capture-side-by-side-swapped", "io/frame_sources.py",
+      "            left, right = img[:, :w // 2], img[:, w // 2:]\n",
+      "            left, right = img[:, w // 2:], img[:, :w // 2]\n",
+      "the halves of a side-by-side frame published as the other camera"),
+    M("capture-follow-stamp", "sim/frame_source.py",
+      "        pair = FramePair(frame.left, frame.right, q=q, index=k, stamp_ns=stamp)\n",
+      "        pair = FramePair(frame.left, frame.right, q=q, index=k, stamp_ns=None)\n",
+      "a pair rendered from a joint state is stamped when published, not with its state's stamp"),
     M("hand-eye-waits-for-pose", "core/pipeline.py",
       "(newest is None or item.stamp_ns > newest):", "newest is None:",
       "a point is located before a robot pose at or after its stamp arrived"),
