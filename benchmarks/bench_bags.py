@@ -108,7 +108,7 @@ def bench_playback(tmp: Path, rate: float) -> None:
         deadline = time.monotonic() + 60
         while (not player.finished or len(arrivals) < n) and time.monotonic() < deadline:
             ex.spin_once(timeout_sec=0.01)
-        mono0, _ = player._timebase  # type: ignore[misc]
+        mono0, _ = player.playback.timebase  # type: ignore[misc]
         delays = np.array([(t - (mono0 + i * period_ns / 1e9 / rate)) * 1e3
                            for t, i in arrivals])
         print(f"playback at rate {rate:g} ({n} msgs at {1e9 / period_ns:.0f} Hz): "

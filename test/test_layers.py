@@ -49,6 +49,12 @@ NODE_PARTS = {
     "nodes.detect_triangulate_params": "nodes.detect_triangulate",
     "nodes.detect_triangulate_inputs": "nodes.detect_triangulate",
     "nodes.detect_triangulate_outputs": "nodes.detect_triangulate",
+    "nodes.stereo_capture_params": "nodes.stereo_capture",
+    "nodes.stereo_capture_sim": "nodes.stereo_capture",
+    "nodes.bag_player_config": "nodes.bag_player",
+    "nodes.bag_player_pacing": "nodes.bag_player",
+    "nodes.bag_player_topics": "nodes.bag_player",
+    "nodes.bag_recorder_writer": "nodes.bag_recorder",
 }
 
 

@@ -95,14 +95,14 @@ def run(args: argparse.Namespace) -> int:
     from eye_in_hand.ros.names import check_topic_name
 
     check_topic_name(args.topic, "echo TOPIC")
-    # local: rclpy (and the nodes on it) cost ~50-80 ms at CLI start-up
+    # local: rclpy (and the ROS glue on it) cost ~50-80 ms at CLI start-up
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.qos import QoSProfile
 
-    from eye_in_hand.nodes.bag_player import import_message_type
-    from eye_in_hand.nodes.bag_recorder import subscription_qos
+    from eye_in_hand.ros.msgtypes import import_message_type
+    from eye_in_hand.ros.qos import subscription_qos
 
     rclpy.init(args=[])
     node = None

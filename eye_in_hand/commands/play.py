@@ -3,9 +3,14 @@ from __future__ import annotations
 
 import argparse
 
+from rclpy.parameter import Parameter
+
 from eye_in_hand.commands.common import bounded
 from eye_in_hand.errors import InputError
 from eye_in_hand.io.bags import bag_info
+from eye_in_hand.nodes.bag_player import BagPlayer, spin_player
+from eye_in_hand.ros.names import check_parameter_text
+from eye_in_hand.ros.node_main import run_with_executor, sigterm_as_interrupt
 
 HELP = "publish a bag's messages over DDS at the recorded pace (like ros2 bag play)"
 
@@ -56,13 +61,6 @@ def wait_for_subscribers_s(args: argparse.Namespace) -> float:
 
 def run(args: argparse.Namespace) -> int:
     """Play the bag until its end (or forever with ``--loop``); Ctrl-C stops cleanly."""
-    # local: rclpy (and the nodes on it) cost ~50-80 ms at CLI start-up
-    from rclpy.parameter import Parameter
-
-    from eye_in_hand.nodes.bag_player import BagPlayer, spin_player
-    from eye_in_hand.ros.names import check_parameter_text
-    from eye_in_hand.ros.node_main import run_with_executor, sigterm_as_interrupt
-
     bag_info(args.bag)  # fail with one clear line before starting ROS
     check_parameter_text(str(args.bag), "BAG")
     for topic in args.topics or ():

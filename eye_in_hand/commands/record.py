@@ -4,10 +4,15 @@ from __future__ import annotations
 import argparse
 import shutil
 
+from rclpy.parameter import Parameter
+
 from eye_in_hand.commands.common import bounded
 from eye_in_hand.errors import BagError, InputError
 from eye_in_hand.io.atomic import check_output_dir
 from eye_in_hand.io.bags import COMPRESSIONS, STORAGES
+from eye_in_hand.nodes.bag_recorder import BagRecorder, spin_recorder
+from eye_in_hand.ros.names import check_parameter_text, check_topic_name
+from eye_in_hand.ros.node_main import run_with_executor, sigterm_as_interrupt
 
 HELP = "record topics into a rosbag2 bag (mcap or sqlite3), like ros2 bag record"
 
@@ -49,21 +54,12 @@ def run(args: argparse.Namespace) -> int:
     """Record until ``--duration`` passes or Ctrl-C/SIGTERM; the bag is always left valid."""
     if not args.topics and not args.all:
         raise InputError("give the topics to record, or --all")
-    # local: ros.names loads rclpy (~50 ms at CLI start-up)
-    from eye_in_hand.ros.names import check_parameter_text, check_topic_name
-
     check_parameter_text(str(args.output), "-o")
     for topic in args.topics:
         check_topic_name(topic, "record TOPIC")
     out = check_output_dir(args.output, overwrite=args.overwrite)
     if out.is_dir():  # empty, or --overwrite
         shutil.rmtree(out)
-    # local: rclpy (and the nodes on it) cost ~50-80 ms at CLI start-up
-    from rclpy.parameter import Parameter
-
-    from eye_in_hand.nodes.bag_recorder import BagRecorder, spin_recorder
-    from eye_in_hand.ros.node_main import run_with_executor, sigterm_as_interrupt
-
     overrides = [
         Parameter("output", value=str(args.output)),
         Parameter("all", value=bool(args.all)),

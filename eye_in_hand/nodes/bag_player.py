@@ -39,46 +39,26 @@ from __future__ import annotations
 import sys
 import threading
 import time
-from collections import deque
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping
 from typing import Any
 
-from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rosbags.interfaces import MessageDefinitionFormat
-from rosbags.typesys import Stores, get_typestore
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
-from eye_in_hand.errors import BagError, ConfigError, EyeInHandError
-from eye_in_hand.io.bags import (
-    BagInfo,
-    Damage,
-    DamageLog,
-    OfferedQos,
-    bag_info,
-    iter_messages,
-    types_from_definition,
-)
+from eye_in_hand.errors import BagError, EyeInHandError
+from eye_in_hand.io.bags import BagInfo, bag_info
+from eye_in_hand.nodes.bag_player_config import NODE_PARAMETERS, declare_player_config
+from eye_in_hand.nodes.bag_player_pacing import PacedPlayback, ReportedDamage
+from eye_in_hand.nodes.bag_player_topics import PlayedTopics
 from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
-from eye_in_hand.ros.msgtypes import import_message_type as _import_message_type
-from eye_in_hand.ros.msgtypes import message_definition
-from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.node_main import guard, run_with_executor, sigterm_as_interrupt
-from eye_in_hand.ros.params import Param, declare_params
-from eye_in_hand.ros.tf import TF_STATIC_TOPIC
 
 __all__ = [
     "parameter_names",
-    "NODE_PARAMETERS",
-    "PlayerConfig",
     "BagPlayer",
-    "import_message_type",
-    "installed_type_hash",
-    "playback_qos",
     "spin_player",
     "main",
 ]
@@ -88,127 +68,8 @@ __all__ = [
 #: still starting that took more than 0.5 s (the first robot poses of a replay were lost).
 DISCOVERY_SETTLE_S = 1.5
 
-_END = object()
-_NOTHING = object()
-
-
-def import_message_type(msgtype: str) -> Any:
-    """The Python message class for ``pkg/msg/Type``, or None when it is not an installed ROS
-    interface type; see :func:`eye_in_hand.ros.msgtypes.import_message_type` (a bag's type
-    name never imports an arbitrary Python package)."""
-    return _import_message_type(msgtype)
-
-
-_HASHES: dict[str, str | None] = {}
-
-
-def installed_type_hash(msgtype: str) -> str | None:
-    """The RIHS01 type hash of the installed message class, or None when unknown.
-
-    Computed from the class's fields (see :func:`eye_in_hand.nodes.bag_recorder.
-    message_definition`), so it can be compared with the hash a bag recorded (metadata >= 7).
-    """
-    if msgtype not in _HASHES:
-        try:
-            store = get_typestore(Stores.EMPTY)
-            store.register(types_from_definition(
-                msgtype, MessageDefinitionFormat.MSG, message_definition(msgtype)))
-            _HASHES[msgtype] = store.hash_rihs01(msgtype)
-        except (EyeInHandError, ValueError, KeyError):
-            _HASHES[msgtype] = None
-    return _HASHES[msgtype]
-
-
-#: Message types replayed at least :data:`LARGE_DEPTH` deep (a second of a 30 Hz camera); every
-#: other, smaller type is offered keep-last :data:`SMALL_DEPTH`, so that a reliable subscriber
-#: that is busy for a moment (a robot pose stream at 125-500 Hz) misses nothing the writer
-#: already dropped.
-LARGE_TYPES = frozenset({"sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage",
-                         "sensor_msgs/msg/PointCloud2", "sensor_msgs/msg/LaserScan"})
-SMALL_DEPTH = 1000
-LARGE_DEPTH = 30
 #: How long playback waits at its end for reliable subscribers to acknowledge every message (s)
 ACK_TIMEOUT_S = 10.0
-
-
-def playback_qos(offered: Sequence[OfferedQos], msgtype: str = "") -> QoSProfile:
-    """The QoS to offer when replaying a topic, from what its recorded publishers offered.
-
-    Like ``ros2 bag play``: when every recorded publisher offered the same reliability and
-    durability, offer that (so a transient-local topic such as a calibration stays latched, and
-    a best-effort camera stays best effort); otherwise, or when the bag has no QoS metadata,
-    offer reliable, volatile, keep-last 10. A reliable offer is received by reliable and by
-    best-effort (sensor-data) subscribers alike.
-
-    Args:
-        offered: the recorded profiles (:attr:`TopicInfo.offered_qos`).
-
-    A reliable keep-last writer drops a message that a slow subscriber has not acknowledged
-    once ``depth`` newer ones are written: images and other :data:`LARGE_TYPES` are offered at
-    least :data:`LARGE_DEPTH` deep (a second of a 30 Hz camera: 27 MB of 640x480 colour images),
-    small messages at least :data:`SMALL_DEPTH`.
-
-    Returns:
-        An rclpy ``QoSProfile`` (keep-last; depth from the recording, at least 10; with
-        ``msgtype``, at least :data:`LARGE_DEPTH` or :data:`SMALL_DEPTH`).
-    """
-    depth = 10
-    reliability = ReliabilityPolicy.RELIABLE
-    durability = DurabilityPolicy.VOLATILE
-    rel = {q.reliability for q in offered}
-    dur = {q.durability for q in offered}
-    if offered and len(rel) == 1 and len(dur) == 1:
-        if rel == {"best_effort"}:
-            reliability = ReliabilityPolicy.BEST_EFFORT
-        if dur == {"transient_local"}:
-            durability = DurabilityPolicy.TRANSIENT_LOCAL
-        depth = max([depth] + [q.depth for q in offered if q.history == "keep_last"])
-    if msgtype:
-        depth = max(depth, LARGE_DEPTH if msgtype in LARGE_TYPES else SMALL_DEPTH)
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=reliability,
-                      durability=durability)
-
-
-def static_tf_playback_qos(count: int) -> QoSProfile:
-    """QoS of a replayed ``/tf_static``: reliable and transient local whatever the bag
-    recorded (tf2 listeners subscribe transient local and match nothing else), deep enough
-    (the bag's message count, 1..1000) that a late subscriber still gets every recorded
-    publisher's static transforms."""
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(1, min(int(count), 1000)),
-                      reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
-
-@dataclass(frozen=True)
-class PlayerConfig:
-    """Validated ``bag_player`` parameters."""
-
-    bag: str
-    rate: float
-    loop: bool
-    clock: bool
-    clock_hz: float
-    topics: tuple[str, ...]
-    start_offset: float
-    wait_for_subscribers: float
-    wait_for_topics: tuple[str, ...] = ()
-
-
-#: The node's parameters (declared at start-up; the keys its parameter file may hold).
-NODE_PARAMETERS: tuple[Param, ...] = (
-    Param("bag", "", "bag directory or .mcap/.db3 file"),
-    Param("rate", 1.0, "playback speed factor (2.0: twice as fast)", range=(0.001, 1000.0)),
-    Param("loop", False, "restart at the end"),
-    Param("clock", False, "publish rosgraph_msgs/Clock on /clock (for use_sim_time)"),
-    Param("clock_hz", 40.0, "/clock publishing frequency", range=(0.1, 1000.0)),
-    Param("topics", (), "topics to play (empty: all)", type="str[]"),
-    Param("start_offset", 0.0, "seconds into the bag to start from", range=(0.0, 1e9)),
-    Param("wait_for_subscribers", 0.0, "wait up to this many seconds for a subscriber on "
-          "every topic (0: do not wait)", range=(0.0, 3600.0)),
-    Param("wait_for_topics", (), "with wait_for_subscribers: also wait until each of these "
-          "topics has a publisher and a subscriber (the downstream hops of a pipeline)",
-          type="str[]"),
-)
 
 
 def parameter_names(values: Mapping[str, Any]) -> list[str]:
@@ -231,23 +92,13 @@ class BagPlayer(Node):
 
     def __init__(self, node_name: str = "bag_player", **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        try:
-            self.config = self._declare_parameters()
-        except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
-            raise ConfigError(f"{self.get_name()}: bad parameter: {exc}") from exc
+        self.config = declare_player_config(self)
         self.info: BagInfo = bag_info(self.config.bag)
         self._stop = threading.Event()
         self._done = threading.Event()
-        self._lock = threading.Lock()
         self._threads: list[threading.Thread] = []
         self._error: BaseException | None = None
-        self.published: dict[str, int] = {}
-        self.damage = _ReportedDamage(self)
-        self.skipped_types: dict[str, str] = {}
-        self.type_mismatches: dict[str, str] = {}
         self.loops_done = 0
-        # playback time: (monotonic start, bag time at that instant); None before the start
-        self._timebase: tuple[float, int] | None = None
 
         wanted = self.config.topics or tuple(self.info.topics)
         unknown = [t for t in wanted if t not in self.info.topics]
@@ -256,34 +107,11 @@ class BagPlayer(Node):
                            f"{', '.join(self.info.topics) or 'no topics'}")
         self.diag = NodeDiagnostics(self, hardware_id=str(self.info.path))
         self.diag.declare_counter("published", "damaged_regions", "messages_lost")
-        self._topic_pubs: dict[str, Any] = {}
-        for name in wanted:
-            topic = self.info.topics[name]
-            problem = topic_name_problem(name)
-            if problem is not None:  # a damaged or crafted bag: never crash on it
-                self.skipped_types[name] = topic.msgtype
-                self.diag.report(f"bad_topic_name:{name}",
-                                 f"skipping topic {name!r}: not a valid topic name ({problem})")
-                continue
-            cls = import_message_type(topic.msgtype)
-            if cls is None:
-                self.skipped_types[name] = topic.msgtype
-                self.diag.report(f"type_not_installed:{name}",
-                                 f"skipping topic {name}: message type {topic.msgtype} is not "
-                                 "an installed ROS interface type")
-                continue
-            if topic.type_hash and installed_type_hash(topic.msgtype) not in (
-                    None, topic.type_hash):
-                self.type_mismatches[name] = topic.msgtype
-                self.diag.report(
-                    f"type_mismatch:{name}",
-                    f"topic {name}: the bag's {topic.msgtype} ({topic.type_hash}) is not the "
-                    "installed definition; subscribers may misread it (playing it anyway)")
-            qos = playback_qos(topic.offered_qos, topic.msgtype)
-            if name == TF_STATIC_TOPIC:
-                qos = static_tf_playback_qos(topic.count)
-            self._topic_pubs[name] = self.create_publisher(cls, name, qos)
-            self.published[name] = 0
+        self.damage = ReportedDamage(self.diag)
+        self.topics = PlayedTopics(self, self.info, wanted, self.diag)
+        self.published = self.topics.published
+        self.skipped_types = self.topics.skipped_types
+        self.type_mismatches = self.topics.type_mismatches
         self._clock_pub = None
         self._clock_timer = None
         if self.config.clock:
@@ -295,23 +123,8 @@ class BagPlayer(Node):
         self.diag.warn_above("skipped_topics", 0)
         self.diag.gauge("state", "waiting")
         first = self.info.start_ns + int(round(self.config.start_offset * 1e9))
-        self._first_ns = first
-
-    # -- parameters ---------------------------------------------------------------------------
-
-    def _declare_parameters(self) -> PlayerConfig:
-        v = declare_params(self, NODE_PARAMETERS)
-        bag, rate, loop, clock, clock_hz = (v["bag"], v["rate"], v["loop"], v["clock"],
-                                            v["clock_hz"])
-        topics, offset, wait = v["topics"], v["start_offset"], v["wait_for_subscribers"]
-        downstream = v["wait_for_topics"]
-        if not bag:
-            raise ConfigError("parameter 'bag' is required (a bag directory or .mcap file)")
-        return PlayerConfig(bag=str(bag), rate=float(rate), loop=bool(loop), clock=bool(clock),
-                            clock_hz=float(clock_hz), topics=tuple(str(t) for t in topics),
-                            start_offset=float(offset), wait_for_subscribers=float(wait),
-                            wait_for_topics=tuple(self.resolve_topic_name(str(t))
-                                                  for t in downstream))
+        self.playback = PacedPlayback(self.info.path, list(self.topics.publishers), first,
+                                       self.config.rate, self.damage, self._stop)
 
     # -- control ------------------------------------------------------------------------------
 
@@ -330,8 +143,8 @@ class BagPlayer(Node):
         if self._threads:
             return
         self.get_logger().info(
-            f"playing {self.info.path}: {len(self._topic_pubs)} topic(s), "
-            f"{sum(self.info.topics[t].count for t in self._topic_pubs)} message(s), "
+            f"playing {self.info.path}: {len(self.topics.publishers)} topic(s), "
+            f"{sum(self.info.topics[t].count for t in self.topics.publishers)} message(s), "
             f"{self.info.duration_ns / 1e9:.3f} s at rate {self.config.rate:g}"
             f"{', looping' if self.config.loop else ''}")
         thread = threading.Thread(target=self._run, name="bag_player", daemon=True)
@@ -351,20 +164,12 @@ class BagPlayer(Node):
 
     # -- playback -----------------------------------------------------------------------------
 
-    def _now_bag_ns(self) -> int | None:
-        with self._lock:
-            base = self._timebase
-        if base is None:
-            return None
-        mono0, bag0 = base
-        return bag0 + int((time.monotonic() - mono0) * self.config.rate * 1e9)
-
     def _publish_clock(self) -> None:
         if self._done.is_set() or self._clock_pub is None:
             return
-        now = self._now_bag_ns()
+        now = self.playback.now_bag_ns()
         if now is None:
-            now = self._first_ns
+            now = self.playback.first_ns
         msg = self._clock_msg()
         msg.clock.sec, msg.clock.nanosec = divmod(now, 1_000_000_000)
         self._clock_pub.publish(msg)
@@ -372,7 +177,8 @@ class BagPlayer(Node):
     def _wait_for_subscribers(self) -> None:
         deadline = time.monotonic() + self.config.wait_for_subscribers
         while not self._stop.is_set():
-            waiting = [t for t, p in self._topic_pubs.items() if p.get_subscription_count() == 0]
+            waiting = [t for t, p in self.topics.publishers.items()
+                       if p.get_subscription_count() == 0]
             waiting += [t for t in self.config.wait_for_topics
                         if self.count_publishers(t) == 0 or self.count_subscribers(t) == 0]
             if not waiting:
@@ -387,26 +193,16 @@ class BagPlayer(Node):
                 return
             self._stop.wait(0.02)
 
-    def _reader(self, out: _Prefetch) -> None:
-        try:
-            for item in iter_messages(self.info.path, topics=list(self._topic_pubs),
-                                      start_ns=self._first_ns, damage=self.damage):
-                if not out.put(item, len(item[3])):
-                    return  # the pass ended (stop, or the publisher gave up)
-            out.put(_END, 0)
-        except BaseException as exc:  # handed to the publishing thread, which re-raises it
-            out.put(exc, 0)
-
     def _run(self) -> None:
         try:
             if self.config.wait_for_subscribers > 0:
                 self._wait_for_subscribers()
             self.diag.gauge("state", "playing")
             while not self._stop.is_set():
-                self._play_once()
+                self.playback.play_once(self._publish)
                 self.loops_done += 1
                 self.diag.gauge("loops", self.loops_done)
-                if not self.config.loop or not self._topic_pubs:
+                if not self.config.loop or not self.topics.publishers:
                     break
         except BaseException as exc:
             if self._stop.is_set() or not self.context.ok():
@@ -434,7 +230,7 @@ class BagPlayer(Node):
 
         deadline = time.monotonic() + ACK_TIMEOUT_S
         late = []
-        for name, pub in self._topic_pubs.items():
+        for name, pub in self.topics.publishers.items():
             left = max(0.0, deadline - time.monotonic())
             try:
                 if not pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))):
@@ -446,107 +242,10 @@ class BagPlayer(Node):
                 f"{', '.join(late)}: not acknowledged by every subscriber within "
                 f"{ACK_TIMEOUT_S:g} s of the end: a slow subscriber may miss the last messages")
 
-    def _play_once(self) -> None:
-        buffer = _Prefetch()
-        reader = threading.Thread(target=self._reader, args=(buffer,), daemon=True,
-                                  name="bag_reader")
-        reader.start()
-        try:
-            rate = self.config.rate
-            mono0 = time.monotonic()
-            with self._lock:
-                self._timebase = (mono0, self._first_ns)
-            while not self._stop.is_set():
-                item = buffer.get(timeout_s=0.1)
-                if item is _NOTHING:
-                    continue
-                if item is _END:
-                    return
-                if isinstance(item, BaseException):
-                    raise item
-                topic, _msgtype, stamp, raw = item
-                due = mono0 + (stamp - self._first_ns) / 1e9 / rate
-                delay = due - time.monotonic()
-                if delay > 0 and self._stop.wait(delay):
-                    return
-                self._topic_pubs[topic].publish(raw)
-                self.published[topic] += 1
-                self.diag.count("published")
-                self.diag.count(f"published {topic}")  # to reconcile with the receivers
-                self.diag.gauge("late_ms", round(max(0.0, time.monotonic() - due) * 1e3, 3))
-        finally:
-            buffer.close()
-            reader.join(5.0)
-
-
-class _ReportedDamage(DamageLog):
-    """The player's damage log: each damaged region is also logged and reported once (per
-    region: a looping player meets the same damage every pass) and counted on diagnostics."""
-
-    def __init__(self, player: Any) -> None:
-        super().__init__()
-        self._player = player
-
-    def add(self, damage: Damage) -> None:
-        before = len(self)
-        super().add(damage)
-        diag = getattr(self._player, "diag", None)
-        if diag is None or len(self) == before:      # met again (a later loop): counted once
-            return
-        diag.count("damaged_regions")
-        diag.count("messages_lost", damage.messages or 0)
-        diag.report(f"damaged:{damage.file}:{damage.where}",
-                    f"damaged bag, skipped: {damage.describe()}")
-
-
-class _Prefetch:
-    """Hand-over from the reader thread to the publisher, bounded in messages and bytes.
-
-    At most ``max_items`` messages and ``max_bytes`` bytes wait (one message always fits), so
-    reading ahead smooths storage I/O and decompression without holding a bag of images in
-    memory. :meth:`close` ends the hand-over: a blocked :meth:`put` returns False.
-    """
-
-    def __init__(self, max_items: int = 256, max_bytes: int = 64 << 20) -> None:
-        self._cv = threading.Condition()
-        self._items: deque[tuple[Any, int]] = deque()
-        self._bytes = 0
-        self._closed = False
-        self.max_items = max_items
-        self.max_bytes = max_bytes
-
-    def put(self, item: Any, size: int) -> bool:
-        """Queue ``item`` (``size`` bytes), waiting for room; False once closed."""
-        with self._cv:
-            while not self._closed and self._items and (
-                    len(self._items) >= self.max_items or self._bytes + size > self.max_bytes):
-                self._cv.wait()
-            if self._closed:
-                return False
-            self._items.append((item, size))
-            self._bytes += size
-            self._cv.notify_all()
-            return True
-
-    def get(self, timeout_s: float) -> Any:
-        """The next item, or ``_NOTHING`` when none arrived within ``timeout_s``."""
-        with self._cv:
-            if not self._items:
-                self._cv.wait(timeout_s)
-            if not self._items:
-                return _NOTHING
-            item, size = self._items.popleft()
-            self._bytes -= size
-            self._cv.notify_all()
-            return item
-
-    def close(self) -> None:
-        """Drop what is queued and release a waiting :meth:`put`."""
-        with self._cv:
-            self._closed = True
-            self._items.clear()
-            self._bytes = 0
-            self._cv.notify_all()
+    def _publish(self, topic: str, raw: bytes, due: float) -> None:
+        """Publish one message of the bag, due at ``due`` (monotonic clock)."""
+        self.topics.publish(topic, raw)
+        self.diag.gauge("late_ms", round(max(0.0, time.monotonic() - due) * 1e3, 3))
 
 
 def spin_player(node: BagPlayer, executor: Any | None = None) -> int:

@@ -39,35 +39,33 @@ import sys
 import threading
 import time
 from collections.abc import Mapping, Sequence
-from concurrent.futures import Future
 from functools import partial
 from typing import Any
 
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from eye_in_hand.errors import BagError, ConfigError
 from eye_in_hand.io.bags import STORAGES, BagWriter, OfferedQos, default_typestore
+from eye_in_hand.nodes.bag_recorder_writer import WriterThread
 from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
 from eye_in_hand.ros.msgtypes import import_message_type, message_definition
 from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.node_main import guard, run_with_executor, sigterm_as_interrupt
 from eye_in_hand.ros.params import Param, declare_params
+from eye_in_hand.ros.qos import policy_name, subscription_qos
 
 __all__ = [
     "parameter_names",
     "NODE_PARAMETERS",
     "BagRecorder",
-    "subscription_qos",
     "offered_qos",
-    "message_definition",
     "spin_recorder",
-    "sigterm_as_interrupt",
     "main",
 ]
+
 
 def _is_hidden(topic: str) -> bool:
     """Hidden topics (a name component starting with ``_``: service events, action internals)
@@ -75,82 +73,15 @@ def _is_hidden(topic: str) -> bool:
     return any(part.startswith("_") for part in topic.split("/"))
 
 
-def _policy_name(policy: Any) -> str:
-    return str(getattr(policy, "name", policy)).lower()
-
-
 def offered_qos(endpoints: Sequence[Any]) -> list[OfferedQos]:
     """The offered QoS of publishers (rclpy ``TopicEndpointInfo``) as :class:`OfferedQos`."""
     out = []
     for ep in endpoints:
         q = ep.qos_profile
-        out.append(OfferedQos(reliability=_policy_name(q.reliability),
-                              durability=_policy_name(q.durability),
-                              history=_policy_name(q.history), depth=int(q.depth)))
+        out.append(OfferedQos(reliability=policy_name(q.reliability),
+                              durability=policy_name(q.durability),
+                              history=policy_name(q.history), depth=int(q.depth)))
     return out
-
-
-def subscription_qos(endpoints: Sequence[Any], depth: int = 100) -> QoSProfile:
-    """A subscription QoS that matches every given publisher and loses as little as possible.
-
-    Reliable when all publishers offer reliable, else best effort (compatible with both);
-    transient local when all publishers offer it (so latched data is received), else volatile.
-
-    Args:
-        endpoints: ``node.get_publishers_info_by_topic(topic)``.
-        depth: keep-last depth.
-
-    Returns:
-        The rclpy ``QoSProfile``.
-    """
-    offers = offered_qos(endpoints)
-    reliable = bool(offers) and all(q.reliability == "reliable" for q in offers)
-    latched = bool(offers) and all(q.durability == "transient_local" for q in offers)
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST, depth=depth,
-        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
-
-
-class _WriteQueue:
-    """Messages waiting for the writer thread; bounded in bytes, never blocks the callback.
-
-    One message always fits (so a single huge image is never dropped for its size alone).
-    """
-
-    def __init__(self, max_bytes: int) -> None:
-        self._cv = threading.Condition()
-        self._items: list[tuple[Any, ...]] = []
-        self._bytes = 0
-        self.max_bytes = max_bytes
-        self.closed = False
-
-    def put(self, item: tuple[Any, ...], size: int, *, force: bool = False) -> bool:
-        """Queue ``item``; False (not queued) when closed or, unless ``force``, over budget."""
-        with self._cv:
-            if self.closed or (not force and self._items
-                               and self._bytes + size > self.max_bytes):
-                return False
-            self._items.append(item)
-            self._bytes += size
-            self._cv.notify()
-            return True
-
-    def get_batch(self, timeout_s: float) -> list[tuple[Any, ...]] | None:
-        """Everything queued (possibly empty after ``timeout_s``); None once closed and empty."""
-        with self._cv:
-            if not self._items and not self.closed:
-                self._cv.wait(timeout_s)
-            if not self._items:
-                return None if self.closed else []
-            batch, self._items, self._bytes = self._items, [], 0
-            return batch
-
-    def close(self) -> None:
-        """Accept nothing more; :meth:`get_batch` still returns what is queued."""
-        with self._cv:
-            self.closed = True
-            self._cv.notify_all()
 
 
 #: The node's parameters (declared at start-up; the keys its parameter file may hold).
@@ -197,15 +128,9 @@ class BagRecorder(Node):
         self.write_errors = 0
         self.diag = NodeDiagnostics(self, hardware_id=self.output)
         self.diag.declare_counter("messages", "write_errors", "dropped")
-        # The writer thread owns the bag (sqlite3 connections are bound to their thread):
-        # it creates the BagWriter, adds topics on request and writes queued messages.
-        self._queue = _WriteQueue(int(self.max_cache_mb * (1 << 20)))
-        self._close_error: BaseException | None = None
-        ready: Future = Future()
-        self._writer_thread = threading.Thread(target=self._writer_main, args=(ready,),
-                                               name="bag_writer", daemon=True)
-        self._writer_thread.start()
-        self.writer: BagWriter = ready.result()  # re-raises BagError (exists, not writable)
+        self._bag = WriterThread(self.output, self.storage, self.compression,
+                                 int(self.max_cache_mb * (1 << 20)), self._written)
+        self.writer: BagWriter = self._bag.writer
         self.diag.gauge("missing_topics", len(self.wanted))
         self.diag.warn_above("missing_topics", 0)
         self._timer = self.create_timer(self.discovery_period, self.discover)
@@ -247,7 +172,7 @@ class BagRecorder(Node):
 
     def discover(self) -> None:
         """Subscribe to requested topics that have appeared since the last call."""
-        if self._queue.closed:
+        if self._bag.closed:
             return
         for name, types in self.get_topic_names_and_types():
             if name in self._topic_subs:
@@ -274,8 +199,7 @@ class BagRecorder(Node):
                             "is not installed")
             return
         msgdef = None if msgtype in default_typestore().types else message_definition(msgtype)
-        self._in_writer_thread(self.writer.add_topic, name, msgtype, msgdef=msgdef,
-                               qos=offered_qos(publishers))
+        self._bag.add_topic(name, msgtype, msgdef=msgdef, qos=offered_qos(publishers))
         with self._lock:
             self.received[name] = 0
         self._topic_subs[name] = self.create_subscription(
@@ -285,8 +209,8 @@ class BagRecorder(Node):
     def _on_message(self, topic: str, raw: bytes) -> None:
         """Stamp and queue (the writer thread writes); drop when the queue is over budget."""
         stamp = self.get_clock().now().nanoseconds
-        if not self._queue.put(("msg", topic, stamp, raw), len(raw)):
-            if self._queue.closed:
+        if not self._bag.put(topic, stamp, raw):
+            if self._bag.closed:
                 return  # arrived while closing: the bag is complete without it
             with self._lock:
                 self.dropped[topic] = self.dropped.get(topic, 0) + 1
@@ -295,47 +219,13 @@ class BagRecorder(Node):
                              f"dropping messages of {topic}: more than "
                              f"{self.max_cache_mb:g} MiB wait to be written (disk too slow?)")
 
-    def _in_writer_thread(self, fn: Any, *args: Any, **kwargs: Any) -> Any:
-        """Run ``fn(*args, **kwargs)`` in the writer thread, wait, and return its result."""
-        done: Future = Future()
-        if not self._queue.put(("call", fn, args, kwargs, done), 0, force=True):
-            raise BagError(f"bag {self.output} is closed")
-        return done.result()
-
-    def _writer_main(self, ready: Future) -> None:
-        """Writer thread: create the bag, then run calls and write messages until closed."""
-        try:
-            writer = BagWriter(self.output, storage=self.storage,
-                               compression=self.compression or None)
-        except BaseException as exc:
-            ready.set_exception(exc)
-            return
-        ready.set_result(writer)
-        try:
-            while (batch := self._queue.get_batch(timeout_s=0.1)) is not None:
-                for item in batch:
-                    if item[0] == "call":
-                        _, fn, args, kwargs, done = item
-                        try:
-                            done.set_result(fn(*args, **kwargs))
-                        except BaseException as exc:  # handed to the waiting caller
-                            done.set_exception(exc)
-                    else:
-                        self._write(writer, *item[1:])
-        finally:
-            try:
-                writer.close()
-            except BaseException as exc:  # re-raised by close() in the caller's thread
-                self._close_error = exc
-
-    def _write(self, writer: BagWriter, topic: str, stamp: int, raw: bytes) -> None:
-        try:
-            writer.write(topic, stamp, raw)
-        except BagError as exc:
+    def _written(self, topic: str, error: BagError | None) -> None:
+        """Count a message the writer thread wrote, or report why it could not."""
+        if error is not None:
             self.write_errors += 1
             self.diag.count("write_errors")
             self.diag.report(f"write_error:{topic}",
-                             f"cannot write a message of {topic}: {exc}", level=ERROR)
+                             f"cannot write a message of {topic}: {error}", level=ERROR)
             return
         with self._lock:
             self.received[topic] += 1
@@ -349,17 +239,13 @@ class BagRecorder(Node):
         Raises:
             BagError: the bag could not be finished.
         """
-        if self._queue.closed:
+        if self._bag.closed:
             return
         self._timer.cancel()
         for sub in self._topic_subs.values():
             self.destroy_subscription(sub)
         self._topic_subs.clear()
-        self._queue.close()
-        self._writer_thread.join()  # writes what is queued, then closes the bag
-        if self._close_error is not None:
-            error, self._close_error = self._close_error, None
-            raise BagError(f"cannot finish bag {self.output}: {error}") from error
+        self._bag.close()  # writes what is queued, then finishes the bag
         total = sum(self.received.values())
         dropped = sum(self.dropped.values())
         text = f"wrote {total} message(s) to {self.output}" + (

@@ -2,7 +2,8 @@
 :class:`~eye_in_hand.core.camera.CameraModel`.
 
 The reader is duck-typed (rclpy or rosbags messages) and names the bad field in its
-:class:`eye_in_hand.errors.ConversionError`; the builder returns an rclpy message object.
+:class:`eye_in_hand.errors.ConversionError`; the builders return rclpy message objects
+(:func:`image_camera_info`: the one a camera publishes with each image, calibrated or not).
 """
 from __future__ import annotations
 
@@ -11,11 +12,11 @@ from typing import Any
 import numpy as np
 
 from eye_in_hand.core.camera import DISTORTION_MODELS, CameraModel
-from eye_in_hand.errors import ConversionError, InputError
+from eye_in_hand.errors import ConfigError, ConversionError, InputError
 from eye_in_hand.ros.fields import get_field, read_int, read_str
 from eye_in_hand.ros.stamps import header_or_new
 
-__all__ = ["camera_info_to_model", "model_to_camera_info"]
+__all__ = ["camera_info_to_model", "model_to_camera_info", "image_camera_info"]
 
 
 def _read_floats(msg: Any, attr: str, size: int | None) -> np.ndarray:
@@ -113,3 +114,30 @@ def model_to_camera_info(model: Any, *, stamp_ns: int = 0, frame_id: str = "",
     msg.binning_y = 0
     return msg
 
+
+
+def image_camera_info(model: Any, width: int, height: int, header: Any) -> Any:
+    """The ``sensor_msgs.msg.CameraInfo`` to publish with a ``width`` x ``height`` image.
+
+    Args:
+        model: the camera's :class:`~eye_in_hand.core.camera.CameraModel`, or None when it is
+            uncalibrated: then the size only, as camera drivers publish it.
+        width, height: the image's size.
+        header: the image's header.
+
+    Raises:
+        ConfigError: the model is calibrated for another image size.
+    """
+    if model is None:  # uncalibrated: size only, as camera drivers publish it
+        # local: message packages are the optional [ros] extra; decoding and offline code import
+        # this module without them
+        from sensor_msgs.msg import CameraInfo
+
+        info = CameraInfo()
+        info.header = header
+        info.width, info.height = width, height
+        return info
+    if (model.width, model.height) != (width, height):
+        raise ConfigError(f"camera_info is {model.width}x{model.height} but the image is "
+                          f"{width}x{height}")
+    return model_to_camera_info(model, header=header)

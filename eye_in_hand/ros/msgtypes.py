@@ -12,6 +12,9 @@ imported only when:
   every interface package, and a ``msg`` subpackage.
 
 Nothing is imported before both checks pass.
+
+:func:`message_definition` writes an installed type's ``.msg`` definition as rosbag2 stores it,
+and :func:`installed_type_hash` its RIHS01 hash (to compare with the hash a bag recorded).
 """
 from __future__ import annotations
 
@@ -21,10 +24,10 @@ import re
 from pathlib import Path
 from typing import Any
 
-from eye_in_hand.errors import BagError
+from eye_in_hand.errors import BagError, EyeInHandError
 
 __all__ = ["MSGTYPE_PATTERN", "valid_msgtype", "interface_package_dir", "import_message_type",
-           "message_definition"]
+           "message_definition", "installed_type_hash"]
 
 #: A message type name that may be imported.
 MSGTYPE_PATTERN = re.compile(r"^[A-Za-z][A-Za-z0-9_]*/msg/[A-Z][A-Za-z0-9_]*$")
@@ -151,3 +154,26 @@ def message_definition(msgtype: str) -> str:
         parts.append(text if i == 0 else f"{'=' * 80}\nMSG: {name}\n{text}")
         i += 1
     return "".join(parts)
+
+
+_HASHES: dict[str, str | None] = {}
+
+
+def installed_type_hash(msgtype: str) -> str | None:
+    """The RIHS01 type hash of the installed message class, or None when unknown.
+
+    Computed from the class's fields (see :func:`message_definition`), so it can be compared
+    with the hash a bag recorded (metadata >= 7). Cached per type.
+    """
+    if msgtype not in _HASHES:
+        # local: rosbags' type system costs ~55 ms at start-up of every node (all load this
+        # module through ros.markers); only bag_player's type check needs it
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+        try:
+            store = get_typestore(Stores.EMPTY)
+            store.register(dict(get_types_from_msg(message_definition(msgtype), msgtype)))
+            _HASHES[msgtype] = store.hash_rihs01(msgtype)
+        except (EyeInHandError, ValueError, KeyError):
+            _HASHES[msgtype] = None
+    return _HASHES[msgtype]

@@ -15,11 +15,9 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E
 
 from eye_in_hand.errors import BagError, ConfigError  # noqa: E402
 from eye_in_hand.io.bags import BagWriter, OfferedQos, default_typestore, serialize  # noqa: E402
-from eye_in_hand.nodes.bag_player import (  # noqa: E402
-    BagPlayer,
-    import_message_type,
-    playback_qos,
-)
+from eye_in_hand.nodes.bag_player import BagPlayer  # noqa: E402
+from eye_in_hand.ros.msgtypes import import_message_type  # noqa: E402
+from eye_in_hand.ros.qos import playback_qos  # noqa: E402
 
 T0 = 1_700_000_000_000_000_000
 MS = 1_000_000
@@ -290,32 +288,6 @@ def test_type_recorded_with_another_definition_is_flagged(tmp_path, ros_context,
     assert set(player.published) == {f"{namespace}/old", f"{namespace}/ok"}
     status = player.diag.build_status()
     assert f"type_mismatch:{namespace}/old" in status.message
-
-
-def test_prefetch_is_bounded_in_bytes_and_releases_on_close() -> None:
-    import threading
-
-    from eye_in_hand.nodes.bag_player import _NOTHING, _Prefetch
-
-    buf = _Prefetch(max_items=10, max_bytes=100)
-    assert buf.put("a", 60) and buf.put("b", 30)  # 90 bytes queued
-    results: list[bool] = []
-    t = threading.Thread(target=lambda: results.append(buf.put("c", 50)))
-    t.start()
-    t.join(0.2)
-    assert t.is_alive()  # 140 bytes would exceed the budget: put waits
-    assert buf.get(0.1) == "a"  # room again: the waiting put goes through
-    t.join(5.0)
-    assert results == [True]
-    assert buf.get(0.1) == "b" and buf.get(0.1) == "c" and buf.get(0.01) is _NOTHING
-    assert buf.put("big", 1000)  # one message always fits, however large
-    t = threading.Thread(target=lambda: results.append(buf.put("d", 1)))
-    t.start()
-    t.join(0.2)
-    assert t.is_alive()
-    buf.close()  # releases the blocked put with False
-    t.join(5.0)
-    assert results == [True, False] and buf.get(0.01) is _NOTHING
 
 
 def test_wait_for_topics_alone_waits_a_default_time():

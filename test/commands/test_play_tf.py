@@ -68,7 +68,7 @@ def test_tf_and_latched_tf_static_replay(tmp_path, ros_context, executor, spin_u
         Parameter("wait_for_subscribers", value=0.0)])
     executor.add_node(listener)
     executor.add_node(player)
-    tf_pub = player._topic_pubs["/tf"]
+    tf_pub = player.topics.publishers["/tf"]
     assert spin_until(executor, lambda: tf_pub.get_subscription_count() > 0, 10.0)
     player.start()
     assert spin_until(executor, lambda: player.finished and len(dynamic) == 5, 20.0), \

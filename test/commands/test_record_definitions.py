@@ -13,11 +13,9 @@ from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from eye_in_hand.errors import BagError  # noqa: E402
 from eye_in_hand.io.bags import default_typestore, types_from_definition  # noqa: E402
-from eye_in_hand.nodes.bag_recorder import (  # noqa: E402
-    message_definition,
-    offered_qos,
-    subscription_qos,
-)
+from eye_in_hand.nodes.bag_recorder import offered_qos  # noqa: E402
+from eye_in_hand.ros.msgtypes import message_definition  # noqa: E402
+from eye_in_hand.ros.qos import subscription_qos  # noqa: E402
 
 TYPES = [
     "std_msgs/msg/String",
