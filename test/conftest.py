@@ -67,11 +67,10 @@ def ros_context():
 
 @pytest.fixture
 def executor(ros_context):
-    """The nodes' executor (``LeanExecutor``) on the test's own context; nodes added are
-    destroyed after."""
-    from eye_in_hand.ros.executor import LeanExecutor
+    """A ``SingleThreadedExecutor`` on the test's own context; nodes added are destroyed after."""
+    from rclpy.executors import SingleThreadedExecutor
 
-    ex = LeanExecutor(context=ros_context)
+    ex = SingleThreadedExecutor(context=ros_context)
     try:
         yield ex
     finally:
