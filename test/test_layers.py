@@ -46,6 +46,12 @@ NODE_PARTS = {
     "nodes.hand_eye_targets": "nodes.hand_eye",
     "nodes.hand_eye_tf": "nodes.hand_eye",
     "nodes.hand_eye_calibration": "nodes.hand_eye",
+    "nodes.hand_eye_calibration_files": "nodes.hand_eye",
+    "nodes.hand_eye_calibration_outputs": "nodes.hand_eye",
+    "nodes.hand_eye_calibration_services": "nodes.hand_eye",
+    "nodes.hand_eye_first_target": "nodes.hand_eye",
+    "nodes.hand_eye_params": "nodes.hand_eye",
+    "nodes.hand_eye_poses": "nodes.hand_eye",
 }
 
 
