@@ -55,6 +55,12 @@ NODE_PARTS = {
     "nodes.bag_player_pacing": "nodes.bag_player",
     "nodes.bag_player_topics": "nodes.bag_player",
     "nodes.bag_recorder_writer": "nodes.bag_recorder",
+    "nodes.hand_eye_calibration_files": "nodes.hand_eye",
+    "nodes.hand_eye_calibration_outputs": "nodes.hand_eye",
+    "nodes.hand_eye_calibration_services": "nodes.hand_eye",
+    "nodes.hand_eye_first_target": "nodes.hand_eye",
+    "nodes.hand_eye_params": "nodes.hand_eye",
+    "nodes.hand_eye_poses": "nodes.hand_eye",
 }
 
 

@@ -477,9 +477,9 @@ def test_rviz_config_shows_the_topics_the_nodes_publish():
     sources = {
         "/target/markers": "eye_in_hand/nodes/hand_eye_targets.py",
         "/target/poses": "eye_in_hand/nodes/hand_eye_targets.py",
-        "/hand_eye/next_pose_markers": "eye_in_hand/nodes/hand_eye_calibration.py",
-        "/hand_eye/next_poses": "eye_in_hand/nodes/hand_eye_calibration.py",
-        "/hand_eye/debug_image": "eye_in_hand/nodes/hand_eye_calibration.py",
+        "/hand_eye/next_pose_markers": "eye_in_hand/nodes/hand_eye_calibration_outputs.py",
+        "/hand_eye/next_poses": "eye_in_hand/nodes/hand_eye_calibration_outputs.py",
+        "/hand_eye/debug_image": "eye_in_hand/nodes/hand_eye_calibration_outputs.py",
         "/target/debug_image": "eye_in_hand/nodes/detect_triangulate_outputs.py",
     }
     for topic in topics:

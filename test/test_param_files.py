@@ -334,7 +334,7 @@ def test_process_defaults_are_the_live_nodes_defaults():
     import dataclasses
 
     from eye_in_hand.nodes.detect_triangulate_params import NODE_PARAMETERS
-    from eye_in_hand.nodes.hand_eye import HandEyeNodeConfig
+    from eye_in_hand.nodes.hand_eye_params import HandEyeNodeConfig
     from eye_in_hand.offline import ProcessOptions
 
     opts = ProcessOptions()

@@ -31,6 +31,7 @@ from eye_in_hand.ros.markers import (
     spheres_from_marker_array,
 )
 from eye_in_hand.ros.names import topic_name_problem
+from eye_in_hand.ros.outputs import point_pose_messages, rclpy_types
 from eye_in_hand.ros.qos import RESULT_QOS, TARGET_POINT_QOS
 from eye_in_hand.ros.stamps import header_stamp_ns
 
@@ -50,7 +51,6 @@ class EveryTarget:
         pipeline: the node's :class:`~eye_in_hand.core.pipeline.LocalizationPipeline`: this
             feeds it frames and target points and is its frame sink.
         now_ns: the node's clock (the receive-age clock of the robot poses).
-        pose_messages: the ``(PoseStamped, PoseWithCovarianceStamped)`` of a located point.
         first_data: called with each frame's stamp (the node latches its transforms once).
         arm_waits: called when a frame starts to wait.
         tf_output: the node's :class:`~eye_in_hand.nodes.hand_eye_tf.TfOutput`.
@@ -60,7 +60,6 @@ class EveryTarget:
 
     def __init__(self, node: Any, config: Any, diag: Any, create: Callable[..., Any],
                  pipeline: LocalizationPipeline, now_ns: Callable[[], int],
-                 pose_messages: Callable[[int, np.ndarray, np.ndarray], tuple[Any, Any]],
                  first_data: Callable[[int], None], arm_waits: Callable[[], None],
                  tf_output: Any, in_process: bool) -> None:
         """``targets/markers`` in (the frame's list of targets), ``targets/<id>/point_cov`` in
@@ -72,7 +71,6 @@ class EveryTarget:
         self.pipeline = pipeline
         pipeline.frame_sink = self
         self._now_ns = now_ns
-        self._pose_messages = pose_messages
         self._first_data = first_data
         self._arm_waits = arm_waits
         self._tf_output = tf_output
@@ -247,7 +245,8 @@ class EveryTarget:
         # volatile: unsubscribed messages reach no one, now or later (not built, not sent)
         want = (pubs[0].get_subscription_count() > 0, pubs[1].get_subscription_count() > 0)
         if any(want):
-            pose_msg, cov_msg = self._pose_messages(f.stamp_ns, p, cov)
+            pose_msg, cov_msg = point_pose_messages(rclpy_types(), p, cov, f.stamp_ns,
+                                                    self.config.base_frame)
             if want[1]:
                 pubs[1].publish(cov_msg)
             if want[0]:

@@ -11,9 +11,10 @@ from typing import Any
 
 import numpy as np
 
+from eye_in_hand.io.atomic import atomic_output_dir
 from eye_in_hand.report.html import HtmlReport, format_cell, new_figure
 
-__all__ = ["write_outputs"]
+__all__ = ["write_outputs", "save_outputs"]
 
 
 def _html(result: Any, report: dict[str, Any], path: Path) -> None:
@@ -319,3 +320,37 @@ def write_outputs(out: Path, result: Any, samples: list[Any], *, setup: str, par
         _html(result, report, out / "report.html")
         paths.append(out / "report.html")
     return paths
+
+
+def save_outputs(out: Path, result: Any, samples: list[Any], skipped: list[tuple[str, str]], *,
+                 setup: str, parent_frame: str, child_frame: str, source: str,
+                 overwrite: bool = False, option: str = "-o",
+                 hint: str = "give --overwrite to replace it") -> list[Path]:
+    """:func:`write_outputs` of a live calibration session into the folder ``out``, written
+    whole under a temporary name, then renamed into place
+    (:func:`eye_in_hand.io.atomic.atomic_output_dir`): ``hand_eye.yaml``, ``report.json`` and
+    ``report.html`` (the ``hand_eye`` node's ``hand_eye/save``).
+
+    Args:
+        out: the output folder.
+        result: the session's :class:`~eye_in_hand.core.handeye.HandEyeResult`.
+        samples: its samples; ``skipped``: its ``(name, reason)`` of the captures refused.
+        setup, parent_frame, child_frame: X's setup and frames.
+        source: what took the samples (``report.json``'s ``input.source``).
+        overwrite: replace an existing non-empty ``out``.
+        option, hint: how messages name ``out`` and how to allow replacing it.
+
+    Returns:
+        The files written, in ``out``.
+
+    Raises:
+        OutputError: ``out`` exists and ``overwrite`` is False, or writing failed (``out``
+            is then unchanged).
+    """
+    rows = [{"name": n, "reason": r} for n, r in skipped]
+    with atomic_output_dir(out, overwrite=overwrite, option=option, hint=hint) as tmp:
+        paths = write_outputs(tmp, result, samples, setup=setup, parent_frame=parent_frame,
+                              child_frame=child_frame,
+                              input_meta={"source": source, "count": len(samples) + len(rows)},
+                              skipped=rows)
+    return [Path(out) / p.name for p in paths]

@@ -33,6 +33,7 @@ __all__ = ["Sphere", "LocatedFrame", "OutputSettings", "DEFAULT_RGBA", "TARGET_F
            "MARKER_DIAMETER_M", "RIGHT_CAMERA_FRAME", "UNKNOWN_ROTATION_VARIANCE",
            "RosbagsTypes", "rclpy_types",
            "time_msg", "header", "point_stamped", "pose_with_covariance", "pose_stamped",
+           "point_pose_messages",
            "pose_array", "sphere_markers", "transform_stamped", "tf_message",
            "translation_tf_message"]
 
@@ -319,6 +320,22 @@ def pose_stamped(T: Any, xyz: Any, stamp_ns: int, frame_id: str, hdr: Any = None
     msg.header = hdr if hdr is not None else header(T, stamp_ns, frame_id)
     _set_position_pose(msg.pose, p)
     return msg
+
+
+def point_pose_messages(T: Any, xyz: Any, cov: Any, stamp_ns: int, frame_id: str
+                        ) -> tuple[Any, Any]:
+    """``geometry_msgs/PoseStamped`` and ``PoseWithCovarianceStamped`` of a located point
+    (3,) and its covariance (3, 3), sharing one header: :func:`pose_stamped` and
+    :func:`pose_with_covariance` (``target/pose(_cov)``, ``target/<id>/pose(_cov)``).
+
+    Raises:
+        ConversionError: the point is not finite, or a bad stamp or frame.
+    """
+    if not np.all(np.isfinite(xyz)):
+        raise ConversionError(f"base-frame point is not finite: {xyz}")
+    hdr = header(T, stamp_ns, frame_id)
+    return (pose_stamped(T, xyz, stamp_ns, "", hdr),
+            pose_with_covariance(T, xyz, cov, stamp_ns, "", hdr))
 
 
 def pose_array(T: Any, points: Iterable[Any], stamp_ns: int, frame_id: str) -> Any:

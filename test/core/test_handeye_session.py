@@ -13,7 +13,12 @@ import pytest
 
 from eye_in_hand.core.handeye.observe import Observation
 from eye_in_hand.core.handeye.samples import HandEyeSample
-from eye_in_hand.core.handeye.session import CalibrationSession, SessionConfig
+from eye_in_hand.core.handeye.session import (
+    CalibrationSession,
+    CaptureRequest,
+    SessionConfig,
+    receive_age_rule,
+)
 from eye_in_hand.core.handeye.synthetic import make_problem
 from eye_in_hand.core.sync import PoseBuffer
 from eye_in_hand.core.transforms import from_rotvec
@@ -302,6 +307,19 @@ def test_receive_age_is_measured_at_the_frame_arrival():
     cell.stream(0, 1300 * MS, 0)
     assert s.complete(s.ready(0.1)[0]).ok
     assert seen and set(seen) == {1050 * MS}
+
+
+def test_capture_pose_age_counts_from_the_image_stamp_not_its_late_arrival():
+    """A camera that delivers its pair late (a slow renderer under load, a slow link) must not
+    make the robot poses at the image's own stamp stale: they may have been received up to
+    max_pose_age_s before the stamp; older ones are refused."""
+    s = 1_000_000_000
+    req = CaptureRequest(0, None, 0.0, frame_stamp_ns=10 * s, frame_received_ns=12 * s)
+    rule = receive_age_rule(req, int(12.1 * s), 1.0)
+    assert rule["now_ns"] == int(12.1 * s)
+    oldest_ok = rule["now_ns"] - rule["max_age_ns"]
+    assert oldest_ok == 9 * s                    # 1 s before the image stamp
+    assert 9.5 * s >= oldest_ok > 8.5 * s        # a pose at 9.5 s counts, one at 8.5 s not
 
 
 def test_a_pose_that_only_rotates_or_only_moves_is_new():

@@ -274,9 +274,9 @@ def test_poses_received_long_ago_are_refused_as_stale(tmp_path, ros_context, exe
     assert spin_until(executor, lambda: node.diag.counter("robot_poses") == 4, 10.0)
     # Keep the buffer from expiring (as if poses kept arriving for other stamps) and age the
     # clock seen by the lookup: the poses that bracket the stamp are now 5 s old.
-    node._expire_poses = lambda: None
+    node.robot_poses.expire = lambda: None
     real_now = node._now_ns
-    node._now_ns = lambda: real_now() + 5_000_000_000
+    node.first_target._now_ns = lambda: real_now() + 5_000_000_000   # the points' arrival
     rig.send_point(0.015, [0.0, 0.0, 0.5])
     assert spin_until(executor, lambda: node.diag.counter("refused.stale_pose") == 1, 10.0)
     assert rig.poses == []

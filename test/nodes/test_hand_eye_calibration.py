@@ -270,8 +270,8 @@ def test_compute_leaves_the_node_responsive(cell):
     diags = []
     cell.io.create_subscription(DiagnosticArray, "diagnostics", diags.append, 10)
     fut = cell.call_async(cell.triggers["compute"])
-    assert cell.spin(lambda: cell.node.calibration_mode._compute_pool._work_queue.qsize() == 0
-                     and not fut.done(), 5.0)
+    compute_pool = cell.node.calibration_mode.handoff.pools["compute"]
+    assert cell.spin(lambda: compute_pool._work_queue.qsize() == 0 and not fut.done(), 5.0)
     before = cell.node.diag.counter("left_images")
     n_diag = len(diags)
     q = cell.world.arm.joint_names and np.zeros(len(cell.world.arm.joint_names))
@@ -327,22 +327,3 @@ def test_eye_to_hand_live(tmp_path, ros_context, executor, namespace, spin_until
     assert c.trigger("save").success
     saved = load_hand_eye(c.out / "hand_eye.yaml")
     assert saved.setup == "eye_to_hand" and saved.parent_frame == "base_link"
-
-
-def test_capture_pose_age_counts_from_the_image_stamp_not_its_late_arrival():
-    """A camera that delivers its pair late (a slow renderer under load, a slow link) must not
-    make the robot poses at the image's own stamp stale: they may have been received up to
-    max_pose_age_s before the stamp; older ones are refused."""
-    from types import SimpleNamespace
-
-    from eye_in_hand.nodes.hand_eye_calibration import CalibrationMode
-
-    s = 1_000_000_000
-    mode = SimpleNamespace(node=SimpleNamespace(_now_ns=lambda: int(12.1 * s)),
-                           config=SimpleNamespace(max_pose_age_s=1.0))
-    req = SimpleNamespace(frame_stamp_ns=10 * s, frame_received_ns=12 * s)
-    rule = CalibrationMode._pose_age_rule(mode, req)
-    assert rule["now_ns"] == int(12.1 * s)
-    oldest_ok = rule["now_ns"] - rule["max_age_ns"]
-    assert oldest_ok == 9 * s                    # 1 s before the image stamp
-    assert 9.5 * s >= oldest_ok > 8.5 * s        # a pose at 9.5 s counts, one at 8.5 s not

@@ -34,7 +34,8 @@ def _node(ros_context, namespace: str, tmp_path: Path, out: Path, **extra) -> Ha
 def _save(node: HandEyeNode):
     from std_srvs.srv import Trigger
 
-    return node.calibration_mode._trigger_save(Trigger.Request(), Trigger.Response())
+    return node.calibration_mode.services._trigger_save(Trigger.Request(),
+                                                       Trigger.Response())
 
 
 def test_save_refuses_a_folder_it_did_not_write(ros_context, namespace, tmp_path) -> None:

@@ -174,7 +174,7 @@ def test_tf_gap_and_missing_static_frame_publish_nothing(tmp_path, ros_context, 
 
     cell.pub_static.publish(make_tf_message([("flange", "tool0", T0, FLANGE_T_TOOL),
                                              ("tool0", "tool_tip", T0, np.eye(4))]))
-    buffer = cell.node.tf_input.buffer
+    buffer = cell.node.robot_poses.tf.buffer
     assert spin_until(executor, lambda: buffer.parent("tool_tip") == "tool0", 5.0)
     cell.send_point(0.07, [0.0, 0.0, 0.5])            # inside the gap: refused
     assert spin_until(executor, lambda: cell.node.diag.causes.get("no_robot_pose", 0) >= 2,

@@ -40,7 +40,7 @@ def test_without_tf2_msgs_the_node_runs_without_tf(tmp_path, ros_context, namesp
                        parameter_overrides=_params(tmp_path))
     try:
         assert node.tf_output.pub_tf is None and node.tf_output.pub_tf_static is None
-        assert node.pub_pose is not None
+        assert node.first_target.pub_pose is not None
     finally:
         node.destroy_node()
 

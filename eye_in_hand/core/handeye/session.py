@@ -1,7 +1,8 @@
 """A hand-eye calibration session at a live cell: samples, stillness, duplicates, compute, status.
 
-ROS-free: the ``hand_eye`` node's calibration mode feeds it image frames and the robot pose
-source and wires its answers to services and topics; a test drives it with plain numbers.
+ROS-free: the ``hand_eye`` node's calibration mode feeds it images (a frame once every view's
+image of one stamp is in) and the robot pose source and wires its answers to services and
+topics; a test drives it with plain numbers.
 
 Capture rule (docs/handeye.md, "Calibrating at a live cell"):
 
@@ -40,14 +41,18 @@ from eye_in_hand.errors import EyeInHandError, HandEyeError, InputError, Localiz
 
 from .calibrate import DEFAULT_ROBOT_MODEL, ROBOT_MODELS, HandEyeResult, calibrate_hand_eye
 from .observe import board_pose_pnp, observe_sample
+from .plan import PlanConfig, suggest_next_poses
 from .samples import MIN_SAMPLES, CameraView, HandEyeSample, motion_diagnostics
 from .solvers import SETUPS
 
-__all__ = ["REASONS", "SessionConfig", "PoseSource", "CaptureRequest", "CaptureOutcome",
-           "SampleRecord", "SessionStatus", "CalibrationSession"]
+__all__ = ["REASONS", "FRAMES_KEPT", "SessionConfig", "PoseSource", "CaptureRequest",
+           "CaptureOutcome", "SampleRecord", "SessionStatus", "CalibrationSession",
+           "receive_age_rule"]
 
 #: Why a capture gave no sample.
 REASONS = ("moving", "no_pose", "no_image", "board_not_seen", "duplicate", "error")
+#: Incomplete frames (stamps) kept while they wait for their other images (:meth:`add_image`).
+FRAMES_KEPT = 30
 
 
 @dataclass(frozen=True)
@@ -140,6 +145,28 @@ class CaptureRequest:
     frame_received_ns: int | None = None
 
 
+def receive_age_rule(req: CaptureRequest, now_ns: int, max_pose_age_s: float
+                     ) -> dict[str, int]:
+    """The receive-age rule of a capture's pose lookups (``poses.lookup``'s ``now_ns`` and
+    ``max_age_ns``; :class:`CalibrationSession`'s ``pose_kwargs``).
+
+    The poses may have been received up to ``max_pose_age_s`` before the frame's stamp (on
+    the data clock), however late the frame then arrived (a camera that renders or transfers
+    slowly) and however long the capture waited for the poses after it; none may come from
+    the clock's future.
+
+    Args:
+        req: the request (its frame's stamp and arrival, when bound).
+        now_ns: the data clock now (the node's clock: wall time, or ``/clock``).
+        max_pose_age_s: the largest receive age of a robot pose before the frame (s).
+    """
+    since = req.frame_received_ns if req.frame_received_ns is not None else now_ns
+    if req.frame_stamp_ns is not None:
+        since = min(since, req.frame_stamp_ns)
+    waited = max(now_ns - since, 0)
+    return {"now_ns": now_ns, "max_age_ns": int(max_pose_age_s * 1e9) + waited}
+
+
 @dataclass(frozen=True)
 class SampleRecord:
     """A sample with what the capture saw (for list, status and the services)."""
@@ -227,6 +254,7 @@ class CalibrationSession:
         self.skipped: list[tuple[str, str]] = []     # (name, reason sentence)
         self.result: HandEyeResult | None = None
         self._requests: list[CaptureRequest] = []
+        self._partial: dict[int, dict[str, Any]] = {}     # stamp -> the views' images so far
         self._newest_frame_ns: int | None = None
         self._next_id = 0
         self._names = 0
@@ -239,6 +267,26 @@ class CalibrationSession:
     @property
     def pending(self) -> list[CaptureRequest]:
         return list(self._requests)
+
+    def add_image(self, view: str, stamp_ns: int, image: Any, received_ns: int | None = None
+                  ) -> dict[str, Any] | None:
+        """One view's image (opaque: decoded only for the frame a capture uses), arrived at
+        ``received_ns`` (data clock).
+
+        Returns:
+            The frame (images by view name) when this image completes it: it then goes to
+            :meth:`add_frame`; else None. The newest :data:`FRAMES_KEPT` incomplete frames
+            wait for their other images.
+        """
+        frame = self._partial.setdefault(stamp_ns, {})
+        frame[view] = image
+        while len(self._partial) > FRAMES_KEPT:
+            self._partial.pop(next(iter(self._partial)))
+        if len(frame) < len(self.views):
+            return None
+        del self._partial[stamp_ns]
+        self.add_frame(stamp_ns, frame, received_ns)
+        return frame
 
     def add_frame(self, stamp_ns: int, frame: Any, received_ns: int | None = None) -> None:
         """A new image frame (pair), arrived at ``received_ns`` (data clock): binds it to every
@@ -479,6 +527,19 @@ class CalibrationSession:
         if samples is None or [s.name for s in snap] == [s.name for s in self.samples]:
             self.result = result
         return result
+
+    def next_poses(self, samples: Sequence[HandEyeSample], X: np.ndarray,
+                   plan: PlanConfig | None) -> tuple[np.ndarray, ...]:
+        """The flange poses (``base_T_ee``, 4x4) to take next, best first, for ``samples`` and
+        their estimate ``X`` (:func:`.plan.suggest_next_poses`); none when ``plan`` is None.
+
+        Raises:
+            EyeInHandError: the samples give no plan.
+        """
+        if plan is None:
+            return ()
+        found = suggest_next_poses(list(samples), X, self.config.setup, self.views, config=plan)
+        return tuple(s.base_T_ee for s in found.suggestions)
 
     def status(self, result: HandEyeResult | None = None,
                suggestions: Sequence[np.ndarray] = ()) -> SessionStatus:

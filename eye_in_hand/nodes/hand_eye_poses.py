@@ -1,0 +1,161 @@
+"""The ``hand_eye`` node's robot pose side: the localizers and the robot pose input.
+
+Parts of :class:`eye_in_hand.nodes.hand_eye.HandEyeNode`, built with explicit arguments:
+:func:`build_localizers` makes the :class:`~eye_in_hand.core.localization.Localizer` (robot
+pose noise from the parameters, raised to ``hand_eye.yaml``'s, and its robot pose correction)
+and, eye-to-hand, the fixed camera's
+:class:`~eye_in_hand.core.eye_to_hand.EyeToHandLocalizer`; :class:`RobotPoseInput` feeds the
+node's :class:`~eye_in_hand.core.pipeline.LocalizationPipeline` from ``ee_pose``
+(PoseStamped), ``joint_states`` (JointState, through the pipeline's kinematics) or ``/tf`` +
+``/tf_static`` (:class:`~eye_in_hand.nodes.hand_eye_tf.TfInput`), and clears the pose buffer
+when the stream stopped or time jumped back.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped
+from sensor_msgs.msg import JointState
+
+from eye_in_hand.core.eye_to_hand import EyeToHandLocalizer
+from eye_in_hand.core.localization import Localizer, robot_pose_sigmas
+from eye_in_hand.core.pipeline import LocalizationPipeline, localizer_config
+from eye_in_hand.errors import ConversionError, EyeInHandError, InputError
+from eye_in_hand.nodes.hand_eye_tf import TfInput
+from eye_in_hand.ros.geometry import pose_to_matrix
+from eye_in_hand.ros.qos import ROBOT_POSE_QOS
+from eye_in_hand.ros.stamps import header_stamp_ns
+
+__all__ = ["build_localizers", "RobotPoseInput"]
+
+
+def build_localizers(config: Any, calibration: Any
+                     ) -> tuple[Localizer, EyeToHandLocalizer | None]:
+    """The localizer of the robot poses and, eye-to-hand, the fixed camera's.
+
+    Args:
+        config: the node's configuration (pose rules, ``pose_buffer_size``, robot sigmas).
+        calibration: the loaded ``hand_eye.yaml`` (:class:`eye_in_hand.io.config.
+            HandEyeCalibration`), or None (calibration mode: X is what is being estimated).
+
+    Returns:
+        The :class:`Localizer` (eye-in-hand: ``ee_T_cam``, its covariance and robot pose
+        correction; otherwise the identity, an empty pose buffer for the calibration mode) and
+        the :class:`EyeToHandLocalizer` of ``base_T_cam`` (a calibration with ``setup:
+        eye_to_hand``: the camera does not move with the arm; else None): the same code as
+        ``process``.
+    """
+    cfg = config
+    eye_to_hand = calibration is not None and calibration.setup == "eye_to_hand"
+    ee_T_cam, cov = np.eye(4), None
+    if calibration is not None and not eye_to_hand:
+        ee_T_cam, cov = calibration.transform, calibration.covariance
+    # robot pose noise: the arm's stated accuracy (robot_sigma_* parameters), raised to
+    # hand_eye.yaml's robot_pose_noise (estimated while calibrating) where that is larger
+    sig_pos, sig_rot = robot_pose_sigmas(
+        cfg.robot_sigma_pos_m, cfg.robot_sigma_rot_rad,
+        None if calibration is None else calibration.robot_pose_noise)
+    localizer = Localizer(ee_T_cam, cov, localizer_config(
+        max_pose_gap_s=cfg.max_pose_gap_s, max_pose_age_s=cfg.max_pose_age_s,
+        pose_jump_back_s=cfg.pose_jump_back_s, buffer_size=cfg.pose_buffer_size,
+        robot_sigma_pos_m=sig_pos, robot_sigma_rot_rad=sig_rot),
+        pose_correction=(None if calibration is None or eye_to_hand
+                         else calibration.robot_pose_correction))
+    fixed = None
+    if eye_to_hand:
+        fixed = EyeToHandLocalizer(calibration.transform, calibration.covariance)
+    return localizer, fixed
+
+
+class RobotPoseInput:
+    """The robot pose in: ``ee_pose``, ``joint_states`` or ``/tf`` (``robot_pose_source``).
+
+    Args:
+        node: the rclpy node (subscriptions, log).
+        config: the node's configuration (``base_frame``, ``max_pose_age_s``,
+            ``stale_after_s``; :class:`~eye_in_hand.nodes.hand_eye_tf.TfInput`'s).
+        pipeline: the node's pipeline, which the poses go into (``add_pose``,
+            ``add_joint_state``; ``pose_arrived`` when the TF chain reached a newer stamp).
+        localizer: the pipeline's :class:`Localizer` (its ``poses``: the buffer cleared by
+            :meth:`expire`, replaced by the TF view with ``/tf``).
+        diag: the node's diagnostics (counter ``robot_poses``, ``pose_buffer_resets.*``).
+        now_ns: the node's clock (sim time under ``use_sim_time``): the receive times.
+        after_pose: called after each robot pose (the node drains the pipeline or answers
+            the captures waiting for it).
+        source: ``ee_pose``, ``joint_states`` or ``tf``; None: no robot pose is subscribed
+            (a fixed camera localizes without one).
+    """
+
+    def __init__(self, node: Any, config: Any, pipeline: LocalizationPipeline,
+                 localizer: Localizer, diag: Any, now_ns: Callable[[], int],
+                 after_pose: Callable[[], None], source: str | None) -> None:
+        self._log = node.get_logger()
+        self._config = config
+        self.pipeline = pipeline
+        self._localizer = localizer
+        self.diag = diag
+        self._now_ns = now_ns
+        self._after = after_pose
+        #: the TF input (``robot_pose_source: tf``), else None
+        self.tf: TfInput | None = None
+        if source == "ee_pose":
+            node.create_subscription(PoseStamped, "ee_pose", self._on_ee_pose, ROBOT_POSE_QOS)
+        elif source == "tf":
+            self.tf = TfInput(node, config, localizer, diag, now_ns, self._after_tf_pose)
+        elif source == "joint_states":
+            node.create_subscription(JointState, "joint_states", self._on_joint_state,
+                                     ROBOT_POSE_QOS)
+        diag.declare_counter("robot_poses")
+        if source is not None:
+            diag.stale_after("robot_poses", config.stale_after_s)
+
+    def _on_ee_pose(self, msg: PoseStamped) -> None:
+        try:
+            stamp = header_stamp_ns(msg)
+            frame = msg.header.frame_id
+            if frame and frame.lstrip("/") != self._config.base_frame:
+                self.diag.report("ee_pose_frame", f"ee_pose in frame {frame!r}, expected "
+                                 f"{self._config.base_frame!r}: ignored")
+                return
+            self._pose_added(stamp, self.pipeline.add_pose(stamp, pose_to_matrix(msg.pose),
+                                                           received_ns=self._now_ns()))
+        except (ConversionError, InputError) as exc:
+            self.diag.report("bad_ee_pose", f"ee_pose: {exc}")
+            return
+        self._after_pose()
+
+    def _on_joint_state(self, msg: JointState) -> None:
+        try:
+            stamp = header_stamp_ns(msg)
+            self._pose_added(stamp, self.pipeline.add_joint_state(
+                stamp, msg.name, msg.position, received_ns=self._now_ns()))
+        except (ConversionError, InputError, EyeInHandError) as exc:
+            self.diag.report("bad_joint_states", f"joint_states: {exc}")
+            return
+        self._after_pose()
+
+    def _pose_added(self, stamp: int, jumped: bool) -> None:
+        """A robot pose went into the pipeline (with its receive time); ``jumped``: a time
+        jump back cleared the pose buffer first."""
+        if jumped:
+            self.diag.count("pose_buffer_resets.time_jump")
+            self._log.info(f"robot pose time jumped back (stamp {stamp} ns): pose "
+                           "buffer cleared, earlier poses are never used again")
+
+    def _after_tf_pose(self) -> None:
+        self.pipeline.pose_arrived()     # the TF view in the localizer reached a newer stamp
+        self._after_pose()
+
+    def _after_pose(self) -> None:
+        self.diag.count("robot_poses")
+        self._after()
+
+    def expire(self) -> None:
+        """Clear the pose buffer when the stream stopped or the clock jumped back."""
+        cause = self._localizer.poses.expire(self._now_ns(),
+                                             int(self._config.max_pose_age_s * 1e9))
+        if cause is not None:
+            self.diag.count(f"pose_buffer_resets.{cause}")
+            self._log.info(f"robot pose buffer cleared ({cause.replace('_', ' ')})")
