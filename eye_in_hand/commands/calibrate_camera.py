@@ -60,8 +60,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _gather(args: argparse.Namespace, board) -> ImageSource:
-    # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
-
     if bool(args.images) == bool(args.bag):
         raise InputError("give either --images GLOB or --bag BAG --left-topic TOPIC")
     if args.images:
@@ -100,8 +98,6 @@ def _gather(args: argparse.Namespace, board) -> ImageSource:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``calibrate camera``; returns the exit code."""
-    # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
-
     check_common_arguments(args)
     board = BoardSpec.parse(args.board)
     options = options_from_args(args)
@@ -125,8 +121,6 @@ def run(args: argparse.Namespace) -> int:
         cal.camera.save_yaml(tmp / "camera.yaml")
         write_json(tmp / "report.json", report)
         if not args.no_html:
-            # local: the report loads matplotlib (~0.6 s at CLI start-up)
-
             sample = next((f for f in source.frames if f.image is not None), None)
             camera_report(cal, source, board, sample_image=None if sample is None
                           else sample.image).save(tmp / "report.html")

@@ -46,8 +46,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the calibration and write hand_eye.yaml, report.json and report.html."""
-    # local: core.handeye loads SciPy (~0.45 s at CLI start-up); core.transforms ~3 ms
-
     check_output_dir(args.output, overwrite=args.overwrite,  # refuse now, not after the work
                      inputs=[args.dataset, args.pairs, args.bag, args.calibration,
                              args.kinematics])

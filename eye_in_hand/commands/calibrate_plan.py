@@ -137,8 +137,6 @@ def _config(args: argparse.Namespace, noise_px: float | None = None):
 
 def run(args: argparse.Namespace) -> int:
     """Calibrate, plan, print the suggestions and write them (``-o``)."""
-    # local: core.handeye loads SciPy (~0.45 s at CLI start-up)
-
 
     if bool(args.dataset) == bool(args.bag):                  # before any work
         raise InputError("give exactly one input: DATASET_DIR or --bag BAG")

@@ -74,8 +74,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _gather(args: argparse.Namespace, board) -> tuple[list[Frame], list[Frame], str, int]:
-    # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
-
     files_mode = bool(args.left or args.right)
     if files_mode == bool(args.bag):
         raise InputError("give either --left GLOB --right GLOB or --bag BAG --left-topic T "
@@ -156,8 +154,6 @@ def _pair_image(args: argparse.Namespace, left: list[Frame], right: list[Frame],
 
 def run(args: argparse.Namespace) -> int:
     """Run ``calibrate stereo``; returns the exit code."""
-    # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
-
     check_common_arguments(args)
     board = BoardSpec.parse(args.board)
     options = options_from_args(args)
@@ -195,8 +191,6 @@ def run(args: argparse.Namespace) -> int:
         cal.rig.save(tmp)
         write_json(tmp / "report.json", report)
         if not args.no_html:
-            # local: the report loads matplotlib (~0.6 s at CLI start-up)
-
             images, corners, pair_name = _pair_image(args, left, right, cal)
             names = [(lf.name, rf.name) for lf, rf in zip(left, right, strict=True)]
             stereo_report(cal, names, board, description, skipped, images, corners, pair_name

@@ -46,7 +46,7 @@ from eye_in_hand.io.datasets import load_dataset
 from eye_in_hand.io.images import read_image_file
 from eye_in_hand.io.kinematics import load_kinematics
 from eye_in_hand.io.pose_pairs import load_pose_pairs
-from eye_in_hand.ros.images import compressed_to_numpy, image_to_numpy
+from eye_in_hand.ros.images import calibration_image
 from eye_in_hand.ros.stamps import header_stamp_ns
 from eye_in_hand.yamlfile import printable
 
@@ -125,8 +125,6 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
 
 def options_from_args(args: argparse.Namespace):
     """The :class:`CalibrationOptions` selected on the command line."""
-    # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
-
     return CalibrationOptions(rational=args.rational, fix_k3=args.fix_k3,
                               zero_tangent=args.zero_tangent, fix_aspect=args.fix_aspect,
                               fix_principal_point=args.fix_principal_point)
@@ -176,8 +174,6 @@ class ImageSource:
 
 def progress(total: int | None, desc: str):
     """A tqdm progress bar on stderr (silent when stderr is not a terminal)."""
-    # local: tqdm costs ~30 ms at CLI start-up
-
     return tqdm(total=total, desc=desc, unit="img", file=sys.stderr, disable=None,
                 dynamic_ncols=True, leave=False)
 
@@ -206,8 +202,6 @@ def read_image(path: Path) -> np.ndarray:
     Raises:
         InputError: the file cannot be read or decoded.
     """
-    # local: io.images loads OpenCV (~16 ms at CLI start-up)
-
     return read_image_file(path)
 
 
@@ -226,8 +220,6 @@ def detect_files(files: Sequence[Path], board, args: argparse.Namespace, desc: s
         InputError: an unreadable file.
         CalibrationError: images of different sizes (naming two of them).
     """
-    # local: core.calibration loads OpenCV (~55 ms at CLI start-up)
-
     frames: list[Frame] = []
     first: tuple[str, tuple[int, int]] | None = None
     check = BoardCheck(board, f"{desc} images")   # a wrong board: say so after a few images
@@ -252,20 +244,9 @@ def detect_files(files: Sequence[Path], board, args: argparse.Namespace, desc: s
 
 
 def _decode(msgtype: str, raw: bytes, topic: str, stamp: int) -> tuple[np.ndarray, int]:
-    # local: ros.images loads OpenCV (~16 ms at CLI start-up)
-
     msg = deserialize(raw, msgtype)
     try:
-        if msgtype.endswith("CompressedImage"):
-            image = compressed_to_numpy(msg)
-        else:
-            enc = str(msg.encoding).lower()
-            if enc.startswith("mono") or enc in ("8uc1", "16uc1"):
-                image = image_to_numpy(msg, copy=True)
-            elif "16" in enc:
-                image = image_to_numpy(msg, desired_encoding="bgr16", copy=True)
-            else:
-                image = image_to_numpy(msg, desired_encoding="bgr8", copy=True)
+        image = calibration_image(msg)
     except ConversionError as exc:
         raise ConversionError(f"{topic} message at log time {stamp} ns: {exc}") from exc
     return image, header_stamp_ns(msg)
@@ -546,8 +527,6 @@ def solve_handeye_inputs(args: argparse.Namespace) -> tuple[dict[str, Any], Any]
     Raises:
         HandEyeError: fewer than 3 usable samples, or the solvers' own refusals.
     """
-    # local: core.handeye loads SciPy (~0.35 s at CLI start-up)
-
     inputs = load_handeye_inputs(args)
     samples = inputs["samples"]
     meta = inputs["input"]
@@ -581,9 +560,6 @@ def load_handeye_inputs(args: argparse.Namespace) -> dict[str, Any]:
         InputError, ConfigError, BagError: no or several inputs, unreadable files, a bag
             without what it needs (each naming the file and the option).
     """
-    # local: core.handeye and core.calibration load SciPy and OpenCV (~0.45 s at CLI
-    # start-up), io.datasets ~90 ms
-
     pairs_file = getattr(args, "pairs", None)      # None: the command takes no pose pairs
     given = [x for x in (args.dataset, pairs_file, args.bag) if x]
     if len(given) != 1:
@@ -598,8 +574,6 @@ def load_handeye_inputs(args: argparse.Namespace) -> dict[str, Any]:
                                                       "count": len(samples)}}
     if args.bag:
         return _load_handeye_bag(args)
-    # local: io.images loads OpenCV (~25 ms at CLI start-up)
-
     ds = load_dataset(args.dataset)
     board = BoardSpec.parse(ds.board)
     views = rig_views(ds.camera, ds.rig)
@@ -636,8 +610,6 @@ def _view_images(views: Sequence[Any]) -> str:
 
 def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
     """Still robot stops of a bag -> detected boards -> samples."""
-    # local: as in _load_inputs (SciPy and OpenCV, ~0.45 s at CLI start-up)
-
     if not args.board:
         raise ConfigError("--bag needs --board (e.g. chessboard:9x6:0.025)")
     board = BoardSpec.parse(args.board)
@@ -648,8 +620,6 @@ def _load_handeye_bag(args: argparse.Namespace) -> dict[str, Any]:
             rig = StereoRig.load(cal)
         else:
             camera = CameraModel.load_yaml(cal)
-    # local: io.kinematics loads scipy.optimize (~0.3 s); only --kinematics needs it
-
     source = args.robot_pose
     if source == "joint_states" and not args.kinematics:
         raise InputError("--kinematics: required with --robot-pose joint_states")

@@ -73,13 +73,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Start the nodes and supervise them until Ctrl-C, --duration or a node's exit."""
-    # local: the launcher loads subprocess and threading (~12 ms at CLI start-up)
-
     params = args.params or default_params_file(
         "hand_eye_calibration.yaml" if args.calibrate else "eye_in_hand.yaml")
     # bad input is one line here, not a traceback from rcl in every node
-    # local: ros.names loads rclpy (~50 ms at CLI start-up)
-
     ns = check_namespace(args.namespace)
     check_parameter_text(str(params), "--params")  # rcl takes it as UTF-8 text
     if not isinstance(read_yaml_file(params, "parameter file"), dict):
@@ -105,7 +101,6 @@ def run(args: argparse.Namespace) -> int:
 def _overrides(args: argparse.Namespace) -> dict[str, list[tuple[str, str]]]:
     """``--calibration`` / ``--hand-eye`` as node parameters, checked here: a missing file is
     one line now, not a node that refuses to start."""
-
 
     out: dict[str, list[tuple[str, str]]] = {}
     if args.calibration is not None:

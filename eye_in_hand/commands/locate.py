@@ -63,8 +63,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _read(path: str, side: str):
-    # local: OpenCV (with io.images) costs ~30 ms at CLI start-up
-
 
     try:
         img = read_image_file(path)
@@ -83,11 +81,7 @@ def _read(path: str, side: str):
 
 def run(args: argparse.Namespace) -> int:
     """Locate the targets; print them (text or JSON). Returns the exit code."""
-    # local: core.locator and core.camera (OpenCV) cost ~85 ms at CLI start-up
-
     if args.params:  # a mistyped key would run on its default, as the live node refuses it
-        # local: the nodes' parameter lists load rclpy and the node modules (~1 s)
-
         check_parameter_file_keys(args.params, used=["detect_triangulate"])
     config = apply_overrides(load_locator_config(args.params), radius=args.radius,
                              method=args.method)

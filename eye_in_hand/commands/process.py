@@ -210,8 +210,6 @@ def _node_params(path: str | None, node: str) -> dict:
     """Flattened parameters of ``node`` in a parameter file ({} when the file has none)."""
     if path is None:
         return {}
-    # local: core.locator_params loads core.detection and OpenCV (~80 ms at CLI start-up)
-
     try:
         return load_parameter_file(path, node)
     except ConfigError as exc:
@@ -225,8 +223,6 @@ def output_settings(detect: dict, hand_eye: dict, config, calib, *, camera_paren
     the output bag holds the messages they would publish: markers (lifetimes, each target's
     sphere), /tf names, /tf_static (the hand-eye transform, and the stereo extrinsic of
     hand_eye's ``stereo_calibration_dir``)."""
-    # local: the builders' module and core.camera, only when processing
-
 
     diameter = float(detect.get("markers.diameter_m", MARKER_DIAMETER_M))
     styles = {t.name: sphere_style(t.radius_m, t.color, diameter)
@@ -276,16 +272,12 @@ def _options(args: argparse.Namespace, detect: dict, hand_eye_params: dict, conf
              calib, ee_frame: str, base_frame: str):
     """The ``ProcessOptions`` of a run: the flags, then a ``--params`` file's
     ``detect_triangulate`` and ``hand_eye`` sections, then the nodes' defaults."""
-    # local: as in run (offline ~115 ms, core.localization ~15 ms at CLI start-up)
-
     fixed = calib.setup == "eye_to_hand"
     noise = calib.robot_pose_noise
     kinematics = None
     if args.robot_pose == "joint_states":
         if not args.kinematics:
             raise InputError("--kinematics: required with --robot-pose joint_states")
-        # local: io.kinematics loads scipy.optimize (~0.3-0.4 s); only joint_states needs it
-
         kinematics = load_kinematics(
             args.kinematics,
             args.urdf_base_link or hand_eye_params.get("urdf_base_link", base_frame),
@@ -323,14 +315,8 @@ def _options(args: argparse.Namespace, detect: dict, hand_eye_params: dict, conf
 
 def run(args: argparse.Namespace) -> int:
     """Process the bag and write the results; prints counts and error statistics."""
-    # local: at CLI start-up offline costs ~115 ms (OpenCV), core.locator ~85 ms,
-    # core.camera ~40 ms, tqdm ~35 ms, io.results/core.localization/io.config ~10-20 ms each,
-    # core.distances ~5 ms
-
 
     if args.params:  # a mistyped key would run on its default, as the live node refuses it
-        # local: the nodes' parameter lists load rclpy and the node modules (~1 s)
-
         check_parameter_file_keys(args.params, used=["detect_triangulate", "hand_eye"])
     detect = _node_params(args.params, "detect_triangulate")
     hand_eye_params = _node_params(args.params, "hand_eye")
@@ -400,8 +386,6 @@ def _report(args: argparse.Namespace, result, wall: float, known: list, pairs: l
             stats_by_target: list, unmatched: list) -> None:
     """What a run printed: the counts, why pairs gave nothing, the losses, the damage, the
     error against the ground truth and the distances between targets."""
-    # local: as in run (offline ~115 ms, core.distances ~5 ms at CLI start-up)
-
     c = result.counts
     speed = result.duration_s / wall if wall > 0 else math.inf
     print(f"processed {c['pairs']} stereo pairs in {wall:.2f} s ({speed:.1f}x real time): "

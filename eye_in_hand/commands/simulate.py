@@ -217,8 +217,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Simulate and write; prints a one-paragraph summary."""
-    # local: the simulator loads SciPy and OpenCV (~0.5 s at CLI start-up), tqdm ~30 ms
-
 
     frames = args.frames if args.frames is not None else _DEFAULT_FRAMES[args.scenario]
     check_output_dir(args.output, overwrite=args.overwrite, option="-o", inputs=[args.world])

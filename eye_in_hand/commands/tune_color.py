@@ -52,8 +52,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Print the ranges. Returns the exit code."""
-    # local: OpenCV (core.detection, io.images) costs ~20 ms at CLI start-up
-
 
     img = read_image_file(args.image, cv2.IMREAD_COLOR)
     x, y, w, h = args.roi

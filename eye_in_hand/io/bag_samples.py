@@ -26,7 +26,7 @@ from eye_in_hand.io.bags import DamageLog, bag_info, deserialize, typestore_for
 from eye_in_hand.io.bags import iter_messages as _iter_messages
 from eye_in_hand.ros.camera_info import camera_info_to_model
 from eye_in_hand.ros.geometry import pose_to_matrix, transform_to_matrix
-from eye_in_hand.ros.images import image_to_numpy
+from eye_in_hand.ros.images import calibration_image
 from eye_in_hand.ros.stamps import header_stamp_ns
 
 __all__ = ["BagSample", "BagSamples", "read_bag_samples"]
@@ -366,15 +366,12 @@ def _decode(bag: _Bag, views: Mapping[str, str], chosen: Mapping[int, Any]
         if stamp in decoded:
             try:
                 msg = deserialize(raw, msgtype, bag.store)
-                img = image_to_numpy(msg, copy=True)
+                img = calibration_image(msg)
             except _UNUSABLE as exc:
                 bag.log.bad_message(topic, stamp, str(exc))
                 bad_images[stamp] = f"the {topic_view[topic]} image at {stamp} ns is damaged " \
                     f"({exc})"
                 continue
-            enc = str(msg.encoding).lower()
-            if enc == "rgb8":
-                img = img[..., ::-1].copy()
             decoded[stamp][topic_view[topic]] = img
     return decoded, infos, truth, bad_images
 

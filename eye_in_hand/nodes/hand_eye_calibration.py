@@ -45,7 +45,7 @@ from eye_in_hand.nodes.hand_eye_calibration_files import CalibrationFiles
 from eye_in_hand.nodes.hand_eye_calibration_outputs import CalibrationOutputs
 from eye_in_hand.nodes.hand_eye_calibration_services import CalibrationServices
 from eye_in_hand.ros.handoff import WorkerHandoff
-from eye_in_hand.ros.images import image_to_numpy
+from eye_in_hand.ros.images import calibration_image
 from eye_in_hand.ros.qos import SENSOR_QOS
 from eye_in_hand.ros.stamps import header_stamp_ns
 
@@ -122,8 +122,7 @@ class CalibrationMode:
 
     def _decode(self, frame: dict[str, Image]) -> dict[str, np.ndarray]:
         try:
-            return {k: image_to_numpy(m, desired_encoding=None if m.encoding in
-                                      ("mono8", "mono16") else "bgr8") for k, m in frame.items()}
+            return {k: calibration_image(m) for k, m in frame.items()}
         except ConversionError as exc:
             raise InputError(f"image: {exc}") from exc
 

@@ -39,6 +39,7 @@ __all__ = [
     "convert_encoding",
     "compressed_to_numpy",
     "numpy_to_compressed",
+    "calibration_image",
 ]
 
 
@@ -378,3 +379,21 @@ def numpy_to_compressed(image: Any, format: str = "jpeg", *, encoding: str | Non
     msg.data = to_byte_array(buf.reshape(-1))
     return msg
 
+
+
+def calibration_image(msg: Any) -> np.ndarray:
+    """A calibration image as board detection takes it, from an ``Image`` or a
+    ``CompressedImage`` (rclpy or rosbags): a mono image (``mono8``, ``mono16``, ``8UC1``,
+    ``16UC1``) as it is, a colour one as ``bgr16`` if 16-bit, else ``bgr8``; a copy that owns
+    its pixels. The one rule of ``calibrate camera|stereo|handeye`` from a bag, of their bag
+    samples, and of the ``hand_eye`` node's calibration mode.
+
+    Raises:
+        ConversionError: the message cannot be decoded.
+    """
+    if hasattr(msg, "format") and not hasattr(msg, "encoding"):
+        return compressed_to_numpy(msg)
+    enc = str(msg.encoding).lower()
+    if enc.startswith("mono") or enc in ("8uc1", "16uc1"):
+        return image_to_numpy(msg, copy=True)
+    return image_to_numpy(msg, desired_encoding="bgr16" if "16" in enc else "bgr8", copy=True)

@@ -23,6 +23,7 @@ from eye_in_hand.ros.geometry import (
     xyz_to_point_stamped,
 )
 from eye_in_hand.ros.images import (
+    calibration_image,
     compressed_to_numpy,
     image_to_numpy,
     numpy_to_compressed,
@@ -532,3 +533,21 @@ print("ok")
                           timeout=60)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "ok"
+
+
+def test_calibration_image_is_mono_bgr8_or_bgr16_whatever_came():
+    rng = np.random.default_rng(3)
+    bgr = rng.integers(0, 255, (6, 8, 3), dtype=np.uint8)
+    rgb = numpy_to_image(np.ascontiguousarray(bgr[..., ::-1]), "rgb8")
+    assert np.array_equal(calibration_image(rgb), bgr)
+    wide = rng.integers(0, 65535, (6, 8, 3), dtype=np.uint16)
+    rgb16 = numpy_to_image(np.ascontiguousarray(wide[..., ::-1]), "rgb16")
+    got = calibration_image(rgb16)
+    assert got.dtype == np.uint16 and np.array_equal(got, wide)
+    for enc, dtype in (("mono8", np.uint8), ("mono16", np.uint16), ("16UC1", np.uint16)):
+        grey = rng.integers(0, 200, (6, 8), dtype=dtype)
+        assert np.array_equal(calibration_image(numpy_to_image(grey, enc)), grey)
+    bgra = numpy_to_image(np.dstack([bgr, np.full((6, 8), 255, np.uint8)]), "bgra8")
+    assert np.array_equal(calibration_image(bgra), bgr)
+    png = numpy_to_compressed(bgr, "png")
+    assert np.array_equal(calibration_image(png), bgr)
