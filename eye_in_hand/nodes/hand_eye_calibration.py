@@ -1,21 +1,13 @@
 """The ``hand_eye`` node's calibration mode (``mode: calibration``), see docs/handeye.md.
 
-:class:`CalibrationMode` is a part of :class:`eye_in_hand.nodes.hand_eye.HandEyeNode` (an
-object with explicit constructor arguments) that wires the ROS-free
-:class:`eye_in_hand.core.handeye.session.CalibrationSession` to topics and services. It
-subscribes ``left/image_raw`` and ``right/image_raw`` (stereo rig) or ``image_raw`` (mono): a
-frame is a set of images with one stamp, kept undecoded until a capture uses it; the robot
-pose comes from the node (``ee_pose``, ``joint_states`` + kinematics, or ``/tf``). Its parts:
-the services (``hand_eye/capture|compute|save|reset``, ``~/calibration/*``:
-:mod:`~eye_in_hand.nodes.hand_eye_calibration_services`), the topics
-(``~/calibration_status``, ``~/next_poses``, ``~/next_pose_markers``, ``~/debug_image``:
-:mod:`~eye_in_hand.nodes.hand_eye_calibration_outputs`) and the files (cameras, save, load:
-:mod:`~eye_in_hand.nodes.hand_eye_calibration_files`).
-
-No service blocks the executor: capture waits for its frame and robot poses as a coroutine,
-and board detection, compute, planning and the debug image run on worker threads
-(:class:`eye_in_hand.ros.handoff.WorkerHandoff`); images, robot poses and diagnostics keep
-flowing meanwhile.
+:class:`CalibrationMode`, a part of :class:`eye_in_hand.nodes.hand_eye.HandEyeNode`, wires the
+ROS-free :class:`eye_in_hand.core.handeye.session.CalibrationSession` to ``left/image_raw`` and
+``right/image_raw`` (or mono ``image_raw``: a frame is the images of one stamp, decoded only
+when a capture uses it) and to the node's robot pose; its services, topics and files are parts
+of their own (:mod:`~eye_in_hand.nodes.hand_eye_calibration_services`, ``_outputs``,
+``_files``). No service blocks the executor: capture waits for its frame and robot poses as a
+coroutine, and board detection, compute, planning and the debug image run on worker threads
+(:class:`eye_in_hand.ros.handoff.WorkerHandoff`).
 """
 from __future__ import annotations
 
@@ -86,8 +78,7 @@ class CalibrationMode:
                                             "compute": "hand_eye_compute",
                                             "debug": "hand_eye_debug_image"})
         self._waiters: dict[int, Future] = {}
-        #: the newest suggested flange poses and estimate (status, plan)
-        self.suggestions: tuple[np.ndarray, ...] = ()
+        self.suggestions: tuple[np.ndarray, ...] = ()   # the newest next poses and estimate
         self._estimate: HandEyeResult | None = None
         self._loaded: tuple[np.ndarray, np.ndarray | None, str] | None = None
         self._refresh_gen = 0
