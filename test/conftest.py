@@ -67,10 +67,11 @@ def ros_context():
 
 @pytest.fixture
 def executor(ros_context):
-    """A ``SingleThreadedExecutor`` on the test's own context; nodes added are destroyed after."""
-    from rclpy.executors import SingleThreadedExecutor
+    """The nodes' executor (``LeanExecutor``) on the test's own context; nodes added are
+    destroyed after."""
+    from eye_in_hand.ros.executor import LeanExecutor
 
-    ex = SingleThreadedExecutor(context=ros_context)
+    ex = LeanExecutor(context=ros_context)
     try:
         yield ex
     finally:

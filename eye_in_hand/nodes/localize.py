@@ -34,13 +34,14 @@ from typing import Any
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")   # as detect_triangulate (see there)
 
 import rclpy  # noqa: E402
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor  # noqa: E402
+from rclpy.executors import ExternalShutdownException  # noqa: E402
 
 from eye_in_hand.errors import InputError  # noqa: E402
 from eye_in_hand.launcher import NODES, node_ros_args  # noqa: E402
 from eye_in_hand.nodes.detect_triangulate import DetectTriangulateNode  # noqa: E402
 from eye_in_hand.nodes.hand_eye import HandEyeNode  # noqa: E402
 from eye_in_hand.ros.dds import use_large_data_profile  # noqa: E402
+from eye_in_hand.ros.executor import LeanExecutor  # noqa: E402
 from eye_in_hand.ros.node_main import guard  # noqa: E402
 from eye_in_hand.ros.params import refuse_undeclared_overrides  # noqa: E402
 
@@ -136,7 +137,7 @@ def main(args: list[str] | None = None) -> None:
         chain = None
         # one executor per node, each on its own thread: a wake-up for a robot pose then
         # builds hand_eye's wait set only, one for an image detect_triangulate's only
-        executors = [SingleThreadedExecutor(), SingleThreadedExecutor()]
+        executors = [LeanExecutor(), LeanExecutor()]
         spinner = None
         try:
             chain = LocalizationChain(opts.namespace, overrides)

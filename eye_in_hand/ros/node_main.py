@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 
 from eye_in_hand.errors import (
     EXIT_UNEXPECTED,
@@ -23,6 +23,7 @@ from eye_in_hand.errors import (
     unexpected_error_line,
 )
 from eye_in_hand.ros.dds import use_large_data_profile
+from eye_in_hand.ros.executor import LeanExecutor
 from eye_in_hand.ros.params import refuse_undeclared_overrides
 
 __all__ = ["guard", "run_node", "run_with_executor", "sigterm_as_interrupt"]
@@ -63,10 +64,11 @@ def run_node(name: str, factory: Callable[[], Any], args: Sequence[str] | None =
     """Run one node until Ctrl-C or shutdown (the STYLE.md ``main`` pattern).
 
     Sets the large-data DDS profile (:mod:`eye_in_hand.ros.dds`), initialises rclpy, builds the
-    node with ``factory()`` and spins it on rclpy's ``SingleThreadedExecutor``. Ctrl-C and
-    external shutdown end it cleanly; an :class:`~eye_in_hand.errors.EyeInHandError` while
-    building it (a bad parameter or calibration file) is printed as ``<name>: error: ...`` and
-    exits with code 1; any other exception is one line as well (:func:`guard`).
+    node with ``factory()`` and spins it on a :class:`~eye_in_hand.ros.executor.LeanExecutor`
+    (rclpy's single-threaded semantics, a cheaper wake-up). Ctrl-C and external shutdown end
+    it cleanly; an :class:`~eye_in_hand.errors.EyeInHandError` while building it (a bad
+    parameter or calibration file) is printed as ``<name>: error: ...`` and exits with code 1;
+    any other exception is one line as well (:func:`guard`).
     """
     def spin(node: Any, executor: Any) -> int:
         rclpy.spin(node, executor)
@@ -83,7 +85,8 @@ def run_node(name: str, factory: Callable[[], Any], args: Sequence[str] | None =
 
 def run_with_executor(factory: Callable[[], Any], spin: Callable[[Any, Any], int],
                       args: Sequence[str] | None = None) -> int:
-    """Initialise rclpy, build a ``SingleThreadedExecutor`` and then the node, and return
+    """Initialise rclpy, build a :class:`~eye_in_hand.ros.executor.LeanExecutor` and then the
+    node, and return
     ``spin(node, executor)``; Ctrl-C and external shutdown return 0. The node, the executor
     and the context are always shut down. Errors propagate (callers print them their way).
 
@@ -93,7 +96,7 @@ def run_with_executor(factory: Callable[[], Any], spin: Callable[[Any, Any], int
     node = None
     executor = None
     try:
-        executor = SingleThreadedExecutor()
+        executor = LeanExecutor()
         node = factory()
         refuse_undeclared_overrides(node, args)
         return spin(node, executor)
