@@ -25,6 +25,7 @@ import ast
 import codecs
 import importlib
 import importlib.util
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -39,6 +40,7 @@ from eye_in_hand.errors import (
     debug_enabled,
     unexpected_error_line,
 )
+from eye_in_hand.ros.dds import use_large_data_profile
 
 # (words, module). Words with a space form a command group, e.g. ``calibrate camera``.
 COMMANDS: list[tuple[str, str]] = [
@@ -166,7 +168,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     # --debug anywhere on the line (before or after the command's name)
     debug = "--debug" in argv[:argv.index("--")] if "--" in argv else "--debug" in argv
     if debug:
-        import os
 
         argv = [a for a in argv if a != "--debug"]
         os.environ[DEBUG_ENV] = "1"   # worker processes and launched nodes inherit it
@@ -189,7 +190,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _quiet_stdout() -> None:
     """Point stdout at /dev/null so that the interpreter's final flush cannot fail again."""
-    import os
 
     try:
         devnull = os.open(os.devnull, os.O_WRONLY)
@@ -199,7 +199,6 @@ def _quiet_stdout() -> None:
 
 
 def _main(argv: list[str]) -> int:
-    from eye_in_hand.ros.dds import use_large_data_profile
 
     use_large_data_profile()  # before any command starts rclpy (children inherit it)
     # a file name is bytes: print a non-UTF-8 byte of one as \\xNN, never fail on it

@@ -39,6 +39,7 @@ import fnmatch
 import math
 import os
 import re
+import sys
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -56,8 +57,11 @@ from rclpy.exceptions import (
     ParameterUninitializedException,
 )
 from rclpy.parameter import Parameter
+from rclpy.utilities import remove_ros_args
 
+from eye_in_hand.core.units import unit_hint
 from eye_in_hand.errors import ConfigError
+from eye_in_hand.yamlfile import printable, read_yaml_file
 
 if TYPE_CHECKING:
     from eye_in_hand.core.locator_params import ParamSpec
@@ -88,7 +92,6 @@ _META_KEY = "eye_in_hand.param"
 
 def _unit_hint(name: str, value: Any, high: float) -> str:
     """:func:`eye_in_hand.core.units.unit_hint` for a value that may be text from rclpy."""
-    from eye_in_hand.core.units import unit_hint
 
     try:
         return unit_hint(name, float(value), high)
@@ -465,7 +468,6 @@ def check_parameter_file(path: Any) -> None:
     Raises:
         ConfigError: ``<file>: rcl cannot parse this parameter file: <rcl's reason>``.
     """
-    from rclpy.utilities import remove_ros_args
 
     try:
         remove_ros_args(["check", "--ros-args", "--params-file", str(path)])
@@ -556,7 +558,6 @@ def unknown_parameter_keys(path: str | os.PathLike[str],
         ``<file>: unknown ... `<key>` ... (did you mean `<name>`?)`` lines; empty when all is
         known.
     """
-    from eye_in_hand.yamlfile import printable, read_yaml_file
 
     shown = printable(path)
     data = read_yaml_file(path, "parameter file")
@@ -610,7 +611,6 @@ def refuse_undeclared_overrides(node: Any, args: Sequence[str] | None = None) ->
     unknown = sorted(set(overrides) - declared)
     if not unknown:
         return
-    import sys
 
     argv = list(sys.argv if args is None else args)
     files = [argv[i + 1] for i, a in enumerate(argv[:-1]) if a == "--params-file"]
