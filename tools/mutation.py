@@ -366,8 +366,8 @@ MUTANTS: tuple[Mutant, ...] = (
       "pose-space residuals divided by each other's noise scale"),
     # -- core/handeye/eiv.py
     M("eiv-redundancy", "core/handeye/eiv.py",
-      "            r_g = float(rows.sum() - h[rows].sum())\n",
-      "            r_g = float(rows.sum())\n",
+      "        r_g = float(rows.sum() - h[rows].sum())\n",
+      "        r_g = float(rows.sum())\n",
       "noise levels from the residuals over their row count, not their redundancy"),
     M("eiv-correction-side", "core/handeye/eiv.py",
       "    return bte @ D\n", "    return D @ bte\n",
