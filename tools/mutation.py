@@ -804,8 +804,8 @@ MUTANTS: tuple[Mutant, ...] = (
       'a pose that only rotates counted as still'),
     # io/config.py
     M("config-noise-zero", "io/config.py",
-      '                    or v < 0:\n',
-      '                    or v <= 0:\n',
+      '                or v < 0:\n',
+      '                or v <= 0:\n',
       'a robot_pose_noise of 0 refused (documented >= 0)'),
     # nodes/detect_triangulate.py
     M("detect-slop-units", "nodes/detect_triangulate.py",
@@ -872,8 +872,8 @@ MUTANTS: tuple[Mutant, ...] = (
       '        if current and not close(current[-1][1], at):\n',
       'a stop compared with its latest pose, not its first (a slow drift stays one stop)'),
     M("config2-flat-covariance", "io/config.py",
-      '        if cov.shape == (36,):\n            cov = cov.reshape(6, 6)\n',
-      '        if False:\n            cov = cov.reshape(6, 6)\n',
+      '    if cov.shape == (36,):\n        cov = cov.reshape(6, 6)\n',
+      '    if False:\n        cov = cov.reshape(6, 6)\n',
       'a flat 36-number covariance refused'),
 )
 
