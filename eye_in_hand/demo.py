@@ -254,18 +254,33 @@ def main(argv: Sequence[str] | None = None) -> int:
               "--quiet"), env)
 
     print("\n== 5/5 results against the bags' ground truth", flush=True)
-    truth = _ground_truth(loc_bag)
+    targets: dict[int, np.ndarray] = _ground_truth(loc_bag)["targets"]
+    _print_calibrations(cal_bag, calib, he_dir / "hand_eye.yaml")
+    live_pts = _compare_live_offline(out, targets, live, processed, n_pairs)
+    print(f"\ndemo finished in {time.monotonic() - t_start:.0f} s; outputs in {out}")
+    return 0 if live_pts else 1
+
+
+def _print_calibrations(cal_bag: Path, calib: Path, hand_eye: Path) -> None:
+    """Step 5: the stereo and hand-eye calibrations against the calibration bag's truth."""
     cal_truth = _ground_truth(cal_bag)
     rig = StereoRig.load(calib)
     true_rig = StereoRig.from_ros_pair(cal_truth["/stereo/left/camera_info"],
                                        cal_truth["/stereo/right/camera_info"])
-    he = load_hand_eye(he_dir / "hand_eye.yaml")
+    he = load_hand_eye(hand_eye)
     dt, dr = transform_distance(he.transform, cal_truth["ee_T_cam"])
     print(f"stereo calibration: fx {rig.left.fx:.2f} px (true {true_rig.left.fx:.2f}), baseline "
           f"{1000 * rig.baseline:.3f} mm (true {1000 * true_rig.baseline:.3f})")
     print(f"hand-eye ({he.method}): {1000 * dt:.3f} mm, {np.degrees(dr):.4f} deg from the true "
           "mount")
-    targets: dict[int, np.ndarray] = truth["targets"]
+
+
+def _compare_live_offline(out: Path, targets: dict[int, np.ndarray],
+                          live: list[dict[str, Any]], processed: Path,
+                          n_pairs: int) -> dict[int, np.ndarray]:
+    """Step 5: the live and the offline poses against the true ``targets`` (by stamp) and
+    against each other, and the two output bags message by message; the live poses by
+    stamp."""
     live_pts = {m["header"]["stamp"]["sec"] * 10**9 + m["header"]["stamp"]["nanosec"]:
                 np.array([m["pose"]["position"][k] for k in "xyz"]) for m in live}
     offline = {}
@@ -290,8 +305,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"live vs offline bags: {len(set(live_msgs) | set(offline_msgs))} topics, "
           f"{n_msgs} messages of those frames: " + (
               "identical" if not problems else "DIFFERENT: " + "; ".join(problems[:5])))
-    print(f"\ndemo finished in {time.monotonic() - t_start:.0f} s; outputs in {out}")
-    return 0 if live_pts else 1
+    return live_pts
 
 
 def guarded_main(argv: Sequence[str] | None = None) -> int:

@@ -219,108 +219,135 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         BagError: the bag cannot be read or lacks a required topic.
         InputError: malformed settings.
     """
-    # local: reader only (see the imports at the top); the ros message modules add ~12 ms too
-    from eye_in_hand.core.eye_to_hand import EyeToHandLocalizer
-    from eye_in_hand.core.localization import Localizer
-    from eye_in_hand.core.pipeline import LocalizationPipeline, PipelineRules, localizer_config
-    from eye_in_hand.core.sync import ApproximateStereoSync
-    from eye_in_hand.io.bags import (
-        DamageLog,
-        bag_info,
-        memory_mappable,
-        require_topics,
-        typestore_for,
-    )
-    from eye_in_hand.io.results import ProcessResult, assign_truth, target_order
-    from eye_in_hand.ros.geometry import point_to_xyz, pose_to_matrix
-    from eye_in_hand.ros.stamps import header_stamp_ns
-
     opts = options or ProcessOptions()
-    path = Path(path)
-    info = bag_info(path)
-    fixed = opts.setup == "eye_to_hand"     # a fixed camera: no robot pose is read
-    required = [opts.left_topic, opts.right_topic] + ([] if fixed else [opts.pose_topic])
-    require_topics(info, required + ([opts.left_info_topic, opts.right_info_topic]
-                                     if rig is None else []))
-    topics = list(required) + ([opts.ground_truth_topic]
-                               if opts.ground_truth_topic in info.topics else [])
-    use_tf = opts.robot_pose_source == "tf" and not fixed
-    if use_tf and opts.tf_static_topic in info.topics:
-        topics.append(opts.tf_static_topic)
-    n_poses = 0 if fixed else info.topics[opts.pose_topic].count
-    localizer: Any = EyeToHandLocalizer(hand_eye_T, hand_eye_cov) if fixed else Localizer(
-        hand_eye_T, hand_eye_cov, localizer_config(
-            max_pose_gap_s=opts.max_pose_gap_s, max_pose_age_s=opts.max_pose_age_s,
-            pose_jump_back_s=opts.pose_jump_back_s, buffer_size=max(2, n_poses + 2),
-            robot_sigma_pos_m=opts.robot_sigma_pos_m,
-            robot_sigma_rot_rad=opts.robot_sigma_rot_rad),
-        pose_correction=pose_correction)
-    tf_buffer = _use_tf(localizer, opts, n_poses) if use_tf else None
-    sync: ApproximateStereoSync[Any] = ApproximateStereoSync(int(round(opts.sync_slop_s * 1e9)),
-                                                             opts.sync_queue_size)
-    result = ProcessResult(duration_s=info.duration_ns / 1e9, rig=rig, damage=DamageLog())
-    result.notes.extend(info.notes)   # a damaged metadata.yaml, a file read by scanning
-    counts = result.counts
-    for key in ("pairs", "located", "localized", "no_target", "no_robot_pose", "bad_messages"):
-        counts[key] = 0
-    ledger = _Ledger(counts, int(opts.pose_jump_back_s * 1e9))
-    typestore: Any = None
-    if rig is None:
+    run = _BagPass(Path(path), opts, rig, hand_eye_T, hand_eye_cov, pose_correction)
+    # a locator whose results depend on earlier frames (tracked blob-set ids,
+    # LocatorConfig.stateful where it exists) sees the stream in order, in one thread
+    pool = _PairPool(run.rig, locator_config, 1 if getattr(locator_config, "stateful", False)
+                     else opts.workers or available_cpus(), task_timeout_s=opts.task_timeout_s)
+    try:
+        run.read(pool, progress)
+    finally:
+        pool.close()
+    return run.finish(pool, [t.name for t in locator_config.detector.targets])
+
+
+def _no_wait_clock() -> float:
+    """The pipeline's wait clock offline: waits never run out (the bag's end flushes them)."""
+    return 0.0
+
+
+class _BagPass:
+    """One pass of :func:`process_bag` over a bag, and the state its steps share: the bag's
+    topics, the localizer and the live node's pipeline, the stereo pairing, the result with
+    its counts and ledger. :meth:`read` feeds every message in log-time order, :meth:`finish`
+    resolves what still waits and totals the losses."""
+
+    def __init__(self, path: Path, opts: ProcessOptions, rig: StereoRig | None,
+                 hand_eye_T: np.ndarray, hand_eye_cov: np.ndarray | None,
+                 pose_correction: RobotPoseCorrection | None) -> None:
+        # local: reader only (see the imports at the top); the ros message modules add ~12 ms
+        from eye_in_hand.core.pipeline import LocalizationPipeline, PipelineRules
+        from eye_in_hand.core.sync import ApproximateStereoSync
+        from eye_in_hand.io.bags import DamageLog, bag_info, require_topics
+        from eye_in_hand.io.results import ProcessResult
+
+        self.path, self.opts = path, opts
+        info = self.info = bag_info(path)
+        fixed = self.fixed = opts.setup == "eye_to_hand"   # a fixed camera: no robot pose read
+        required = [opts.left_topic, opts.right_topic] + ([] if fixed else [opts.pose_topic])
+        require_topics(info, required + ([opts.left_info_topic, opts.right_info_topic]
+                                         if rig is None else []))
+        self.topics = list(required) + ([opts.ground_truth_topic]
+                                        if opts.ground_truth_topic in info.topics else [])
+        use_tf = opts.robot_pose_source == "tf" and not fixed
+        if use_tf and opts.tf_static_topic in info.topics:
+            self.topics.append(opts.tf_static_topic)
+        n_poses = 0 if fixed else info.topics[opts.pose_topic].count
+        self.localizer = _make_localizer(opts, fixed, n_poses, hand_eye_T, hand_eye_cov,
+                                         pose_correction)
+        self.tf_buffer = _use_tf(self.localizer, opts, n_poses) if use_tf else None
+        self.sync: ApproximateStereoSync[Any] = ApproximateStereoSync(
+            int(round(opts.sync_slop_s * 1e9)), opts.sync_queue_size)
+        result = self.result = ProcessResult(duration_s=info.duration_ns / 1e9, rig=rig,
+                                             damage=DamageLog())
+        result.notes.extend(info.notes)   # a damaged metadata.yaml, a file read by scanning
+        counts = self.counts = result.counts
+        for key in ("pairs", "located", "localized", "no_target", "no_robot_pose",
+                    "bad_messages"):
+            counts[key] = 0
+        self.ledger = _Ledger(counts, int(opts.pose_jump_back_s * 1e9))
+        self.typestore: Any = None
+        self.rig = rig if rig is not None else self._rig_from_bag()
+        self.truth: dict[int, list[np.ndarray]] = {}
+        # the live node's pipeline: a pair waits for a robot pose at or after its stamp,
+        # however long (the bag's poses are all read before its end: no wait clock), FIFO,
+        # unbounded (the frames are kept in result.frames anyway); receive ages on the bag's
+        # log time
+        self.pipeline = LocalizationPipeline(
+            self.localizer, PipelineRules(max_pose_wait_s=None, max_waiting_frames=None),
+            wait_clock=_no_wait_clock, frames=_FrameResults(counts, self.ledger),
+            kinematics=opts.kinematics if not fixed and opts.robot_pose_source == "joint_states"
+            else None)
+
+    def _rig_from_bag(self) -> StereoRig:
+        """The rig from the bag's camera_info, read with the type store of the main pass."""
+        from eye_in_hand.io.bags import typestore_for  # local: reader only
+
+        info, opts = self.info, self.opts
         # one type store for the camera_info and the main pass (building the whole Jazzy
         # store for camera_info alone cost ~0.1-0.15 s of CPU at every start)
         try:
-            typestore = typestore_for(path, {info.topics[t].msgtype for t in topics} | {
+            self.typestore = typestore_for(self.path, {
+                info.topics[t].msgtype for t in self.topics} | {
                 info.topics[t].msgtype for t in (opts.left_info_topic, opts.right_info_topic)})
         except BagError:
-            typestore = None       # as before: the main pass names the problem
-        rig = _rig_from_camera_info(path, opts, result.damage, typestore)
-        result.rig = rig
-    truth: dict[int, list[np.ndarray]] = {}
-    # the live node's pipeline: a pair waits for a robot pose at or after its stamp, however
-    # long (the bag's poses are all read before its end: no wait clock), FIFO, unbounded (the
-    # frames are kept in result.frames anyway); receive ages on the bag's log time
-    pipeline = LocalizationPipeline(
-        localizer, PipelineRules(max_pose_wait_s=None, max_waiting_frames=None),
-        wait_clock=_no_wait_clock, frames=_FrameResults(counts, ledger),
-        kinematics=opts.kinematics if not fixed and opts.robot_pose_source == "joint_states"
-        else None)
+            self.typestore = None       # as before: the main pass names the problem
+        rig = _rig_from_camera_info(self.path, opts, self.result.damage, self.typestore)
+        self.result.rig = rig
+        return rig
 
-    def note(text: str) -> None:
-        if len(result.notes) < 20:
-            result.notes.append(text)
+    def note(self, text: str) -> None:
+        if len(self.result.notes) < 20:
+            self.result.notes.append(text)
 
-    def take(frame: FrameResult) -> None:
-        result.frames.append(frame)
-        t_arrival = ledger.arrival(frame.stamp_ns)     # taken for every frame, in order
+    def take(self, frame: FrameResult) -> None:
+        """One located (or not) pair, in stamp order: counted, and into the pipeline."""
+        self.result.frames.append(frame)
+        t_arrival = self.ledger.arrival(frame.stamp_ns)     # taken for every frame, in order
         if frame.status == "bad_image":
-            counts["bad_messages"] += 1
-            ledger.count("bad_pairs")
-            note(f"stereo pair at {frame.stamp_ns} ns: {frame.reason}")
+            self.counts["bad_messages"] += 1
+            self.ledger.count("bad_pairs")
+            self.note(f"stereo pair at {frame.stamp_ns} ns: {frame.reason}")
             return
-        counts["located" if frame.status == "located" else "no_target"] += 1
+        self.counts["located" if frame.status == "located" else "no_target"] += 1
         if frame.targets:
-            pipeline.add_frame(frame.stamp_ns, frame.targets, received_ns=t_arrival,
-                               carried=True, tag=frame)
+            self.pipeline.add_frame(frame.stamp_ns, frame.targets, received_ns=t_arrival,
+                                    carried=True, tag=frame)
 
-    # a locator whose results depend on earlier frames (tracked blob-set ids,
-    # LocatorConfig.stateful where it exists) sees the stream in order, in one thread
-    pool = _PairPool(rig, locator_config, 1 if getattr(locator_config, "stateful", False)
-                     else opts.workers or available_cpus(), task_timeout_s=opts.task_timeout_s)
-    try:
-        # local: io.bags.streams loads io.bags.mcap_chunks and io.bags.mcap_tasks (~20 ms more
-        # at each `process` worker's start-up, which does not use them)
+    def read(self, pool: _PairPool, progress: Callable[[int], object] | None) -> None:
+        """Every message of the bag in log-time order: robot poses and ground truth into the
+        pipeline, images paired and handed to ``pool``, its results taken in stamp order."""
+        # local: reader only; io.bags.streams loads io.bags.mcap_chunks and io.bags.mcap_tasks
+        # (~20 ms more at each `process` worker's start-up, which does not use them)
+        from eye_in_hand.io.bags import memory_mappable, typestore_for
         from eye_in_hand.io.bags.streams import decoded_stream, worker_readable
+        from eye_in_hand.ros.geometry import point_to_xyz, pose_to_matrix
+        from eye_in_hand.ros.stamps import header_stamp_ns
 
+        path, opts, info = self.path, self.opts, self.info
         mappable = memory_mappable(path)                       # uncompressed MCAP
         in_workers = pool.parallel and not mappable and worker_readable(path)   # compressed
         if in_workers or mappable:
             pool.start_processes()     # they import and initialise while this process sets up
-        if typestore is None:
-            typestore = typestore_for(path, {info.topics[t].msgtype for t in topics})
-        source = decoded_stream(path, topics, typestore, verify_crc=opts.verify_crc,
-                                damage=result.damage, image_topics=(opts.left_topic,
-                                                                    opts.right_topic),
+        if self.typestore is None:
+            self.typestore = typestore_for(path, {info.topics[t].msgtype for t in self.topics})
+        source = decoded_stream(path, self.topics, self.typestore, verify_crc=opts.verify_crc,
+                                damage=self.result.damage, image_topics=(opts.left_topic,
+                                                                         opts.right_topic),
                                 submit=pool.submit_chunks if in_workers else None)
+        tf_buffer, pipeline, sync, ledger = self.tf_buffer, self.pipeline, self.sync, self.ledger
+        counts, truth, note, take = self.counts, self.truth, self.note, self.take
         for topic, _t, msg in source:
             if progress is not None:
                 progress(1)
@@ -357,31 +384,51 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
                 note(f"{topic} at {_t} ns: {exc}")
         for frame in pool.ready(wait=True):
             take(frame)
-    finally:
-        pool.close()
-    result.located_in_processes = pool.in_processes
-    result.notes.extend(pool.notes)
-    counts["worker_timeouts"] = pool.timeouts        # their pairs were located again here
-    counts["pairs_relocated"] = pool.relocated
-    pipeline.flush()  # end of bag: the last points are resolved (or refused) now
-    ledger.close(sync, None if fixed else localizer)
-    for frame in result.frames:
-        if frame.status == "located":
-            frame.status = "ok"
-    result.target_ids = target_order(result.frames,
-                                     [t.name for t in locator_config.detector.targets])
-    result.truth_match = assign_truth(result.frames, truth, result.target_ids)
-    counts["ground_truth"] = len(truth)
-    counts["damaged_regions"] = len(result.damage)
-    counts["messages_lost"] = result.damage.messages_lost
-    result.loss = loss_total(counts, result.damage, (opts.left_topic, opts.right_topic))
-    counts["lost"] = result.loss["total"]
-    return result
+
+    def finish(self, pool: _PairPool, target_names: list[str]) -> ProcessResult:
+        """End of bag: the pool's counts, the last waiting pairs resolved, the ground truth
+        matched to the located ids, and the loss total."""
+        from eye_in_hand.io.results import assign_truth, target_order  # local: reader only
+
+        result, counts, opts = self.result, self.counts, self.opts
+        result.located_in_processes = pool.in_processes
+        result.notes.extend(pool.notes)
+        counts["worker_timeouts"] = pool.timeouts        # their pairs were located again here
+        counts["pairs_relocated"] = pool.relocated
+        self.pipeline.flush()  # end of bag: the last points are resolved (or refused) now
+        self.ledger.close(self.sync, None if self.fixed else self.localizer)
+        for frame in result.frames:
+            if frame.status == "located":
+                frame.status = "ok"
+        result.target_ids = target_order(result.frames, target_names)
+        result.truth_match = assign_truth(result.frames, self.truth, result.target_ids)
+        counts["ground_truth"] = len(self.truth)
+        counts["damaged_regions"] = len(result.damage)
+        counts["messages_lost"] = result.damage.messages_lost
+        result.loss = loss_total(counts, result.damage, (opts.left_topic, opts.right_topic))
+        counts["lost"] = result.loss["total"]
+        return result
 
 
-def _no_wait_clock() -> float:
-    """The pipeline's wait clock offline: waits never run out (the bag's end flushes them)."""
-    return 0.0
+def _make_localizer(opts: ProcessOptions, fixed: bool, n_poses: int, hand_eye_T: np.ndarray,
+                    hand_eye_cov: np.ndarray | None,
+                    pose_correction: RobotPoseCorrection | None) -> Any:
+    """A fixed camera's localizer, or the hand_eye node's with a pose buffer for every robot
+    pose of the bag (``n_poses``)."""
+    # local: reader only (see the imports at the top)
+    from eye_in_hand.core.eye_to_hand import EyeToHandLocalizer
+    from eye_in_hand.core.localization import Localizer
+    from eye_in_hand.core.pipeline import localizer_config
+
+    if fixed:
+        return EyeToHandLocalizer(hand_eye_T, hand_eye_cov)
+    return Localizer(
+        hand_eye_T, hand_eye_cov, localizer_config(
+            max_pose_gap_s=opts.max_pose_gap_s, max_pose_age_s=opts.max_pose_age_s,
+            pose_jump_back_s=opts.pose_jump_back_s, buffer_size=max(2, n_poses + 2),
+            robot_sigma_pos_m=opts.robot_sigma_pos_m,
+            robot_sigma_rot_rad=opts.robot_sigma_rot_rad),
+        pose_correction=pose_correction)
 
 
 class _FrameResults:

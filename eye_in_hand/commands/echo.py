@@ -7,6 +7,7 @@ import json
 import math
 import sys
 import time
+from collections.abc import Callable
 from typing import Any
 
 import yaml
@@ -107,7 +108,6 @@ def run(args: argparse.Namespace) -> int:
     rclpy.init(args=[])
     node = None
     executor = None
-    received = 0
     try:
         executor = SingleThreadedExecutor()  # first: one interrupted in its constructor spews
         node = Node("eye_in_hand_echo")
@@ -119,41 +119,16 @@ def run(args: argparse.Namespace) -> int:
         def expired() -> bool:
             return deadline is not None and time.monotonic() >= deadline
 
-        msgtype = args.msgtype
-        publishers: list = []
-        while True:  # wait for the topic (and its type) to appear
-            types = dict(node.get_topic_names_and_types())
-            publishers = node.get_publishers_info_by_topic(topic)
-            if msgtype is None and topic in types:
-                msgtype = types[topic][0]
-            if msgtype is not None and (publishers or args.msgtype):
-                break
-            if expired():
-                raise EyeInHandError(f"topic {topic} did not appear within {args.timeout:g} s")
-            executor.spin_once(timeout_sec=0.05)
+        msgtype, publishers = _wait_for_topic(node, executor, topic, args, expired)
         cls = import_message_type(msgtype)
         if cls is None:
             raise InputError(f"message type {msgtype} of topic {topic} is not installed")
         # 100 deep: a burst of results is not lost while this process is busy printing
         qos = subscription_qos(publishers, depth=100) if publishers else QoSProfile(depth=100)
-
-        def on_message(msg: Any) -> None:
-            nonlocal received
-            if args.count and received >= args.count:
-                return
-            received += 1
-            data = message_to_dict(msg, args.truncate_length)
-            if args.json:
-                sys.stdout.write(json.dumps(data, default=_json_default) + "\n")
-            else:
-                sys.stdout.write(yaml.safe_dump(data, default_flow_style=False,
-                                                sort_keys=False, allow_unicode=True,
-                                                width=10**9) + "---\n")
-            sys.stdout.flush()
-
-        node.create_subscription(cls, topic, on_message, qos)
-        while not (args.count and received >= args.count):
-            if received == 0 and expired():
+        printer = _Printer(args.count, args.truncate_length, args.json)
+        node.create_subscription(cls, topic, printer, qos)
+        while not (args.count and printer.received >= args.count):
+            if printer.received == 0 and expired():
                 raise EyeInHandError(
                     f"no message received on {topic} within {args.timeout:g} s")
             executor.spin_once(timeout_sec=0.05)
@@ -166,3 +141,43 @@ def run(args: argparse.Namespace) -> int:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+
+
+def _wait_for_topic(node: Any, executor: Any, topic: str, args: argparse.Namespace,
+                    expired: Callable[[], bool]) -> tuple[str, list]:
+    """Spin until ``topic`` has a type (``args.msgtype`` or the advertised one) and a
+    publisher (or the type was given): ``(msgtype, publishers' info)``."""
+    msgtype = args.msgtype
+    publishers: list = []
+    while True:  # wait for the topic (and its type) to appear
+        types = dict(node.get_topic_names_and_types())
+        publishers = node.get_publishers_info_by_topic(topic)
+        if msgtype is None and topic in types:
+            msgtype = types[topic][0]
+        if msgtype is not None and (publishers or args.msgtype):
+            return msgtype, publishers
+        if expired():
+            raise EyeInHandError(f"topic {topic} did not appear within {args.timeout:g} s")
+        executor.spin_once(timeout_sec=0.05)
+
+
+class _Printer:
+    """The subscription's callback: each message as YAML (or a JSON line) on stdout, up to
+    ``count`` of them (0: no limit); ``received`` counts the ones printed."""
+
+    def __init__(self, count: int, truncate_length: int, as_json: bool) -> None:
+        self.count, self.truncate_length, self.as_json = count, truncate_length, as_json
+        self.received = 0
+
+    def __call__(self, msg: Any) -> None:
+        if self.count and self.received >= self.count:
+            return
+        self.received += 1
+        data = message_to_dict(msg, self.truncate_length)
+        if self.as_json:
+            sys.stdout.write(json.dumps(data, default=_json_default) + "\n")
+        else:
+            sys.stdout.write(yaml.safe_dump(data, default_flow_style=False,
+                                            sort_keys=False, allow_unicode=True,
+                                            width=10**9) + "---\n")
+        sys.stdout.flush()

@@ -221,6 +221,35 @@ class _Association:
     xr: list[np.ndarray] = field(default_factory=list)
 
 
+def _unpaired_reasons(out: _Association,
+                      fails: Mapping[tuple[int, int], tuple[int, str, str]], free_l: list[int],
+                      free_r: list[int], amb_l: set[int], amb_r: set[int]) -> None:
+    """Why each unpaired blob (on either side) without a reason yet stayed unpaired:
+    ambiguous, no unpaired blob on the other side, or its pair that got furthest through the
+    gates (:func:`_furthest`)."""
+    for i in free_l:
+        if i in out.left_reasons:
+            continue
+        if i in amb_l:
+            out.left_reasons[i] = ("ambiguous", "two left/right assignments are equally "
+                                   "good")
+        elif not free_r:
+            out.left_reasons[i] = ("not_detected_right",
+                                   "no unpaired blob in the right image")
+        else:
+            out.left_reasons[i] = _furthest(fails, [(i, j) for j in free_r])
+    for j in free_r:
+        if j in out.right_reasons:
+            continue
+        if j in amb_r:
+            out.right_reasons[j] = ("ambiguous", "two left/right assignments are equally "
+                                    "good")
+        elif not free_l:
+            out.right_reasons[j] = ("not_detected_left", "no unpaired blob in the left image")
+        else:
+            out.right_reasons[j] = _furthest(fails, [(i, j) for i in free_l])
+
+
 @dataclass
 class _Track:
     """A known blob of a blob set: id number, last point (left optical frame, metres), last
@@ -380,31 +409,9 @@ class StereoLocator:
                                  for j in range(len(cr))}
             return out
         n, m = len(cl), len(cr)
-        cost = np.full((n, m), _INFEASIBLE)
-        fails: dict[tuple[int, int], tuple[int, str, str]] = {}
-        locs: dict[tuple[int, int], TargetLocation] = {}
-        for i in range(n):
-            for j in range(m):
-                ok = self._gate(spec, cl[i], cr[j], xl[i], xr[j])
-                if isinstance(ok, TargetLocation):
-                    locs[i, j] = ok
-                    cost[i, j] = abs(xl[i][self._row] - xr[j][self._row])
-                else:
-                    fails[i, j] = ok
+        cost, fails, locs = self._gate_all(spec, cl, cr, xl, xr)
         best = _assign(cost)
-        amb_l: set[int] = set()
-        amb_r: set[int] = set()
-        if best and self._has_alternatives(cost):
-            total = sum(cost[i, j] for i, j in best)
-            for i, j in best:
-                c2 = cost.copy()
-                c2[i, j] = _INFEASIBLE
-                alt = _assign(c2)
-                if len(alt) == len(best) and \
-                        sum(c2[a, b] for a, b in alt) - total <= self.config.ambiguity_margin_px:
-                    for a, b in set(best) ^ set(alt):
-                        amb_l.add(a)
-                        amb_r.add(b)
+        amb_l, amb_r = self._ambiguous(cost, best)
         accepted = sorted((ij for ij in best if ij[0] not in amb_l and ij[1] not in amb_r),
                           key=lambda ij: (ij[0], ij[1]))
         keep = accepted if spec.count == 0 else accepted[:spec.count]
@@ -419,28 +426,54 @@ class StereoLocator:
             out.right_reasons[j] = ("over_count", msg)
         free_r = [j for j in range(m) if j not in used_r]
         free_l = [i for i in range(n) if i not in used_l]
-        for i in free_l:
-            if i in out.left_reasons:
-                continue
-            if i in amb_l:
-                out.left_reasons[i] = ("ambiguous", "two left/right assignments are equally "
-                                       "good")
-            elif not free_r:
-                out.left_reasons[i] = ("not_detected_right",
-                                       "no unpaired blob in the right image")
-            else:
-                out.left_reasons[i] = _furthest(fails, [(i, j) for j in free_r])
-        for j in free_r:
-            if j in out.right_reasons:
-                continue
-            if j in amb_r:
-                out.right_reasons[j] = ("ambiguous", "two left/right assignments are equally "
-                                        "good")
-            elif not free_l:
-                out.right_reasons[j] = ("not_detected_left", "no unpaired blob in the left image")
-            else:
-                out.right_reasons[j] = _furthest(fails, [(i, j) for i in free_l])
-        # the target's (or blob set's) own reason
+        _unpaired_reasons(out, fails, free_l, free_r, amb_l, amb_r)
+        self._own_reason(out, spec, fails, free_l, free_r, amb_l)
+        return out
+
+    def _gate_all(self, spec: TargetSpec, cl: Sequence[Detection], cr: Sequence[Detection],
+                  xl: list[np.ndarray], xr: list[np.ndarray]
+                  ) -> tuple[np.ndarray, dict[tuple[int, int], tuple[int, str, str]],
+                             dict[tuple[int, int], TargetLocation]]:
+        """Every left/right pair through :meth:`_gate`: the cost matrix (rectified row
+        difference, ``_INFEASIBLE`` where the gate fails), each failed pair's reason and each
+        passed pair's location."""
+        cost = np.full((len(cl), len(cr)), _INFEASIBLE)
+        fails: dict[tuple[int, int], tuple[int, str, str]] = {}
+        locs: dict[tuple[int, int], TargetLocation] = {}
+        for i in range(len(cl)):
+            for j in range(len(cr)):
+                ok = self._gate(spec, cl[i], cr[j], xl[i], xr[j])
+                if isinstance(ok, TargetLocation):
+                    locs[i, j] = ok
+                    cost[i, j] = abs(xl[i][self._row] - xr[j][self._row])
+                else:
+                    fails[i, j] = ok
+        return cost, fails, locs
+
+    def _ambiguous(self, cost: np.ndarray, best: list[tuple[int, int]]
+                   ) -> tuple[set[int], set[int]]:
+        """The left and right blobs of pairs that another assignment with as many pairs,
+        within ``ambiguity_margin_px`` of the best's cost, pairs differently."""
+        amb_l: set[int] = set()
+        amb_r: set[int] = set()
+        if best and self._has_alternatives(cost):
+            total = sum(cost[i, j] for i, j in best)
+            for i, j in best:
+                c2 = cost.copy()
+                c2[i, j] = _INFEASIBLE
+                alt = _assign(c2)
+                if len(alt) == len(best) and \
+                        sum(c2[a, b] for a, b in alt) - total <= self.config.ambiguity_margin_px:
+                    for a, b in set(best) ^ set(alt):
+                        amb_l.add(a)
+                        amb_r.add(b)
+        return amb_l, amb_r
+
+    def _own_reason(self, out: _Association, spec: TargetSpec,
+                    fails: Mapping[tuple[int, int], tuple[int, str, str]], free_l: list[int],
+                    free_r: list[int], amb_l: set[int]) -> None:
+        """The target's (or blob set's) own reason: why nothing was located, or for a set
+        why some blob was left out (ambiguity first, then the first unpaired blob's)."""
         if not out.located:
             if amb_l:
                 out.reason, out.message = "ambiguous", (
@@ -458,7 +491,6 @@ class StereoLocator:
                     f"{len(amb_l)} blob(s) could pair with more than one partner equally well")
             elif pending:
                 out.reason, out.message = pending[0][1]
-        return out
 
     @staticmethod
     def _has_alternatives(cost: np.ndarray) -> bool:

@@ -376,6 +376,34 @@ def _decode(bag: _Bag, views: Mapping[str, str], chosen: Mapping[int, Any]
     return decoded, infos, truth, bad_images
 
 
+def _image_stamps(bag: _Bag, topic: str) -> list[int]:
+    """The header stamps of ``topic``'s images, sorted (pass 1: headers only); an image
+    without a readable one recorded in the bag's damage log."""
+    stamps: list[int] = []
+    for msg_topic, _msgtype, log_ns, raw in bag.messages([topic]):
+        try:
+            stamps.append(_cdr_header_stamp_ns(raw))
+        except _UNUSABLE as exc:
+            bag.log.bad_message(msg_topic, log_ns, str(exc))
+    stamps.sort()
+    return stamps
+
+
+def _cameras(infos: Mapping[str, Any], views: Mapping[str, str], source: str
+             ) -> tuple[CameraModel | None, StereoRig | None]:
+    """The camera (mono) or the rig (stereo) of the views' camera_info, when every view has
+    one."""
+    camera = rig = None
+    if set(infos) == set(views):
+        if "image" in views:
+            camera = camera_info_to_model(infos["image"], name="camera")
+        else:
+            left = camera_info_to_model(infos["left"], name="left")
+            right = camera_info_to_model(infos["right"], name="right")
+            rig = StereoRig.from_ros_pair(left, right, source=f"{source}: camera_info")
+    return camera, rig
+
+
 def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = None,
                      right_image_topic: str | None = None, pose_topic: str | None = None,
                      joint_topic: str | None = None, kinematics: Any = None,
@@ -430,13 +458,7 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
                                        base_frame, ee_frame, tf_topic, tf_static_topic)
 
     # Image stamps of the reference view (pass 1), stillness and grouping.
-    stamps: list[int] = []
-    for topic, _msgtype, log_ns, raw in bag.messages([left_topic]):
-        try:
-            stamps.append(_cdr_header_stamp_ns(raw))
-        except _UNUSABLE as exc:
-            log.bad_message(topic, log_ns, str(exc))
-    stamps.sort()
+    stamps = _image_stamps(bag, left_topic)
     chosen, skipped = _stops(stamps, series, still_window_s, still_translation_m,
                              still_rotation_deg)
     decoded, infos, truth, bad_images = _decode(bag, views, chosen)
@@ -450,14 +472,8 @@ def read_bag_samples(path: str | os.PathLike[str], *, image_topic: str | None = 
                                 stamp, f"no {'/'.join(missing)} image with the same stamp")})
             continue
         samples.append(BagSample(name, stamp, decoded[stamp], T))
-    camera = rig = None
-    if set(infos) == set(views):
-        if "image" in views:
-            camera = camera_info_to_model(infos["image"], name="camera")
-        else:
-            left = camera_info_to_model(infos["left"], name="left")
-            right = camera_info_to_model(infos["right"], name="right")
-            rig = StereoRig.from_ros_pair(left, right, source=f"{source}: camera_info")
+    camera, rig = _cameras(infos, views, source)
     return BagSamples(samples=tuple(samples), camera=camera, rig=rig, image_topics=views,
                       pose_source=pose_source, skipped=tuple(skipped), n_images=len(stamps),
                       ground_truth=truth, damage=log)
+

@@ -181,62 +181,19 @@ def hand_eye_from_dict(data: Any, source: str = "<hand_eye>") -> HandEyeCalibrat
         if not isinstance(value, str) or not value:
             raise _fail(source, f"missing or empty key '{key}'")
         frames.append(value)
-    t = _vector(data, "translation", 3, source)
-    q = _vector(data, "quat_xyzw", 4, source)
-    norm = float(np.linalg.norm(q))
-    if abs(norm - 1.0) > _QUAT_NORM_TOL:
-        raise _fail(source, f"'quat_xyzw' is not a unit quaternion (norm {norm:.9f}); "
-                            "expected (x, y, z, w) with norm 1")
-    try:
-        T = from_xyz_quat(t, q / norm)
-    except InputError as exc:
-        raise _fail(source, str(exc)) from exc
-    cov = None
-    if data.get("covariance") is not None:
-        try:
-            cov = np.asarray(data["covariance"], dtype=np.float64)
-        except (TypeError, ValueError) as exc:
-            raise _fail(source, "'covariance' must be a 6x6 list of numbers") from exc
-        if cov.shape == (36,):
-            cov = cov.reshape(6, 6)
-        if cov.shape != (6, 6):
-            raise _fail(source, f"'covariance' must be 6x6, got shape {cov.shape}")
-        if not np.all(np.isfinite(cov)):
-            raise _fail(source, "'covariance' contains NaN or infinite values")
-        if np.max(np.abs(cov - cov.T)) > 1e-9 * max(1.0, float(np.max(np.abs(cov)))):
-            raise _fail(source, "'covariance' is not symmetric")
-        if np.min(np.linalg.eigvalsh(cov)) < -1e-12 * max(1.0, float(np.max(np.abs(cov)))):
-            raise _fail(source, "'covariance' is not positive semi-definite")
+    T = _transform(data, source)
+    cov = _covariance(data.get("covariance"), source)
     order = data.get("covariance_order")
     if order is not None and list(order) != list(COVARIANCE_ORDER):
         raise _fail(source, f"'covariance_order' must be {list(COVARIANCE_ORDER)}, got {order}")
     count = data.get("sample_count", 0)
     if isinstance(count, bool) or not isinstance(count, int) or count < 0:
         raise _fail(source, f"'sample_count' must be a non-negative integer, got {count!r}")
-    residuals = data.get("residuals") or {}
-    if not isinstance(residuals, Mapping):
-        raise _fail(source, "'residuals' must be a mapping of names to numbers")
-    clean: dict[str, float | None] = {}
-    for k, v in residuals.items():
-        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
-                              or not math.isfinite(float(v))):
-            raise _fail(source, f"residuals.{k}: expected a finite number or null, got {v!r}")
-        clean[str(k)] = None if v is None else float(v)
+    clean = _residuals(data.get("residuals") or {}, source)
     method = data.get("method", "unknown")
     if not isinstance(method, str):
         raise _fail(source, f"'method' must be text, got {method!r}")
-    noise = data.get("robot_pose_noise")
-    if noise is not None:
-        if not isinstance(noise, Mapping) or set(noise) != set(_NOISE_KEYS):
-            raise _fail(source, "'robot_pose_noise' must be a mapping with "
-                                f"{', '.join(_NOISE_KEYS)}, got {noise!r}")
-        for k in _NOISE_KEYS:
-            v = noise[k]
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
-                    or v < 0:
-                raise _fail(source, f"robot_pose_noise.{k}: expected a finite number >= 0, got "
-                                    f"{v!r}")
-        noise = {k: float(noise[k]) for k in _NOISE_KEYS}
+    noise = _noise(data.get("robot_pose_noise"), source)
     correction = _correction(data.get("robot_pose_correction"), source)
     if correction is not None and setup != "eye_in_hand":
         raise _fail(source, "'robot_pose_correction' is for eye_in_hand calibrations (an "
@@ -246,6 +203,71 @@ def hand_eye_from_dict(data: Any, source: str = "<hand_eye>") -> HandEyeCalibrat
                               sample_count=count, residuals=clean,
                               stamp=str(data.get("stamp", "") or ""), robot_pose_noise=noise,
                               robot_pose_correction=correction)
+
+
+def _transform(data: Mapping[str, Any], source: str) -> np.ndarray:
+    """The 4x4 transform of ``translation`` and ``quat_xyzw`` (a unit quaternion)."""
+    t = _vector(data, "translation", 3, source)
+    q = _vector(data, "quat_xyzw", 4, source)
+    norm = float(np.linalg.norm(q))
+    if abs(norm - 1.0) > _QUAT_NORM_TOL:
+        raise _fail(source, f"'quat_xyzw' is not a unit quaternion (norm {norm:.9f}); "
+                            "expected (x, y, z, w) with norm 1")
+    try:
+        return from_xyz_quat(t, q / norm)
+    except InputError as exc:
+        raise _fail(source, str(exc)) from exc
+
+
+def _covariance(value: Any, source: str) -> np.ndarray | None:
+    """``covariance``: None, or a finite, symmetric, positive semi-definite 6x6 matrix (36
+    numbers in a row are taken row by row)."""
+    if value is None:
+        return None
+    try:
+        cov = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise _fail(source, "'covariance' must be a 6x6 list of numbers") from exc
+    if cov.shape == (36,):
+        cov = cov.reshape(6, 6)
+    if cov.shape != (6, 6):
+        raise _fail(source, f"'covariance' must be 6x6, got shape {cov.shape}")
+    if not np.all(np.isfinite(cov)):
+        raise _fail(source, "'covariance' contains NaN or infinite values")
+    if np.max(np.abs(cov - cov.T)) > 1e-9 * max(1.0, float(np.max(np.abs(cov)))):
+        raise _fail(source, "'covariance' is not symmetric")
+    if np.min(np.linalg.eigvalsh(cov)) < -1e-12 * max(1.0, float(np.max(np.abs(cov)))):
+        raise _fail(source, "'covariance' is not positive semi-definite")
+    return cov
+
+
+def _residuals(residuals: Any, source: str) -> dict[str, float | None]:
+    """``residuals``: names to finite numbers (or null)."""
+    if not isinstance(residuals, Mapping):
+        raise _fail(source, "'residuals' must be a mapping of names to numbers")
+    clean: dict[str, float | None] = {}
+    for k, v in residuals.items():
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
+                              or not math.isfinite(float(v))):
+            raise _fail(source, f"residuals.{k}: expected a finite number or null, got {v!r}")
+        clean[str(k)] = None if v is None else float(v)
+    return clean
+
+
+def _noise(noise: Any, source: str) -> dict[str, float] | None:
+    """``robot_pose_noise``: None, or both sigmas as finite numbers >= 0."""
+    if noise is None:
+        return None
+    if not isinstance(noise, Mapping) or set(noise) != set(_NOISE_KEYS):
+        raise _fail(source, "'robot_pose_noise' must be a mapping with "
+                            f"{', '.join(_NOISE_KEYS)}, got {noise!r}")
+    for k in _NOISE_KEYS:
+        v = noise[k]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+                or v < 0:
+            raise _fail(source, f"robot_pose_noise.{k}: expected a finite number >= 0, got "
+                                f"{v!r}")
+    return {k: float(noise[k]) for k in _NOISE_KEYS}
 
 
 _CORRECTION_KEYS = ("model", "reference_quat_xyzw", "rotation_rad_per_rad",

@@ -234,15 +234,41 @@ def stereo_report(cal: Any, names: Sequence[tuple[str, str]], board: Any, descri
         pair_name: its name.
     """
     rig = cal.rig
-    q = cal.quality
     d = cal.to_dict()
-    st = d["stereo"]
     report = HtmlReport("Stereo calibration", f"board {board}; input: {description}")
+    _stereo_summary(report, cal, d["stereo"], len(names), board, len(skipped))
+    _stereo_parameters(report, cal, d)
+    _stereo_pairs(report, cal, skipped)
+    views = list(cal.views)
+    report.add_section("Residuals")
+    report.add_figure(residual_figure([
+        ("left", [v.left_residuals for v in views if v.used]),
+        ("right", [v.right_residuals for v in views if v.used])]))
+    report.add_section("Coverage")
+    report.add_figure(coverage_figure([
+        ("left", cal.left.coverage_map, rig.left.size,
+         [v.corners for v in cal.left.used_views], cal.left.coverage),
+        ("right", cal.right.coverage_map, rig.right.size,
+         [v.corners for v in cal.right.used_views], cal.right.coverage)]))
+    if pair_images is not None:
+        report.add_section("Rectified pair")
+        lc, rc = pair_corners if pair_corners is not None else (None, None)
+        img = rectified_pair_image(rig, pair_images[0], pair_images[1], lc, rc)
+        report.add_image_array(img, f"{pair_name}: rectified left and right images; corners "
+                                    "of a good calibration sit on the same green line")
+    return report
+
+
+def _stereo_summary(report: HtmlReport, cal: Any, st: dict, n_pairs: int, board: Any,
+                    n_skipped: int) -> None:
+    """The summary table of a stereo calibration (``st``: its ``to_dict()["stereo"]``) and
+    the three checks of a good one."""
+    rig, q = cal.rig, cal.quality
     report.add_section("Summary")
     report.add_table([
-        ["image pairs", len(names)],
+        ["image pairs", n_pairs],
         ["pairs used (board in both images)", st["n_pairs_used"]],
-        ["images without a usable board", len(skipped)],
+        ["images without a usable board", n_skipped],
         ["joint RMS [px]", cal.rms_px],
         ["left / right RMS in the joint fit [px]",
          f"{cal.side_rms('left'):.4f} / {cal.side_rms('right'):.4f}"],
@@ -268,6 +294,11 @@ def stereo_report(cal: Any, names: Sequence[tuple[str, str]], board: Any, descri
                       f"{q.rectified_dy_mean_px:.3f} px")
     report.add_status("square length measured back within 1 %", rel <= 0.01, f"{100 * rel:.2f} %")
     report.add_status("joint RMS below 0.5 px", cal.rms_px < 0.5, f"{cal.rms_px:.4f} px")
+
+
+def _stereo_parameters(report: HtmlReport, cal: Any, d: dict) -> None:
+    """Each camera's parameters and the extrinsic, with their standard deviations."""
+    rig = cal.rig
     report.add_section("Parameters (1-sigma from the joint fit's Jacobian)")
     for side, cam in (("left", rig.left), ("right", rig.right)):
         report.add_heading(f"{side} camera")
@@ -281,6 +312,10 @@ def stereo_report(cal: Any, names: Sequence[tuple[str, str]], board: Any, descri
             for i, a in enumerate("xyz")]
     ext.append(["baseline [mm]", *value_and_std(rig.baseline, cal.std["baseline"], 1000.0)])
     report.add_table(ext, header=["parameter", "value", "std"])
+
+
+def _stereo_pairs(report: HtmlReport, cal: Any, skipped: Sequence[dict]) -> None:
+    """Every pair's RMS in the joint fit (a figure and a table), and the skipped images."""
     report.add_section("Per-pair errors (joint fit)")
     views = list(cal.views)
     report.add_figure(per_view_figure([v.name for v in views], [v.rms_px for v in views],
@@ -294,23 +329,6 @@ def stereo_report(cal: Any, names: Sequence[tuple[str, str]], board: Any, descri
                      row_classes=["bad" if v.outlier else ("warn" if not v.used else "")
                                   for v in views])
     _skipped_table(report, skipped)
-    report.add_section("Residuals")
-    report.add_figure(residual_figure([
-        ("left", [v.left_residuals for v in views if v.used]),
-        ("right", [v.right_residuals for v in views if v.used])]))
-    report.add_section("Coverage")
-    report.add_figure(coverage_figure([
-        ("left", cal.left.coverage_map, rig.left.size,
-         [v.corners for v in cal.left.used_views], cal.left.coverage),
-        ("right", cal.right.coverage_map, rig.right.size,
-         [v.corners for v in cal.right.used_views], cal.right.coverage)]))
-    if pair_images is not None:
-        report.add_section("Rectified pair")
-        lc, rc = pair_corners if pair_corners is not None else (None, None)
-        img = rectified_pair_image(rig, pair_images[0], pair_images[1], lc, rc)
-        report.add_image_array(img, f"{pair_name}: rectified left and right images; corners "
-                                    "of a good calibration sit on the same green line")
-    return report
 
 
 def _rvec(R: np.ndarray) -> np.ndarray:

@@ -18,8 +18,28 @@ __all__ = ["write_outputs", "save_outputs"]
 
 
 def _html(result: Any, report: dict[str, Any], path: Path) -> None:
+    """``report.html``: the result, the input, each method against the others, the samples,
+    the board in the fixed frame and the motion diagnostics."""
     rep = HtmlReport("Hand-eye calibration", f"setup {result.setup}, selected method "
                                             f"{result.selected}")
+    _html_result(rep, result, report)
+    for w in report["warnings"]:
+        rep.add_status("warning", False, w)
+    _html_input(rep, report.get("input") or {})
+    _html_truth(rep, report)
+    _html_budget(rep, report)
+    _html_methods(rep, result, report)
+    _html_average(rep, report)
+    _html_motion_residuals(rep, report, result.selected)
+    _html_method_differences(rep, result)
+    _html_samples(rep, result, report)
+    _html_board(rep, result, report)
+    _html_diagnostics(rep, report["diagnostics"])
+    rep.save(path)
+
+
+def _html_result(rep: Any, result: Any, report: dict[str, Any]) -> None:
+    """The selected X, its uncertainty, why it was selected and the samples, as a table."""
     rep.add_section("Result")
     sel = report["methods"][result.selected]
     noise = result.robot_pose_noise
@@ -36,14 +56,13 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
                    ["samples rejected", ", ".join(r.name for r in result.rejected) or "none"],
                    ["samples skipped", ", ".join(s["name"] for s in report["skipped"]) or
                     "none"]], header=["quantity", "value"])
-    for w in report["warnings"]:
-        rep.add_status("warning", False, w)
-    _html_input(rep, report.get("input") or {})
-    _html_truth(rep, report)
-    _html_budget(rep, report)
+
+
+def _html_methods(rep: Any, result: Any, report: dict[str, Any]) -> None:
+    """Every method's selection score, held-out figures, residuals and uncertainty."""
     rep.add_section("Method comparison")
-    rows, names = [], list(result.methods)
-    for name in names:
+    rows = []
+    for name in result.methods:
         s = report["methods"][name]
         r = s["residuals"]
         h = s["held_out"] or {}
@@ -56,8 +75,11 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
                                 "held-out deg", "AX=XB rot deg", "AX=XB trans mm",
                                 "board spread mm", "board spread deg", "reproj px", "sigma mm",
                                 "sigma deg"], precision=PRECISION)
-    _html_average(rep, report)
-    _html_motion_residuals(rep, report, result.selected)
+
+
+def _html_method_differences(rep: Any, result: Any) -> None:
+    """A figure: each method's X from the selected one (mm, deg)."""
+    names = list(result.methods)
     sel_X = result.X
     fig = new_figure(7.0, 3.2)
     ax1, ax2 = fig.subplots(1, 2)
@@ -72,6 +94,11 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
         ax.set_xticks(range(len(names)), names, rotation=45, ha="right", fontsize=8)
         ax.set_ylabel(lab)
     rep.add_figure(fig, "difference of each method's X from the selected one")
+
+
+def _html_samples(rep: Any, result: Any, report: dict[str, Any]) -> None:
+    """The selected method's per-sample residuals (a figure), and every sample's row: used,
+    rejected or skipped."""
     rep.add_section("Per-sample residuals")
     m = result.methods[result.selected]
     fig = new_figure(7.0, 3.2)
@@ -103,6 +130,10 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
         rows.append([s["name"], "skipped: " + s["reason"]] + [""] * 7)
         classes.append("warn")
     rep.add_table(rows, header=header, row_classes=classes, precision=PRECISION)
+
+
+def _html_board(rep: Any, result: Any, report: dict[str, Any]) -> None:
+    """A figure: the board origin in the fixed frame per sample, by each method's X."""
     rep.add_section("Board in the fixed frame")
     # local: core.handeye loads SciPy (~0.35 s), and this module loads at CLI start-up
     from eye_in_hand.core.handeye import board_in_fixed_frame
@@ -111,7 +142,7 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
     fig = new_figure(7.0, 3.2)
     ax1, ax2 = fig.subplots(1, 2)
     fig.subplots_adjust(wspace=0.35)
-    for name in names:
+    for name in result.methods:
         mr = result.methods[name]
         bte = report["_bte"]
         ctb = report["_ctb"]
@@ -126,8 +157,6 @@ def _html(result: Any, report: dict[str, Any], path: Path) -> None:
     ax1.legend(fontsize=6)
     rep.add_figure(fig, f"board origin in the fixed frame per sample minus its mean "
                         f"({len(names_used)} samples)")
-    _html_diagnostics(rep, report["diagnostics"])
-    rep.save(path)
 
 
 #: Significant digits of the report's table cells: the residuals and uncertainties are known to

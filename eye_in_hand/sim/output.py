@@ -50,6 +50,7 @@ import numpy as np
 import yaml
 from rosbags.typesys import Stores, get_typestore
 
+from eye_in_hand.core.camera import StereoRig
 from eye_in_hand.core.transforms import to_xyz_quat
 from eye_in_hand.errors import InputError
 from eye_in_hand.io.bags import BagWriter, OfferedQos
@@ -97,6 +98,26 @@ FRAMES: dict[str, str] = {
     "left": "camera_left_optical_frame",
     "right": "camera_right_optical_frame",
 }
+
+# images offered reliable (as stereo_capture and most camera drivers): every subscriber matches
+_SENSOR_QOS = (OfferedQos("reliable", "volatile", "keep_last", 5),)
+_LATCHED = (OfferedQos("reliable", "transient_local", "keep_last", 1),)
+_RELIABLE = (OfferedQos("reliable", "volatile", "keep_last", 100),)
+#: The topics of a simulated bag, in the order they are added: (key of TOPICS, type, QoS).
+_BAG_TOPICS: tuple[tuple[str, str, tuple[OfferedQos, ...]], ...] = (
+    ("left_image", "sensor_msgs/msg/Image", _SENSOR_QOS),
+    ("right_image", "sensor_msgs/msg/Image", _SENSOR_QOS),
+    ("left_info", "sensor_msgs/msg/CameraInfo", _SENSOR_QOS),
+    ("right_info", "sensor_msgs/msg/CameraInfo", _SENSOR_QOS),
+    ("joint_states", "sensor_msgs/msg/JointState", _RELIABLE),
+    ("ee_pose", "geometry_msgs/msg/PoseStamped", _RELIABLE),
+    ("tf", "tf2_msgs/msg/TFMessage", _RELIABLE),
+    ("tf_static", "tf2_msgs/msg/TFMessage", _LATCHED),
+    ("gt_target", "geometry_msgs/msg/PointStamped", _RELIABLE),
+    ("gt_hand_eye", "geometry_msgs/msg/TransformStamped", _LATCHED),
+    ("gt_board", "geometry_msgs/msg/PoseStamped", _LATCHED),
+    ("gt_ee_pose", "geometry_msgs/msg/PoseStamped", _RELIABLE),
+    ("gt_ee_pose_reported", "geometry_msgs/msg/PoseStamped", _RELIABLE))
 
 _IMAGE_CLOCK_OFFSET_NS = 3_100_000  # the camera clock is not aligned with the robot clock
 
@@ -322,86 +343,89 @@ def write_bag(world: World, out: str | Path, *, scenario: str, frames: int, seed
                                still_images_only=still_images_only)
 
     rig = world.rig.rectified()
-    arm = world.arm
     err = world.robot_error
     # encoder noise: its own stream, so that the images' noise and the poses do not change
     qs_rep = reported_joints(qs, err, np.random.default_rng([seed, err.seed, 0x5eed]))
-    offset_ns = int(round(err.time_offset_s * 1e9))
-    # images offered reliable (as stereo_capture and most camera drivers): every subscriber matches
-    sensor_qos = (OfferedQos("reliable", "volatile", "keep_last", 5),)
-    latched = (OfferedQos("reliable", "transient_local", "keep_last", 1),)
-    reliable = (OfferedQos("reliable", "volatile", "keep_last", 100),)
     store = get_typestore(Stores.ROS2_JAZZY)
     writer = BagWriter(out, storage=storage, compression="zstd",
                        typestore=store)
     with writer:
         m = _Msgs(store)
-        for key, typ, qos in (
-                ("left_image", "sensor_msgs/msg/Image", sensor_qos),
-                ("right_image", "sensor_msgs/msg/Image", sensor_qos),
-                ("left_info", "sensor_msgs/msg/CameraInfo", sensor_qos),
-                ("right_info", "sensor_msgs/msg/CameraInfo", sensor_qos),
-                ("joint_states", "sensor_msgs/msg/JointState", reliable),
-                ("ee_pose", "geometry_msgs/msg/PoseStamped", reliable),
-                ("tf", "tf2_msgs/msg/TFMessage", reliable),
-                ("tf_static", "tf2_msgs/msg/TFMessage", latched),
-                ("gt_target", "geometry_msgs/msg/PointStamped", reliable),
-                ("gt_hand_eye", "geometry_msgs/msg/TransformStamped", latched),
-                ("gt_board", "geometry_msgs/msg/PoseStamped", latched),
-                ("gt_ee_pose", "geometry_msgs/msg/PoseStamped", reliable),
-                ("gt_ee_pose_reported", "geometry_msgs/msg/PoseStamped", reliable)):
+        for key, typ, qos in _BAG_TOPICS:
             if key == "ee_pose" and not ee_pose:
                 continue
             writer.add_topic(TOPICS[key], typ, qos=qos)
-        t0 = int(stamps[0])
-        static = [m.transform_stamped(world.left_T_right, t0, FRAMES["left"], FRAMES["right"])]
-        if arm.dh_frame != arm.base_frame:    # ur_description: base_link -> base, Rz(pi)
-            static.insert(0, m.transform_stamped(np.array(arm.base_T_dh), t0, arm.base_frame,
-                                                 arm.dh_frame))
-        writer.write(TOPICS["tf_static"], t0, m.tf(static))
-        writer.write(TOPICS["gt_hand_eye"], t0, m.transform_stamped(
-            world.ee_T_cam, t0, FRAMES["tool"], FRAMES["left"]))
-        writer.write(TOPICS["gt_board"], t0, m.pose_stamped(world.base_T_board, t0,
-                                                            arm.base_frame))
-        # robot streams
-        dt = 1.0 / robot_rate_hz
-        frames_names = (arm.dh_frame, *arm.link_names)
-        for k, (ns, q) in enumerate(zip(stamps, qs_rep, strict=True)):
-            ns = int(ns)
-            k0, k1 = max(k - 1, 0), min(k + 1, len(qs) - 1)
-            dq = (qs_rep[k1] - qs_rep[k0]) / (max(k1 - k0, 1) * dt)
-            writer.write(TOPICS["joint_states"], ns, m.joint_state(arm.joint_names, q, dq, ns))
-            link_T = arm.joint_transforms(q)
-            writer.write(TOPICS["tf"], ns, m.tf([
-                m.transform_stamped(A, ns, frames_names[i], frames_names[i + 1])
-                for i, A in enumerate(link_T)]))
-            if ee_pose:
-                writer.write(TOPICS["ee_pose"], ns, m.pose_stamped(arm.fk(q), ns,
-                                                                   arm.base_frame))
-        # images
-        for n_img, ns in enumerate(img_stamps):
-            q, _ = _interp_q(stamps, qs, ns + offset_ns)   # the true arm when exposed
-            q_rep, _ = _interp_q(stamps, qs_rep, ns)         # what the robot reports at ns
-            frame = world.render(q, seed=seed * 1_000_003 + n_img,
-                                 noise_sigma=render.noise_sigma,
-                                 supersample=render.supersample, blur_sigma=render.blur_sigma,
-                                 exposure=render.exposure)
-            writer.write(TOPICS["left_image"], ns, m.image(frame.left, ns, FRAMES["left"]))
-            writer.write(TOPICS["right_image"], ns, m.image(frame.right, ns, FRAMES["right"]))
-            writer.write(TOPICS["left_info"], ns, m.camera_info(rig.left, ns, FRAMES["left"]))
-            writer.write(TOPICS["right_info"], ns, m.camera_info(rig.right, ns,
-                                                                 FRAMES["right"]))
-            for c in frame.truth.targets_base:
-                writer.write(TOPICS["gt_target"], ns, m.point_stamped(c, ns, arm.base_frame))
-            writer.write(TOPICS["gt_ee_pose"], ns, m.pose_stamped(frame.truth.base_T_ee, ns,
-                                                                  arm.base_frame))
-            writer.write(TOPICS["gt_ee_pose_reported"], ns,
-                         m.pose_stamped(arm.fk(q_rep), ns, arm.base_frame))
-            if progress is not None:
-                progress(n_img + 1, len(img_stamps))
+        _write_static(writer, m, world, int(stamps[0]))
+        _write_robot(writer, m, world, stamps, qs_rep, robot_rate_hz, ee_pose)
+        _write_images(writer, m, world, rig, stamps, qs, qs_rep, img_stamps, seed=seed,
+                      render=render, progress=progress)
         counts = writer.counts
     return BagSummary(path=Path(out), n_images=len(img_stamps), n_robot=len(stamps),
                       duration_s=(int(stamps[-1]) - int(stamps[0])) / 1e9, counts=counts)
+
+
+def _write_static(writer: BagWriter, m: _Msgs, world: World, t0: int) -> None:
+    """The latched messages at the first stamp: /tf_static and the true hand-eye and board."""
+    arm = world.arm
+    static = [m.transform_stamped(world.left_T_right, t0, FRAMES["left"], FRAMES["right"])]
+    if arm.dh_frame != arm.base_frame:    # ur_description: base_link -> base, Rz(pi)
+        static.insert(0, m.transform_stamped(np.array(arm.base_T_dh), t0, arm.base_frame,
+                                             arm.dh_frame))
+    writer.write(TOPICS["tf_static"], t0, m.tf(static))
+    writer.write(TOPICS["gt_hand_eye"], t0, m.transform_stamped(
+        world.ee_T_cam, t0, FRAMES["tool"], FRAMES["left"]))
+    writer.write(TOPICS["gt_board"], t0, m.pose_stamped(world.base_T_board, t0,
+                                                        arm.base_frame))
+
+
+def _write_robot(writer: BagWriter, m: _Msgs, world: World, stamps: np.ndarray,
+                 qs_rep: np.ndarray, robot_rate_hz: float, ee_pose: bool) -> None:
+    """The robot streams at every sample: the reported joints (velocities by central
+    differences), their /tf chain and (``ee_pose``) the reported flange pose."""
+    arm = world.arm
+    dt = 1.0 / robot_rate_hz
+    frames_names = (arm.dh_frame, *arm.link_names)
+    for k, (ns, q) in enumerate(zip(stamps, qs_rep, strict=True)):
+        ns = int(ns)
+        k0, k1 = max(k - 1, 0), min(k + 1, len(qs_rep) - 1)
+        dq = (qs_rep[k1] - qs_rep[k0]) / (max(k1 - k0, 1) * dt)
+        writer.write(TOPICS["joint_states"], ns, m.joint_state(arm.joint_names, q, dq, ns))
+        link_T = arm.joint_transforms(q)
+        writer.write(TOPICS["tf"], ns, m.tf([
+            m.transform_stamped(A, ns, frames_names[i], frames_names[i + 1])
+            for i, A in enumerate(link_T)]))
+        if ee_pose:
+            writer.write(TOPICS["ee_pose"], ns, m.pose_stamped(arm.fk(q), ns,
+                                                               arm.base_frame))
+
+
+def _write_images(writer: BagWriter, m: _Msgs, world: World, rig: StereoRig, stamps: np.ndarray,
+                  qs: np.ndarray, qs_rep: np.ndarray, img_stamps: Sequence[int], *, seed: int,
+                  render: RenderOptions, progress: Callable[[int, int], None] | None) -> None:
+    """Each stereo pair rendered from the true arm when exposed, with its camera_info and the
+    ground truth at its stamp (the targets, the true and the reported flange pose)."""
+    arm = world.arm
+    offset_ns = int(round(world.robot_error.time_offset_s * 1e9))
+    for n_img, ns in enumerate(img_stamps):
+        q, _ = _interp_q(stamps, qs, ns + offset_ns)   # the true arm when exposed
+        q_rep, _ = _interp_q(stamps, qs_rep, ns)         # what the robot reports at ns
+        frame = world.render(q, seed=seed * 1_000_003 + n_img,
+                             noise_sigma=render.noise_sigma,
+                             supersample=render.supersample, blur_sigma=render.blur_sigma,
+                             exposure=render.exposure)
+        writer.write(TOPICS["left_image"], ns, m.image(frame.left, ns, FRAMES["left"]))
+        writer.write(TOPICS["right_image"], ns, m.image(frame.right, ns, FRAMES["right"]))
+        writer.write(TOPICS["left_info"], ns, m.camera_info(rig.left, ns, FRAMES["left"]))
+        writer.write(TOPICS["right_info"], ns, m.camera_info(rig.right, ns,
+                                                             FRAMES["right"]))
+        for c in frame.truth.targets_base:
+            writer.write(TOPICS["gt_target"], ns, m.point_stamped(c, ns, arm.base_frame))
+        writer.write(TOPICS["gt_ee_pose"], ns, m.pose_stamped(frame.truth.base_T_ee, ns,
+                                                              arm.base_frame))
+        writer.write(TOPICS["gt_ee_pose_reported"], ns,
+                     m.pose_stamped(arm.fk(q_rep), ns, arm.base_frame))
+        if progress is not None:
+            progress(n_img + 1, len(img_stamps))
 
 
 def write_dataset(world: World, out: str | Path, *, frames: int, seed: int = 0,

@@ -111,6 +111,53 @@ def _axis_rot(axis: int, angle: float) -> np.ndarray:
     return R
 
 
+def _candidate_camera(world: World, rng: np.random.Generator, centre: np.ndarray,
+                      frame: tuple[np.ndarray, np.ndarray, np.ndarray],
+                      distance: tuple[float, float], max_tilt_deg: float,
+                      image_spread: float) -> np.ndarray:
+    """A random ``base_T_cam`` of :func:`calibration_poses`: looking at a point near the board
+    centre from a direction within ``max_tilt_deg`` of its normal (``frame``: the normal and
+    two axes across it), then turned so that the board centre lands off the principal
+    point."""
+    normal, e1, e2 = frame
+    tilt = math.radians(max_tilt_deg) * math.sqrt(rng.uniform(0.0, 1.0))
+    az = rng.uniform(0.0, 2 * math.pi)
+    d = rng.uniform(*distance)
+    direction = (math.cos(tilt) * normal
+                 + math.sin(tilt) * (math.cos(az) * e1 + math.sin(az) * e2))
+    aim = centre + rng.uniform(-0.03, 0.03, size=3) * np.array([1.0, 1.0, 0.0])
+    base_T_cam = look_at(aim, aim + d * direction, roll=rng.uniform(-0.6, 0.6))
+    if image_spread > 0:
+        cam = world.rig.left
+        du = rng.uniform(-image_spread, image_spread) * cam.width / 2
+        dv = rng.uniform(-image_spread, image_spread) * cam.height / 2
+        turn = np.eye(4)
+        turn[:3, :3] = (_axis_rot(1, -math.atan2(du, cam.fx))
+                        @ _axis_rot(0, math.atan2(dv, cam.fy)))
+        base_T_cam = base_T_cam @ turn
+    return base_T_cam
+
+
+def _step_axis(cams: list[np.ndarray], base_T_cam: np.ndarray, last_axis: np.ndarray | None,
+               step_deg: tuple[float, float]) -> np.ndarray | None:
+    """The rotation axis of the step from the last accepted camera pose to ``base_T_cam``;
+    None when the step is refused: its angle outside ``step_deg``, within 10 degrees of an
+    earlier pose, or its axis within 30 degrees of the previous step's."""
+    R_rel = cams[-1][:3, :3].T @ base_T_cam[:3, :3]
+    angle = math.degrees(rotation_angle(R_rel))
+    if not step_deg[0] <= angle <= step_deg[1]:
+        return None
+    if min(math.degrees(rotation_angle(c[:3, :3].T @ base_T_cam[:3, :3]))
+           for c in cams) < 10.0:
+        return None
+    axis = Rotation.from_matrix(R_rel).as_rotvec()
+    axis /= np.linalg.norm(axis)
+    if last_axis is not None and abs(float(axis @ last_axis)) > math.cos(
+            math.radians(30.0)):
+        return None
+    return axis
+
+
 def calibration_poses(world: World, n: int, seed: int = 0, *,
                       distance: tuple[float, float] = (0.30, 0.48),
                       max_tilt_deg: float = 38.0,
@@ -157,36 +204,13 @@ def calibration_poses(world: World, n: int, seed: int = 0, *,
     for _ in range(max_candidates):
         if len(poses) == n:
             break
-        tilt = math.radians(max_tilt_deg) * math.sqrt(rng.uniform(0.0, 1.0))
-        az = rng.uniform(0.0, 2 * math.pi)
-        d = rng.uniform(*distance)
-        direction = (math.cos(tilt) * normal
-                     + math.sin(tilt) * (math.cos(az) * e1 + math.sin(az) * e2))
-        aim = centre + rng.uniform(-0.03, 0.03, size=3) * np.array([1.0, 1.0, 0.0])
-        base_T_cam = look_at(aim, aim + d * direction, roll=rng.uniform(-0.6, 0.6))
-        if image_spread > 0:
-            cam = world.rig.left
-            du = rng.uniform(-image_spread, image_spread) * cam.width / 2
-            dv = rng.uniform(-image_spread, image_spread) * cam.height / 2
-            turn = np.eye(4)
-            turn[:3, :3] = (_axis_rot(1, -math.atan2(du, cam.fx))
-                            @ _axis_rot(0, math.atan2(dv, cam.fy)))
-            base_T_cam = base_T_cam @ turn
+        base_T_cam = _candidate_camera(world, rng, centre, (normal, e1, e2), distance,
+                                       max_tilt_deg, image_spread)
+        axis = None
         if cams:
-            R_rel = cams[-1][:3, :3].T @ base_T_cam[:3, :3]
-            angle = math.degrees(rotation_angle(R_rel))
-            if not step_deg[0] <= angle <= step_deg[1]:
+            axis = _step_axis(cams, base_T_cam, last_axis, step_deg)
+            if axis is None:
                 continue
-            if min(math.degrees(rotation_angle(c[:3, :3].T @ base_T_cam[:3, :3]))
-                   for c in cams) < 10.0:
-                continue
-            axis = Rotation.from_matrix(R_rel).as_rotvec()
-            axis /= np.linalg.norm(axis)
-            if last_axis is not None and abs(float(axis @ last_axis)) > math.cos(
-                    math.radians(30.0)):
-                continue
-        else:
-            axis = None
         if not camera_pose_ok(world, base_T_cam, board=True):
             continue
         seeds = [poses[-1], home] if poses else [home]

@@ -21,6 +21,28 @@ _SADDLE_BLUR = 1.0        # Gaussian sigma (px) applied before the fit
 _SADDLE_MAX_SHIFT = 1.5   # a fit moving a corner further than this (px) is not trusted
 
 
+def _blurred_region(gray: np.ndarray, pts: np.ndarray, half: int, blur: float
+                    ) -> tuple[np.ndarray, int, int]:
+    """The image around the corners ``pts`` (plus the window and the blur's reach) smoothed
+    by a Gaussian of ``blur`` px, as float32, and its top-left pixel ``(x0, y0)``: only that
+    region is blurred."""
+    pad = half + int(np.ceil(4 * blur)) + 3
+    h_img, w_img = gray.shape[:2]
+    x0 = max(int(np.floor(pts[:, 0].min())) - pad, 0)
+    y0 = max(int(np.floor(pts[:, 1].min())) - pad, 0)
+    x1 = min(int(np.ceil(pts[:, 0].max())) + pad + 1, w_img)
+    y1 = min(int(np.ceil(pts[:, 1].max())) + pad + 1, h_img)
+    return cv2.GaussianBlur(gray[y0:y1, x0:x1].astype(np.float32), (0, 0), blur), x0, y0
+
+
+def _quadratic_design(half: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The window's pixel offsets ``(xx, yy)`` (each ``(2 half + 1, 2 half + 1)``) and the
+    design matrix of ``a x^2 + b xy + c y^2 + d x + e y + f`` over them, row by row."""
+    yy, xx = np.mgrid[-half:half + 1, -half:half + 1].astype(np.float64)
+    x, y = xx.ravel(), yy.ravel()
+    return xx, yy, np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)], axis=1)
+
+
 def refine_saddle(gray: np.ndarray, corners: np.ndarray, *, half: int = _SADDLE_HALF,
                   blur: float = _SADDLE_BLUR,
                   max_shift: float = _SADDLE_MAX_SHIFT) -> tuple[np.ndarray, np.ndarray]:
@@ -55,17 +77,8 @@ def refine_saddle(gray: np.ndarray, corners: np.ndarray, *, half: int = _SADDLE_
     sigma = np.full(n, np.nan)
     if n == 0:
         return pts.copy(), sigma
-    # blur only the region around the corners (plus the window and the blur's reach)
-    pad = half + int(np.ceil(4 * blur)) + 3
-    h_img, w_img = gray.shape[:2]
-    x0 = max(int(np.floor(pts[:, 0].min())) - pad, 0)
-    y0 = max(int(np.floor(pts[:, 1].min())) - pad, 0)
-    x1 = min(int(np.ceil(pts[:, 0].max())) + pad + 1, w_img)
-    y1 = min(int(np.ceil(pts[:, 1].max())) + pad + 1, h_img)
-    g = cv2.GaussianBlur(gray[y0:y1, x0:x1].astype(np.float32), (0, 0), blur)
-    yy, xx = np.mgrid[-half:half + 1, -half:half + 1].astype(np.float64)
-    x, y = xx.ravel(), yy.ravel()
-    A = np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)], axis=1)
+    g, x0, y0 = _blurred_region(gray, pts, half, blur)
+    xx, yy, A = _quadratic_design(half)
     pinv = np.linalg.pinv(A)
     AtA_inv = np.linalg.inv(A.T @ A)
     k = 2 * half + 1

@@ -439,6 +439,9 @@ def _stereo_once(left: Sequence[BoardDetection], right: Sequence[BoardDetection]
                  board: BoardSpec | None, options: CalibrationOptions, method: str,
                  fix_intrinsics: bool, alpha: float, thr_abs: float | None, min_views: int,
                  rejected: list[int]) -> StereoCalibration:
+    """One round of :func:`calibrate_stereo` over the ``active`` views: each camera alone,
+    the extrinsic's start, the joint solve, rectification, per-view results and the
+    parameters' standard deviations."""
     n = len(left)
     missing = BoardDetection.missing((0, 0), "", "not used")
     ldets = [left[i] if i in active else missing for i in range(n)]
@@ -463,51 +466,15 @@ def _stereo_once(left: Sequence[BoardDetection], right: Sequence[BoardDetection]
         raise CalibrationError("stereo: no pair has a board pose in both cameras")
     r_T_l = average_transforms(rels)
     size = mono_l.camera.size
-    K = [np.array(mono_l.camera.K), np.array(mono_r.camera.K)]
-    dist = [np.array(mono_l.camera.dist), np.array(mono_r.camera.dist)]
-    ext_r, ext_t = _rvec(r_T_l[:3, :3]), r_T_l[:3, 3].copy()
-
+    start = _JointStart([np.array(mono_l.camera.K), np.array(mono_r.camera.K)],
+                        [np.array(mono_l.camera.dist), np.array(mono_r.camera.dist)],
+                        _rvec(r_T_l[:3, :3]), r_T_l[:3, 3].copy(), [], [], [])
     if method == "opencv":
-        obj, pl, pr = [], [], []
-        for i in paired:
-            _, o, a, b = _pair_points(left[i], right[i])
-            obj.append(o.astype(np.float32))
-            pl.append(a.astype(np.float32).reshape(-1, 1, 2))
-            pr.append(b.astype(np.float32).reshape(-1, 1, 2))
-        flags = options.cv_flags() | (cv2.CALIB_FIX_INTRINSIC if fix_intrinsics
-                                      else cv2.CALIB_USE_INTRINSIC_GUESS)
-        criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
-        try:
-            out = cv2.stereoCalibrateExtended(
-                obj, pl, pr, K[0], dist[0], K[1], dist[1], size, _as_pose(ext_r, ext_t)[:3, :3],
-                ext_t.reshape(3, 1), flags=flags | cv2.CALIB_USE_EXTRINSIC_GUESS,
-                criteria=criteria)
-        except cv2.error as exc:
-            raise CalibrationError(f"cv2.stereoCalibrate failed: {str(exc).strip()}") from exc
-        _, K0, d0, K1, d1, Rx, Tx = out[:7]
-        rvecs, tvecs = out[9], out[10]
-        K = [np.asarray(K0), np.asarray(K1)]
-        dist = [np.asarray(d0).ravel()[:options.n_dist], np.asarray(d1).ravel()[:options.n_dist]]
-        ext_r, ext_t = _rvec(Rx), np.asarray(Tx, dtype=np.float64).ravel()
-        views_in = list(paired)
-        poses = [(np.asarray(rvecs[k]).ravel(), np.asarray(tvecs[k]).ravel())
-                 for k in range(len(paired))]
-        obs: list[list[tuple[np.ndarray, np.ndarray] | None]] = [[(o, a), (o, b)] for o, a, b in
-               ((_pair_points(left[i], right[i])[1], _pair_points(left[i], right[i])[2],
-                 _pair_points(left[i], right[i])[3]) for i in paired)]
+        start = _opencv_start(start, left, right, paired, size, options, fix_intrinsics)
     else:
-        views_in, poses, obs = [], [], []
-        r_T_l_now = _as_pose(ext_r, ext_t)
-        for i in active:
-            has_l, has_r = i in pose_l, i in pose_r
-            if not (has_l or has_r):
-                continue
-            T = pose_l[i] if has_l else np.linalg.inv(r_T_l_now) @ pose_r[i]
-            views_in.append(i)
-            poses.append((_rvec(T[:3, :3]), T[:3, 3].copy()))
-            obs.append([(left[i].object_points, left[i].corners) if has_l else None,
-                        (right[i].object_points, right[i].corners) if has_r else None])
-    bundle = _Bundle(K, dist, ext_r, ext_t, poses, obs, options, fix_intrinsics)
+        start = _bundle_start(start, left, right, active, pose_l, pose_r)
+    bundle = _Bundle(start.K, start.dist, start.ext_r, start.ext_t, start.poses, start.obs,
+                     options, fix_intrinsics)
     if method == "bundle":
         x, cov = bundle.solve()
     else:
@@ -523,8 +490,97 @@ def _stereo_once(left: Sequence[BoardDetection], right: Sequence[BoardDetection]
     Rx = _as_pose(x[bundle.ext0:bundle.ext0 + 3], np.zeros(3))[:3, :3]
     Tx = x[bundle.ext0 + 3:bundle.ext0 + 6].copy()
     rig = StereoRig(left=cams[0], right=cams[1], R=Rx, T=Tx).rectified(alpha)
+    views, thr = _view_results(left, right, lnames, rnames, start.views_in, per_view, paired,
+                               rejected, thr_abs)
+    std = _standard_deviations(bundle, cov, Tx, options, fix_intrinsics)
+    quality = stereo_quality(rig, [(left[i], right[i]) for i in paired], board)
+    return StereoCalibration(rig=rig, left=mono_l, right=mono_r, rms_px=rms, views=tuple(views),
+                             std=std, quality=quality, method=method, alpha=alpha,
+                             outlier_threshold_px=thr,
+                             rejected=tuple(lnames[i] for i in rejected), options=options,
+                             fix_intrinsics=fix_intrinsics)
 
-    # per-view results and outliers
+
+@dataclass
+class _JointStart:
+    """Where the joint solve starts: both cameras' ``K`` and ``dist``, the extrinsic (Rodrigues
+    vector, translation), and for each view in it (``views_in``) its board pose (rvec, tvec)
+    and its observations ``[(object points, pixels) or None per camera]``; the mono start
+    has no views yet."""
+
+    K: list[np.ndarray]
+    dist: list[np.ndarray]
+    ext_r: np.ndarray
+    ext_t: np.ndarray
+    views_in: list[int]
+    poses: list[tuple[np.ndarray, np.ndarray]]
+    obs: list[list[tuple[np.ndarray, np.ndarray] | None]]
+
+
+def _opencv_start(start: _JointStart, left: Sequence[BoardDetection],
+                  right: Sequence[BoardDetection], paired: list[int], size: tuple[int, int],
+                  options: CalibrationOptions, fix_intrinsics: bool) -> _JointStart:
+    """``method="opencv"``: ``cv2.stereoCalibrate`` from the mono start on the paired views;
+    its result is the (unrefined) joint solution."""
+    K, dist, ext_r, ext_t = start.K, start.dist, start.ext_r, start.ext_t
+    obj, pl, pr = [], [], []
+    for i in paired:
+        _, o, a, b = _pair_points(left[i], right[i])
+        obj.append(o.astype(np.float32))
+        pl.append(a.astype(np.float32).reshape(-1, 1, 2))
+        pr.append(b.astype(np.float32).reshape(-1, 1, 2))
+    flags = options.cv_flags() | (cv2.CALIB_FIX_INTRINSIC if fix_intrinsics
+                                  else cv2.CALIB_USE_INTRINSIC_GUESS)
+    criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+    try:
+        out = cv2.stereoCalibrateExtended(
+            obj, pl, pr, K[0], dist[0], K[1], dist[1], size, _as_pose(ext_r, ext_t)[:3, :3],
+            ext_t.reshape(3, 1), flags=flags | cv2.CALIB_USE_EXTRINSIC_GUESS,
+            criteria=criteria)
+    except cv2.error as exc:
+        raise CalibrationError(f"cv2.stereoCalibrate failed: {str(exc).strip()}") from exc
+    _, K0, d0, K1, d1, Rx, Tx = out[:7]
+    rvecs, tvecs = out[9], out[10]
+    poses = [(np.asarray(rvecs[k]).ravel(), np.asarray(tvecs[k]).ravel())
+             for k in range(len(paired))]
+    obs: list[list[tuple[np.ndarray, np.ndarray] | None]] = [[(o, a), (o, b)] for o, a, b in
+           ((_pair_points(left[i], right[i])[1], _pair_points(left[i], right[i])[2],
+             _pair_points(left[i], right[i])[3]) for i in paired)]
+    return _JointStart(
+        [np.asarray(K0), np.asarray(K1)],
+        [np.asarray(d0).ravel()[:options.n_dist], np.asarray(d1).ravel()[:options.n_dist]],
+        _rvec(Rx), np.asarray(Tx, dtype=np.float64).ravel(), list(paired), poses, obs)
+
+
+def _bundle_start(start: _JointStart, left: Sequence[BoardDetection],
+                  right: Sequence[BoardDetection], active: list[int],
+                  pose_l: dict[int, np.ndarray], pose_r: dict[int, np.ndarray]) -> _JointStart:
+    """``method="bundle"``: every active view that either camera saw, its board pose the left
+    camera's (or the right's carried over by the start extrinsic)."""
+    views_in: list[int] = []
+    poses: list[tuple[np.ndarray, np.ndarray]] = []
+    obs: list[list[tuple[np.ndarray, np.ndarray] | None]] = []
+    r_T_l_now = _as_pose(start.ext_r, start.ext_t)
+    for i in active:
+        has_l, has_r = i in pose_l, i in pose_r
+        if not (has_l or has_r):
+            continue
+        T = pose_l[i] if has_l else np.linalg.inv(r_T_l_now) @ pose_r[i]
+        views_in.append(i)
+        poses.append((_rvec(T[:3, :3]), T[:3, 3].copy()))
+        obs.append([(left[i].object_points, left[i].corners) if has_l else None,
+                    (right[i].object_points, right[i].corners) if has_r else None])
+    return _JointStart(start.K, start.dist, start.ext_r, start.ext_t, views_in, poses, obs)
+
+
+def _view_results(left: Sequence[BoardDetection], right: Sequence[BoardDetection],
+                  lnames: list[str], rnames: list[str], views_in: list[int],
+                  per_view: list[list[np.ndarray | None]], paired: list[int],
+                  rejected: list[int], thr_abs: float | None
+                  ) -> tuple[list[StereoViewResult], float]:
+    """Every view's result (its residuals and RMS where it was in the solve) and the outlier
+    threshold over the RMS of the views in it."""
+    n = len(left)
     view_rms = {}
     res_of: dict[int, list[np.ndarray | None]] = {}
     for k, i in enumerate(views_in):
@@ -544,8 +600,12 @@ def _stereo_once(left: Sequence[BoardDetection], right: Sequence[BoardDetection]
             right_found=bool(right[i].found), n_points=npts, rms_px=vr, used=used,
             paired=i in paired, outlier=(used and vr > thr) or i in rejected,
             left_residuals=lr, right_residuals=rr))
+    return views, thr
 
-    # standard deviations
+
+def _standard_deviations(bundle: _Bundle, cov: np.ndarray, Tx: np.ndarray,
+                         options: CalibrationOptions, fix_intrinsics: bool) -> dict[str, float]:
+    """Standard deviations of each camera's parameters, the extrinsic and the baseline."""
     sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     names_c = list(_INTRINSIC_NAMES) + list(_DIST_NAMES[:options.n_dist])
     std: dict[str, float] = {}
@@ -560,10 +620,4 @@ def _stereo_once(left: Sequence[BoardDetection], right: Sequence[BoardDetection]
     covT = cov[e0 + 3:e0 + 6, e0 + 3:e0 + 6]
     g = Tx / np.linalg.norm(Tx)
     std["baseline"] = float(np.sqrt(max(0.0, g @ covT @ g)))
-
-    quality = stereo_quality(rig, [(left[i], right[i]) for i in paired], board)
-    return StereoCalibration(rig=rig, left=mono_l, right=mono_r, rms_px=rms, views=tuple(views),
-                             std=std, quality=quality, method=method, alpha=alpha,
-                             outlier_threshold_px=thr,
-                             rejected=tuple(lnames[i] for i in rejected), options=options,
-                             fix_intrinsics=fix_intrinsics)
+    return std

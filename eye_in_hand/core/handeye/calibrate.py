@@ -551,6 +551,46 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
             method, or a solver failure.
     """
     _check_options(setup, method, average_solver, robot_model, refine)
+    kept, rejected, warnings = _screen(samples, setup, check_conventions, reject_outliers,
+                                       outlier_threshold, outlier_floor_mm, outlier_floor_deg)
+    bte = np.stack([s.base_T_ee for s in kept])
+    ctb = np.stack([s.cam_T_board for s in kept])
+    diag = motion_diagnostics(bte, setup)
+    warnings.extend(diag.warnings)
+    use_corners, loo = _modes(kept, cameras, leave_one_out, warnings)
+    held: dict[str, HeldOut] = {}
+    results = _closed_forms(kept, bte, ctb, cameras, setup, average_solver, use_corners, loo,
+                            warnings, held)
+    if not results:
+        raise HandEyeError("every closed-form solver failed on these samples: "
+                           + "; ".join(w for w in warnings if " failed on these samples" in w))
+    best = _best_closed_form(results)
+    refinement, refinement_exact, systematic, held_out_sigma = _refinements(
+        results[best], kept, cameras, setup, use_corners, loo, refine,
+        robot_model == "systematic" or method == "refined_systematic", warnings, held,
+        results)
+    selected, reason, scores = _select(method, robot_model, results, held, best, warnings)
+    sel = results[selected]
+    warnings.extend(_disagreements(results, selected))
+    budget = None if sel.held_out is None else _budget(
+        sel, selected == "refined_systematic", kept, bte, systematic,
+        cameras if use_corners else None, setup)
+    return HandEyeResult(setup=setup, sample_names=[s.name for s in kept], rejected=rejected,
+                         diagnostics=diag, methods=results, selected=selected,
+                         warnings=warnings, refinement=refinement,
+                         refinement_exact=refinement_exact, selection_reason=reason,
+                         selection_scores=scores, held_out_sigma_m=held_out_sigma,
+                         systematic=systematic, robot_model=robot_model,
+                         error_budget=budget)
+
+
+def _screen(samples: Sequence[HandEyeSample], setup: str, check_conventions: bool,
+            reject_outliers: bool, outlier_threshold: float, outlier_floor_mm: float,
+            outlier_floor_deg: float
+            ) -> tuple[list[HandEyeSample], list[RejectedSample], list[str]]:
+    """The samples the calibration uses, the rejected ones and the warnings so far: valid
+    samples, enough of them, motions that can determine X (failing early), the conventions
+    checked, outliers rejected where there are enough samples to tell."""
     kept, warnings = validate_samples(samples)
     if len(kept) < MIN_SAMPLES:
         raise HandEyeError(f"hand-eye calibration needs at least {MIN_SAMPLES} samples, got "
@@ -572,25 +612,25 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
                                           outlier_floor_deg, min_keep)
         for r in rejected:
             warnings.append(f"sample {r.name!r} rejected: {r.reason}")
-    bte = np.stack([s.base_T_ee for s in kept])
-    ctb = np.stack([s.cam_T_board for s in kept])
-    diag = motion_diagnostics(bte, setup)
-    warnings.extend(diag.warnings)
+    return kept, rejected, warnings
+
+
+def _modes(kept: Sequence[HandEyeSample], cameras: Sequence[CameraView] | None,
+           leave_one_out: bool, warnings: list[str]) -> tuple[bool, bool]:
+    """Whether the refinement uses the corners (cameras, and corners in every sample) and
+    whether there are enough samples for the leave-one-out figures; a warning where not."""
     use_corners = bool(cameras) and all(len(s.observations) > 0 for s in kept)
     if bool(cameras) and not use_corners and any(len(s.observations) for s in kept):
         warnings.append("some samples have no corner observations: refinement in pose space")
-
     loo = leave_one_out and len(kept) > MIN_SAMPLES
     if leave_one_out and not loo:
         warnings.append(f"leave-one-out figures need more than {MIN_SAMPLES} samples")
-    held: dict[str, HeldOut] = {}
-    results = _closed_forms(kept, bte, ctb, cameras, setup, average_solver, use_corners, loo,
-                            warnings, held)
-    if not results:
-        raise HandEyeError("every closed-form solver failed on these samples: "
-                           + "; ".join(w for w in warnings if " failed on these samples" in w))
+    return use_corners, loo
 
-    # Best closed form: lowest reprojection RMS, else lowest normalised board spread.
+
+def _best_closed_form(results: dict[str, MethodResult]) -> str:
+    """The closed form the refinements start from: a classical one (the average when it
+    alone solved) with the lowest reprojection RMS, else the lowest normalised board spread."""
     def score(mr: MethodResult) -> float:
         if mr.reproj_rms_px is not None:
             return float(np.sqrt(np.mean(mr.reproj_rms_px ** 2)))
@@ -599,32 +639,22 @@ def calibrate_hand_eye(samples: Sequence[HandEyeSample], setup: str = "eye_in_ha
         return float(np.sqrt(np.mean(mr.board_dev_mm ** 2)) / max(ref_mm, 1e-12)
                      + np.sqrt(np.mean(mr.board_dev_deg ** 2)) / max(ref_deg, 1e-12))
 
-    # The refinements start from a classical closed form (the average when it alone solved).
-    best = min([k for k in results if k in CLOSED_FORM_METHODS] or list(results),
+    return min([k for k in results if k in CLOSED_FORM_METHODS] or list(results),
                key=lambda k: score(results[k]))
-    refinement, refinement_exact, systematic, held_out_sigma = _refinements(
-        results[best], kept, cameras, setup, use_corners, loo, refine,
-        robot_model == "systematic" or method == "refined_systematic", warnings, held,
-        results)
-    selected, reason, scores = _select(method, robot_model, results, held, best, warnings)
-    sel = results[selected]
-    warnings.extend(_disagreements(results, selected))
-    budget = None
-    if sel.held_out is not None:
-        used = kept
-        if selected == "refined_systematic" and systematic is not None:
-            used = [replace(s, base_T_ee=b)
-                    for s, b in zip(kept, systematic.correct(bte), strict=True)]
-        budget = error_budget(used, cameras if use_corners else None, setup, sel.Y,
-                              sel.board_dev_mm, sel.held_out.mm,
-                              None if systematic is None else systematic.correction(bte))
-    return HandEyeResult(setup=setup, sample_names=[s.name for s in kept], rejected=rejected,
-                         diagnostics=diag, methods=results, selected=selected,
-                         warnings=warnings, refinement=refinement,
-                         refinement_exact=refinement_exact, selection_reason=reason,
-                         selection_scores=scores, held_out_sigma_m=held_out_sigma,
-                         systematic=systematic, robot_model=robot_model,
-                         error_budget=budget)
+
+
+def _budget(sel: MethodResult, corrected: bool, kept: list[HandEyeSample], bte: np.ndarray,
+            systematic: SystematicResult | None, cameras: Sequence[CameraView] | None,
+            setup: str) -> dict[str, Any]:
+    """The selected method's error budget, over the robot poses it takes (``corrected``:
+    ``refined_systematic``'s, corrected by the systematic model)."""
+    assert sel.held_out is not None
+    used = kept
+    if corrected and systematic is not None:
+        used = [replace(s, base_T_ee=b)
+                for s, b in zip(kept, systematic.correct(bte), strict=True)]
+    return error_budget(used, cameras, setup, sel.Y, sel.board_dev_mm, sel.held_out.mm,
+                        None if systematic is None else systematic.correction(bte))
 
 
 def _check_options(setup: str, method: str, average_solver: str, robot_model: str,

@@ -303,54 +303,25 @@ def refine_errors_in_variables(X0: np.ndarray, Y0: np.ndarray,
     samples = list(samples)
     use_corners = bool(cameras) and all(len(s.observations) > 0 for s in samples)
     prob = _Problem(X0, Y0, samples, cameras, setup, use_corners)
-    bte = prob.bte
-    ctb = np.stack([s.cam_T_board for s in samples])
-    if sigmas is None:
-        sig: dict[str, float] = {}
-        # Upper-bound starts: the whole board-pose spread as robot noise.
-        Yi = board_in_fixed_frame(X0, bte, ctb, setup)
-        spread_t = np.linalg.norm(Yi[:, :3, 3] - Y0[:3, 3], axis=1)
-        dR = np.einsum("ji,kjl->kil", Y0[:3, :3], Yi[:, :3, :3])
-        spread_r = np.linalg.norm(Rotation.from_matrix(dR).as_rotvec(), axis=1)
-        sig["robot_t"] = max(float(np.median(spread_t)) / np.sqrt(3.0), 1e-5)
-        sig["robot_r"] = max(float(np.median(spread_r)) / np.sqrt(3.0), 1e-5)
-        if use_corners:
-            sig["px"] = 0.5
-        else:
-            sr, _ = pose_residual_scales(X0, Y0, bte, ctb, setup)
-            sig["cam_r"] = sr
-    else:
-        sig = dict(sigmas)
+    sig = dict(sigmas) if sigmas is not None else _start_sigmas(X0, Y0, prob, samples, setup,
+                                                               use_corners)
     p = np.concatenate([_start(X0), _start(Y0), np.zeros(6 * prob.n)])
     names = list(dict.fromkeys(prob.group_names))
     group_rows = {name: np.isin(prob.groups, [g for g, nm in enumerate(prob.group_names)
                                               if nm == name]) for name in names}
-    nfev = 0
-    converged = False
+    nfev, converged, iterations = 0, False, 0
     redundancy: dict[str, float] = {}
     r = prob.residuals(p, sig)
     cost = 0.5 * float(r @ r)
-    iterations = 0
     # Gauss-Newton steps, each followed by the variance-component update computed from the
     # linearised residuals at the new point (exact for the linearised problem).
     for iterations in range(1, max_iter + 1):  # noqa: B007 - the count is read after the loop
         Jg, Ju = prob.jacobian(p, sig)
-        nfev += 19
         step, _, h = _solve_normal(prob, _normal(prob, Jg, Ju, r), Jg, Ju, hat=estimate)
-        # Step halving if the cost rises (a safeguard: the problem is nearly linear here).
-        for _ in range(20):
-            r_new = prob.residuals(p + step, sig)
-            nfev += 1
-            cost_new = 0.5 * float(r_new @ r_new)
-            if cost_new <= cost * (1 + 1e-12) or np.linalg.norm(step) < 1e-14:
-                break
-            step *= 0.5
+        step, r_new, cost_new, evaluations = _safeguarded_step(prob, p, step, sig, cost)
+        nfev += 19 + evaluations
         p = p + step
-        m = prob.n_meas
-        r_lin = r.copy()
-        r_lin[:m] += Jg @ step[:12] + np.einsum("kj,kj->k", Ju,
-                                                 step[12:].reshape(prob.n, 6)[prob.meas_sample])
-        r_lin[m:] += step[12:]
+        r_lin = _linearised_residuals(prob, r, Jg, Ju, step)
         r, cost = r_new, cost_new
         small_step = bool(np.max(np.abs(step[:12])) < 1e-9)
         if not estimate:
@@ -359,19 +330,9 @@ def refine_errors_in_variables(X0: np.ndarray, Y0: np.ndarray,
                 break
             continue
         assert h is not None
-        new = dict(sig)
-        for name in names:
-            rows = group_rows[name]
-            r_g = float(rows.sum() - h[rows].sum())
-            redundancy[name] = r_g
-            if r_g > 1e-6:
-                new[name] = max(sig[name] * np.sqrt(float(r_lin[rows] @ r_lin[rows]) / r_g),
-                                SIGMA_FLOORS[name])
+        new = _variance_components(sig, group_rows, h, r_lin, redundancy)
         settled = all(abs(new[k] - sig[k]) < max(0.01 * sig[k], _SETTLED_ABS[k]) for k in sig)
-        # Keep the corrections d fixed while their scale changes.
-        u = p[12:].reshape(prob.n, 6)
-        u[:, :3] *= sig["robot_t"] / new["robot_t"]
-        u[:, 3:] *= sig["robot_r"] / new["robot_r"]
+        _keep_corrections(p, prob.n, sig, new)
         sig = new
         r = prob.residuals(p, sig)
         cost = 0.5 * float(r @ r)
@@ -379,15 +340,8 @@ def refine_errors_in_variables(X0: np.ndarray, Y0: np.ndarray,
         if settled and small_step:
             converged = True
             break
-    # A last step at the final levels, and the covariance there.
-    Jg, Ju = prob.jacobian(p, sig)
-    step, _, _ = _solve_normal(prob, _normal(prob, Jg, Ju, r), Jg, Ju, hat=False)
-    p = p + step
-    r = prob.residuals(p, sig)
-    Jg, Ju = prob.jacobian(p, sig)
+    p, r, cov = _final_step(prob, p, r, sig)
     nfev += 39
-    _, Cg, _ = _solve_normal(prob, _normal(prob, Jg, Ju, r), Jg, Ju, hat=False)
-    cov = 0.5 * (Cg + Cg.T)
     X = perturb(X0, p[:6])
     Y = perturb(Y0, p[6:12])
     return EivResult(X=X, Y=Y, covariance=cov[:6, :6], covariance_full=cov,
@@ -397,6 +351,91 @@ def refine_errors_in_variables(X0: np.ndarray, Y0: np.ndarray,
                      cost=0.5 * float(r @ r), nfev=nfev, iterations=iterations,
                      converged=converged, space="reprojection" if use_corners else "pose",
                      redundancy=redundancy)
+
+
+def _start_sigmas(X0: np.ndarray, Y0: np.ndarray, prob: _Problem,
+                  samples: list[HandEyeSample], setup: str,
+                  use_corners: bool) -> dict[str, float]:
+    """Upper-bound starts of the noise levels: the whole board-pose spread as robot noise; half
+    a pixel, or the camera-pose rotation scale of the start solution."""
+    sig: dict[str, float] = {}
+    bte = prob.bte
+    ctb = np.stack([s.cam_T_board for s in samples])
+    Yi = board_in_fixed_frame(X0, bte, ctb, setup)
+    spread_t = np.linalg.norm(Yi[:, :3, 3] - Y0[:3, 3], axis=1)
+    dR = np.einsum("ji,kjl->kil", Y0[:3, :3], Yi[:, :3, :3])
+    spread_r = np.linalg.norm(Rotation.from_matrix(dR).as_rotvec(), axis=1)
+    sig["robot_t"] = max(float(np.median(spread_t)) / np.sqrt(3.0), 1e-5)
+    sig["robot_r"] = max(float(np.median(spread_r)) / np.sqrt(3.0), 1e-5)
+    if use_corners:
+        sig["px"] = 0.5
+    else:
+        sr, _ = pose_residual_scales(X0, Y0, bte, ctb, setup)
+        sig["cam_r"] = sr
+    return sig
+
+
+def _safeguarded_step(prob: _Problem, p: np.ndarray, step: np.ndarray, sig: dict[str, float],
+                      cost: float) -> tuple[np.ndarray, np.ndarray, float, int]:
+    """The Gauss-Newton ``step`` halved while the cost rises (a safeguard: the problem is
+    nearly linear here): ``(step, residuals, cost, evaluations)`` at ``p + step``."""
+    evaluations = 0
+    for _ in range(20):
+        r_new = prob.residuals(p + step, sig)
+        evaluations += 1
+        cost_new = 0.5 * float(r_new @ r_new)
+        if cost_new <= cost * (1 + 1e-12) or np.linalg.norm(step) < 1e-14:
+            break
+        step *= 0.5
+    return step, r_new, cost_new, evaluations
+
+
+def _linearised_residuals(prob: _Problem, r: np.ndarray, Jg: np.ndarray, Ju: np.ndarray,
+                          step: np.ndarray) -> np.ndarray:
+    """The residuals ``r`` moved by ``step`` through the Jacobian (measurements, priors)."""
+    m = prob.n_meas
+    r_lin = r.copy()
+    r_lin[:m] += Jg @ step[:12] + np.einsum("kj,kj->k", Ju,
+                                             step[12:].reshape(prob.n, 6)[prob.meas_sample])
+    r_lin[m:] += step[12:]
+    return r_lin
+
+
+def _variance_components(sig: dict[str, float], group_rows: dict[str, np.ndarray],
+                         h: np.ndarray, r_lin: np.ndarray,
+                         redundancy: dict[str, float]) -> dict[str, float]:
+    """Förstner's update: each group's level rescaled by its whitened square sum over its
+    redundancy ``r_g = n_g - trace(H_gg)`` (written into ``redundancy``), floored."""
+    new = dict(sig)
+    for name, rows in group_rows.items():
+        r_g = float(rows.sum() - h[rows].sum())
+        redundancy[name] = r_g
+        if r_g > 1e-6:
+            new[name] = max(sig[name] * np.sqrt(float(r_lin[rows] @ r_lin[rows]) / r_g),
+                            SIGMA_FLOORS[name])
+    return new
+
+
+def _keep_corrections(p: np.ndarray, n: int, sig: dict[str, float],
+                      new: dict[str, float]) -> None:
+    """Keep the corrections ``d = diag(s) u`` fixed while their scale changes to ``new``: the
+    unit residuals ``u`` in ``p`` rescaled in place."""
+    u = p[12:].reshape(n, 6)
+    u[:, :3] *= sig["robot_t"] / new["robot_t"]
+    u[:, 3:] *= sig["robot_r"] / new["robot_r"]
+
+
+def _final_step(prob: _Problem, p: np.ndarray, r: np.ndarray, sig: dict[str, float]
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A last step at the final levels, and the covariance there: ``(p, residuals, cov)``
+    (39 evaluations)."""
+    Jg, Ju = prob.jacobian(p, sig)
+    step, _, _ = _solve_normal(prob, _normal(prob, Jg, Ju, r), Jg, Ju, hat=False)
+    p = p + step
+    r = prob.residuals(p, sig)
+    Jg, Ju = prob.jacobian(p, sig)
+    _, Cg, _ = _solve_normal(prob, _normal(prob, Jg, Ju, r), Jg, Ju, hat=False)
+    return p, r, 0.5 * (Cg + Cg.T)
 
 
 def leave_one_out_steps(X: np.ndarray, Y: np.ndarray, samples: Sequence[HandEyeSample],

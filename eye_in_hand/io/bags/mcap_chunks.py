@@ -348,41 +348,12 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
     key = id(file_view)
     with _MAPPED_LOCK:
         _MAPPED[key] = (_address(file_view), len(file_view), str(Path(storage.path).resolve()))
-    compressed = any(c.compression for c in infos)
-    pool = ThreadPoolExecutor(max(1, threads), thread_name_prefix="mcap-chunk") \
-        if compressed and threads > 0 else None
-    ahead = 2 * max(1, threads)
-
-    def damage(info: Any, exc: BaseException,
-               kept: Sequence[Found] = ()) -> None:
-        record = chunk_damage(info, exc, channels, kept)
-        if on_damage is None:
-            raise ValueError(record.reason) from exc
-        on_damage(record)
-
+    reader = _ChunkReader(infos, file_view, channels, lo, hi, verify_crc=verify_crc,
+                          threads=threads, on_damage=on_damage)
     try:
-        chunks: list[_Chunk | None] = []
-        for info in infos:
-            try:
-                chunks.append(_Chunk(info, file_view))
-            except ValueError as exc:
-                damage(info, exc)
-                chunks.append(None)
-        futures: dict[int, Future[memoryview]] = {}
-
-        def records(i: int) -> memoryview:
-            chunk = chunks[i]
-            assert chunk is not None
-            if pool is None or not chunk.compression:
-                return chunk.records(verify_crc)
-            for j in range(i, min(i + ahead, len(chunks))):
-                cj = chunks[j]
-                if j not in futures and cj is not None and cj.compression:
-                    futures[j] = pool.submit(cj.records, verify_crc)
-            return futures.pop(i).result()
-
+        chunks = reader.open()
         pending: list[tuple[int, int, int, Any, memoryview]] = []
-        for i, chunk in enumerate(chunks):
+        for i in range(len(chunks)):
             old = chunks[i - 2] if i >= 2 else None
             if old is not None and not old.compression:
                 # read two chunks ago: its pages out of this process's resident set (views
@@ -393,15 +364,8 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
             while pending and pending[0][0] < t0:     # nothing later can come before these
                 m = heapq.heappop(pending)
                 yield m[3], m[0], m[4]
-            if chunk is None:
-                continue
-            try:
-                msgs = _messages_of(chunk, records(i), channels, lo, hi)
-            except DamagedRecords as exc:
-                damage(chunk.info, exc, exc.kept)
-                msgs = exc.kept
-            except Exception as exc:  # decompression, size, CRC
-                damage(chunk.info, exc)
+            msgs = reader.messages(i)
+            if msgs is None:                          # no chunk there, or it does not read
                 continue
             if not pending and (i + 1 == len(chunks)
                                 or not msgs or msgs[-1][0] < infos[i + 1].message_start_time):
@@ -416,10 +380,75 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
     finally:
         with _MAPPED_LOCK:
             _MAPPED.pop(key, None)
-        if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
+        reader.close()
         try:          # views handed out keep the mapping alive; it is unmapped when they go
             file_view.release()
             mapped.close()
         except BufferError:
             pass
+
+
+class _ChunkReader:
+    """The chunks of one :func:`chunk_messages` call, in reading order: each one's messages,
+    compressed chunks decompressed a few ahead on a thread pool, damage reported (or raised)
+    as the call was told."""
+
+    def __init__(self, infos: list[Any], file_view: memoryview, channels: dict[int, Any],
+                 lo: int, hi: int, *, verify_crc: bool, threads: int,
+                 on_damage: Callable[[ChunkDamage], None] | None) -> None:
+        self.infos, self.file_view, self.channels = infos, file_view, channels
+        self.lo, self.hi, self.verify_crc, self.on_damage = lo, hi, verify_crc, on_damage
+        compressed = any(c.compression for c in infos)
+        self.pool = ThreadPoolExecutor(max(1, threads), thread_name_prefix="mcap-chunk") \
+            if compressed and threads > 0 else None
+        self.ahead = 2 * max(1, threads)
+        self.chunks: list[_Chunk | None] = []
+        self.futures: dict[int, Future[memoryview]] = {}
+
+    def damage(self, info: Any, exc: BaseException, kept: Sequence[Found] = ()) -> None:
+        record = chunk_damage(info, exc, self.channels, kept)
+        if self.on_damage is None:
+            raise ValueError(record.reason) from exc
+        self.on_damage(record)
+
+    def open(self) -> list[_Chunk | None]:
+        """Every chunk's record checked against the index (None for one that is not there)."""
+        for info in self.infos:
+            try:
+                self.chunks.append(_Chunk(info, self.file_view))
+            except ValueError as exc:
+                self.damage(info, exc)
+                self.chunks.append(None)
+        return self.chunks
+
+    def records(self, i: int) -> memoryview:
+        """Chunk ``i``'s records; the next compressed ones submitted for decompression."""
+        chunks, futures = self.chunks, self.futures
+        chunk = chunks[i]
+        assert chunk is not None
+        if self.pool is None or not chunk.compression:
+            return chunk.records(self.verify_crc)
+        for j in range(i, min(i + self.ahead, len(chunks))):
+            cj = chunks[j]
+            if j not in futures and cj is not None and cj.compression:
+                futures[j] = self.pool.submit(cj.records, self.verify_crc)
+        return futures.pop(i).result()
+
+    def messages(self, i: int) -> list[Found] | None:
+        """Chunk ``i``'s wanted messages (those before a bad record when it has one); None
+        for a chunk that is not there or does not read (its damage reported)."""
+        chunk = self.chunks[i]
+        if chunk is None:
+            return None
+        try:
+            return _messages_of(chunk, self.records(i), self.channels, self.lo, self.hi)
+        except DamagedRecords as exc:
+            self.damage(chunk.info, exc, exc.kept)
+            return exc.kept
+        except Exception as exc:  # decompression, size, CRC
+            self.damage(chunk.info, exc)
+            return None
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)

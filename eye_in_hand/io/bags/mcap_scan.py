@@ -1,7 +1,7 @@
 """An MCAP file without summary (a recording that was killed), read by scanning it."""
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -152,33 +152,39 @@ class ScannedMcap:
                 if op in parsers:
                     yield op, parsers[op](body)
                 continue
-            chunk_at = pos - 9 - length
-            t0 = t1 = None
-            try:  # chunk: expand its records, messages sorted by log time
-                head = rec.chunk_head(body)
-                t0, t1 = head.start, head.end
-                inner = decompress(body[head.data_at:head.data_at + head.data_size],
-                                   head.compression, head.size, head.crc)
-            except Exception as exc:
-                yield -1, Damage(self.path.name, f"chunk at byte {chunk_at}",
-                                 f"{str(exc) or type(exc).__name__}", start_ns=t0, end_ns=t1)
-                continue
-            found.clear()
-            try:
-                msgs = rec.chunk_messages(memoryview(inner), chunk_at, head.start, head.end,
-                                          None, on_record=keep)
-            except rec.DamagedRecords as exc:
-                msgs = exc.kept
-                yield from list(found)
-                yield -1, Damage(self.path.name, f"chunk at byte {chunk_at}",
-                                 f"{exc.detail}; the messages before it are kept",
-                                 start_ns=t0, end_ns=t1)
-            else:
-                yield from list(found)
+            first, msgs = self._expand_chunk(body, pos - 9 - length, decompress, keep, found)
+            yield from first
             if msgs:
                 last[0] = msgs[-1][0]   # the end of the chunk read last
             for log_time, _offset, _index, cid, view in msgs:
                 yield rec.OP_MESSAGE, (cid, log_time, view)
+
+    def _expand_chunk(self, body: Any, chunk_at: int, decompress: Callable[..., Any],
+                      keep: Callable[[int, Any], None], found: list[tuple[int, Any]]
+                      ) -> tuple[list[tuple[int, Any]], list[rec.Found]]:
+        """A chunk's records: what :meth:`_records` yields before its messages (the chunk's
+        schemas and channels, then ``(-1, Damage)`` where records stop making sense; only
+        that damage when the chunk cannot be read at all) and its messages, sorted by log
+        time (``keep`` puts the schemas and channels in ``found``)."""
+        t0 = t1 = None
+        try:  # chunk: expand its records, messages sorted by log time
+            head = rec.chunk_head(body)
+            t0, t1 = head.start, head.end
+            inner = decompress(body[head.data_at:head.data_at + head.data_size],
+                               head.compression, head.size, head.crc)
+        except Exception as exc:
+            return [(-1, Damage(self.path.name, f"chunk at byte {chunk_at}",
+                                f"{str(exc) or type(exc).__name__}", start_ns=t0,
+                                end_ns=t1))], []
+        found.clear()
+        try:
+            msgs = rec.chunk_messages(memoryview(inner), chunk_at, head.start, head.end,
+                                      None, on_record=keep)
+        except rec.DamagedRecords as exc:
+            return list(found) + [(-1, Damage(self.path.name, f"chunk at byte {chunk_at}",
+                                              f"{exc.detail}; the messages before it are "
+                                              "kept", start_ns=t0, end_ns=t1))], exc.kept
+        return list(found), msgs
 
     def messages(self, connections: Sequence[Any], start: int | None = None,
                  stop: int | None = None, on_damage: Any = None,

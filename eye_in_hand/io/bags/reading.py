@@ -410,16 +410,8 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
             raw = cast(bytes, view) if views else bytes(view)
             yield stamp, stream, order, conn.topic, conn.msgtype, raw
         return
-    if per_message_zstd:
-        try:  # local: an optional module, needed only for per-message zstd bags
-            from compression import zstd  # type: ignore[import-not-found]  # Python >= 3.14
-        except ImportError:
-            from backports import zstd
-    if getattr(storage, "scanned", False):     # a reader from StorageFormat.scan
-        source: Iterator[tuple[Any, int, Any]] = storage.messages(
-            conns, start, stop, on_damage=damage.add if damage is not None else None)
-    else:
-        source = storage.messages(conns, start, stop)
+    zstd = _zstd_module() if per_message_zstd else None
+    source = _messages(storage, conns, start, stop, damage)
     read: dict[int, int] = {}
     last = start
     at_last = 0          # messages read so far with log time ``last``
@@ -441,12 +433,7 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
                 source = rest
                 continue
             # the storage fails part-way: the rest of the file is lost
-            lost = {c.topic: int(c.msgcount) - read.get(c.id, 0) for c in conns
-                    if start is None and stop is None and int(c.msgcount) > read.get(c.id, 0)}
-            damage.add(Damage(name, "the rest of the file",
-                              f"reading stopped after {order} message(s): "
-                              f"{str(exc) or type(exc).__name__}", lost, last, None,
-                              sum(lost.values()) if lost else None))
+            damage.add(_rest_lost(name, conns, start, stop, read, order, last, exc))
             return
         if item is None:
             return
@@ -455,7 +442,7 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
         at_last = at_last + 1 if stamp == last else 1
         last = stamp
         read[conn.id] = read.get(conn.id, 0) + 1
-        if per_message_zstd:
+        if zstd is not None:
             try:
                 data = zstd.decompress(raw)
             except Exception as exc:
@@ -469,3 +456,36 @@ def _storage_stream(storage: Any, conns: list[Any], start: int | None, stop: int
             data = bytes(raw)
         yield stamp, stream, order, conn.topic, conn.msgtype, data
         order += 1
+
+
+def _zstd_module() -> Any:
+    """The zstd module of the standard library (Python >= 3.14) or of its backport."""
+    try:  # local: an optional module, needed only for per-message zstd bags
+        from compression import zstd  # type: ignore[import-not-found]  # Python >= 3.14
+    except ImportError:
+        from backports import zstd
+    return zstd
+
+
+def _messages(storage: Any, conns: list[Any], start: int | None, stop: int | None,
+              damage: DamageLog | None) -> Iterator[tuple[Any, int, Any]]:
+    """``(connection, log time, data)`` of a storage file through its ``rosbags`` reader (or
+    the reader :meth:`StorageFormat.scan` made, which reports damage as it goes)."""
+    if getattr(storage, "scanned", False):     # a reader from StorageFormat.scan
+        return cast(Iterator[tuple[Any, int, Any]], storage.messages(
+            conns, start, stop, on_damage=damage.add if damage is not None else None))
+    return cast(Iterator[tuple[Any, int, Any]], storage.messages(conns, start, stop))
+
+
+def _rest_lost(name: str, conns: list[Any], start: int | None, stop: int | None,
+               read: dict[int, int], order: int, last: int | None,
+               exc: BaseException) -> Damage:
+    """The damage of a storage file that fails part-way: the rest of it, after ``order``
+    messages (``read`` by channel id, the last at log time ``last``); the messages lost by
+    topic when the whole file was asked for."""
+    lost = {c.topic: int(c.msgcount) - read.get(c.id, 0) for c in conns
+            if start is None and stop is None and int(c.msgcount) > read.get(c.id, 0)}
+    return Damage(name, "the rest of the file",
+                  f"reading stopped after {order} message(s): "
+                  f"{str(exc) or type(exc).__name__}", lost, last, None,
+                  sum(lost.values()) if lost else None)
