@@ -42,7 +42,6 @@ import time
 from collections.abc import Mapping
 from typing import Any
 
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
@@ -55,6 +54,7 @@ from eye_in_hand.nodes.bag_player_topics import PlayedTopics
 from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
 from eye_in_hand.ros.node_main import guard, run_with_executor, sigterm_as_interrupt
+from eye_in_hand.ros.spin import spin_node
 
 __all__ = [
     "parameter_names",
@@ -254,18 +254,7 @@ def spin_player(node: BagPlayer, executor: Any | None = None) -> int:
     Raises:
         EyeInHandError: the error that ended playback (bag read failure).
     """
-    own = executor is None
-    ex = executor or SingleThreadedExecutor(context=node.context)
-    try:
-        ex.add_node(node)
-        node.start()
-        while not node.finished and node.context.ok():
-            ex.spin_once(timeout_sec=0.1)
-    finally:
-        ex.remove_node(node)
-        node.stop()
-        if own:  # before the context goes: a garbage-collected executor can crash rclpy
-            ex.shutdown()
+    spin_node(node, lambda: not node.finished, node.stop, executor=executor, start=node.start)
     if node.error is not None:
         if isinstance(node.error, EyeInHandError):
             raise node.error

@@ -37,13 +37,11 @@ from __future__ import annotations
 
 import sys
 import threading
-import time
 from collections.abc import Mapping, Sequence
 from functools import partial
 from typing import Any
 
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from eye_in_hand.errors import BagError, ConfigError
@@ -56,6 +54,7 @@ from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.node_main import guard, run_with_executor, sigterm_as_interrupt
 from eye_in_hand.ros.params import Param, declare_params
 from eye_in_hand.ros.qos import policy_name, subscription_qos
+from eye_in_hand.ros.spin import spin_node
 
 __all__ = [
     "parameter_names",
@@ -265,24 +264,7 @@ def spin_recorder(node: BagRecorder, duration_s: float = 0.0, executor: Any | No
 
     The bag is closed (valid) whatever ends the spin: the duration, Ctrl-C, SIGTERM.
     """
-    own = executor is None
-    ex = executor or SingleThreadedExecutor(context=node.context)
-    ex.add_node(node)
-    deadline = time.monotonic() + duration_s if duration_s > 0 else None
-    try:
-        while node.context.ok():
-            if deadline is not None:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    break
-                ex.spin_once(timeout_sec=min(0.1, remaining))
-            else:
-                ex.spin_once(timeout_sec=0.1)
-    finally:
-        ex.remove_node(node)
-        node.close()
-        if own:  # before the context goes: a garbage-collected executor can crash rclpy
-            ex.shutdown()
+    spin_node(node, lambda: True, node.close, executor=executor, duration_s=duration_s)
     return 0
 
 
