@@ -107,12 +107,23 @@ def _named_command(argv: Sequence[str]) -> str | None:
     return None
 
 
+def _help_before(argv: list[str], words: list[str]) -> bool:
+    """Whether ``-h``/``--help`` comes before the last word of the command ``words`` (then
+    argparse prints the top-level or the group's help, which lists the other commands)."""
+    first = argv.index(words[0])
+    last = argv.index(words[-1], first)
+    return any(a in ("-h", "--help") for a in argv[:last])
+
+
 def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     """The argument parser for ``argv``: the module of the command ``argv`` names is imported
     and adds its arguments; every other command is listed with its ``HELP`` line only (so its
     module is not imported). ``argv=None`` imports every command module and builds the whole
     parser (the docs and tests walk it)."""
     chosen = None if argv is None else _named_command(argv)
+    # the other commands' help lines show only in the top-level or a group's help: read them
+    # (about 30 ms of source parsing) only when that can be printed, not on every run
+    listed = chosen is None or argv is None or _help_before(list(argv), chosen.split())
     parser = _Parser(
         prog="eye-in-hand",
         description="Eye-in-hand stereo target localization, calibration and bag tools.",
@@ -142,7 +153,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
             module.add_arguments(cmd)
             cmd.set_defaults(_run=module.run)
         else:   # not on this command line: listed in the help, never run
-            sub.add_parser(parts[-1], help=_help_line(module_name))
+            sub.add_parser(parts[-1], help=_help_line(module_name) if listed else None)
     return parser
 
 

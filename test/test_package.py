@@ -454,6 +454,19 @@ def test_help_does_not_import_heavy_modules():
         "eye_in_hand.commands.calibrate_plan", "eye_in_hand.commands.calibration_inputs"}
 
 
+def test_a_command_run_reads_no_other_commands_source(monkeypatch):
+    """The other commands' help lines are read only when a help that lists them can print."""
+    from eye_in_hand import cli
+
+    read: list[str] = []
+    monkeypatch.setattr(cli, "_help_line", lambda m: read.append(m) or m)
+    cli.build_parser(["bag", "info", "x.mcap"])
+    cli.build_parser(["calibrate", "plan", "--help"])
+    assert read == []
+    cli.build_parser(["calibrate", "-h", "plan"])
+    assert "eye_in_hand.commands.calibrate_camera" in read
+
+
 def test_every_command_is_listed_without_importing_it():
     """The help line of a command that is not on the command line comes from its module's
     source (a literal ``HELP``), and is the module's ``HELP``."""
