@@ -43,6 +43,7 @@ from eye_in_hand.core.defaults import DEFAULT_SYNC_QUEUE_SIZE, DEFAULT_SYNC_SLOP
 from eye_in_hand.core.locator import StereoLocator
 from eye_in_hand.core.locator_params import LocatorConfig
 from eye_in_hand.errors import BagError, ConversionError, InputError
+from eye_in_hand.io.pages import drop_pages
 
 if TYPE_CHECKING:
     from eye_in_hand.core.localization import Localizer
@@ -723,21 +724,8 @@ def _worker_locate(stamp_ns: int, left: _MappedImage, right: _MappedImage
     values = _locate_values(_WORKER["locator"], stamp_ns, view(left), view(right))
     for ref in (left, right):   # read once: out of the resident set (flat on a long bag)
         if isinstance(ref, _MappedImage):
-            _drop_pages(maps[ref.path], ref.offset, ref.nbytes)
+            drop_pages(maps[ref.path], ref.offset, ref.nbytes)
     return values
-
-
-def _drop_pages(mapped: mmap.mmap, start: int, length: int) -> None:
-    """``madvise(MADV_DONTNEED)`` over the whole pages of ``[start, start + length)`` of a
-    read-only file mapping: out of this process's resident set; a page read again is mapped
-    again from the page cache. (:func:`eye_in_hand.io.bags.mcap_chunks.drop_pages`, without
-    loading ``eye_in_hand.io`` into a worker.)"""
-    lo = start - start % mmap.PAGESIZE
-    hi = min(len(mapped), -(-(start + length) // mmap.PAGESIZE) * mmap.PAGESIZE)
-    try:
-        mapped.madvise(mmap.MADV_DONTNEED, lo, hi - lo)
-    except (AttributeError, OSError, ValueError):
-        pass
 
 
 class _PairPool:

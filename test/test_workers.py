@@ -128,12 +128,14 @@ def test_a_slow_but_answering_worker_is_not_killed():
 def test_a_process_worker_imports_only_what_locating_needs():
     """A `process` worker imports eye_in_hand.offline for _worker_init and _worker_locate:
     not the bag reader, the results and output messages, the robot-pose code, rosbags or
-    SciPy, which only the reading process uses (each costs start-up CPU in every worker)."""
+    SciPy, which only the reading process uses (each costs start-up CPU in every worker). Of
+    eye_in_hand.io only io.pages (mmap alone), to release the pages of the images it read."""
     code = ("import sys, eye_in_hand.workers, eye_in_hand.offline\n"
             "print(' '.join(sorted(sys.modules)))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.split()
-    for name in ("eye_in_hand.io", "eye_in_hand.io.results", "eye_in_hand.ros.outputs",
+    assert [m for m in out if m.startswith("eye_in_hand.io.")] == ["eye_in_hand.io.pages"]
+    for name in ("eye_in_hand.io.bags", "eye_in_hand.io.results", "eye_in_hand.ros.outputs",
                  "eye_in_hand.core.localization", "eye_in_hand.core.sync", "rosbags", "scipy",
                  "rclpy"):
         assert name not in out, name

@@ -224,27 +224,3 @@ def test_zstd_chunks_decompress_with_their_size(tmp_path: Path) -> None:
     assert bytes(fn(data, 10_000)) == b"0123456789" * 1000
     with pytest.raises(ValueError, match="more than the 100 bytes"):
         fn(data, 100)               # a size smaller than the data is never cut silently
-
-
-def test_dropped_pages_read_back_the_same_bytes(tmp_path):
-    """drop_pages (madvise DONTNEED on a read-only mapping: a long bag read once leaves the
-    resident set) never changes what a view reads, with ranges that are not page-aligned."""
-    import mmap
-
-    from eye_in_hand.io.bags.mcap_chunks import drop_pages
-
-    data = np.random.default_rng(3).integers(0, 256, 5 * mmap.PAGESIZE + 123,
-                                             dtype=np.uint8).tobytes()
-    path = tmp_path / "f.bin"
-    path.write_bytes(data)
-    with open(path, "rb") as fh:
-        mapped = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-    view = memoryview(mapped)[mmap.PAGESIZE + 7:4 * mmap.PAGESIZE + 11]
-    before = bytes(view)
-    for start, length in ((mmap.PAGESIZE + 7, 3 * mmap.PAGESIZE), (0, len(data)),
-                          (len(data) - 5, 100), (10, 0)):
-        drop_pages(mapped, start, length)
-        assert bytes(view) == before
-        assert bytes(mapped[:]) == data
-    view.release()
-    mapped.close()

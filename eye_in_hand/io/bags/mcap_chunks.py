@@ -48,6 +48,7 @@ from eye_in_hand.io.bags.mcap_records import (
     chunk_head,
 )
 from eye_in_hand.io.bags.mcap_records import chunk_messages as _chunk_records
+from eye_in_hand.io.pages import drop_pages
 
 __all__ = ["supports", "chunk_messages", "file_location", "ChunkDamage", "chunk_damage",
            "zstd_binding"]
@@ -60,23 +61,6 @@ def _address(buffer: Any) -> int:
     return int(np.frombuffer(buffer, dtype=np.uint8, count=1).ctypes.data) if len(buffer) else 0
 
 
-_PAGE = mmap.PAGESIZE
-
-
-def drop_pages(mapped: Any, start: int, length: int) -> None:
-    """Release this process's resident pages of ``[start, start + length)`` of a read-only
-    file mapping (``madvise(MADV_DONTNEED)``, widened to whole pages), so that a long bag
-    read once does not stay in the process's resident set. The data are not affected: a
-    page read again is mapped again from the page cache (or the file). Does nothing where
-    ``madvise`` is not available."""
-    if length <= 0:
-        return
-    lo = start - start % _PAGE
-    hi = min(len(mapped), -(-(start + length) // _PAGE) * _PAGE)
-    try:
-        mapped.madvise(mmap.MADV_DONTNEED, lo, hi - lo)
-    except (AttributeError, OSError, ValueError):
-        pass
 
 
 def file_location(array: Any) -> tuple[str, int] | None:
@@ -349,7 +333,8 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
     with _MAPPED_LOCK:
         _MAPPED[key] = (_address(file_view), len(file_view), str(Path(storage.path).resolve()))
     reader = _ChunkReader(infos, file_view, channels, lo, hi, verify_crc=verify_crc,
-                          threads=threads, on_damage=on_damage)
+                          threads=threads, on_damage=on_damage,
+                          release=lambda start, length: drop_pages(mapped, start, length))
     try:
         chunks = reader.open()
         pending: list[tuple[int, int, int, Any, memoryview]] = []
@@ -388,6 +373,12 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
             pass
 
 
+#: Chunk headers read between two releases of their pages (:meth:`_ChunkReader.open`).
+_RELEASE_EVERY = 256
+#: Bytes of a chunk record read to check it: the record prefix and the chunk's header fields.
+_HEADER_BYTES = 4096
+
+
 class _ChunkReader:
     """The chunks of one :func:`chunk_messages` call, in reading order: each one's messages,
     compressed chunks decompressed a few ahead on a thread pool, damage reported (or raised)
@@ -395,8 +386,10 @@ class _ChunkReader:
 
     def __init__(self, infos: list[Any], file_view: memoryview, channels: dict[int, Any],
                  lo: int, hi: int, *, verify_crc: bool, threads: int,
-                 on_damage: Callable[[ChunkDamage], None] | None) -> None:
+                 on_damage: Callable[[ChunkDamage], None] | None,
+                 release: Callable[[int, int], None] | None = None) -> None:
         self.infos, self.file_view, self.channels = infos, file_view, channels
+        self.release = release
         self.lo, self.hi, self.verify_crc, self.on_damage = lo, hi, verify_crc, on_damage
         compressed = any(c.compression for c in infos)
         self.pool = ThreadPoolExecutor(max(1, threads), thread_name_prefix="mcap-chunk") \
@@ -412,13 +405,25 @@ class _ChunkReader:
         self.on_damage(record)
 
     def open(self) -> list[_Chunk | None]:
-        """Every chunk's record checked against the index (None for one that is not there)."""
-        for info in self.infos:
+        """Every chunk's record checked against the index (None for one that is not there).
+
+        Reading a chunk's header maps the pages around it (:mod:`eye_in_hand.io.pages`): on a
+        long bag, the headers of all its chunks would map most of the file into this process
+        before the first message (1.2 GB of a 2.8 GB bag of 18000 chunks, to read one
+        camera_info). With ``release``, the headers read are released every
+        :data:`_RELEASE_EVERY` chunks, in the same order of checks and damage reports."""
+        span: list[int] = []
+        for k, info in enumerate(self.infos):
             try:
                 self.chunks.append(_Chunk(info, self.file_view))
             except ValueError as exc:
                 self.damage(info, exc)
                 self.chunks.append(None)
+            if self.release is not None:
+                span.append(int(info.chunk_start_offset))
+                if len(span) == _RELEASE_EVERY or k + 1 == len(self.infos):
+                    self.release(min(span), max(span) - min(span) + _HEADER_BYTES)
+                    span.clear()
         return self.chunks
 
     def records(self, i: int) -> memoryview:

@@ -46,10 +46,10 @@ from eye_in_hand.io.bags.mcap_chunks import (
     _may_hold,
     _messages_of,
     chunk_damage,
-    drop_pages,
 )
 from eye_in_hand.io.bags.mcap_records import DamagedRecords
 from eye_in_hand.io.cdr import CdrHeader, image_from_cdr
+from eye_in_hand.io.pages import drop_pages
 
 __all__ = ["ChunkRef", "ImageRef", "plan_groups", "open_group", "worker_messages", "release",
            "GROUP_BYTES", "CACHE_BYTES"]
