@@ -197,7 +197,17 @@ class RosbagsTypes:
 
             defaults[name] = constant
 
+        makers = tuple(defaults.values())
+        # the builders call it without arguments for every message and sub-message of
+        # `process`'s output bag: then the fields go in positionally, in the class's order
+        # (rosbags' classes end with a defaulted ``__msgtype__`` field)
+        fields_ = dataclasses.fields(cls)
+        positional = [f.name for f in fields_[:len(defaults)]] == list(defaults) and all(
+            f.default is not dataclasses.MISSING for f in fields_[len(defaults):])
+
         def make(**kwargs: Any) -> Any:
+            if not kwargs and positional:
+                return cls(*[make_default() for make_default in makers])
             values = {name: (kwargs.pop(name) if name in kwargs else make_default())
                       for name, make_default in defaults.items()}
             if kwargs:

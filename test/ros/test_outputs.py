@@ -84,6 +84,25 @@ def test_rosbags_defaults_are_the_message_definitions_defaults():
         T["geometry_msgs/msg/Point"](q=1.0)
 
 
+@pytest.mark.parametrize("msgtype", ["visualization_msgs/msg/MarkerArray",
+                                     "visualization_msgs/msg/Marker",
+                                     "geometry_msgs/msg/PoseWithCovarianceStamped",
+                                     "geometry_msgs/msg/PoseArray", "tf2_msgs/msg/TFMessage",
+                                     "std_msgs/msg/Header"])
+def test_a_message_built_without_arguments_is_the_one_built_by_field_name(msgtype):
+    """The no-argument path (fields in positionally, what the builders use) gives the same
+    message, to the byte, as naming a field, and the class keeps its message type."""
+    T = o.RosbagsTypes(STORE)
+    _, fields = STORE.fielddefs[msgtype]
+    first = fields[0][0]
+    plain = T[msgtype]()
+    named = T[msgtype](**{first: getattr(T[msgtype](), first)})
+    assert plain.__msgtype__ == msgtype
+    assert bytes(STORE.serialize_cdr(plain, msgtype)) == bytes(STORE.serialize_cdr(named, msgtype))
+    marker = T["visualization_msgs/msg/Marker"]()
+    assert marker.pose.orientation.w == 1.0      # the non-zero default on the positional path
+
+
 def test_bad_values_are_refused_with_their_name():
     T = o.RosbagsTypes(STORE)
     with pytest.raises(ConversionError, match="point"):
