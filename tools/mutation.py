@@ -47,6 +47,7 @@ PKG = "eye_in_hand/"
 TESTS: dict[str, tuple[str, ...]] = {
     "core/transforms.py": ("test/core/test_transforms.py", "test/core/test_sync.py"),
     "core/camera.py": ("test/core/test_camera.py",),
+    "core/assignment.py": ("test/core/test_assignment.py",),
     "core/kinematics.py": ("test/core/test_kinematics.py",),
     "core/sync.py": ("test/core/test_heldout_rules.py", "test/core/test_sync_rules.py",
                      "test/core/test_sync.py"),
@@ -551,6 +552,10 @@ MUTANTS: tuple[Mutant, ...] = (
     M("write-negative-stamp", "io/bags/writing.py",
       "not isinstance(stamp_ns, int) or stamp_ns < 0:", "not isinstance(stamp_ns, int):",
       "a negative log time written into a bag"),
+    M("assignment-shared-column", "core/assignment.py",
+      "        if len(set(cols.tolist())) == n:\n",
+      "        if True:\n",
+      "two rows given the same cheapest column"),
     M("pages-own-range-only", "io/pages.py",
       "DROP_BLOCK_BYTES = max(mmap.PAGESIZE, 2 * 1024 * 1024)\n",
       "DROP_BLOCK_BYTES = mmap.PAGESIZE\n",

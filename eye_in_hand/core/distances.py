@@ -17,6 +17,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from eye_in_hand.core.assignment import min_cost_assignment
 from eye_in_hand.errors import InputError
 
 __all__ = ["PairDistance", "TargetStats", "pairwise_distances", "apply_known_distances",
@@ -199,17 +200,13 @@ def match_truth(positions: Mapping[str, np.ndarray], truth_points: np.ndarray, *
     Returns:
         target id -> index into ``truth_points``.
     """
-    # local: scipy.optimize costs ~0.3 s of CPU, and this module loads at CLI start-up and at
-    # every `process` worker's start (through io.results); only ground-truth matching needs it
-    from scipy.optimize import linear_sum_assignment
-
     T = np.asarray(truth_points, dtype=np.float64).reshape(-1, 3)
     ids = [k for k, v in positions.items() if np.all(np.isfinite(np.asarray(v, float)))]
     if not ids or T.shape[0] == 0:
         return {}
     P = np.array([np.asarray(positions[k], dtype=np.float64).reshape(3) for k in ids])
     cost = np.linalg.norm(P[:, None, :] - T[None, :, :], axis=2)
-    rows, cols = linear_sum_assignment(cost)
+    rows, cols = min_cost_assignment(cost)
     return {ids[r]: int(c) for r, c in zip(rows, cols, strict=True)
             if cost[r, c] <= max_distance_m}
 

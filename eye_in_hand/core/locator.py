@@ -44,6 +44,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from eye_in_hand.core.assignment import min_cost_assignment
 from eye_in_hand.core.camera import StereoRig
 from eye_in_hand.core.detection import (
     ColorDetector,
@@ -182,12 +183,7 @@ def _assign(cost: np.ndarray) -> list[tuple[int, int]]:
     if 1 in cost.shape:          # one blob on a side (every one-blob target): the cheapest pair
         r, c = np.unravel_index(int(np.argmin(cost)), cost.shape)
         return [(int(r), int(c))]
-    # local: scipy.optimize costs ~0.35 s of CPU at import, paid by every `process` worker and
-    # node at start-up (a 20 s bag's run: 0.04 CPU-s per second of bag); only blob sets and
-    # several candidates per side need it
-    from scipy.optimize import linear_sum_assignment
-
-    rows, cols = linear_sum_assignment(cost)
+    rows, cols = min_cost_assignment(cost)
     return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True)
             if cost[r, c] < _INFEASIBLE]
 
@@ -390,7 +386,8 @@ class StereoLocator:
 
         Every pair is gated (epipolar row, disparity sign and depth range, triangulation, the
         size of a sphere of known radius); the assignment with the most pairs and the least
-        summed row difference is solved (Hungarian, ``scipy.optimize.linear_sum_assignment``);
+        summed row difference is solved (Hungarian,
+        :func:`~eye_in_hand.core.assignment.min_cost_assignment`);
         a pair is ambiguous when forbidding it still leaves an assignment with as many pairs
         whose cost is within ``ambiguity_margin_px`` of the best: the blobs that change
         between the two are rejected (``ambiguous``), never guessed.
