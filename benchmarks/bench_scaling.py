@@ -44,19 +44,16 @@ suite's chunked and damaged-bag fixtures, rebuilt here (zstd, lz4 and uncompress
 workers, and compares ``results.csv``, ``summary.json``, ``metadata.yaml`` and the output
 bag's file byte for byte.)
 
-Figures (docs/localization.md, "The whole process command"), 06:45-07:05 UTC on the shared
-2-core machine at load 2.3-5.4, zstd bags, this code (the code before in brackets, runs
-alternating on the same bag):
+Figures (docs/localization.md, "Resident memory flat with bag length"), three runs
+17:30-18:00 UTC on 2026-11-25, 2-core machine at load 0.7-1.9, zstd bags, this code (the code
+before, 40a1f65, in brackets, runs alternating on the same bag):
 
-* 20 s 640x480: 11.28 CPU-s (10.64), floor 2.77 -> 4.07x the floor, CPU/wall 1.18; peak RSS of
-  the tree 450 MB (532); 10 min: 184.7 CPU-s (181.2), floor 64.1 -> 2.88x, CPU/wall 1.25; peak
-  RSS 1265 MB (3525), of it anonymous 463 MB (473).
-* bag length: CPU 0.301 s per s of bag (R^2 0.9997), wall 0.240 (0.9998), floor 0.106
-  (0.9999), tree RSS 1.41 MB per s of bag (0.9997), anonymous 0.27 MB (1.0000);
-* targets 1/4/8 (20 s, 640x480): CPU 2.06 s per target (0.982), floor 0.278 (0.999);
-* image size 640x480/1280x720/1920x1080 (20 s): CPU 3.96 s per Mpx (R^2 0.73: not linear, the
-  locator barely depends on the size), floor 6.39 s per Mpx (0.9997); CPU / floor 4.07, 1.41,
-  1.24.
+* 10 min 640x480: 129.5-140.6 CPU-s (143.5-156.2), 1.89-1.99x the floor (1.94-2.32x), CPU/wall
+  1.59-1.65; peak RSS of the tree 576-578 MB (1207-1279), of it anonymous 456-458 MB;
+* 20 s: 7.8-8.5 CPU-s (7.5-8.8), 2.73-3.26x the floor; peak RSS of the tree 420 MB (439);
+* bag length: CPU 0.207-0.217 s per s of bag (R^2 0.9997-1.0000), floor 0.112-0.114, tree RSS
+  0.27 MB per s of bag (R^2 0.9994-0.9997), all of it anonymous (the per-pair results);
+* targets 4 / 8 (20 s, 640x480, one run): 11.75 / 19.13 CPU-s (12.94 / 21.44).
 """
 from __future__ import annotations
 
