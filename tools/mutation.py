@@ -45,7 +45,8 @@ PKG = "eye_in_hand/"
 #: Each mutated module (path under eye_in_hand/) and its own tests: the only tests its
 #: mutants run. Cheapest and most direct tests first (``-x`` stops at the first failure).
 TESTS: dict[str, tuple[str, ...]] = {
-    "core/transforms.py": ("test/core/test_transforms.py", "test/core/test_sync.py"),
+    "core/transforms.py": ("test/core/test_transforms.py", "test/core/test_quat_scipy.py",
+                           "test/core/test_sync.py"),
     "core/camera.py": ("test/core/test_camera.py",),
     "core/assignment.py": ("test/core/test_assignment.py",),
     "core/kinematics.py": ("test/core/test_kinematics.py",),
@@ -552,6 +553,14 @@ MUTANTS: tuple[Mutant, ...] = (
     M("write-negative-stamp", "io/bags/writing.py",
       "not isinstance(stamp_ns, int) or stamp_ns < 0:", "not isinstance(stamp_ns, int):",
       "a negative log time written into a bag"),
+    M("quat-tolerance-loose", "core/transforms.py",
+      "    if not bool(np.all(np.abs(R @ R.T - _EYE3) <= 1e-12 + 1e-5 * _EYE3)):\n",
+      "    if not bool(np.all(np.abs(R @ R.T - _EYE3) <= 1e-9 + 1e-5 * _EYE3)):\n",
+      "a matrix SciPy would project onto the rotations converted as it stands"),
+    M("quat-w-sign", "core/transforms.py",
+      "        q[3] = r[k][j] - r[j][k]\n",
+      "        q[3] = r[j][k] - r[k][j]\n",
+      "the scalar part of the written-out quaternion with the wrong sign"),
     M("assignment-shared-column", "core/assignment.py",
       "        if len(set(cols.tolist())) == n:\n",
       "        if True:\n",
