@@ -217,6 +217,10 @@ class LocalizationPipeline:
         #: where single points and frames go (may be set after construction)
         self.point_sink = points
         self.frame_sink = frames
+        #: called before a point or a frame is queued and at each check of the waits: a live
+        #: robot pose source that takes its poses only when they are needed gives them here
+        #: (``hand_eye``'s lazy ``ee_pose`` / ``joint_states``); None: poses come by themselves
+        self.pull_poses: Callable[[], None] | None = None
         self._cov_expected = cov_expected
         self._kinematics = kinematics
         self._joints: Any = None
@@ -288,6 +292,8 @@ class LocalizationPipeline:
         """Queue a camera point (and its covariance, or one that came first) until its robot
         pose is there; the oldest waiting point is refused when the queue is full. Then
         :meth:`drain`."""
+        if self.pull_poses is not None:
+            self.pull_poses()
         cap = self.rules.max_waiting_points
         if cap is not None and len(self.points) >= cap:
             self._refuse_point(self.points.popleft(), "pending_overflow",
@@ -335,6 +341,8 @@ class LocalizationPipeline:
         """Queue a frame of targets (each with an ``id``; ``carried``: with their points,
         see :class:`CarriedTarget`) until its points and robot pose are there; when the queue
         is full, the oldest frame's targets are refused. Then :meth:`drain`."""
+        if self.pull_poses is not None:
+            self.pull_poses()
         cap = self.rules.max_waiting_frames
         if cap is not None and len(self.frames) >= cap:
             old = self.frames.popleft()
@@ -382,6 +390,8 @@ class LocalizationPipeline:
         """The periodic check of the waits (live: every few tens of ms while something waits):
         feeds :class:`~eye_in_hand.core.sync.InputWaits` with the longest wait, emits what is
         ready. Returns whether anything still waits (False: the check may stop)."""
+        if self.pull_poses is not None:
+            self.pull_poses()
         now = self._clock()
         oldest = now
         if self.points:

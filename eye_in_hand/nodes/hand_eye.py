@@ -19,8 +19,10 @@ Localization mode (``mode: localization``)
     again) or no pose arrived for ``max_pose_age_s`` (the stream stopped). Every point that
     gives no ``target/pose`` is counted on ``diagnostics`` by reason (``refused.<reason>``).
     These rules are :class:`eye_in_hand.core.pipeline.LocalizationPipeline`'s, the same as
-    ``process``'s: the node feeds it and publishes what it emits. ``hand_eye/transform``
-    (TransformStamped tool0 -> camera, transient local) is published once at start-up.
+    ``process``'s: the node feeds it and publishes what it emits. On the system clock the
+    robot poses are taken when a point or frame needs them, not one wake-up each
+    (docs/localization.md). ``hand_eye/transform`` (TransformStamped tool0 -> camera,
+    transient local) is published once at start-up.
 
 Every target (see docs/ros.md "Every target")
     ``target/point`` is the first target only. The node learns each frame's set of targets
@@ -156,6 +158,11 @@ class HandEyeNode(Node):
         pose_source = None if self.eye_to_hand and localizing else cfg.robot_pose_source
         self.robot_poses = RobotPoseInput(self, cfg, self.pipeline, self.localizer, self.diag,
                                           self._now_ns, self._after_pose, pose_source)
+        if localizing and not self.get_parameter("use_sim_time").value \
+                and self.robot_poses.take_when_needed():
+            # poses at 125 Hz - 1 kHz taken with the point or frame that needs them, not one
+            # executor wake-up each (receive times are the middleware's, on the system clock)
+            self.pipeline.pull_poses = self.robot_poses.poll
         camera_parent = cfg.base_frame if self.eye_to_hand else cfg.ee_frame
         self.tf_output = TfOutput(self, cfg, self.outputs.create, camera_parent)
         if localizing:
@@ -225,14 +232,18 @@ class HandEyeNode(Node):
         self.create_timer(IDLE_CHECK_PERIOD_S, self._idle_check, clock=steady)
 
     def _arm_waits(self) -> None:
-        """Run the waits' check while a point or a frame waits (called where they queue)."""
-        if self.pipeline.waiting and self._wait_timer.is_canceled():
-            self._wait_timer.reset()
+        """Run the waits' check while a point or a frame waits (called where they queue), and
+        take the robot poses as they arrive meanwhile."""
+        if self.pipeline.waiting:
+            self.robot_poses.wake_for_poses(True)
+            if self._wait_timer.is_canceled():
+                self._wait_timer.reset()
 
     def _check_waits(self) -> None:
         """The waits' check: emit what is ready or waited long enough; stop when none waits."""
         if not self.pipeline.tick():
             self._wait_timer.cancel()
+            self.robot_poses.wake_for_poses(False)
 
     def _idle_check(self) -> None:
         self.robot_poses.expire()

@@ -24,6 +24,7 @@ from eye_in_hand.core.localization import Localizer, robot_pose_sigmas
 from eye_in_hand.core.pipeline import LocalizationPipeline, localizer_config
 from eye_in_hand.errors import ConversionError, EyeInHandError, InputError
 from eye_in_hand.nodes.hand_eye_tf import TfInput
+from eye_in_hand.ros.executor import set_passive, take_queued
 from eye_in_hand.ros.geometry import pose_to_matrix
 from eye_in_hand.ros.qos import ROBOT_POSE_QOS
 from eye_in_hand.ros.stamps import header_stamp_ns
@@ -100,41 +101,93 @@ class RobotPoseInput:
         self._after = after_pose
         #: the TF input (``robot_pose_source: tf``), else None
         self.tf: TfInput | None = None
+        #: the ``ee_pose`` or ``joint_states`` subscription, its message handler
+        self._sub: Any = None
+        self._take: Callable[[Any, int], bool] = self._take_ee_pose
+        #: poses taken when needed (:meth:`take_when_needed`), not as each arrives
+        self.lazy = False
         if source == "ee_pose":
-            node.create_subscription(PoseStamped, "ee_pose", self._on_ee_pose, ROBOT_POSE_QOS)
+            self._sub = node.create_subscription(PoseStamped, "ee_pose", self._on_ee_pose,
+                                                 ROBOT_POSE_QOS)
         elif source == "tf":
             self.tf = TfInput(node, config, localizer, diag, now_ns, self._after_tf_pose)
         elif source == "joint_states":
-            node.create_subscription(JointState, "joint_states", self._on_joint_state,
-                                     ROBOT_POSE_QOS)
+            self._sub = node.create_subscription(JointState, "joint_states",
+                                                 self._on_joint_state, ROBOT_POSE_QOS)
+            self._take = self._take_joint_state
         diag.declare_counter("robot_poses")
         if source is not None:
             diag.stale_after("robot_poses", config.stale_after_s)
 
+    # -- taking poses when they are needed ---------------------------------------------------
+    def take_when_needed(self) -> bool:
+        """Take ``ee_pose`` / ``joint_states`` messages when a point or a frame needs them
+        (:meth:`poll`) instead of waking the node for each one: the subscription becomes
+        passive (:func:`eye_in_hand.ros.executor.set_passive`) and each pose keeps its
+        reception time from the middleware (system clock: only for a node on it, not on
+        ``use_sim_time``). The same poses reach the pipeline with the same receive times
+        (the middleware's, a few tens of us earlier than a callback's clock reading), before
+        anything that needs them. Returns False for ``/tf`` or no pose source (unchanged)."""
+        if self._sub is None:
+            return False
+        self.lazy = True
+        set_passive(self._sub, True)
+        return True
+
+    def wake_for_poses(self, wake: bool) -> None:
+        """While a point or a frame waits for a newer pose: take each pose as it arrives
+        (``wake``), so that the wait ends with it; passive again when nothing waits."""
+        if self.lazy:
+            set_passive(self._sub, not wake)
+
+    def poll(self) -> None:
+        """Take the poses queued since the last take into the pipeline (lazy only), then
+        what follows new poses, once: the pipeline's drain."""
+        if not self.lazy:
+            return
+        taken = 0
+        for msg, received_ns in take_queued(self._sub):
+            if self._take(msg, received_ns):
+                taken += 1
+        if taken:
+            self.diag.count("robot_poses", taken)
+            self._after()
+
+    # -- the messages ---------------------------------------------------------------------------
     def _on_ee_pose(self, msg: PoseStamped) -> None:
+        if self._take_ee_pose(msg, self._now_ns()):
+            self._after_pose()
+
+    def _on_joint_state(self, msg: JointState) -> None:
+        if self._take_joint_state(msg, self._now_ns()):
+            self._after_pose()
+
+    def _take_ee_pose(self, msg: PoseStamped, received_ns: int) -> bool:
+        """One ``ee_pose`` into the pipeline; False (reported) when it is refused."""
         try:
             stamp = header_stamp_ns(msg)
             frame = msg.header.frame_id
             if frame and frame.lstrip("/") != self._config.base_frame:
                 self.diag.report("ee_pose_frame", f"ee_pose in frame {frame!r}, expected "
                                  f"{self._config.base_frame!r}: ignored")
-                return
+                return False
             self._pose_added(stamp, self.pipeline.add_pose(stamp, pose_to_matrix(msg.pose),
-                                                           received_ns=self._now_ns()))
+                                                           received_ns=received_ns))
         except (ConversionError, InputError) as exc:
             self.diag.report("bad_ee_pose", f"ee_pose: {exc}")
-            return
-        self._after_pose()
+            return False
+        return True
 
-    def _on_joint_state(self, msg: JointState) -> None:
+    def _take_joint_state(self, msg: JointState, received_ns: int) -> bool:
+        """One ``joint_states`` message into the pipeline; False (reported) when refused."""
         try:
             stamp = header_stamp_ns(msg)
             self._pose_added(stamp, self.pipeline.add_joint_state(
-                stamp, msg.name, msg.position, received_ns=self._now_ns()))
+                stamp, msg.name, msg.position, received_ns=received_ns))
         except (ConversionError, InputError, EyeInHandError) as exc:
             self.diag.report("bad_joint_states", f"joint_states: {exc}")
-            return
-        self._after_pose()
+            return False
+        return True
 
     def _pose_added(self, stamp: int, jumped: bool) -> None:
         """A robot pose went into the pipeline (with its receive time); ``jumped``: a time
@@ -153,7 +206,9 @@ class RobotPoseInput:
         self._after()
 
     def expire(self) -> None:
-        """Clear the pose buffer when the stream stopped or the clock jumped back."""
+        """Clear the pose buffer when the stream stopped or the clock jumped back (the poses
+        queued so far taken first)."""
+        self.poll()
         cause = self._localizer.poses.expire(self._now_ns(),
                                              int(self._config.max_pose_age_s * 1e9))
         if cause is not None:

@@ -13,6 +13,9 @@ per wake-up:
   handle-to-entity maps are rebuilt only when an entity or a node is added or removed (rclpy
   calls :meth:`wake` then);
 - one wait set object is kept and refilled in C;
+- a subscription marked passive (:func:`set_passive`) is left out of the waits: its owner
+  takes its messages when it needs them (:func:`take_queued`), so a 125 Hz - 1 kHz robot
+  pose stream does not wake the node for every pose;
 - each ready entity's callback is called directly, and the ready subscriptions are drained
   of every message they hold, so messages that queued together cost one wake-up. Messages of
   several topics are delivered round by round, as rclpy's one message per subscription per
@@ -40,7 +43,35 @@ from typing import Any
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
-__all__ = ["LeanExecutor"]
+__all__ = ["LeanExecutor", "set_passive", "is_passive", "take_queued"]
+
+#: the attribute that marks a subscription passive (:func:`set_passive`)
+_PASSIVE = "_eye_in_hand_passive"
+
+
+def set_passive(subscription: Any, passive: bool) -> None:
+    """Leave ``subscription`` out of :class:`LeanExecutor`'s waits (``passive``), or put it
+    back. A passive subscription's messages stay queued in the middleware, up to its QoS
+    depth, until its owner takes them with :func:`take_queued` when it needs them: the
+    executor does not wake for each one. Other executors ignore the mark and call the
+    callback for every message, as for any subscription. Takes effect at the next wait."""
+    setattr(subscription, _PASSIVE, bool(passive))
+
+
+def is_passive(subscription: Any) -> bool:
+    """Whether ``subscription`` is marked passive (:func:`set_passive`)."""
+    return bool(getattr(subscription, _PASSIVE, False))
+
+
+def take_queued(subscription: Any) -> list[tuple[Any, int]]:
+    """Every message queued on ``subscription``, oldest first, each with its reception time:
+    the middleware's ``received_timestamp`` (int ns, system clock)."""
+    handle, msg_type, raw = subscription.handle, subscription.msg_type, subscription.raw
+    out: list[tuple[Any, int]] = []
+    with handle:
+        while (one := handle.take_message(msg_type, raw)) is not None:
+            out.append((one[0], int(one[1]["received_timestamp"])))
+    return out
 
 
 class _Entities:
@@ -93,6 +124,8 @@ class LeanExecutor(SingleThreadedExecutor):
         self._generation = 0
         self._generation_lock = threading.Lock()
         self._wait_set: Any = None
+        #: the subscriptions and events of a wait without passive subscriptions, by which
+        self._passive_sets: dict[tuple[int, ...], Any] = {}
         #: the handles of ``_entities``, held from one rebuild to the next
         self._held = ExitStack()
         #: held by the spinning thread from the wait to the end of the dispatch
@@ -139,9 +172,12 @@ class LeanExecutor(SingleThreadedExecutor):
                 return
             timeout_ns = -1 if timeout_sec is None or timeout_sec < 0 \
                 else int(timeout_sec * 1e9)
+            passive = tuple(sub for sub in entities.subs if is_passive(sub))
+            subs, events = self._without(entities, passive) if passive \
+                else (entities.subs, entities.events)
             ws = self._wait_set
             ws.clear_entities()
-            for sub in entities.subs:
+            for sub in subs:
                 ws.add_subscription(sub.handle)
             for srv in entities.services:
                 ws.add_service(srv.handle)
@@ -151,7 +187,7 @@ class LeanExecutor(SingleThreadedExecutor):
                 ws.add_guard_condition(gc.handle)
             for gc in entities.own_guards:
                 ws.add_guard_condition(gc.handle)
-            for waitable, event in entities.events:
+            for waitable, event in events:
                 waitable._event_index = ws.add_event(event)
             for waitable in entities.waitables:
                 waitable.add_to_wait_set(ws)
@@ -163,7 +199,7 @@ class LeanExecutor(SingleThreadedExecutor):
                 self._held.close()
                 raise ExternalShutdownException()
             with self._work_tracker:
-                self._dispatch(entities, ws)
+                self._dispatch(entities, ws, events)
 
     def _rebuild(self) -> _Entities | None:
         """The entities of the nodes now, their handles held until the next rebuild."""
@@ -186,12 +222,30 @@ class LeanExecutor(SingleThreadedExecutor):
             self._held.close()
             return None
         self._wait_set = _rclpy.WaitSet(*entities.counts, context_handle)
+        self._passive_sets = {}
         # used for this wait; kept only if nothing changed meanwhile (else rebuilt next time)
         with self._generation_lock:
             self._entities = entities if generation == self._generation else None
         return entities
 
-    def _dispatch(self, entities: _Entities, ws: Any) -> None:
+    def _without(self, entities: _Entities, passive: tuple[Any, ...]
+                 ) -> tuple[list[Any], list[tuple[Any, Any]]]:
+        """The subscriptions and QoS events of a wait without the ``passive`` subscriptions
+        and their event handlers (kept until the next rebuild): the middleware ends a wait
+        on a reader's events also when the reader holds unread messages, so they would end
+        every wait at once while a passive subscription holds some."""
+        key = tuple(id(sub) for sub in passive)
+        found = self._passive_sets.get(key)
+        if found is None:
+            handlers = [h for sub in passive for h in getattr(sub, "event_handlers", ())]
+            skip = {id(h) for h in handlers}
+            found = self._passive_sets[key] = (
+                [sub for sub in entities.subs if sub not in passive],
+                [(w, e) for w, e in entities.events if id(w) not in skip])
+        return found
+
+    def _dispatch(self, entities: _Entities, ws: Any, events: list[tuple[Any, Any]]
+                  ) -> None:
         """Run the callbacks of what the wait found ready: timers, subscriptions (drained),
         guard conditions, services, then waitables (as rclpy's order: timers first)."""
         for ptr in ws.get_ready_entities("timer"):
@@ -232,7 +286,7 @@ class LeanExecutor(SingleThreadedExecutor):
                 self.create_task(_respond_later(srv, response, header))
             else:
                 srv.send_response(response, header)
-        for waitable, _ in entities.events:
+        for waitable, _ in events:
             if ws.is_ready("event", waitable._event_index) and waitable.is_ready(ws):
                 self.create_task(waitable.execute(waitable.take_data()))
         for waitable in entities.waitables:
@@ -265,6 +319,7 @@ class LeanExecutor(SingleThreadedExecutor):
             try:
                 self._held.close()
                 self._wait_set = None
+                self._passive_sets = {}
             finally:
                 self._spin_lock.release()
         return done

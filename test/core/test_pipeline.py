@@ -151,6 +151,36 @@ def test_a_stale_pose_is_refused():
     assert sink.out[0][:3] == ("refused", T0 + 5 * MS, "stale_pose")
 
 
+def test_poses_taken_only_when_needed_are_pulled_before_a_point_a_frame_and_a_check():
+    """A pose source that is not fed on arrival (hand_eye's lazy ee_pose / joint_states) is
+    pulled before a point or a frame is queued, so that it is judged on the poses received so
+    far (not refused as stale or kept waiting on an old buffer), and at each check."""
+    pipe, _, sink = _pipeline(max_age_s=0.5)
+    pipe.add_pose(T0, _pose(T0), received_ns=T0 + 1_980 * MS)
+    pending = [(T0 + 10 * MS, T0 + 1_990 * MS)]         # received just before the point
+    pulls: list[int] = []
+
+    def pull() -> None:
+        pulls.append(len(sink.out))
+        while pending:
+            stamp, received = pending.pop(0)
+            pipe.add_pose(stamp, _pose(stamp), received_ns=received)
+
+    pipe.pull_poses = pull
+    pipe.add_point(T0 + 5 * MS, P_CAM, COV, received_ns=T0 + 2_000 * MS)
+    assert [o[:2] for o in sink.out] == [("ok", T0 + 5 * MS)] and pulls == [0]
+    np.testing.assert_allclose(sink.out[0][2], _expected(T0 + 5 * MS), atol=2e-4)
+    pending.append((T0 + 30 * MS, T0 + 2_010 * MS))
+    pipe.add_frame(T0 + 20 * MS, [Target("a", P_CAM, COV)], received_ns=T0 + 2_020 * MS,
+                   carried=True)
+    assert [o[:3] for o in sink.out[1:]] == [("target_ok", T0 + 20 * MS, "a"),
+                                             ("frame", T0 + 20 * MS)]
+    pipe.add_point(T0 + 40 * MS, P_CAM, COV, received_ns=T0 + 2_040 * MS)   # waits
+    pending.append((T0 + 50 * MS, T0 + 2_045 * MS))
+    assert not pipe.tick() and sink.out[-1][:2] == ("ok", T0 + 40 * MS)
+    assert len(pulls) == 4
+
+
 def test_eye_to_hand_needs_no_pose():
     pipe, _, sink = _pipeline(eye_to_hand=True)
     assert not pipe.needs_pose and pipe.newest_pose_ns is None

@@ -143,6 +143,41 @@ def test_a_busy_executor_does_not_refuse_points_whose_poses_wait_in_its_queue(
     assert rig.node.diag.causes.get("no_robot_pose", 0) == 0
 
 
+def test_robot_poses_are_taken_when_a_point_needs_them(tmp_path, ros_context, executor,
+                                                        namespace, spin_until):
+    """On the system clock the ee_pose subscription is passive: the poses wait in the
+    middleware until a point needs them. A point newer than every pose makes the node take
+    each pose as it arrives until the point is out; then the subscription is passive again."""
+    from eye_in_hand.ros.executor import is_passive
+
+    rig = _Rig(ros_context, executor, namespace, _overrides(_hand_eye_file(tmp_path)))
+    assert spin_until(executor, rig.connected, 10.0)
+    node = rig.node
+    sub = node.robot_poses._sub
+    assert node.robot_poses.lazy and node.pipeline.pull_poses is not None and is_passive(sub)
+    for k in range(3):
+        rig.send_pose(0.01 * k)
+    p, cov = np.array([0.01, -0.02, 0.5]), np.diag([1e-8, 1e-8, 4e-7])
+    rig.send_point(0.015, p, cov)                     # its poses come with it
+    assert spin_until(executor, lambda: len(rig.poses) == 1, 10.0)
+    rig.send_point(0.05, p, cov)                      # newer than every pose: it waits ...
+    assert spin_until(executor, lambda: len(node.pipeline.points) == 1, 10.0)
+    assert not is_passive(sub)                        # ... and the node wakes for each pose
+    rig.send_pose(0.03)
+    rig.send_pose(0.06)
+    assert spin_until(executor, lambda: len(rig.poses) == 2, 5.0)
+    assert spin_until(executor, lambda: is_passive(sub), 5.0)
+    for got, (t, t0, t1) in zip(rig.poses, ((0.015, 0.01, 0.02), (0.05, 0.03, 0.06)),
+                                strict=True):
+        ns = [T0 + round(v * 1e9) for v in (t, t0, t1)]
+        base_T_ee = interpolate(ns[0], ns[1], _robot_pose(t0), ns[2], _robot_pose(t1))
+        want, _ = target_in_base(base_T_ee, EE_T_CAM, p)
+        pos = got.pose.position
+        assert header_stamp_ns(got) == ns[0]
+        assert np.allclose([pos.x, pos.y, pos.z], want, atol=1e-12)
+    assert node.diag.counter("robot_poses") == 5
+
+
 def test_stale_robot_pose_publishes_nothing_then_resumes(tmp_path, ros_context, executor,
                                                          namespace, spin_until):
     rig = _Rig(ros_context, executor, namespace,
@@ -320,6 +355,7 @@ def test_receive_age_uses_the_simulated_clock(tmp_path, ros_context, executor, n
                           or node.get_clock().now().nanoseconds == int(t_s * 1e9), 10.0)
 
     assert spin_until(executor, rig.connected, 10.0)
+    assert not node.robot_poses.lazy      # receive times on /clock: every pose taken on arrival
     assert set_clock(100.0)
     for k in range(5):
         rig.send_pose(0.01 * k)

@@ -13,7 +13,12 @@ from rclpy.node import Node  # noqa: E402
 from std_msgs.msg import Int32  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from eye_in_hand.ros.executor import LeanExecutor  # noqa: E402
+from eye_in_hand.ros.executor import (  # noqa: E402
+    LeanExecutor,
+    is_passive,
+    set_passive,
+    take_queued,
+)
 from eye_in_hand.ros.spin import spin_until  # noqa: E402
 
 QOS = 50
@@ -63,6 +68,40 @@ def test_a_subscription_gets_every_message_in_order_and_queued_ones_in_one_spin(
     time.sleep(0.3)                       # delivered to the subscription's queue meanwhile
     ex.spin_once(timeout_sec=2.0)
     assert got == list(range(9)), "a ready subscription is drained in one wake-up"
+
+
+def test_a_passive_subscription_keeps_its_messages_without_waking_the_executor(
+        lean, namespace):
+    """Marked passive, a subscription's messages wait in the middleware: the executor's waits
+    run their full timeout (neither the subscription nor its QoS events end them) and the
+    callback gets nothing; take_queued gives them in order with their reception times; made
+    active again, it is waited on as before."""
+    ex, make = lean
+    node = make("passive", namespace)
+    got: list[int] = []
+    sub = node.create_subscription(Int32, "quiet", lambda m: got.append(m.data), QOS)
+    pub = node.create_publisher(Int32, "quiet", QOS)
+    assert _matched(ex, pub)
+    set_passive(sub, True)
+    assert is_passive(sub)
+    before = time.time_ns()
+    for k in range(5):
+        pub.publish(Int32(data=k))
+    time.sleep(0.2)                       # in the subscription's queue by now
+    wakeups, end = 0, time.monotonic() + 0.5
+    while time.monotonic() < end:
+        ex.spin_once(timeout_sec=0.1)
+        wakeups += 1
+    assert got == []
+    assert wakeups <= 8, f"{wakeups} wake-ups in 0.5 s with a 0.1 s timeout: the waits ended early"
+    taken = take_queued(sub)
+    assert [m.data for m, _ in taken] == [0, 1, 2, 3, 4]
+    stamps = [t for _, t in taken]
+    assert stamps == sorted(stamps) and before <= stamps[0] and stamps[-1] <= time.time_ns()
+    assert take_queued(sub) == []
+    set_passive(sub, False)
+    pub.publish(Int32(data=9))
+    assert spin_until(ex, lambda: got == [9], 10.0)
 
 
 def test_a_subscription_made_while_spinning_is_waited_on(lean, namespace):
