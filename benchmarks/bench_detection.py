@@ -87,28 +87,43 @@ def floor(left: np.ndarray, right: np.ndarray) -> None:
 
 
 def per_pair(named_fns, imgs, repeats: int, rounds: int = 5, warm_up: bool = False
-             ) -> tuple[dict[str, float], dict[str, float]]:
+             ) -> tuple[dict[str, float], dict[str, float], dict[str, float]]:
     """Seconds per pair of each ``(name, fn(left, right))`` (the first is the floor), the best
-    of ``rounds`` rounds of ``repeats`` pairs, and each one's ratio to the floor: the median
-    over the rounds of its time over the floor's time in the same round. The functions take
-    turns within each round, so a change of the shared machine's load between them moves
-    both sides of a ratio alike. ``warm_up`` runs two pairs of each first."""
+    of ``rounds`` rounds of ``repeats`` pairs, and each one's ratio to the floor in wall time
+    and in CPU time (this process, all its threads): the median over the rounds of its time
+    over the floor's time in the same round. The functions take turns within each round, so a
+    change of the shared machine's load between them moves both sides of a ratio alike.
+    ``warm_up`` runs two pairs of each first. With OpenCV's default threads the floor's
+    cvtColor and inRange run on both cores: less wall time than CPU time."""
     if warm_up:
         for _, fn in named_fns:
             for left, right in imgs[:2]:
                 fn(left, right)
     times: dict[str, list[float]] = {name: [] for name, _ in named_fns}
+    cpus: dict[str, list[float]] = {name: [] for name, _ in named_fns}
     for _ in range(rounds):
         for name, fn in named_fns:
-            t0 = time.perf_counter()
+            c0, t0 = time.process_time(), time.perf_counter()
             for k in range(repeats):
                 fn(*imgs[k % len(imgs)])
             times[name].append((time.perf_counter() - t0) / repeats)
-    floor_times = times[named_fns[0][0]]
+            cpus[name].append((time.process_time() - c0) / repeats)
+    floor_name = named_fns[0][0]
     best = {name: min(t) for name, t in times.items()}
-    ratio = {name: float(np.median([a / f for a, f in zip(t, floor_times, strict=True)]))
-             for name, t in times.items()}
-    return best, ratio
+
+    def ratios(series: dict[str, list[float]]) -> dict[str, float]:
+        return {name: float(np.median([a / f for a, f in zip(t, series[floor_name],
+                                                               strict=True)]))
+                for name, t in series.items()}
+
+    return best, ratios(times), ratios(cpus)
+
+
+def print_speed(timings: dict[str, float], wall: dict[str, float], cpu: dict[str, float],
+                indent: str = "  ", width: int = 42) -> None:
+    for name, t in timings.items():
+        print(f"{indent}{name:{width}s} {t * 1e3:7.3f} ms/pair  {1.0 / t:7.1f} pairs/s  "
+              f"{wall[name]:5.2f} x floor (wall)  {cpu[name]:5.2f} x floor (CPU)")
 
 
 def speed(frames, rig, repeats: int, rounds: int) -> None:
@@ -116,16 +131,14 @@ def speed(frames, rig, repeats: int, rounds: int) -> None:
     loc_raw = StereoLocator(rig, config(correction=False))
     loc_opt = StereoLocator(rig, config("optimal"))
     imgs = [(f.left, f.right) for f in frames]
-    timings, ratios = per_pair((("floor (cvtColor + inRange, both images)", floor),
-                                ("locate dlt + sphere correction", loc.locate),
-                                ("locate dlt, no correction", loc_raw.locate),
-                                ("locate optimal + sphere correction", loc_opt.locate)),
-                               imgs, repeats, rounds, warm_up=True)
+    timings, wall, cpu = per_pair((("floor (cvtColor + inRange, both images)", floor),
+                                   ("locate dlt + sphere correction", loc.locate),
+                                   ("locate dlt, no correction", loc_raw.locate),
+                                   ("locate optimal + sphere correction", loc_opt.locate)),
+                                  imgs, repeats, rounds, warm_up=True)
     print(f"speed, 1280x720 pairs, best of {rounds} x {repeats} pairs (x floor: median of the "
           f"rounds), cv2 threads {cv2.getNumThreads()}:")
-    for name, t in timings.items():
-        print(f"  {name:42s} {t * 1e3:7.3f} ms/pair  {1.0 / t:7.1f} pairs/s  "
-              f"{ratios[name]:5.2f} x floor")
+    print_speed(timings, wall, cpu)
 
 
 def accuracy(world: World, frames) -> None:
@@ -248,14 +261,13 @@ def multi(n_frames: int, repeats: int, seed: int, rounds: int = 5) -> None:
 
     one = StereoLocator(rig, config())
     imgs = [(f.left, f.right) for f in frames]
-    timings, ratios = per_pair((("floor (cvtColor + inRange, both images)", floor),
-                                ("locate, 1 target (red, the single config)", one.locate),
-                                ("locate, 4 targets (red x2 set, green, blue)", loc.locate)),
-                               imgs, repeats, rounds)
-    print(f"  speed, best of {rounds} x {repeats} pairs (x floor: median of the rounds):")
-    for name, t in timings.items():
-        print(f"  {name:44s} {t * 1e3:7.3f} ms/pair  {1.0 / t:7.1f} pairs/s  "
-              f"{ratios[name]:5.2f} x floor")
+    timings, wall, cpu = per_pair((("floor (cvtColor + inRange, both images)", floor),
+                                   ("locate, 1 target (red, the single config)", one.locate),
+                                   ("locate, 4 targets (red x2 set, green, blue)", loc.locate)),
+                                  imgs, repeats, rounds)
+    print(f"  speed, best of {rounds} x {repeats} pairs (x floor: median of the rounds), cv2 "
+          f"threads {cv2.getNumThreads()}:")
+    print_speed(timings, wall, cpu, width=44)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -269,7 +281,13 @@ def main(argv: list[str] | None = None) -> int:
                         help="pairs of the multi-target world (default 20; 0 = skip)")
     parser.add_argument("--multi-only", action="store_true",
                         help="only the several-targets part")
+    parser.add_argument("--cv-threads", type=int, default=-1,
+                        help="cv2.setNumThreads before timing (default: OpenCV's own, "
+                             "both cores here; 1: the floor on one core, as a detector "
+                             "thread beside other work has it)")
     args = parser.parse_args(argv)
+    if args.cv_threads >= 0:
+        cv2.setNumThreads(args.cv_threads)
     if args.multi_only:
         multi(args.multi_frames, args.repeats, args.seed, args.rounds)
         return 0

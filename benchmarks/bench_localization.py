@@ -396,13 +396,24 @@ def node_cpu_s(launcher_pid: int) -> dict[str, float]:
     return out
 
 
-def live(paths: dict[str, Path], composed: bool = False
+#: hand_eye's outputs besides target/pose (the bench's target is red): with ``--outputs all``
+#: the listener subscribes to every one, as the issue's figure asks (volatile outputs are built
+#: and sent only while subscribed; /tf always goes out)
+ALL_OUTPUTS = (("PoseWithCovarianceStamped", "/target/pose_cov"),
+               ("PoseStamped", "/target/red/pose"),
+               ("PoseWithCovarianceStamped", "/target/red/pose_cov"),
+               ("PoseArray", "/target/poses"), ("MarkerArray", "/target/markers"),
+               ("TFMessage", "/tf"))
+
+
+def live(paths: dict[str, Path], composed: bool = False, all_outputs: bool = True
          ) -> tuple[dict[int, np.ndarray], dict[str, float]]:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
-    from geometry_msgs.msg import PoseStamped
+    from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
+    from visualization_msgs.msg import MarkerArray
 
     from eye_in_hand.ros.dds import use_large_data_profile
     from eye_in_hand.ros.qos import RESULT_QOS
@@ -437,6 +448,18 @@ def live(paths: dict[str, Path], composed: bool = False
             diag[s.name] = {v.key: v.value for v in s.values}
 
     node.create_subscription(PoseStamped, "/target/pose", on_pose, RESULT_QOS)
+    if all_outputs:
+        types: dict[str, type] = {"PoseStamped": PoseStamped, "PoseArray": PoseArray,
+                                 "PoseWithCovarianceStamped": PoseWithCovarianceStamped,
+                                 "MarkerArray": MarkerArray}
+        try:
+            from tf2_msgs.msg import TFMessage
+            types["TFMessage"] = TFMessage
+        except ImportError:        # no tf2_msgs in this venv: hand_eye sends no /tf either
+            pass
+        for name, topic in ALL_OUTPUTS:
+            if name in types:
+                node.create_subscription(types[name], topic, lambda _m: None, RESULT_QOS)
     node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 50)
     ex = SingleThreadedExecutor()
     ex.add_node(node)
@@ -619,6 +642,10 @@ def main() -> int:
                         help="--live-only: detect_triangulate and hand_eye as separate "
                              "processes (eye-in-hand launch), in one (launch --composed), or "
                              "both alternating, each --live-runs times (default separate)")
+    parser.add_argument("--outputs", choices=("all", "pose"), default="all",
+                        help="live: the listener subscribes to every hand_eye output (all, "
+                             "default) or to target/pose alone (pose; the figures before "
+                             "2026-11-28 were taken so)")
     parser.add_argument("--trials", type=int, default=3,
                         help="process_bag runs per bag, the best one counts (default 3)")
     args = parser.parse_args()
@@ -633,13 +660,15 @@ def main() -> int:
     if args.live_only:
         import eye_in_hand
 
-        print(f"nodes from {Path(eye_in_hand.__file__).parent}")
+        print(f"nodes from {Path(eye_in_hand.__file__).parent}; the listener subscribes to "
+              + ("every hand_eye output" if args.outputs == "all" else "target/pose alone"))
         modes = ["separate", "composed"] if args.live_mode == "both" else [args.live_mode]
         for _ in range(args.live_runs):
             for mode in modes:
                 print(f"== live, {mode} processes" if mode == "separate" else
                       "== live, composed (detect_triangulate + hand_eye in one process)")
-                live_pts, fig = live(paths, composed=mode == "composed")
+                live_pts, fig = live(paths, composed=mode == "composed",
+                                     all_outputs=args.outputs == "all")
                 print_live(fig, live_pts, truth)
         return 0
     from eye_in_hand.core.camera import StereoRig
@@ -669,7 +698,7 @@ def main() -> int:
           f"({bc['estimate_only_robot_sigma_pos_mm']:.3g} mm, "
           f"{bc['estimate_only_robot_sigma_rot_mrad']:.3g} mrad): NEES "
           f"{bc['estimate_only_nees']:.2f}, coverage {100 * bc['estimate_only_coverage95']:.1f} %")
-    live_pts, fig = live(paths)
+    live_pts, fig = live(paths, all_outputs=args.outputs == "all")
     common = sorted(set(live_pts) & set(off_pts))
     diff = max((float(np.max(np.abs(live_pts[s] - off_pts[s]))) for s in common),
                default=float("nan"))
