@@ -428,11 +428,16 @@ def live(paths: dict[str, Path], composed: bool = False, all_outputs: bool = Tru
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
     use_large_data_profile()
     params = params_file(paths)
+    # run in the checkout whose eye_in_hand this script imported: `python -m` puts the working
+    # directory first on sys.path, so from another checkout's root its nodes would run instead
+    # of the PYTHONPATH one's
+    import eye_in_hand
+    code_root = Path(eye_in_hand.__file__).resolve().parent.parent
     launch = subprocess.Popen([sys.executable, "-m", "eye_in_hand.cli", "launch", "--params",
                                str(params), "--skip", "stereo_capture",
                                *(["--composed"] if composed else [])], env=env, text=True,
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                              start_new_session=True)
+                              start_new_session=True, cwd=code_root)
     rclpy.init()
     node = Node("bench_listener")
     received: list[tuple[int, int, np.ndarray]] = []

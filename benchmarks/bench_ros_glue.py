@@ -8,8 +8,9 @@ Run: ``.venv/bin/python benchmarks/bench_ros_glue.py [--wakeups]``
 publishers (the floor: a bare wake-up and take), with 12 and 24 publishers made the default
 way (two QoS-event handlers each, rebuilt into the wait set at every wake-up) and without
 handlers (``eye_in_hand.ros.publishers.OutputPublishers``), then the same node on
-``eye_in_hand.ros.executor.LeanExecutor`` (what the package's nodes spin on), the layouts
-alternating, median of ``--rounds`` rounds.
+``eye_in_hand.ros.executor.LeanExecutor`` (what the package's nodes spin on), and on it with
+the subscription passive and its messages taken at 30 Hz (``set_passive``, ``take_queued``:
+how ``hand_eye`` takes robot poses), the layouts alternating, median of ``--rounds`` rounds.
 
 Prints, for a 1280x720 stereo-camera frame: numpy -> Image (one copy into the message),
 Image -> numpy for rclpy and rosbags messages (zero-copy views, padded rows included),
@@ -110,7 +111,8 @@ def _wakeup_publisher() -> None:
     time.sleep(0.5)
 
 
-def _wakeup_cost(publishers: int, quiet: bool, lean: bool = False) -> float:
+def _wakeup_cost(publishers: int, quiet: bool, lean: bool = False,
+                 passive: bool = False) -> float:
     """CPU microseconds of this process per message received (see the module docstring)."""
     import subprocess
     import sys
@@ -121,7 +123,7 @@ def _wakeup_cost(publishers: int, quiet: bool, lean: bool = False) -> float:
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
 
-    from eye_in_hand.ros.executor import LeanExecutor
+    from eye_in_hand.ros.executor import LeanExecutor, set_passive, take_queued
 
     context = rclpy.Context()
     rclpy.init(context=context)
@@ -131,7 +133,10 @@ def _wakeup_cost(publishers: int, quiet: bool, lean: bool = False) -> float:
     for k in range(publishers):
         node.create_publisher(PoseStamped, f"out{k}", 10, **extra)
     got: list[object] = []
-    node.create_subscription(PoseStamped, "wakeup", got.append, 100)
+    sub = node.create_subscription(PoseStamped, "wakeup", got.append, 100)
+    if passive:    # taken at 30 Hz, as hand_eye takes robot poses with each camera frame
+        set_passive(sub, True)
+        node.create_timer(1 / 30, lambda: got.extend(m for m, _ in take_queued(sub)))
     ex = (LeanExecutor if lean else SingleThreadedExecutor)(context=context)
     ex.add_node(node)
     src = subprocess.Popen([sys.executable, __file__, "--wakeup-source"])
@@ -153,19 +158,22 @@ def wakeups(rounds: int) -> None:
 
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(120, 200)))
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    layouts = [(0, False, False), (12, False, False), (12, True, False), (24, False, False),
-               (24, True, False), (0, False, True), (12, True, True)]
-    runs: dict[tuple[int, bool, bool], list[float]] = {k: [] for k in layouts}
+    layouts = [(0, False, False, False), (12, False, False, False), (12, True, False, False),
+               (24, False, False, False), (24, True, False, False), (0, False, True, False),
+               (12, True, True, False), (12, True, True, True)]
+    runs: dict[tuple[int, bool, bool, bool], list[float]] = {k: [] for k in layouts}
     for _ in range(rounds):
         for key in layouts:
             runs[key].append(_wakeup_cost(*key))
-    floor = statistics.median(runs[(0, False, False)])
+    floor = statistics.median(runs[(0, False, False, False)])
     print(f"executor CPU per received message, median of {rounds} rounds "
           f"(floor: rclpy's executor, no publisher, {floor:.0f} us)")
-    for (n, quiet, lean), values in runs.items():
+    for (n, quiet, lean, passive), values in runs.items():
         med = statistics.median(values)
         kind = "without QoS-event handlers" if quiet else "default handlers"
         name = "LeanExecutor" if lean else "rclpy's executor"
+        if passive:
+            name, kind = "LeanExecutor", "passive, taken at 30 Hz"
         print(f"  {name:<17s} {n:2d} publishers, {kind:<27s} {med:7.0f} us  "
               f"({med / floor:.2f}x the floor)")
 
