@@ -287,7 +287,7 @@ def run_process(bag: Path, he: Path, params: Path, out: Path,
     peak = [0, 0, 0]          # tree RSS sum, largest process's peak (VmHWM), tree anonymous
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=_env(code))
+                            env=_env(code), cwd=code or ROOT)   # not another checkout's root
     done = threading.Event()
 
     def sample() -> None:
@@ -403,7 +403,8 @@ def startup(bag: Path, he: Path, params: Path, code: Path | None, repeat: int) -
         t0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         proc = subprocess.run([sys.executable, "-c", _PHASES, "process", str(bag), "--hand-eye",
                                str(he), "--params", str(params), "-o", str(out), "--quiet"],
-                              capture_output=True, text=True, env=env)
+                              capture_output=True, text=True, env=env,
+                              cwd=code or ROOT)   # `-c` puts the working directory first
         t1 = resource.getrusage(resource.RUSAGE_CHILDREN)
         if proc.returncode != 0:
             raise SystemExit(proc.stdout + proc.stderr)
