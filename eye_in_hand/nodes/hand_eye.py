@@ -159,7 +159,8 @@ class HandEyeNode(Node):
         self.robot_poses = RobotPoseInput(self, cfg, self.pipeline, self.localizer, self.diag,
                                           self._now_ns, self._after_pose, pose_source)
         if localizing and not self.get_parameter("use_sim_time").value \
-                and self.robot_poses.take_when_needed():
+                and self.robot_poses.take_when_needed(
+                    lambda: not self.get_clock().ros_time_is_active):
             # poses at 125 Hz - 1 kHz taken with the point or frame that needs them, not one
             # executor wake-up each (receive times are the middleware's, on the system clock)
             self.pipeline.pull_poses = self.robot_poses.poll

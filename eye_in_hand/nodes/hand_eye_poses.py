@@ -106,6 +106,7 @@ class RobotPoseInput:
         self._take: Callable[[Any, int], bool] = self._take_ee_pose
         #: poses taken when needed (:meth:`take_when_needed`), not as each arrives
         self.lazy = False
+        self._on_system_clock: Callable[[], bool] = lambda: True
         if source == "ee_pose":
             self._sub = node.create_subscription(PoseStamped, "ee_pose", self._on_ee_pose,
                                                  ROBOT_POSE_QOS)
@@ -120,16 +121,20 @@ class RobotPoseInput:
             diag.stale_after("robot_poses", config.stale_after_s)
 
     # -- taking poses when they are needed ---------------------------------------------------
-    def take_when_needed(self) -> bool:
+    def take_when_needed(self, on_system_clock: Callable[[], bool]) -> bool:
         """Take ``ee_pose`` / ``joint_states`` messages when a point or a frame needs them
         (:meth:`poll`) instead of waking the node for each one: the subscription becomes
         passive (:func:`eye_in_hand.ros.executor.set_passive`) and each pose keeps its
         reception time from the middleware (system clock: only for a node on it, not on
         ``use_sim_time``). The same poses reach the pipeline with the same receive times
         (the middleware's, a few tens of us earlier than a callback's clock reading), before
-        anything that needs them. Returns False for ``/tf`` or no pose source (unchanged)."""
+        anything that needs them. ``on_system_clock``: whether the node's clock is still the
+        system clock (``use_sim_time`` switched on at run time ends the lazy mode: from then
+        on every pose is taken on arrival, its receive time on ``/clock``). Returns False for
+        ``/tf`` or no pose source (unchanged)."""
         if self._sub is None:
             return False
+        self._on_system_clock = on_system_clock
         self.lazy = True
         set_passive(self._sub, True)
         return True
@@ -145,8 +150,16 @@ class RobotPoseInput:
         what follows new poses, once: the pipeline's drain."""
         if not self.lazy:
             return
+        queued = take_queued(self._sub)
+        if not self._on_system_clock():
+            # use_sim_time switched on: receive ages are on /clock now, which the middleware's
+            # reception times are not; these poses get the node's clock, later ones their
+            # callbacks
+            self.lazy = False
+            set_passive(self._sub, False)
+            queued = [(msg, self._now_ns()) for msg, _ in queued]
         taken = 0
-        for msg, received_ns in take_queued(self._sub):
+        for msg, received_ns in queued:
             if self._take(msg, received_ns):
                 taken += 1
         if taken:

@@ -178,6 +178,34 @@ def test_robot_poses_are_taken_when_a_point_needs_them(tmp_path, ros_context, ex
     assert node.diag.counter("robot_poses") == 5
 
 
+def test_use_sim_time_switched_on_ends_taking_poses_when_needed(tmp_path, ros_context,
+                                                                executor, namespace,
+                                                                spin_until):
+    """Receive ages move to /clock with use_sim_time: the poses then get the node's clock, not
+    the middleware's reception time, and every later pose is taken on arrival."""
+    from rosgraph_msgs.msg import Clock
+
+    from eye_in_hand.ros.executor import is_passive
+
+    rig = _Rig(ros_context, executor, namespace, _overrides(_hand_eye_file(tmp_path)))
+    assert spin_until(executor, rig.connected, 10.0)
+    node = rig.node
+    assert node.robot_poses.lazy
+    clock_pub = rig.io.create_publisher(Clock, "/clock", 10)
+    node.set_parameters([Parameter("use_sim_time", value=True)])
+    msg = Clock()
+    msg.clock.sec = 100
+    assert spin_until(executor, lambda: (clock_pub.publish(msg), False)[1]
+                      or node.get_clock().now().nanoseconds == 100 * 10**9, 10.0)
+    for k in range(3):
+        rig.send_pose(0.01 * k)
+    assert spin_until(executor, lambda: node.diag.counter("robot_poses") == 3, 10.0)
+    assert not node.robot_poses.lazy and not is_passive(node.robot_poses._sub)
+    # received at 100 s on /clock: a point arriving at 100 s finds them fresh
+    rig.send_point(0.015, [0.0, 0.0, 0.5], np.diag([1e-8, 1e-8, 4e-7]))
+    assert spin_until(executor, lambda: len(rig.poses) == 1, 10.0)
+
+
 def test_stale_robot_pose_publishes_nothing_then_resumes(tmp_path, ros_context, executor,
                                                          namespace, spin_until):
     rig = _Rig(ros_context, executor, namespace,
