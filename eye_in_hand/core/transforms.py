@@ -245,8 +245,9 @@ def _orthonormal_quat(R: np.ndarray) -> np.ndarray | None:
     """The quaternion (x, y, z, w; not canonical) of SciPy 1.17's ``from_matrix`` for a matrix
     its test takes as orthogonal (``isclose(R R^T, I, atol=1e-12)``), computed as it does
     (Markley's method: the largest of the diagonal and the trace picks the formula; then the
-    division by the norm); None for any other matrix. Checked bit for bit against SciPy on
-    200 000 random rotations and on matrices at its tolerance (test_transforms)."""
+    division by the norm); None for any other matrix. Checked bit for bit against SciPy
+    (1.15.2 and 1.17.1) on 3000 random rotations, special angles and matrices at its
+    tolerance (test_quat_scipy)."""
     if not bool(np.all(np.abs(R @ R.T - _EYE3) <= 1e-12 + 1e-5 * _EYE3)):
         return None
     r = R.tolist()

@@ -159,8 +159,7 @@ class HandEyeNode(Node):
         self.robot_poses = RobotPoseInput(self, cfg, self.pipeline, self.localizer, self.diag,
                                           self._now_ns, self._after_pose, pose_source)
         if localizing and not self.get_parameter("use_sim_time").value \
-                and self.robot_poses.take_when_needed(
-                    lambda: not self.get_clock().ros_time_is_active):
+                and self.robot_poses.take_when_needed(self._on_system_clock):
             # poses at 125 Hz - 1 kHz taken with the point or frame that needs them, not one
             # executor wake-up each (receive times are the middleware's, on the system clock)
             self.pipeline.pull_poses = self.robot_poses.poll
@@ -195,6 +194,10 @@ class HandEyeNode(Node):
     def _now_ns(self) -> int:
         """The node's clock (sim time under use_sim_time): the clock of receive ages."""
         return self.get_clock().now().nanoseconds
+
+    def _on_system_clock(self) -> bool:
+        """Whether the node's clock is the system clock (not ``/clock``)."""
+        return not getattr(self.get_clock(), "ros_time_is_active", False)
 
     def _after_pose(self) -> None:
         """After each robot pose: answer the captures waiting for it, or drain the pipeline."""

@@ -24,7 +24,12 @@ from eye_in_hand.core.localization import Localizer, robot_pose_sigmas
 from eye_in_hand.core.pipeline import LocalizationPipeline, localizer_config
 from eye_in_hand.errors import ConversionError, EyeInHandError, InputError
 from eye_in_hand.nodes.hand_eye_tf import TfInput
-from eye_in_hand.ros.executor import set_passive, take_queued
+from eye_in_hand.ros.executor import (
+    is_passive,
+    reception_times_known,
+    set_passive,
+    take_queued,
+)
 from eye_in_hand.ros.geometry import pose_to_matrix
 from eye_in_hand.ros.qos import ROBOT_POSE_QOS
 from eye_in_hand.ros.stamps import header_stamp_ns
@@ -131,8 +136,10 @@ class RobotPoseInput:
         anything that needs them. ``on_system_clock``: whether the node's clock is still the
         system clock (``use_sim_time`` switched on at run time ends the lazy mode: from then
         on every pose is taken on arrival, its receive time on ``/clock``). Returns False for
-        ``/tf`` or no pose source (unchanged)."""
-        if self._sub is None:
+        ``/tf``, no pose source, or a middleware whose reception times are not known to be
+        stamped at reception (:func:`~eye_in_hand.ros.executor.reception_times_known`):
+        every pose is then taken as it arrives."""
+        if self._sub is None or not reception_times_known():
             return False
         self._on_system_clock = on_system_clock
         self.lazy = True
@@ -148,7 +155,10 @@ class RobotPoseInput:
     def poll(self) -> None:
         """Take the poses queued since the last take into the pipeline (lazy only), then
         what follows new poses, once: the pipeline's drain."""
-        if not self.lazy:
+        if not self.lazy or not is_passive(self._sub):
+            # active (a point waits): the executor delivers the poses in order with the other
+            # topics; a pull now could take poses newer than ones it has taken but not yet
+            # delivered, and bracket a point across them
             return
         queued = take_queued(self._sub)
         if not self._on_system_clock():
@@ -158,6 +168,9 @@ class RobotPoseInput:
             self.lazy = False
             set_passive(self._sub, False)
             queued = [(msg, self._now_ns()) for msg, _ in queued]
+        else:
+            now = self._now_ns()     # a reception time of 0 or in the future: the take's
+            queued = [(msg, t if 0 < t <= now else now) for msg, t in queued]
         taken = 0
         for msg, received_ns in queued:
             if self._take(msg, received_ns):

@@ -43,7 +43,8 @@ from typing import Any
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
-__all__ = ["LeanExecutor", "set_passive", "is_passive", "take_queued"]
+__all__ = ["LeanExecutor", "set_passive", "is_passive", "take_queued",
+           "reception_times_known", "RECEPTION_STAMPING_RMWS"]
 
 #: the attribute that marks a subscription passive (:func:`set_passive`)
 _PASSIVE = "_eye_in_hand_passive"
@@ -61,6 +62,20 @@ def set_passive(subscription: Any, passive: bool) -> None:
 def is_passive(subscription: Any) -> bool:
     """Whether ``subscription`` is marked passive (:func:`set_passive`)."""
     return bool(getattr(subscription, _PASSIVE, False))
+
+
+#: Middlewares whose ``received_timestamp`` is the system time at which the sample arrived
+#: (checked for Fast DDS, the package's; rmw_cyclonedds stamps at the take or not at all)
+RECEPTION_STAMPING_RMWS = ("rmw_fastrtps_cpp", "rmw_fastrtps_dynamic_cpp")
+
+
+def reception_times_known() -> bool:
+    """Whether this process's middleware stamps messages at reception
+    (:data:`RECEPTION_STAMPING_RMWS`): only then can a passive subscription's messages be
+    taken later with the time they arrived."""
+    from rclpy.utilities import get_rmw_implementation_identifier
+
+    return get_rmw_implementation_identifier() in RECEPTION_STAMPING_RMWS
 
 
 def take_queued(subscription: Any) -> list[tuple[Any, int]]:

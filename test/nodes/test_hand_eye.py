@@ -178,6 +178,59 @@ def test_robot_poses_are_taken_when_a_point_needs_them(tmp_path, ros_context, ex
     assert node.diag.counter("robot_poses") == 5
 
 
+def test_poses_are_left_to_the_executor_while_the_subscription_is_active(
+        tmp_path, ros_context, executor, namespace, spin_until):
+    """While a point waits the pose subscription is active, and the executor delivers its poses
+    in order with the other topics: a pull then (a point or frame queued from the same batch)
+    must not take newer poses ahead of older ones the executor has taken but not delivered."""
+    import time
+
+    rig = _Rig(ros_context, executor, namespace, _overrides(_hand_eye_file(tmp_path)))
+    assert spin_until(executor, rig.connected, 10.0)
+    node = rig.node
+    node.robot_poses.wake_for_poses(True)
+    for k in range(3):
+        rig.send_pose(0.01 * k)
+    time.sleep(0.3)                                   # queued in the middleware, not spun
+    node.robot_poses.poll()
+    assert node.diag.counter("robot_poses") == 0      # left for the executor's delivery
+    assert spin_until(executor, lambda: node.diag.counter("robot_poses") == 3, 5.0)
+
+
+def test_reception_times_of_zero_or_from_the_future_are_the_take_time(
+        tmp_path, ros_context, executor, namespace, spin_until, monkeypatch):
+    """A middleware that leaves received_timestamp 0 (or stamps ahead of the clock): the poses
+    get the time they are taken, not an age that would refuse every point as stale."""
+    import eye_in_hand.nodes.hand_eye_poses as poses_module
+
+    real = poses_module.take_queued
+    shifts = iter([0, 10**18])
+
+    def bad_stamps(sub):
+        taken = real(sub)
+        return [(m, 0 if k % 2 == 0 else t + next(shifts, 10**18)) for k, (m, t) in
+                enumerate(taken)]
+
+    monkeypatch.setattr(poses_module, "take_queued", bad_stamps)
+    rig = _Rig(ros_context, executor, namespace, _overrides(_hand_eye_file(tmp_path)))
+    assert spin_until(executor, rig.connected, 10.0)
+    for k in range(3):
+        rig.send_pose(0.01 * k)
+    rig.send_point(0.015, [0.0, 0.0, 0.5], np.diag([1e-8, 1e-8, 4e-7]))
+    assert spin_until(executor, lambda: len(rig.poses) == 1, 10.0)
+    assert rig.node.diag.counter("refused.stale_pose") == 0
+
+
+def test_a_middleware_without_reception_times_takes_every_pose_on_arrival(
+        tmp_path, ros_context, executor, namespace, spin_until, monkeypatch):
+    import eye_in_hand.nodes.hand_eye_poses as poses_module
+
+    monkeypatch.setattr(poses_module, "reception_times_known", lambda: False)
+    rig = _Rig(ros_context, executor, namespace, _overrides(_hand_eye_file(tmp_path)))
+    assert spin_until(executor, rig.connected, 10.0)
+    assert not rig.node.robot_poses.lazy and rig.node.pipeline.pull_poses is None
+
+
 def test_use_sim_time_switched_on_ends_taking_poses_when_needed(tmp_path, ros_context,
                                                                 executor, namespace,
                                                                 spin_until):
