@@ -131,9 +131,9 @@ class RobotPoseInput:
         (:meth:`poll`) instead of waking the node for each one: the subscription becomes
         passive (:func:`eye_in_hand.ros.executor.set_passive`) and each pose keeps its
         reception time from the middleware (system clock: only for a node on it, not on
-        ``use_sim_time``). The same poses reach the pipeline with the same receive times
-        (the middleware's, a few tens of us earlier than a callback's clock reading), before
-        anything that needs them. ``on_system_clock``: whether the node's clock is still the
+        ``use_sim_time``). The same poses reach the pipeline, in order and before anything
+        that needs them; their receive times are the middleware's (a few tens of us before a
+        callback would read the clock). ``on_system_clock``: whether the node's clock is still the
         system clock (``use_sim_time`` switched on at run time ends the lazy mode: from then
         on every pose is taken on arrival, its receive time on ``/clock``). Returns False for
         ``/tf``, no pose source, or a middleware whose reception times are not known to be

@@ -139,7 +139,8 @@ class LeanExecutor(SingleThreadedExecutor):
         self._generation = 0
         self._generation_lock = threading.Lock()
         self._wait_set: Any = None
-        #: the subscriptions and events of a wait without passive subscriptions, by which
+        #: the subscriptions and events of a wait without the passive subscriptions, keyed by
+        #: which subscriptions are passive (cleared at each rebuild)
         self._passive_sets: dict[tuple[int, ...], Any] = {}
         #: the handles of ``_entities``, held from one rebuild to the next
         self._held = ExitStack()
