@@ -110,6 +110,26 @@ def test_every_node_main_turns_a_planted_exception_into_one_line(node, ros_env):
     assert "Traceback" in proc.stderr and "ZeroDivisionError" in proc.stderr
 
 
+@pytest.mark.parametrize("node", sorted(NODES))
+def test_every_node_main_prepares_its_process(node, ros_env):
+    """The DDS profile and the reused memory blocks (eye_in_hand.memory): set by every node's
+    main before rclpy starts, also by those that do not go through run_node."""
+    env = {k: v for k, v in ros_env.items() if k != "EYE_IN_HAND_DEBUG"}
+    code = f"""
+        import eye_in_hand.ros.node_main as nm
+        import eye_in_hand.nodes.{node} as m
+        nm.reuse_large_buffers = lambda: print("PREPARED memory", flush=True)
+        nm.use_large_data_profile = lambda: print("PREPARED dds", flush=True)
+        def boom(*a, **k):
+            raise ZeroDivisionError("planted")
+        m.{NODES[node]} = boom
+        m.main([])
+    """
+    proc = _run_child(code, env)
+    assert proc.returncode == EXIT_UNEXPECTED, proc.stderr
+    assert "PREPARED memory" in proc.stdout and "PREPARED dds" in proc.stdout, proc.stdout
+
+
 def test_a_node_with_a_parameter_file_rcl_cannot_parse_says_so_in_one_line(ros_env, tmp_path):
     bad = tmp_path / "anchors.yaml"
     bad.write_text("/**/detect_triangulate:\n  ros__parameters:\n    a: &x 5.0\n    b: *x\n")

@@ -51,9 +51,13 @@ from eye_in_hand.io.bags import BagInfo, bag_info
 from eye_in_hand.nodes.bag_player_config import NODE_PARAMETERS, declare_player_config
 from eye_in_hand.nodes.bag_player_pacing import PacedPlayback, ReportedDamage
 from eye_in_hand.nodes.bag_player_topics import PlayedTopics
-from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
-from eye_in_hand.ros.node_main import guard, run_with_executor, sigterm_as_interrupt
+from eye_in_hand.ros.node_main import (
+    guard,
+    prepare_process,
+    run_with_executor,
+    sigterm_as_interrupt,
+)
 from eye_in_hand.ros.spin import spin_node
 
 __all__ = [
@@ -265,7 +269,7 @@ def spin_player(node: BagPlayer, executor: Any | None = None) -> int:
 def main(args: list[str] | None = None) -> None:
     """Console-script entry point (``ros2 run eye_in_hand bag_player --ros-args -p bag:=...``)."""
     sigterm_as_interrupt()
-    use_large_data_profile()  # large images over shared memory (see ros/dds.py)
+    prepare_process()  # large images over shared memory, reused memory blocks
     sys.exit(guard("bag_player", lambda: run_with_executor(BagPlayer, spin_player, args),
                    args))
 

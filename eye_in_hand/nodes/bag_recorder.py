@@ -47,11 +47,15 @@ from rclpy.node import Node
 from eye_in_hand.errors import BagError, ConfigError
 from eye_in_hand.io.bags import STORAGES, BagWriter, OfferedQos, default_typestore
 from eye_in_hand.nodes.bag_recorder_writer import WriterThread
-from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.ros.diagnostics import ERROR, NodeDiagnostics
 from eye_in_hand.ros.msgtypes import import_message_type, message_definition
 from eye_in_hand.ros.names import topic_name_problem
-from eye_in_hand.ros.node_main import guard, run_with_executor, sigterm_as_interrupt
+from eye_in_hand.ros.node_main import (
+    guard,
+    prepare_process,
+    run_with_executor,
+    sigterm_as_interrupt,
+)
 from eye_in_hand.ros.params import Param, declare_params
 from eye_in_hand.ros.qos import policy_name, subscription_qos
 from eye_in_hand.ros.spin import spin_node
@@ -271,7 +275,7 @@ def spin_recorder(node: BagRecorder, duration_s: float = 0.0, executor: Any | No
 def main(args: list[str] | None = None) -> None:
     """Console-script entry point (``ros2 run eye_in_hand bag_recorder --ros-args ...``)."""
     sigterm_as_interrupt()
-    use_large_data_profile()  # large images over shared memory (see ros/dds.py)
+    prepare_process()  # large images over shared memory, reused memory blocks
     sys.exit(guard("bag_recorder", lambda: run_with_executor(
         BagRecorder, lambda node, ex: spin_recorder(node, node.duration, ex), args), args))
 

@@ -40,9 +40,8 @@ from eye_in_hand.errors import InputError  # noqa: E402
 from eye_in_hand.launcher import NODES, node_ros_args  # noqa: E402
 from eye_in_hand.nodes.detect_triangulate import DetectTriangulateNode  # noqa: E402
 from eye_in_hand.nodes.hand_eye import HandEyeNode  # noqa: E402
-from eye_in_hand.ros.dds import use_large_data_profile  # noqa: E402
 from eye_in_hand.ros.executor import LeanExecutor  # noqa: E402
-from eye_in_hand.ros.node_main import guard  # noqa: E402
+from eye_in_hand.ros.node_main import guard, prepare_process  # noqa: E402
 from eye_in_hand.ros.params import refuse_undeclared_overrides  # noqa: E402
 
 __all__ = ["NAME", "LocalizationChain", "main"]
@@ -132,7 +131,7 @@ def main(args: list[str] | None = None) -> None:
     def body() -> None:
         opts = _parse(own)
         overrides = _overrides(opts.set)
-        use_large_data_profile()
+        prepare_process()
         rclpy.init(args=[NAME, *ros_args])
         chain = None
         # one executor per node, each on its own thread: a wake-up for a robot pose then

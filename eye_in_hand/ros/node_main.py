@@ -22,11 +22,12 @@ from eye_in_hand.errors import (
     debug_enabled,
     unexpected_error_line,
 )
+from eye_in_hand.memory import reuse_large_buffers
 from eye_in_hand.ros.dds import use_large_data_profile
 from eye_in_hand.ros.executor import LeanExecutor
 from eye_in_hand.ros.params import refuse_undeclared_overrides
 
-__all__ = ["guard", "run_node", "run_with_executor", "sigterm_as_interrupt"]
+__all__ = ["guard", "prepare_process", "run_node", "run_with_executor", "sigterm_as_interrupt"]
 
 
 def _own_args(args: Sequence[str] | None) -> list[str]:
@@ -60,10 +61,18 @@ def guard(name: str, body: Callable[[], Any], args: Sequence[str] | None = None)
         return EXIT_UNEXPECTED
 
 
+def prepare_process() -> None:
+    """What every node process sets before rclpy starts: the large-data Fast DDS profile
+    (:mod:`eye_in_hand.ros.dds`) and image-sized memory blocks reused instead of mapped afresh
+    for each frame (:mod:`eye_in_hand.memory`)."""
+    use_large_data_profile()
+    reuse_large_buffers()
+
+
 def run_node(name: str, factory: Callable[[], Any], args: Sequence[str] | None = None) -> None:
     """Run one node until Ctrl-C or shutdown (the STYLE.md ``main`` pattern).
 
-    Sets the large-data DDS profile (:mod:`eye_in_hand.ros.dds`), initialises rclpy, builds the
+    Prepares the process (:func:`prepare_process`), initialises rclpy, builds the
     node with ``factory()`` and spins it on a :class:`~eye_in_hand.ros.executor.LeanExecutor`
     (rclpy's single-threaded semantics, a cheaper wake-up). Ctrl-C and external shutdown end
     it cleanly; an :class:`~eye_in_hand.errors.EyeInHandError` while building it (a bad
@@ -75,7 +84,7 @@ def run_node(name: str, factory: Callable[[], Any], args: Sequence[str] | None =
         return 0
 
     def body() -> int:
-        use_large_data_profile()
+        prepare_process()
         return run_with_executor(factory, spin, args)
 
     code = guard(name, body, args)
