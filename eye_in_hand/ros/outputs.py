@@ -31,7 +31,9 @@ from eye_in_hand.errors import ConfigError, ConversionError
 __all__ = ["Sphere", "LocatedFrame", "OutputSettings", "DEFAULT_RGBA", "TARGET_FRAME_PREFIX",
            "MARKER_LIFETIME_S",
            "MARKER_DIAMETER_M", "RIGHT_CAMERA_FRAME", "UNKNOWN_ROTATION_VARIANCE",
-           "RosbagsTypes", "rclpy_types",
+           "MARKER_SPHERE", "MARKER_ADD", "MARKER_DELETEALL",
+           "RosbagsTypes", "rclpy_types", "checked_xyz", "stamp_parts", "point_pose_covariance",
+           "marker_lifetime_ns", "checked_spheres",
            "time_msg", "header", "point_stamped", "pose_with_covariance", "pose_stamped",
            "point_pose_messages",
            "pose_array", "sphere_markers", "transform_stamped", "tf_message",
@@ -52,7 +54,8 @@ UNKNOWN_ROTATION_VARIANCE = 1e6
 
 _NS_PER_S = 1_000_000_000
 _INT32 = (-(2 ** 31), 2 ** 31 - 1)
-_MARKER_SPHERE, _MARKER_ADD, _MARKER_DELETEALL = 2, 0, 3
+#: visualization_msgs/Marker type and actions of the sphere markers
+MARKER_SPHERE, MARKER_ADD, MARKER_DELETEALL = 2, 0, 3
 
 #: Field defaults of ROS message definitions that are not zero (rosbags does not keep them).
 _NONZERO_DEFAULTS: dict[str, dict[str, Any]] = {"geometry_msgs/msg/Quaternion": {"w": 1.0}}
@@ -240,7 +243,7 @@ class RosbagsTypes:
 
 
 # -- checks -----------------------------------------------------------------------------------
-def _xyz(xyz: Any, what: str) -> tuple[float, float, float]:
+def checked_xyz(xyz: Any, what: str) -> tuple[float, float, float]:
     """Three finite floats of an array-like of 3 numbers (any shape holding 3 values)."""
     try:
         if isinstance(xyz, np.ndarray) and xyz.shape != (3,):
@@ -261,15 +264,24 @@ def time_msg(T: Any, stamp_ns: int) -> Any:
     Raises:
         ConversionError: not an integer, or seconds outside int32.
     """
+    t = T["builtin_interfaces/msg/Time"]()
+    t.sec, t.nanosec = stamp_parts(stamp_ns)
+    return t
+
+
+def stamp_parts(stamp_ns: int) -> tuple[int, int]:
+    """``(sec, nanosec)`` of a ``builtin_interfaces/Time`` of int nanoseconds.
+
+    Raises:
+        ConversionError: not an integer, or seconds outside int32.
+    """
     if isinstance(stamp_ns, (bool, np.bool_)) or not isinstance(stamp_ns, (int, np.integer)):
         raise ConversionError(
             f"stamp_ns: expected int nanoseconds, got {type(stamp_ns).__name__} {stamp_ns!r}")
     sec, nanosec = divmod(int(stamp_ns), _NS_PER_S)
     if not _INT32[0] <= sec <= _INT32[1]:
         raise ConversionError(f"stamp_ns: {stamp_ns} does not fit builtin_interfaces/Time")
-    t = T["builtin_interfaces/msg/Time"]()
-    t.sec, t.nanosec = sec, nanosec
-    return t
+    return sec, nanosec
 
 
 def header(T: Any, stamp_ns: int, frame_id: str) -> Any:
@@ -300,7 +312,7 @@ def point_stamped(T: Any, xyz: Any, stamp_ns: int, frame_id: str) -> Any:
     Raises:
         ConversionError: not 3 finite numbers, or a bad stamp or frame.
     """
-    p = _xyz(xyz, "point")
+    p = checked_xyz(xyz, "point")
     msg = T["geometry_msgs/msg/PointStamped"]()
     msg.header = header(T, stamp_ns, frame_id)
     _set_xyz(msg.point, p)
@@ -312,20 +324,26 @@ def pose_with_covariance(T: Any, xyz: Any, cov: Any, stamp_ns: int, frame_id: st
     """``geometry_msgs/PoseWithCovarianceStamped`` of a point: position = the point,
     orientation identity, covariance position block ``cov`` (3x3, m^2), orientation variances
     :data:`UNKNOWN_ROTATION_VARIANCE` (``target/point_cov``, ``target/pose_cov``)."""
-    p = _xyz(xyz, "point")
-    full = np.zeros((6, 6))
-    full[:3, :3] = np.asarray(cov, dtype=np.float64).reshape(3, 3)
-    full[3:, 3:] = np.eye(3) * UNKNOWN_ROTATION_VARIANCE
+    p = checked_xyz(xyz, "point")
     msg = T["geometry_msgs/msg/PoseWithCovarianceStamped"]()
     msg.header = hdr if hdr is not None else header(T, stamp_ns, frame_id)
     _set_position_pose(msg.pose.pose, p)
-    msg.pose.covariance = full.ravel()       # float64 (36,): taken as it is
+    msg.pose.covariance = point_pose_covariance(cov)       # float64 (36,): taken as it is
     return msg
+
+
+def point_pose_covariance(cov: Any) -> np.ndarray:
+    """The 36 covariance values (row-major 6x6, float64) of a point published as a pose: the
+    position block ``cov`` (3x3, m^2), orientation variances :data:`UNKNOWN_ROTATION_VARIANCE`."""
+    full = np.zeros((6, 6))
+    full[:3, :3] = np.asarray(cov, dtype=np.float64).reshape(3, 3)
+    full[3:, 3:] = np.eye(3) * UNKNOWN_ROTATION_VARIANCE
+    return full.ravel()
 
 
 def pose_stamped(T: Any, xyz: Any, stamp_ns: int, frame_id: str, hdr: Any = None) -> Any:
     """``geometry_msgs/PoseStamped`` of a point: orientation identity (``target/pose``)."""
-    p = _xyz(xyz, "point")
+    p = checked_xyz(xyz, "point")
     msg = T["geometry_msgs/msg/PoseStamped"]()
     msg.header = hdr if hdr is not None else header(T, stamp_ns, frame_id)
     _set_position_pose(msg.pose, p)
@@ -359,7 +377,7 @@ def pose_array(T: Any, points: Iterable[Any], stamp_ns: int, frame_id: str) -> A
     poses = []
     for k, p in enumerate(points):
         pose = Pose()
-        _set_position_pose(pose, _xyz(p, f"points[{k}]"))
+        _set_position_pose(pose, checked_xyz(p, f"points[{k}]"))
         poses.append(pose)
     msg = T["geometry_msgs/msg/PoseArray"]()
     msg.header = header(T, stamp_ns, frame_id)
@@ -379,19 +397,12 @@ def sphere_markers(T: Any, spheres: Iterable[Sphere], stamp_ns: int, frame_id: s
     Marker = T["visualization_msgs/msg/Marker"]
     hdr = header(T, stamp_ns, frame_id)
     clear = Marker()
-    clear.header, clear.action = hdr, _MARKER_DELETEALL
+    clear.header, clear.action = hdr, MARKER_DELETEALL
     out = [clear]
-    seen: set[str] = set()
-    life = max(0, int(round(lifetime_s * 1e9)))
-    for s in spheres:
-        xyz = _xyz(s.xyz, f"sphere '{s.id}': centre")
-        if not (math.isfinite(s.diameter_m) and s.diameter_m > 0):
-            raise ConversionError(f"sphere '{s.id}': diameter must be > 0, got {s.diameter_m}")
-        if s.id in seen:
-            raise ConversionError(f"sphere '{s.id}': two spheres with one id in a frame")
-        seen.add(s.id)
+    life = marker_lifetime_ns(lifetime_s)
+    for s, xyz in checked_spheres(spheres):
         m = Marker()
-        m.header, m.ns, m.id, m.type, m.action = hdr, s.id, 0, _MARKER_SPHERE, _MARKER_ADD
+        m.header, m.ns, m.id, m.type, m.action = hdr, s.id, 0, MARKER_SPHERE, MARKER_ADD
         _set_position_pose(m.pose, xyz)
         m.scale.x = m.scale.y = m.scale.z = float(s.diameter_m)
         m.color.r, m.color.g, m.color.b, m.color.a = (float(c) for c in s.rgba)
@@ -400,6 +411,30 @@ def sphere_markers(T: Any, spheres: Iterable[Sphere], stamp_ns: int, frame_id: s
     msg = T["visualization_msgs/msg/MarkerArray"]()
     msg.markers = out
     return msg
+
+
+def marker_lifetime_ns(lifetime_s: float) -> int:
+    """A sphere's lifetime on the markers, int ns (0: until replaced or deleted)."""
+    return max(0, int(round(lifetime_s * 1e9)))
+
+
+def checked_spheres(spheres: Iterable[Sphere]) -> Iterable[tuple[Sphere, tuple[float, float,
+                                                                                 float]]]:
+    """``(sphere, centre)`` of each sphere of a frame's markers, checked.
+
+    Raises:
+        ConversionError: a non-finite centre, a diameter that is not positive, or two spheres
+            with one id.
+    """
+    seen: set[str] = set()
+    for s in spheres:
+        xyz = checked_xyz(s.xyz, f"sphere '{s.id}': centre")
+        if not (math.isfinite(s.diameter_m) and s.diameter_m > 0):
+            raise ConversionError(f"sphere '{s.id}': diameter must be > 0, got {s.diameter_m}")
+        if s.id in seen:
+            raise ConversionError(f"sphere '{s.id}': two spheres with one id in a frame")
+        seen.add(s.id)
+        yield s, xyz
 
 
 def transform_stamped(T: Any, parent_T_child: Any, stamp_ns: int, parent: str,
@@ -443,7 +478,7 @@ def translation_tf_message(T: Any, edges: Iterable[tuple[str, str, int, Any]]) -
     Transform = T["geometry_msgs/msg/TransformStamped"]
     out = []
     for parent, child, stamp, t in edges:
-        p = _xyz(t, f"translation of {parent} -> {child}")
+        p = checked_xyz(t, f"translation of {parent} -> {child}")
         tr = Transform()
         tr.header = header(T, int(stamp), parent)
         tr.child_frame_id = child

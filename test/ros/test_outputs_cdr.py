@@ -1,0 +1,103 @@
+"""ros.outputs_cdr: the live outputs serialized directly are, byte for byte, what rosbags
+serializes of the messages ros.outputs builds (the content rules live there), and rclpy reads
+them back as the same messages."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from eye_in_hand.errors import ConversionError
+from eye_in_hand.io.bags.decoding import default_typestore
+from eye_in_hand.ros import outputs
+from eye_in_hand.ros.outputs import RosbagsTypes, Sphere
+from eye_in_hand.ros.outputs_cdr import (
+    point_pose_cdr,
+    pose_array_cdr,
+    sphere_markers_cdr,
+    translation_tf_cdr,
+)
+
+STORE = default_typestore()
+T = RosbagsTypes(STORE)
+# frame ids of every length modulo 8: the padding before the doubles differs for each
+FRAMES = ["", "b", "ba", "bas", "base", "base_", "base_l", "base_li", "base_link",
+          "camera_left_optical_frame", "caméra"]
+STAMPS = [0, 1, 1_700_000_000_123_456_789, (2 ** 31 - 1) * 10 ** 9 + 999_999_999,
+          -5 * 10 ** 9 + 3]
+
+
+def _ser(msg, msgtype: str) -> bytes:
+    return bytes(STORE.serialize_cdr(msg, msgtype))
+
+
+@pytest.mark.parametrize("frame", FRAMES)
+@pytest.mark.parametrize("stamp", STAMPS)
+def test_point_poses(frame, stamp):
+    rng = np.random.default_rng(len(frame) + stamp % 97)
+    xyz = rng.normal(size=3)
+    cov = rng.normal(size=(3, 3)) * 1e-6
+    pose, pose_cov = outputs.point_pose_messages(T, xyz, cov, stamp, frame)
+    got = point_pose_cdr(xyz, cov, stamp, frame)
+    assert got[0] == _ser(pose, "geometry_msgs/msg/PoseStamped")
+    assert got[1] == _ser(pose_cov, "geometry_msgs/msg/PoseWithCovarianceStamped")
+
+
+@pytest.mark.parametrize("frame", FRAMES[:9])
+@pytest.mark.parametrize("n", [0, 1, 2, 5])
+def test_pose_arrays(frame, n):
+    points = [np.array([k, -k * 0.5, 0.25 + k]) for k in range(n)]
+    want = _ser(outputs.pose_array(T, points, 1_234_567_890_123, frame),
+                "geometry_msgs/msg/PoseArray")
+    assert pose_array_cdr(points, 1_234_567_890_123, frame) == want
+
+
+@pytest.mark.parametrize("frame", FRAMES)
+@pytest.mark.parametrize("n", [0, 1, 3])
+@pytest.mark.parametrize("lifetime_s", [0.0, 1.0, 2.75])
+def test_sphere_markers(frame, n, lifetime_s):
+    ids = ["red", "red_10", "blue_green_1"]
+    spheres = [Sphere(ids[k], (0.1 * k, -0.2, 1.5 + k), 0.035 * (k + 1),
+                      (1.0, 0.5 * k, 0.1, 0.8)) for k in range(n)]
+    want = _ser(outputs.sphere_markers(T, spheres, 987_654_321_012, frame, lifetime_s),
+                "visualization_msgs/msg/MarkerArray")
+    assert sphere_markers_cdr(spheres, 987_654_321_012, frame, lifetime_s) == want
+
+
+@pytest.mark.parametrize("n", [0, 1, 3])
+def test_translation_tf(n):
+    edges = [(FRAMES[k + 3], f"target_{'x' * k}", 10 ** 9 * k + 7, np.array([k, 2.0, -1.0]))
+             for k in range(n)]
+    want = _ser(outputs.translation_tf_message(T, edges), "tf2_msgs/msg/TFMessage")
+    assert translation_tf_cdr(edges) == want
+
+
+def test_the_builders_checks_apply():
+    with pytest.raises(ConversionError, match="point"):
+        point_pose_cdr([0.0, np.nan, 1.0], np.eye(3), 5, "base")
+    with pytest.raises(ConversionError, match="stamp_ns"):
+        point_pose_cdr([0.0, 0.0, 1.0], np.eye(3), 2 ** 31 * 10 ** 9, "base")
+    with pytest.raises(ConversionError, match="frame_id"):
+        pose_array_cdr([], 5, None)  # type: ignore[arg-type]
+    with pytest.raises(ConversionError, match="two spheres"):
+        sphere_markers_cdr([Sphere("a", (0, 0, 1), 0.1, (1, 1, 1, 1))] * 2, 5, "base")
+    with pytest.raises(ConversionError, match="diameter"):
+        sphere_markers_cdr([Sphere("a", (0, 0, 1), 0.0, (1, 1, 1, 1))], 5, "base")
+    with pytest.raises(ConversionError, match="translation"):
+        translation_tf_cdr([("base", "t", 5, [0, 0, np.inf])])
+
+
+def test_rclpy_reads_them_as_the_builders_messages():
+    pytest.importorskip("rclpy")
+    from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+    from rclpy.serialization import deserialize_message
+    from visualization_msgs.msg import MarkerArray
+
+    R = outputs.rclpy_types()
+    xyz, cov = np.array([0.3, -0.1, 0.9]), np.diag([1e-6, 2e-6, 3e-6])
+    pose, pose_cov = point_pose_cdr(xyz, cov, 1_700_000_000_5, "base_link")
+    want = outputs.point_pose_messages(R, xyz, cov, 1_700_000_000_5, "base_link")
+    assert deserialize_message(pose, PoseStamped) == want[0]
+    assert deserialize_message(pose_cov, PoseWithCovarianceStamped) == want[1]
+    spheres = [Sphere("red", xyz, 0.07, (1.0, 0.0, 0.0, 1.0))]
+    assert deserialize_message(sphere_markers_cdr(spheres, 42, "base_link", 1.0), MarkerArray) \
+        == outputs.sphere_markers(R, spheres, 42, "base_link", 1.0)
