@@ -23,9 +23,12 @@ from geometry_msgs.msg import (
 
 from eye_in_hand.core.pipeline import LocalizationPipeline, WaitingPoint
 from eye_in_hand.errors import ConversionError, InputError
+from eye_in_hand.io.bags.decoding import jazzy_decoder
 from eye_in_hand.nodes.hand_eye_tf import TfOutput
+from eye_in_hand.ros.decoded import decoded_subscription, undecodable
 from eye_in_hand.ros.geometry import point_to_xyz
-from eye_in_hand.ros.outputs import point_pose_messages, rclpy_types, transform_stamped
+from eye_in_hand.ros.outputs import rclpy_types, transform_stamped
+from eye_in_hand.ros.outputs_cdr import point_pose_cdr
 from eye_in_hand.ros.qos import LATCHED_QOS, RESULT_QOS
 from eye_in_hand.ros.stamps import header_stamp_ns
 
@@ -65,9 +68,13 @@ class FirstTarget:
         self._tf_output = tf_output
         self._camera_T, self._camera_parent = camera_T
         if not in_process:
-            node.create_subscription(PointStamped, "target/point", self._on_point, RESULT_QOS)
-            node.create_subscription(PoseWithCovarianceStamped, "target/point_cov",
-                                     self._on_point_cov, RESULT_QOS)
+            decoded_subscription(node, PointStamped, "target/point", self._on_point,
+                                 RESULT_QOS, decoder_for=jazzy_decoder,
+                                 on_bad=lambda t, e: self._refuse("bad_point", undecodable(t, e)))
+            decoded_subscription(node, PoseWithCovarianceStamped, "target/point_cov",
+                                 self._on_point_cov, RESULT_QOS, decoder_for=jazzy_decoder,
+                                 on_bad=lambda t, e: diag.report("bad_point_cov",
+                                                                 undecodable(t, e)))
         self.pub_pose = create(PoseStamped, "target/pose", RESULT_QOS)
         self.pub_pose_cov = create(PoseWithCovarianceStamped, "target/pose_cov", RESULT_QOS)
         self.pub_transform = create(TransformStamped, "hand_eye/transform", LATCHED_QOS)
@@ -154,8 +161,8 @@ class FirstTarget:
         want = (self.pub_pose.get_subscription_count() > 0,
                 self.pub_pose_cov.get_subscription_count() > 0)
         if any(want):
-            msg, cmsg = point_pose_messages(rclpy_types(), p, cov, stamp_ns,
-                                            self.config.base_frame)
+            # serialized directly (ros.outputs_cdr: the bytes of ros.outputs' messages)
+            msg, cmsg = point_pose_cdr(p, cov, stamp_ns, self.config.base_frame)
             if want[0]:
                 self.pub_pose.publish(msg)
             if want[1]:

@@ -23,7 +23,9 @@ from eye_in_hand.core.eye_to_hand import EyeToHandLocalizer
 from eye_in_hand.core.localization import Localizer, robot_pose_sigmas
 from eye_in_hand.core.pipeline import LocalizationPipeline, localizer_config
 from eye_in_hand.errors import ConversionError, EyeInHandError, InputError
+from eye_in_hand.io.bags.decoding import jazzy_decoder
 from eye_in_hand.nodes.hand_eye_tf import TfInput
+from eye_in_hand.ros.decoded import decode_each, decoded_subscription, undecodable
 from eye_in_hand.ros.executor import (
     is_passive,
     reception_times_known,
@@ -113,13 +115,16 @@ class RobotPoseInput:
         self.lazy = False
         self._on_system_clock: Callable[[], bool] = lambda: True
         if source == "ee_pose":
-            self._sub = node.create_subscription(PoseStamped, "ee_pose", self._on_ee_pose,
-                                                 ROBOT_POSE_QOS)
+            self._sub = decoded_subscription(node, PoseStamped, "ee_pose", self._on_ee_pose,
+                                             ROBOT_POSE_QOS, decoder_for=jazzy_decoder,
+                                             on_bad=self._undecodable)
         elif source == "tf":
             self.tf = TfInput(node, config, localizer, diag, now_ns, self._after_tf_pose)
         elif source == "joint_states":
-            self._sub = node.create_subscription(JointState, "joint_states",
-                                                 self._on_joint_state, ROBOT_POSE_QOS)
+            self._sub = decoded_subscription(node, JointState, "joint_states",
+                                             self._on_joint_state, ROBOT_POSE_QOS,
+                                             decoder_for=jazzy_decoder,
+                                             on_bad=self._undecodable)
             self._take = self._take_joint_state
         diag.declare_counter("robot_poses")
         if source is not None:
@@ -160,7 +165,7 @@ class RobotPoseInput:
             # topics; a pull now could take poses newer than ones it has taken but not yet
             # delivered, and bracket a point across them
             return
-        queued = take_queued(self._sub)
+        queued = decode_each(self._sub, take_queued(self._sub), self._undecodable)
         if not self._on_system_clock():
             # use_sim_time switched on: receive ages are on /clock now, which the middleware's
             # reception times are not; these poses get the node's clock, later ones their
@@ -180,6 +185,11 @@ class RobotPoseInput:
             self._after()
 
     # -- the messages ---------------------------------------------------------------------------
+    def _undecodable(self, topic: str, exc: Exception) -> None:
+        """A robot pose whose bytes do not decode: reported, not used."""
+        self.diag.report("bad_ee_pose" if self._take == self._take_ee_pose
+                         else "bad_joint_states", undecodable(topic, exc))
+
     def _on_ee_pose(self, msg: PoseStamped) -> None:
         if self._take_ee_pose(msg, self._now_ns()):
             self._after_pose()

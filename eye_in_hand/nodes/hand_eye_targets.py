@@ -11,6 +11,7 @@ robot pose, and puts each into the base frame) and publishes what it emits:
 """
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -21,17 +22,17 @@ from rclpy.qos import DurabilityPolicy
 
 from eye_in_hand.core.pipeline import LocalizationPipeline, WaitingFrame
 from eye_in_hand.errors import ConversionError, InputError
+from eye_in_hand.io.bags.decoding import jazzy_decoder
+from eye_in_hand.ros.decoded import decoded_subscription, undecodable
 from eye_in_hand.ros.geometry import point_to_xyz
 from eye_in_hand.ros.markers import (
     Sphere,
     marker_classes,
-    points_to_pose_array,
     pose_array_class,
-    sphere_marker_array,
     spheres_from_marker_array,
 )
 from eye_in_hand.ros.names import topic_name_problem
-from eye_in_hand.ros.outputs import point_pose_messages, rclpy_types
+from eye_in_hand.ros.outputs_cdr import point_pose_cdr, pose_array_cdr, sphere_markers_cdr
 from eye_in_hand.ros.qos import RESULT_QOS, TARGET_POINT_QOS
 from eye_in_hand.ros.stamps import header_stamp_ns
 
@@ -86,8 +87,9 @@ class EveryTarget:
         self._targets_prefix = node.resolve_topic_name("targets/markers").rsplit("/", 1)[0]
         self._poses_prefix = node.resolve_topic_name("target/poses").rsplit("/", 1)[0]
         if not in_process:
-            node.create_subscription(MarkerArray, "targets/markers", self._on_markers,
-                                     RESULT_QOS)
+            decoded_subscription(node, MarkerArray, "targets/markers", self._on_markers,
+                                 RESULT_QOS, decoder_for=jazzy_decoder,
+                                 on_bad=self._bad_markers)
         self.pub_poses = create(pose_array_class(), "target/poses", RESULT_QOS)
         self.pub_markers = create(MarkerArray, "target/markers", RESULT_QOS)
         diag.declare_counter("target_frames", "target_points", "target_points_received",
@@ -130,9 +132,11 @@ class EveryTarget:
         if len(self.subs) >= self.config.max_targets:
             return "too_many_targets"
         topic = f"{self._targets_prefix}/{tid}/point_cov"
-        self.subs[tid] = None if self.in_process else self._node.create_subscription(
-            PoseWithCovarianceStamped, topic, lambda m, t=tid: self._on_target_point(t, m),
-            self._target_point_qos(topic))
+        self.subs[tid] = None if self.in_process else decoded_subscription(
+            self._node, PoseWithCovarianceStamped, topic,
+            functools.partial(self._on_target_point, tid), self._target_point_qos(topic),
+            decoder_for=jazzy_decoder,
+            on_bad=lambda name, exc: self._bad_target_point(undecodable(name, exc)))
         base = f"{self._poses_prefix}/{tid}"
         self._target_pubs[tid] = (
             self._create(PoseStamped, f"{base}/pose", RESULT_QOS),
@@ -156,12 +160,17 @@ class EveryTarget:
             p = point_to_xyz(msg.pose.pose.position)
             cov = np.asarray(msg.pose.covariance, dtype=np.float64).reshape(6, 6)[:3, :3]
         except (ConversionError, InputError, ValueError) as exc:
-            self.diag.count("target_points_received")
-            self.pipeline.target_point_arrived()
-            self.diag.report("bad_target_point", f"targets/{tid}/point_cov: {exc}")
+            self._bad_target_point(f"targets/{tid}/point_cov: {exc}")
             return
         self.take_point(tid, stamp, msg.header.frame_id, p, cov)
         self.pipeline.drain()
+
+    def _bad_target_point(self, message: str) -> None:
+        """A ``targets/<id>/point_cov`` message that gives no point: counted and reported
+        (its frame then misses the point)."""
+        self.diag.count("target_points_received")
+        self.pipeline.target_point_arrived()
+        self.diag.report("bad_target_point", message)
 
     def take_point(self, tid: str, stamp: int, frame: str, p: np.ndarray,
                            cov: np.ndarray) -> None:
@@ -184,10 +193,15 @@ class EveryTarget:
         try:
             stamp, frame, spheres = spheres_from_marker_array(msg)
         except ConversionError as exc:
-            self.diag.count("target_frames")
-            self.diag.report("bad_markers", f"targets/markers: {exc}")
+            self._bad_markers("targets/markers", exc)
             return
         self.take_markers(stamp, frame, spheres)
+
+    def _bad_markers(self, topic: str, exc: Exception) -> None:
+        """A ``targets/markers`` message that lists no targets: counted and reported."""
+        self.diag.count("target_frames")
+        self.diag.report("bad_markers", f"targets/markers: {exc}" if
+                         isinstance(exc, ConversionError) else undecodable(topic, exc))
 
     def take_markers(self, stamp: int, frame: str, spheres: list[Sphere]) -> None:
         """A frame's list of targets: it waits for their points and the robot pose."""
@@ -245,8 +259,7 @@ class EveryTarget:
         # volatile: unsubscribed messages reach no one, now or later (not built, not sent)
         want = (pubs[0].get_subscription_count() > 0, pubs[1].get_subscription_count() > 0)
         if any(want):
-            pose_msg, cov_msg = point_pose_messages(rclpy_types(), p, cov, f.stamp_ns,
-                                                    self.config.base_frame)
+            pose_msg, cov_msg = point_pose_cdr(p, cov, f.stamp_ns, self.config.base_frame)
             if want[1]:
                 pubs[1].publish(cov_msg)
             if want[0]:
@@ -262,14 +275,14 @@ class EveryTarget:
         """Every target of a frame went out: ``target/poses``, ``target/markers``, ``/tf``."""
         cfg = self.config
         located = self._located
+        # serialized directly (ros.outputs_cdr: the bytes of ros.outputs' messages)
         if self.pub_poses.get_subscription_count() > 0:
-            self.pub_poses.publish(points_to_pose_array([p for _, p in located],
-                                                        stamp_ns=f.stamp_ns,
-                                                        frame_id=cfg.base_frame))
+            self.pub_poses.publish(pose_array_cdr([p for _, p in located], f.stamp_ns,
+                                                  cfg.base_frame))
         if self.pub_markers.get_subscription_count() > 0:
-            self.pub_markers.publish(sphere_marker_array(
-                [Sphere(s.id, p, s.diameter_m, s.rgba) for s, p in located],
-                stamp_ns=f.stamp_ns, frame_id=cfg.base_frame, lifetime_s=cfg.marker_lifetime_s))
+            self.pub_markers.publish(sphere_markers_cdr(
+                [Sphere(s.id, p, s.diameter_m, s.rgba) for s, p in located], f.stamp_ns,
+                cfg.base_frame, cfg.marker_lifetime_s))
         self.diag.count("target_frames_published")
         self._tf_output.publish_edges(self._tf_edges)
         located.clear()

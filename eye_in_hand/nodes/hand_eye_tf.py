@@ -10,7 +10,7 @@ localizer's pose buffer; with ``publish_tf`` (and tf2_msgs installed) it publish
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -19,9 +19,9 @@ import numpy as np
 from eye_in_hand.core.camera import StereoRig
 from eye_in_hand.core.tf import TfBuffer, TfPoseView
 from eye_in_hand.errors import ConfigError, EyeInHandError
-from eye_in_hand.ros import outputs
 from eye_in_hand.ros import tf as ros_tf  # have_tf2_msgs, tf_message_class looked up per call
 from eye_in_hand.ros.outputs import rclpy_types, tf_message
+from eye_in_hand.ros.outputs_cdr import translation_tf_cdr
 from eye_in_hand.ros.qos import ROBOT_POSE_DEPTH
 from eye_in_hand.ros.tf import (
     TF_STATIC_TOPIC,
@@ -32,7 +32,7 @@ from eye_in_hand.ros.tf import (
     tf_static_sub_qos,
 )
 
-__all__ = ["TfInput", "TfOutput", "translation_tf_message"]
+__all__ = ["TfInput", "TfOutput"]
 
 
 class TfInput:
@@ -162,24 +162,10 @@ class TfOutput:
         ``target_frame`` names a second frame for the first target."""
         if self.pub_tf is None or not self._config.target_frame:
             return
-        self.pub_tf.publish(translation_tf_message(
+        self.pub_tf.publish(translation_tf_cdr(
             [(self._config.base_frame, self._config.target_frame, stamp_ns, p)]))
 
     def publish_edges(self, edges: list[tuple[str, str, int, np.ndarray]]) -> None:
         """Translation-only transforms on /tf (the every-target frames), when publishing."""
         if edges and self.pub_tf is not None:
-            self.pub_tf.publish(translation_tf_message(edges))
-
-
-def translation_tf_message(edges: Iterable[tuple[str, str, int, np.ndarray]]) -> Any:
-    """A ``tf2_msgs/TFMessage`` of translation-only transforms ``(parent, child, stamp_ns,
-    translation (3,))``: rotation identity (0, 0, 0, 1). The same message as
-    :func:`eye_in_hand.ros.tf.make_tf_message` of the 4x4 transforms, built without a rotation
-    conversion (per target and frame on the live path;
-    :func:`eye_in_hand.ros.outputs.translation_tf_message`).
-
-    Raises:
-        ConversionError: a translation is not 3 finite numbers.
-    """
-    ros_tf.tf_message_class()         # one clear error when tf2_msgs is missing
-    return outputs.translation_tf_message(rclpy_types(), edges)
+            self.pub_tf.publish(translation_tf_cdr(edges))

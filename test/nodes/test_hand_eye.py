@@ -323,10 +323,17 @@ def test_bad_points_are_counted_and_node_keeps_running(tmp_path, ros_context, ex
     wrong.header = make_header(T0 + 20_000_000, "some_other_frame")
     wrong.point.z = 0.5
     rig.pub_point.publish(wrong)
+    # bytes that do not decode (the node takes serialized messages and decodes them itself):
+    # reported under the topic's cause, nothing else lost
+    rig.pub_point.publish(b"\x00\x01\x00\x00\x07")
+    rig.pub_cov.publish(b"\x00\x01\x00\x00\x07\x00")
+    rig.pub_pose.publish(b"\x00\x01\x00\x00")
     rig.send_point(0.03, [0.0, 0.0, 0.5])
     assert spin_until(executor, lambda: len(rig.poses) == 1, 10.0)
     causes = rig.node.diag.causes
-    assert causes.get("bad_point") == 1 and causes.get("point_frame") == 1
+    assert causes.get("bad_point") == 2 and causes.get("point_frame") == 1
+    assert causes.get("bad_point_cov") == 1
+    assert spin_until(executor, lambda: rig.node.diag.causes.get("bad_ee_pose") == 1, 5.0)
 
 
 @pytest.mark.parametrize("content, message", [

@@ -204,11 +204,12 @@ def test_bad_tf_is_counted_and_the_node_keeps_running(tmp_path, ros_context, exe
     assert spin_until(executor, lambda: len(cell.poses) == 1, 10.0)
 
 
-def test_translation_tf_message_is_the_message_make_tf_message_builds():
-    from rclpy.serialization import serialize_message
+def test_the_translation_tf_bytes_are_the_message_make_tf_message_builds():
+    from rclpy.serialization import deserialize_message
+    from tf2_msgs.msg import TFMessage
 
     from eye_in_hand.errors import ConversionError
-    from eye_in_hand.nodes.hand_eye_tf import translation_tf_message
+    from eye_in_hand.ros.outputs_cdr import translation_tf_cdr
 
     edges = [("base_link", "target_red", 1_700_000_000_123_456_789, np.array([0.4, -0.1, 0.3])),
              ("base_link", "target_0", 5, np.array([-1e-3, 2.5, 0.0]))]
@@ -217,7 +218,6 @@ def test_translation_tf_message_is_the_message_make_tf_message_builds():
         T = np.eye(4)
         T[:3, 3] = t
         mats.append((parent, child, stamp, T))
-    assert serialize_message(translation_tf_message(edges)) == serialize_message(
-        make_tf_message(mats))
+    assert deserialize_message(translation_tf_cdr(edges), TFMessage) == make_tf_message(mats)
     with pytest.raises(ConversionError, match="target_red"):
-        translation_tf_message([("base_link", "target_red", 0, np.array([0.0, np.nan, 1.0]))])
+        translation_tf_cdr([("base_link", "target_red", 0, np.array([0.0, np.nan, 1.0]))])

@@ -3,7 +3,7 @@ fallback), ``deserialize`` / ``serialize``, ``iter_decoded``, ``require_topics``
 from __future__ import annotations
 
 import threading
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +25,28 @@ def default_typestore() -> Any:
 
             _DEFAULT_STORE = get_typestore(Stores.ROS2_JAZZY)
         return _DEFAULT_STORE
+
+
+def jazzy_decoder(msgtype: str) -> Callable[[bytes], Any]:
+    """``decode(raw)``: one message type's CDR bytes (with the 4-byte encapsulation header)
+    into a ``rosbags`` message object, with the ROS 2 Jazzy definition. rosbags' generated
+    decoder takes 3-26 us for the live inputs of ``hand_eye`` (a PointStamped to a
+    MarkerArray) where rclpy's conversion of a taken message takes 9-65 us
+    (docs/localization.md). Errors of malformed bytes propagate as they are (struct,
+    index and decoding errors): the caller reports them.
+
+    Raises:
+        BagError: ROS 2 Jazzy does not define ``msgtype``.
+    """
+    store = default_typestore()
+    if msgtype not in store.types:
+        raise BagError(f"message type {msgtype} is not defined in ROS 2 Jazzy: no decoder")
+    deserialize = store.deserialize_cdr
+
+    def decode(raw: bytes) -> Any:
+        return deserialize(raw, msgtype)
+
+    return decode
 
 
 def types_from_definition(msgtype: str, fmt: Any, text: str) -> dict[str, Any]:

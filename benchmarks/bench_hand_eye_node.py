@@ -1,0 +1,234 @@
+"""CPU of the ``hand_eye`` node per stereo pair, on its own: a live stream of what the detector
+and the robot send it, every output subscribed (issue 24: at most 1.5 ms per pair).
+
+Run: ``.venv/bin/python benchmarks/bench_hand_eye_node.py [--rounds 3] [--compare OTHER]``
+
+This process plays ``detect_triangulate`` and the robot driver: ``ee_pose`` at 125 Hz and, at
+30 Hz, one located target as the detector sends it (``target/point_cov``, ``target/point``,
+``targets/red/point_cov``, ``targets/red/point``, ``targets/markers``, stamped 8 ms before
+they go out, as an image is), for ``--pairs`` pairs. It subscribes to every ``hand_eye``
+output (``target/pose``, ``target/pose_cov``, ``target/red/pose(_cov)``, ``target/poses``,
+``target/markers``, ``/tf``) and counts the poses. Printed per round: the node process's CPU
+per pair (Linux ``/proc``, between the 60th and the last-60th pair: start-up and the idle
+tail left out) and the poses received. No images and no detector share the machine, so the
+figure moves far less between runs than the live chain's (``bench_localization.py
+--live-only``, which measures the same node beside the detector).
+
+``--compare OTHER``: the node of another checkout (started from its directory, with it on
+``PYTHONPATH``) in alternate rounds; the medians of both are printed.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+HAND_EYE_YAML = """\
+setup: eye_in_hand
+parent_frame: tool0
+child_frame: camera_left_optical_frame
+translation: [0.032, -0.061, 0.041]
+quat_xyzw: [0.0093915, -0.0151881, 0.7112696, 0.7026925]
+method: refined
+covariance:
+- [1.0e-9, 0.0, 0.0, 0.0, 0.0, 0.0]
+- [0.0, 1.0e-9, 0.0, 0.0, 0.0, 0.0]
+- [0.0, 0.0, 1.0e-9, 0.0, 0.0, 0.0]
+- [0.0, 0.0, 0.0, 4.0e-9, 0.0, 0.0]
+- [0.0, 0.0, 0.0, 0.0, 4.0e-9, 0.0]
+- [0.0, 0.0, 0.0, 0.0, 0.0, 4.0e-9]
+covariance_order: [x, y, z, rx, ry, rz]
+sample_count: 15
+"""
+
+PARAMS = """\
+/**/hand_eye:
+  ros__parameters:
+    mode: localization
+    hand_eye_file: {hand_eye}
+    robot_pose_source: ee_pose
+    base_frame: base_link
+    ee_frame: tool0
+    camera_frame: camera_left_optical_frame
+    max_pose_gap_s: 0.05
+    max_pose_wait_s: 1.0
+    max_target_wait_s: 1.0
+"""
+
+OUTPUTS = (("PoseStamped", "/target/pose"), ("PoseWithCovarianceStamped", "/target/pose_cov"),
+           ("PoseStamped", "/target/red/pose"),
+           ("PoseWithCovarianceStamped", "/target/red/pose_cov"),
+           ("PoseArray", "/target/poses"), ("MarkerArray", "/target/markers"),
+           ("TFMessage", "/tf"))
+
+
+def _cpu_s(pid: int) -> float:
+    stat = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(stat[11]) + int(stat[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def one_round(code_root: Path, params: Path, pairs: int, domain: int) -> tuple[float, int]:
+    """The node of ``code_root`` fed ``pairs`` pairs: (CPU ms per pair, poses received)."""
+    import rclpy
+    from geometry_msgs.msg import (
+        PointStamped,
+        PoseArray,
+        PoseStamped,
+        PoseWithCovarianceStamped,
+    )
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from visualization_msgs.msg import MarkerArray
+
+    from eye_in_hand.ros.outputs import (
+        Sphere,
+        point_stamped,
+        pose_with_covariance,
+        rclpy_types,
+        sphere_markers,
+    )
+    from eye_in_hand.ros.qos import RESULT_QOS, ROBOT_POSE_QOS, TARGET_POINT_QOS
+
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               PYTHONPATH=str(code_root))
+    node_proc = subprocess.Popen(
+        [sys.executable, "-m", "eye_in_hand.nodes.hand_eye", "--ros-args", "--params-file",
+         str(params)], cwd=code_root, env=env, stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL)
+    os.environ["ROS_DOMAIN_ID"] = str(domain)
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    rclpy.init()
+    node = Node("bench_hand_eye_feed")
+    T = rclpy_types()
+    types = {"PoseStamped": PoseStamped, "PoseWithCovarianceStamped": PoseWithCovarianceStamped,
+             "PoseArray": PoseArray, "MarkerArray": MarkerArray}
+    try:
+        from tf2_msgs.msg import TFMessage
+        types["TFMessage"] = TFMessage
+    except ImportError:
+        pass
+    received = [0]
+
+    def on_pose(_msg: object) -> None:
+        received[0] += 1
+
+    for name, topic in OUTPUTS:
+        if name in types:
+            node.create_subscription(types[name], topic,
+                                     on_pose if topic == "/target/pose" else (lambda _m: None),
+                                     RESULT_QOS)
+    pub_pose = node.create_publisher(PoseStamped, "/ee_pose", ROBOT_POSE_QOS)
+    pub_cov = node.create_publisher(PoseWithCovarianceStamped, "/target/point_cov", RESULT_QOS)
+    pub_point = node.create_publisher(PointStamped, "/target/point", RESULT_QOS)
+    pub_tcov = node.create_publisher(PoseWithCovarianceStamped, "/targets/red/point_cov",
+                                     TARGET_POINT_QOS)
+    pub_tpoint = node.create_publisher(PointStamped, "/targets/red/point", TARGET_POINT_QOS)
+    pub_markers = node.create_publisher(MarkerArray, "/targets/markers", RESULT_QOS)
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    stop = threading.Event()
+    spinner = threading.Thread(target=lambda: [ex.spin_once(timeout_sec=0.05)
+                                               for _ in iter(stop.is_set, True)], daemon=True)
+    spinner.start()
+    try:
+        deadline = time.monotonic() + 30.0
+        while pub_markers.get_subscription_count() == 0 or \
+                pub_pose.get_subscription_count() == 0:
+            if time.monotonic() > deadline or node_proc.poll() is not None:
+                raise SystemExit("the hand_eye node did not come up")
+            time.sleep(0.05)
+        time.sleep(1.0)                       # discovery of every output settles
+        cov = [[1e-8, 0, 0], [0, 1e-8, 0], [0, 0, 4e-8]]
+        t0 = time.time_ns()
+        pose_period, frame_period = 1e9 / 125.0, 1e9 / 30.0
+        k_pose = k_frame = 0
+        cpu_a = cpu_b = None
+        while k_frame < pairs:
+            t_pose, t_frame = t0 + k_pose * pose_period, t0 + 8e6 + k_frame * frame_period
+            t_next = min(t_pose, t_frame)
+            delay = (t_next - time.time_ns()) / 1e9
+            if delay > 0:
+                time.sleep(delay)
+            if t_pose <= t_frame:
+                stamp = int(t_pose)
+                msg = PoseStamped()
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 10**9)
+                msg.header.frame_id = "base_link"
+                a = 0.2 * math.sin(stamp * 1e-9)
+                msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = 0.4, a, 0.5
+                msg.pose.orientation.w = 1.0
+                pub_pose.publish(msg)
+                k_pose += 1
+                continue
+            stamp = int(t_frame - 8e6)
+            xyz = (0.01, 0.02, 0.6)
+            cmsg = pose_with_covariance(T, xyz, cov, stamp, "camera_left_optical_frame")
+            pmsg = point_stamped(T, xyz, stamp, "camera_left_optical_frame")
+            pub_cov.publish(cmsg)
+            pub_point.publish(pmsg)
+            pub_tcov.publish(cmsg)
+            pub_tpoint.publish(pmsg)
+            pub_markers.publish(sphere_markers(T, [Sphere("red", xyz, 0.07, (1., 0., 0., 1.))],
+                                               stamp, "camera_left_optical_frame"))
+            k_frame += 1
+            if k_frame == 60:
+                cpu_a = _cpu_s(node_proc.pid)
+            elif k_frame == pairs - 60:
+                cpu_b = _cpu_s(node_proc.pid)
+        time.sleep(0.5)
+    finally:
+        stop.set()
+        spinner.join()
+        node.destroy_node()
+        rclpy.shutdown()
+        node_proc.terminate()
+        try:
+            node_proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            node_proc.kill()
+    assert cpu_a is not None and cpu_b is not None
+    return (cpu_b - cpu_a) * 1e3 / (pairs - 120), received[0]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rounds", type=int, default=3, help="rounds per checkout (default 3)")
+    parser.add_argument("--pairs", type=int, default=600, help="pairs per round (default 600)")
+    parser.add_argument("--compare", type=Path, metavar="OTHER",
+                        help="another checkout's node in alternate rounds")
+    args = parser.parse_args(argv)
+    if args.pairs < 200:
+        parser.error("--pairs: at least 200 (60 at each end are left out)")
+    with tempfile.TemporaryDirectory() as tmp:
+        he = Path(tmp) / "hand_eye.yaml"
+        he.write_text(HAND_EYE_YAML)
+        params = Path(tmp) / "params.yaml"
+        params.write_text(PARAMS.format(hand_eye=he))
+        codes = [("this checkout", ROOT)]
+        if args.compare is not None:
+            codes.append((f"{args.compare}", args.compare.resolve()))
+        results: dict[str, list[float]] = {name: [] for name, _ in codes}
+        domain = 100 + os.getpid() % 100
+        for r in range(args.rounds):
+            for name, code in codes:
+                ms, got = one_round(code, params, args.pairs, domain)
+                results[name].append(ms)
+                print(f"round {r + 1} {name}: hand_eye {ms:.2f} ms CPU per pair, "
+                      f"{got}/{args.pairs} poses received", flush=True)
+        for name, values in results.items():
+            print(f"{name}: median {statistics.median(values):.2f} ms CPU per pair "
+                  f"(target <= 1.5 ms), rounds {', '.join(f'{v:.2f}' for v in values)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
