@@ -6,8 +6,8 @@ constructor arguments): it makes the node's output publishers and sends what the
 in one stereo pair: ``target/point_cov`` and ``target/point`` (the first target),
 ``targets/<id>/point_cov`` and ``targets/<id>/point`` (every target; publishers made when an id
 first appears, at most ``max_targets``), ``targets/markers`` (the frame's list of targets) and,
-rate-limited, ``target/debug_image``. Messages are built by :mod:`eye_in_hand.ros.outputs`, as
-``process`` builds them.
+rate-limited, ``target/debug_image``. Messages are the bytes of :mod:`eye_in_hand.ros.outputs`'
+messages, as ``process`` builds them, serialized by :mod:`eye_in_hand.ros.outputs_cdr`.
 """
 from __future__ import annotations
 
@@ -25,9 +25,9 @@ from eye_in_hand.core.debug_image import draw_located_pair
 from eye_in_hand.core.detection import TargetSpec
 from eye_in_hand.core.locator import LocateResult, TargetLocation
 from eye_in_hand.ros.images import numpy_to_image
-from eye_in_hand.ros.markers import Sphere, marker_classes, sphere_marker_array, sphere_style
+from eye_in_hand.ros.markers import Sphere, marker_classes, sphere_style
 from eye_in_hand.ros.names import topic_name_problem
-from eye_in_hand.ros.outputs import point_stamped, pose_with_covariance, rclpy_types
+from eye_in_hand.ros.outputs_cdr import point_cdr, sphere_markers_cdr
 from eye_in_hand.ros.qos import RESULT_QOS, SENSOR_QOS, TARGET_POINT_QOS
 
 __all__ = ["TargetPublishers"]
@@ -99,13 +99,12 @@ class TargetPublishers:
         return self.publish_targets(result, stamp, frame, first_msgs)
 
     @staticmethod
-    def _messages(t: TargetLocation, stamp: int, frame: str) -> tuple[Any, Any]:
-        """``(point_cov, point)`` of a located target: a PoseWithCovarianceStamped (position
-        the point, covariance position block the triangulation covariance, orientation
-        variances 1e6) and a PointStamped, as ``process`` writes them."""
-        T = rclpy_types()
-        return (pose_with_covariance(T, t.point_m, t.covariance, stamp, frame),
-                point_stamped(T, t.point_m, stamp, frame))
+    def _messages(t: TargetLocation, stamp: int, frame: str) -> tuple[bytes, bytes]:
+        """``(point_cov, point)`` of a located target, serialized: a PoseWithCovarianceStamped
+        (position the point, covariance position block the triangulation covariance,
+        orientation variances 1e6) and a PointStamped, as ``process`` writes them
+        (:func:`eye_in_hand.ros.outputs_cdr.point_cdr`)."""
+        return point_cdr(t.point_m, t.covariance, stamp, frame)
 
     def _target_publishers(self, tid: str) -> tuple[Any, Any] | None:
         """``(point, point_cov)`` publishers of ``targets/<tid>/...``, made on first use; None
@@ -132,7 +131,7 @@ class TargetPublishers:
             return pubs
 
     def publish_targets(self, result: LocateResult, stamp: int, frame: str,
-                        first_msgs: tuple[Any, Any] | None = None
+                        first_msgs: tuple[bytes, bytes] | None = None
                         ) -> list[tuple[Sphere, np.ndarray]]:
         """Every located target on its own topics, then the frame's ``targets/markers``.
         ``first_msgs``: the ``(point_cov, point)`` messages already built for
@@ -157,8 +156,8 @@ class TargetPublishers:
             spheres.append(Sphere(t.id, t.point_m, diameter, rgba))
             delivered.append((spheres[-1], t.covariance))
         if self.pub_markers.get_subscription_count() > 0:     # volatile, as above
-            self.pub_markers.publish(sphere_marker_array(
-                spheres, stamp_ns=stamp, frame_id=frame, lifetime_s=self._marker_lifetime_s))
+            self.pub_markers.publish(sphere_markers_cdr(spheres, stamp, frame,
+                                                        self._marker_lifetime_s))
         self._diag.count("marker_frames")
         return delivered
 

@@ -1,11 +1,11 @@
 """The live outputs of :mod:`eye_in_hand.ros.outputs`, serialized directly (CDR bytes).
 
-``hand_eye`` sends about seven messages per stereo pair. Built as rclpy objects, each costs
-its nested ``__init__``s (a ``MarkerArray`` of two markers about 25 us, a pose and its
-covariance pose 17 us) and rclpy's conversion and serialization at ``publish`` (5-20 us). The
-functions here write the same messages' CDR bytes with ``struct`` (a few us each), and the
-node publishes the bytes (``Publisher.publish(bytes)``: rclpy hands them to the middleware as
-they are).
+``hand_eye`` sends about seven messages per stereo pair, ``detect_triangulate`` five. Built
+as rclpy objects, each costs its nested ``__init__``s (a ``MarkerArray`` of two markers about
+25 us, a pose and its covariance pose 17 us) and rclpy's conversion and serialization at
+``publish`` (5-20 us). The functions here write the same messages' CDR bytes with ``struct``
+(a few us each), and the node publishes the bytes (``Publisher.publish(bytes)``: rclpy hands
+them to the middleware as they are).
 
 The content rules are :mod:`eye_in_hand.ros.outputs`'s, used from there: the checks of points,
 stamps and spheres, the covariance of a point published as a pose, the sphere markers' type,
@@ -35,12 +35,14 @@ from eye_in_hand.ros.outputs import (
     stamp_parts,
 )
 
-__all__ = ["point_pose_cdr", "pose_array_cdr", "sphere_markers_cdr", "translation_tf_cdr"]
+__all__ = ["point_cdr", "point_pose_cdr", "pose_array_cdr", "sphere_markers_cdr",
+           "translation_tf_cdr"]
 
 _ENCAPSULATION = b"\x00\x01\x00\x00"
 _U32 = struct.Struct("<I")
 _STAMP = struct.Struct("<iI")
 _POSE = struct.Struct("<7d")                 # position xyz, orientation xyzw
+_XYZ = struct.Struct("<3d")
 _SPHERE_TAIL = struct.Struct("<3i")          # id, type, action
 _SCALE_COLOR_LIFE = struct.Struct("<3d4fiI?")
 
@@ -102,6 +104,28 @@ def point_pose_cdr(xyz: Any, cov: Any, stamp_ns: int, frame_id: str) -> tuple[by
     with_cov.pose(p)
     with_cov.buf += point_pose_covariance(cov).astype("<f8").tobytes()
     return bytes(pose.buf), bytes(with_cov.buf)
+
+
+def point_cdr(xyz: Any, cov: Any, stamp_ns: int, frame_id: str) -> tuple[bytes, bytes]:
+    """``geometry_msgs/PoseWithCovarianceStamped`` and ``PointStamped`` of a located point in
+    the camera frame (``target/point_cov``, ``target/point``): the bytes of
+    :func:`eye_in_hand.ros.outputs.pose_with_covariance` and
+    :func:`eye_in_hand.ros.outputs.point_stamped`.
+
+    Raises:
+        ConversionError: the point is not finite, or a bad stamp or frame.
+    """
+    p = checked_xyz(xyz, "point")
+    stamp, frame = stamp_parts(stamp_ns), _frame(frame_id)
+    with_cov = _Writer()
+    with_cov.header(stamp, frame)
+    with_cov.pose(p)
+    with_cov.buf += point_pose_covariance(cov).astype("<f8").tobytes()
+    point = _Writer()
+    point.header(stamp, frame)
+    point.align(8)
+    point.buf += _XYZ.pack(*p)
+    return bytes(with_cov.buf), bytes(point.buf)
 
 
 def pose_array_cdr(points: Iterable[Any], stamp_ns: int, frame_id: str) -> bytes:

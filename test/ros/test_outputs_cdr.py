@@ -11,6 +11,7 @@ from eye_in_hand.io.bags.decoding import default_typestore
 from eye_in_hand.ros import outputs
 from eye_in_hand.ros.outputs import RosbagsTypes, Sphere
 from eye_in_hand.ros.outputs_cdr import (
+    point_cdr,
     point_pose_cdr,
     pose_array_cdr,
     sphere_markers_cdr,
@@ -40,6 +41,19 @@ def test_point_poses(frame, stamp):
     got = point_pose_cdr(xyz, cov, stamp, frame)
     assert got[0] == _ser(pose, "geometry_msgs/msg/PoseStamped")
     assert got[1] == _ser(pose_cov, "geometry_msgs/msg/PoseWithCovarianceStamped")
+
+
+@pytest.mark.parametrize("frame", FRAMES)
+@pytest.mark.parametrize("stamp", STAMPS)
+def test_camera_points(frame, stamp):
+    rng = np.random.default_rng(len(frame) + stamp % 89)
+    xyz = rng.normal(size=3)
+    cov = rng.normal(size=(3, 3)) * 1e-6
+    got = point_cdr(xyz, cov, stamp, frame)
+    assert got[0] == _ser(outputs.pose_with_covariance(T, xyz, cov, stamp, frame),
+                          "geometry_msgs/msg/PoseWithCovarianceStamped")
+    assert got[1] == _ser(outputs.point_stamped(T, xyz, stamp, frame),
+                          "geometry_msgs/msg/PointStamped")
 
 
 @pytest.mark.parametrize("frame", FRAMES[:9])
