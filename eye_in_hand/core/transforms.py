@@ -210,6 +210,13 @@ def quat_xyzw_to_matrix(quat_xyzw: ArrayLike, name: str = "quat_xyzw") -> np.nda
     """Rotation matrix from a quaternion (x, y, z, w); normalised, must not be near zero."""
     q = as_finite_array(np.ravel(quat_xyzw), name, (4,))
     x, y, z, w = (float(v) for v in q)
+    return np.array(quat_xyzw_rows(x, y, z, w, name))
+
+
+def quat_xyzw_rows(x: float, y: float, z: float, w: float, name: str = "quat_xyzw"
+                   ) -> list[list[float]]:
+    """The rows of :func:`quat_xyzw_to_matrix` from four finite floats, as Python floats
+    (for a caller that builds a larger matrix around them: one array, not two)."""
     n = math.sqrt(x * x + y * y + z * z + w * w)
     if n < 1e-9:
         raise InputError(f"{name}: quaternion has zero norm")
@@ -219,10 +226,10 @@ def quat_xyzw_to_matrix(quat_xyzw: ArrayLike, name: str = "quat_xyzw") -> np.nda
     x, y, z, w = x / n, y / n, z / n, w / n
     # The unit-quaternion rotation matrix, written out (no BLAS call, no Rotation object: this
     # runs for every robot pose).
-    return np.array([
+    return [
         [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)],
         [2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w)],
-        [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)]])
+        [2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)]]
 
 
 def matrix_to_quat_xyzw(R: ArrayLike) -> np.ndarray:

@@ -11,7 +11,12 @@ from typing import Any
 
 import numpy as np
 
-from eye_in_hand.core.transforms import as_transform, matrix_to_quat_xyzw, quat_xyzw_to_matrix
+from eye_in_hand.core.transforms import (
+    as_transform,
+    matrix_to_quat_xyzw,
+    quat_xyzw_rows,
+    quat_xyzw_to_matrix,
+)
 from eye_in_hand.errors import ConversionError, InputError
 from eye_in_hand.ros.fields import field_path, get_field, read_float
 from eye_in_hand.ros.stamps import header_or_new
@@ -61,10 +66,19 @@ def pose_to_matrix(msg: Any) -> np.ndarray:
     while hasattr(msg, "pose"):
         msg = msg.pose
         path = field_path(path, "pose")
-    T = np.eye(4)
-    T[:3, :3] = _quat_matrix(get_field(msg, "orientation", path), field_path(path, "orientation"))
-    T[:3, 3] = _xyz(get_field(msg, "position", path), field_path(path, "position"))
-    return T
+    # one array of Python floats (on every robot pose: no 4x4 identity filled slice by slice)
+    o_path = field_path(path, "orientation")
+    o = get_field(msg, "orientation", path)
+    x, y, z, w = (read_float(o, a, o_path) for a in ("x", "y", "z", "w"))
+    try:
+        r0, r1, r2 = quat_xyzw_rows(x, y, z, w, o_path)
+    except InputError as exc:
+        raise ConversionError(str(exc)) from exc
+    p_path = field_path(path, "position")
+    p = get_field(msg, "position", path)
+    tx, ty, tz = (read_float(p, a, p_path) for a in ("x", "y", "z"))
+    return np.array([[r0[0], r0[1], r0[2], tx], [r1[0], r1[1], r1[2], ty],
+                     [r2[0], r2[1], r2[2], tz], [0.0, 0.0, 0.0, 1.0]])
 
 
 def transform_to_matrix(msg: Any) -> np.ndarray:
