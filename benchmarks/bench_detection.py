@@ -86,7 +86,8 @@ def floor(left: np.ndarray, right: np.ndarray) -> None:
         cv2.inRange(cv2.cvtColor(img, cv2.COLOR_BGR2HSV), SIM_RED.lower, (179, 255, 255))
 
 
-def per_pair(named_fns, imgs, repeats: int, rounds: int = 5, warm_up: bool = False
+def per_pair(named_fns, imgs, repeats: int, rounds: int = 5, warm_up: bool = False,
+             period_s: float = 0.0
              ) -> tuple[dict[str, float], dict[str, float], dict[str, float]]:
     """Seconds per pair of each ``(name, fn(left, right))`` (the first is the floor), the best
     of ``rounds`` rounds of ``repeats`` pairs, and each one's ratio to the floor in wall time
@@ -94,7 +95,10 @@ def per_pair(named_fns, imgs, repeats: int, rounds: int = 5, warm_up: bool = Fal
     over the floor's time in the same round. The functions take turns within each round, so a
     change of the shared machine's load between them moves both sides of a ratio alike.
     ``warm_up`` runs two pairs of each first. With OpenCV's default threads the floor's
-    cvtColor and inRange run on both cores: less wall time than CPU time."""
+    cvtColor and inRange run on both cores: less wall time than CPU time.
+
+    ``period_s`` > 0: at camera rate, one pair every ``period_s`` (the machine idles between
+    them, as a live node does); each call is timed alone."""
     if warm_up:
         for _, fn in named_fns:
             for left, right in imgs[:2]:
@@ -103,6 +107,17 @@ def per_pair(named_fns, imgs, repeats: int, rounds: int = 5, warm_up: bool = Fal
     cpus: dict[str, list[float]] = {name: [] for name, _ in named_fns}
     for _ in range(rounds):
         for name, fn in named_fns:
+            if period_s > 0:
+                wall = cpu = 0.0
+                for k in range(repeats):
+                    c0, t0 = time.process_time(), time.perf_counter()
+                    fn(*imgs[k % len(imgs)])
+                    dt = time.perf_counter() - t0
+                    wall, cpu = wall + dt, cpu + time.process_time() - c0
+                    time.sleep(max(0.0, period_s - dt))
+                times[name].append(wall / repeats)
+                cpus[name].append(cpu / repeats)
+                continue
             c0, t0 = time.process_time(), time.perf_counter()
             for k in range(repeats):
                 fn(*imgs[k % len(imgs)])
@@ -126,7 +141,11 @@ def print_speed(timings: dict[str, float], wall: dict[str, float], cpu: dict[str
               f"{wall[name]:5.2f} x floor (wall)  {cpu[name]:5.2f} x floor (CPU)")
 
 
-def speed(frames, rig, repeats: int, rounds: int) -> None:
+def _rate(period_s: float) -> str:
+    return f", one pair every {period_s * 1e3:.0f} ms" if period_s > 0 else ", back to back"
+
+
+def speed(frames, rig, repeats: int, rounds: int, period_s: float = 0.0) -> None:
     loc = StereoLocator(rig, config())
     loc_raw = StereoLocator(rig, config(correction=False))
     loc_opt = StereoLocator(rig, config("optimal"))
@@ -135,9 +154,9 @@ def speed(frames, rig, repeats: int, rounds: int) -> None:
                                    ("locate dlt + sphere correction", loc.locate),
                                    ("locate dlt, no correction", loc_raw.locate),
                                    ("locate optimal + sphere correction", loc_opt.locate)),
-                                  imgs, repeats, rounds, warm_up=True)
+                                  imgs, repeats, rounds, warm_up=True, period_s=period_s)
     print(f"speed, 1280x720 pairs, best of {rounds} x {repeats} pairs (x floor: median of the "
-          f"rounds), cv2 threads {cv2.getNumThreads()}:")
+          f"rounds), cv2 threads {cv2.getNumThreads()}{_rate(period_s)}:")
     print_speed(timings, wall, cpu)
 
 
@@ -211,7 +230,8 @@ def accuracy(world: World, frames) -> None:
     print(f"  DLT vs parallax: max |difference| {max(dlt_vs_par) * 1e3:.4f} mm")
 
 
-def multi(n_frames: int, repeats: int, seed: int, rounds: int = 5) -> None:
+def multi(n_frames: int, repeats: int, seed: int, rounds: int = 5,
+          period_s: float = 0.0) -> None:
     """Speed and per-target accuracy with four targets, two of one colour (module docs)."""
     world = World.from_yaml(ROOT / "config" / "world_multi.yaml")
     cfg = load_locator_config(ROOT / "config" / "detect_triangulate_multi.yaml")
@@ -264,9 +284,9 @@ def multi(n_frames: int, repeats: int, seed: int, rounds: int = 5) -> None:
     timings, wall, cpu = per_pair((("floor (cvtColor + inRange, both images)", floor),
                                    ("locate, 1 target (red, the single config)", one.locate),
                                    ("locate, 4 targets (red x2 set, green, blue)", loc.locate)),
-                                  imgs, repeats, rounds)
+                                  imgs, repeats, rounds, period_s=period_s)
     print(f"  speed, best of {rounds} x {repeats} pairs (x floor: median of the rounds), cv2 "
-          f"threads {cv2.getNumThreads()}:")
+          f"threads {cv2.getNumThreads()}{_rate(period_s)}:")
     print_speed(timings, wall, cpu, width=44)
 
 
@@ -281,6 +301,10 @@ def main(argv: list[str] | None = None) -> int:
                         help="pairs of the multi-target world (default 20; 0 = skip)")
     parser.add_argument("--multi-only", action="store_true",
                         help="only the several-targets part")
+    parser.add_argument("--period-ms", type=float, default=0.0,
+                        help="time the speed at camera rate: one pair every PERIOD ms, the "
+                             "machine idle between them as a live node's is (default 0: back "
+                             "to back)")
     parser.add_argument("--cv-threads", type=int, default=-1,
                         help="cv2.setNumThreads before timing (default: OpenCV's own, "
                              "both cores here; 1: the floor on one core, as a detector "
@@ -289,7 +313,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.cv_threads >= 0:
         cv2.setNumThreads(args.cv_threads)
     if args.multi_only:
-        multi(args.multi_frames, args.repeats, args.seed, args.rounds)
+        multi(args.multi_frames, args.repeats, args.seed, args.rounds, args.period_ms / 1e3)
         return 0
     world = World.default()
     t0 = time.perf_counter()
@@ -297,10 +321,10 @@ def main(argv: list[str] | None = None) -> int:
     frames = [world.render(q, seed=args.seed * 1000 + i, noise_sigma=2.0, supersample=3)
               for i, q in enumerate(qs)]
     print(f"rendered {len(frames)} stereo pairs in {time.perf_counter() - t0:.1f} s")
-    speed(frames, world.rig.rectified(), args.repeats, args.rounds)
+    speed(frames, world.rig.rectified(), args.repeats, args.rounds, args.period_ms / 1e3)
     accuracy(world, frames)
     if args.multi_frames > 0:
-        multi(args.multi_frames, args.repeats, args.seed, args.rounds)
+        multi(args.multi_frames, args.repeats, args.seed, args.rounds, args.period_ms / 1e3)
     return 0
 
 
