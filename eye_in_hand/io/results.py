@@ -55,14 +55,16 @@ from eye_in_hand.ros.outputs import (
     OutputSettings,
     RosbagsTypes,
     Sphere,
-    point_stamped,
-    pose_array,
-    pose_stamped,
-    pose_with_covariance,
-    sphere_markers,
     tf_message,
     transform_stamped,
-    translation_tf_message,
+)
+from eye_in_hand.ros.outputs_cdr import (
+    point_cdr,
+    point_pose_cdr,
+    point_stamped_cdr,
+    pose_array_cdr,
+    sphere_markers_cdr,
+    translation_tf_cdr,
 )
 from eye_in_hand.yamlfile import read_yaml_file
 
@@ -399,8 +401,8 @@ _FRAME_TOPICS = {
 
 class _Topics:
     """The output bag: the messages the live ``detect_triangulate`` and ``hand_eye`` publish
-    for the same frames (built by :mod:`eye_in_hand.ros.outputs`, the nodes' builders), plus
-    the ground truth."""
+    for the same frames (the bytes they publish, :mod:`eye_in_hand.ros.outputs_cdr`; the
+    latched ones built by :mod:`eye_in_hand.ros.outputs`), plus the ground truth."""
 
     def __init__(self, writer: Any, settings: OutputSettings) -> None:
         self.w = writer
@@ -440,53 +442,52 @@ class _Topics:
         self.write("/tf_static", stamp, tf_message(T, edges))
 
     def frame(self, f: FrameResult, camera_frame: str, base_frame: str) -> None:
-        s, T, stamp = self.s, self.T, f.stamp_ns
+        """One frame's messages, as CDR bytes (:mod:`eye_in_hand.ros.outputs_cdr`: the bytes
+        of :mod:`eye_in_hand.ros.outputs`' messages, what the live nodes publish)."""
+        s, stamp = self.s, f.stamp_ns
         # detect_triangulate: the first target, every target, the frame's list
         if f.point_cam is not None and f.cov_cam is not None:
-            self.write("/target/point_cov", stamp, pose_with_covariance(
-                T, f.point_cam, f.cov_cam, stamp, camera_frame))
-            self.write("/target/point", stamp, point_stamped(T, f.point_cam, stamp,
-                                                             camera_frame))
+            cov_msg, point_msg = point_cdr(f.point_cam, f.cov_cam, stamp, camera_frame)
+            self.write("/target/point_cov", stamp, cov_msg)
+            self.write("/target/point", stamp, point_msg)
         spheres = []
         for t in f.targets:
             tid = _topic_id(t.id)
-            self.write(f"/targets/{tid}/point_cov", stamp, pose_with_covariance(
-                T, t.point_cam, t.cov_cam, stamp, camera_frame))
-            self.write(f"/targets/{tid}/point", stamp, point_stamped(T, t.point_cam, stamp,
-                                                                   camera_frame))
+            cov_msg, point_msg = point_cdr(t.point_cam, t.cov_cam, stamp, camera_frame)
+            self.write(f"/targets/{tid}/point_cov", stamp, cov_msg)
+            self.write(f"/targets/{tid}/point", stamp, point_msg)
             spheres.append(Sphere(t.id, t.point_cam, *s.style(t.name)))
-        self.write("/targets/markers", stamp, sphere_markers(
-            T, spheres, stamp, camera_frame, s.camera_markers_lifetime_s))
+        self.write("/targets/markers", stamp, sphere_markers_cdr(
+            spheres, stamp, camera_frame, s.camera_markers_lifetime_s))
         # hand_eye: the first target, every target, the frame's lists, /tf
         if f.point_base is not None and f.cov_base is not None:
-            self.write("/target/pose", stamp, pose_stamped(T, f.point_base, stamp, base_frame))
-            self.write("/target/pose_cov", stamp, pose_with_covariance(
-                T, f.point_base, f.cov_base, stamp, base_frame))
+            pose_msg, cov_msg = point_pose_cdr(f.point_base, f.cov_base, stamp, base_frame)
+            self.write("/target/pose", stamp, pose_msg)
+            self.write("/target/pose_cov", stamp, cov_msg)
             if s.publish_tf and s.target_frame:
-                self.write("/tf", stamp, translation_tf_message(
-                    T, [(base_frame, s.target_frame, stamp, f.point_base)]))
+                self.write("/tf", stamp, translation_tf_cdr(
+                    [(base_frame, s.target_frame, stamp, f.point_base)]))
         located, edges = [], []
         for t, sphere in zip(f.targets, spheres, strict=True):
             if t.point_base is None or t.cov_base is None:
                 continue
             tid = _topic_id(t.id)
-            self.write(f"/target/{tid}/pose_cov", stamp, pose_with_covariance(
-                T, t.point_base, t.cov_base, stamp, base_frame))
-            self.write(f"/target/{tid}/pose", stamp, pose_stamped(T, t.point_base, stamp,
-                                                                 base_frame))
+            pose_msg, cov_msg = point_pose_cdr(t.point_base, t.cov_base, stamp, base_frame)
+            self.write(f"/target/{tid}/pose_cov", stamp, cov_msg)
+            self.write(f"/target/{tid}/pose", stamp, pose_msg)
             located.append(Sphere(t.id, t.point_base, sphere.diameter_m, sphere.rgba))
             if s.target_frame_prefix:
                 edges.append((base_frame, s.target_frame_prefix + t.id, stamp, t.point_base))
-        self.write("/target/poses", stamp, pose_array(T, [x.xyz for x in located], stamp,
-                                                      base_frame))
-        self.write("/target/markers", stamp, sphere_markers(
-            T, located, stamp, base_frame, s.target_markers_lifetime_s))
+        self.write("/target/poses", stamp, pose_array_cdr([x.xyz for x in located], stamp,
+                                                          base_frame))
+        self.write("/target/markers", stamp, sphere_markers_cdr(
+            located, stamp, base_frame, s.target_markers_lifetime_s))
         if edges and s.publish_tf:
-            self.write("/tf", stamp, translation_tf_message(T, edges))
+            self.write("/tf", stamp, translation_tf_cdr(edges))
         for t in f.targets:
             if t.truth_base is not None:
                 self.write(f"/target/{_topic_id(t.id)}/ground_truth", stamp,
-                           point_stamped(T, t.truth_base, stamp, base_frame))
+                           point_stamped_cdr(t.truth_base, stamp, base_frame))
 
 
 def _rows(f: FrameResult, ids: Sequence[str]) -> list[list[Any]]:

@@ -5,7 +5,9 @@ as rclpy objects, each costs its nested ``__init__``s (a ``MarkerArray`` of two 
 25 us, a pose and its covariance pose 17 us) and rclpy's conversion and serialization at
 ``publish`` (5-20 us). The functions here write the same messages' CDR bytes with ``struct``
 (a few us each), and the node publishes the bytes (``Publisher.publish(bytes)``: rclpy hands
-them to the middleware as they are).
+them to the middleware as they are). ``process`` writes the same bytes into its output bag
+(:mod:`eye_in_hand.io.results`): building the rosbags objects and serializing them cost
+about 0.4 ms a frame.
 
 The content rules are :mod:`eye_in_hand.ros.outputs`'s, used from there: the checks of points,
 stamps and spheres, the covariance of a point published as a pose, the sphere markers' type,
@@ -35,8 +37,8 @@ from eye_in_hand.ros.outputs import (
     stamp_parts,
 )
 
-__all__ = ["point_cdr", "point_pose_cdr", "pose_array_cdr", "sphere_markers_cdr",
-           "translation_tf_cdr"]
+__all__ = ["point_cdr", "point_stamped_cdr", "point_pose_cdr", "pose_array_cdr",
+           "sphere_markers_cdr", "translation_tf_cdr"]
 
 _ENCAPSULATION = b"\x00\x01\x00\x00"
 _U32 = struct.Struct("<I")
@@ -121,11 +123,25 @@ def point_cdr(xyz: Any, cov: Any, stamp_ns: int, frame_id: str) -> tuple[bytes, 
     with_cov.header(stamp, frame)
     with_cov.pose(p)
     with_cov.buf += point_pose_covariance(cov).astype("<f8").tobytes()
-    point = _Writer()
-    point.header(stamp, frame)
-    point.align(8)
-    point.buf += _XYZ.pack(*p)
-    return bytes(with_cov.buf), bytes(point.buf)
+    return bytes(with_cov.buf), _point_stamped(p, stamp, frame)
+
+
+def _point_stamped(p: tuple[float, float, float], stamp: tuple[int, int], frame: str) -> bytes:
+    w = _Writer()
+    w.header(stamp, frame)
+    w.align(8)
+    w.buf += _XYZ.pack(*p)
+    return bytes(w.buf)
+
+
+def point_stamped_cdr(xyz: Any, stamp_ns: int, frame_id: str) -> bytes:
+    """``geometry_msgs/PointStamped``: the bytes of
+    :func:`eye_in_hand.ros.outputs.point_stamped`.
+
+    Raises:
+        ConversionError: the point is not finite, or a bad stamp or frame.
+    """
+    return _point_stamped(checked_xyz(xyz, "point"), stamp_parts(stamp_ns), _frame(frame_id))
 
 
 def pose_array_cdr(points: Iterable[Any], stamp_ns: int, frame_id: str) -> bytes:

@@ -13,6 +13,7 @@ from eye_in_hand.ros.outputs import RosbagsTypes, Sphere
 from eye_in_hand.ros.outputs_cdr import (
     point_cdr,
     point_pose_cdr,
+    point_stamped_cdr,
     pose_array_cdr,
     sphere_markers_cdr,
     translation_tf_cdr,
@@ -54,6 +55,7 @@ def test_camera_points(frame, stamp):
                           "geometry_msgs/msg/PoseWithCovarianceStamped")
     assert got[1] == _ser(outputs.point_stamped(T, xyz, stamp, frame),
                           "geometry_msgs/msg/PointStamped")
+    assert point_stamped_cdr(xyz, stamp, frame) == got[1]
 
 
 @pytest.mark.parametrize("frame", FRAMES[:9])
