@@ -68,3 +68,23 @@ def test_the_users_malloc_settings_win(monkeypatch):
 def test_other_platforms_are_left_alone(monkeypatch):
     monkeypatch.setattr(memory.sys, "platform", "darwin")
     assert memory.reuse_large_buffers() is False
+
+
+def test_a_refused_setting_is_reported(monkeypatch):
+    """mallopt returns 0 when glibc refuses a value: then not True."""
+    for name in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_TOP_PAD_",
+                 "MALLOC_MMAP_MAX_", "GLIBC_TUNABLES"):
+        monkeypatch.delenv(name, raising=False)
+
+    class _Libc:
+        gnu_get_libc_version = object()
+
+        class mallopt:  # noqa: N801 - stands in for the C function
+            argtypes = restype = None
+
+            def __new__(cls, param, value):
+                return 0
+
+    monkeypatch.setattr(memory.ctypes, "CDLL", lambda _name: _Libc())
+    monkeypatch.setattr(memory.sys, "platform", "linux")
+    assert memory.reuse_large_buffers() is False

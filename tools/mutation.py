@@ -143,6 +143,7 @@ TESTS: dict[str, tuple[str, ...]] = {
     "ros/executor.py": ("test/ros/test_executor.py",),
     "memory.py": ("test/test_memory.py",),
     "ros/outputs_cdr.py": ("test/ros/test_outputs_cdr.py",),
+    "ros/outputs.py": ("test/ros/test_outputs_cdr.py", "test/ros/test_outputs.py"),
     "ros/decoded.py": ("test/ros/test_decoded.py",
                        "test/nodes/test_hand_eye.py::"
                        "test_bad_points_are_counted_and_node_keeps_running"),
@@ -746,6 +747,15 @@ MUTANTS: tuple[Mutant, ...] = (
       "                rgba, (int(life[0]), int(life[1])))\n",
       "                rgba, (0, 0))\n",
       "target/markers' spheres never expire"),
+    M("undecodable-point-uncounted", "nodes/hand_eye_first_target.py",
+      "        self.diag.count(\"points\")\n        self._refuse(\"bad_point\", undecodable(",
+      "        self._refuse(\"bad_point\", undecodable(",
+      "an undecodable target/point is refused but not counted as received: the ledger breaks"),
+    M("marker-lifetime-unchecked", "ros/outputs.py",
+      "    if life // _NS_PER_S > _INT32[1]:\n",
+      "    if False:\n",
+      "a marker lifetime past a Duration's range fails deep in serialization, not with the "
+      "field named"),
     M("decoded-bad-bytes-silent", "ros/decoded.py",
       "            on_bad(name[0], exc)\n            return\n",
       "            return\n",

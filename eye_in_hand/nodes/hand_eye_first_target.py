@@ -70,7 +70,7 @@ class FirstTarget:
         if not in_process:
             decoded_subscription(node, PointStamped, "target/point", self._on_point,
                                  RESULT_QOS, decoder_for=jazzy_decoder,
-                                 on_bad=lambda t, e: self._refuse("bad_point", undecodable(t, e)))
+                                 on_bad=self._undecodable_point)
             decoded_subscription(node, PoseWithCovarianceStamped, "target/point_cov",
                                  self._on_point_cov, RESULT_QOS, decoder_for=jazzy_decoder,
                                  on_bad=lambda t, e: diag.report("bad_point_cov",
@@ -126,6 +126,11 @@ class FirstTarget:
             self._refuse("bad_point", f"target/point: {exc}")
             return
         self._take_point(stamp, p, None)    # its covariance, when that came first
+
+    def _undecodable_point(self, topic: str, exc: Exception) -> None:
+        """A ``target/point`` whose bytes do not decode: a point received and refused."""
+        self.diag.count("points")
+        self._refuse("bad_point", undecodable(topic, exc))
 
     def _take_point(self, stamp: int, p: np.ndarray, cov: np.ndarray | None) -> None:
         """Queue the first target's camera point (and covariance) in the pipeline until its

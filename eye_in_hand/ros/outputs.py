@@ -54,6 +54,7 @@ UNKNOWN_ROTATION_VARIANCE = 1e6
 
 _NS_PER_S = 1_000_000_000
 _INT32 = (-(2 ** 31), 2 ** 31 - 1)
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
 #: visualization_msgs/Marker type and actions of the sphere markers
 MARKER_SPHERE, MARKER_ADD, MARKER_DELETEALL = 2, 0, 3
 
@@ -391,8 +392,9 @@ def sphere_markers(T: Any, spheres: Iterable[Sphere], stamp_ns: int, frame_id: s
     ``id`` 0) per sphere (``targets/markers``, ``target/markers``).
 
     Raises:
-        ConversionError: a non-finite centre, a diameter that is not positive, or two spheres
-            with one id.
+        ConversionError: a non-finite centre, a diameter that is not positive, two spheres
+            with one id, a colour that is not 4 finite float32 values, or a lifetime that
+            does not fit a Duration.
     """
     Marker = T["visualization_msgs/msg/Marker"]
     hdr = header(T, stamp_ns, frame_id)
@@ -414,8 +416,20 @@ def sphere_markers(T: Any, spheres: Iterable[Sphere], stamp_ns: int, frame_id: s
 
 
 def marker_lifetime_ns(lifetime_s: float) -> int:
-    """A sphere's lifetime on the markers, int ns (0: until replaced or deleted)."""
-    return max(0, int(round(lifetime_s * 1e9)))
+    """A sphere's lifetime on the markers, int ns (0: until replaced or deleted).
+
+    Raises:
+        ConversionError: not a finite number, or longer than ``builtin_interfaces/Duration``
+            holds (2^31 - 1 s).
+    """
+    if not math.isfinite(lifetime_s):
+        raise ConversionError(f"marker lifetime: expected a finite number of seconds, got "
+                              f"{lifetime_s!r}")
+    life = max(0, int(round(lifetime_s * 1e9)))
+    if life // _NS_PER_S > _INT32[1]:
+        raise ConversionError(f"marker lifetime: {lifetime_s} s does not fit "
+                              "builtin_interfaces/Duration (at most 2147483647 s)")
+    return life
 
 
 def checked_spheres(spheres: Iterable[Sphere]) -> Iterable[tuple[Sphere, tuple[float, float,
@@ -423,8 +437,8 @@ def checked_spheres(spheres: Iterable[Sphere]) -> Iterable[tuple[Sphere, tuple[f
     """``(sphere, centre)`` of each sphere of a frame's markers, checked.
 
     Raises:
-        ConversionError: a non-finite centre, a diameter that is not positive, or two spheres
-            with one id.
+        ConversionError: a non-finite centre, a diameter that is not positive, two spheres
+            with one id, or a colour that is not 4 finite float32 values.
     """
     seen: set[str] = set()
     for s in spheres:
@@ -433,6 +447,10 @@ def checked_spheres(spheres: Iterable[Sphere]) -> Iterable[tuple[Sphere, tuple[f
             raise ConversionError(f"sphere '{s.id}': diameter must be > 0, got {s.diameter_m}")
         if s.id in seen:
             raise ConversionError(f"sphere '{s.id}': two spheres with one id in a frame")
+        if len(s.rgba) != 4 or not all(math.isfinite(c) and abs(c) <= _FLOAT32_MAX
+                                       for c in s.rgba):
+            raise ConversionError(f"sphere '{s.id}': colour must be 4 finite float32 values "
+                                  f"(r, g, b, a), got {tuple(s.rgba)!r}")
         seen.add(s.id)
         yield s, xyz
 

@@ -189,8 +189,9 @@ def sphere_markers_cdr(spheres: Iterable[Sphere], stamp_ns: int, frame_id: str,
     bytes of :func:`eye_in_hand.ros.outputs.sphere_markers`.
 
     Raises:
-        ConversionError: a non-finite centre, a diameter that is not positive, or two spheres
-            with one id.
+        ConversionError: a non-finite centre, a diameter that is not positive, two spheres
+            with one id, a colour that is not 4 finite float32 values, or a lifetime that
+            does not fit a Duration.
     """
     checked = list(checked_spheres(spheres))
     stamp, frame = stamp_parts(stamp_ns), _frame(frame_id)

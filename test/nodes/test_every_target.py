@@ -349,6 +349,30 @@ def test_dropped_targets_are_counted_by_reason(tmp_path, ros_context, executor, 
     assert "no_robot_pose" in node.diag.causes and "target_no_point" in node.diag.causes
 
 
+def test_undecodable_target_lists_and_points_are_reported_and_nothing_else_lost(
+        tmp_path, ros_context, executor, namespace, spin_until):
+    feed = _Feed(ros_context, executor, namespace, {
+        "hand_eye_file": str(_hand_eye_file(tmp_path)), "max_target_wait_s": 0.05,
+        "target_frame_prefix": ""})
+    assert feed.ready(executor, spin_until)
+    node = feed.node
+    for k in range(11):
+        s = T0 + k * 10_000_000
+        feed.pub_ee.publish(matrix_to_pose_stamped(_robot_pose(s), stamp_ns=s,
+                                                   frame_id="base_link"))
+    # the node takes these topics as bytes and decodes them itself
+    feed.pub_markers.publish(b"\x00\x01\x00\x00\x09")
+    feed.pub_cov["a"].publish(b"\x00\x01\x00\x00")
+    pts = {"a": np.array([0.0, 0.0, 0.5]), "b": np.array([0.1, 0.0, 0.6])}
+    feed.frame(T0 + 20_000_000, pts)
+    assert spin_until(executor, lambda: len(feed.arrays) == 1 and len(feed.poses["b"]) == 1
+                      and node.diag.causes.get("bad_target_point") == 1, 10.0)
+    assert node.diag.causes.get("bad_markers") == 1
+    c = node.diag.snapshot().counters
+    assert c["target_frames"] == 2 and c["target_points_received"] == 3
+    assert [len(a.poses) for a in feed.arrays] == [2]
+
+
 def test_eye_to_hand_tf_one_child_frame_per_target(tmp_path, ros_context, executor, namespace,
                                                    spin_until):
     from eye_in_hand.ros.geometry import transform_to_matrix

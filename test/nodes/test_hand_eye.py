@@ -333,6 +333,10 @@ def test_bad_points_are_counted_and_node_keeps_running(tmp_path, ros_context, ex
     causes = rig.node.diag.causes
     assert causes.get("bad_point") == 2 and causes.get("point_frame") == 1
     assert causes.get("bad_point_cov") == 1
+    d = rig.node.diag      # the ledger: every point received is published, refused or waits
+    assert d.counter("points") == 4
+    assert d.counter("points") == d.counter("poses_published") + d.counter("rejected") + len(
+        rig.node.pipeline.points)
     assert spin_until(executor, lambda: rig.node.diag.causes.get("bad_ee_pose") == 1, 5.0)
 
 

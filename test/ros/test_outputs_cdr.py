@@ -58,7 +58,7 @@ def test_camera_points(frame, stamp):
     assert point_stamped_cdr(xyz, stamp, frame) == got[1]
 
 
-@pytest.mark.parametrize("frame", FRAMES[:9])
+@pytest.mark.parametrize("frame", FRAMES)
 @pytest.mark.parametrize("n", [0, 1, 2, 5])
 def test_pose_arrays(frame, n):
     points = [np.array([k, -k * 0.5, 0.25 + k]) for k in range(n)]
@@ -68,10 +68,10 @@ def test_pose_arrays(frame, n):
 
 
 @pytest.mark.parametrize("frame", FRAMES)
-@pytest.mark.parametrize("n", [0, 1, 3])
-@pytest.mark.parametrize("lifetime_s", [0.0, 1.0, 2.75])
+@pytest.mark.parametrize("n", [0, 1, 3, 7])
+@pytest.mark.parametrize("lifetime_s", [0.0, 1.0, 2.75, 1e-10, 1.9999999999])
 def test_sphere_markers(frame, n, lifetime_s):
-    ids = ["red", "red_10", "blue_green_1"]
+    ids = ["red", "red_10", "blue_green_1", "grün", "r", "b_2", "cyan_11"]
     spheres = [Sphere(ids[k], (0.1 * k, -0.2, 1.5 + k), 0.035 * (k + 1),
                       (1.0, 0.5 * k, 0.1, 0.8)) for k in range(n)]
     want = _ser(outputs.sphere_markers(T, spheres, 987_654_321_012, frame, lifetime_s),
@@ -81,10 +81,31 @@ def test_sphere_markers(frame, n, lifetime_s):
 
 @pytest.mark.parametrize("n", [0, 1, 3])
 def test_translation_tf(n):
-    edges = [(FRAMES[k + 3], f"target_{'x' * k}", 10 ** 9 * k + 7, np.array([k, 2.0, -1.0]))
+    edges = [(FRAMES[k + 3], f"target_{'é' * k}", 10 ** 9 * k + 7, np.array([k, 2.0, -1.0]))
              for k in range(n)]
     want = _ser(outputs.translation_tf_message(T, edges), "tf2_msgs/msg/TFMessage")
     assert translation_tf_cdr(edges) == want
+
+
+def test_non_finite_covariances_are_carried_as_they_are():
+    cov = np.array([[np.nan, 0, 0], [0, np.inf, 0], [0, 0, -np.inf]])
+    pose, pose_cov = outputs.point_pose_messages(T, [0.1, 0.2, 0.3], cov, 7, "base")
+    assert point_pose_cdr([0.1, 0.2, 0.3], cov, 7, "base")[1] == _ser(
+        pose_cov, "geometry_msgs/msg/PoseWithCovarianceStamped")
+
+
+@pytest.mark.parametrize("bad", [
+    dict(lifetime_s=3e9), dict(lifetime_s=float("nan")),
+    dict(rgba=(1e39, 0.0, 0.0, 1.0)), dict(rgba=(1.0, float("nan"), 0.0, 1.0)),
+    dict(rgba=(1.0, 0.0, 0.0)),
+])
+def test_marker_values_a_message_cannot_hold_are_refused_by_both(bad):
+    sphere = Sphere("a", (0, 0, 1), 0.1, bad.get("rgba", (1.0, 1.0, 1.0, 1.0)))
+    life = bad.get("lifetime_s", 1.0)
+    with pytest.raises(ConversionError):
+        sphere_markers_cdr([sphere], 5, "base", life)
+    with pytest.raises(ConversionError):
+        outputs.sphere_markers(T, [sphere], 5, "base", life)
 
 
 def test_the_builders_checks_apply():
