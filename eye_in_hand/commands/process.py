@@ -41,7 +41,7 @@ from eye_in_hand.core.distances import distance_table
 from eye_in_hand.core.localization import robot_pose_sigmas
 from eye_in_hand.core.locator_params import load_parameter_file, locator_config_from_params
 from eye_in_hand.core.triangulation import METHODS as TRIANGULATION_METHODS
-from eye_in_hand.errors import ConfigError, InputError
+from eye_in_hand.errors import ConfigError, ConversionError, InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 from eye_in_hand.io.bags import STORAGES, DamageLog, bag_info, iter_messages
 from eye_in_hand.io.config import load_hand_eye
@@ -63,6 +63,7 @@ from eye_in_hand.ros.outputs import (
     RIGHT_CAMERA_FRAME,
     TARGET_FRAME_PREFIX,
     OutputSettings,
+    marker_lifetime_ns,
 )
 
 HELP = "run detection, triangulation and localization over a bag offline (no DDS)"
@@ -230,13 +231,22 @@ def output_settings(detect: dict, hand_eye: dict, config, calib, *, camera_paren
     stereo_dir = str(hand_eye.get("stereo_calibration_dir", ""))
     stereo_T = (np.linalg.inv(StereoRig.load(stereo_dir).right_T_left) if stereo_dir
                 else None)
+    lifetimes = {"detect_triangulate markers.lifetime_s":
+                 float(detect.get("markers.lifetime_s", MARKER_LIFETIME_S)),
+                 "hand_eye marker_lifetime_s":
+                 float(hand_eye.get("marker_lifetime_s", MARKER_LIFETIME_S))}
+    for name, value in lifetimes.items():   # before the work, not at the first output frame
+        try:
+            marker_lifetime_ns(value)
+        except ConversionError as exc:
+            raise ConfigError(f"--params: {name}: {exc}") from None
     return OutputSettings(
         target_frame_prefix=str(hand_eye.get("target_frame_prefix", TARGET_FRAME_PREFIX)),
         target_frame=str(hand_eye.get("target_frame", "")),
         publish_tf=bool(hand_eye.get("publish_tf", True)),
         right_camera_frame=str(hand_eye.get("right_camera_frame", RIGHT_CAMERA_FRAME)),
-        camera_markers_lifetime_s=float(detect.get("markers.lifetime_s", MARKER_LIFETIME_S)),
-        target_markers_lifetime_s=float(hand_eye.get("marker_lifetime_s", MARKER_LIFETIME_S)),
+        camera_markers_lifetime_s=lifetimes["detect_triangulate markers.lifetime_s"],
+        target_markers_lifetime_s=lifetimes["hand_eye marker_lifetime_s"],
         styles=styles, default_style=(diameter, DEFAULT_RGBA),
         camera_parent=camera_parent,
         hand_eye_T=calib.transform, stereo_T=stereo_T)

@@ -85,6 +85,19 @@ def test_missing_topic_and_existing_output_are_one_line_errors(loc_bag, tmp_path
     assert rc == 1 and "nope.yaml" in capsys.readouterr().err
 
 
+def test_a_marker_lifetime_no_message_holds_is_refused_before_the_work(loc_bag, tmp_path,
+                                                                         capsys):
+    bag, world = loc_bag
+    params = tmp_path / "params.yaml"
+    params.write_text("/**/hand_eye:\n  ros__parameters:\n    marker_lifetime_s: 3.0e9\n")
+    rc = main(["process", str(bag), "--hand-eye", str(_hand_eye(tmp_path, world)), "--params",
+               str(params), "-o", str(tmp_path / "o"), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 1 and "Traceback" not in err
+    assert "hand_eye marker_lifetime_s" in err and "Duration" in err
+    assert not (tmp_path / "o").exists()
+
+
 def test_joint_states_source_matches_ee_pose(loc_bag, tmp_path):
     import yaml
     bag, world = loc_bag
