@@ -101,11 +101,16 @@ def point_pose_cdr(xyz: Any, cov: Any, stamp_ns: int, frame_id: str) -> tuple[by
     pose = _Writer()
     pose.header(stamp, frame)
     pose.pose(p)
-    with_cov = _Writer()
-    with_cov.header(stamp, frame)
-    with_cov.pose(p)
-    with_cov.buf += point_pose_covariance(cov).astype("<f8").tobytes()
-    return bytes(pose.buf), bytes(with_cov.buf)
+    return bytes(pose.buf), _pose_with_covariance(p, cov, stamp, frame)
+
+
+def _pose_with_covariance(p: tuple[float, float, float], cov: Any, stamp: tuple[int, int],
+                          frame: str) -> bytes:
+    w = _Writer()
+    w.header(stamp, frame)
+    w.pose(p)
+    w.buf += point_pose_covariance(cov).astype("<f8").tobytes()
+    return bytes(w.buf)
 
 
 def point_cdr(xyz: Any, cov: Any, stamp_ns: int, frame_id: str) -> tuple[bytes, bytes]:
@@ -119,11 +124,7 @@ def point_cdr(xyz: Any, cov: Any, stamp_ns: int, frame_id: str) -> tuple[bytes, 
     """
     p = checked_xyz(xyz, "point")
     stamp, frame = stamp_parts(stamp_ns), _frame(frame_id)
-    with_cov = _Writer()
-    with_cov.header(stamp, frame)
-    with_cov.pose(p)
-    with_cov.buf += point_pose_covariance(cov).astype("<f8").tobytes()
-    return bytes(with_cov.buf), _point_stamped(p, stamp, frame)
+    return _pose_with_covariance(p, cov, stamp, frame), _point_stamped(p, stamp, frame)
 
 
 def _point_stamped(p: tuple[float, float, float], stamp: tuple[int, int], frame: str) -> bytes:
