@@ -111,6 +111,7 @@ class RobotPoseInput:
         #: the ``ee_pose`` or ``joint_states`` subscription, its message handler
         self._sub: Any = None
         self._take: Callable[[Any, int], bool] = self._take_ee_pose
+        self._bad_cause = "bad_ee_pose"        # the diagnostics cause of a refused pose
         #: poses taken when needed (:meth:`take_when_needed`), not as each arrives
         self.lazy = False
         self._on_system_clock: Callable[[], bool] = lambda: True
@@ -126,6 +127,7 @@ class RobotPoseInput:
                                              decoder_for=jazzy_decoder,
                                              on_bad=self._undecodable)
             self._take = self._take_joint_state
+            self._bad_cause = "bad_joint_states"
         diag.declare_counter("robot_poses")
         if source is not None:
             diag.stale_after("robot_poses", config.stale_after_s)
@@ -187,8 +189,7 @@ class RobotPoseInput:
     # -- the messages ---------------------------------------------------------------------------
     def _undecodable(self, topic: str, exc: Exception) -> None:
         """A robot pose whose bytes do not decode: reported, not used."""
-        self.diag.report("bad_ee_pose" if self._take == self._take_ee_pose
-                         else "bad_joint_states", undecodable(topic, exc))
+        self.diag.report(self._bad_cause, undecodable(topic, exc))
 
     def _on_ee_pose(self, msg: PoseStamped) -> None:
         if self._take_ee_pose(msg, self._now_ns()):

@@ -32,7 +32,8 @@ __all__ = ["Sphere", "LocatedFrame", "OutputSettings", "DEFAULT_RGBA", "TARGET_F
            "MARKER_LIFETIME_S",
            "MARKER_DIAMETER_M", "RIGHT_CAMERA_FRAME", "UNKNOWN_ROTATION_VARIANCE",
            "MARKER_SPHERE", "MARKER_ADD", "MARKER_DELETEALL",
-           "RosbagsTypes", "rclpy_types", "checked_xyz", "stamp_parts", "point_pose_covariance",
+           "RosbagsTypes", "rclpy_types", "checked_xyz", "checked_frame", "stamp_parts",
+           "point_pose_covariance",
            "marker_lifetime_ns", "checked_spheres",
            "time_msg", "header", "point_stamped", "pose_with_covariance", "pose_stamped",
            "point_pose_messages",
@@ -287,12 +288,22 @@ def stamp_parts(stamp_ns: int) -> tuple[int, int]:
 
 def header(T: Any, stamp_ns: int, frame_id: str) -> Any:
     """``std_msgs/Header``."""
-    if not isinstance(frame_id, str):
-        raise ConversionError(f"frame_id: expected a string, got {frame_id!r}")
+    frame_id = checked_frame(frame_id)
     h = T["std_msgs/msg/Header"]()
     h.stamp = time_msg(T, stamp_ns)
     h.frame_id = frame_id
     return h
+
+
+def checked_frame(frame_id: Any) -> str:
+    """A frame id, which must be a str.
+
+    Raises:
+        ConversionError: not a str.
+    """
+    if not isinstance(frame_id, str):
+        raise ConversionError(f"frame_id: expected a string, got {frame_id!r}")
+    return frame_id
 
 
 # Builders fill default-constructed messages field by field (rclpy's keyword constructors build

@@ -24,12 +24,12 @@ import struct
 from collections.abc import Iterable
 from typing import Any
 
-from eye_in_hand.errors import ConversionError
 from eye_in_hand.ros.outputs import (
     MARKER_ADD,
     MARKER_DELETEALL,
     MARKER_SPHERE,
     Sphere,
+    checked_frame,
     checked_spheres,
     checked_xyz,
     marker_lifetime_ns,
@@ -83,12 +83,6 @@ class _Writer:
         self.buf += _POSE.pack(xyz[0], xyz[1], xyz[2], 0.0, 0.0, 0.0, 1.0)
 
 
-def _frame(frame_id: Any) -> str:
-    if not isinstance(frame_id, str):
-        raise ConversionError(f"frame_id: expected a string, got {frame_id!r}")
-    return frame_id
-
-
 def point_pose_cdr(xyz: Any, cov: Any, stamp_ns: int, frame_id: str) -> tuple[bytes, bytes]:
     """``geometry_msgs/PoseStamped`` and ``PoseWithCovarianceStamped`` of a located point:
     the bytes of :func:`eye_in_hand.ros.outputs.point_pose_messages`.
@@ -97,7 +91,7 @@ def point_pose_cdr(xyz: Any, cov: Any, stamp_ns: int, frame_id: str) -> tuple[by
         ConversionError: the point is not finite, or a bad stamp or frame.
     """
     p = checked_xyz(xyz, "point")
-    stamp, frame = stamp_parts(stamp_ns), _frame(frame_id)
+    stamp, frame = stamp_parts(stamp_ns), checked_frame(frame_id)
     pose = _Writer()
     pose.header(stamp, frame)
     pose.pose(p)
@@ -123,7 +117,7 @@ def point_cdr(xyz: Any, cov: Any, stamp_ns: int, frame_id: str) -> tuple[bytes, 
         ConversionError: the point is not finite, or a bad stamp or frame.
     """
     p = checked_xyz(xyz, "point")
-    stamp, frame = stamp_parts(stamp_ns), _frame(frame_id)
+    stamp, frame = stamp_parts(stamp_ns), checked_frame(frame_id)
     return _pose_with_covariance(p, cov, stamp, frame), _point_stamped(p, stamp, frame)
 
 
@@ -142,7 +136,8 @@ def point_stamped_cdr(xyz: Any, stamp_ns: int, frame_id: str) -> bytes:
     Raises:
         ConversionError: the point is not finite, or a bad stamp or frame.
     """
-    return _point_stamped(checked_xyz(xyz, "point"), stamp_parts(stamp_ns), _frame(frame_id))
+    return _point_stamped(checked_xyz(xyz, "point"), stamp_parts(stamp_ns),
+                          checked_frame(frame_id))
 
 
 def pose_array_cdr(points: Iterable[Any], stamp_ns: int, frame_id: str) -> bytes:
@@ -153,7 +148,7 @@ def pose_array_cdr(points: Iterable[Any], stamp_ns: int, frame_id: str) -> bytes
     """
     checked = [checked_xyz(p, f"points[{k}]") for k, p in enumerate(points)]
     w = _Writer()
-    w.header(stamp_parts(stamp_ns), _frame(frame_id))
+    w.header(stamp_parts(stamp_ns), checked_frame(frame_id))
     w.u32(len(checked))
     for p in checked:
         w.pose(p)
@@ -195,7 +190,7 @@ def sphere_markers_cdr(spheres: Iterable[Sphere], stamp_ns: int, frame_id: str,
             does not fit a Duration.
     """
     checked = list(checked_spheres(spheres))
-    stamp, frame = stamp_parts(stamp_ns), _frame(frame_id)
+    stamp, frame = stamp_parts(stamp_ns), checked_frame(frame_id)
     life = divmod(marker_lifetime_ns(lifetime_s), 1_000_000_000)
     w = _Writer()
     w.u32(1 + len(checked))
@@ -215,7 +210,7 @@ def translation_tf_cdr(edges: Iterable[tuple[str, str, int, Any]]) -> bytes:
     Raises:
         ConversionError: a translation is not 3 finite numbers, or a bad stamp or frame.
     """
-    checked = [(stamp_parts(int(stamp)), _frame(parent), _frame(child),
+    checked = [(stamp_parts(int(stamp)), checked_frame(parent), checked_frame(child),
                 checked_xyz(t, f"translation of {parent} -> {child}"))
                for parent, child, stamp, t in edges]
     w = _Writer()
