@@ -30,6 +30,8 @@ import threading
 import time
 from pathlib import Path
 
+from bench_localization import subscribe_outputs  # this script's folder is on sys.path
+
 ROOT = Path(__file__).resolve().parent.parent
 
 HAND_EYE_YAML = """\
@@ -64,13 +66,6 @@ PARAMS = """\
     max_target_wait_s: 1.0
 """
 
-OUTPUTS = (("PoseStamped", "/target/pose"), ("PoseWithCovarianceStamped", "/target/pose_cov"),
-           ("PoseStamped", "/target/red/pose"),
-           ("PoseWithCovarianceStamped", "/target/red/pose_cov"),
-           ("PoseArray", "/target/poses"), ("MarkerArray", "/target/markers"),
-           ("TFMessage", "/tf"))
-
-
 def _cpu_s(pid: int) -> float:
     stat = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(stat[11]) + int(stat[12])) / os.sysconf("SC_CLK_TCK")
@@ -81,7 +76,6 @@ def one_round(code_root: Path, params: Path, pairs: int, domain: int) -> tuple[f
     import rclpy
     from geometry_msgs.msg import (
         PointStamped,
-        PoseArray,
         PoseStamped,
         PoseWithCovarianceStamped,
     )
@@ -109,23 +103,13 @@ def one_round(code_root: Path, params: Path, pairs: int, domain: int) -> tuple[f
     rclpy.init()
     node = Node("bench_hand_eye_feed")
     T = rclpy_types()
-    types = {"PoseStamped": PoseStamped, "PoseWithCovarianceStamped": PoseWithCovarianceStamped,
-             "PoseArray": PoseArray, "MarkerArray": MarkerArray}
-    try:
-        from tf2_msgs.msg import TFMessage
-        types["TFMessage"] = TFMessage
-    except ImportError:
-        pass
     received = [0]
 
     def on_pose(_msg: object) -> None:
         received[0] += 1
 
-    for name, topic in OUTPUTS:
-        if name in types:
-            node.create_subscription(types[name], topic,
-                                     on_pose if topic == "/target/pose" else (lambda _m: None),
-                                     RESULT_QOS)
+    node.create_subscription(PoseStamped, "/target/pose", on_pose, RESULT_QOS)
+    subscribe_outputs(node, RESULT_QOS)
     pub_pose = node.create_publisher(PoseStamped, "/ee_pose", ROBOT_POSE_QOS)
     pub_cov = node.create_publisher(PoseWithCovarianceStamped, "/target/point_cov", RESULT_QOS)
     pub_point = node.create_publisher(PointStamped, "/target/point", RESULT_QOS)

@@ -49,6 +49,7 @@ import argparse
 import json
 import os
 import random
+import re
 import shutil
 import struct
 import subprocess
@@ -56,6 +57,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -396,6 +398,58 @@ def node_cpu_s(launcher_pid: int) -> dict[str, float]:
     return out
 
 
+def node_threads(launcher_pid: int) -> dict[str, dict[str, tuple[float, int]]]:
+    """Per node process the launcher started: CPU seconds and minor page faults so far of its
+    threads, grouped as ``main`` (the executor's thread), ``python`` (the other Python
+    threads: a node's worker), and Fast DDS's by kind (``dds.shm``, ``dds.ev``, ...; Linux
+    /proc, empty elsewhere)."""
+    out: dict[str, dict[str, tuple[float, int]]] = {}
+    tick = os.sysconf("SC_CLK_TCK")
+    try:
+        kids = Path(f"/proc/{launcher_pid}/task/{launcher_pid}/children").read_text().split()
+    except OSError:
+        return out
+    for pid in kids:
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+            tasks = list(Path(f"/proc/{pid}/task").iterdir())
+        except OSError:
+            continue
+        module = next((c.decode() for c in cmd if c.startswith(b"eye_in_hand.nodes.")), pid)
+        groups: dict[str, tuple[float, int]] = {}
+        for task in tasks:
+            try:
+                comm = (task / "comm").read_text().strip()
+                stat = (task / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            label = "main" if task.name == pid else re.sub(r"[.\d]+$", "", comm) or comm
+            cpu, faults = groups.get(label, (0.0, 0))
+            groups[label] = (cpu + (int(stat[11]) + int(stat[12])) / tick,
+                             faults + int(stat[7]))
+        out[str(module).rsplit(".", 1)[-1]] = groups
+    return out
+
+
+def subscribe_outputs(node: Any, qos: Any) -> None:
+    """Subscribe ``node`` to every ``hand_eye`` output in :data:`ALL_OUTPUTS` (``/tf`` when
+    tf2_msgs is installed: without it hand_eye sends no /tf either)."""
+    from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped
+    from visualization_msgs.msg import MarkerArray
+
+    types: dict[str, type] = {"PoseStamped": PoseStamped, "PoseArray": PoseArray,
+                             "PoseWithCovarianceStamped": PoseWithCovarianceStamped,
+                             "MarkerArray": MarkerArray}
+    try:
+        from tf2_msgs.msg import TFMessage
+        types["TFMessage"] = TFMessage
+    except ImportError:
+        pass
+    for name, topic in ALL_OUTPUTS:
+        if name in types:
+            node.create_subscription(types[name], topic, lambda _m: None, qos)
+
+
 #: hand_eye's outputs besides target/pose (the bench's target is red): with ``--outputs all``
 #: the listener subscribes to every one, as the issue's figure asks (volatile outputs are built
 #: and sent only while subscribed; /tf always goes out)
@@ -410,10 +464,9 @@ def live(paths: dict[str, Path], composed: bool = False, all_outputs: bool = Tru
          ) -> tuple[dict[int, np.ndarray], dict[str, float]]:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
-    from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped
+    from geometry_msgs.msg import PoseStamped
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
-    from visualization_msgs.msg import MarkerArray
 
     from eye_in_hand.ros.dds import use_large_data_profile
     from eye_in_hand.ros.qos import RESULT_QOS
@@ -454,17 +507,7 @@ def live(paths: dict[str, Path], composed: bool = False, all_outputs: bool = Tru
 
     node.create_subscription(PoseStamped, "/target/pose", on_pose, RESULT_QOS)
     if all_outputs:
-        types: dict[str, type] = {"PoseStamped": PoseStamped, "PoseArray": PoseArray,
-                                 "PoseWithCovarianceStamped": PoseWithCovarianceStamped,
-                                 "MarkerArray": MarkerArray}
-        try:
-            from tf2_msgs.msg import TFMessage
-            types["TFMessage"] = TFMessage
-        except ImportError:        # no tf2_msgs in this venv: hand_eye sends no /tf either
-            pass
-        for name, topic in ALL_OUTPUTS:
-            if name in types:
-                node.create_subscription(types[name], topic, lambda _m: None, RESULT_QOS)
+        subscribe_outputs(node, RESULT_QOS)
     node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 50)
     ex = SingleThreadedExecutor()
     ex.add_node(node)
@@ -479,6 +522,7 @@ def live(paths: dict[str, Path], composed: bool = False, all_outputs: bool = Tru
     # steady state: the nodes' CPU between the 60th and the 540th pose received (10-90 % of
     # a 600-pair replay), without the replay's lead-in and the idle tail
     steady: list[tuple[int, dict[str, float]]] = []
+    threads: list[dict[str, dict[str, tuple[float, int]]]] = []
 
     def watch() -> None:
         for mark in (60, 540):
@@ -486,6 +530,7 @@ def live(paths: dict[str, Path], composed: bool = False, all_outputs: bool = Tru
                 time.sleep(0.005)
             if len(received) >= mark:
                 steady.append((len(received), node_cpu_s(launch.pid)))
+                threads.append(node_threads(launch.pid))
 
     watcher = threading.Thread(target=watch, daemon=True)
     watcher.start()
@@ -516,6 +561,11 @@ def live(paths: dict[str, Path], composed: bool = False, all_outputs: bool = Tru
         (n0, c0), (n1, c1) = steady
         for name, cpu in c1.items():
             figures[f"steady_cpu_ms_per_pair.{name}"] = (cpu - c0.get(name, 0.0)) * 1e3 / (n1 - n0)
+        for name, groups in threads[1].items():
+            for label, (cpu, faults) in groups.items():
+                cpu0_, faults0 = threads[0].get(name, {}).get(label, (0.0, 0))
+                figures[f"thread_cpu_ms_per_pair.{name}.{label}"] = (cpu - cpu0_) * 1e3 / (n1 - n0)
+                figures[f"thread_faults_per_pair.{name}.{label}"] = (faults - faults0) / (n1 - n0)
     return {stamp - offset: p for stamp, _now, p in received}, figures
 
 
@@ -621,6 +671,13 @@ def print_live(fig: dict[str, float], live_pts: dict[int, np.ndarray],
         print("live CPU per pair while streaming (poses 60-540): " + ", ".join(
             f"{k} {v:.2f} ms" for k, v in sorted(steady.items()))
             + f"; all nodes {sum(steady.values()):.2f} ms", flush=True)
+    for name in sorted(steady):
+        key = f"thread_cpu_ms_per_pair.{name}."
+        parts = sorted(((k[len(key):], v) for k, v in fig.items() if k.startswith(key)),
+                       key=lambda kv: -kv[1])
+        print(f"  {name} by thread (CPU ms / minor page faults per pair): " + ", ".join(
+            f"{label} {v:.2f} / {fig[f'thread_faults_per_pair.{name}.{label}']:.1f}"
+            for label, v in parts if v >= 0.005), flush=True)
 
 
 def main() -> int:
