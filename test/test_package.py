@@ -149,8 +149,10 @@ def _python_files(dirs: tuple[str, ...]) -> list[Path]:
     return sorted(p for d in dirs for p in (ROOT / d).rglob("*.py"))
 
 
-#: Names the sources import from themselves (the package; test helpers via conftest).
-FIRST_PARTY = {PACKAGE, *TEST_DIRS, "conftest"}
+#: Names the sources import from themselves (the package; test helpers via conftest; a
+#: benchmark script from another, run from their folder: ``from bench_localization import``).
+FIRST_PARTY = {PACKAGE, *TEST_DIRS, "conftest",
+               *(p.stem for p in (ROOT / "benchmarks").glob("bench_*.py"))}
 
 
 def _is_ros_package(name: str) -> bool:
