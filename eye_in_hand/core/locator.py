@@ -618,37 +618,45 @@ class StereoLocator:
         return 0.0, S
 
     def _point(self, left_px: np.ndarray, right_px: np.ndarray, xl: np.ndarray,
-               xr: np.ndarray, pix: tuple[float, np.ndarray | None] = (FALLBACK_PIXEL_SIGMA, None)
-               ) -> StereoPoint:
+               xr: np.ndarray, pix: tuple[float, np.ndarray | None] = (FALLBACK_PIXEL_SIGMA, None),
+               covariance: bool = True) -> StereoPoint:
+        """The pair's point by the configured method; ``covariance`` False: the point and the
+        rejections only (dlt and disparity skip the covariance, NaN; optimal computes it)."""
         cfg = self.config
         gate = cfg.max_residual_px
         kw: dict[str, Any] = ({"sigma_px": pix[0]} if pix[1] is None else {"pixel_cov": pix[1]})
         if cfg.method == "dlt":
-            return triangulate_dlt(self.rig, xl, xr, rectified=True, max_residual_px=gate, **kw)
+            return triangulate_dlt(self.rig, xl, xr, rectified=True, max_residual_px=gate,
+                                   covariance=covariance, **kw)
         if cfg.method == "disparity":
             return triangulate_parallax(self.rig, xl, xr, rectified=True, max_residual_px=gate,
-                                        **kw)
-        start = triangulate_dlt(self.rig, xl, xr, rectified=True, **kw)
+                                        covariance=covariance, **kw)
+        # the start's covariance is not used: only its point
+        start = triangulate_dlt(self.rig, xl, xr, rectified=True, covariance=False)
         return triangulate_optimal(self.rig, left_px, right_px, initial=start,
                                    max_residual_px=gate, **kw)
 
     def _triangulate(self, spec: TargetSpec, dl: Detection, dr: Detection, xl: np.ndarray,
                      xr: np.ndarray) -> TargetLocation:
         pix = self._pixel_cov(dl, dr)
-        pt = self._point(dl.center_px, dr.center_px, xl, xr, pix)
         left_px, right_px = dl.center_px, dr.center_px
-        if spec.radius_m is not None and np.isfinite(dl.ellipse_norm).all() \
-                and np.isfinite(dr.ellipse_norm).all():
+        radius = spec.radius_m if np.isfinite(dl.ellipse_norm).all() \
+            and np.isfinite(dr.ellipse_norm).all() else None
+        # a pass that is refined below needs only its point (and its rejections)
+        pt = self._point(left_px, right_px, xl, xr, pix, covariance=radius is None)
+        if radius is not None:
             # refine the sphere-centre correction with alpha from the known radius and range
             rng_l = float(np.linalg.norm(pt.point))
             rng_r = float(np.linalg.norm(self.rig.R @ pt.point + self.rig.T))
-            if rng_l > spec.radius_m and rng_r > spec.radius_m:
-                nl = sphere_center_direction(dl.ellipse_norm, math.asin(spec.radius_m / rng_l))
-                nr = sphere_center_direction(dr.ellipse_norm, math.asin(spec.radius_m / rng_r))
+            if rng_l > radius and rng_r > radius:
+                nl = sphere_center_direction(dl.ellipse_norm, math.asin(radius / rng_l))
+                nr = sphere_center_direction(dr.ellipse_norm, math.asin(radius / rng_r))
                 left_px = self.rig.left.project(np.array([[nl[0], nl[1], 1.0]]))[0]
                 right_px = self.rig.right.project(np.array([[nr[0], nr[1], 1.0]]))[0]
                 pt = self._point(left_px, right_px, self._rect(self._H1, nl),
                                  self._rect(self._H2, nr), pix)
+            else:   # within the sphere's radius of a camera: no refinement, the pass as it is
+                pt = self._point(left_px, right_px, xl, xr, pix)
         return TargetLocation(
             name=spec.name, point_m=pt.point, covariance=pt.covariance,
             residual_px=pt.residual_px, left_px=np.asarray(left_px, dtype=np.float64),

@@ -173,8 +173,10 @@ def _reproj_rms(P1: np.ndarray, P2: np.ndarray, X: np.ndarray, xl: np.ndarray,
     return float(math.sqrt(np.mean(e * e)))
 
 
-def _finish(rig: StereoRig, X_rect: np.ndarray, cov_rect: np.ndarray, residual: float,
+def _finish(rig: StereoRig, X_rect: np.ndarray, cov_rect: np.ndarray | None, residual: float,
             method: str, disparity: float, max_residual_px: float | None) -> StereoPoint:
+    """The point in the left optical frame after the rejections every method shares (behind a
+    camera, the residual gate); ``cov_rect`` None: no covariance asked for (NaN)."""
     R1 = rig.R1
     X = R1.T @ X_rect  # rectified-left -> left optical frame
     X_right = rig.R @ X + rig.T
@@ -185,6 +187,8 @@ def _finish(rig: StereoRig, X_rect: np.ndarray, cov_rect: np.ndarray, residual: 
     if max_residual_px is not None and residual > max_residual_px:
         raise Rejected("residual_gate", f"reprojection residual {residual:.3f} px exceeds the "
                                         f"gate of {max_residual_px:.3f} px")
+    if cov_rect is None:
+        return StereoPoint(X, np.full((3, 3), np.nan), residual, method, disparity)
     cov = R1.T @ cov_rect @ R1
     return StereoPoint(X, 0.5 * (cov + cov.T), residual, method, disparity)
 
@@ -243,7 +247,7 @@ def _check_disparity(rig: StereoRig, d: float) -> None:
 def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float | Sequence[float] = 0.5,
                     pixel_cov: np.ndarray | None = None,
                     max_residual_px: float | None = None,
-                    rectified: bool = False) -> StereoPoint:
+                    rectified: bool = False, covariance: bool = True) -> StereoPoint:
     """(a) Linear (DLT) triangulation from rectified pixels with ``P1, P2``.
 
     Args:
@@ -257,6 +261,9 @@ def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float | Sequ
             ``sigma_px`` (e.g. per-image terms plus a shift common to both images).
         max_residual_px: reject above this RMS reprojection residual (None: no gate).
         rectified: the inputs are already rectified pixel coordinates.
+        covariance: False: the point and the rejections alone, the covariance NaN (``sigma_px``
+            and ``pixel_cov`` are then neither used nor checked): for a caller that only needs
+            where the point is, e.g. the stereo locator before it refines the centres.
 
     Returns:
         The point in the left optical frame.
@@ -265,7 +272,7 @@ def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float | Sequ
         InputError: bad arguments. Rejected: behind a camera, non-positive disparity, residual.
     """
     _check_rig(rig)
-    S = _pixel_cov(sigma_px, pixel_cov)
+    S = _pixel_cov(sigma_px, pixel_cov) if covariance else None
     if rectified:
         xl, xr, Jpx = _px(left_px, "left_px"), _px(right_px, "right_px"), np.eye(4)
     else:
@@ -273,11 +280,13 @@ def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float | Sequ
     d = _disparity(rig, xl, xr)
     _check_disparity(rig, d)
     P1, P2 = rig.P1, rig.P2
-    X, J = _dlt_rect(P1, P2, xl, xr, with_jacobian=True)
-    if J is None:
+    X, J = _dlt_rect(P1, P2, xl, xr, with_jacobian=covariance)
+    if X[0] == np.inf:            # _dlt_rect's answer for a solution at infinity
         raise Rejected("behind_camera", "the DLT solution is at infinity")
-    J = J @ Jpx
-    cov = J @ S @ J.T
+    cov = None
+    if S is not None and J is not None:
+        J = J @ Jpx
+        cov = J @ S @ J.T
     return _finish(rig, X, cov, _reproj_rms(P1, P2, X, xl, xr), "dlt", d, max_residual_px)
 
 
@@ -285,7 +294,7 @@ def triangulate_parallax(rig: StereoRig, left_px, right_px, *,
                          sigma_px: float | Sequence[float] = 0.5,
                          pixel_cov: np.ndarray | None = None,
                          max_residual_px: float | None = None,
-                         rectified: bool = False) -> StereoPoint:
+                         rectified: bool = False, covariance: bool = True) -> StereoPoint:
     """(b) Parallax triangulation on rectified coordinates: ``Z = f B / d``, then X, Y.
 
     ``Y`` uses the mean of the two rectified rows (they agree up to noise). Horizontal rigs only.
@@ -294,7 +303,7 @@ def triangulate_parallax(rig: StereoRig, left_px, right_px, *,
     vertically rectified rig.
     """
     _check_rig(rig)
-    S = _pixel_cov(sigma_px, pixel_cov)
+    S = _pixel_cov(sigma_px, pixel_cov) if covariance else None
     P1, P2 = rig.P1, rig.P2
     if abs(P2[1, 3]) > abs(P2[0, 3]):
         raise InputError("parallax method: the rig is rectified vertically; use 'dlt' or "
@@ -312,6 +321,9 @@ def triangulate_parallax(rig: StereoRig, left_px, right_px, *,
     u = xl[0] - cx
     v = 0.5 * (xl[1] + xr[1]) - cy
     X_rect = np.array([u * Z / f, v * Z / fy, Z])
+    if S is None:
+        return _finish(rig, X_rect, None, _reproj_rms(P1, P2, X_rect, xl, xr), "disparity", d,
+                       max_residual_px)
     # d Z / d(xl, yl, xr, yr) = (-Z/d, 0, Z/d, 0)
     dZ = np.array([-Z / d, 0.0, Z / d, 0.0])
     J = np.empty((3, 4))
@@ -363,8 +375,7 @@ def triangulate_optimal(rig: StereoRig, left_px, right_px, *,
     _check_rig(rig)
     S = _pixel_cov(sigma_px, pixel_cov)
     ul, ur = _px(left_px, "left_px"), _px(right_px, "right_px")
-    start = initial if initial is not None else triangulate_dlt(
-        rig, ul, ur, sigma_px=sigma_px, pixel_cov=pixel_cov)
+    start = initial if initial is not None else triangulate_dlt(rig, ul, ur, covariance=False)
     X = np.array(start.point, dtype=np.float64)
     I3, z3 = np.eye(3), np.zeros(3)
     Kl, dl, Kr, dr = rig.left.K, rig.left.dist, rig.right.K, rig.right.dist

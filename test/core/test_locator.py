@@ -160,3 +160,26 @@ def test_pixel_covariance_cut_and_shading_terms_are_common_to_both_images():
     assert mean_y @ S @ mean_y == pytest.approx(edge / 4 + CUT_SIGMA_PX ** 2)
     assert mean_x @ S @ mean_x == pytest.approx(edge / 4 + CUT_SIGMA_PX ** 2 + 0.03 ** 2)
     assert np.all(np.linalg.eigvalsh(S) > 0)
+
+
+@pytest.mark.parametrize("method", ["dlt", "disparity"])
+def test_a_sphere_too_close_to_refine_keeps_the_full_first_pass(method):
+    """When the first pass puts a camera within the sphere's radius, the centres are not
+    refined: the point and its covariance are those of a target without a radius, bit for bit
+    (the first pass is computed without its covariance only when a refinement follows)."""
+    X = np.array([0.03, -0.02, 0.4])
+    left, right = pair([(X, 0.02, RED)])
+
+    def located(radius):
+        base = with_method(method, size_tol=0.0)
+        spec = dataclasses.replace(base.detector.targets[0], radius_m=radius)
+        cfg = dataclasses.replace(base, detector=dataclasses.replace(base.detector,
+                                                                     targets=(spec,)))
+        return StereoLocator(RIG, cfg).locate(left, right).first
+
+    near, plain, refined = located(1.0), located(None), located(0.02)
+    assert near.point_m.tobytes() == plain.point_m.tobytes()
+    assert near.covariance.tobytes() == plain.covariance.tobytes()
+    assert np.all(np.linalg.eigvalsh(near.covariance) > 0)
+    assert np.isfinite(refined.covariance).all()
+    assert refined.point_m.tobytes() != plain.point_m.tobytes()   # refinement did happen

@@ -134,3 +134,35 @@ def test_full_pixel_covariance_and_common_shift(fn):
     assert common[0, 0] > indep[0, 0]                   # lateral: the shifts add up
     with pytest.raises(InputError, match="pixel_cov"):
         fn(RIG, pl, pr, pixel_cov=-np.eye(4))
+
+
+@pytest.mark.parametrize("fn", [triangulate_dlt, triangulate_parallax])
+@pytest.mark.parametrize("rectified", [False, True])
+def test_without_covariance_the_point_and_rejections_are_the_same_bits(fn, rectified):
+    """``covariance=False`` (the locator's pass before its refinement) skips only the
+    covariance: the point, residual and disparity are those of the full call to the last bit,
+    and a pair is rejected for the same reason."""
+    rng = np.random.default_rng(21)
+    S = np.diag([0.09, 0.09, 0.16, 0.16]) + np.outer([0.1, 0.2, 0.1, 0.2], [0.1, 0.2, 0.1, 0.2])
+    for X in rng.uniform([-0.2, -0.1, 0.25], [0.2, 0.1, 1.5], (10, 3)):
+        pl, pr = observe(RIG, X)
+        pl, pr = pl + rng.normal(0, 0.3, 2), pr + rng.normal(0, 0.3, 2)
+        if rectified:
+            pl, pr = RIG.left.rectify_points(pl[None])[0], RIG.right.rectify_points(pr[None])[0]
+        full = fn(RIG, pl, pr, pixel_cov=S, max_residual_px=2.0, rectified=rectified)
+        bare = fn(RIG, pl, pr, pixel_cov=S, max_residual_px=2.0, rectified=rectified,
+                  covariance=False)
+        assert bare.point.tobytes() == full.point.tobytes()
+        assert (bare.residual_px, bare.disparity_px, bare.method) == \
+            (full.residual_px, full.disparity_px, full.method)
+        assert np.isnan(bare.covariance).all() and bare.covariance.shape == (3, 3)
+        assert np.isfinite(full.covariance).all()
+    pl, pr = observe(RIG, np.array([0.05, 0.0, 0.6]))
+    for args, reason in (((pr, pl), "non_positive_disparity"),
+                         ((pl, pr + (0.0, 20.0)), "residual_gate")):
+        reasons = []
+        for cov in (True, False):
+            with pytest.raises(Rejected) as exc:
+                fn(RIG, *args, max_residual_px=2.0, covariance=cov)
+            reasons.append((exc.value.reason, str(exc.value)))
+        assert reasons[0] == reasons[1] and reasons[0][0] == reason
