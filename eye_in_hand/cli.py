@@ -20,12 +20,21 @@ and launched nodes.
 """
 from __future__ import annotations
 
+import os
+
+# One BLAS thread in every command's process (its worker processes and launched nodes inherit
+# it) unless the user chose a count: numpy's OpenBLAS starts a pool thread per core when it
+# loads, which spins (about 0.1 s of CPU per process start here), and splits the long products
+# of the simulator's renders over it for no gain in time: `simulate` and the demo's renders
+# took twice the CPU in the same wall time (docs/architecture.md "Threads"). OpenBLAS reads
+# the variable when numpy loads it, so this stands before any import that may load numpy.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import argparse
 import ast
 import codecs
 import importlib
 import importlib.util
-import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
