@@ -374,6 +374,8 @@ def wrap(mod, attr, label):
             t1 = now()
             rows.append((label, t1[0] - t0[0], t1[1] - t0[1]))
     setattr(mod, attr, timed)
+    if getattr(P, attr, None) is fn:     # the command imported it by name
+        setattr(P, attr, timed)
 wrap(NP, "check_parameter_file_keys", "--params key check")
 wrap(O, "_rig_from_camera_info", "  of which: rig from camera_info")
 wrap(R, "assign_truth", "  of which: ground-truth matching")
