@@ -19,10 +19,10 @@ figure moves far less between runs than the live chain's (``bench_localization.p
 
 ``--rate-scale K``: both streams K times as fast (K = 5: 150 pairs and 625 poses per second),
 the same messages per pair. What a pair costs falls as the rate rises (2026-11-28, 1200 pairs,
-rounds alternating: 2.30 and 1.85 ms at 30 Hz, 1.09 and 1.15 ms at 150 Hz): on this machine code that runs after tens of
-milliseconds idle costs more than the same code run back to back (caches, branch history and
-the virtual CPU's wake-up), so the difference is the price of waking 30 times a second, not
-work the node does.
+rounds alternating: 2.30 and 1.85 ms at 30 Hz, 1.09 and 1.15 ms at 150 Hz): on this machine
+code that runs after tens of milliseconds idle costs more than the same code run back to back
+(caches, branch history and the virtual CPU's wake-up), so the difference is the price of
+waking 30 times a second, not work the node does.
 """
 from __future__ import annotations
 
