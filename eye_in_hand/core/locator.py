@@ -640,10 +640,14 @@ class StereoLocator:
                      xr: np.ndarray) -> TargetLocation:
         pix = self._pixel_cov(dl, dr)
         left_px, right_px = dl.center_px, dr.center_px
-        radius = spec.radius_m if np.isfinite(dl.ellipse_norm).all() \
-            and np.isfinite(dr.ellipse_norm).all() else None
-        # a pass that is refined below needs only its point (and its rejections)
-        pt = self._point(left_px, right_px, xl, xr, pix, covariance=radius is None)
+        radius = spec.radius_m
+        if radius is not None and not (np.isfinite(dl.ellipse_norm).all()
+                                       and np.isfinite(dr.ellipse_norm).all()):
+            radius = None
+        # a pass that is refined below needs only its point (and its rejections); the
+        # optimal method computes its covariance whatever it is asked
+        bare = radius is not None and self.config.method != "optimal"
+        pt = self._point(left_px, right_px, xl, xr, pix, covariance=not bare)
         if radius is not None:
             # refine the sphere-centre correction with alpha from the known radius and range
             rng_l = float(np.linalg.norm(pt.point))
@@ -655,7 +659,7 @@ class StereoLocator:
                 right_px = self.rig.right.project(np.array([[nr[0], nr[1], 1.0]]))[0]
                 pt = self._point(left_px, right_px, self._rect(self._H1, nl),
                                  self._rect(self._H2, nr), pix)
-            else:   # within the sphere's radius of a camera: no refinement, the pass as it is
+            elif bare:   # within the sphere's radius of a camera: no refinement, the full pass
                 pt = self._point(left_px, right_px, xl, xr, pix)
         return TargetLocation(
             name=spec.name, point_m=pt.point, covariance=pt.covariance,

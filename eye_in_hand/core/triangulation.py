@@ -70,7 +70,8 @@ class StereoPoint:
 
     Attributes:
         point: shape (3,), metres, in the left optical frame.
-        covariance: shape (3, 3), m^2, in the left optical frame.
+        covariance: shape (3, 3), m^2, in the left optical frame; NaN when the caller asked
+            for none (``covariance=False``).
         residual_px: RMS reprojection error over the four image coordinates.
         method: "dlt", "disparity" or "optimal".
         disparity_px: rectified disparity ``x_l - x_r`` (NaN for a vertical rig).
@@ -161,7 +162,10 @@ def _dlt_rect(P1: np.ndarray, P2: np.ndarray, xl: np.ndarray, xr: np.ndarray,
     h = np.append(X, 1.0)
     w = np.array([P1[2] @ h, P1[2] @ h, P2[2] @ h, P2[2] @ h]) * scale
     M = A[:, :3]
-    J = -np.linalg.solve(M.T @ M, M.T * w[None, :])
+    try:
+        J = -np.linalg.solve(M.T @ M, M.T * w[None, :])
+    except np.linalg.LinAlgError:     # rays parallel to machine precision: no Jacobian
+        return X, None
     return X, J
 
 
@@ -263,7 +267,9 @@ def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float | Sequ
         rectified: the inputs are already rectified pixel coordinates.
         covariance: False: the point and the rejections alone, the covariance NaN (``sigma_px``
             and ``pixel_cov`` are then neither used nor checked): for a caller that only needs
-            where the point is, e.g. the stereo locator before it refines the centres.
+            where the point is, e.g. the stereo locator before it refines the centres. (A
+            disparity so small that the rays are parallel to machine precision leaves no
+            Jacobian: rejected when the covariance is asked for, its point returned when not.)
 
     Returns:
         The point in the left optical frame.
@@ -283,6 +289,10 @@ def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float | Sequ
     X, J = _dlt_rect(P1, P2, xl, xr, with_jacobian=covariance)
     if X[0] == np.inf:            # _dlt_rect's answer for a solution at infinity
         raise Rejected("behind_camera", "the DLT solution is at infinity")
+    if covariance and J is None:
+        raise Rejected("non_positive_disparity",
+                       f"disparity {d:.3g} px is too small to triangulate: the rays are "
+                       "parallel to machine precision (the point is at infinity)")
     cov = None
     if S is not None and J is not None:
         J = J @ Jpx

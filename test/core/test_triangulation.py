@@ -166,3 +166,23 @@ def test_without_covariance_the_point_and_rejections_are_the_same_bits(fn, recti
                 fn(RIG, *args, max_residual_px=2.0, covariance=cov)
             reasons.append((exc.value.reason, str(exc.value)))
         assert reasons[0] == reasons[1] and reasons[0][0] == reason
+
+
+def test_rays_parallel_to_machine_precision_are_rejected_not_a_crash():
+    """A positive disparity of about 1e-9 px leaves the DLT Jacobian singular: that pair is
+    rejected as at infinity (it raised numpy's LinAlgError, which no caller catches); without
+    a covariance asked for, its point is returned."""
+    P1, P2 = RIG.P1, RIG.P2
+    singular = 0
+    for xl0 in np.linspace(0.0, 1280.0, 65):
+        for y in (50.0, 360.0, 700.0):
+            xl = np.array([xl0, y])
+            xr = np.array([xl0 - (P1[0, 2] - P2[0, 2]) - 1e-9, y])
+            try:
+                triangulate_dlt(RIG, xl, xr, rectified=True)
+            except Rejected as exc:
+                assert exc.reason == "non_positive_disparity" and "parallel" in str(exc)
+                singular += 1
+                bare = triangulate_dlt(RIG, xl, xr, rectified=True, covariance=False)
+                assert np.isnan(bare.covariance).all() and bare.point[2] > 1e6
+    assert singular > 0       # the case occurs on this grid (about half of it)
