@@ -358,6 +358,12 @@ def now():
     return time.process_time(), ch.ru_utime + ch.ru_stime
 rows = [("interpreter start-up", time.process_time(), 0.0)]
 c0 = now()
+import eye_in_hand, pathlib
+# as the console script's main() does before the command loads numpy; not for a checkout from
+# before it did (the editable install's finder would import this checkout's module instead)
+if (pathlib.Path(eye_in_hand.__file__).parent / "threads.py").exists():
+    from eye_in_hand.threads import one_blas_thread
+    one_blas_thread()
 import eye_in_hand.cli as cli
 import eye_in_hand.commands.process as P
 c1 = now()

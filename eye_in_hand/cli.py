@@ -20,21 +20,12 @@ and launched nodes.
 """
 from __future__ import annotations
 
-import os
-
-# One BLAS thread in every command's process (its worker processes and launched nodes inherit
-# it) unless the user chose a count: numpy's OpenBLAS starts a pool thread per core when it
-# loads, which spins (about 0.1 s of CPU per process start here), and splits the long products
-# of the simulator's renders over it for no gain in time: `simulate` and the demo's renders
-# took twice the CPU in the same wall time (docs/architecture.md "Threads"). OpenBLAS reads
-# the variable when numpy loads it, so this stands before any import that may load numpy.
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-
 import argparse
 import ast
 import codecs
 import importlib
 import importlib.util
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -50,6 +41,7 @@ from eye_in_hand.errors import (
     unexpected_error_line,
 )
 from eye_in_hand.ros.dds import use_large_data_profile
+from eye_in_hand.threads import one_blas_thread
 
 # (words, module). Words with a space form a command group, e.g. ``calibrate camera``.
 COMMANDS: list[tuple[str, str]] = [
@@ -184,6 +176,10 @@ def _printable(text: str) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``eye-in-hand`` console script."""
+    # One BLAS thread unless the user chose a count (eye_in_hand.threads): set before the
+    # command's module loads numpy (nothing imported so far has); launched nodes and other
+    # child processes inherit it (process's workers are given it explicitly)
+    one_blas_thread()
     argv = list(sys.argv[1:] if argv is None else argv)
     # --debug anywhere on the line (before or after the command's name)
     debug = "--debug" in argv[:argv.index("--")] if "--" in argv else "--debug" in argv

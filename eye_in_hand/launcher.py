@@ -45,6 +45,7 @@ from pathlib import Path
 from typing import IO
 
 from eye_in_hand.errors import ConfigError, InputError
+from eye_in_hand.threads import ONE_BLAS_THREAD, blas_env_defaults
 
 __all__ = ["NodeSpec", "NODES", "CALIBRATION_NODES", "COMPOSED", "NODE_ENV_DEFAULTS",
            "node_command", "node_ros_args",
@@ -65,10 +66,11 @@ class NodeSpec:
 
 _TO_ROOT = ("diagnostics",)
 
-#: Environment every node process gets unless the user set the variable (here and in
-#: ``launch/eye_in_hand.launch.py``): one BLAS thread (docs/localization.md "Live latency":
-#: OpenBLAS's idle pool threads spin and cost the live chain a core).
-NODE_ENV_DEFAULTS = {"OPENBLAS_NUM_THREADS": "1"}
+#: Environment every node process gets unless the user chose a BLAS thread count
+#: (:func:`eye_in_hand.threads.blas_env_defaults`; here and in ``launch/eye_in_hand.launch.py``):
+#: one BLAS thread (docs/localization.md "Live latency": OpenBLAS's idle pool threads spin and
+#: cost the live chain a core).
+NODE_ENV_DEFAULTS = ONE_BLAS_THREAD
 
 #: The nodes, in start order.
 NODES: tuple[NodeSpec, ...] = (
@@ -188,7 +190,8 @@ class Launcher:
             ``calibrate``), in start order.
         root_namespace: prefix of every node's namespace.
         env: environment of the children (default: this process's), with
-            ``OPENBLAS_NUM_THREADS=1`` unless it sets the variable.
+            ``OPENBLAS_NUM_THREADS=1`` unless it sets a BLAS thread count
+            (:mod:`eye_in_hand.threads`).
         out: where prefixed child output goes (default: stdout).
         respawn: restart a child that exits on its own (see the module docstring).
         respawn_delay_s: back-off before the first restart; doubled for each further restart
@@ -246,8 +249,7 @@ class Launcher:
         self.root_namespace = root_namespace
         self.env = dict(os.environ if env is None else env)
         self.env.setdefault("PYTHONUNBUFFERED", "1")
-        for name, value in NODE_ENV_DEFAULTS.items():
-            self.env.setdefault(name, value)
+        self.env.update(blas_env_defaults(self.env))
         self.out = out or sys.stdout
         self.procs: dict[str, subprocess.Popen[str]] = {}
         self._threads: list[threading.Thread] = []

@@ -35,6 +35,7 @@ from launch_ros.actions import Node
 
 import eye_in_hand.launcher as launcher
 import eye_in_hand.ros.dds as dds
+import eye_in_hand.threads as threads
 from launch import LaunchDescription
 
 
@@ -52,7 +53,7 @@ def _nodes(context):
     if not params:
         params = os.path.join(get_package_share_directory("eye_in_hand"), "config",
                               "hand_eye_calibration.yaml" if calibrate else "eye_in_hand.yaml")
-    env = {k: v for k, v in launcher.NODE_ENV_DEFAULTS.items() if k not in os.environ}
+    env = threads.blas_env_defaults(os.environ)   # one BLAS thread unless the user chose one
     if not (os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE")
             or os.environ.get("FASTDDS_DEFAULT_PROFILES_FILE")):
         # Large images over shared memory (see eye_in_hand/ros/dds.py).

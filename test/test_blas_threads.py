@@ -1,6 +1,7 @@
-"""The ``eye-in-hand`` command's process loads numpy's BLAS with one thread unless the user chose
-a count (eye_in_hand/cli.py): an OpenBLAS pool thread per core spins at start and doubled the
-CPU of the simulator's renders for no gain in time (docs/architecture.md "Threads")."""
+"""One BLAS thread per process unless the user chose a count (eye_in_hand/threads.py): an
+OpenBLAS pool thread per core spins at start and doubled the CPU of the simulator's renders for
+no gain in time (docs/architecture.md "Threads"). The ``eye-in-hand`` command sets it in
+``main`` before its command's module loads numpy, so importing the CLI must not load numpy."""
 from __future__ import annotations
 
 import os
@@ -10,17 +11,27 @@ from pathlib import Path
 
 import pytest
 
-CODE = ("import os, eye_in_hand.cli, numpy; "
-        "print(os.environ.get('OPENBLAS_NUM_THREADS', 'unset'), "
-        "len(os.listdir('/proc/self/task')))")
+from eye_in_hand.threads import BLAS_THREAD_VARS, blas_env_defaults, one_blas_thread
+
+CODE = """\
+import os, sys
+from eye_in_hand import cli
+assert "numpy" not in sys.modules, "importing the CLI loaded numpy: too late for main to set"
+try:
+    cli.main(["--version"])
+except SystemExit:
+    pass
+import numpy
+print(os.environ.get("OPENBLAS_NUM_THREADS", "unset"), len(os.listdir("/proc/self/task")))
+"""
 
 
 def _run(**extra: str) -> tuple[str, int]:
-    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    env = {k: v for k, v in os.environ.items() if k not in BLAS_THREAD_VARS}
     env.update(extra)
     out = subprocess.run([sys.executable, "-c", CODE], env=env, capture_output=True,
                          text=True, check=True).stdout.split()
-    return out[0], int(out[1])
+    return out[-2], int(out[-1])
 
 
 @pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs Linux /proc")
@@ -29,10 +40,22 @@ def test_the_command_loads_blas_with_one_thread_unless_the_user_chose():
     assert value == "1"
     assert threads == _run(OPENBLAS_NUM_THREADS="1")[1]     # no BLAS pool threads
     assert _run(OPENBLAS_NUM_THREADS="2")[0] == "2"           # the user's choice is kept
-    # the command's own subprocesses (workers, launched nodes) inherit it
-    code = "import os, eye_in_hand.cli, subprocess, sys; subprocess.run([sys.executable, " \
-           "'-c', 'import os; print(os.environ[\"OPENBLAS_NUM_THREADS\"])'])"
-    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+    assert _run(OMP_NUM_THREADS="2")[0] == "unset"            # ... in any of the variables
+
+
+def test_the_rule():
+    assert blas_env_defaults({}) == {"OPENBLAS_NUM_THREADS": "1"}
+    for name in BLAS_THREAD_VARS:
+        assert blas_env_defaults({name: "3"}) == {}
+    assert blas_env_defaults({"OMP_NUM_THREADS": ""}) == {"OPENBLAS_NUM_THREADS": "1"}
+    env = {"PATH": "/bin"}
+    assert one_blas_thread(env) and env == {"PATH": "/bin", "OPENBLAS_NUM_THREADS": "1"}
+    env = {"GOTO_NUM_THREADS": "2"}
+    assert not one_blas_thread(env) and env == {"GOTO_NUM_THREADS": "2"}
+
+
+def test_importing_the_rule_loads_no_numpy():
+    code = "import sys, eye_in_hand.threads; print('numpy' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.strip()
-    assert out == "1"
+    assert out == "False"

@@ -142,6 +142,7 @@ TESTS: dict[str, tuple[str, ...]] = {
     "ros/publishers.py": ("test/ros/test_publishers.py",),
     "ros/executor.py": ("test/ros/test_executor.py",),
     "memory.py": ("test/test_memory.py",),
+    "threads.py": ("test/test_blas_threads.py",),
     "ros/outputs_cdr.py": ("test/ros/test_outputs_cdr.py",),
     "ros/outputs.py": ("test/ros/test_outputs_cdr.py", "test/ros/test_outputs.py"),
     "ros/decoded.py": ("test/ros/test_decoded.py",
@@ -287,6 +288,9 @@ MUTANTS: tuple[Mutant, ...] = (
       "    if cov_rect is not None and max_residual_px is not None \\\n"
       "            and residual > max_residual_px:\n",
       "a point asked for without its covariance skips the residual gate"),
+    M("triangulation-parallel-rays", "core/triangulation.py",
+      "    if covariance and J is None:\n", "    if False:\n",
+      "a pair whose rays are parallel to machine precision returns a NaN covariance"),
     M("locator-track-gate", "core/locator.py",
       "                if dist <= cfg.track_gate_m:\n",
       "                if dist <= 3 * cfg.track_gate_m:\n",
@@ -773,6 +777,10 @@ MUTANTS: tuple[Mutant, ...] = (
       "    if decode is None:\n        return taken\n",
       "    if decode is not None:\n        return taken\n",
       "robot poses taken when needed reach the pipeline as undecoded bytes"),
+    M("threads-openblas-only", "threads.py",
+      "    if any(environ.get(name) for name in BLAS_THREAD_VARS):\n",
+      "    if environ.get(\"OPENBLAS_NUM_THREADS\"):\n",
+      "a user's OMP_NUM_THREADS or GOTO_NUM_THREADS is overridden with one BLAS thread"),
     M("memory-mmap-only", "memory.py",
       "    return bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD)) and \\\n"
       "        bool(mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD))\n",

@@ -64,6 +64,8 @@ from __future__ import annotations
 
 import os
 
+from eye_in_hand.threads import blas_env_defaults  # nothing here loads numpy
+
 # One BLAS thread in this process unless the user chose a count. OpenBLAS splits long dot
 # products over a thread pool whose idle threads spin; on two cores also busy with other jobs
 # the blob centre's (since computed without BLAS in core.detection) made a stereo pair cost
@@ -71,7 +73,7 @@ import os
 # (docs/localization.md "Live latency"); one thread keeps any other long product in the node
 # from doing the same. OpenBLAS reads the variable when numpy loads it, so this stands before
 # the first numpy import of the node's process.
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.update(blas_env_defaults(os.environ))
 
 import math
 import threading

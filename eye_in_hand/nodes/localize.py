@@ -31,7 +31,9 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")   # as detect_triangulate (see there)
+from eye_in_hand.threads import blas_env_defaults
+
+os.environ.update(blas_env_defaults(os.environ))   # as detect_triangulate (see there)
 
 import rclpy  # noqa: E402
 from rclpy.executors import ExternalShutdownException  # noqa: E402
