@@ -44,7 +44,8 @@ def _stand_ins() -> dict[str, types.ModuleType]:
 
 
 def _bring_up(monkeypatch: pytest.MonkeyPatch, **args: str) -> list[dict[str, Any]]:
-    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    for blas in ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS"):
+        monkeypatch.delenv(blas, raising=False)     # no BLAS thread count of the user's
     for name, mod in _stand_ins().items():
         monkeypatch.setitem(sys.modules, name, mod)
     spec = importlib.util.spec_from_file_location("eye_in_hand_launch_file", LAUNCH_FILE)
