@@ -70,7 +70,7 @@ _TO_ROOT = ("diagnostics",)
 #: (:func:`eye_in_hand.threads.blas_env_defaults`; here and in ``launch/eye_in_hand.launch.py``):
 #: one BLAS thread (docs/localization.md "Live latency": OpenBLAS's idle pool threads spin and
 #: cost the live chain a core).
-NODE_ENV_DEFAULTS = ONE_BLAS_THREAD
+NODE_ENV_DEFAULTS = dict(ONE_BLAS_THREAD)
 
 #: The nodes, in start order.
 NODES: tuple[NodeSpec, ...] = (

@@ -2,9 +2,10 @@
 [start_capture:=true|false] [respawn:=true|false] [respawn_delay:=S]
 [mode:=localization|calibration] [composed:=true|false]
 
-The same bring-up as ``eye-in-hand launch``: the nodes, their namespaces, remappings,
-calibration-mode parameters and environment defaults come from eye_in_hand/launcher.py
-(``NODES``, ``CALIBRATION_NODES``, ``COMPOSED``, ``NODE_ENV_DEFAULTS``), as they are now:
+The same bring-up as ``eye-in-hand launch``: the nodes, their namespaces, remappings and
+calibration-mode parameters come from eye_in_hand/launcher.py (``NODES``, ``CALIBRATION_NODES``,
+``COMPOSED``), the environment defaults from eye_in_hand/threads.py (one BLAS thread unless the
+user chose a count), as they are now:
 
 * stereo_capture      in <ns>/stereo; ee_pose, joint_states -> <ns>
 * detect_triangulate  in <ns>/stereo; target/point, target/point_cov, target/debug_image,
