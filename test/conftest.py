@@ -21,6 +21,14 @@ _DOMAIN = os.environ.get("EYE_IN_HAND_TEST_DOMAIN_ID") or str(
 os.environ["ROS_DOMAIN_ID"] = _DOMAIN
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.pop("ROS_LOCALHOST_ONLY", None)
+# The package's Fast DDS profile (camera-size images over shared memory) in this process too, as
+# every command and node sets it for itself: without it a test that publishes images from here
+# had them go over fragmented UDP, where best-effort frames are lost now and then, unless an
+# earlier test had run a command in this process (which sets it): a test that passed in the
+# whole suite and failed alone
+from eye_in_hand.ros.dds import use_large_data_profile  # noqa: E402 - after the domain
+
+use_large_data_profile()
 
 TEST_DIR = Path(__file__).resolve().parent
 DATA_DIR = TEST_DIR / "data"
