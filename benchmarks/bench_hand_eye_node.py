@@ -33,11 +33,13 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
-from bench_localization import subscribe_outputs  # this script's folder is on sys.path
+from bench_localization import (  # this script's folder is on sys.path
+    spin_in_background,
+    subscribe_outputs,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -128,10 +130,7 @@ def one_round(code_root: Path, params: Path, pairs: int, domain: int,
     pub_markers = node.create_publisher(MarkerArray, "/targets/markers", RESULT_QOS)
     ex = SingleThreadedExecutor()
     ex.add_node(node)
-    stop = threading.Event()
-    spinner = threading.Thread(target=lambda: [ex.spin_once(timeout_sec=0.05)
-                                               for _ in iter(stop.is_set, True)], daemon=True)
-    spinner.start()
+    stop_spinning = spin_in_background(ex)
     try:
         deadline = time.monotonic() + 30.0
         while pub_markers.get_subscription_count() == 0 or \
@@ -179,8 +178,7 @@ def one_round(code_root: Path, params: Path, pairs: int, domain: int,
                 cpu_b = _cpu_s(node_proc.pid)
         time.sleep(0.5)
     finally:
-        stop.set()
-        spinner.join()
+        stop_spinning()
         node.destroy_node()
         rclpy.shutdown()
         node_proc.terminate()

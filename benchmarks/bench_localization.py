@@ -56,6 +56,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -378,23 +379,35 @@ def replay(bag: str, lead_s: float) -> None:
     rclpy.shutdown()
 
 
+def _node_pids(launcher_pid: int) -> dict[str, str]:
+    """The node processes the launcher started: node name (the ``eye_in_hand.nodes.<name>``
+    module it runs; else its pid) -> pid (Linux /proc; empty elsewhere)."""
+    try:
+        kids = Path(f"/proc/{launcher_pid}/task/{launcher_pid}/children").read_text().split()
+    except OSError:
+        return {}
+    out: dict[str, str] = {}
+    for pid in kids:
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        module = next((c.decode() for c in cmd if c.startswith(b"eye_in_hand.nodes.")), pid)
+        out[module.rsplit(".", 1)[-1]] = pid
+    return out
+
+
 def node_cpu_s(launcher_pid: int) -> dict[str, float]:
     """CPU seconds (user + system) so far of each node process the launcher started, by node
     name (Linux /proc; empty elsewhere)."""
     out: dict[str, float] = {}
     tick = os.sysconf("SC_CLK_TCK")
-    try:
-        kids = Path(f"/proc/{launcher_pid}/task/{launcher_pid}/children").read_text().split()
-    except OSError:
-        return out
-    for pid in kids:
+    for name, pid in _node_pids(launcher_pid).items():
         try:
-            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
             stat = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
         except OSError:
             continue
-        module = next((c.decode() for c in cmd if c.startswith(b"eye_in_hand.nodes.")), pid)
-        out[str(module).rsplit(".", 1)[-1]] = (int(stat[11]) + int(stat[12])) / tick
+        out[name] = (int(stat[11]) + int(stat[12])) / tick
     return out
 
 
@@ -405,17 +418,11 @@ def node_threads(launcher_pid: int) -> dict[str, dict[str, tuple[float, int]]]:
     /proc, empty elsewhere)."""
     out: dict[str, dict[str, tuple[float, int]]] = {}
     tick = os.sysconf("SC_CLK_TCK")
-    try:
-        kids = Path(f"/proc/{launcher_pid}/task/{launcher_pid}/children").read_text().split()
-    except OSError:
-        return out
-    for pid in kids:
+    for name, pid in _node_pids(launcher_pid).items():
         try:
-            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
             tasks = list(Path(f"/proc/{pid}/task").iterdir())
         except OSError:
             continue
-        module = next((c.decode() for c in cmd if c.startswith(b"eye_in_hand.nodes.")), pid)
         groups: dict[str, tuple[float, int]] = {}
         for task in tasks:
             try:
@@ -427,8 +434,22 @@ def node_threads(launcher_pid: int) -> dict[str, dict[str, tuple[float, int]]]:
             cpu, faults = groups.get(label, (0.0, 0))
             groups[label] = (cpu + (int(stat[11]) + int(stat[12])) / tick,
                              faults + int(stat[7]))
-        out[str(module).rsplit(".", 1)[-1]] = groups
+        out[name] = groups
     return out
+
+
+def spin_in_background(executor: Any) -> Callable[[], None]:
+    """Spin ``executor`` on a daemon thread; returns the function that stops and joins it."""
+    stop = threading.Event()
+    thread = threading.Thread(target=lambda: [executor.spin_once(timeout_sec=0.05)
+                                              for _ in iter(stop.is_set, True)], daemon=True)
+    thread.start()
+
+    def halt() -> None:
+        stop.set()
+        thread.join()
+
+    return halt
 
 
 def subscribe_outputs(node: Any, qos: Any) -> None:
@@ -511,10 +532,7 @@ def live(paths: dict[str, Path], composed: bool = False, all_outputs: bool = Tru
     node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 50)
     ex = SingleThreadedExecutor()
     ex.add_node(node)
-    stop = threading.Event()
-    th = threading.Thread(target=lambda: [ex.spin_once(timeout_sec=0.05)
-                                          for _ in iter(stop.is_set, True)], daemon=True)
-    th.start()
+    stop_spinning = spin_in_background(ex)
     rep = subprocess.Popen([sys.executable, __file__, "--replay", str(paths["loc"])], env=env,
                            text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     offset = int(rep.stdout.readline().strip() or 0)   # type: ignore[union-attr]
@@ -538,8 +556,7 @@ def live(paths: dict[str, Path], composed: bool = False, all_outputs: bool = Tru
     watcher.join(timeout=5.0)
     time.sleep(3.0)                                  # last results + one diagnostics period
     cpu1 = node_cpu_s(launch.pid)
-    stop.set()
-    th.join()
+    stop_spinning()
     import signal as _signal
     os.killpg(launch.pid, _signal.SIGINT)
     launch.communicate(timeout=30)
