@@ -89,7 +89,8 @@ class EveryTarget:
         if not in_process:
             decoded_subscription(node, MarkerArray, "targets/markers", self._on_markers,
                                  RESULT_QOS, decoder_for=jazzy_decoder,
-                                 on_bad=self._bad_markers)
+                                 on_bad=lambda name, exc: self._bad_markers(
+                                     undecodable(name, exc)))
         self.pub_poses = create(pose_array_class(), "target/poses", RESULT_QOS)
         self.pub_markers = create(MarkerArray, "target/markers", RESULT_QOS)
         diag.declare_counter("target_frames", "target_points", "target_points_received",
@@ -193,15 +194,14 @@ class EveryTarget:
         try:
             stamp, frame, spheres = spheres_from_marker_array(msg)
         except ConversionError as exc:
-            self._bad_markers("targets/markers", exc)
+            self._bad_markers(f"targets/markers: {exc}")
             return
         self.take_markers(stamp, frame, spheres)
 
-    def _bad_markers(self, topic: str, exc: Exception) -> None:
+    def _bad_markers(self, message: str) -> None:
         """A ``targets/markers`` message that lists no targets: counted and reported."""
         self.diag.count("target_frames")
-        self.diag.report("bad_markers", f"targets/markers: {exc}" if
-                         isinstance(exc, ConversionError) else undecodable(topic, exc))
+        self.diag.report("bad_markers", message)
 
     def take_markers(self, stamp: int, frame: str, spheres: list[Sphere]) -> None:
         """A frame's list of targets: it waits for their points and the robot pose."""
