@@ -93,10 +93,9 @@ sys.exit(_serve())
 
 
 class _Worker:
-    def __init__(self, init: str, init_args: tuple[Any, ...], env: dict[str, str],
-                 root: str) -> None:
-        boot = _frame(("init", init, init_args))   # pickling errors surface here, not later
-        self.proc = subprocess.Popen([sys.executable, "-c", _BOOT.format(root=root)],
+    def __init__(self, env: dict[str, str], root: str, preload: str) -> None:
+        # ``preload``: the module the worker imports before it waits for its init call
+        self.proc = subprocess.Popen([sys.executable, "-c", _BOOT.format(root=root), preload],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,
                                      start_new_session=True)
         self.pending: dict[int, Future[Any]] = {}
@@ -107,15 +106,19 @@ class _Worker:
         self.closed = False
         self._state = threading.Lock()       # pending, dead
         self._write = threading.Lock()       # the stdin pipe (never held with _state)
-        assert self.proc.stdin is not None
-        try:
-            self.proc.stdin.write(boot)
-            self.proc.stdin.flush()
-        except OSError:
-            pass                              # the reader sees the exit and cleans up
         self.reader = threading.Thread(target=self._read, name=f"worker-{self.proc.pid}",
                                        daemon=True)
         self.reader.start()
+
+    def initialize(self, boot: bytes) -> None:
+        """Send the init call (a frame of ``("init", init, init_args)``)."""
+        try:
+            with self._write:
+                assert self.proc.stdin is not None
+                self.proc.stdin.write(boot)
+                self.proc.stdin.flush()
+        except (OSError, ValueError):
+            pass                              # the reader sees the exit and cleans up
 
     def _read(self) -> None:
         assert self.proc.stdout is not None
@@ -228,6 +231,10 @@ class ProcessPool:
     few tenths of a second); :meth:`ready` says whether one is. ``init_args`` and every task's
     arguments and result must pickle.
 
+    ``defer_init``: the processes start now and import ``init``'s module, but are initialised
+    only at :meth:`initialize` (``init_args`` unused): a caller starts them before it knows
+    the arguments, and their start-up runs while it works them out.
+
     ``task_timeout_s`` (None: no deadline): a worker that owes a result and gave none for that
     long is killed and its tasks fail with :class:`WorkerError` (see the module docstring).
 
@@ -237,11 +244,15 @@ class ProcessPool:
 
     def __init__(self, n: int, init: str, init_args: tuple[Any, ...] = (),
                  env: dict[str, str] | None = None,
-                 task_timeout_s: float | None = None) -> None:
+                 task_timeout_s: float | None = None, *, defer_init: bool = False) -> None:
         if task_timeout_s is not None and not task_timeout_s > 0:
             raise ValueError(f"task_timeout_s: must be > 0, got {task_timeout_s}")
+        # pickling errors surface here, before any process starts
+        boot = None if defer_init else _frame(("init", init, init_args))
         env = {**os.environ, **(env or {})}
         root = str(Path(__file__).resolve().parent.parent)   # this package, wherever it is
+        self._init = init
+        self._initialized = False
         self._workers: list[_Worker] = []
         self._ids = itertools.count(1)
         self.task_timeout_s = task_timeout_s
@@ -250,14 +261,33 @@ class ProcessPool:
         self._watchdog: threading.Thread | None = None
         try:
             for _ in range(max(1, n)):
-                self._workers.append(_Worker(init, init_args, env, root))
+                self._workers.append(_Worker(env, root, init.partition(":")[0]))
         except BaseException:
             self.close()
             raise
+        if boot is not None:
+            self._send_init(boot)
         if task_timeout_s is not None:
             self._watchdog = threading.Thread(target=self._watch, name="worker-watchdog",
                                               daemon=True)
             self._watchdog.start()
+
+    def initialize(self, *init_args: Any) -> None:
+        """Initialise the workers of a pool made with ``defer_init``: ``init(*init_args)`` in
+        each (once; the pool is usable when a worker has run it, see :meth:`ready`).
+
+        Raises:
+            RuntimeError: the pool was initialised already.
+            pickle.PicklingError, TypeError, AttributeError: ``init_args`` do not pickle.
+        """
+        self._send_init(_frame(("init", self._init, init_args)))
+
+    def _send_init(self, boot: bytes) -> None:
+        if self._initialized:
+            raise RuntimeError("the worker processes are initialised already")
+        self._initialized = True
+        for w in self._workers:
+            w.initialize(boot)
 
     def _watch(self) -> None:
         """Kill workers that missed the task deadline."""
@@ -411,6 +441,8 @@ def _serve_loop() -> int:
             channel.close = lambda: None  # type: ignore[method-assign]
             raise
 
+    if len(sys.argv) > 1 and sys.argv[1]:
+        importlib.import_module(sys.argv[1])   # init's module, while the parent gets ready
     try:
         _kind, init, init_args = pickle.loads(_recv_bytes(stdin))
     except EOFError:

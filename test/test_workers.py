@@ -125,6 +125,40 @@ def test_a_slow_but_answering_worker_is_not_killed():
         assert pool.timeouts == 0 and pool.alive()
 
 
+def test_a_deferred_pool_imports_its_init_module_and_waits_for_initialize(tmp_path):
+    """``defer_init``: the processes start and import the initialiser's module at once, but
+    are not ready (take no task) until :meth:`initialize`, which runs once."""
+    (tmp_path / "deferred_init_mod.py").write_text(
+        "import os, pathlib\n"
+        "pathlib.Path(os.environ['MARK_DIR'], f'imported-{os.getpid()}').touch()\n"
+        "def init(text):\n"
+        "    pathlib.Path(os.environ['MARK_DIR'], f'init-{os.getpid()}').write_text(text)\n")
+    env = {"PYTHONPATH": str(tmp_path), "MARK_DIR": str(tmp_path)}
+    with ProcessPool(2, "deferred_init_mod:init", env=env, defer_init=True) as pool:
+        deadline = time.monotonic() + 30
+        while len(list(tmp_path.glob("imported-*"))) < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert len(list(tmp_path.glob("imported-*"))) == 2     # imported before initialize
+        time.sleep(0.2)
+        assert not pool.ready() and pool.alive() and not list(tmp_path.glob("init-*"))
+        with pytest.raises(WorkerError, match="no worker process is ready"):
+            pool.submit("math:sqrt", 4.0)
+        pool.initialize("the rig")
+        _wait_ready(pool)
+        assert pool.ready()
+        assert pool.submit("math:sqrt", 4.0).result(timeout=30) == 2.0
+        assert sorted(p.read_text() for p in tmp_path.glob("init-*")) == ["the rig"] * 2
+        with pytest.raises(RuntimeError, match="initialised already"):
+            pool.initialize("again")
+
+
+def test_a_deferred_pool_closed_before_initialize_exits_cleanly(capfd):
+    pool = ProcessPool(2, "builtins:len", defer_init=True)
+    pool.close()
+    assert [w.proc.returncode for w in pool._workers] == [0, 0]
+    assert "error" not in capfd.readouterr().err
+
+
 def test_a_process_worker_imports_only_what_locating_needs():
     """A `process` worker imports eye_in_hand.offline for _worker_init and _worker_locate:
     not the bag reader, the results and output messages, the robot-pose code, rosbags or

@@ -153,6 +153,7 @@ TESTS: dict[str, tuple[str, ...]] = {
                                   "test/nodes/test_every_target.py"),
     "offline.py": ("test/test_offline.py",
                    "test/test_tf_robot_bag.py::test_live_replay_with_tf_gives_the_offline_numbers"),
+    "workers.py": ("test/test_workers.py",),
 }
 
 
@@ -834,6 +835,14 @@ MUTANTS: tuple[Mutant, ...] = (
       "self.pipeline.add_frame(frame.stamp_ns, frame.targets, received_ns=t_arrival,\n",
       "self.pipeline.add_frame(frame.stamp_ns, frame.targets, received_ns=None,\n",
       "process applies no receive-age rule to the robot poses of a pair"),
+    M("workers-no-preload", "workers.py",
+      "        importlib.import_module(sys.argv[1])   # init's module, while the parent gets",
+      "        pass  # nothing imported early:",
+      "a deferred pool's workers import nothing until they are initialised"),
+    M("workers-init-twice", "workers.py",
+      "        if self._initialized:\n",
+      "        if False:\n",
+      "a pool's workers can be sent their init call twice"),
     M("offline-unpaired-count", "offline.py",
       '        self.count("unpaired_left", sync.stats.dropped_left + pl)\n',
       '        self.count("unpaired_left", pl)\n',
