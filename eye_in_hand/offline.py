@@ -50,6 +50,7 @@ if TYPE_CHECKING:
     from eye_in_hand.core.pipeline import WaitingFrame
     from eye_in_hand.core.pose_correction import RobotPoseCorrection
     from eye_in_hand.core.sync import ApproximateStereoSync
+    from eye_in_hand.io.bags import BagInfo
     from eye_in_hand.io.results import FrameResult, ProcessResult
     from eye_in_hand.ros.outputs import OutputSettings
 
@@ -198,7 +199,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
                 rig: StereoRig | None = None, hand_eye_cov: np.ndarray | None = None,
                 options: ProcessOptions | None = None,
                 progress: Callable[[int], object] | None = None,
-                pose_correction: RobotPoseCorrection | None = None) -> ProcessResult:
+                pose_correction: RobotPoseCorrection | None = None,
+                info: BagInfo | None = None) -> ProcessResult:
     """Run detection, triangulation and localization over a bag.
 
     Args:
@@ -212,6 +214,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         pose_correction: the calibration's correction of the reported robot poses
             (``hand_eye.yaml``'s ``robot_pose_correction``; eye-in-hand only), applied by the
             :class:`~eye_in_hand.core.localization.Localizer` as in the live node.
+        info: the bag's :func:`~eye_in_hand.io.bags.bag_info`, when the caller has it
+            already (read again otherwise).
 
     Returns:
         Every stereo pair's :class:`FrameResult`, in stamp order, and counters.
@@ -220,14 +224,29 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         BagError: the bag cannot be read or lacks a required topic.
         InputError: malformed settings.
     """
+    # local: reader only (see _BagPass.read)
+    from eye_in_hand.io.bags import memory_mappable
+    from eye_in_hand.io.bags.streams import worker_readable
+
     opts = options or ProcessOptions()
-    run = _BagPass(Path(path), opts, rig, hand_eye_T, hand_eye_cov, pose_correction)
+    path = Path(path)
     # a locator whose results depend on earlier frames (tracked blob-set ids,
     # LocatorConfig.stateful where it exists) sees the stream in order, in one thread
-    pool = _PairPool(run.rig, locator_config, 1 if getattr(locator_config, "stateful", False)
+    pool = _PairPool(rig, locator_config, 1 if getattr(locator_config, "stateful", False)
                      else opts.workers or available_cpus(), task_timeout_s=opts.task_timeout_s)
     try:
-        run.read(pool, progress)
+        # worker processes for pairs in mapped files (uncompressed MCAP) or for compressed
+        # chunks they open, started first: they import while this process reads the bag's
+        # summary and camera_info, and are initialised with the rig then
+        in_workers = False
+        if pool.parallel:
+            mappable = memory_mappable(path)
+            in_workers = not mappable and worker_readable(path)
+            if mappable or in_workers:
+                pool.start_processes()
+        run = _BagPass(path, opts, rig, hand_eye_T, hand_eye_cov, pose_correction, info)
+        pool.use_rig(run.rig)
+        run.read(pool, progress, in_workers)
     finally:
         pool.close()
     return run.finish(pool, [t.name for t in locator_config.detector.targets])
@@ -246,7 +265,7 @@ class _BagPass:
 
     def __init__(self, path: Path, opts: ProcessOptions, rig: StereoRig | None,
                  hand_eye_T: np.ndarray, hand_eye_cov: np.ndarray | None,
-                 pose_correction: RobotPoseCorrection | None) -> None:
+                 pose_correction: RobotPoseCorrection | None, info: BagInfo | None) -> None:
         # local: reader only (see the imports at the top); the ros message modules add ~12 ms
         from eye_in_hand.core.pipeline import LocalizationPipeline, PipelineRules
         from eye_in_hand.core.sync import ApproximateStereoSync
@@ -254,7 +273,7 @@ class _BagPass:
         from eye_in_hand.io.results import ProcessResult
 
         self.path, self.opts = path, opts
-        info = self.info = bag_info(path)
+        info = self.info = info if info is not None else bag_info(path)
         fixed = self.fixed = opts.setup == "eye_to_hand"   # a fixed camera: no robot pose read
         required = [opts.left_topic, opts.right_topic] + ([] if fixed else [opts.pose_topic])
         require_topics(info, required + ([opts.left_info_topic, opts.right_info_topic]
@@ -326,21 +345,19 @@ class _BagPass:
             self.pipeline.add_frame(frame.stamp_ns, frame.targets, received_ns=t_arrival,
                                     carried=True, tag=frame)
 
-    def read(self, pool: _PairPool, progress: Callable[[int], object] | None) -> None:
+    def read(self, pool: _PairPool, progress: Callable[[int], object] | None,
+             in_workers: bool) -> None:
         """Every message of the bag in log-time order: robot poses and ground truth into the
-        pipeline, images paired and handed to ``pool``, its results taken in stamp order."""
+        pipeline, images paired and handed to ``pool``, its results taken in stamp order
+        (``in_workers``: compressed chunks opened by the pool's worker processes)."""
         # local: reader only; io.bags.streams loads io.bags.mcap_chunks and io.bags.mcap_tasks
         # (~20 ms more at each `process` worker's start-up, which does not use them)
-        from eye_in_hand.io.bags import memory_mappable, typestore_for
-        from eye_in_hand.io.bags.streams import decoded_stream, worker_readable
+        from eye_in_hand.io.bags import typestore_for
+        from eye_in_hand.io.bags.streams import decoded_stream
         from eye_in_hand.ros.geometry import point_to_xyz, pose_to_matrix
         from eye_in_hand.ros.stamps import header_stamp_ns
 
         path, opts, info = self.path, self.opts, self.info
-        mappable = memory_mappable(path)                       # uncompressed MCAP
-        in_workers = pool.parallel and not mappable and worker_readable(path)   # compressed
-        if in_workers or mappable:
-            pool.start_processes()     # they import and initialise while this process sets up
         if self.typestore is None:
             self.typestore = typestore_for(path, {info.topics[t].msgtype for t in self.topics})
         source = decoded_stream(path, self.topics, self.typestore, verify_crc=opts.verify_crc,
@@ -744,30 +761,47 @@ class _PairPool:
     located does not change its result.
     """
 
-    def __init__(self, rig: StereoRig, config: LocatorConfig, workers: int,
+    def __init__(self, rig: StereoRig | None, config: LocatorConfig, workers: int,
                  task_timeout_s: float | None = 20.0) -> None:
         # local: concurrent.futures costs ~3 ms at `import eye_in_hand.offline`
         from concurrent.futures import ThreadPoolExecutor
 
         self._task_timeout_s = task_timeout_s
-        self._rig, self._config = rig, config
+        self._rig: StereoRig | None = None
+        self._config = config
         self.parallel = workers > 1 and config.detector.selection != "nearest"
         self._workers = workers if self.parallel else 1
         self._local = threading.local()
-        self._inline = StereoLocator(rig, config) if self._workers == 1 else None
+        self._inline: StereoLocator | None = None
         self._threads = (ThreadPoolExecutor(self._workers, thread_name_prefix="locate")
-                         if self._inline is None else None)
+                         if self.parallel else None)
         self._procs: Any = None
+        self._procs_waiting = False     # started, waiting for the rig (use_rig) to initialise
         self._tried_processes = False
         self.in_processes = 0
         self.relocated = 0
         self.notes: list[str] = []
         self._inflight: deque[Any] = deque()
+        if rig is not None:
+            self.use_rig(rig)
+
+    def use_rig(self, rig: StereoRig) -> None:
+        """The rig the pairs are located with (given at construction, or once known: worker
+        processes started before it are initialised with it now)."""
+        if rig is self._rig:
+            return
+        self._rig = rig
+        if not self.parallel:
+            self._inline = StereoLocator(rig, self._config)
+        elif self._procs_waiting:
+            self._procs_waiting = False
+            self._procs.initialize(rig, self._config)
 
     def start_processes(self) -> None:
-        """Start the worker processes now (else: at the first pair that lies in a mapped file).
-        Does nothing when pairs are located in the calling thread."""
-        if self._inline is not None or self._tried_processes:
+        """Start the worker processes now (else: at the first pair that lies in a mapped file),
+        initialised at once when the rig is known, else when it is (:meth:`use_rig`). Does
+        nothing when pairs are located in the calling thread."""
+        if not self.parallel or self._tried_processes:
             return
         # local: workers costs ~11 ms at `import eye_in_hand.offline`; only a process pool
         from eye_in_hand.workers import ProcessPool
@@ -777,13 +811,17 @@ class _PairPool:
             self._procs = ProcessPool(self._workers, "eye_in_hand.offline:_worker_init",
                                       (self._rig, self._config),
                                       env={"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"},
-                                      task_timeout_s=self._task_timeout_s)
+                                      task_timeout_s=self._task_timeout_s,
+                                      defer_init=self._rig is None)
         except OSError as exc:
             self.notes.append(f"worker processes unavailable ({exc}): pairs located on threads")
+            return
+        self._procs_waiting = self._rig is None
 
     def _locator(self) -> StereoLocator:
         loc = getattr(self._local, "locator", None)
         if loc is None:
+            assert self._rig is not None, "use_rig before locating"
             loc = self._local.locator = StereoLocator(self._rig, self._config)
         return loc
 

@@ -94,6 +94,68 @@ def test_process_bag_is_the_same_on_both_storages_and_any_worker_count(bags):
             np.testing.assert_array_equal(a.point_base, b.point_base)
 
 
+def test_workers_started_before_the_rig_is_read_give_the_same_results(bags):
+    """process_bag starts its worker processes before it reads the rig from the bag's
+    camera_info, and initialises them with it then: the same frames as in one thread, on
+    both storages, and the pairs of compressed chunks (opened by the workers, which wait for
+    them) were located in the processes."""
+    world, zstd, raw = bags
+    cfg = load_locator_config(None)
+    runs = {(bag.name, w): process_bag(bag, hand_eye_T=world.ee_T_cam, locator_config=cfg,
+                                       options=ProcessOptions(workers=w))
+            for bag in (zstd, raw) for w in (1, 2)}
+    first = runs[("zstd", 1)]
+    assert first.counts["localized"] == 8 and first.located_in_processes == 0
+    assert runs[("zstd", 2)].located_in_processes == 8
+    for other in runs.values():
+        assert not other.notes
+        assert other.counts == first.counts
+        for a, b in zip(other.frames, first.frames, strict=True):
+            np.testing.assert_array_equal(a.point_cam, b.point_cam)
+            np.testing.assert_array_equal(a.point_base, b.point_base)
+
+
+def _worker_children() -> list[int]:
+    """This process's live ``eye_in_hand.workers`` children."""
+    import os
+
+    found = []
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            with open(f"/proc/{pid}/stat") as fh:
+                stat = fh.read()
+            with open(f"/proc/{pid}/cmdline", "rb") as fh:
+                cmd = fh.read()
+        except OSError:
+            continue
+        fields = stat.rsplit(")", 1)[1].split()
+        if int(fields[1]) == os.getpid() and fields[0] != "Z" and b"workers" in cmd:
+            found.append(int(pid))
+    return found
+
+
+def test_a_bag_without_camera_info_leaves_no_worker_process(bags, tmp_path):
+    """Workers start before the rig is read; when the bag then has no camera_info (and no
+    rig is given), the error names the topic and no process is left behind."""
+    from eye_in_hand.errors import BagError
+
+    world, zstd, _raw = bags
+    bare = tmp_path / "no_info"
+    info = bag_info(zstd)
+    with BagWriter(bare) as w:
+        for name, t in info.topics.items():
+            if "camera_info" not in name:
+                w.add_topic(name, t.msgtype)
+        for topic, _mt, stamp, data in iter_messages(zstd):
+            if "camera_info" not in topic:
+                w.write(topic, stamp, data)
+    before = _worker_children()
+    with pytest.raises(BagError, match="camera_info"):
+        process_bag(bare, hand_eye_T=world.ee_T_cam, locator_config=load_locator_config(None),
+                    options=ProcessOptions(workers=2))
+    assert _worker_children() == before
+
+
 def test_a_worker_process_that_dies_costs_no_pair(bags):
     import os
     import signal
