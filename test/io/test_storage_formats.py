@@ -70,3 +70,49 @@ def test_unknown_storage_and_file_suffix_name_the_registered_ones(tmp_path: Path
     (tmp_path / "empty").mkdir()
     with pytest.raises(BagError, match=r"no metadata\.yaml and no \.mcap or \.db3 storage"):
         bag_info(tmp_path / "empty")
+
+
+def _one_topic_bag(path: Path, topic: str, n: int) -> Path:
+    """An MCAP bag directory of ``n`` std_msgs/String messages on ``topic``; its file."""
+    with BagWriter(path, "mcap") as bag:
+        bag.add_topic(topic, "std_msgs/msg/String")
+        for i in range(n):
+            bag.write(topic, T0 + i, b"\x00\x01\x00\x00\x02\x00\x00\x00a\x00\x00\x00")
+    return next(path.glob("*.mcap"))
+
+
+def test_an_mcap_file_opened_again_gives_the_same_index_from_the_cache(tmp_path: Path) -> None:
+    """The parsed summary of an MCAP file is kept (storage_mcap._INDEX_CACHE): opened again,
+    the file has the same connections, owned by the new reader, and its messages read."""
+    from eye_in_hand.io.bags import storage_mcap
+    from eye_in_hand.io.bags.reading import _OpenBag
+
+    file = _one_topic_bag(tmp_path / "bag", "/x", 5)
+    with _OpenBag(file) as first:
+        conns = [(c.id, c.topic, c.msgtype, c.msgcount) for c in first.connections()]
+    key = str(file.resolve())
+    assert key in storage_mcap._INDEX_CACHE
+    for _ in range(2):
+        with _OpenBag(file) as again:
+            storage = again.readers[0].storage
+            assert [(c.id, c.topic, c.msgtype, c.msgcount)
+                    for c in again.connections()] == conns == [(1, "/x", "std_msgs/msg/String",
+                                                               5)]
+            assert all(c.owner is storage for c in storage.connections)
+            assert storage.chunks and again.readers[0].message_count == 5
+    assert [t for _topic, _mt, t, _raw in iter_messages(file)] == [T0 + i for i in range(5)]
+
+
+def test_an_mcap_file_replaced_at_the_same_path_is_parsed_afresh(tmp_path: Path) -> None:
+    """Same path and size, other bytes (a bag written again under the same name): the index
+    of the new file, not the one kept from the old."""
+    first = _one_topic_bag(tmp_path / "bag", "/a", 3)
+    assert list(bag_info(first).topics) == ["/a"]
+    size = first.stat().st_size
+    import shutil
+
+    shutil.rmtree(tmp_path / "bag")
+    second = _one_topic_bag(tmp_path / "bag", "/b", 3)
+    assert second == first and second.stat().st_size == size
+    assert list(bag_info(second).topics) == ["/b"]
+    assert [topic for topic, *_ in iter_messages(second)] == ["/b"] * 3
