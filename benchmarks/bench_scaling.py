@@ -13,7 +13,10 @@ its processes, sampled from ``/proc`` at about 20 Hz; also its anonymous part, `
 without the bag's file pages) and of its largest single process
 (``VmHWM``), and the **floor**: the CPU of reading every image's bytes from the same bag
 (decompressing its chunks) and ``cvtColor(BGR2HSV)`` + one ``inRange`` per target of both images
-of every pair, in one thread of this process, on the same bag in the same run. Per curve, the
+of every pair, in one thread of this process, on the same bag in the same run (with
+``--repeat N``: the least CPU of N runs of the command, and of N measurements of the floor,
+one after each run). Per
+curve, the
 least-squares slope of wall, CPU, floor CPU and peak RSS against the curve's variable, with R^2
 (1 = a straight line).
 
@@ -62,6 +65,7 @@ import json
 import os
 import resource
 import shutil
+import statistics
 import struct
 import subprocess
 import sys
@@ -387,6 +391,27 @@ wrap(O, "_rig_from_camera_info", "  of which: rig from camera_info")
 wrap(R, "assign_truth", "  of which: ground-truth matching")
 wrap(O, "process_bag", "the pass over the bag (main + worker processes)")
 wrap(O, "write_results", "output files")
+# wall time from the launch (the parent's clock, in the environment) to the first pair or
+# chunk group handed to a worker process, and to the end of the pass
+import os, eye_in_hand.workers as W
+launched = float(os.environ.get("BENCH_LAUNCHED", "nan"))
+walls = {}
+def first_call(cls, attr, label):
+    fn = getattr(cls, attr)
+    def timed(self, *a, **k):
+        got = fn(self, *a, **k)   # a task is sent once a worker is ready
+        walls.setdefault(label, time.time() - launched)
+        return got
+    setattr(cls, attr, timed)
+first_call(W.ProcessPool, "submit", "first task to a worker process")
+first_call(W.ProcessPool, "try_submit_to", "first task to a worker process")
+pass_fn = O.process_bag
+def pass_timed(*a, **k):
+    try:
+        return pass_fn(*a, **k)
+    finally:
+        walls["end of the pass"] = time.time() - launched
+O.process_bag = P.process_bag = pass_timed
 sys.argv = ["eye-in-hand"] + sys.argv[1:]
 try:
     cli.main()
@@ -396,41 +421,56 @@ end = now()
 rows.append(("whole main process", end[0], end[1]))
 for name, main, children in rows:
     print(f"PHASE\t{name}\t{main:.3f}\t{children:.3f}")
+walls["exit"] = time.time() - launched
+for name, seconds in walls.items():
+    print(f"WALL\t{name}\t{seconds:.3f}")
 """
 
 
-def startup(bag: Path, he: Path, params: Path, code: Path | None, repeat: int) -> None:
-    """CPU of the phases of one `process` run (the main process; worker processes as the
-    children's CPU), the least of ``repeat`` runs per phase."""
-    env = _env(code)
-    best: dict[str, tuple[float, float]] = {}
+def startup(bag: Path, he: Path, params: Path, codes: list[Path | None], repeat: int) -> None:
+    """CPU of the phases of `process` runs (the main process; worker processes as the
+    children's CPU), the least of ``repeat`` runs per phase, and the wall time from the launch
+    to the first task handed to a worker process, to the end of the pass and to the exit (the
+    median of the runs); ``codes``: this checkout (None) and others, run alternately."""
+    best: dict[Path | None, dict[str, tuple[float, float]]] = {c: {} for c in codes}
+    walls: dict[Path | None, dict[str, list[float]]] = {c: {} for c in codes}
     order: list[str] = []
     for _ in range(repeat):
-        out = DATA / "out-startup"
-        shutil.rmtree(out, ignore_errors=True)
-        t0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-        proc = subprocess.run([sys.executable, "-c", _PHASES, "process", str(bag), "--hand-eye",
-                               str(he), "--params", str(params), "-o", str(out), "--quiet"],
-                              capture_output=True, text=True, env=env,
-                              cwd=code or ROOT)   # `-c` puts the working directory first
-        t1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-        if proc.returncode != 0:
-            raise SystemExit(proc.stdout + proc.stderr)
-        total = t1.ru_utime + t1.ru_stime - t0.ru_utime - t0.ru_stime
-        rows = [line.split("\t")[1:] for line in proc.stdout.splitlines()
-                if line.startswith("PHASE\t")] + [["whole tree (getrusage)", f"{total:.3f}",
-                                                    "0"]]
-        for name, main, children in rows:
-            if name not in best:
-                order.append(name)
-            old = best.get(name)
-            if old is None or float(main) + float(children) < sum(old):
-                best[name] = (float(main), float(children))
-    print(f"start-up and phases of `eye-in-hand process` ({code or 'this checkout'}), CPU s, "
-          f"least of {repeat} runs (main process + its worker processes):")
-    for name in order:
-        main, children = best[name]
-        print(f"  {name:45s} {main:6.3f}" + (f" + {children:6.3f}" if children else ""))
+        for code in codes:
+            out = DATA / "out-startup"
+            shutil.rmtree(out, ignore_errors=True)
+            env = {**_env(code), "BENCH_LAUNCHED": repr(time.time())}
+            t0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            proc = subprocess.run([sys.executable, "-c", _PHASES, "process", str(bag),
+                                   "--hand-eye", str(he), "--params", str(params), "-o",
+                                   str(out), "--quiet"], capture_output=True, text=True, env=env,
+                                  cwd=code or ROOT)   # `-c` puts the working directory first
+            t1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            if proc.returncode != 0:
+                raise SystemExit(proc.stdout + proc.stderr)
+            total = t1.ru_utime + t1.ru_stime - t0.ru_utime - t0.ru_stime
+            lines = [line.split("\t") for line in proc.stdout.splitlines()]
+            rows = [x[1:] for x in lines if x[0] == "PHASE"] + [
+                ["whole tree (getrusage)", f"{total:.3f}", "0"]]
+            for name, main, children in rows:
+                if name not in order:
+                    order.append(name)
+                old = best[code].get(name)
+                if old is None or float(main) + float(children) < sum(old):
+                    best[code][name] = (float(main), float(children))
+            for x in lines:
+                if x[0] == "WALL":
+                    walls[code].setdefault(x[1], []).append(float(x[2]))
+    for code in codes:
+        print(f"start-up and phases of `eye-in-hand process` ({code or 'this checkout'}), CPU "
+              f"s, least of {repeat} runs (main process + its worker processes):")
+        for name in order:
+            if name in best[code]:
+                main, children = best[code][name]
+                print(f"  {name:45s} {main:6.3f}" + (f" + {children:6.3f}" if children else ""))
+        print(f"  wall s from the launch, median of {repeat} runs:")
+        for name, values in walls[code].items():
+            print(f"    {name:43s} {statistics.median(values):6.3f}")
 
 
 def fit(x: list[float], y: list[float]) -> tuple[float, float, float]:
@@ -631,8 +671,8 @@ def main() -> int:
         params = DATA / f"params_t{p.targets}.yaml"
         params.write_text(params_text(p.targets))
         print(f"bag: {bags[p].name}; load {os.getloadavg()[0]:.2f}")
-        for code in [None] + ([args.compare.resolve()] if args.compare else []):
-            startup(bags[p], he, params, code, max(1, args.repeat))
+        startup(bags[p], he, params,
+                [None] + ([args.compare.resolve()] if args.compare else []), max(1, args.repeat))
         print(f"load {os.getloadavg()[0]:.2f}")
         return 0
     results: dict[Point, dict[str, float]] = {}
@@ -642,7 +682,7 @@ def main() -> int:
     for p in points:
         params = DATA / f"params_t{p.targets}.yaml"
         params.write_text(params_text(p.targets))
-        runs, other = [], []
+        runs, other, floors = [], [], []
         for k in range(args.repeat):
             # alternating, the other checkout first every second round (the first run of a
             # large uncompressed bag may find it partly out of the page cache)
@@ -653,8 +693,11 @@ def main() -> int:
             if args.compare is not None and not k % 2:
                 other.append(run_process(bags[p], he, params, DATA / "out",
                                          args.compare.resolve()))
+            # the floor as the runs: the least of --repeat measurements, each next to a run
+            # (single measurements moved by 10-20 % over minutes on this machine)
+            floors.append(floor(bags[p], p.targets))
         r = min(runs, key=lambda r: r["cpu"])
-        r.update(floor(bags[p], p.targets))
+        r.update(min(floors, key=lambda f: f["floor_cpu"]))
         results[p] = r
         if other:
             o = min(other, key=lambda r: r["cpu"])
