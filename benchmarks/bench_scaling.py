@@ -35,10 +35,13 @@ Usage: .venv/bin/python benchmarks/bench_scaling.py [--quick] [--storage zstd|no
 (--compare: OTHER_CHECKOUT's process on the same bags, runs alternating; --prepare: only the
 bags.
 --quick: 5 s / 10 s / 20 s bags, 320x240 / 640x480 / 960x540: a few minutes.)
-       .venv/bin/python benchmarks/bench_scaling.py --startup [--compare OTHER] [--repeat N]
-(--startup: the CPU of each phase of `process` on the shortest bag: interpreter and imports,
-the --params key check, the rig, the pass over the bag with its worker processes, the
-ground-truth matching, the output files.)
+       .venv/bin/python benchmarks/bench_scaling.py --startup [longest] [--compare OTHER]
+           [--repeat N]
+(--startup: the CPU of each phase of `process` on the shortest bag of the chosen curves, or
+the longest: interpreter and imports, the --params key check, the rig, the pass over the bag
+with its worker processes, the ground-truth matching, the output files; and the wall time from
+the launch to the first task handed to a worker process, to the end of the pass and to the
+exit.)
        .venv/bin/python benchmarks/bench_scaling.py --identity OTHER_CHECKOUT
 (--identity: runs ``eye-in-hand process`` of this checkout and of OTHER_CHECKOUT (its
 ``eye_in_hand`` first on ``PYTHONPATH``, same interpreter) on the bundled bags and on the test
@@ -630,9 +633,12 @@ def main() -> int:
                         help="distinct rendered pairs cycled in a 640x480 bag (default 60: "
                              "2 s; fewer for larger images, at least 20)")
     parser.add_argument("--fresh", action="store_true", help="render and write the bags again")
-    parser.add_argument("--startup", action="store_true",
-                        help="only the CPU of the phases of process runs on the shortest bag "
-                             "of the chosen curves (with --compare: the other checkout too)")
+    parser.add_argument("--startup", nargs="?", const="shortest",
+                        choices=("shortest", "longest"),
+                        help="only the CPU of the phases of process runs, and the wall time to "
+                             "the first task on a worker, on the shortest (default) or longest "
+                             "bag of the chosen curves (with --compare: the other checkout "
+                             "too, alternating)")
     parser.add_argument("--prepare", action="store_true",
                         help="only render and write the bags (cached), measure nothing")
     parser.add_argument("--compare", metavar="OTHER_CHECKOUT", type=Path,
@@ -667,7 +673,7 @@ def main() -> int:
     if args.prepare:
         return 0
     if args.startup:
-        p = points[0]
+        p = points[0] if args.startup == "shortest" else points[-1]
         params = DATA / f"params_t{p.targets}.yaml"
         params.write_text(params_text(p.targets))
         print(f"bag: {bags[p].name}; load {os.getloadavg()[0]:.2f}")
