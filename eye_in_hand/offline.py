@@ -230,22 +230,24 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
 
     opts = options or ProcessOptions()
     path = Path(path)
+    # the bag's summary and topics checked first: a bag that cannot be read fails here
+    run = _BagPass(path, opts, rig, hand_eye_T, hand_eye_cov, pose_correction, info)
     # a locator whose results depend on earlier frames (tracked blob-set ids,
-    # LocatorConfig.stateful where it exists) sees the stream in order, in one thread
-    pool = _PairPool(rig, locator_config, 1 if getattr(locator_config, "stateful", False)
+    # LocatorConfig.stateful where it exists) sees the stream in order, in one thread; the
+    # rig comes after the worker processes start (a given rig is checked there too, as before)
+    pool = _PairPool(None, locator_config, 1 if getattr(locator_config, "stateful", False)
                      else opts.workers or available_cpus(), task_timeout_s=opts.task_timeout_s)
     try:
         # worker processes for pairs in mapped files (uncompressed MCAP) or for compressed
-        # chunks they open, started first: they import while this process reads the bag's
-        # summary and camera_info, and are initialised with the rig then
+        # chunks they open, started before the rig is read: they import while this process
+        # builds the bag's type store and reads its camera_info, and are initialised with it
         in_workers = False
         if pool.parallel:
             mappable = memory_mappable(path)
             in_workers = not mappable and worker_readable(path)
             if mappable or in_workers:
                 pool.start_processes()
-        run = _BagPass(path, opts, rig, hand_eye_T, hand_eye_cov, pose_correction, info)
-        pool.use_rig(run.rig)
+        pool.use_rig(run.load_rig())
         run.read(pool, progress, in_workers)
     finally:
         pool.close()
@@ -298,7 +300,7 @@ class _BagPass:
             counts[key] = 0
         self.ledger = _Ledger(counts, int(opts.pose_jump_back_s * 1e9))
         self.typestore: Any = None
-        self.rig = rig if rig is not None else self._rig_from_bag()
+        self.rig = rig            # None: read from the bag's camera_info by load_rig
         self.truth: dict[int, list[np.ndarray]] = {}
         # the live node's pipeline: a pair waits for a robot pose at or after its stamp,
         # however long (the bag's poses are all read before its end: no wait clock), FIFO,
@@ -309,6 +311,12 @@ class _BagPass:
             wait_clock=_no_wait_clock, frames=_FrameResults(counts, self.ledger),
             kinematics=opts.kinematics if not fixed and opts.robot_pose_source == "joint_states"
             else None)
+
+    def load_rig(self) -> StereoRig:
+        """The rig: the one given, else the bag's camera_info's (read now, once)."""
+        if self.rig is None:
+            self.rig = self._rig_from_bag()
+        return self.rig
 
     def _rig_from_bag(self) -> StereoRig:
         """The rig from the bag's camera_info, read with the type store of the main pass."""
@@ -790,6 +798,8 @@ class _PairPool:
         processes started before it are initialised with it now)."""
         if rig is self._rig:
             return
+        if self._rig is not None:
+            raise ValueError("_PairPool.use_rig: the pool locates with its first rig already")
         self._rig = rig
         if not self.parallel:
             self._inline = StereoLocator(rig, self._config)
@@ -868,7 +878,8 @@ class _PairPool:
     def submit(self, pair: Any) -> None:
         from concurrent.futures import wait  # local: as in __init__ (~3 ms)
 
-        if self._inline is not None:
+        if not self.parallel:
+            assert self._inline is not None, "use_rig before submit"
             self._inflight.append((_locate_pair(self._inline, pair.stamp_ns, pair.left,
                                                 pair.right), pair))
             return

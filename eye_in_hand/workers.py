@@ -358,10 +358,18 @@ class ProcessPool:
             return None
 
     def close(self) -> None:
-        """Close the workers' stdin (they exit) and wait for them."""
+        """Close the workers' stdin (they exit) and wait for them; workers never initialised
+        (``defer_init`` and no :meth:`initialize`) are killed, not waited for while they
+        import."""
         self._closing.set()
         if self._watchdog is not None:
             self._watchdog.join(timeout=5)
+        if not self._initialized:
+            for w in self._workers:
+                try:
+                    w.proc.kill()
+                except OSError:
+                    pass
         for w in self._workers:
             w.close()                         # a hung worker: killed after 10 s
 

@@ -134,9 +134,32 @@ def _worker_children() -> list[int]:
     return found
 
 
-def test_a_bag_without_camera_info_leaves_no_worker_process(bags, tmp_path):
-    """Workers start before the rig is read; when the bag then has no camera_info (and no
-    rig is given), the error names the topic and no process is left behind."""
+def test_a_rig_that_cannot_be_read_leaves_no_worker_process(bags, monkeypatch):
+    """Workers start before the rig is read from the bag; when that fails, the error is the
+    reader's and no process is left behind (never initialised: killed, not waited for)."""
+    import eye_in_hand.offline as offline
+    from eye_in_hand.errors import BagError
+
+    world, zstd, _raw = bags
+
+    def unreadable(*_a, **_k):
+        raise BagError("camera_info: cannot be read (planted)")
+
+    monkeypatch.setattr(offline, "_rig_from_camera_info", unreadable)
+    before = set(_worker_children())
+    t0 = time.monotonic()
+    with pytest.raises(BagError, match="planted"):
+        process_bag(zstd, hand_eye_T=world.ee_T_cam, locator_config=load_locator_config(None),
+                    options=ProcessOptions(workers=2))
+    assert set(_worker_children()) <= before
+    assert time.monotonic() - t0 < 10
+
+
+def test_a_bag_without_camera_info_fails_before_any_worker_starts(bags, tmp_path,
+                                                                  monkeypatch):
+    """A bag that lacks a topic it needs is refused from its summary, before worker processes
+    start (none is started only to be stopped)."""
+    import eye_in_hand.workers as workers
     from eye_in_hand.errors import BagError
 
     world, zstd, _raw = bags
@@ -149,11 +172,45 @@ def test_a_bag_without_camera_info_leaves_no_worker_process(bags, tmp_path):
         for topic, _mt, stamp, data in iter_messages(zstd):
             if "camera_info" not in topic:
                 w.write(topic, stamp, data)
-    before = _worker_children()
+
+    def no_pool(*_a, **_k):
+        raise AssertionError("a worker pool was started")
+
+    monkeypatch.setattr(workers, "ProcessPool", no_pool)
     with pytest.raises(BagError, match="camera_info"):
         process_bag(bare, hand_eye_T=world.ee_T_cam, locator_config=load_locator_config(None),
                     options=ProcessOptions(workers=2))
-    assert _worker_children() == before
+
+
+def test_worker_processes_start_before_the_rig_is_read(bags, monkeypatch):
+    """The order that lets the workers import while the bag's rig is read: the pool starts
+    (its initialisation deferred), then camera_info is read, then the workers get the rig."""
+    import eye_in_hand.offline as offline
+    import eye_in_hand.workers as workers
+
+    world, zstd, _raw = bags
+    events: list[str] = []
+    real_pool, real_rig = workers.ProcessPool, offline._rig_from_camera_info
+
+    class Pool(real_pool):  # type: ignore[misc, valid-type]
+        def __init__(self, *a, **k):
+            events.append(f"start defer_init={k.get('defer_init')}")
+            super().__init__(*a, **k)
+
+        def initialize(self, *a):
+            events.append("initialize")
+            super().initialize(*a)
+
+    def rig(*a, **k):
+        events.append("rig")
+        return real_rig(*a, **k)
+
+    monkeypatch.setattr(workers, "ProcessPool", Pool)
+    monkeypatch.setattr(offline, "_rig_from_camera_info", rig)
+    res = process_bag(zstd, hand_eye_T=world.ee_T_cam, locator_config=load_locator_config(None),
+                      options=ProcessOptions(workers=2))
+    assert events == ["start defer_init=True", "rig", "initialize"]
+    assert res.located_in_processes == 8
 
 
 def test_a_worker_process_that_dies_costs_no_pair(bags):

@@ -152,10 +152,17 @@ def test_a_deferred_pool_imports_its_init_module_and_waits_for_initialize(tmp_pa
             pool.initialize("again")
 
 
-def test_a_deferred_pool_closed_before_initialize_exits_cleanly(capfd):
-    pool = ProcessPool(2, "builtins:len", defer_init=True)
+def test_a_deferred_pool_closed_before_initialize_is_not_waited_for(tmp_path, capfd):
+    """A pool never initialised (the caller failed before it knew the arguments) is killed
+    at close, not waited for while its workers import, and says nothing."""
+    (tmp_path / "slow_import_mod.py").write_text("import time\ntime.sleep(20)\n"
+                                                  "def init():\n    pass\n")
+    pool = ProcessPool(2, "slow_import_mod:init", env={"PYTHONPATH": str(tmp_path)},
+                       defer_init=True)
+    t0 = time.monotonic()
     pool.close()
-    assert [w.proc.returncode for w in pool._workers] == [0, 0]
+    assert time.monotonic() - t0 < 10
+    assert all(w.proc.returncode is not None for w in pool._workers) and not pool.alive()
     assert "error" not in capfd.readouterr().err
 
 

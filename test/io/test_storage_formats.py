@@ -116,3 +116,59 @@ def test_an_mcap_file_replaced_at_the_same_path_is_parsed_afresh(tmp_path: Path)
     assert second == first and second.stat().st_size == size
     assert list(bag_info(second).topics) == ["/b"]
     assert [topic for topic, *_ in iter_messages(second)] == ["/b"] * 3
+
+
+def _count_parses(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """The files whose MCAP index rosbags parses from now on (``McapReader.read_index``)."""
+    from rosbags.rosbag2.storage_mcap import McapReader
+
+    parsed: list[str] = []
+    real = McapReader.read_index
+
+    def counting(self: McapReader) -> None:
+        parsed.append(Path(str(self.path)).parent.name)
+        real(self)
+
+    monkeypatch.setattr(McapReader, "read_index", counting)
+    return parsed
+
+
+def test_the_kept_index_is_what_a_second_opening_uses(tmp_path: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    parsed = _count_parses(monkeypatch)
+    file = _one_topic_bag(tmp_path / "bag", "/x", 5)
+    for _ in range(3):
+        assert bag_info(file).topics["/x"].count == 5
+    assert parsed == ["bag"]
+
+
+def test_the_files_used_last_stay_kept(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Least recently used out first: with room for two files, A B A C keeps A and C."""
+    from eye_in_hand.io.bags import storage_mcap
+
+    monkeypatch.setattr(storage_mcap, "_INDEX_CACHE_FILES", 2)
+    files = {name: _one_topic_bag(tmp_path / name, "/x", 2) for name in "ABC"}
+    parsed = _count_parses(monkeypatch)
+    for name in "ABACA":
+        bag_info(files[name])
+    assert parsed == ["A", "B", "C"]
+
+
+def test_an_mcap_file_without_summary_is_read_afresh_every_time(tmp_path: Path) -> None:
+    """A file whose footer points to no summary (as a recording cut before it was finished
+    leaves it) is scanned, and the scan's index is never kept: only the summary's bytes are
+    compared, and the scan reads the data section."""
+    import struct
+
+    from eye_in_hand.io.bags import storage_mcap
+
+    file = _one_topic_bag(tmp_path / "bag", "/x", 4)
+    data = file.read_bytes()
+    footer = bytearray(data[-37:])
+    summary_start = struct.unpack_from("<Q", footer, 9)[0]
+    struct.pack_into("<QQI", footer, 9, 0, 0, 0)
+    bare = tmp_path / "bare.mcap"
+    bare.write_bytes(data[:summary_start] + bytes(footer))
+    for _ in range(2):
+        assert bag_info(bare).topics["/x"].count == 4
+        assert str(bare.resolve()) not in storage_mcap._INDEX_CACHE

@@ -23,14 +23,18 @@ __all__ = ["McapFormat", "chunk_damage_record"]
 
 _WORKER_COMPRESSIONS = ("zstd", "lz4")
 
-#: The parsed summaries (schemas, channels, chunk index, statistics) of the MCAP files opened
+#: The parsed summaries (schemas, channels, chunk index, statistics) of the MCAP files used
 #: last in this process, by real path, each with the bytes it was parsed from (the header
 #: record, and everything from the summary section to the end of the file): a file opened
 #: again whose bytes there are the same is not parsed again. Opening a bag parses its chunk
 #: index, about 0.1 s of CPU on a 10-minute bag of 18000 chunks, and ``process`` opens it six
-#: times; comparing the bytes (about 2 MB there) takes a millisecond.
+#: times; comparing the bytes (about 2 MB there) takes a millisecond. Least recently used
+#: out first, beyond :data:`_INDEX_CACHE_FILES` files or :data:`_INDEX_CACHE_CHUNKS` chunks
+#: in all (the newest file always stays): the files of a bag split by size fit, and the
+#: index held stays within about 60 MB (1.4 kB per chunk, shared with the open readers).
 _INDEX_CACHE: OrderedDict[str, tuple[int, bytes, bytes, dict[str, Any]]] = OrderedDict()
-_INDEX_CACHE_FILES = 2
+_INDEX_CACHE_FILES = 64
+_INDEX_CACHE_CHUNKS = 40_000
 _INDEX_LOCK = threading.Lock()
 _INDEXED_READER: Any = None
 
@@ -71,6 +75,8 @@ def _indexed_reader() -> Any:
             size = os.fstat(bio.fileno()).st_size
             with _INDEX_LOCK:
                 hit = _INDEX_CACHE.get(key)
+                if hit is not None:
+                    _INDEX_CACHE.move_to_end(key)      # used last (if it still matches)
             if hit is not None:
                 hit_size, head, tail, state = hit
                 if hit_size == size \
@@ -91,7 +97,10 @@ def _indexed_reader() -> Any:
             with _INDEX_LOCK:
                 _INDEX_CACHE[key] = entry
                 _INDEX_CACHE.move_to_end(key)
-                while len(_INDEX_CACHE) > _INDEX_CACHE_FILES:
+                while len(_INDEX_CACHE) > 1 and (
+                        len(_INDEX_CACHE) > _INDEX_CACHE_FILES
+                        or sum(len(e[3]["chunks"]) for e in _INDEX_CACHE.values())
+                        > _INDEX_CACHE_CHUNKS):
                     _INDEX_CACHE.popitem(last=False)
 
     _INDEXED_READER = IndexedMcapReader
