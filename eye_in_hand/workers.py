@@ -18,6 +18,13 @@ Usage::
     ...
     pool.close()
 
+or, to start the processes before the initialiser's arguments are known (they import its
+module meanwhile)::
+
+    pool = ProcessPool(2, "eye_in_hand.offline:_worker_init", defer_init=True)
+    ...                                   # work out rig and config
+    pool.initialize(rig, config)
+
 ``submit`` returns a :class:`concurrent.futures.Future`; a task that raises fails its future
 with :class:`WorkerError` carrying the traceback, and a worker that dies fails its pending
 futures with :class:`WorkerError` (naming its exit code) and takes no more work.
