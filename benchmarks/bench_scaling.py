@@ -50,16 +50,15 @@ suite's chunked and damaged-bag fixtures, rebuilt here (zstd, lz4 and uncompress
 workers, and compares ``results.csv``, ``summary.json``, ``metadata.yaml`` and the output
 bag's file byte for byte.)
 
-Figures (docs/localization.md, "Resident memory flat with bag length"), three runs
-17:30-18:00 UTC on 2026-11-25, 2-core machine at load 0.7-1.9, zstd bags, this code (the code
-before, 40a1f65, in brackets, runs alternating on the same bag):
+Figures: docs/localization.md, "The whole `process` command". Latest, 2026-11-29,
+``--curves length --repeat 3`` (least CPU of three runs, least floor of three), zstd bags,
+2-core machine at load 1.2-2.0:
 
-* 10 min 640x480: 129.5-140.6 CPU-s (143.5-156.2), 1.89-1.99x the floor (1.94-2.32x), CPU/wall
-  1.59-1.65; peak RSS of the tree 576-578 MB (1207-1279), of it anonymous 456-458 MB;
-* 20 s: 7.8-8.5 CPU-s (7.5-8.8), 2.73-3.26x the floor; peak RSS of the tree 420 MB (439);
-* bag length: CPU 0.207-0.217 s per s of bag (R^2 0.9997-1.0000), floor 0.112-0.114, tree RSS
-  0.27 MB per s of bag (R^2 0.9994-0.9997), all of it anonymous (the per-pair results);
-* targets 4 / 8 (20 s, 640x480, one run): 11.75 / 19.13 CPU-s (12.94 / 21.44).
+* 20 s 640x480: 2.70 CPU-s, 2.35x the floor, CPU/wall 1.57; peak RSS of the tree 417 MB;
+* 2 min: 12.06 CPU-s, 1.76x, CPU/wall 1.70; 447 MB;
+* 10 min: 57.29 CPU-s, 1.57x, CPU/wall 1.72; 586 MB (largest process 249 MB);
+* bag length: CPU 0.094 s per s of bag plus 0.80 (R^2 1.0000), floor 0.061 (R^2 0.9999), tree
+  RSS 0.29 MB per s of bag.
 """
 from __future__ import annotations
 
