@@ -72,7 +72,7 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "eye-in-hand = eye_in_hand.cli:main",
+            "eye-in-hand = eye_in_hand.cli:console_main",
             *NODE_SCRIPTS,
         ],
     },

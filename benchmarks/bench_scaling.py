@@ -280,13 +280,20 @@ def _env(code: Path | None) -> dict[str, str]:
     return env
 
 
+#: the ``eye-in-hand`` console script's code, for any checkout
+_CONSOLE = ("import sys, eye_in_hand.cli as cli\n"
+            "entry = getattr(cli, 'console_main', None)\n"
+            "sys.exit(entry() if entry else cli.main())\n")
+
+
 def run_process(bag: Path, he: Path, params: Path, out: Path,
                 code: Path | None = None) -> dict[str, float]:
     """One ``eye-in-hand process`` run: wall, CPU of the tree, peak RSS (sum, largest);
     ``code``: another checkout whose ``eye_in_hand`` runs (first on ``PYTHONPATH``)."""
     shutil.rmtree(out, ignore_errors=True)
-    script = Path(sys.executable).with_name("eye-in-hand")
-    cmd = [str(script)] if script.exists() else [sys.executable, "-m", "eye_in_hand.cli"]
+    # what the console script runs, from the checkout's own cli (its console_main, or main in
+    # a checkout from before console_main): the venv's script names this checkout's entry
+    cmd = [sys.executable, "-c", _CONSOLE]
     cmd += ["process", str(bag), "--hand-eye", str(he), "--params", str(params), "-o",
             str(out), "--quiet"]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)

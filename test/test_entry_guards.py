@@ -13,6 +13,7 @@ import subprocess
 import sys
 import textwrap
 import time
+from pathlib import Path
 
 import pytest
 
@@ -207,3 +208,23 @@ def test_the_demo_turns_a_planted_exception_into_one_line(monkeypatch, capsys):
     assert err.count("\n") == 1 and "Traceback" not in err
     with pytest.raises(ZeroDivisionError):
         demo.guarded_main(["--debug"])
+
+
+def test_the_console_script_exits_with_the_commands_code_and_its_files_written(tmp_path):
+    """``eye-in-hand`` (cli.console_main: main, then the exit without the interpreter's final
+    collections) gives the command's exit code and leaves what the command wrote complete;
+    the venv's script calls it."""
+    script = Path(sys.executable).with_name("eye-in-hand")
+    assert "console_main" in script.read_text()
+    missing = subprocess.run([sys.executable, "-m", "eye_in_hand.cli", "bag", "info",
+                              str(tmp_path / "missing")], capture_output=True, text=True,
+                             timeout=120)
+    assert missing.returncode == 1 and "does not exist" in missing.stderr, missing.stderr
+    out = tmp_path / "sim"
+    made = subprocess.run([str(script), "simulate", "--scenario", "localization", "--frames",
+                           "2", "--size", "320x240", "--quiet", "-o", str(out)],
+                          capture_output=True, text=True, timeout=300)
+    assert made.returncode == 0, made.stderr
+    from eye_in_hand.io.bags import bag_info
+
+    assert bag_info(out).topics["/stereo/left/image_raw"].count == 2
