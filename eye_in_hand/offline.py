@@ -234,7 +234,7 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     run = _BagPass(path, opts, rig, hand_eye_T, hand_eye_cov, pose_correction, info)
     # a locator whose results depend on earlier frames (tracked blob-set ids,
     # LocatorConfig.stateful where it exists) sees the stream in order, in one thread; the
-    # rig comes after the worker processes start (a given rig is checked there too, as before)
+    # rig (given, or read from the bag) goes to the pool by use_rig, after its workers start
     pool = _PairPool(None, locator_config, 1 if getattr(locator_config, "stateful", False)
                      else opts.workers or available_cpus(), task_timeout_s=opts.task_timeout_s)
     try:
