@@ -418,6 +418,7 @@ class _BagPass:
 
         result, counts, opts = self.result, self.counts, self.opts
         result.located_in_processes = pool.in_processes
+        result.workers_forked = pool.forked
         result.notes.extend(pool.notes)
         counts["worker_timeouts"] = pool.timeouts        # their pairs were located again here
         counts["pairs_relocated"] = pool.relocated
@@ -807,6 +808,11 @@ class _PairPool:
             self._procs_waiting = False
             self._procs.initialize(rig, self._config)
 
+    @property
+    def forked(self) -> bool:
+        """Whether the worker processes were forked from this one (see ProcessPool's fork)."""
+        return self._procs is not None and bool(self._procs.forked)
+
     def start_processes(self) -> None:
         """Start the worker processes now (else: at the first pair that lies in a mapped file),
         initialised at once when the rig is known, else when it is (:meth:`use_rig`). Does
@@ -822,7 +828,7 @@ class _PairPool:
                                       (self._rig, self._config),
                                       env={"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"},
                                       task_timeout_s=self._task_timeout_s,
-                                      defer_init=self._rig is None)
+                                      defer_init=self._rig is None, fork=True)
         except OSError as exc:
             self.notes.append(f"worker processes unavailable ({exc}): pairs located on threads")
             return

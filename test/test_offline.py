@@ -115,6 +115,52 @@ def test_workers_started_before_the_rig_is_read_give_the_same_results(bags):
             np.testing.assert_array_equal(a.point_base, b.point_base)
 
 
+_FORK_OR_SPAWN = """\
+import json, sys, threading
+import numpy as np
+from eye_in_hand.core.locator_params import load_locator_config
+from eye_in_hand.offline import ProcessOptions, process_bag
+if sys.argv[2] == "thread":      # a second thread: forking is not safe, fresh interpreters
+    stop = threading.Event()
+    threading.Thread(target=stop.wait, daemon=True).start()
+T = np.array(json.loads(sys.argv[3]))
+res = process_bag(sys.argv[1], hand_eye_T=T, locator_config=load_locator_config(None),
+                  options=ProcessOptions(workers=2))
+print(json.dumps(dict(forked=res.workers_forked, in_processes=res.located_in_processes,
+                      notes=res.notes, counts=res.counts,
+                      points=[f.point_base.tolist() for f in res.frames])))
+"""
+
+
+def test_forked_and_spawned_workers_give_the_same_results(bags):
+    """``process_bag`` in a process of one thread forks its worker processes, in one with
+    another thread starts fresh interpreters: the same frames to the last bit, on both
+    storages, located in the workers."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    world, zstd, raw = bags
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
+    for bag in (zstd, raw):
+        got = {}
+        for how in ("plain", "thread"):
+            run = subprocess.run([sys.executable, "-c", _FORK_OR_SPAWN, str(bag), how,
+                                  json.dumps(world.ee_T_cam.tolist())],
+                                 capture_output=True, text=True, env=env, timeout=300)
+            assert run.returncode == 0, run.stderr
+            got[how] = json.loads(run.stdout.strip().splitlines()[-1])
+        assert got["plain"]["forked"] and not got["thread"]["forked"]
+        for out in got.values():
+            # compressed chunks: every pair in the workers that opened them; mapped images:
+            # those before the first worker is ready on threads here
+            assert out["counts"]["pairs"] == 8 and not out["notes"]
+            assert out["in_processes"] == 8 if bag is zstd else out["in_processes"] > 0
+        assert got["plain"]["counts"] == got["thread"]["counts"]
+        assert got["plain"]["points"] == got["thread"]["points"]
+
+
 def _worker_children() -> list[int]:
     """This process's live ``eye_in_hand.workers`` children."""
     import os

@@ -8,6 +8,7 @@ name in a namespace and check every parameter of the file arrives.
 from __future__ import annotations
 
 import ast
+import os
 from pathlib import Path
 from typing import Any
 
@@ -345,3 +346,23 @@ def test_process_defaults_are_the_live_nodes_defaults():
     detect = {p.name: p.default for p in NODE_PARAMETERS}
     assert detect["sync.slop_s"] == opts.sync_slop_s
     assert detect["sync.queue_size"] == opts.sync_queue_size
+
+
+def test_checking_a_files_keys_loads_no_rclpy():
+    """`process` and `locate` check their parameter file's keys without rclpy: its C library
+    starts tracing threads, after which `process` could not fork its worker processes
+    (eye_in_hand.workers.fork_is_safe), and its import costs start-up."""
+    import subprocess
+    import sys
+
+    code = ("import os, sys\n"
+            "from eye_in_hand.nodes.parameters import check_parameter_file_keys\n"
+            f"check_parameter_file_keys({str(CONFIG / 'detect_triangulate_multi.yaml')!r}, "
+            "used=['detect_triangulate', 'hand_eye'])\n"
+            f"check_parameter_file_keys({str(CONFIG / 'eye_in_hand.yaml')!r}, "
+            "used=['detect_triangulate', 'hand_eye'])\n"
+            "print(sorted(m for m in sys.modules if m.startswith('rclpy')),"
+            " len(os.listdir('/proc/self/task')))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"}).stdout
+    assert out.split() == ["[]", "1"]

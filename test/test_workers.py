@@ -1,6 +1,7 @@
 """eye_in_hand.workers: the subprocess pool (results, task errors, dying workers)."""
 from __future__ import annotations
 
+import json
 import math
 import os
 import subprocess
@@ -181,3 +182,116 @@ def test_a_process_worker_imports_only_what_locating_needs():
                  "rclpy"):
         assert name not in out, name
     assert "cv2" in out and "eye_in_hand.core.locator" in out
+
+
+# -- forked workers: each scenario runs in a fresh interpreter, where the caller is the only
+# thread (pytest's process is not: the ROS libraries it loaded run tracing threads) ----------
+
+_FORK_PRELUDE = """\
+import json, math, os, sys, threading, time
+from eye_in_hand.workers import ProcessPool, WorkerError, fork_is_safe
+def wait_ready(pool):
+    deadline = time.monotonic() + 30
+    while not pool.ready() and pool.alive() and time.monotonic() < deadline:
+        time.sleep(0.005)
+"""
+
+
+def _forking(code: str, timeout_s: float = 120.0) -> tuple[dict, str]:
+    """Run ``code`` after :data:`_FORK_PRELUDE` in a fresh interpreter; its last stdout line
+    as JSON, and its stderr."""
+    run = subprocess.run([sys.executable, "-c", _FORK_PRELUDE + code], capture_output=True,
+                         text=True, timeout=timeout_s,
+                         env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+    assert run.returncode == 0, run.stderr
+    return json.loads(run.stdout.strip().splitlines()[-1]), run.stderr
+
+
+def test_a_single_threaded_caller_forks_its_workers():
+    """``fork=True`` in a process with one thread: forked workers (children of this process,
+    each in its own session), ready at once, answering tasks; closing reaps them, quickly:
+    a worker holds no end of another worker's pipe (its stdin sees the end of input)."""
+    out, err = _forking("""
+safe = fork_is_safe()
+pool = ProcessPool(2, "builtins:len", ((),), fork=True)
+wait_ready(pool)
+futs = [pool.submit("math:sqrt", float(i)) for i in range(20)]
+values = [f.result(timeout=30) for f in futs]
+pids = {pool.submit_to(k, "os:getpid")[0].result(timeout=30) for k in range(2)}
+sids = [os.getsid(p) for p in pids]
+ppids = [int(open(f"/proc/{p}/stat").read().rsplit(")", 1)[1].split()[1]) for p in pids]
+t0 = time.monotonic()
+pool.close()
+close_s = time.monotonic() - t0
+codes = [w.proc.returncode for w in pool._workers]
+try:
+    os.waitpid(-1, os.WNOHANG)
+    reaped = False
+except ChildProcessError:
+    reaped = True
+print(json.dumps(dict(safe=safe, forked=pool.forked, values=values, pids=sorted(pids),
+                      me=os.getpid(), sids=sids, mysid=os.getsid(0), ppids=ppids,
+                      close_s=close_s, codes=codes, reaped=reaped)))
+""")
+    assert out["safe"] and out["forked"]
+    assert out["values"] == [math.sqrt(i) for i in range(20)]
+    assert len(out["pids"]) == 2 and out["me"] not in out["pids"]
+    assert out["ppids"] == [out["me"]] * 2
+    assert sorted(out["sids"]) == out["pids"]      # each the leader of its own session
+    assert out["close_s"] < 5.0, out              # not the 10 s wait for a hung worker
+    assert out["codes"] == [0, 0] and out["reaped"]
+    assert "error" not in err
+
+
+def test_a_caller_with_another_thread_starts_fresh_interpreters():
+    """A second thread (here Python's; also a C library's) makes forking unsafe: the pool
+    starts fresh interpreters instead, which work the same."""
+    out, _ = _forking("""
+stop = threading.Event()
+threading.Thread(target=stop.wait, daemon=True).start()
+safe = fork_is_safe()
+with ProcessPool(1, "builtins:len", ((),), fork=True) as pool:
+    wait_ready(pool)
+    value = pool.submit("math:sqrt", 9.0).result(timeout=30)
+    forked = pool.forked
+stop.set()
+print(json.dumps(dict(safe=safe, forked=forked, value=value)))
+""")
+    assert out == {"safe": False, "forked": False, "value": 3.0}
+
+
+def test_forked_workers_keep_the_pools_rules():
+    """Forked workers as spawned ones: a task's error carries its traceback, a print goes to
+    stderr (never into the result channel), a worker that dies fails its task with its exit
+    code, and one that misses the deadline is killed."""
+    out, err = _forking("""
+pool = ProcessPool(2, "builtins:len", ((),), fork=True, task_timeout_s=1.0)
+wait_ready(pool)
+try:
+    pool.submit_to(0, "math:sqrt", -1.0)[0].result(timeout=30)
+    error = None
+except WorkerError as exc:
+    error = str(exc)
+printed = pool.submit_to(0, "builtins:print", "printed by a forked worker")[0].result(timeout=30)
+after = pool.submit_to(0, "math:sqrt", 16.0)[0].result(timeout=30)
+try:
+    pool.submit_to(0, "os:_exit", 3)[0].result(timeout=30)
+    died = None
+except WorkerError as exc:
+    died = str(exc)
+try:
+    pool.submit_to(1, "time:sleep", 30)[0].result(timeout=30)
+    hung = None
+except WorkerError as exc:
+    hung = str(exc)
+timeouts = pool.timeouts
+pool.close()
+print(json.dumps(dict(forked=pool.forked, error=error, printed=printed, after=after, died=died,
+                      hung=hung, timeouts=timeouts)))
+""")
+    assert out["forked"]
+    assert "ValueError: math domain error" in out["error"]
+    assert out["printed"] is None and out["after"] == 4.0
+    assert "printed by a forked worker" in err
+    assert "exited with code 3" in out["died"]
+    assert "task deadline" in out["hung"] and out["timeouts"] == 1

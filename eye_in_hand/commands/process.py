@@ -364,7 +364,12 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         from tqdm import tqdm  # local: ~18 ms at start-up with its importlib.metadata
 
-        bar = tqdm(total=total, unit="msg", desc="processing", file=sys.stderr)
+        class _Bar(tqdm):  # type: ignore[type-arg]
+            # tqdm's monitor thread would keep process_bag from forking its workers
+            # (workers.fork_is_safe); update() is called for every message anyway
+            monitor_interval = 0
+
+        bar = _Bar(total=total, unit="msg", desc="processing", file=sys.stderr)
     t0 = time.perf_counter()
     try:
         result = process_bag(args.bag, hand_eye_T=calib.transform, locator_config=config,

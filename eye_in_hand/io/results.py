@@ -169,7 +169,9 @@ class FrameResult:
 class ProcessResult:
     """All frames, counters, and what the bag covered.
 
-    ``located_in_processes``: pairs located by worker processes (the rest in this process).
+    ``located_in_processes``: pairs located by worker processes (the rest in this process);
+    ``workers_forked``: those processes were forked from this one (else fresh interpreters,
+    or none: :class:`eye_in_hand.workers.ProcessPool`'s ``fork``).
     ``damage``: the damaged parts of the bag that were skipped (a
     :class:`eye_in_hand.io.bags.DamageLog`: chunks, truncated tails, messages that could not
     be read; messages of the processed topics read but not decodable are
@@ -185,6 +187,7 @@ class ProcessResult:
     duration_s: float = 0.0
     rig: StereoRig | None = None
     located_in_processes: int = 0
+    workers_forked: bool = False
     damage: Any = None
     loss: dict[str, Any] = field(default_factory=dict)
     target_ids: list[str] = field(default_factory=list)

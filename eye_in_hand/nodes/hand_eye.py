@@ -75,7 +75,6 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Mapping
 from typing import Any
 
 from rclpy.clock import Clock, ClockType
@@ -86,14 +85,14 @@ from eye_in_hand.io.config import load_hand_eye
 from eye_in_hand.io.kinematics import load_kinematics
 from eye_in_hand.nodes.hand_eye_calibration import CalibrationMode
 from eye_in_hand.nodes.hand_eye_first_target import FirstTarget
-from eye_in_hand.nodes.hand_eye_params import HandEyeNodeConfig
+from eye_in_hand.nodes.hand_eye_params import HandEyeNodeConfig, parameter_names
 from eye_in_hand.nodes.hand_eye_poses import RobotPoseInput, build_localizers
 from eye_in_hand.nodes.hand_eye_targets import EveryTarget
 from eye_in_hand.nodes.hand_eye_tf import TfOutput
 from eye_in_hand.ros.diagnostics import NodeDiagnostics
 from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.ros.outputs import LocatedFrame
-from eye_in_hand.ros.params import load_config, params_of
+from eye_in_hand.ros.params import load_config
 from eye_in_hand.ros.publishers import OutputPublishers
 
 __all__ = ["HandEyeNode", "parameter_names", "main"]
@@ -103,9 +102,6 @@ NODE_NAME = "hand_eye"
 WAIT_CHECK_PERIOD_S, IDLE_CHECK_PERIOD_S = 0.02, 0.2
 
 
-def parameter_names(values: Mapping[str, Any]) -> list[str]:
-    """Every parameter name the node declares (``values``: its parameters in a file, unused)."""
-    return [p.name for p in params_of(HandEyeNodeConfig)]
 
 
 class HandEyeNode(Node):

@@ -9,8 +9,10 @@ are those of :class:`eye_in_hand.core.handeye.session.SessionConfig`, whose defa
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from eye_in_hand.core.defaults import POSE_RULES
 from eye_in_hand.core.handeye.calibrate import ROBOT_MODELS
@@ -18,9 +20,9 @@ from eye_in_hand.core.handeye.plan import PlanConfig
 from eye_in_hand.core.handeye.session import SessionConfig
 from eye_in_hand.errors import ConfigError, InputError
 from eye_in_hand.ros.outputs import MARKER_LIFETIME_S, RIGHT_CAMERA_FRAME, TARGET_FRAME_PREFIX
-from eye_in_hand.ros.params import param
+from eye_in_hand.ros.params import param, params_of
 
-__all__ = ["HandEyeNodeConfig"]
+__all__ = ["HandEyeNodeConfig", "parameter_names"]
 
 #: The calibration session's rules: their defaults are the calibration-mode parameters'.
 _SESSION = SessionConfig()
@@ -186,3 +188,8 @@ class HandEyeNodeConfig:
             return None
         return PlanConfig(count=self.suggest_count, robot_sigma_pos_m=self.robot_sigma_pos_m,
                           robot_sigma_rot_rad=self.robot_sigma_rot_rad)
+
+
+def parameter_names(values: Mapping[str, Any]) -> list[str]:
+    """Every parameter name the node declares (``values``: its parameters in a file, unused)."""
+    return [p.name for p in params_of(HandEyeNodeConfig)]

@@ -26,7 +26,10 @@ NODE_NAMES: tuple[str, ...] = ("stereo_capture", "detect_triangulate", "hand_eye
                                "bag_player", "bag_recorder")
 #: The module of a node's ``parameter_names`` (and ``parameter_hint``) where it is not the
 #: node's own module: a part of the node.
-PARAMETER_MODULES: dict[str, str] = {"detect_triangulate": "detect_triangulate_params"}
+#: (Those of the nodes of the shipped parameter files import no rclpy: see ros.params.)
+PARAMETER_MODULES: dict[str, str] = {"detect_triangulate": "detect_triangulate_params",
+                                      "hand_eye": "hand_eye_params",
+                                      "stereo_capture": "stereo_capture_params"}
 
 
 def _parameter_module(node: str) -> Any:
@@ -58,7 +61,7 @@ def check_parameter_file_keys(path: str | os.PathLike[str],
         ConfigError: one line per unknown key: the file, the key (``/**/<node>.ros__parameters.
             <name>``) and the closest valid name (``did you mean `radius_m`?``).
     """
-    # local: ros.params imports rclpy (~0.2 s); only a command given a parameter file needs it
+    # local: only a command given a parameter file needs it (no rclpy: see ros.params)
     from eye_in_hand.ros.params import unknown_parameter_keys
 
     problems = unknown_parameter_keys(path, declared_parameters, NODE_NAMES, _hint, used)

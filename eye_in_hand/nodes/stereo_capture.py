@@ -48,7 +48,6 @@ from __future__ import annotations
 
 import queue
 import threading
-from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 from rclpy.node import Node
@@ -65,7 +64,7 @@ from eye_in_hand.io.frame_sources import (
     FrameSource,
     ImageFilesSource,
 )
-from eye_in_hand.nodes.stereo_capture_params import NODE_PARAMETERS
+from eye_in_hand.nodes.stereo_capture_params import NODE_PARAMETERS, parameter_names
 from eye_in_hand.ros.camera_info import image_camera_info
 from eye_in_hand.ros.diagnostics import ERROR, WARN, NodeDiagnostics
 from eye_in_hand.ros.images import numpy_to_image
@@ -85,11 +84,6 @@ NODE_NAME = "stereo_capture"
 IMAGE_PUB_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5,
                            reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.VOLATILE)
-
-
-def parameter_names(values: Mapping[str, Any]) -> list[str]:
-    """Every parameter name the node declares (``values``: its parameters in a file, unused)."""
-    return [p.name for p in NODE_PARAMETERS]
 
 
 class StereoCaptureNode(Node):

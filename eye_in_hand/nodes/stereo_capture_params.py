@@ -5,9 +5,12 @@ A part of :class:`eye_in_hand.nodes.stereo_capture.StereoCaptureNode`: the node 
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
 from eye_in_hand.ros.params import Param
 
-__all__ = ["SOURCES", "NODE_PARAMETERS"]
+__all__ = ["SOURCES", "NODE_PARAMETERS", "parameter_names"]
 
 #: The frame sources (parameter ``source``).
 SOURCES = ("sim", "images", "video", "v4l2")
@@ -65,3 +68,8 @@ NODE_PARAMETERS: tuple[Param, ...] = (
     Param("diagnostics_period_s", 1.0, "diagnostics publication period (s)",
           range=(0.05, 60.0)),
 )
+
+
+def parameter_names(values: Mapping[str, Any]) -> list[str]:
+    """Every parameter name the node declares (``values``: its parameters in a file, unused)."""
+    return [p.name for p in NODE_PARAMETERS]

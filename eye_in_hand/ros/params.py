@@ -50,15 +50,11 @@ from rcl_interfaces.msg import (
     ParameterDescriptor,
     SetParametersResult,
 )
-from rclpy.exceptions import (
-    InvalidParameterTypeException,
-    InvalidParameterValueException,
-    ParameterAlreadyDeclaredException,
-    ParameterUninitializedException,
-)
-from rclpy.parameter import Parameter
-from rclpy.utilities import remove_ros_args
 
+# rclpy is imported where a node declares its parameters, not here: checking a parameter
+# file's keys (unknown_parameter_keys, for `process` and `locate`) loads no rclpy, whose C
+# library starts tracing threads in the process (that would keep `process` from forking its
+# workers: eye_in_hand.workers.fork_is_safe) and costs ~30 ms of start-up
 from eye_in_hand.core.units import unit_hint
 from eye_in_hand.errors import ConfigError
 from eye_in_hand.yamlfile import printable, read_yaml_file
@@ -252,6 +248,8 @@ class Param:
 
     def ros_type(self) -> Any:
         """The ``rclpy.parameter.Parameter.Type`` of this parameter."""
+        from rclpy.parameter import Parameter
+
         return {
             "bool": Parameter.Type.BOOL, "int": Parameter.Type.INTEGER,
             "float": Parameter.Type.DOUBLE, "str": Parameter.Type.STRING,
@@ -317,6 +315,13 @@ def param_from_spec(spec: ParamSpec) -> Param:
 
 
 def _declare_one(node: Any, p: Param, full: str) -> Any:
+    from rclpy.exceptions import (
+        InvalidParameterTypeException,
+        InvalidParameterValueException,
+        ParameterAlreadyDeclaredException,
+        ParameterUninitializedException,
+    )
+
     typed_only = p.required or (p.is_array and not p.default)
     initial = p.ros_type() if typed_only else (list(p.default) if p.is_array else p.default)
     try:
@@ -468,6 +473,7 @@ def check_parameter_file(path: Any) -> None:
     Raises:
         ConfigError: ``<file>: rcl cannot parse this parameter file: <rcl's reason>``.
     """
+    from rclpy.utilities import remove_ros_args
 
     try:
         remove_ros_args(["check", "--ros-args", "--params-file", str(path)])
