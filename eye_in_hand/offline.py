@@ -30,7 +30,7 @@ import os
 import re
 import threading
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -200,7 +200,8 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
                 options: ProcessOptions | None = None,
                 progress: Callable[[int], object] | None = None,
                 pose_correction: RobotPoseCorrection | None = None,
-                info: BagInfo | None = None) -> ProcessResult:
+                info: BagInfo | None = None,
+                idle: Sequence[Callable[[], object]] = ()) -> ProcessResult:
     """Run detection, triangulation and localization over a bag.
 
     Args:
@@ -216,6 +217,10 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
             :class:`~eye_in_hand.core.localization.Localizer` as in the live node.
         info: the bag's :func:`~eye_in_hand.io.bags.bag_info`, when the caller has it
             already (read again otherwise).
+        idle: work for this process while it would otherwise wait for its worker processes,
+            each run once (the first times it waits; any left at the end of the pass then):
+            what the caller needs next, e.g. ``process`` loads the type definitions of its
+            output bag, which would cost the same time after the pass.
 
     Returns:
         Every stereo pair's :class:`FrameResult`, in stamp order, and counters.
@@ -237,6 +242,7 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     # rig (given, or read from the bag) goes to the pool by use_rig, after its workers start
     pool = _PairPool(None, locator_config, 1 if getattr(locator_config, "stateful", False)
                      else opts.workers or available_cpus(), task_timeout_s=opts.task_timeout_s)
+    pool.idle.extend(idle)
     try:
         # worker processes for pairs in mapped files (uncompressed MCAP) or for compressed
         # chunks they open, started before the rig is read: they import while this process
@@ -249,6 +255,7 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
                 pool.start_processes()
         pool.use_rig(run.load_rig())
         run.read(pool, progress, in_workers)
+        pool.run_idle(len(pool.idle))
     finally:
         pool.close()
     return run.finish(pool, [t.name for t in locator_config.detector.targets])
@@ -790,6 +797,8 @@ class _PairPool:
         self.in_processes = 0
         self.relocated = 0
         self.notes: list[str] = []
+        #: work for the calling thread while it waits for a worker (process_bag's ``idle``)
+        self.idle: list[Callable[[], object]] = []
         self._inflight: deque[Any] = deque()
         if rig is not None:
             self.use_rig(rig)
@@ -890,12 +899,19 @@ class _PairPool:
                                                 pair.right), pair))
             return
         if len(self._inflight) >= 3 * self._workers:   # bounded: keep memory flat
+            if self.idle and not self._inflight[0][0].done():
+                self.run_idle(1)
             wait([self._inflight[0][0]])
         fut = self._to_process(pair)
         if fut is None:
             assert self._threads is not None
             fut = self._threads.submit(self._work, pair)
         self._inflight.append((fut, pair))
+
+    def run_idle(self, n: int) -> None:
+        """Run the first ``n`` items of :attr:`idle` (each once)."""
+        for _ in range(min(n, len(self.idle))):
+            self.idle.pop(0)()
 
     def _result(self, fut: Any, pair: Any) -> FrameResult:
         from eye_in_hand.workers import WorkerError  # local: as ProcessPool (~11 ms)
@@ -924,6 +940,8 @@ class _PairPool:
                 self._inflight.popleft()
                 yield head
             elif wait or head.done():
+                if self.idle and not head.done():
+                    self.run_idle(1)
                 self._inflight.popleft()
                 yield self._result(head, pair)
             else:

@@ -415,3 +415,21 @@ def test_a_stopped_worker_process_times_out_and_costs_no_pair(bags):
     for a, b in zip(out, expected, strict=True):
         np.testing.assert_array_equal(a.point_cam, b.point_cam)
     assert any("task deadline" in n for n in pool.notes), pool.notes
+
+
+def test_idle_work_runs_once_each_and_changes_no_result(bags):
+    """``process_bag(..., idle=...)``: each item runs exactly once, in order, while the pass
+    waits for its workers or at its end, with workers or without; the frames are the same."""
+    world, zstd, raw = bags
+    cfg = load_locator_config(None)
+    for workers in (1, 2):
+        calls: list[str] = []
+        res = process_bag(zstd, hand_eye_T=world.ee_T_cam, locator_config=cfg,
+                          options=ProcessOptions(workers=workers),
+                          idle=[lambda: calls.append("a"), lambda: calls.append("b")])
+        plain = process_bag(zstd, hand_eye_T=world.ee_T_cam, locator_config=cfg,
+                            options=ProcessOptions(workers=workers))
+        assert calls == ["a", "b"]
+        assert res.counts == plain.counts and res.counts["localized"] == 8
+        for a, b in zip(res.frames, plain.frames, strict=True):
+            np.testing.assert_array_equal(a.point_base, b.point_base)

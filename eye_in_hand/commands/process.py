@@ -42,7 +42,7 @@ from eye_in_hand.core.locator_params import load_parameter_file, locator_config_
 from eye_in_hand.core.triangulation import METHODS as TRIANGULATION_METHODS
 from eye_in_hand.errors import ConfigError, ConversionError, InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
-from eye_in_hand.io.bags import STORAGES, DamageLog, bag_info, iter_messages
+from eye_in_hand.io.bags import STORAGES, DamageLog, bag_info, default_typestore, iter_messages
 from eye_in_hand.io.config import load_hand_eye
 from eye_in_hand.io.kinematics import load_kinematics
 from eye_in_hand.io.results import load_known_distances, run_figures
@@ -364,7 +364,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         from tqdm import tqdm  # local: ~18 ms at start-up with its importlib.metadata
 
-        class _Bar(tqdm):  # type: ignore[type-arg]
+        class _Bar(tqdm):
             # tqdm's monitor thread would keep process_bag from forking its workers
             # (workers.fork_is_safe); update() is called for every message anyway
             monitor_interval = 0
@@ -375,7 +375,8 @@ def run(args: argparse.Namespace) -> int:
         result = process_bag(args.bag, hand_eye_T=calib.transform, locator_config=config,
                              rig=rig, hand_eye_cov=calib.covariance, options=opts,
                              progress=None if bar is None else bar.update,
-                             pose_correction=calib.robot_pose_correction, info=info)
+                             pose_correction=calib.robot_pose_correction, info=info,
+                             idle=(default_typestore,))   # the output bag's definitions
     finally:
         if bar is not None:
             bar.close()

@@ -479,3 +479,26 @@ def test_lz4_compressed_mcap_chunks(tmp_path: Path) -> None:
     cut = bag_info(tmp_path / "cut.mcap")
     assert cut.message_count == 6 and cut.notes
     assert [m.data for _t, _s, m in iter_decoded(tmp_path / "cut.mcap")] == texts[:6]
+
+
+def test_a_metadata_yaml_is_parsed_once_per_text(tmp_path: Path, monkeypatch) -> None:
+    """A command opens one bag several times; its metadata.yaml is checked by parsing its
+    YAML once per text: the same text again takes the kept verdict, an edited file (here
+    damaged) is parsed afresh and judged by its new text."""
+    import yaml
+
+    from eye_in_hand.io.bags import reading
+
+    bag = tmp_path / "bag"
+    _write_sample(bag, n=4)
+    reading._parsed_metadata.cache_clear()
+    calls = []
+    real = yaml.safe_load
+    monkeypatch.setattr(yaml, "safe_load", lambda text: calls.append(1) or real(text))
+    for _ in range(3):
+        assert reading.metadata_problem(bag) is None
+        assert len(bag_info(bag).topics) == 2
+    assert len(calls) == 1
+    (bag / "metadata.yaml").write_text("just: text\n")
+    assert reading.metadata_problem(bag) == "has no 'rosbag2_bagfile_information' mapping"
+    assert len(calls) == 2

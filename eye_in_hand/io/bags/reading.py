@@ -2,6 +2,8 @@
 ``iter_messages``, ``check_bag``."""
 from __future__ import annotations
 
+import copy
+import functools
 import heapq
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -40,22 +42,32 @@ def metadata_problem(bag_dir: Path) -> str | None:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         return f"is not UTF-8 text (byte {raw[exc.start]:#04x} at offset {exc.start})"
+    return _parsed_metadata(text)[0]
+
+
+@functools.lru_cache(maxsize=16)
+def _parsed_metadata(text: str) -> tuple[str | None, dict[str, Any] | None]:
+    """A metadata.yaml's text: :func:`metadata_problem`'s answer, and its
+    ``rosbag2_bagfile_information`` when usable (shared: callers copy before changing it).
+    Kept per text: a command opens one bag several times (its summary, its storage checks,
+    its type store, its camera_info, the pass), and parsing the YAML costs 2-10 ms a time."""
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark is not None else ""
-        return f"is not valid YAML{where} ({getattr(exc, 'problem', None) or 'parse error'})"
+        return (f"is not valid YAML{where} "
+                f"({getattr(exc, 'problem', None) or 'parse error'})"), None
     info = data.get("rosbag2_bagfile_information") if isinstance(data, dict) else None
     if not isinstance(info, dict):
-        return "has no 'rosbag2_bagfile_information' mapping"
+        return "has no 'rosbag2_bagfile_information' mapping", None
     files = info.get("relative_file_paths")
     if not isinstance(files, list) or not files or not all(isinstance(f, str) for f in files):
-        return "has no list of storage files ('relative_file_paths')"
+        return "has no list of storage files ('relative_file_paths')", None
     if not isinstance(info.get("storage_identifier"), str) or \
             not isinstance(info.get("topics_with_message_count", []), list):
-        return "has no storage identifier or topic list"
-    return None
+        return "has no storage identifier or topic list", None
+    return None, info
 
 
 def _storage_paths(path: Path, notes: list[str] | None = None) -> list[Path]:
@@ -281,9 +293,11 @@ def _expected_counts(target: Path) -> tuple[dict[str, int], int | None] | None:
 
 
 def _read_metadata(bag_dir: Path) -> dict[str, Any]:
-    with open(bag_dir / "metadata.yaml", encoding="utf-8") as fh:
-        data = yaml.safe_load(fh)
-    return dict(data["rosbag2_bagfile_information"])
+    """The ``rosbag2_bagfile_information`` of a usable metadata.yaml (a copy)."""
+    problem, info = _parsed_metadata((bag_dir / "metadata.yaml").read_text(encoding="utf-8"))
+    if info is None:
+        raise KeyError(f"metadata.yaml {problem}")
+    return copy.deepcopy(info)
 
 
 def _check_window(start_ns: int | None, end_ns: int | None) -> None:
