@@ -50,15 +50,16 @@ suite's chunked and damaged-bag fixtures, rebuilt here (zstd, lz4 and uncompress
 workers, and compares ``results.csv``, ``summary.json``, ``metadata.yaml`` and the output
 bag's file byte for byte.)
 
-Figures: docs/localization.md, "The whole `process` command". Latest, 2026-11-29,
-``--curves length --repeat 3`` (least CPU of three runs, least floor of three), zstd bags,
-2-core machine at load 1.2-2.0:
+Figures: docs/localization.md, "The whole `process` command". Latest, 2026-11-29 (forked
+workers), ``--curves length --repeat 3`` (least CPU of three runs, least floor of three), zstd
+bags, 2-core machine at load 0.4-2.1, two runs:
 
-* 20 s 640x480: 2.70 CPU-s, 2.35x the floor, CPU/wall 1.57; peak RSS of the tree 417 MB;
-* 2 min: 12.06 CPU-s, 1.76x, CPU/wall 1.70; 447 MB;
-* 10 min: 57.29 CPU-s, 1.57x, CPU/wall 1.72; 586 MB (largest process 249 MB);
-* bag length: CPU 0.094 s per s of bag plus 0.80 (R^2 1.0000), floor 0.061 (R^2 0.9999), tree
-  RSS 0.29 MB per s of bag.
+* 20 s 640x480: 2.29 / 2.35 CPU-s, 1.93x / 1.67x the floor, CPU/wall 1.60 / 1.54; peak RSS of
+  the tree 394 MB;
+* 2 min: 11.09 / 11.15 CPU-s, 1.64x / 1.67x, CPU/wall 1.60 / 1.73; 431-434 MB;
+* 10 min: 54.09 / 56.32 CPU-s, 1.55x / 1.66x, CPU/wall 1.70 / 1.73; 613-623 MB (pages shared
+  with forked workers counted once per process; largest process 229-233 MB);
+* bag length: CPU 0.089-0.093 s per s of bag plus 0.24-0.44 (R^2 >= 0.9999), floor 0.057-0.058.
 """
 from __future__ import annotations
 
