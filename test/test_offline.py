@@ -1,6 +1,7 @@
 """eye_in_hand.offline: where pairs are located never changes what is found."""
 from __future__ import annotations
 
+import functools
 import time
 
 import numpy as np
@@ -426,7 +427,8 @@ def test_idle_work_runs_once_each_and_changes_no_result(bags):
         calls: list[str] = []
         res = process_bag(zstd, hand_eye_T=world.ee_T_cam, locator_config=cfg,
                           options=ProcessOptions(workers=workers),
-                          idle=[lambda: calls.append("a"), lambda: calls.append("b")])
+                          idle=[functools.partial(calls.append, "a"),
+                                functools.partial(calls.append, "b")])
         plain = process_bag(zstd, hand_eye_T=world.ee_T_cam, locator_config=cfg,
                             options=ProcessOptions(workers=workers))
         assert calls == ["a", "b"]
