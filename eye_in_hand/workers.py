@@ -211,7 +211,7 @@ def _forked_child(task_r: int, result_w: int, env: dict[str, str], parent: int,
         os.setsid()                       # Ctrl-C in the terminal is the parent's to handle
         os.dup2(task_r, 0)
         os.dup2(result_w, 1)
-        os.closerange(3, _max_fd())
+        _close_inherited()
         signal.signal(signal.SIGINT, signal.default_int_handler)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
         os.environ.update(env)
@@ -233,11 +233,16 @@ def _forked_child(task_r: int, result_w: int, env: dict[str, str], parent: int,
         os._exit(code)
 
 
-def _max_fd() -> int:
-    try:
-        return max(256, int(os.sysconf("SC_OPEN_MAX")))
-    except (ValueError, OSError):
-        return 1 << 16
+def _close_inherited() -> None:
+    """Close every descriptor above 2, those listed in ``/proc/self/fd`` (not a loop up to
+    the descriptor limit, which can be a million where ``close_range`` is missing)."""
+    for name in os.listdir("/proc/self/fd"):
+        fd = int(name)
+        if fd > 2:
+            try:
+                os.close(fd)
+            except OSError:               # the listing's own descriptor, closed already
+                pass
 
 
 class _Worker:

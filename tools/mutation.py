@@ -877,7 +877,7 @@ MUTANTS: tuple[Mutant, ...] = (
       "        pass  # nothing imported early:",
       "a deferred pool's workers import nothing until they are initialised"),
     M("workers-fork-keeps-fds", "workers.py",
-      "        os.closerange(3, _max_fd())\n",
+      "        _close_inherited()\n",
       "        pass\n",
       "a forked worker keeps the parent's descriptors: another worker's stdin never ends"),
     M("workers-fork-beside-threads", "workers.py",
