@@ -244,6 +244,10 @@ MUTANTS: tuple[Mutant, ...] = (
       "np.array([0.0, Z / fy, 0.0, 0.0])",
       "the parallax Y uses the left row only in its Jacobian (the point averages both rows)"),
     # -- core/detection.py
+    M("detection-one-component-of-several", "core/detection.py",
+      "    if len(contours) > 1 and int(np.count_nonzero(hierarchy[0, :, 3] < 0)) > 1:\n",
+      "    if False:\n",
+      "a ROI with several blobs is taken as one (the labelling skipped)"),
     M("detection-half-pixel", "core/detection.py",
       "    minor = 2.0 * math.sqrt(max(lam_min, 0.0)) + 0.5\n",
       "    minor = 2.0 * math.sqrt(max(lam_min, 0.0))\n",

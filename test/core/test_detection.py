@@ -170,3 +170,41 @@ def test_hsi_range_detects_the_same_sphere_as_hsv():
     # edge pixels (partly covered) fall either side of two different thresholds
     assert a.area_px == pytest.approx(b.area_px, rel=0.02)
     assert np.allclose(a.center_px, cam.project(np.array([c]))[0], atol=0.1)
+
+
+def test_one_component_is_found_without_labelling_as_labelling_finds_it():
+    """The fine pass labels a ROI's mask only when it holds several components: for one,
+    ``_single_component`` gives the stats ``connectedComponentsWithStats`` gives (bounding
+    box, pixel count), for several None, for none ``()``. Random blobs with holes, diagonal
+    contacts (8-connected: one component), nested rings and image-edge contact."""
+    from eye_in_hand.core.detection import _single_component
+
+    rng = np.random.default_rng(3)
+    seen = {"one": 0, "several": 0, "none": 0}
+    for trial in range(400):
+        h, w = rng.integers(8, 60, size=2)
+        mask = np.zeros((h, w), np.uint8)
+        for _ in range(int(rng.integers(0, 4))):
+            c = (int(rng.integers(-5, w + 5)), int(rng.integers(-5, h + 5)))
+            cv2.circle(mask, c, int(rng.integers(1, 15)), 255, -1)
+            if rng.random() < 0.4:                       # a hole, maybe a blob inside it
+                cv2.circle(mask, c, int(rng.integers(1, 6)), 0, -1)
+                if rng.random() < 0.5:
+                    cv2.circle(mask, c, 1, 255, -1)
+        if trial % 7 == 0:                                # two squares touching at a corner
+            mask[:] = 0
+            mask[2:6, 2:6] = 255
+            mask[6:9, 6:9] = 255
+        n, _labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8,
+                                                                ltype=cv2.CV_16U)
+        got = _single_component(mask)
+        if n == 1:
+            assert got == ()
+            seen["none"] += 1
+        elif n == 2:
+            assert got == tuple(int(v) for v in stats[1]), (trial, got, stats[1])
+            seen["one"] += 1
+        else:
+            assert got is None, (trial, n)
+            seen["several"] += 1
+    assert min(seen.values()) > 20, seen
