@@ -118,11 +118,13 @@ def _spawn(env: dict[str, str], root: str, preload: str) -> subprocess.Popen[byt
 def fork_is_safe() -> bool:
     """Whether this process may start workers with ``fork``: on Linux, while it runs one
     thread (``/proc/self/task``: also the threads of C libraries, OpenCV's pool, OpenBLAS's,
-    DDS's, which Python does not see). A fork copies only the calling thread: a lock another
-    thread held stays locked forever in the child."""
+    DDS's, which Python does not see), with its descriptors 0-2 open. A fork copies only the
+    calling thread: a lock another thread held stays locked forever in the child."""
     if not sys.platform.startswith("linux"):
         return False
     try:
+        for fd in (0, 1, 2):      # else a worker's pipe could land on them
+            os.fstat(fd)
         return len(os.listdir("/proc/self/task")) == 1
     except OSError:
         return False

@@ -295,3 +295,18 @@ print(json.dumps(dict(forked=pool.forked, error=error, printed=printed, after=af
     assert "printed by a forked worker" in err
     assert "exited with code 3" in out["died"]
     assert "task deadline" in out["hung"] and out["timeouts"] == 1
+
+
+def test_a_caller_without_stdin_starts_fresh_interpreters():
+    """With descriptor 0 closed a worker's pipe could take its number (and be overwritten
+    when the child sets up its own): such a caller does not fork."""
+    out, _ = _forking("""
+os.close(0)
+safe = fork_is_safe()
+with ProcessPool(1, "builtins:len", ((),), fork=True) as pool:
+    wait_ready(pool)
+    value = pool.submit("math:sqrt", 9.0).result(timeout=30)
+    forked = pool.forked
+print(json.dumps(dict(safe=safe, forked=forked, value=value)))
+""")
+    assert out == {"safe": False, "forked": False, "value": 3.0}
