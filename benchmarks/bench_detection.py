@@ -6,9 +6,9 @@ Speed: per 1280x720 stereo pair, ``StereoLocator.locate`` against the floor meas
 run (``cv2.cvtColor`` BGR->HSV + one ``cv2.inRange`` on both full images), the two timed in
 turns within each of ``--rounds`` rounds; the ratio is the median over the rounds. Targets
 (issue 24): one target at most 1x the floor, four targets at most 1.5x. Latest figures
-(docs/detection.md#figures; idle 2-core machine, runs alternating with the code before):
-one target 1.44-1.46x the floor (4.6-4.7 ms per pair; before 1.81-2.02x, 6.9-7.1 ms), four
-targets 4.0-4.1x (12.6-13.4 ms; before 4.7-4.8x, 14.3-14.5 ms).
+(docs/detection.md#figures; idle 2-core machine, 2026-11-29, ``--repeats 50 --cv-threads
+1``): one target 0.80x the floor (1.92 ms per pair against 2.36 ms), four targets 1.94x
+(4.56 ms; the code before the one-component shortcut 2.06-2.08x in alternating runs).
 
 Accuracy: simulator renders (``eye_in_hand.sim``, default world: 35 mm red sphere, distorted
 1280x720 rig, f ~ 900 px, B = 60 mm, sensor noise 2 grey levels) at 0.3-0.6 m range with the
