@@ -52,14 +52,14 @@ bag's file byte for byte.)
 
 Figures: docs/localization.md, "The whole `process` command". Latest, 2026-11-29 (forked
 workers), ``--curves length --repeat 3`` (least CPU of three runs, least floor of three), zstd
-bags, 2-core machine at load 0.4-2.1, two runs:
+bags, 2-core machine at load 0.4-2.1, four runs:
 
-* 20 s 640x480: 2.29 / 2.35 CPU-s, 1.93x / 1.67x the floor, CPU/wall 1.60 / 1.54; peak RSS of
-  the tree 394 MB;
-* 2 min: 11.09 / 11.15 CPU-s, 1.64x / 1.67x, CPU/wall 1.60 / 1.73; 431-434 MB;
-* 10 min: 54.09 / 56.32 CPU-s, 1.55x / 1.66x, CPU/wall 1.70 / 1.73; 613-623 MB (pages shared
-  with forked workers counted once per process; largest process 229-233 MB);
-* bag length: CPU 0.089-0.093 s per s of bag plus 0.24-0.44 (R^2 >= 0.9999), floor 0.057-0.058.
+* 20 s 640x480: 2.22-2.60 CPU-s, 1.67-2.07x the floor (1.91x in the last run), CPU/wall
+  1.54-1.60; peak RSS of the tree 392-395 MB;
+* 2 min: 11.05-11.63 CPU-s, 1.55-1.70x, CPU/wall 1.60-1.73; 431-434 MB;
+* 10 min: 50.50-58.01 CPU-s, 1.47-1.66x, CPU/wall 1.70-1.75; 608-623 MB (pages shared with
+  forked workers counted once per process; largest process 227-233 MB);
+* bag length: CPU 0.083-0.096 s per s of bag (R^2 >= 0.9999), floor 0.057-0.062.
 """
 from __future__ import annotations
 
