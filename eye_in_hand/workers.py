@@ -185,18 +185,23 @@ def _fork(env: dict[str, str], preload: str) -> _ForkedProcess:
         except (OSError, ValueError):
             pass
     # objects that exist now are left to the child as they are: a collection in the child
-    # would write to (and so copy) every page of this process's heap it visits
+    # would write to (and so copy) every page of this process's heap it visits. This process
+    # unfreezes them after the fork, unless its caller had frozen objects itself (a frozen
+    # heap is the caller's choice, and unfreeze cannot tell whose objects are whose).
+    caller_froze = gc.get_freeze_count() > 0
     gc.freeze()
     try:
         pid = os.fork()
     except BaseException:
-        gc.unfreeze()
+        if not caller_froze:
+            gc.unfreeze()
         for fd in (task_r, task_w, result_r, result_w):
             os.close(fd)
         raise
     if pid == 0:                                                   # pragma: no cover - child
         _forked_child(task_r, result_w, env, os.getppid(), preload)
-    gc.unfreeze()
+    if not caller_froze:
+        gc.unfreeze()
     os.close(task_r)
     os.close(result_w)
     return _ForkedProcess(pid, os.fdopen(task_w, "wb"), os.fdopen(result_r, "rb"))
@@ -220,7 +225,7 @@ def _forked_child(task_r: int, result_w: int, env: dict[str, str], parent: int,
         _PARENT = parent
         code = _serve(os.fdopen(0, "rb", closefd=False), preload)
     except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else 1
+        code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
     except BaseException:  # noqa: BLE001 - EYE_IN_HAND_DEBUG's traceback, or a broken fd
         try:
             import traceback

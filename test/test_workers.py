@@ -310,3 +310,23 @@ with ProcessPool(1, "builtins:len", ((),), fork=True) as pool:
 print(json.dumps(dict(safe=safe, forked=forked, value=value)))
 """)
     assert out == {"safe": False, "forked": False, "value": 3.0}
+
+
+def test_forking_leaves_the_callers_garbage_collector_as_it_was():
+    """The objects frozen for the fork are unfrozen in the caller after it, unless the caller
+    had frozen objects itself (then they stay frozen: its choice)."""
+    out, _ = _forking("""
+import gc
+before = gc.get_freeze_count()
+with ProcessPool(1, "builtins:len", ((),), fork=True) as pool:
+    plain = gc.get_freeze_count()
+    forked = pool.forked
+junk = [object() for _ in range(1000)]
+gc.freeze()
+frozen = gc.get_freeze_count()
+with ProcessPool(1, "builtins:len", ((),), fork=True) as pool:
+    after = gc.get_freeze_count()
+print(json.dumps(dict(forked=forked, before=before, plain=plain, frozen=frozen, after=after)))
+""")
+    assert out["forked"] and out["before"] == out["plain"] == 0
+    assert out["frozen"] > 0 and out["after"] > 0      # not unfrozen (freed ones leave it)
