@@ -10,14 +10,16 @@ Curves (each point one ``eye-in-hand process`` run, a subprocess, start-up inclu
 Per point: wall time, CPU of the whole process tree (``getrusage(RUSAGE_CHILDREN)`` after it
 exits: the command and its worker processes), CPU/wall, the peak RSS of the tree (the sum over
 its processes, sampled from ``/proc`` at about 20 Hz; also its anonymous part, ``RssAnon``,
-without the bag's file pages) and of its largest single process
-(``VmHWM``), and the **floor**: the CPU of reading every image's bytes from the same bag
+without the bag's file pages), its peak proportional set size (PSS, from ``smaps_rollup`` at
+about 4 Hz: the memory the tree really holds, where the RSS sum counts pages a forked worker
+shares with the reading process once per process) and the peak RSS of its largest single
+process (``VmHWM``), and the **floor**: the CPU of reading every image's bytes from the same bag
 (decompressing its chunks) and ``cvtColor(BGR2HSV)`` + one ``inRange`` per target of both images
 of every pair, in one thread of this process, on the same bag in the same run (with
 ``--repeat N``: the least CPU of N runs of the command, and of N measurements of the floor,
 one after each run). Per
 curve, the
-least-squares slope of wall, CPU, floor CPU and peak RSS against the curve's variable, with R^2
+least-squares slope of wall, CPU, floor CPU and peak memory against the curve's variable, with R^2
 (1 = a straight line).
 
 The bags: a few seconds of distinct stereo pairs are rendered with the simulator (no sensor
@@ -256,6 +258,20 @@ def _tree(pid: int) -> list[int]:
     return out
 
 
+def _pss(pid: int) -> int:
+    """Proportional set size of a process in bytes (each page it shares divided among its
+    sharers: a forked worker's pages shared with its parent count once in a sum), 0 once it
+    is gone. Reading it walks the process's page tables, so it is sampled less often."""
+    try:
+        with open(f"/proc/{pid}/smaps_rollup") as fh:
+            for line in fh:
+                if line.startswith("Pss:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, IndexError, ValueError):
+        pass
+    return 0
+
+
 def _mem(pid: int) -> tuple[int, int, int]:
     """(VmRSS, VmHWM, RssAnon) of a process in bytes (zeros once it is gone)."""
     got = {"VmRSS:": 0, "VmHWM:": 0, "RssAnon:": 0}
@@ -298,18 +314,24 @@ def run_process(bag: Path, he: Path, params: Path, out: Path,
     cmd += ["process", str(bag), "--hand-eye", str(he), "--params", str(params), "-o",
             str(out), "--quiet"]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    peak = [0, 0, 0]          # tree RSS sum, largest process's peak (VmHWM), tree anonymous
-    t0 = time.perf_counter()
+    peak = [0, 0, 0, 0]       # tree RSS sum, largest process's peak (VmHWM), tree anonymous,
+    t0 = time.perf_counter()  # tree PSS (every fifth sample: a read walks the page tables,
+    #                           about 0.4 ms for a 500 MB process)
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=_env(code), cwd=code or ROOT)   # not another checkout's root
     done = threading.Event()
 
     def sample() -> None:
+        k = 0
         while not done.wait(0.05):
-            mems = [_mem(q) for q in _tree(proc.pid)]
+            tree = _tree(proc.pid)
+            mems = [_mem(q) for q in tree]
             peak[0] = max(peak[0], sum(m[0] for m in mems))
             peak[1] = max(peak[1], max((m[1] for m in mems), default=0))
             peak[2] = max(peak[2], sum(m[2] for m in mems))
+            if k % 5 == 0:
+                peak[3] = max(peak[3], sum(_pss(q) for q in tree))
+            k += 1
 
     sampler = threading.Thread(target=sample, daemon=True)
     sampler.start()
@@ -324,7 +346,7 @@ def run_process(bag: Path, he: Path, params: Path, out: Path,
     shutil.rmtree(out, ignore_errors=True)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     return {"wall": wall, "cpu": cpu, "rss_sum": peak[0] / 1e6, "rss_max": peak[1] / 1e6,
-            "anon_sum": peak[2] / 1e6,
+            "anon_sum": peak[2] / 1e6, "pss_sum": peak[3] / 1e6,
             "pairs": float(summary["counts"]["pairs"]),
             "localized": float(summary["counts"]["localized"])}
 
@@ -730,8 +752,8 @@ def main() -> int:
               f"{r['cpu']:.2f} s ({r['cpu'] / p.seconds:.3f} s per s of bag), CPU/wall "
               f"{r['cpu'] / r['wall']:.2f}; floor {r['floor_cpu']:.2f} s CPU -> "
               f"{r['cpu'] / r['floor_cpu']:.2f}x the floor; peak RSS {r['rss_sum']:.0f} MB "
-              f"(tree; anonymous {r['anon_sum']:.0f} MB), {r['rss_max']:.0f} MB (largest "
-              f"process); {r['localized']:.0f} of "
+              f"(tree; anonymous {r['anon_sum']:.0f} MB; PSS {r['pss_sum']:.0f} MB), "
+              f"{r['rss_max']:.0f} MB (largest process); {r['localized']:.0f} of "
               f"{r['pairs']:.0f} pairs localized; load {os.getloadavg()[0]:.2f}", flush=True)
     for c in chosen:
         unit, pts = curves[c]
@@ -740,6 +762,7 @@ def main() -> int:
         for key, label, scale in (("wall", "wall s", 1.0), ("cpu", "CPU s", 1.0),
                                   ("floor_cpu", "floor CPU s", 1.0),
                                   ("rss_sum", "peak RSS (tree) MB", 1.0),
+                                  ("pss_sum", "peak PSS (tree) MB", 1.0),
                                   ("anon_sum", "peak anonymous (tree) MB", 1.0),
                                   ("rss_max", "peak RSS (largest) MB", 1.0)):
             ys = [results[p][key] * scale for _x, p in pts]
