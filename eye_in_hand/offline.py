@@ -899,14 +899,18 @@ class _PairPool:
                                                 pair.right), pair))
             return
         if len(self._inflight) >= 3 * self._workers:   # bounded: keep memory flat
-            if self.idle and not self._inflight[0][0].done():
-                self.run_idle(1)
+            self._before_waiting(self._inflight[0][0])
             wait([self._inflight[0][0]])
         fut = self._to_process(pair)
         if fut is None:
             assert self._threads is not None
             fut = self._threads.submit(self._work, pair)
         self._inflight.append((fut, pair))
+
+    def _before_waiting(self, fut: Any) -> None:
+        """One item of :attr:`idle`, when ``fut`` is not done (the caller waits for it next)."""
+        if self.idle and not fut.done():
+            self.run_idle(1)
 
     def run_idle(self, n: int) -> None:
         """Run the first ``n`` items of :attr:`idle` (each once)."""
@@ -940,8 +944,7 @@ class _PairPool:
                 self._inflight.popleft()
                 yield head
             elif wait or head.done():
-                if self.idle and not head.done():
-                    self.run_idle(1)
+                self._before_waiting(head)
                 self._inflight.popleft()
                 yield self._result(head, pair)
             else:

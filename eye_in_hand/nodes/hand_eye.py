@@ -102,8 +102,6 @@ NODE_NAME = "hand_eye"
 WAIT_CHECK_PERIOD_S, IDLE_CHECK_PERIOD_S = 0.02, 0.2
 
 
-
-
 class HandEyeNode(Node):
     """See the module docstring. ``kwargs`` go to ``Node`` (context, namespace, overrides).
 
