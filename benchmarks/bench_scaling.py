@@ -17,10 +17,8 @@ process (``VmHWM``), and the **floor**: the CPU of reading every image's bytes f
 (decompressing its chunks) and ``cvtColor(BGR2HSV)`` + one ``inRange`` per target of both images
 of every pair, in one thread of this process, on the same bag in the same run (with
 ``--repeat N``: the least CPU of N runs of the command, and of N measurements of the floor,
-one after each run). Per
-curve, the
-least-squares slope of wall, CPU, floor CPU and peak memory against the curve's variable, with R^2
-(1 = a straight line).
+one after each run). Per curve, the least-squares slope of wall, CPU, floor CPU and peak
+memory against the curve's variable, with R^2 (1 = a straight line).
 
 The bags: a few seconds of distinct stereo pairs are rendered with the simulator (no sensor
 noise, as the bundled bags: a 10-minute 640x480 bag is about 1 GB with zstd chunks instead of 33
