@@ -435,3 +435,25 @@ def test_idle_work_runs_once_each_and_changes_no_result(bags):
         assert res.counts == plain.counts and res.counts["localized"] == 8
         for a, b in zip(res.frames, plain.frames, strict=True):
             np.testing.assert_array_equal(a.point_base, b.point_base)
+
+
+def test_a_frame_from_a_worker_keeps_no_part_of_its_pickle():
+    """Every frame is kept until the outputs are written: one made from a worker's values owns
+    its arrays (not views of the unpickled buffer, three objects each), shares its id
+    strings with the other frames, and has no per-instance dict."""
+    import pickle
+    import sys
+
+    from eye_in_hand.offline import _frame_of
+
+    cov = np.diag([1e-8, 2e-8, 4e-8])
+    values = (7, "located", "", [("red_0", "red", np.array([0.1, 0.2, 0.6]), cov, 0.25,
+                                  np.array([640.5, 360.25]), np.array([600.5, 360.0]))], {})
+    frame = _frame_of(pickle.loads(pickle.dumps(values, protocol=pickle.HIGHEST_PROTOCOL)))
+    t = frame.targets[0]
+    for a in (t.point_cam, t.cov_cam, t.left_px, t.right_px, frame.point_cam, frame.cov_cam):
+        assert a.base is None and a.flags.owndata
+    assert frame.point_cam is t.point_cam                 # the first target's, not a copy
+    np.testing.assert_array_equal(t.cov_cam, cov)
+    assert t.id is sys.intern("red_0") and t.name is sys.intern("red")
+    assert not hasattr(frame, "__dict__") and not hasattr(t, "__dict__")

@@ -849,6 +849,11 @@ MUTANTS: tuple[Mutant, ...] = (
       "            self._procs.initialize(rig, self._config)\n",
       "            pass\n",
       "worker processes started before the rig is read are never initialised with it"),
+    M("offline-frames-keep-pickle-views", "offline.py",
+      "sys.intern(name), np.array(point), np.array(cov),\n",
+      "sys.intern(name), point, cov,\n",
+      "every frame kept for the outputs holds its worker's unpickled buffers (2.4 kB more a "
+      "target)"),
     M("offline-workers-leak-on-error", "offline.py",
       "    finally:\n        pool.close()\n    return run.finish",
       "    except BagError:\n        raise\n    pool.close()\n    return run.finish",

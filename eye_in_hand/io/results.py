@@ -90,7 +90,7 @@ def _error_m(point_base: np.ndarray | None, truth_base: np.ndarray | None) -> fl
     return float(np.linalg.norm(point_base - truth_base))
 
 
-@dataclass
+@dataclass(slots=True)
 class TargetResult:
     """One located target in one stereo pair.
 
@@ -123,7 +123,7 @@ class TargetResult:
         return _error_m(self.point_base, self.truth_base)
 
 
-@dataclass
+@dataclass(slots=True)
 class FrameResult:
     """One stereo pair's outcome.
 
