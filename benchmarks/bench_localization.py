@@ -608,10 +608,14 @@ def detection_floor(paths: dict[str, Path], pairs: int = 300,
     from eye_in_hand.io.bags import iter_messages
     from eye_in_hand.ros.images import image_to_numpy
 
+    n = pairs + 10                    # the first 10: warm-up
     sides: dict[str, list[bytes]] = {LEFT: [], RIGHT: []}
     for topic, _mt, _t, raw in iter_messages(paths["loc"], [LEFT, RIGHT]):
-        sides[topic].append(bytes(raw))
-    todo = list(zip(sides[LEFT], sides[RIGHT], strict=True))[:pairs + 10]
+        if len(sides[topic]) < n:
+            sides[topic].append(bytes(raw))
+        elif all(len(v) >= n for v in sides.values()):
+            break                     # the images needed, not the bag's 3 GB of them
+    todo = list(zip(sides[LEFT][:n], sides[RIGHT][:n], strict=True))
     locator = StereoLocator(StereoRig.load(paths["calib"]),
                             load_locator_config(params_file(paths)))
     conv = det = 0.0
@@ -630,8 +634,9 @@ def detection_floor(paths: dict[str, Path], pairs: int = 300,
         if k >= 10:
             conv += c1 - c0
             det += c2 - c1
-    n = max(1, len(todo) - 10)
-    return {"conversion_ms": conv * 1e3 / n, "detection_ms": det * 1e3 / n, "pairs": n}
+    timed = max(1, len(todo) - 10)
+    return {"conversion_ms": conv * 1e3 / timed, "detection_ms": det * 1e3 / timed,
+            "pairs": timed}
 
 
 def print_floor(fig: dict[str, float], floors: list[dict[str, float]]) -> None:
