@@ -827,7 +827,7 @@ class _PairPool:
     @property
     def forked(self) -> bool:
         """Whether the worker processes were forked from this one (see ProcessPool's fork)."""
-        return self._procs is not None and bool(self._procs.forked)
+        return self._forked
 
     def start_processes(self) -> None:
         """Start the worker processes now (else: at the first pair that lies in a mapped file),
@@ -849,6 +849,7 @@ class _PairPool:
             self.notes.append(f"worker processes unavailable ({exc}): pairs located on threads")
             return
         self._procs_waiting = self._rig is None
+        self._forked = bool(self._procs.forked)
 
     def _locator(self) -> StereoLocator:
         loc = getattr(self._local, "locator", None)
@@ -885,9 +886,7 @@ class _PairPool:
         if self._procs is None or not self._procs.ready():
             if self._procs is not None and not self._procs.alive():
                 self.notes.append("worker processes exited: pairs located on threads")
-                self._procs.close()
-                self._timeouts += self._procs.timeouts
-                self._procs = None
+                self._close_processes()
             return None
         try:
             fut = self._procs.submit("eye_in_hand.offline:_worker_locate", pair.stamp_ns, left,
@@ -963,6 +962,19 @@ class _PairPool:
         return self._timeouts + (self._procs.timeouts if self._procs is not None else 0)
 
     _timeouts = 0
+    _forked = False
+
+    def _close_processes(self) -> None:
+        """Close the worker processes; a note for each that ended on its own and was not
+        named in a note yet (one that died between two pairs fails none of them, but the
+        pass ran with one worker less from then on)."""
+        self._procs.close()
+        self._timeouts += self._procs.timeouts
+        for pid, line in self._procs.ended():
+            if not any(f"worker process {pid} " in n for n in self.notes):
+                self.notes.append(f"{line} during the pass; the other workers and this "
+                                  "process located the pairs left")
+        self._procs = None
 
     def close(self) -> None:
         from eye_in_hand.io.bags.mcap_tasks import release  # local: ~14 ms, as mcap_chunks
@@ -970,7 +982,7 @@ class _PairPool:
         if self._threads is not None:
             self._threads.shutdown(wait=True, cancel_futures=True)
         if self._procs is not None:
-            self._procs.close()
+            self._close_processes()
         release()          # chunks this process opened for pairs located here
 
 

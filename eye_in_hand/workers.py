@@ -530,6 +530,25 @@ class ProcessPool:
         except WorkerError:
             return None
 
+    def ended(self) -> list[tuple[int, str]]:
+        """The workers that ended on their own: their pid and a line (``worker process 123 was
+        killed by SIGKILL``): not closed by this pool, nor killed for a missed task deadline (those
+        are counted in :attr:`timeouts`). Complete once :meth:`close` has returned."""
+        lines = []
+        for w in self._workers:
+            code = w.proc.poll()
+            if not self._initialized or w.timed_out is not None or code in (None, 0):
+                continue
+            if code < 0:
+                try:
+                    how = f"was killed by {signal.Signals(-code).name}"
+                except ValueError:
+                    how = f"was killed by signal {-code}"
+            else:
+                how = f"exited with code {code}"
+            lines.append((w.proc.pid, f"worker process {w.proc.pid} {how}"))
+        return lines
+
     def close(self) -> None:
         """Close the workers' stdin (they exit) and wait for them; workers never initialised
         (``defer_init`` and no :meth:`initialize`) are killed, not waited for while they

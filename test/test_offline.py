@@ -280,19 +280,52 @@ def test_a_worker_process_that_dies_costs_no_pair(bags):
             and time.monotonic() < deadline:
         time.sleep(0.01)
     victim = pool._procs._workers[0].proc.pid
+    os.kill(victim, signal.SIGSTOP)     # stopped first: the pairs sent to it stay in flight
     out = []
     try:
         for i, pair in enumerate(_pairs(raw)):
             pool.submit(pair)
             if i == 2:
-                os.kill(victim, signal.SIGKILL)     # with pairs in flight on it
+                assert pool._procs._workers[0].pending   # the least busy worker took some
+                os.kill(victim, signal.SIGKILL)          # with pairs in flight on it
         out.extend(pool.ready(wait=True))
     finally:
         pool.close()
+    assert pool.relocated >= 1
     assert [f.stamp_ns for f in out] == [f.stamp_ns for f in expected]
     for a, b in zip(out, expected, strict=True):
         np.testing.assert_array_equal(a.point_cam, b.point_cam)
-    assert any("worker process" in n for n in pool.notes), pool.notes
+    assert [n for n in pool.notes if f"worker process {victim} " in n], pool.notes
+
+
+def test_a_worker_process_that_dies_between_pairs_is_noted(bags):
+    """A worker that dies owing nothing fails no pair, but the pass ran with one worker less:
+    the notes say so, once, naming the process and how it ended."""
+    import os
+    import signal
+
+    world, _zstd, raw = bags
+    cfg = load_locator_config(None)
+    pool = _PairPool(world.rig, cfg, 2)
+    pool.start_processes()
+    deadline = time.monotonic() + 60
+    while not (pool._procs and all(w.ready.is_set() for w in pool._procs._workers)) \
+            and time.monotonic() < deadline:
+        time.sleep(0.01)
+    worker = pool._procs._workers[0]
+    os.kill(worker.proc.pid, signal.SIGKILL)
+    while not worker.dead and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert worker.dead
+    try:
+        for pair in _pairs(raw):
+            pool.submit(pair)
+        out = list(pool.ready(wait=True))
+    finally:
+        pool.close()
+    assert len(out) == len(list(_pairs(raw))) and pool.relocated == 0
+    assert pool.notes == [f"worker process {worker.proc.pid} was killed by SIGKILL during the "
+                          "pass; the other workers and this process located the pairs left"]
 
 
 def _ledger_ok(c):

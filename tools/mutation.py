@@ -854,6 +854,10 @@ MUTANTS: tuple[Mutant, ...] = (
       "sys.intern(name), point, cov,\n",
       "every frame kept for the outputs holds its worker's unpickled buffers (2.4 kB more a "
       "target)"),
+    M("offline-dead-worker-unnoted", "offline.py",
+      "            if not any(f\"worker process {pid} \" in n for n in self.notes):\n",
+      "            if False:\n",
+      "a worker process that dies between two pairs is not named in the notes"),
     M("offline-workers-leak-on-error", "offline.py",
       "    finally:\n        pool.close()\n    return run.finish",
       "    except BagError:\n        raise\n    pool.close()\n    return run.finish",
