@@ -154,10 +154,12 @@ def test_forked_and_spawned_workers_give_the_same_results(bags):
             got[how] = json.loads(run.stdout.strip().splitlines()[-1])
         assert got["plain"]["forked"] and not got["thread"]["forked"]
         for out in got.values():
-            # compressed chunks: every pair in the workers that opened them; mapped images:
-            # those before the first worker is ready on threads here
+            # compressed chunks: every pair in the workers that opened them. Mapped images
+            # go to threads here until the first worker is ready: on a loaded machine that
+            # can be after all 8 pairs, so their count is not asserted
             assert out["counts"]["pairs"] == 8 and not out["notes"]
-            assert out["in_processes"] == 8 if bag is zstd else out["in_processes"] > 0
+            if bag is zstd:
+                assert out["in_processes"] == 8
         assert got["plain"]["counts"] == got["thread"]["counts"]
         assert got["plain"]["points"] == got["thread"]["points"]
 

@@ -224,3 +224,29 @@ def test_zstd_chunks_decompress_with_their_size(tmp_path: Path) -> None:
     assert bytes(fn(data, 10_000)) == b"0123456789" * 1000
     with pytest.raises(ValueError, match="more than the 100 bytes"):
         fn(data, 100)               # a size smaller than the data is never cut silently
+
+
+@pytest.mark.parametrize("compression", ["", "zstd"])
+def test_a_chunk_read_leaves_no_record_behind(tmp_path: Path, compression: str) -> None:
+    """A long bag has tens of thousands of chunks: each one's record (:class:`_Chunk`) goes
+    once it has been read, so that what the reader holds does not grow with the bag."""
+    import gc
+
+    from eye_in_hand.io.bags.mcap_chunks import _Chunk
+
+    chunks = _chunks(n_chunks=40, per_chunk=2)
+    path = tmp_path / "x.mcap"
+    write_mcap(path, chunks, compression=compression)
+
+    def alive() -> int:
+        gc.collect()
+        return sum(isinstance(o, _Chunk) for o in gc.get_objects())
+
+    seen = []
+    got = []
+    for k, (topic, _mt, t, raw) in enumerate(iter_messages(path)):
+        got.append((topic, t, bytes(raw)))
+        if k in (4, 40, 70):
+            seen.append(alive())
+    assert got == _expected(chunks)
+    assert seen[0] <= 40 and seen[1] <= 22 and seen[2] <= 7, seen

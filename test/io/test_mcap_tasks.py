@@ -103,6 +103,44 @@ def test_same_messages_in_the_same_order_whatever_the_groups(tmp_path, monkeypat
     assert _read(bag, _local) == expected
 
 
+def test_chunk_refs_are_made_a_few_groups_ahead_not_for_the_whole_file(tmp_path, monkeypatch):
+    """A long bag's chunk index is thousands of chunks: its ChunkRefs (about 0.9 kB each) are
+    made as their groups are submitted, ``ahead`` groups in advance, in order."""
+    import gc
+    import weakref
+
+    bag = tmp_path / "bag"
+    _write(bag, n=240)
+    expected = _serial(bag)
+    monkeypatch.setattr(mcap_tasks, "GROUP_BYTES", 1)   # every chunk its own group
+    alive: weakref.WeakSet = weakref.WeakSet()
+    made = mcap_tasks.ChunkRef.of
+
+    def of(path, info):
+        ref = made(path, info)
+        alive.add(ref)
+        return ref
+
+    monkeypatch.setattr(mcap_tasks.ChunkRef, "of", of)
+    # groups opened here (no worker) stay in this process's chunk cache: keep it to one
+    monkeypatch.setattr(mcap_tasks._CACHE, "capacity", 1)
+    submitted: list[int] = []
+    most = 0
+
+    def submit(g, _fn, _args):
+        nonlocal most
+        submitted.append(g)
+        gc.collect()
+        most = max(most, len(alive))
+        return None
+
+    assert _read(bag, submit) == expected
+    n_chunks = len(_chunks(bag / "bag.mcap"))
+    assert n_chunks >= 10 and submitted == list(range(n_chunks))
+    # ahead = 4: groups g to g + 4 in flight, the group read last and one in the cache
+    assert most <= 4 + 3, (most, n_chunks)
+
+
 def test_worker_processes_open_the_chunks(tmp_path, monkeypatch):
     bag = tmp_path / "bag"
     _write(bag)

@@ -31,7 +31,7 @@ import heapq
 import mmap
 import threading
 from collections import OrderedDict
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any
@@ -267,16 +267,23 @@ def open_group(refs: Sequence[ChunkRef], channels: dict[int, bool], verify_crc: 
     return [_open_chunk(ref, channels, verify_crc, _CACHE) for ref in refs]
 
 
-def plan_groups(infos: Sequence[Any], group_bytes: int = GROUP_BYTES,
+def plan_groups(infos: Iterable[Any], group_bytes: int = GROUP_BYTES,
                 pair_channels: tuple[int, int] | None = None) -> list[list[Any]]:
-    """Consecutive chunks in groups of about ``group_bytes`` uncompressed bytes each.
+    """Consecutive chunks in groups of about ``group_bytes`` uncompressed bytes each
+    (:func:`iter_groups`, as a list)."""
+    return list(iter_groups(infos, group_bytes, pair_channels))
+
+
+def iter_groups(infos: Iterable[Any], group_bytes: int = GROUP_BYTES,
+                pair_channels: tuple[int, int] | None = None) -> Iterator[list[Any]]:
+    """Consecutive chunks in groups of about ``group_bytes`` uncompressed bytes each, each
+    group made when it is asked for.
 
     A group closes once it holds ``group_bytes`` and, when ``pair_channels`` (left, right
     image channel ids) and the chunks' message index counts are known, once its left and right
     counts are equal, so that the images of a stereo pair rarely lie in two groups (a pair
     that does is still read correctly: see the module docstring).
     """
-    groups: list[list[Any]] = []
     current: list[Any] = []
     size = 0
     balance = 0
@@ -289,11 +296,10 @@ def plan_groups(infos: Sequence[Any], group_bytes: int = GROUP_BYTES,
                                                                               0))
         if size >= group_bytes and (pair_channels is None or balance == 0 or not counts
                                     or size >= 4 * group_bytes):
-            groups.append(current)
+            yield current
             current, size = [], 0
     if current:
-        groups.append(current)
-    return groups
+        yield current
 
 
 #: submit(group index, function name, args) -> (future, worker index) or None (no worker)
@@ -325,23 +331,34 @@ def worker_messages(storage: Any, connections: Sequence[Any], submit: Submit, *,
     if not infos or not channels:
         return
     path = str(storage.path)
-    groups = plan_groups([ChunkRef.of(path, c) for c in infos],
-                         GROUP_BYTES if group_bytes is None else group_bytes, pair_channels)
+    # the groups (and their ChunkRefs, about 0.9 kB a chunk) are made as they are launched,
+    # ``ahead`` at a time, not for the whole file at once
+    planned = iter_groups((ChunkRef.of(path, c) for c in infos),
+                          GROUP_BYTES if group_bytes is None else group_bytes, pair_channels)
     fn = f"{__name__}:open_group"
-    inflight: dict[int, tuple[Future[Any] | None, int | None]] = {}
+    inflight: dict[int, tuple[list[ChunkRef], Future[Any] | None, int | None]] = {}
+    launched = 0
 
-    def launch(g: int) -> None:
-        got = submit(g, fn, (groups[g], kinds, verify_crc))
-        inflight[g] = (got[0], got[1]) if got is not None else (None, None)
+    def launch() -> bool:
+        """The next group to a worker; False when there is none."""
+        nonlocal launched
+        group = next(planned, None)
+        if group is None:
+            return False
+        got = submit(launched, fn, (group, kinds, verify_crc))
+        inflight[launched] = (group, *((got[0], got[1]) if got is not None else (None, None)))
+        launched += 1
+        return True
 
-    def outcome(g: int) -> tuple[list[tuple[list[Message], ChunkDamage | None]], int | None]:
-        fut, owner = inflight.pop(g)
+    def outcome(g: int) -> tuple[list[ChunkRef],
+                                 list[tuple[list[Message], ChunkDamage | None]], int | None]:
+        group, fut, owner = inflight.pop(g)
         if fut is not None:
             try:
-                return fut.result(), owner
+                return group, fut.result(), owner
             except Exception:  # noqa: BLE001 - the worker failed: open the group here
                 pass
-        return open_group(groups[g], kinds, verify_crc), None
+        return group, open_group(group, kinds, verify_crc), None
 
     def report(cd: ChunkDamage) -> None:
         if on_damage is None:
@@ -349,12 +366,14 @@ def worker_messages(storage: Any, connections: Sequence[Any], submit: Submit, *,
         on_damage(cd)
 
     pending: list[tuple[int, int, int, int, Any]] = []
-    for g in range(min(ahead, len(groups))):
-        launch(g)
-    for g, group in enumerate(groups):
-        if g + ahead < len(groups):
-            launch(g + ahead)
-        results, owner = outcome(g)
+    g = 0
+    while True:
+        while launched <= g + ahead and launch():    # groups up to g + ahead in flight
+            pass
+        if g not in inflight:
+            break
+        group, results, owner = outcome(g)
+        g += 1
         for ref, (msgs, damage) in zip(group, results, strict=True):
             t0 = ref.message_start_time
             while pending and pending[0][0] < t0:     # nothing later can come before these
