@@ -30,6 +30,7 @@ from __future__ import annotations
 import heapq
 import mmap
 import threading
+from array import array
 from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Future
@@ -326,14 +327,18 @@ def worker_messages(storage: Any, connections: Sequence[Any], submit: Submit, *,
     """
     channels = {c.id: c for c in connections}
     kinds = {cid: cid in image_channels for cid in channels}
-    infos = [c for c in storage.chunks if _may_hold(c, channels)]
-    infos.sort(key=lambda c: (c.message_start_time, c.chunk_start_offset))
-    if not infos or not channels:
+    chunks = storage.chunks.copy()   # a table copy shares its values; unaffected by close
+    # the chunks' positions in reading order: a compact index (chunk_table) makes each
+    # chunk's info when it is read, and it is not kept for the whole pass here
+    order = array("q", (i for _t, _o, i in sorted(
+        (c.message_start_time, c.chunk_start_offset, i) for i, c in enumerate(chunks)
+        if _may_hold(c, channels))))
+    if not order or not channels:
         return
     path = str(storage.path)
     # the groups (and their ChunkRefs, about 0.9 kB a chunk) are made as they are launched,
     # ``ahead`` at a time, not for the whole file at once
-    planned = iter_groups((ChunkRef.of(path, c) for c in infos),
+    planned = iter_groups((ChunkRef.of(path, chunks[i]) for i in order),
                           GROUP_BYTES if group_bytes is None else group_bytes, pair_channels)
     fn = f"{__name__}:open_group"
     inflight: dict[int, tuple[list[ChunkRef], Future[Any] | None, int | None]] = {}
