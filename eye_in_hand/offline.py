@@ -262,6 +262,14 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
     return run.finish(pool, [t.name for t in locator_config.detector.targets])
 
 
+#: Robot poses ``process`` keeps before the stamp of the frame it takes (s): a frame that needs
+#: an older one would be a stereo pair read a minute after a later pair. The buffer is bounded
+#: by time instead of holding every pose of the bag (about 1.2 kB a stereo pair at 125 Hz).
+POSE_HISTORY_S = 60.0
+#: frames taken between two prunings of the pose buffer (:meth:`_BagPass._forget_poses`)
+_FORGET_EVERY = 256
+
+
 def _no_wait_clock() -> float:
     """The pipeline's wait clock offline: waits never run out (the bag's end flushes them)."""
     return 0.0
@@ -350,6 +358,8 @@ class _BagPass:
     def take(self, frame: FrameResult) -> None:
         """One located (or not) pair, in stamp order: counted, and into the pipeline."""
         self.result.frames.append(frame)
+        if len(self.result.frames) % _FORGET_EVERY == 0:
+            self._forget_poses(frame.stamp_ns)
         t_arrival = self.ledger.arrival(frame.stamp_ns)     # taken for every frame, in order
         if frame.status == "bad_image":
             self.counts["bad_messages"] += 1
@@ -360,6 +370,19 @@ class _BagPass:
         if frame.targets:
             self.pipeline.add_frame(frame.stamp_ns, frame.targets, received_ns=t_arrival,
                                     carried=True, tag=frame)
+
+    def _forget_poses(self, stamp_ns: int) -> None:
+        """Robot poses more than :data:`POSE_HISTORY_S` of stamps before the frame taken now
+        leave the buffer (the newest one at or before that point stays), so that it does not
+        grow with the bag (ee_pose and joint_states; a TF view keeps its own history).
+
+        A frame still waiting in the pipeline is older, but it waits because no pose newer
+        than its stamp has been read: the newest pose read is at or before its stamp, and it
+        stays."""
+        poses = getattr(self.localizer, "poses", None)
+        forget = getattr(poses, "forget_before", None)
+        if forget is not None:
+            forget(stamp_ns - int(POSE_HISTORY_S * 1e9))
 
     def read(self, pool: _PairPool, progress: Callable[[int], object] | None,
              in_workers: bool) -> None:

@@ -492,3 +492,52 @@ def test_a_frame_from_a_worker_keeps_no_part_of_its_pickle():
     np.testing.assert_array_equal(t.cov_cam, cov)
     assert t.id is sys.intern("red_0") and t.name is sys.intern("red")
     assert not hasattr(frame, "__dict__") and not hasattr(t, "__dict__")
+
+
+def test_robot_poses_are_kept_for_a_window_of_stamps_not_for_the_whole_bag(bags, tmp_path,
+                                                                            monkeypatch):
+    """``process`` prunes the pose buffer to ``POSE_HISTORY_S`` before the oldest frame that
+    may still need a pose: here a window of 0 s, pruned at every frame (only the pose that
+    brackets that frame's stamp and those after it stay), gives the very frames of the
+    whole-bag buffer while holding a fraction of the poses."""
+    from eye_in_hand import offline
+    from eye_in_hand.core.sync import PoseBuffer
+
+    world, zstd, _raw = bags
+    cfg = load_locator_config(None)
+    # the robot poses logged 0.2 s late: frames wait for them in the pipeline, and the
+    # window counts from the oldest waiting frame, not from the frame taken last
+    late = tmp_path / "late"
+    info = bag_info(zstd)
+    pose_topic = ProcessOptions().pose_topic
+    with BagWriter(late) as w:
+        for name, t in info.topics.items():
+            w.add_topic(name, t.msgtype)
+        for topic, _mt, stamp, data in iter_messages(zstd):
+            w.write(topic, stamp + (200_000_000 if topic == pose_topic else 0), data)
+
+    def run():
+        return process_bag(late, hand_eye_T=world.ee_T_cam, locator_config=cfg,
+                           options=ProcessOptions(workers=1))
+
+    whole = run()
+    kept: list[tuple[int, int]] = []
+    forget = PoseBuffer.forget_before
+
+    def spy(self, stamp_ns):
+        dropped = forget(self, stamp_ns)
+        kept.append((dropped, len(self)))
+        return dropped
+
+    monkeypatch.setattr(PoseBuffer, "forget_before", spy)
+    monkeypatch.setattr(offline, "POSE_HISTORY_S", 0.0)
+    monkeypatch.setattr(offline, "_FORGET_EVERY", 1)
+    pruned = run()
+    n_poses = info.topics[pose_topic].count
+    assert len(kept) == len(whole.frames) == 8
+    assert sum(d for d, _ in kept) > 0 and max(n for _, n in kept) < n_poses / 2, (kept, n_poses)
+    assert pruned.counts == whole.counts and whole.counts["localized"] == 8
+    for a, b in zip(pruned.frames, whole.frames, strict=True):
+        assert (a.stamp_ns, a.status, a.reason) == (b.stamp_ns, b.status, b.reason)
+        np.testing.assert_array_equal(a.point_base, b.point_base)
+        np.testing.assert_array_equal(a.cov_base, b.cov_base)

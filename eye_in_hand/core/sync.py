@@ -489,6 +489,19 @@ class PoseBuffer:
         self._check_age(stamp, (i - 1, i), now_ns, max_age_ns)
         return interpolate_unchecked(stamp, s0, self._poses[i - 1], s1, self._poses[i])
 
+    def forget_before(self, stamp_ns: int) -> int:
+        """Drop the poses that no lookup at or after ``stamp_ns`` uses: every pose older than
+        the newest one at or before it (which brackets it, and stays). A consumer that knows
+        it will not look further back bounds the buffer by time this way (``process`` keeps
+        a window of bag time). Returns how many poses were dropped."""
+        i = bisect.bisect_right(self._stamps, _as_stamp(stamp_ns)) - 1
+        if i <= 0:
+            return 0
+        del self._stamps[:i]
+        del self._poses[:i]
+        del self._received[:i]
+        return i
+
     def between(self, lo_ns: int, hi_ns: int) -> list[np.ndarray]:
         """The buffered poses stamped in ``[lo_ns, hi_ns]``, oldest first (read-only)."""
         a = bisect.bisect_left(self._stamps, _as_stamp(lo_ns, "lo_ns"))

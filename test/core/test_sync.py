@@ -140,6 +140,26 @@ def test_pose_buffer_out_of_order_insert_replace_and_capacity():
     assert buf.oldest_ns == 20
 
 
+def test_forget_before_keeps_every_lookup_at_or_after_the_stamp():
+    rng = np.random.default_rng(9)
+    stamps = list(range(0, 10_000, 100))
+    full, pruned = PoseBuffer(capacity=1000), PoseBuffer(capacity=1000)
+    for t in stamps:
+        T = _pose(rng)
+        full.add(t, T, received_ns=t + 7)
+        pruned.add(t, T, received_ns=t + 7)
+    assert pruned.forget_before(5_050) == 50      # 0 .. 4900 go; 5000 brackets 5050
+    assert pruned.oldest_ns == 5_000 and len(pruned) == 50
+    assert pruned.forget_before(5_050) == 0 and pruned.forget_before(0) == 0
+    for q in (5_000, 5_050, 5_099, 7_333, 9_900):
+        np.testing.assert_array_equal(pruned.lookup(q, 100), full.lookup(q, 100))
+        pruned.check_age(q, q + 200, 1_000)
+    with pytest.raises(LocalizationError, match="older than the buffer"):
+        pruned.lookup(4_999, 100)
+    pruned.add(4_000, np.eye(4))                  # an older pose is still inserted in order
+    assert pruned.oldest_ns == 4_000
+
+
 def test_pose_buffer_errors_name_the_reason():
     buf = PoseBuffer(capacity=4, name="base_T_ee")
     with pytest.raises(LocalizationError, match="no base_T_ee received"):
