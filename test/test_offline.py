@@ -262,6 +262,14 @@ def test_worker_processes_start_before_the_rig_is_read(bags, monkeypatch):
     assert res.located_in_processes == 8
 
 
+def _ready_pool(world, cfg, **kw):
+    """A pool of two worker processes, both started and initialised."""
+    pool = _PairPool(world.rig, cfg, 2, **kw)
+    pool.start_processes()
+    assert pool._procs.wait_ready(60) and all(w.ready.is_set() for w in pool._procs._workers)
+    return pool
+
+
 def test_a_worker_process_that_dies_costs_no_pair(bags):
     import os
     import signal
@@ -275,12 +283,7 @@ def test_a_worker_process_that_dies_costs_no_pair(bags):
     expected = list(inline.ready(wait=True))
     inline.close()
 
-    pool = _PairPool(world.rig, cfg, 2)
-    pool.start_processes()
-    deadline = time.monotonic() + 60
-    while not (pool._procs and all(w.ready.is_set() for w in pool._procs._workers)) \
-            and time.monotonic() < deadline:
-        time.sleep(0.01)
+    pool = _ready_pool(world, cfg)
     victim = pool._procs._workers[0].proc.pid
     os.kill(victim, signal.SIGSTOP)     # stopped first: the pairs sent to it stay in flight
     out = []
@@ -308,14 +311,10 @@ def test_a_worker_process_that_dies_between_pairs_is_noted(bags):
 
     world, _zstd, raw = bags
     cfg = load_locator_config(None)
-    pool = _PairPool(world.rig, cfg, 2)
-    pool.start_processes()
-    deadline = time.monotonic() + 60
-    while not (pool._procs and all(w.ready.is_set() for w in pool._procs._workers)) \
-            and time.monotonic() < deadline:
-        time.sleep(0.01)
+    pool = _ready_pool(world, cfg)
     worker = pool._procs._workers[0]
     os.kill(worker.proc.pid, signal.SIGKILL)
+    deadline = time.monotonic() + 60
     while not worker.dead and time.monotonic() < deadline:
         time.sleep(0.01)
     assert worker.dead
@@ -429,12 +428,7 @@ def test_a_stopped_worker_process_times_out_and_costs_no_pair(bags):
     expected = list(inline.ready(wait=True))
     inline.close()
 
-    pool = _PairPool(world.rig, cfg, 2, task_timeout_s=1.0)
-    pool.start_processes()
-    deadline = time.monotonic() + 60
-    while not (pool._procs and all(w.ready.is_set() for w in pool._procs._workers)) \
-            and time.monotonic() < deadline:
-        time.sleep(0.01)
+    pool = _ready_pool(world, cfg, task_timeout_s=1.0)
     victim = pool._procs._workers[0].proc.pid
     os.kill(victim, signal.SIGSTOP)                   # stopped, not dead: it never answers
     t0 = time.monotonic()
