@@ -44,7 +44,7 @@ from eye_in_hand.core.defaults import DEFAULT_SYNC_QUEUE_SIZE, DEFAULT_SYNC_SLOP
 from eye_in_hand.core.locator import StereoLocator
 from eye_in_hand.core.locator_params import LocatorConfig
 from eye_in_hand.errors import BagError, ConversionError, InputError
-from eye_in_hand.io.pages import drop_pages
+from eye_in_hand.io.pages import drop_pages, keep_freed_heap
 
 if TYPE_CHECKING:
     from eye_in_hand.core.localization import Localizer
@@ -767,6 +767,7 @@ _WORKER: dict[str, Any] = {}
 
 def _worker_init(rig: StereoRig, config: LocatorConfig) -> None:
     cv2.setNumThreads(1)      # one process per core already: no thread pools inside
+    keep_freed_heap()         # chunks decompressed and freed in turn: no page faults anew
     _WORKER["locator"] = StereoLocator(rig, config)
     _WORKER["maps"] = {}
 

@@ -207,3 +207,26 @@ def test_chunks_overlapping_in_time_and_equal_times_merge_as_the_serial_reader(
     got = [(t, s, bytes(p)) for t, _m, s, p in iter_in_workers(path, ["/a", "/b"], _local,
                                                                image_topics=("", ""))]
     assert got == expected and len(got) == 14
+
+
+def test_a_chunk_leaves_the_cache_once_its_images_are_read(tmp_path):
+    """A process holds a decompressed chunk while images of it are still to be read (the
+    pairs ahead of it), not until it is the least recently used of 96 MB: each chunk is
+    decompressed once, and once all its images are read it is gone."""
+    bag = tmp_path / "bag"
+    _write(bag, n=120)
+    cache = mcap_tasks._CACHE
+    cache.clear()
+    before = cache.decompressed
+    refs = [p for _tp, _mt, _t, p in iter_in_workers(bag, ["/a", "/b", "/left", "/right"],
+                                                     _local, image_topics=("/left", "/right"))
+            if isinstance(p, mcap_tasks.ImageRef)]
+    keys = {(r.chunk.path, r.chunk.chunk_start_offset) for r in refs}
+    assert len(refs) == 120 and len(keys) >= 5
+    assert keys <= set(cache._chunks)                  # opened, nothing read yet
+    for ref in refs:
+        assert len(ref.data) == 120 * 480
+    assert not keys & set(cache._chunks) and not cache._unread
+    assert cache.decompressed - before == len(_chunks(next(bag.glob("*.mcap"))))
+    assert refs[0].data.tobytes() == refs[0].data.tobytes()   # read again: decompressed again
+    cache.clear()

@@ -2,12 +2,16 @@
 from __future__ import annotations
 
 import mmap
+import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from eye_in_hand.io.pages import drop_pages
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_dropped_pages_read_back_the_same_bytes(tmp_path):
@@ -71,3 +75,33 @@ def test_a_file_read_once_in_records_leaves_the_resident_set(tmp_path):
         del view
     finally:
         mapped.close()
+
+
+_CHURN = """
+import resource, sys
+from eye_in_hand.io.pages import keep_freed_heap
+if sys.argv[1] == "keep":
+    assert keep_freed_heap()
+def churn():
+    for _ in range(20):      # four chunks of 3 MiB decompressed and freed, again and again
+        blocks = [bytearray(3 << 20) for _ in range(4)]
+        del blocks
+churn()
+before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+churn()
+print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
+def test_a_heap_that_keeps_freed_memory_faults_no_page_in_again():
+    """keep_freed_heap: blocks of megabytes freed and allocated in turn (a worker's
+    decompressed chunks) reuse the heap's pages instead of faulting new ones in each time."""
+    def faults(mode: str) -> int:
+        run = subprocess.run([sys.executable, "-c", _CHURN, mode], capture_output=True,
+                             text=True, timeout=60, cwd=ROOT)
+        assert run.returncode == 0, run.stderr
+        return int(run.stdout.split()[-1])
+
+    plain, kept = faults("plain"), faults("keep")
+    assert plain > 20 * 4 * 500 and kept < plain / 20, (plain, kept)

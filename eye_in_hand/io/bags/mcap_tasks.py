@@ -96,6 +96,8 @@ class _Cache:
         self._chunks: OrderedDict[tuple[str, int], tuple[_Chunk, memoryview]] = OrderedDict()
         self._bytes = 0
         self.decompressed = 0                 # chunks decompressed (for tests and figures)
+        # per cached chunk: the starts of its images not read yet (:meth:`expect`)
+        self._unread: dict[tuple[str, int], set[int]] = {}
 
     def file(self, path: str) -> memoryview:
         with self._lock:
@@ -134,15 +136,40 @@ class _Cache:
                 self._chunks[key] = (chunk, recs)
                 self._bytes += len(recs)
                 while self._bytes > self.capacity and len(self._chunks) > 1:
-                    _k, (_c, old) = self._chunks.popitem(last=False)
+                    k, (_c, old) = self._chunks.popitem(last=False)
                     self._bytes -= len(old)
+                    self._unread.pop(k, None)
         return chunk, recs
+
+    def expect(self, ref: ChunkRef, starts: set[int]) -> None:
+        """The images of a cached chunk that will be read (once each): the chunk leaves the
+        cache when the last of them has been (:meth:`read`), not only when it is the least
+        recently used, so that a worker holds the chunks of the pairs still ahead of it."""
+        key = (ref.path, ref.chunk_start_offset)
+        with self._lock:
+            if key in self._chunks and starts:
+                self._unread[key] = set(starts)
+
+    def read(self, ref: ChunkRef, start: int) -> None:
+        """The image at ``start`` of a chunk has been read (see :meth:`expect`)."""
+        key = (ref.path, ref.chunk_start_offset)
+        with self._lock:
+            unread = self._unread.get(key)
+            if unread is None:
+                return
+            unread.discard(start)
+            if not unread:
+                del self._unread[key]
+                hit = self._chunks.pop(key, None)
+                if hit is not None:
+                    self._bytes -= len(hit[1])
 
 
     def clear(self) -> None:
         """Drop the decompressed chunks and unmap the files (views handed out stay valid)."""
         with self._lock:
             self._chunks.clear()
+            self._unread.clear()
             self._bytes = 0
             self._files.clear()
             self._maps.clear()
@@ -193,6 +220,7 @@ class ImageRef:
             raise ConversionError(f"image at chunk byte {self.chunk.chunk_start_offset}: "
                                   f"{exc}") from exc
         img = image_from_cdr(recs[self.start:self.start + self.nbytes])
+        _CACHE.read(self.chunk, self.start)     # the view keeps the records while it is used
         if img is None:
             raise ConversionError("image: not little-endian plain CDR")
         return img.data
@@ -248,6 +276,7 @@ def _open_chunk(ref: ChunkRef, channels: dict[int, bool], verify_crc: bool,
         else:
             payload = bytes(view)
         out.append((log_time, index, cid, payload))
+    cache.expect(ref, {p.start for *_m, p in out if isinstance(p, ImageRef)})
     return out, damage
 
 
@@ -307,6 +336,42 @@ def iter_groups(infos: Iterable[Any], group_bytes: int = GROUP_BYTES,
 Submit = Callable[[int, str, tuple[Any, ...]], "tuple[Any, int] | None"]
 
 
+
+def _opened(planned: Iterator[list[ChunkRef]], submit: Submit, kinds: dict[int, bool],
+            verify_crc: bool, ahead: int
+            ) -> Iterator[tuple[list[ChunkRef], list[tuple[list[Message], ChunkDamage | None]],
+                                int | None]]:
+    """Each group of ``planned`` with its chunks' messages and the worker that opened it
+    (None: opened here), in order; groups up to ``ahead`` past the one yielded are submitted
+    to ``submit``'s workers (a group whose task fails is opened in this process)."""
+    fn = f"{__name__}:open_group"
+    inflight: dict[int, tuple[list[ChunkRef], Future[Any] | None, int | None]] = {}
+    launched = 0
+    g = 0
+    while True:
+        while launched <= g + ahead:                 # groups up to g + ahead in flight
+            group = next(planned, None)
+            if group is None:
+                break
+            got = submit(launched, fn, (group, kinds, verify_crc))
+            inflight[launched] = (group, *((got[0], got[1]) if got is not None
+                                           else (None, None)))
+            launched += 1
+        if g not in inflight:
+            return
+        group, fut, owner = inflight.pop(g)
+        g += 1
+        results = None
+        if fut is not None:
+            try:
+                results = fut.result()
+            except Exception:  # noqa: BLE001 - the worker failed: open the group here
+                results = None
+        if results is None:
+            results, owner = open_group(group, kinds, verify_crc), None
+        yield group, results, owner
+
+
 def worker_messages(storage: Any, connections: Sequence[Any], submit: Submit, *,
                     image_channels: set[int], pair_channels: tuple[int, int] | None = None,
                     verify_crc: bool = False, ahead: int = 4,
@@ -340,30 +405,6 @@ def worker_messages(storage: Any, connections: Sequence[Any], submit: Submit, *,
     # ``ahead`` at a time, not for the whole file at once
     planned = iter_groups((ChunkRef.of(path, chunks[i]) for i in order),
                           GROUP_BYTES if group_bytes is None else group_bytes, pair_channels)
-    fn = f"{__name__}:open_group"
-    inflight: dict[int, tuple[list[ChunkRef], Future[Any] | None, int | None]] = {}
-    launched = 0
-
-    def launch() -> bool:
-        """The next group to a worker; False when there is none."""
-        nonlocal launched
-        group = next(planned, None)
-        if group is None:
-            return False
-        got = submit(launched, fn, (group, kinds, verify_crc))
-        inflight[launched] = (group, *((got[0], got[1]) if got is not None else (None, None)))
-        launched += 1
-        return True
-
-    def outcome(g: int) -> tuple[list[ChunkRef],
-                                 list[tuple[list[Message], ChunkDamage | None]], int | None]:
-        group, fut, owner = inflight.pop(g)
-        if fut is not None:
-            try:
-                return group, fut.result(), owner
-            except Exception:  # noqa: BLE001 - the worker failed: open the group here
-                pass
-        return group, open_group(group, kinds, verify_crc), None
 
     def report(cd: ChunkDamage) -> None:
         if on_damage is None:
@@ -371,14 +412,7 @@ def worker_messages(storage: Any, connections: Sequence[Any], submit: Submit, *,
         on_damage(cd)
 
     pending: list[tuple[int, int, int, int, Any]] = []
-    g = 0
-    while True:
-        while launched <= g + ahead and launch():    # groups up to g + ahead in flight
-            pass
-        if g not in inflight:
-            break
-        group, results, owner = outcome(g)
-        g += 1
+    for group, results, owner in _opened(planned, submit, kinds, verify_crc, ahead):
         for ref, (msgs, damage) in zip(group, results, strict=True):
             t0 = ref.message_start_time
             while pending and pending[0][0] < t0:     # nothing later can come before these
