@@ -351,13 +351,18 @@ def run_process(bag: Path, he: Path, params: Path, out: Path,
 
 def floor(bag: Path, targets: int) -> dict[str, float]:
     """CPU of reading every image's bytes (chunks decompressed) and cvtColor + inRange (one
-    per target) of both images of every pair, in one thread: the least any ``process`` must
+    per target) of both images of every pair, in one thread, with the heap of ``process``'s
+    workers (:func:`eye_in_hand.io.pages.keep_freed_heap`): the least any ``process`` must
     do."""
     import cv2
 
     from eye_in_hand.io.bags import iter_messages
     from eye_in_hand.io.cdr import image_from_cdr
+    from eye_in_hand.io.pages import keep_freed_heap
 
+    # as process's workers: freed chunks and images are not given back to the kernel and
+    # faulted in again for the next (about a third of the floor at 1920x1080 otherwise)
+    keep_freed_heap()
     ranges = hue_ranges(targets)
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
