@@ -164,7 +164,6 @@ class _Cache:
                 if hit is not None:
                     self._bytes -= len(hit[1])
 
-
     def clear(self) -> None:
         """Drop the decompressed chunks and unmap the files (views handed out stay valid)."""
         with self._lock:
@@ -334,7 +333,6 @@ def iter_groups(infos: Iterable[Any], group_bytes: int = GROUP_BYTES,
 
 #: submit(group index, function name, args) -> (future, worker index) or None (no worker)
 Submit = Callable[[int, str, tuple[Any, ...]], "tuple[Any, int] | None"]
-
 
 
 def _opened(planned: Iterator[list[ChunkRef]], submit: Submit, kinds: dict[int, bool],
