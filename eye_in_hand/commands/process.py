@@ -45,6 +45,7 @@ from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 from eye_in_hand.io.bags import STORAGES, DamageLog, bag_info, default_typestore, iter_messages
 from eye_in_hand.io.config import load_hand_eye
 from eye_in_hand.io.kinematics import load_kinematics
+from eye_in_hand.io.pages import keep_freed_heap
 from eye_in_hand.io.results import load_known_distances, run_figures
 from eye_in_hand.nodes.parameters import check_parameter_file_keys
 from eye_in_hand.offline import (
@@ -370,6 +371,9 @@ def run(args: argparse.Namespace) -> int:
             monitor_interval = 0
 
         bar = _Bar(total=total, unit="msg", desc="processing", file=sys.stderr)
+    # this process decompresses chunks too (all of them with --workers 1): its heap keeps
+    # freed memory for the next one, as the workers' do (io.pages.keep_freed_heap)
+    keep_freed_heap()
     t0 = time.perf_counter()
     try:
         result = process_bag(args.bag, hand_eye_T=calib.transform, locator_config=config,
