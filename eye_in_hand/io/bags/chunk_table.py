@@ -4,7 +4,7 @@
 chunk, with two dicts each: about 1.4 kB a chunk, 25 MB for a 10-minute bag recorded with a
 chunk per stereo pair, held by every reader of the file and by the index cache of
 :mod:`eye_in_hand.io.bags.storage_mcap` for the whole of ``process``. :class:`ChunkTable`
-keeps the same values in flat arrays (about 100 bytes a chunk) and makes each ``ChunkInfo``
+keeps the same values in flat arrays (about 125 bytes a chunk) and makes each ``ChunkInfo``
 when it is asked for: equal to the parsed one, field for field and in the order of its dicts'
 keys, so that everything reading ``storage.chunks`` (``rosbags`` itself included) reads the
 same index.

@@ -5,7 +5,7 @@ process decompressing everything is the bottleneck of offline processing on a co
 Here the reading process only plans and merges; the work is done where the images are used:
 
 * the reading process (:func:`worker_messages`) reads the file's chunk index (the summary
-  section ``rosbags`` has parsed), groups consecutive chunks (:func:`plan_groups`: about
+  section ``rosbags`` has parsed), groups consecutive chunks (:func:`iter_groups`: about
   ``group_bytes`` of uncompressed records each, ended where the message index says the left
   and right image topics have as many messages, so that a stereo pair rarely spans two
   groups), and hands each group, as file offsets (:class:`ChunkRef`), to a worker process
@@ -52,7 +52,7 @@ from eye_in_hand.io.bags.mcap_records import DamagedRecords
 from eye_in_hand.io.cdr import CdrHeader, image_from_cdr
 from eye_in_hand.io.pages import drop_pages
 
-__all__ = ["ChunkRef", "ImageRef", "plan_groups", "open_group", "worker_messages", "release",
+__all__ = ["ChunkRef", "ImageRef", "iter_groups", "open_group", "worker_messages", "release",
            "GROUP_BYTES", "CACHE_BYTES"]
 
 #: uncompressed records per task (a few 1280x720 stereo pairs)
@@ -294,13 +294,6 @@ def open_group(refs: Sequence[ChunkRef], channels: dict[int, bool], verify_crc: 
         damage (None: read whole; else the messages are those before the bad record).
     """
     return [_open_chunk(ref, channels, verify_crc, _CACHE) for ref in refs]
-
-
-def plan_groups(infos: Iterable[Any], group_bytes: int = GROUP_BYTES,
-                pair_channels: tuple[int, int] | None = None) -> list[list[Any]]:
-    """Consecutive chunks in groups of about ``group_bytes`` uncompressed bytes each
-    (:func:`iter_groups`, as a list)."""
-    return list(iter_groups(infos, group_bytes, pair_channels))
 
 
 def iter_groups(infos: Iterable[Any], group_bytes: int = GROUP_BYTES,

@@ -104,7 +104,7 @@ def _indexed_reader() -> Any:
             super()._open()
             if self._scanned:
                 return
-            # held compactly (about 100 bytes a chunk instead of 1.4 kB, chunk_table)
+            # held compactly (about 125 bytes a chunk instead of 1.4 kB, chunk_table)
             self.chunks = ChunkTable.of(self.chunks)  # type: ignore[assignment]
             state = {k: _copied(v) for k, v in vars(self).items() if k not in ("bio", "path")}
             entry = (size, _read_range(bio, 0, self.data_start),
