@@ -97,7 +97,10 @@ def test_the_indexed_reader_holds_a_table_that_reads_as_rosbags_parse(tmp_path):
         assert isinstance(reader.chunks, ChunkTable) and list(reader.chunks) == parsed
         reader.close()
         assert len(reader.chunks) == 0       # rosbags clears its reader's at close ...
-    cached = sm._INDEX_CACHE[str(mcap.resolve())][3]["chunks"]
+    entry = sm._INDEX_CACHE[str(mcap.resolve())]
+    cached = entry[-1]["chunks"]
     assert list(cached) == parsed            # ... and the cache keeps its own
+    # and a digest of the summary section it was parsed from, not its bytes
+    assert [len(v) for v in entry if isinstance(v, bytes)] == [32]
     got = [bytes(raw) for _t, _m, _s, raw in iter_messages(path, ["/a"])]
     assert len(got) == 40

@@ -4,6 +4,7 @@
 (:mod:`~eye_in_hand.io.bags.mcap_scan`) and real CRCs in written files."""
 from __future__ import annotations
 
+import hashlib
 import os
 import threading
 import zlib
@@ -25,16 +26,17 @@ __all__ = ["McapFormat", "chunk_damage_record"]
 _WORKER_COMPRESSIONS = ("zstd", "lz4")
 
 #: The parsed summaries (schemas, channels, chunk index, statistics) of the MCAP files used
-#: last in this process, by real path, each with the bytes it was parsed from (the header
-#: record, and everything from the summary section to the end of the file): a file opened
-#: again whose bytes there are the same is not parsed again. Opening a bag parses its chunk
-#: index, about 0.1 s of CPU on a 10-minute bag of 18000 chunks, and ``process`` opens it six
-#: times; comparing the bytes (about 2 MB there) takes a millisecond. Least recently used
+#: last in this process, by real path, each with a digest of the bytes it was parsed from (the
+#: header record, and everything from the summary section to the end of the file): a file
+#: opened again whose bytes there are the same is not parsed again. Opening a bag parses its
+#: chunk index, about 0.1 s of CPU on a 10-minute bag of 18000 chunks, and ``process`` opens
+#: it six times; hashing the bytes again (about 2.4 MB there) takes 2-3 ms, and the digest
+#: keeps the cache from holding them (130 bytes a chunk). Least recently used
 #: out first, beyond :data:`_INDEX_CACHE_FILES` files or :data:`_INDEX_CACHE_CHUNKS` chunks
 #: in all (the newest file always stays): the files of a bag split by size fit, and the
 #: index held stays within about 5 MB (a :class:`~eye_in_hand.io.bags.chunk_table.ChunkTable`,
 #: about 125 bytes a chunk, shared with the open readers).
-_INDEX_CACHE: OrderedDict[str, tuple[int, bytes, bytes, dict[str, Any]]] = OrderedDict()
+_INDEX_CACHE: OrderedDict[str, tuple[int, bytes, dict[str, Any]]] = OrderedDict()
 _INDEX_CACHE_FILES = 64
 _INDEX_CACHE_CHUNKS = 40_000
 _INDEX_LOCK = threading.Lock()
@@ -61,6 +63,16 @@ def _read_range(bio: Any, start: int, end: int) -> bytes:
     bio.seek(start)
     data: bytes = bio.read(end - start)
     return data
+
+
+def _digest(bio: Any, data_start: int, data_end: int, size: int) -> bytes:
+    """A digest of the bytes an index is parsed from: the file's start up to ``data_start``
+    and everything from ``data_end`` (the summary section) to its ``size``."""
+    h = hashlib.blake2b(digest_size=32)
+    h.update(_read_range(bio, 0, data_start))
+    h.update(size.to_bytes(8, "little"))
+    h.update(_read_range(bio, data_end, size))
+    return h.digest()
 
 
 def _indexed_reader() -> Any:
@@ -91,10 +103,9 @@ def _indexed_reader() -> Any:
                 if hit is not None:
                     _INDEX_CACHE.move_to_end(key)      # used last (if it still matches)
             if hit is not None:
-                hit_size, head, tail, state = hit
-                if hit_size == size \
-                        and _read_range(bio, 0, state["data_start"]) == head \
-                        and _read_range(bio, state["data_end"], size) == tail:
+                hit_size, digest, state = hit
+                if hit_size == size and _digest(bio, state["data_start"], state["data_end"],
+                                                size) == digest:
                     for k, v in state.items():
                         setattr(self, k, _copied(v))
                     # each connection names the reader it belongs to
@@ -107,14 +118,13 @@ def _indexed_reader() -> Any:
             # held compactly (about 125 bytes a chunk instead of 1.4 kB, chunk_table)
             self.chunks = ChunkTable.of(self.chunks)  # type: ignore[assignment]
             state = {k: _copied(v) for k, v in vars(self).items() if k not in ("bio", "path")}
-            entry = (size, _read_range(bio, 0, self.data_start),
-                     _read_range(bio, self.data_end, size), state)
+            entry = (size, _digest(bio, self.data_start, self.data_end, size), state)
             with _INDEX_LOCK:
                 _INDEX_CACHE[key] = entry
                 _INDEX_CACHE.move_to_end(key)
                 while len(_INDEX_CACHE) > 1 and (
                         len(_INDEX_CACHE) > _INDEX_CACHE_FILES
-                        or sum(len(e[3]["chunks"]) for e in _INDEX_CACHE.values())
+                        or sum(len(e[2]["chunks"]) for e in _INDEX_CACHE.values())
                         > _INDEX_CACHE_CHUNKS):
                     _INDEX_CACHE.popitem(last=False)
 
