@@ -30,8 +30,9 @@ import os
 import re
 import sys
 import threading
+from array import array
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -158,20 +159,18 @@ class ProcessOptions:
             self.joint_states_topic
 
 
-def error_stats(frames: list[FrameResult]) -> dict[str, float] | None:
-    """RMS, p95 and max error in mm over frames with a result and ground truth (None if none)."""
-    errs = np.array([f.error_m for f in frames if math.isfinite(f.error_m)])
-    if errs.size == 0:
-        return None
-    return {"frames": int(errs.size), "rms_mm": 1000.0 * float(np.sqrt(np.mean(errs ** 2))),
-            "p95_mm": 1000.0 * float(np.percentile(errs, 95)),
-            "max_mm": 1000.0 * float(errs.max()), "mean_mm": 1000.0 * float(errs.mean())}
+def error_stats(frames: Iterable[FrameResult]) -> dict[str, float] | None:
+    """RMS, p95 and max error in mm over frames with a result and ground truth (None if none;
+    :func:`eye_in_hand.io.results.error_figures`)."""
+    from eye_in_hand.io.results import error_figures  # local: reader only
+
+    return error_figures(np.array([f.error_m for f in frames if math.isfinite(f.error_m)]))
 
 
 _NUMBER = re.compile(r"-?\d+(?:\.\d+)?(?:e[-+]?\d+)?")
 
 
-def top_reasons(frames: list[FrameResult], top: int = 3) -> list[tuple[int, str, str]]:
+def top_reasons(frames: Iterable[FrameResult], top: int = 3) -> list[tuple[int, str, str]]:
     """Why frames have no base-frame result, most frequent first: ``(count, status, example)``.
 
     Reasons that differ only in their numbers (``depth 566.1 m``, ``depth 570.4 m``) count as
@@ -288,7 +287,8 @@ class _BagPass:
         from eye_in_hand.core.pipeline import LocalizationPipeline, PipelineRules
         from eye_in_hand.core.sync import ApproximateStereoSync
         from eye_in_hand.io.bags import DamageLog, bag_info, require_topics
-        from eye_in_hand.io.results import ProcessResult
+        from eye_in_hand.io.results import ProcessResult, TruthTable
+        from eye_in_hand.io.spill import SpillList
 
         self.path, self.opts = path, opts
         info = self.info = info if info is not None else bag_info(path)
@@ -307,7 +307,11 @@ class _BagPass:
         self.tf_buffer = _use_tf(self.localizer, opts, n_poses) if use_tf else None
         self.sync: ApproximateStereoSync[Any] = ApproximateStereoSync(
             int(round(opts.sync_slop_s * 1e9)), opts.sync_queue_size)
-        result = self.result = ProcessResult(duration_s=info.duration_ns / 1e9, rig=rig,
+        # every pair's outcome until the outputs are written, the older ones of a long bag in
+        # a temporary file (settled by take: the frames before the oldest one still waiting)
+        self.frames: SpillList[FrameResult] = SpillList()
+        result = self.result = ProcessResult(frames=self.frames,
+                                             duration_s=info.duration_ns / 1e9, rig=rig,
                                              damage=DamageLog())
         result.notes.extend(info.notes)   # a damaged metadata.yaml, a file read by scanning
         counts = self.counts = result.counts
@@ -317,14 +321,19 @@ class _BagPass:
         self.ledger = _Ledger(counts, int(opts.pose_jump_back_s * 1e9))
         self.typestore: Any = None
         self.rig = rig            # None: read from the bag's camera_info by load_rig
-        self.truth: dict[int, list[np.ndarray]] = {}
+        self.truth = TruthTable()
+        # what the ground-truth matching reads of the frames, gathered as they are taken and
+        # located (the frames in the temporary file are not read for it): target name ->
+        # ids, and each id's base-frame positions (_FrameResults.located)
+        self.seen: dict[str, set[str]] = {}
+        self.sink = _FrameResults(counts, self.ledger)
         # the live node's pipeline: a pair waits for a robot pose at or after its stamp,
         # however long (the bag's poses are all read before its end: no wait clock), FIFO,
-        # unbounded (the frames are kept in result.frames anyway); receive ages on the bag's
+        # unbounded (every frame is kept in result.frames anyway); receive ages on the bag's
         # log time
         self.pipeline = LocalizationPipeline(
             self.localizer, PipelineRules(max_pose_wait_s=None, max_waiting_frames=None),
-            wait_clock=_no_wait_clock, frames=_FrameResults(counts, self.ledger),
+            wait_clock=_no_wait_clock, frames=self.sink,
             kinematics=opts.kinematics if not fixed and opts.robot_pose_source == "joint_states"
             else None)
 
@@ -356,10 +365,21 @@ class _BagPass:
             self.result.notes.append(text)
 
     def take(self, frame: FrameResult) -> None:
-        """One located (or not) pair, in stamp order: counted, and into the pipeline."""
-        self.result.frames.append(frame)
-        if len(self.result.frames) % _FORGET_EVERY == 0:
+        """One located (or not) pair, in stamp order: counted, and into the pipeline (every
+        :data:`_FORGET_EVERY` frames, old robot poses are forgotten and the frames the pipeline
+        is done with settled, see :meth:`_forget_poses`)."""
+        frames = self.frames
+        if (len(frames) + 1) % _FORGET_EVERY == 0:
             self._forget_poses(frame.stamp_ns)
+            waiting = self.pipeline.frames     # FIFO: the oldest frame still waiting first
+            frames.settle(waiting[0].tag if waiting else None)
+        frames.append(frame)
+        seen = self.seen
+        for t in frame.targets:                 # target_order's input, without reading frames
+            ids = seen.get(t.name)
+            if ids is None:
+                ids = seen[t.name] = set()
+            ids.add(t.id)
         t_arrival = self.ledger.arrival(frame.stamp_ns)     # taken for every frame, in order
         if frame.status == "bad_image":
             self.counts["bad_messages"] += 1
@@ -424,7 +444,7 @@ class _BagPass:
                         pipeline.add_joint_state(stamp, msg.name, msg.position, received_ns=_t)
                     pipeline.drain()
                 elif topic == opts.ground_truth_topic:
-                    truth.setdefault(header_stamp_ns(msg), []).append(point_to_xyz(msg.point))
+                    truth.add(header_stamp_ns(msg), point_to_xyz(msg.point))
                 elif topic in (opts.left_topic, opts.right_topic):
                     stamp = header_stamp_ns(msg)
                     left = topic == opts.left_topic
@@ -455,11 +475,9 @@ class _BagPass:
         counts["pairs_relocated"] = pool.relocated
         self.pipeline.flush()  # end of bag: the last points are resolved (or refused) now
         self.ledger.close(self.sync, None if self.fixed else self.localizer)
-        for frame in result.frames:
-            if frame.status == "located":
-                frame.status = "ok"
-        result.target_ids = target_order(result.frames, target_names)
-        result.truth_match = assign_truth(result.frames, self.truth, result.target_ids)
+        result.target_ids = target_order(result.frames, target_names, seen=self.seen)
+        result.truth_match = assign_truth(result.frames, self.truth, result.target_ids,
+                                          located=self.sink.located)
         counts["ground_truth"] = len(self.truth)
         counts["damaged_regions"] = len(result.damage)
         counts["messages_lost"] = result.damage.messages_lost
@@ -497,11 +515,17 @@ class _FrameResults:
     def __init__(self, counts: dict[str, int], ledger: _Ledger) -> None:
         self._counts = counts
         self._ledger = ledger
+        #: id -> the coordinates of its base-frame positions, one after the other
+        self.located: dict[str, array[float]] = {}
 
     def target_located(self, f: WaitingFrame, target: Any, point_base: np.ndarray,
                        cov_base: np.ndarray) -> None:
         frame = f.tag
         target.status, target.point_base, target.cov_base = "ok", point_base, cov_base
+        xyz = self.located.get(target.id)
+        if xyz is None:
+            xyz = self.located[target.id] = array("d")
+        xyz.extend(point_base.tolist())
         if target is frame.targets[0] and frame.status == "located":
             frame.point_base, frame.cov_base = point_base, cov_base
             self._counts["localized"] += 1
@@ -515,7 +539,9 @@ class _FrameResults:
             self._ledger.refused(reason)
 
     def frame_done(self, f: WaitingFrame) -> None:
-        pass
+        frame = f.tag     # every target resolved: a frame located in the camera is done
+        if frame.status == "located":
+            frame.status = "ok"
 
     def orphan_points(self, n: int) -> None:
         pass             # the targets come with their frame: none
@@ -1022,6 +1048,8 @@ def write_results(out: str | Path, result: ProcessResult, opts: ProcessOptions |
     """
     from eye_in_hand.io.results import write_results as _write_results  # local: reader only
 
+    extra = dict(summary_extra or {})
+    if "error" not in extra:         # run_figures has it (the same figures)
+        extra["error"] = error_stats(result.frames)
     return _write_results(out, result, opts or ProcessOptions(), storage=storage,
-                          summary_extra={"error": error_stats(result.frames),
-                                         **(summary_extra or {})})
+                          summary_extra=extra)

@@ -535,3 +535,90 @@ def test_robot_poses_are_kept_for_a_window_of_stamps_not_for_the_whole_bag(bags,
         assert (a.stamp_ns, a.status, a.reason) == (b.stamp_ns, b.status, b.reason)
         np.testing.assert_array_equal(a.point_base, b.point_base)
         np.testing.assert_array_equal(a.cov_base, b.cov_base)
+
+
+def test_frames_kept_in_a_file_give_the_same_outputs_byte_for_byte(bags, tmp_path,
+                                                                   monkeypatch):
+    """On a long bag ``process`` keeps the frames the pipeline is done with in a temporary
+    file (:class:`~eye_in_hand.io.spill.SpillList`). Here every settled frame goes there at
+    once, on a bag whose robot poses are logged 0.2 s late (frames wait several images for
+    theirs) and stop after the fifth pair (the last three wait to the end of the bag, then are
+    refused): the output bag, results.csv and summary.json are those of a run that keeps every
+    frame in memory, byte for byte. A frame still waiting must not go to the file, and the
+    ground truth, matched after the bag was read, reaches the frames in it."""
+    from eye_in_hand import offline
+    from eye_in_hand.io import spill
+    from eye_in_hand.offline import write_results
+
+    world, zstd, _raw = bags
+    cfg = load_locator_config(None)
+    info = bag_info(zstd)
+    pose_topic = ProcessOptions().pose_topic
+    lefts = sorted(s for _t, _mt, s, _d in iter_messages(zstd, [LEFT]))
+    cut_ns = (lefts[4] + lefts[5]) // 2
+    bag = tmp_path / "late_then_none"
+    with BagWriter(bag) as w:
+        for name, t in info.topics.items():
+            w.add_topic(name, t.msgtype)
+        for topic, _mt, stamp, data in iter_messages(zstd):
+            if topic == pose_topic:
+                if stamp > cut_ns:
+                    continue
+                stamp += 200_000_000
+            w.write(topic, stamp, data)
+    opts = ProcessOptions(workers=1)
+
+    def run(out):
+        res = process_bag(bag, hand_eye_T=world.ee_T_cam, locator_config=cfg, options=opts)
+        write_results(out, res, opts)
+        return res
+
+    whole = run(tmp_path / "in_memory" / "out")
+    assert whole.frames.spilled == 0
+    monkeypatch.setattr(spill, "KEEP", 0)
+    monkeypatch.setattr(spill, "BATCH", 1)
+    monkeypatch.setattr(offline, "_FORGET_EVERY", 1)
+    filed = run(tmp_path / "in_a_file" / "out")
+    c = whole.counts
+    assert c["localized"] == 5 and c["refused.no_newer_pose"] == 3 and c["ground_truth"], c
+    assert filed.counts == c
+    assert filed.frames.spilled >= 1, filed.frames.spilled
+    a, b = tmp_path / "in_memory" / "out", tmp_path / "in_a_file" / "out"
+    names = sorted(p.name for p in a.iterdir())
+    assert names == sorted(p.name for p in b.iterdir())
+    assert "results.csv" in names and "summary.json" in names and len(names) >= 4
+    for name in names:
+        assert (b / name).read_bytes() == (a / name).read_bytes(), name
+
+
+def test_the_truth_matched_from_what_was_gathered_is_the_truth_read_from_the_frames(bags):
+    """``process`` gathers the target ids and each id's base-frame positions as it takes and
+    locates the frames, so that matching the ground truth reads none of them back: the ids,
+    the match and every frame's truth are those of ``target_order`` and ``assign_truth``
+    reading the frames."""
+    import copy
+
+    from eye_in_hand.io.bags import deserialize
+    from eye_in_hand.io.results import TruthTable, assign_truth, target_order
+    from eye_in_hand.ros.geometry import point_to_xyz
+
+    world, zstd, _raw = bags
+    cfg = load_locator_config(None)
+    res = process_bag(zstd, hand_eye_T=world.ee_T_cam, locator_config=cfg,
+                      options=ProcessOptions(workers=1))
+    truth = TruthTable()
+    for _t, mt, _s, raw in iter_messages(zstd, [ProcessOptions().ground_truth_topic]):
+        msg = deserialize(raw, mt)
+        truth.add(header_stamp_ns(msg), point_to_xyz(msg.point))
+    assert len(truth) == res.counts["ground_truth"] == 8
+    frames = [copy.deepcopy(f) for f in res.frames]
+    for f in frames:
+        f.truth_base, f.truth_by_id = None, {}
+        for t in f.targets:
+            t.truth_base = None
+    names = [t.name for t in cfg.detector.targets]
+    assert target_order(frames, names) == res.target_ids == ["red"]
+    assert assign_truth(frames, truth, res.target_ids) == res.truth_match
+    assert res.truth_match["red"]["distance_mm"] < 5.0
+    for a, b in zip(frames, res.frames, strict=True):
+        assert a.truth_base is not None and a.truth_base.tobytes() == b.truth_base.tobytes()

@@ -50,7 +50,6 @@ from eye_in_hand.io.results import load_known_distances, run_figures
 from eye_in_hand.nodes.parameters import check_parameter_file_keys
 from eye_in_hand.offline import (
     ProcessOptions,
-    error_stats,
     process_bag,
     top_reasons,
     write_results,
@@ -396,7 +395,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.output)
     paths = {"bag": out, "csv": out / written["csv"].name,
              "summary": out / written["summary"].name}
-    _report(args, result, wall, known, pairs, stats_by_target, unmatched)
+    _report(args, result, wall, known, pairs, stats_by_target, unmatched, extra["error"])
     print(f"wrote {paths['bag']} (bag), {paths['csv']}, {paths['summary']}")
     if not any(t.status == "ok" for f in result.frames for t in f.targets):
         print(f"eye-in-hand: error: nothing located in the base frame in {args.bag}: "
@@ -406,18 +405,19 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _report(args: argparse.Namespace, result, wall: float, known: list, pairs: list,
-            stats_by_target: list, unmatched: list) -> None:
+            stats_by_target: list, unmatched: list, stats: dict[str, float] | None) -> None:
     """What a run printed: the counts, why pairs gave nothing, the losses, the damage, the
-    error against the ground truth and the distances between targets."""
+    error against the ground truth (``stats``: :func:`eye_in_hand.io.results.error_figures`)
+    and the distances between targets."""
     c = result.counts
     speed = result.duration_s / wall if wall > 0 else math.inf
     print(f"processed {c['pairs']} stereo pairs in {wall:.2f} s ({speed:.1f}x real time): "
           f"{c['located']} located, {c['localized']} in the base frame, {c['no_target']} "
           f"without target, {c['no_robot_pose']} without robot pose, {c['bad_messages']} bad "
           "messages")
-    ok = sum(1 for f in result.frames if f.status == "ok")
-    if result.frames and ok < len(result.frames) / 2:  # few located: say why, not only in the csv
-        print(f"why {len(result.frames) - ok} of {len(result.frames)} stereo pairs have no "
+    ok, n = c["localized"], len(result.frames)   # localized: the frames of status ok
+    if n and ok < n / 2:                       # few located: say why, not only in the csv
+        print(f"why {n - ok} of {n} stereo pairs have no "
               "result in the base frame (top reasons):")
         for count, status, example in top_reasons(result.frames):
             print(f"  {count} {status}: {example}")
@@ -431,7 +431,6 @@ def _report(args: argparse.Namespace, result, wall: float, known: list, pairs: l
         print(f"damaged bag: {result.damage.summary()}")
         for line in result.damage.lines():
             print(f"warning: damaged: {line}", file=sys.stderr)
-    stats = error_stats(result.frames)
     if stats is not None:
         print(f"error against {args.ground_truth_topic} over {stats['frames']} frames: "
               f"RMS {stats['rms_mm']:.3f} mm, p95 {stats['p95_mm']:.3f} mm, max "

@@ -34,7 +34,8 @@ import dataclasses
 import json
 import math
 import re
-from collections.abc import Mapping, Sequence
+from array import array
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
@@ -51,6 +52,7 @@ from eye_in_hand.core.distances import (
 )
 from eye_in_hand.errors import BagError, ConfigError, InputError
 from eye_in_hand.io.bags import BagWriter, bag_info, deserialize, iter_messages
+from eye_in_hand.io.spill import SpillList, apply_to
 from eye_in_hand.ros.outputs import (
     OutputSettings,
     RosbagsTypes,
@@ -73,8 +75,8 @@ if TYPE_CHECKING:  # annotations only: core.camera imports OpenCV, which `distan
 
 __all__ = ["TargetResult", "FrameResult", "ProcessResult", "OutputOptions", "CSV_COLUMNS",
            "OFFLINE_ONLY", "output_messages", "compare_outputs", "target_order", "assign_truth",
-           "frame_tracks", "summary_figures", "run_figures", "write_results", "load_tracks",
-           "load_known_distances", "Tracks"]
+           "TruthTable", "frame_tracks", "error_figures", "summary_figures", "run_figures",
+           "write_results", "load_tracks", "load_known_distances", "Tracks"]
 
 #: Columns of ``results.csv``: the first 21 as before per-target rows existed, then ``target``.
 CSV_COLUMNS = ["stamp_ns", "status", "x_cam", "y_cam", "z_cam", "residual_px", "left_u",
@@ -169,6 +171,10 @@ class FrameResult:
 class ProcessResult:
     """All frames, counters, and what the bag covered.
 
+    ``frames``: every stereo pair's outcome in stamp order; ``process`` keeps them in a
+    :class:`~eye_in_hand.io.spill.SpillList` (the older ones in a temporary file on long bags:
+    read them by iterating, and change them with :func:`~eye_in_hand.io.spill.apply_to`).
+
     ``located_in_processes``: pairs located by worker processes (the rest in this process);
     ``workers_forked``: those processes were forked from this one (else fresh interpreters,
     or none: :class:`eye_in_hand.workers.ProcessPool`'s ``fork``).
@@ -181,7 +187,7 @@ class ProcessResult:
     assign_truth`).
     """
 
-    frames: list[FrameResult] = field(default_factory=list)
+    frames: list[FrameResult] | SpillList[FrameResult] = field(default_factory=list)
     counts: dict[str, int] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     duration_s: float = 0.0
@@ -192,9 +198,6 @@ class ProcessResult:
     loss: dict[str, Any] = field(default_factory=dict)
     target_ids: list[str] = field(default_factory=list)
     truth_match: dict[str, dict[str, Any]] = field(default_factory=dict)
-
-    def ok(self) -> list[FrameResult]:
-        return [f for f in self.frames if f.status == "ok"]
 
 
 class OutputOptions(Protocol):
@@ -215,22 +218,86 @@ def _natural(text: str) -> list[Any]:
     return [int(s) if s.isdigit() else s for s in re.split(r"(\d+)", text)]
 
 
-def target_order(frames: Sequence[FrameResult], names: Sequence[str]) -> list[str]:
+def target_order(frames: Iterable[FrameResult], names: Sequence[str], *,
+                 seen: Mapping[str, set[str]] | None = None) -> list[str]:
     """Every target id of a run: ids located in any frame, in the order of the configured
     target names (then natural order: ``red_2`` before ``red_10``); a configured name never
-    located appears as its own id (so the first target always has rows)."""
+    located appears as its own id (so the first target always has rows).
+
+    ``seen``: target name -> the ids located under it, in the order the names first
+    appeared, collected as the frames were taken (``process``); the frames are then not
+    read."""
     by_name: dict[str, set[str]] = {n: set() for n in names}
-    for f in frames:
-        for t in f.targets:
-            by_name.setdefault(t.name, set()).add(t.id)
+    if seen is None:
+        for f in frames:
+            for t in f.targets:
+                by_name.setdefault(t.name, set()).add(t.id)
+    else:
+        for name, found in seen.items():
+            by_name.setdefault(name, set()).update(found)
     out: list[str] = []
     for name, ids in by_name.items():
         out += sorted(ids, key=_natural) if ids else [name]
     return out
 
 
-def assign_truth(frames: Sequence[FrameResult], truth: Mapping[int, list[np.ndarray]],
-                 ids: Sequence[str]) -> dict[str, dict[str, Any]]:
+class TruthTable(Mapping[int, list[np.ndarray]]):
+    """The ground truth of a run as :func:`assign_truth` reads it: image stamp -> the true
+    target centres at that stamp (base frame), in the order they were added.
+
+    Held as two columns (24 bytes of coordinates and 8 of stamp a point, instead of about
+    300 bytes in a dict of lists of arrays: 5 MB less on a 10-minute bag at 30 Hz); the
+    stamps are sorted once, at the first lookup after an :meth:`add`. Each lookup gives a new
+    list of (3,) arrays (read-only views of the table).
+    """
+
+    def __init__(self) -> None:
+        self._stamps = array("q")
+        self._xyz = array("d")
+        self._sorted: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] \
+            | None = None
+
+    def add(self, stamp_ns: int, xyz: np.ndarray) -> None:
+        """One true target centre at ``stamp_ns``, after those already there at that stamp."""
+        x, y, z = (float(v) for v in xyz)
+        self._stamps.append(stamp_ns)
+        self._xyz.extend((x, y, z))
+        self._sorted = None
+
+    def _index(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(distinct stamps in first-added order, the same sorted, where each sorted one's
+        rows start in ``order`` (one more: the end), ``order``: the rows sorted by stamp,
+        those of a stamp in the order added, the points (N, 3) read-only), built once after
+        the last add."""
+        if self._sorted is None:
+            points = np.array(self._xyz, dtype=np.float64).reshape(-1, 3)
+            points.flags.writeable = False
+            stamps = np.array(self._stamps, dtype=np.int64)
+            order = np.argsort(stamps, kind="stable")
+            by_stamp = stamps[order]
+            keys, starts = np.unique(by_stamp, return_index=True)
+            first = order[starts]                   # each stamp's first row
+            added = keys[np.argsort(first, kind="stable")]
+            self._sorted = (added, keys, np.append(starts, len(by_stamp)), order, points)
+        return self._sorted
+
+    def __getitem__(self, stamp_ns: int) -> list[np.ndarray]:
+        _, keys, bounds, order, points = self._index()
+        i = int(np.searchsorted(keys, stamp_ns))
+        if i == len(keys) or keys[i] != stamp_ns:
+            raise KeyError(stamp_ns)
+        return [points[j] for j in order[bounds[i]:bounds[i + 1]]]
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(int(k) for k in self._index()[0])
+
+    def __len__(self) -> int:
+        return len(self._index()[1])
+
+
+def assign_truth(frames: Iterable[FrameResult], truth: Mapping[int, list[np.ndarray]],
+                 ids: Sequence[str], *, located: Mapping[str, Sequence[Any]] | None = None
+                 ) -> dict[str, dict[str, Any]]:
     """Match the ground-truth targets to the located ids and set every ``truth_base``.
 
     ``truth``: image stamp -> the true target centres at it (base frame, the simulator's
@@ -243,6 +310,11 @@ def assign_truth(frames: Sequence[FrameResult], truth: Mapping[int, list[np.ndar
     target's match, or true target 0 when the first target was never localized. Every
     matched id's true target at the stamp also goes into the frame's ``truth_by_id``, located
     there or not (the ``gt_*`` columns of its ``no_target`` rows, as with one target before).
+    The frames are changed with :func:`~eye_in_hand.io.spill.apply_to` (a
+    :class:`~eye_in_hand.io.spill.SpillList`'s frames in its file as they are read).
+    ``located``: id -> its base-frame positions (3-vectors, or their coordinates one after
+    the other), collected as the frames were located (``process``); else they are read from
+    the frames.
 
     Returns:
         id -> ``{"truth_index": k, "distance_mm": median distance}`` for the matched ids.
@@ -252,18 +324,25 @@ def assign_truth(frames: Sequence[FrameResult], truth: Mapping[int, list[np.ndar
     k_max = max(len(v) for v in truth.values())
     true_med = np.array([np.median([v[k] for v in truth.values() if len(v) > k], axis=0)
                          for k in range(k_max)])
-    located: dict[str, list[np.ndarray]] = {i: [] for i in ids}
-    for f in frames:
-        for t in f.targets:
-            if t.point_base is not None:
-                located.setdefault(t.id, []).append(t.point_base)
-    med = {i: np.median(p, axis=0) for i, p in located.items() if p}
+    if located is None:
+        positions: dict[str, Any] = {i: [] for i in ids}
+        for f in frames:
+            for t in f.targets:
+                if t.point_base is not None:
+                    positions.setdefault(t.id, []).append(t.point_base)
+    else:                                   # the ids' order, as when read from the frames
+        positions = {i: located.get(i, []) for i in ids}
+        for i, p in located.items():
+            positions.setdefault(i, p)
+    med = {i: np.median(np.asarray(p, dtype=np.float64).reshape(-1, 3), axis=0)
+           for i, p in positions.items() if len(p)}
     match = match_truth(med, true_med)
     first = ids[0] if ids else ""
-    for f in frames:
+
+    def set_truth(f: FrameResult) -> None:
         at = truth.get(f.stamp_ns)
         if at is None:
-            continue
+            return
         f.truth_by_id = {i: at[k] for i, k in match.items() if k < len(at)}
         for t in f.targets:
             t.truth_base = f.truth_by_id.get(t.id)
@@ -272,6 +351,8 @@ def assign_truth(frames: Sequence[FrameResult], truth: Mapping[int, list[np.ndar
         else:
             k0 = match.get(first, None if match else 0)
         f.truth_base = at[k0] if k0 is not None and k0 < len(at) else None
+
+    apply_to(frames, set_truth)
     return {i: {"truth_index": k, "distance_mm": 1000.0 * float(np.linalg.norm(med[i] -
                                                                              true_med[k]))}
             for i, k in match.items()}
@@ -282,11 +363,23 @@ Tracks = dict[str, np.ndarray]
 
 def frame_tracks(frames: Sequence[FrameResult], ids: Sequence[str]) -> tuple[Tracks, Tracks]:
     """Base-frame positions and ground truth per id, shape (N frames, 3), NaN where none."""
+    pos, true, _, _ = _scan(frames, ids)
+    return pos, true
+
+
+def _scan(frames: Sequence[FrameResult], ids: Sequence[str]
+          ) -> tuple[Tracks, Tracks, dict[str, int], np.ndarray]:
+    """One pass over the frames: :func:`frame_tracks`' tracks, how many frames located each id
+    in the camera, and the first target's error to its ground truth in each frame that has
+    both (m)."""
     n = len(frames)
     pos = {i: np.full((n, 3), np.nan) for i in ids}
     true = {i: np.full((n, 3), np.nan) for i in ids}
+    in_camera = {i: 0 for i in ids}
+    errs = []
     for r, f in enumerate(frames):
         for t in f.targets:
+            in_camera[t.id] = in_camera.get(t.id, 0) + 1
             if t.id not in pos:
                 continue
             if t.point_base is not None:
@@ -296,7 +389,22 @@ def frame_tracks(frames: Sequence[FrameResult], ids: Sequence[str]) -> tuple[Tra
         for i, g in f.truth_by_id.items():      # the truth where an id was not located
             if i in true and not np.isfinite(true[i][r]).all():
                 true[i][r] = g
-    return pos, {i: v for i, v in true.items() if np.isfinite(v).any()}
+        err = f.error_m
+        if math.isfinite(err):
+            errs.append(err)
+    return (pos, {i: v for i, v in true.items() if np.isfinite(v).any()}, in_camera,
+            np.array(errs))
+
+
+def error_figures(errs_m: np.ndarray) -> dict[str, float] | None:
+    """RMS, p95, max and mean of errors given in m, in mm, with their count (None if none):
+    ``summary.json``'s ``error``."""
+    if errs_m.size == 0:
+        return None
+    return {"frames": int(errs_m.size),
+            "rms_mm": 1000.0 * float(np.sqrt(np.mean(errs_m ** 2))),
+            "p95_mm": 1000.0 * float(np.percentile(errs_m, 95)),
+            "max_mm": 1000.0 * float(errs_m.max()), "mean_mm": 1000.0 * float(errs_m.mean())}
 
 
 def summary_figures(tracks: Tracks, truth: Tracks,
@@ -315,22 +423,20 @@ def summary_figures(tracks: Tracks, truth: Tracks,
 def run_figures(result: ProcessResult, known: Sequence[tuple[str, str, float]] = ()
                 ) -> tuple[dict[str, Any], list[PairDistance], list[TargetStats],
                            list[tuple[str, str, float]]]:
-    """The per-target and distance figures of a run, for ``summary.json`` and the table.
+    """The per-target and distance figures of a run, for ``summary.json`` and the table, from
+    one pass over its frames.
 
     Returns:
         ``(summary keys, pairs, per-target stats, known entries naming no measured pair)``:
-        the keys are ``targets`` (id -> ``located`` (in the camera), ``localized`` (in the
-        base frame), ``truth_frames``, ``rms_mm``, ``max_mm``, ``truth_index``,
-        ``truth_distance_mm``) and ``distances`` (one entry per pair, see
+        the keys are ``error`` (the first target's error statistics, :func:`error_figures`),
+        ``targets`` (id -> ``located`` (in the camera), ``localized`` (in the base frame),
+        ``truth_frames``, ``rms_mm``, ``max_mm``, ``truth_index``, ``truth_distance_mm``) and
+        ``distances`` (one entry per pair, see
         :meth:`~eye_in_hand.core.distances.PairDistance.to_dict`).
     """
     ids = list(result.target_ids)
-    tracks, truth = frame_tracks(result.frames, ids)
+    tracks, truth, in_camera, errs = _scan(result.frames, ids)
     pairs, stats, unmatched = summary_figures(tracks, truth, known)
-    in_camera = {i: 0 for i in ids}
-    for f in result.frames:
-        for t in f.targets:
-            in_camera[t.id] = in_camera.get(t.id, 0) + 1
     targets: dict[str, Any] = {}
     for st in stats:
         d = st.to_dict()
@@ -338,8 +444,8 @@ def run_figures(result: ProcessResult, known: Sequence[tuple[str, str, float]] =
         targets[st.id] = {"located": in_camera.get(st.id, 0), "localized": d.pop("located"),
                           **d, "truth_index": match.get("truth_index"),
                           "truth_distance_mm": match.get("distance_mm")}
-    return ({"targets": targets, "distances": [p.to_dict() for p in pairs]}, pairs, stats,
-            unmatched)
+    return ({"error": error_figures(errs), "targets": targets,
+             "distances": [p.to_dict() for p in pairs]}, pairs, stats, unmatched)
 
 
 def _topic_id(target_id: str) -> str:
@@ -362,17 +468,24 @@ def write_results(out: str | Path, result: ProcessResult, opts: OutputOptions | 
     if out.exists():
         raise BagError(f"{out}: output exists already (choose a new -o)")
     ids = list(result.target_ids)
-    with BagWriter(out, storage=storage) as writer:
-        _Topics(writer, getattr(opts, "outputs", None) or OutputSettings()).write_all(
-            result, getattr(opts, "camera_frame", "camera_left_optical_frame"),
-            getattr(opts, "base_frame", "base_link"))
     csv_path = out / "results.csv"
-    with csv_path.open("w", newline="") as fh:
+    # one pass over the frames (on a long bag most are read back from a temporary file)
+    with BagWriter(out, storage=storage) as writer, csv_path.open("w", newline="") as fh:
+        topics = _Topics(writer, getattr(opts, "outputs", None) or OutputSettings())
+        camera_frame = getattr(opts, "camera_frame", "camera_left_optical_frame")
+        base_frame = getattr(opts, "base_frame", "base_link")
         w = csv.writer(fh)
         w.writerow(CSV_COLUMNS)
+        first = True
         for f in result.frames:
             for row in _rows(f, ids):
                 w.writerow(row)
+            if f.status == "bad_image":
+                continue    # the live detector publishes nothing for a pair whose image is bad
+            if first:
+                topics.static(f.stamp_ns, camera_frame)
+                first = False
+            topics.frame(f, camera_frame, base_frame)
     summary = {"counts": result.counts, "bag_duration_s": result.duration_s,
                "error": None,        # the first target's statistics: the caller's
                "damage": result.damage.to_dict() if result.damage is not None else None}
@@ -420,14 +533,6 @@ class _Topics:
             self.w.add_topic(topic, _FRAME_TOPICS[key])
             self.added.add(topic)
         self.w.write(topic, stamp, msg)
-
-    def write_all(self, result: ProcessResult, camera_frame: str, base_frame: str) -> None:
-        # the live detector publishes nothing for a pair whose image is bad
-        frames = [f for f in result.frames if f.status != "bad_image"]
-        if frames:
-            self.static(frames[0].stamp_ns, camera_frame)
-        for f in frames:
-            self.frame(f, camera_frame, base_frame)
 
     def static(self, stamp: int, camera_frame: str) -> None:
         """``/hand_eye/transform`` and ``/tf_static`` at the first frame (hand_eye latches both

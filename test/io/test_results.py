@@ -87,3 +87,47 @@ def test_several_targets_a_missing_row_gets_its_own_matched_truth(tmp_path):
     # a truth-less bag: the columns stay empty
     rows = _rows(tmp_path / "none", frames(), ["a", "b"], {})
     assert all(r["gt_x"] == "" for r in rows)
+
+
+def test_a_truth_table_reads_as_the_dict_of_lists_it_replaces():
+    """``process`` keeps the ground truth in a :class:`TruthTable` (columns): the same
+    stamps in first-added order, the same points per stamp in the order added (stamps out of
+    order and repeated, as a bag's log order may give them), and the same matches."""
+    from eye_in_hand.io.results import TruthTable
+
+    rng = np.random.default_rng(3)
+    as_dict: dict[int, list[np.ndarray]] = {}
+    table = TruthTable()
+    for stamp in [T0 + 5, T0 + 2, T0 + 5, T0 + 9, T0 + 2, T0 + 5, T0 + 1]:
+        p = rng.normal(size=3)
+        as_dict.setdefault(stamp, []).append(p)
+        table.add(stamp, p)
+    assert list(table) == list(as_dict) and len(table) == len(as_dict) == 4
+    for stamp, points in as_dict.items():
+        got = table[stamp]
+        assert len(got) == len(points)
+        for a, b in zip(got, points, strict=True):
+            assert a.shape == (3,) and a.tobytes() == b.tobytes()   # to the last bit
+    assert table.get(T0 + 3) is None and T0 + 4 not in table and T0 + 9 in table
+    table.add(T0 + 3, np.zeros(3))                 # an add after a lookup is seen
+    assert table[T0 + 3][0].tolist() == [0.0, 0.0, 0.0] and len(table) == 5
+    assert not TruthTable() and list(TruthTable()) == []
+
+
+def test_the_truth_from_a_table_is_the_truth_from_a_dict(tmp_path):
+    from eye_in_hand.io.results import TruthTable
+
+    def frames() -> list[FrameResult]:
+        return [_frame(k, {"a": TRUE["a"] + [0.001 * k + 0.0002, 0, 0]} if k % 3 else {})
+                for k in range(6)]
+
+    truth = _truth(6, ("b", "a"))
+    table = TruthTable()
+    for stamp, points in truth.items():
+        for p in points:
+            table.add(stamp, p)
+    a, b = frames(), frames()
+    assert assign_truth(a, truth, ["a"]) == assign_truth(b, table, ["a"])
+    for fa, fb in zip(a, b, strict=True):
+        assert fa.truth_base.tobytes() == fb.truth_base.tobytes()
+        assert fa.truth_by_id.keys() == fb.truth_by_id.keys()
