@@ -302,7 +302,7 @@ _CONSOLE = ("import sys, eye_in_hand.cli as cli\n"
 
 
 def run_process(bag: Path, he: Path, params: Path, out: Path,
-                code: Path | None = None) -> dict[str, float]:
+                code: Path | None = None) -> dict[str, Any]:
     """One ``eye-in-hand process`` run: wall, CPU of the tree, peak RSS (sum, largest);
     ``code``: another checkout whose ``eye_in_hand`` runs (first on ``PYTHONPATH``)."""
     shutil.rmtree(out, ignore_errors=True)
@@ -318,6 +318,7 @@ def run_process(bag: Path, he: Path, params: Path, out: Path,
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=_env(code), cwd=code or ROOT)   # not another checkout's root
     done = threading.Event()
+    pss_at: list[tuple[float, int]] = []      # (s since start, tree PSS)
 
     def sample() -> None:
         k = 0
@@ -328,7 +329,9 @@ def run_process(bag: Path, he: Path, params: Path, out: Path,
             peak[1] = max(peak[1], max((m[1] for m in mems), default=0))
             peak[2] = max(peak[2], sum(m[2] for m in mems))
             if k % 5 == 0:
-                peak[3] = max(peak[3], sum(_pss(q) for q in tree))
+                pss = sum(_pss(q) for q in tree)
+                peak[3] = max(peak[3], pss)
+                pss_at.append((time.perf_counter() - t0, pss))
             k += 1
 
     sampler = threading.Thread(target=sample, daemon=True)
@@ -343,10 +346,19 @@ def run_process(bag: Path, he: Path, params: Path, out: Path,
     summary = json.loads((out / "summary.json").read_text())
     shutil.rmtree(out, ignore_errors=True)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    return {"wall": wall, "cpu": cpu, "rss_sum": peak[0] / 1e6, "rss_max": peak[1] / 1e6,
+    # the peak tree PSS in each quarter of the run: flat from the second quarter on when
+    # nothing is held per pair (the first holds the start-up and the workers' warm-up)
+    quarters = [max((m for t, m in pss_at if q * wall / 4 <= t < (q + 1) * wall / 4),
+                    default=0) / 1e6 for q in range(4)]
+    return {"wall": wall, "pss_quarters": quarters, "cpu": cpu, "rss_sum": peak[0] / 1e6,
+            "rss_max": peak[1] / 1e6,
             "anon_sum": peak[2] / 1e6, "pss_sum": peak[3] / 1e6,
             "pairs": float(summary["counts"]["pairs"]),
             "localized": float(summary["counts"]["localized"])}
+
+
+def _quarters(run: dict[str, Any]) -> str:
+    return "/".join(f"{m:.0f}" for m in run.get("pss_quarters", ()))
 
 
 def floor(bag: Path, targets: int) -> dict[str, float]:
@@ -747,7 +759,8 @@ def main() -> int:
                   f"{o['cpu']:.2f} s ({o['cpu'] / p.seconds:.3f} s per s of bag) -> "
                   f"{o['cpu'] / r['floor_cpu']:.2f}x the floor, CPU/wall "
                   f"{o['cpu'] / o['wall']:.2f}, peak RSS {o['rss_sum']:.0f} MB (tree; "
-                  f"anonymous {o['anon_sum']:.0f} MB), {o['rss_max']:.0f} MB (largest); "
+                  f"anonymous {o['anon_sum']:.0f} MB; PSS by quarter of the run "
+                  f"{_quarters(o)} MB), {o['rss_max']:.0f} MB (largest); "
                   f"CPU of the runs: this {mine}; other {theirs}", flush=True)
         bag_mb = sum(f.stat().st_size for f in bags[p].iterdir()) / 1e6
         print(f"{p.seconds:5.0f} s {p.width}x{p.height} {p.targets} target(s) ({bag_mb:,.0f} MB): "
@@ -755,7 +768,8 @@ def main() -> int:
               f"{r['cpu']:.2f} s ({r['cpu'] / p.seconds:.3f} s per s of bag), CPU/wall "
               f"{r['cpu'] / r['wall']:.2f}; floor {r['floor_cpu']:.2f} s CPU -> "
               f"{r['cpu'] / r['floor_cpu']:.2f}x the floor; peak RSS {r['rss_sum']:.0f} MB "
-              f"(tree; anonymous {r['anon_sum']:.0f} MB; PSS {r['pss_sum']:.0f} MB), "
+              f"(tree; anonymous {r['anon_sum']:.0f} MB; PSS {r['pss_sum']:.0f} MB, by quarter "
+              f"of the run {_quarters(r)} MB), "
               f"{r['rss_max']:.0f} MB (largest process); {r['localized']:.0f} of "
               f"{r['pairs']:.0f} pairs localized; load {os.getloadavg()[0]:.2f}", flush=True)
     for c in chosen:
