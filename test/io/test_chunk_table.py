@@ -104,3 +104,44 @@ def test_the_indexed_reader_holds_a_table_that_reads_as_rosbags_parse(tmp_path):
     assert [len(v) for v in entry if isinstance(v, bytes)] == [32]
     got = [bytes(raw) for _t, _m, _s, raw in iter_messages(path, ["/a"])]
     assert len(got) == 40
+
+
+def test_the_indexed_reader_fills_its_table_as_rosbags_parses(tmp_path, monkeypatch):
+    """The chunks go into the table one by one as ``rosbags`` parses the index: its list of
+    ``ChunkInfo`` (1.4 kB a chunk, 25 MB on a 10-minute bag, a peak the heap then keeps) is
+    never built. A table being built takes chunks; a cleared one, or a copy behind the table
+    it was copied from, does not."""
+    from rosbags.rosbag2.storage_mcap import McapReader
+
+    import eye_in_hand.io.bags.storage_mcap as sm
+
+    path = tmp_path / "bag"
+    _bag(path)
+    mcap = next(path.glob("*.mcap"))
+    seen: list[tuple[type, int]] = []
+    read_index = McapReader.read_index
+
+    def spy(self):
+        seen.append((type(self.chunks), len(self.chunks)))
+        read_index(self)
+        seen.append((type(self.chunks), len(self.chunks)))
+
+    monkeypatch.setattr(McapReader, "read_index", spy)
+    sm._INDEX_CACHE.clear()
+    reader = sm._indexed_reader()(mcap)
+    reader.open()
+    n = len(reader.chunks)
+    reader.close()
+    assert n > 5 and seen == [(ChunkTable, 0), (ChunkTable, n)]
+
+    info = sm._INDEX_CACHE[str(mcap.resolve())][-1]["chunks"][0]
+    table = ChunkTable.building()
+    table.append(info)
+    copy = table.copy()
+    table.append(info)
+    assert list(table) == [info, info] and list(copy) == [info]   # the copy keeps its length
+    with pytest.raises(ValueError, match="only a table being built"):
+        copy.append(info)
+    table.clear()
+    with pytest.raises(ValueError, match="only a table being built"):
+        table.append(info)

@@ -7,7 +7,9 @@ chunk per stereo pair, held by every reader of the file and by the index cache o
 keeps the same values in flat arrays (about 125 bytes a chunk) and makes each ``ChunkInfo``
 when it is asked for: equal to the parsed one, field for field and in the order of its dicts'
 keys, so that everything reading ``storage.chunks`` (``rosbags`` itself included) reads the
-same index.
+same index. A table can also be filled while ``rosbags`` parses (:meth:`ChunkTable.building`:
+each ``ChunkInfo`` it appends goes into the columns and is dropped), so that the parsed list
+(25 MB on that bag, a peak that the process's heap then kept) never exists.
 """
 from __future__ import annotations
 
@@ -26,10 +28,10 @@ class _Columns:
     """The values of every chunk (shared by the tables made from one parse)."""
 
     __slots__ = ("make", "ints", "compression", "names", "layout", "layouts", "offsets",
-                 "starts")
+                 "starts", "_name_ids", "_layout_ids")
 
-    def __init__(self, infos: Sequence[Any]) -> None:
-        self.make = type(infos[0]) if infos else None
+    def __init__(self, infos: Sequence[Any] = ()) -> None:
+        self.make: Any = None
         self.ints = [array("q") for _ in _INTS]
         self.compression = array("H")
         self.names: list[str] = []
@@ -38,24 +40,35 @@ class _Columns:
         self.layouts: list[tuple[tuple[int, ...], tuple[tuple[int, int], ...]]] = []
         self.offsets = array("q")              # message index offsets, chunk after chunk
         self.starts = array("q", [0])
-        names: dict[str, int] = {}
-        layouts: dict[Any, int] = {}
+        self._name_ids: dict[str, int] = {}
+        self._layout_ids: dict[Any, int] = {}
         for info in infos:
-            for col, name in zip(self.ints, _INTS, strict=True):
-                col.append(getattr(info, name))
-            comp = info.compression
-            if comp not in names:
-                names[comp] = len(self.names)
-                self.names.append(comp)
-            self.compression.append(names[comp])
-            mio = info.message_index_offsets
-            key = (tuple(mio), tuple(info.channel_count.items()))
-            if key not in layouts:
-                layouts[key] = len(self.layouts)
-                self.layouts.append(key)
-            self.layout.append(layouts[key])
-            self.offsets.extend(mio.values())
-            self.starts.append(len(self.offsets))
+            self.add(info)
+
+    def __len__(self) -> int:
+        return len(self.starts) - 1
+
+    def add(self, info: Any) -> None:
+        """One more chunk, after the others."""
+        if self.make is None:
+            self.make = type(info)
+        for col, name in zip(self.ints, _INTS, strict=True):
+            col.append(getattr(info, name))
+        comp = info.compression
+        names = self._name_ids
+        if comp not in names:
+            names[comp] = len(self.names)
+            self.names.append(comp)
+        self.compression.append(names[comp])
+        mio = info.message_index_offsets
+        key = (tuple(mio), tuple(info.channel_count.items()))
+        layouts = self._layout_ids
+        if key not in layouts:
+            layouts[key] = len(self.layouts)
+            self.layouts.append(key)
+        self.layout.append(layouts[key])
+        self.offsets.extend(mio.values())
+        self.starts.append(len(self.offsets))
 
     def info(self, i: int) -> Any:
         start, end, offset, length, mil, csize, usize = (c[i] for c in self.ints)
@@ -83,6 +96,20 @@ class ChunkTable(Sequence[Any]):
     def of(cls, infos: Sequence[Any]) -> ChunkTable:
         """The table of ``rosbags``' parsed ``ChunkInfo`` list."""
         return cls(_Columns(infos), len(infos))
+
+    @classmethod
+    def building(cls) -> ChunkTable:
+        """An empty table to :meth:`append` parsed chunks to."""
+        return cls(_Columns(), 0)
+
+    def append(self, info: Any) -> None:
+        """One more parsed ``ChunkInfo``, after the others: only on a table that holds every
+        chunk of its columns (one being built; not after :meth:`clear`, nor on a
+        :meth:`copy` once the table it was copied from has grown)."""
+        if self._n != len(self._cols):
+            raise ValueError("ChunkTable.append: only a table being built takes chunks")
+        self._cols.add(info)
+        self._n += 1
 
     def __len__(self) -> int:
         return self._n

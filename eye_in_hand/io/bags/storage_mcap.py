@@ -112,11 +112,14 @@ def _indexed_reader() -> Any:
                     self.connections = [c._replace(owner=self) for c in state["connections"]]
                     return
                 bio.seek(0)
+            # held compactly (about 125 bytes a chunk instead of 1.4 kB, chunk_table), each
+            # chunk put in the table as rosbags parses it (read_index appends to self.chunks)
+            self.chunks = ChunkTable.building()  # type: ignore[assignment]
             super()._open()
             if self._scanned:
                 return
-            # held compactly (about 125 bytes a chunk instead of 1.4 kB, chunk_table)
-            self.chunks = ChunkTable.of(self.chunks)  # type: ignore[assignment]
+            if not isinstance(self.chunks, ChunkTable):  # a rosbags that made its own list
+                self.chunks = ChunkTable.of(self.chunks)  # type: ignore[assignment]
             state = {k: _copied(v) for k, v in vars(self).items() if k not in ("bio", "path")}
             entry = (size, _digest(bio, self.data_start, self.data_end, size), state)
             with _INDEX_LOCK:
