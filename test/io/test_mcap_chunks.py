@@ -199,6 +199,29 @@ def test_corrupt_compressed_chunk_is_a_bag_error(tmp_path: Path) -> None:
     assert got == _expected(chunks)[:6]                    # what came before is delivered
 
 
+def test_a_chunk_that_does_not_decompress_is_recorded_as_itself(tmp_path: Path) -> None:
+    """With a damage log the bag is read on: the second chunk, whose zstd frame does not
+    decompress, is the one recorded (its byte offset, its time range, its six messages), and
+    the first and third chunks' messages are delivered."""
+    from eye_in_hand.io.bags import DamageLog
+
+    chunks = _chunks(n_chunks=3)
+    path = tmp_path / "x.mcap"
+    write_mcap(path, chunks, compression="zstd")
+    data = bytearray(path.read_bytes())
+    frames = [i for i in range(len(data)) if data[i:i + 4] == b"\x28\xb5\x2f\xfd"]
+    data[frames[1]:frames[1] + 4] = b"XXXX"
+    path.write_bytes(bytes(data))
+    log = DamageLog()
+    got = _read(path, damage=log)
+    assert got == _expected([chunks[0], chunks[2]])
+    (damage,) = log.records
+    where = damage.where.removeprefix("chunk at byte ")
+    assert where.isdigit() and frames[0] < int(where) < frames[1], (damage, frames)
+    times = [t for _c, t, _d in chunks[1]]
+    assert (damage.start_ns, damage.end_ns, damage.messages) == (min(times), max(times), 6)
+
+
 def test_views_outlive_the_iteration(tmp_path: Path) -> None:
     chunks = _chunks()
     path = tmp_path / "x.mcap"
@@ -250,3 +273,27 @@ def test_a_chunk_read_leaves_no_record_behind(tmp_path: Path, compression: str) 
             seen.append(alive())
     assert got == _expected(chunks)
     assert seen[0] <= 40 and seen[1] <= 22 and seen[2] <= 7, seen
+
+
+def test_reading_holds_no_chunk_info_per_chunk(tmp_path: Path) -> None:
+    """Reading checks every chunk's record up front, but keeps only what it reads of each
+    (offset, length, times, its header fields and a view of its data): not the index's
+    ``ChunkInfo`` with its two dicts (1.4 kB a chunk, 25 MB for the 18000 chunks of a
+    10-minute bag, held while a camera_info was looked up)."""
+    import gc
+    import tracemalloc
+
+    n = 3000
+    chunks = [[(1, T0 + 1000 * k, _payload("x"))] for k in range(n)]
+    path = tmp_path / "many.mcap"
+    write_mcap(path, chunks)
+    assert len(_read(path)) == n                   # its index parsed and kept (cache)
+    gc.collect()
+    tracemalloc.start()
+    try:
+        first = next(iter_messages(path))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert first[2] == T0
+    assert peak / n < 800, peak / n

@@ -36,7 +36,7 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 
@@ -181,14 +181,18 @@ def _decompressor(compression: str) -> Callable[[Any, int], Any]:
 class _Chunk:
     """One chunk record of the mapped file: where its records are, and how to get them."""
 
-    # one per chunk of the file while it is read (18000 on a 10-minute bag): no __dict__
-    __slots__ = ("info", "offset", "size", "crc", "compression", "data")
+    # one per chunk of the file while it is read (18000 on a 10-minute bag): no __dict__, and
+    # not the index's ChunkInfo (1.4 kB with its dicts), only the fields read here
+    __slots__ = ("offset", "length", "start_time", "end_time", "size", "crc", "compression",
+                 "data")
 
     def __init__(self, info: Any, file_view: memoryview) -> None:
-        self.info = info
         self.offset = int(info.chunk_start_offset)
+        self.length = int(info.chunk_length)
+        self.start_time = int(info.message_start_time)
+        self.end_time = int(info.message_end_time)
         start = self.offset
-        end = start + int(info.chunk_length)
+        end = start + self.length
         if int(info.chunk_length) < 9 + 40:
             raise ValueError(f"chunk at byte {start}: the index gives a length of "
                              f"{info.chunk_length} bytes, shorter than a chunk record")
@@ -238,8 +242,8 @@ def _messages_of(chunk: _Chunk, records: memoryview, channels: dict[int, Any], l
     Raises:
         DamagedRecords: records that stop making sense; it carries the messages before.
     """
-    return _chunk_records(records, chunk.offset, int(chunk.info.message_start_time),
-                          int(chunk.info.message_end_time), channels, lo, hi)
+    return _chunk_records(records, chunk.offset, chunk.start_time, chunk.end_time, channels,
+                          lo, hi)
 
 
 @dataclass(frozen=True)
@@ -324,18 +328,26 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
     channels = {c.id: c for c in connections}
     lo = 0 if start is None else start
     hi = 2**64 if stop is None else stop
-    infos = [c for c in storage.chunks
-             if c.message_end_time >= lo and c.message_start_time < hi and _may_hold(c, channels)]
-    infos.sort(key=lambda c: (c.message_start_time, c.chunk_start_offset))
-    if not infos or not channels:
+    # the chunks to read as positions in the index, in reading order (a ChunkTable makes each
+    # ChunkInfo when asked: a list of all of them would hold 1.4 kB a chunk while reading)
+    picked: list[tuple[int, int, int]] = []
+    compressed = False
+    for k, c in enumerate(storage.chunks):
+        if c.message_end_time >= lo and c.message_start_time < hi and _may_hold(c, channels):
+            picked.append((c.message_start_time, c.chunk_start_offset, k))
+            compressed = compressed or bool(c.compression)
+    picked.sort()
+    if not picked or not channels:
         return
+    infos = _Picked(storage.chunks, [k for _t, _o, k in picked])
+    starts = [t for t, _o, _k in picked]
     with open(storage.path, "rb") as fh:
         mapped = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
     file_view = memoryview(mapped)
     key = id(file_view)
     with _MAPPED_LOCK:
         _MAPPED[key] = (_address(file_view), len(file_view), str(Path(storage.path).resolve()))
-    reader = _ChunkReader(infos, file_view, channels, lo, hi, verify_crc=verify_crc,
+    reader = _ChunkReader(infos, file_view, channels, lo, hi, compressed, verify_crc=verify_crc,
                           threads=threads, on_damage=on_damage,
                           release=lambda start, length: drop_pages(mapped, start, length))
     try:
@@ -348,9 +360,9 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
                     # read two chunks ago: its pages out of this process's resident set
                     # (views still in use map them again from the page cache), so that it
                     # stays flat however long the bag is
-                    drop_pages(mapped, old.offset, int(old.info.chunk_length))
+                    drop_pages(mapped, old.offset, old.length)
                 chunks[i - 2] = None              # read: its record goes too
-            t0 = infos[i].message_start_time
+            t0 = starts[i]
             while pending and pending[0][0] < t0:     # nothing later can come before these
                 m = heapq.heappop(pending)
                 yield m[3], m[0], m[4]
@@ -358,7 +370,7 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
             if msgs is None:                          # no chunk there, or it does not read
                 continue
             if not pending and (i + 1 == len(chunks)
-                                or not msgs or msgs[-1][0] < infos[i + 1].message_start_time):
+                                or not msgs or msgs[-1][0] < starts[i + 1]):
                 for m in msgs:                        # the common case: chunks in time order
                     yield m[3], m[0], m[4]
                 continue
@@ -384,19 +396,42 @@ _RELEASE_EVERY = 256
 _HEADER_BYTES = 4096
 
 
+class _Picked(Sequence[Any]):
+    """Chunks of an index (a ``ChunkTable`` or a list) by their positions in it, each
+    ``ChunkInfo`` fetched when it is asked for."""
+
+    __slots__ = ("_index", "_picked")
+
+    def __init__(self, index: Sequence[Any], picked: list[int]) -> None:
+        self._index, self._picked = index, picked
+
+    def __len__(self) -> int:
+        return len(self._picked)
+
+    @overload
+    def __getitem__(self, i: int) -> Any: ...
+
+    @overload
+    def __getitem__(self, i: slice) -> list[Any]: ...
+
+    def __getitem__(self, i: int | slice) -> Any:
+        if isinstance(i, slice):
+            return [self._index[k] for k in self._picked[i]]
+        return self._index[self._picked[i]]
+
+
 class _ChunkReader:
     """The chunks of one :func:`chunk_messages` call, in reading order: each one's messages,
     compressed chunks decompressed a few ahead on a thread pool, damage reported (or raised)
     as the call was told."""
 
-    def __init__(self, infos: list[Any], file_view: memoryview, channels: dict[int, Any],
-                 lo: int, hi: int, *, verify_crc: bool, threads: int,
+    def __init__(self, infos: Sequence[Any], file_view: memoryview, channels: dict[int, Any],
+                 lo: int, hi: int, compressed: bool, *, verify_crc: bool, threads: int,
                  on_damage: Callable[[ChunkDamage], None] | None,
                  release: Callable[[int, int], None] | None = None) -> None:
         self.infos, self.file_view, self.channels = infos, file_view, channels
         self.release = release
         self.lo, self.hi, self.verify_crc, self.on_damage = lo, hi, verify_crc, on_damage
-        compressed = any(c.compression for c in infos)
         self.pool = ThreadPoolExecutor(max(1, threads), thread_name_prefix="mcap-chunk") \
             if compressed and threads > 0 else None
         self.ahead = 2 * max(1, threads)
@@ -453,10 +488,10 @@ class _ChunkReader:
         try:
             return _messages_of(chunk, self.records(i), self.channels, self.lo, self.hi)
         except DamagedRecords as exc:
-            self.damage(chunk.info, exc, exc.kept)
+            self.damage(self.infos[i], exc, exc.kept)
             return exc.kept
         except Exception as exc:  # decompression, size, CRC
-            self.damage(chunk.info, exc)
+            self.damage(self.infos[i], exc)
             return None
 
     def close(self) -> None:
