@@ -7,18 +7,20 @@ Curves (each point one ``eye-in-hand process`` run, a subprocess, start-up inclu
 * number of targets 1, 4, 8 (20 s, 640x480; one colour each, so pairs go to worker processes);
 * image size 640x480, 1280x720, 1920x1080 (20 s, 1 target).
 
-Per point: wall time, CPU of the whole process tree (``getrusage(RUSAGE_CHILDREN)`` after it
-exits: the command and its worker processes), CPU/wall, the peak RSS of the tree (the sum over
-its processes, sampled from ``/proc`` at about 20 Hz; also its anonymous part, ``RssAnon``,
-without the bag's file pages), its peak proportional set size (PSS, from ``smaps_rollup`` at
-about 4 Hz: the memory the tree really holds, where the RSS sum counts pages a forked worker
-shares with the reading process once per process) and the peak RSS of its largest single
-process (``VmHWM``), and the **floor**: the CPU of reading every image's bytes from the same bag
-(decompressing its chunks) and ``cvtColor(BGR2HSV)`` + one ``inRange`` per target of both images
-of every pair, in one thread of this process, on the same bag in the same run (with
-``--repeat N``: the least CPU of N runs of the command, and of N measurements of the floor,
-one after each run). Per curve, the least-squares slope of wall, CPU, floor CPU and peak
-memory against the curve's variable, with R^2 (1 = a straight line).
+Per point: wall time, CPU of the whole process tree (``getrusage(RUSAGE_CHILDREN)`` after it exits:
+the command and its worker processes), CPU/wall, the peak RSS of the tree (the sum over its
+processes, sampled from ``/proc`` at about 20 Hz; also its anonymous part, ``RssAnon``, without the
+bag's file pages), its peak proportional set size (PSS, from ``smaps_rollup`` at about 4 Hz: the
+memory the tree really holds, where the RSS sum counts pages a forked worker shares with the
+reading process once per process), the peak PSS in each quarter of the run's wall time (flat from
+the second quarter on when nothing is held per pair; the first holds the start-up, the last of a
+short run the output files after the workers exited) and the peak RSS of its largest single process
+(``VmHWM``), and the **floor**: the CPU of reading every image's bytes from the same bag
+(decompressing its chunks) and ``cvtColor(BGR2HSV)`` + one ``inRange`` per target of both images of
+every pair, in one thread of this process, on the same bag in the same run (with ``--repeat N``:
+the least CPU of N runs of the command, and of N measurements of the floor, one after each run).
+Per curve, the least-squares slope of wall, CPU, floor CPU and peak memory against the curve's
+variable, with R^2 (1 = a straight line).
 
 The bags: a few seconds of distinct stereo pairs are rendered with the simulator (no sensor
 noise, as the bundled bags: a 10-minute 640x480 bag is about 1 GB with zstd chunks instead of 33
