@@ -468,6 +468,11 @@ class _BagPass:
         from eye_in_hand.io.results import assign_truth, target_order  # local: reader only
 
         result, counts, opts = self.result, self.counts, self.opts
+        frames = self.frames
+        if frames.problem is not None:          # nothing lost: more memory than planned
+            result.notes.append(f"{frames.problem}: {len(frames) - frames.spilled} of the "
+                                f"{len(frames)} frames were kept in memory (set TMPDIR to "
+                                "a folder with space)")
         result.located_in_processes = pool.in_processes
         result.workers_forked = pool.forked
         result.notes.extend(pool.notes)

@@ -622,3 +622,33 @@ def test_the_truth_matched_from_what_was_gathered_is_the_truth_read_from_the_fra
     assert res.truth_match["red"]["distance_mm"] < 5.0
     for a, b in zip(frames, res.frames, strict=True):
         assert a.truth_base is not None and a.truth_base.tobytes() == b.truth_base.tobytes()
+
+
+def test_frames_stay_in_memory_when_their_file_cannot_be_written(bags, monkeypatch):
+    """No space for the frames' temporary file: the run goes on with them in memory, gives
+    the same frames, and its notes say why and how to avoid it."""
+    from eye_in_hand import offline
+    from eye_in_hand.io import spill
+
+    world, zstd, _raw = bags
+    cfg = load_locator_config(None)
+
+    def run():
+        return process_bag(zstd, hand_eye_T=world.ee_T_cam, locator_config=cfg,
+                           options=ProcessOptions(workers=1))
+
+    whole = run()
+    monkeypatch.setattr(spill, "KEEP", 0)
+    monkeypatch.setattr(spill, "BATCH", 1)
+    monkeypatch.setattr(offline, "_FORGET_EVERY", 1)
+
+    def no_space(*_a, **_k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(spill.tempfile, "TemporaryFile", no_space)
+    kept = run()
+    assert kept.frames.spilled == 0 and kept.counts == whole.counts
+    (note,) = [n for n in kept.notes if "TMPDIR" in n]
+    assert "No space left on device" in note and "8 of the 8 frames" in note, note
+    for a, b in zip(kept.frames, whole.frames, strict=True):
+        np.testing.assert_array_equal(a.point_base, b.point_base)

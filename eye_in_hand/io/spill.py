@@ -11,7 +11,8 @@ back in order. A bag of up to ``keep`` pairs never touches the file.
 
 The file is made by :func:`tempfile.TemporaryFile` (in ``TMPDIR``, else ``/tmp``): it has no
 name, so nothing is left behind when the process ends, however it ends. It takes about
-0.6 kB a pair.
+0.55 kB a pair. When it cannot be made or written (no space, no writable folder), the items
+stay in memory from then on and :attr:`SpillList.problem` says why; nothing is lost.
 """
 from __future__ import annotations
 
@@ -57,6 +58,8 @@ class SpillList(Sequence[T]):
         self._end = 0                              # the file's size
         self._spilled = 0                          # items in the file
         self._fixes: list[Callable[[T], object]] = []
+        #: why items stay in memory beyond ``keep`` (the file could not be made or written)
+        self.problem: str | None = None
 
     def append(self, item: T) -> None:
         self._items.append(item)
@@ -78,7 +81,7 @@ class SpillList(Sequence[T]):
             ValueError: ``before`` is not among the items in memory.
         """
         items = self._items
-        if len(items) <= self._keep:
+        if len(items) <= self._keep or self.problem is not None:
             return
         if before is None:
             settled = len(items)
@@ -89,16 +92,23 @@ class SpillList(Sequence[T]):
         spill = min(settled, len(items) - self._keep) // self._batch * self._batch
         if spill <= 0:
             return
-        if self._file is None:
-            self._file = tempfile.TemporaryFile(prefix="eye_in_hand-spill-")
-        for start in range(0, spill, self._batch):
-            data = pickle.dumps(items[start:start + self._batch],
-                                protocol=pickle.HIGHEST_PROTOCOL)
-            os.pwrite(self._file.fileno(), data, self._end)
-            self._spans.append((self._end, len(data)))
-            self._end += len(data)
-        del items[:spill]
-        self._spilled += spill
+        written = 0
+        try:
+            if self._file is None:
+                self._file = tempfile.TemporaryFile(prefix="eye_in_hand-spill-")
+            for start in range(0, spill, self._batch):
+                data = pickle.dumps(items[start:start + self._batch],
+                                    protocol=pickle.HIGHEST_PROTOCOL)
+                if os.pwrite(self._file.fileno(), data, self._end) != len(data):
+                    raise OSError(f"short write at byte {self._end}")
+                self._spans.append((self._end, len(data)))
+                self._end += len(data)
+                written = start + self._batch
+        except OSError as exc:
+            self.problem = (f"a temporary file in {tempfile.gettempdir()} could not be "
+                            f"written ({exc})")
+        del items[:written]
+        self._spilled += written
 
     def apply(self, fix: Callable[[T], object]) -> None:
         """``fix(item)`` changes an item in place: now for the items in memory, and for each

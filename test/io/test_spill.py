@@ -93,3 +93,35 @@ def test_bad_sizes_are_refused():
         SpillList(batch=0)
     with pytest.raises(ValueError, match="keep >= 0"):
         SpillList(keep=-1)
+
+
+def test_a_file_that_cannot_be_written_keeps_the_items_in_memory(monkeypatch):
+    """No space (or no writable folder): the items stay in memory from then on, the reason
+    is given, and nothing is lost, also when the file failed after some batches."""
+    items = [Item(i) for i in range(10)]
+    s = SpillList(items[:6], keep=2, batch=2)
+    s.settle()
+    assert s.spilled == 4 and s.problem is None
+    real = spill.os.pwrite
+
+    def full(fd, data, offset):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(spill.os, "pwrite", full)
+    for it in items[6:]:
+        s.append(it)
+    s.settle()
+    assert s.problem is not None and "No space left on device" in s.problem
+    assert s.spilled == 4 and [x.n for x in s] == list(range(10))
+    monkeypatch.setattr(spill.os, "pwrite", real)
+    s.settle()                                  # no more tries: memory from now on
+    assert s.spilled == 4
+
+    def no_file(*_a, **_k):
+        raise OSError(13, "Permission denied")
+
+    monkeypatch.setattr(spill.tempfile, "TemporaryFile", no_file)
+    t = SpillList((Item(i) for i in range(5)), keep=1, batch=1)
+    t.settle()
+    assert t.spilled == 0 and "Permission denied" in (t.problem or "")
+    assert [x.n for x in t] == list(range(5))
