@@ -36,7 +36,7 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, overload
+from typing import Any
 
 import numpy as np
 
@@ -396,7 +396,7 @@ _RELEASE_EVERY = 256
 _HEADER_BYTES = 4096
 
 
-class _Picked(Sequence[Any]):
+class _Picked:
     """Chunks of an index (a ``ChunkTable`` or a list) by their positions in it, each
     ``ChunkInfo`` fetched when it is asked for."""
 
@@ -408,16 +408,12 @@ class _Picked(Sequence[Any]):
     def __len__(self) -> int:
         return len(self._picked)
 
-    @overload
-    def __getitem__(self, i: int) -> Any: ...
-
-    @overload
-    def __getitem__(self, i: slice) -> list[Any]: ...
-
-    def __getitem__(self, i: int | slice) -> Any:
-        if isinstance(i, slice):
-            return [self._index[k] for k in self._picked[i]]
+    def __getitem__(self, i: int) -> Any:
         return self._index[self._picked[i]]
+
+    def __iter__(self) -> Iterator[Any]:
+        index = self._index
+        return (index[k] for k in self._picked)
 
 
 class _ChunkReader:
@@ -425,7 +421,7 @@ class _ChunkReader:
     compressed chunks decompressed a few ahead on a thread pool, damage reported (or raised)
     as the call was told."""
 
-    def __init__(self, infos: Sequence[Any], file_view: memoryview, channels: dict[int, Any],
+    def __init__(self, infos: _Picked, file_view: memoryview, channels: dict[int, Any],
                  lo: int, hi: int, compressed: bool, *, verify_crc: bool, threads: int,
                  on_damage: Callable[[ChunkDamage], None] | None,
                  release: Callable[[int, int], None] | None = None) -> None:
