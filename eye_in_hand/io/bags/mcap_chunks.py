@@ -328,19 +328,9 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
     channels = {c.id: c for c in connections}
     lo = 0 if start is None else start
     hi = 2**64 if stop is None else stop
-    # the chunks to read as positions in the index, in reading order (a ChunkTable makes each
-    # ChunkInfo when asked: a list of all of them would hold 1.4 kB a chunk while reading)
-    picked: list[tuple[int, int, int]] = []
-    compressed = False
-    for k, c in enumerate(storage.chunks):
-        if c.message_end_time >= lo and c.message_start_time < hi and _may_hold(c, channels):
-            picked.append((c.message_start_time, c.chunk_start_offset, k))
-            compressed = compressed or bool(c.compression)
-    picked.sort()
-    if not picked or not channels:
+    infos, starts, compressed = _pick(storage.chunks, channels, lo, hi)
+    if not starts or not channels:
         return
-    infos = _Picked(storage.chunks, [k for _t, _o, k in picked])
-    starts = [t for t, _o, _k in picked]
     with open(storage.path, "rb") as fh:
         mapped = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
     file_view = memoryview(mapped)
@@ -394,6 +384,23 @@ def chunk_messages(storage: Any, connections: Sequence[Any], start: int | None =
 _RELEASE_EVERY = 256
 #: Bytes of a chunk record read to check it: the record prefix and the chunk's header fields.
 _HEADER_BYTES = 4096
+
+
+def _pick(index: Sequence[Any], channels: dict[int, Any], lo: int, hi: int
+          ) -> tuple[_Picked, list[int], bool]:
+    """The chunks of ``index`` that may hold messages of ``channels`` in ``[lo, hi)``, in
+    reading order (log time, then file offset), as positions in the index (a ``ChunkTable``
+    makes each ``ChunkInfo`` when asked: a list of all of them would hold 1.4 kB a chunk while
+    reading); their start times; whether any is compressed."""
+    picked: list[tuple[int, int, int]] = []
+    compressed = False
+    for k, c in enumerate(index):
+        if c.message_end_time >= lo and c.message_start_time < hi and _may_hold(c, channels):
+            picked.append((c.message_start_time, c.chunk_start_offset, k))
+            compressed = compressed or bool(c.compression)
+    picked.sort()
+    return (_Picked(index, [k for _t, _o, k in picked]), [t for t, _o, _k in picked],
+            compressed)
 
 
 class _Picked:
