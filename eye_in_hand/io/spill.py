@@ -27,7 +27,7 @@ __all__ = ["SpillList", "apply_to"]
 T = TypeVar("T")
 
 #: items kept in memory (2 min 16 s of stereo pairs at 30 Hz, about 5 MB of frames): shorter
-#: runs pay nothing for the file; beyond, each item costs about 60 us of CPU (pickled once,
+#: runs pay nothing for the file; beyond, each item costs about 70 us of CPU (pickled once,
 #: read back by the two passes of ``process``'s outputs)
 KEEP = 4096
 #: items written to the file together (one pickle: arrays shared between them stay shared)
@@ -147,9 +147,6 @@ class SpillList(Sequence[T]):
         if not self._spans:
             return self._items[index]
         return list(self)[index]
-
-    def __bool__(self) -> bool:
-        return len(self) > 0
 
     def close(self) -> None:
         """Give the file back (the items in it are gone; the ones in memory stay)."""
