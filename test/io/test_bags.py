@@ -502,3 +502,32 @@ def test_a_metadata_yaml_is_parsed_once_per_text(tmp_path: Path, monkeypatch) ->
     (bag / "metadata.yaml").write_text("just: text\n")
     assert reading.metadata_problem(bag) == "has no 'rosbag2_bagfile_information' mapping"
     assert len(calls) == 2
+
+
+def test_rosbags_parses_a_metadata_yaml_once_per_text(tmp_path: Path) -> None:
+    """rosbags' own parse of metadata.yaml (ruamel, 3-5 ms) is kept per text too: reopening
+    the bag parses nothing; every open gets its own copy; an edited file is parsed anew."""
+    import rosbags.rosbag2.reader as rosbags_reader
+
+    from eye_in_hand.io.bags import reading
+
+    bag = tmp_path / "bag"
+    _write_sample(bag, n=4)
+    reading._safe_yaml_of.cache_clear()
+    assert bag_info(bag).topics["/a/chatter"].count == 2
+    first = reading._safe_yaml_of.cache_info()
+    assert first.misses >= 1
+    for _ in range(3):
+        assert bag_info(bag).topics["/a/chatter"].count == 2
+    again = reading._safe_yaml_of.cache_info()
+    assert again.misses == first.misses and again.hits >= first.hits + 3
+    # the reader owns what it gets: a change to one parse is not seen by the next
+    text = (bag / "metadata.yaml").read_text()
+    one = rosbags_reader.YAML(typ="safe").load(text)
+    one["rosbag2_bagfile_information"]["message_count"] = -1
+    assert rosbags_reader.YAML(typ="safe").load(text)["rosbag2_bagfile_information"][
+        "message_count"] == 4
+    (bag / "metadata.yaml").write_text(text.replace("message_count: 2", "message_count: 3"))
+    assert bag_info(bag).topics["/a/chatter"].count == 3
+    assert reading._safe_yaml_of.cache_info().misses == first.misses + 1
+

@@ -103,6 +103,36 @@ def _storage_paths(path: Path, notes: list[str] | None = None) -> list[Path]:
 _READER_CLASS: Any = None
 
 
+class _RepeatedSafeYAML:
+    """Marks the class :func:`_repeated_safe_yaml` makes."""
+
+
+@functools.lru_cache(maxsize=32)
+def _safe_yaml_of(yaml_class: Any, text: str) -> Any:
+    """``yaml_class(typ="safe").load(text)``, kept per text (exceptions are not kept)."""
+    return yaml_class(typ="safe").load(text)
+
+
+def _repeated_safe_yaml(yaml_class: Any) -> Any:
+    """``ruamel.yaml``'s ``YAML`` class as ``rosbags`` uses it to read a bag directory's
+    ``metadata.yaml`` (and the QoS strings in it), whose safe ``load`` of a text parsed
+    before returns a copy of the first parse instead of parsing it again: a command opens
+    one bag several times (its summary, its storage checks, its type store, its camera_info,
+    the pass; six times for ``process``), and the pure-Python parser takes 3-5 ms a time,
+    on the start-up path. The same text gives the same objects (a deep copy each time: the
+    reader owns what it gets); any other use (a dump, another ``typ``, a stream) is
+    ``yaml_class``'s own."""
+
+    class RepeatedSafeYAML(yaml_class, _RepeatedSafeYAML):  # type: ignore[misc]
+        def load(self, stream: Any) -> Any:
+            if self.typ == ["safe"] and not self.pure and isinstance(stream, str):
+                return copy.deepcopy(_safe_yaml_of(yaml_class, stream))
+            return super().load(stream)
+
+    RepeatedSafeYAML.__name__ = RepeatedSafeYAML.__qualname__ = yaml_class.__name__
+    return RepeatedSafeYAML
+
+
 def _reader_class() -> Any:
     """``rosbags.rosbag2.Reader`` whose storage plugins (of files and of bag directories)
     are those of :data:`eye_in_hand.io.bags.formats.FORMATS`."""
@@ -110,8 +140,16 @@ def _reader_class() -> Any:
     if _READER_CLASS is not None:
         return _READER_CLASS
     # local: rosbags.rosbag2 costs ~40 ms at CLI start-up (every command loads io.bags)
+    import rosbags.rosbag2.metadata as rosbags_metadata
+    import rosbags.rosbag2.reader as rosbags_reader
     from rosbags.rosbag2 import Reader
     from rosbags.rosbag2.reader import DirectoryReader
+
+    # the YAML of metadata.yaml (and its QoS strings), parsed once per text
+    for module in (rosbags_reader, rosbags_metadata):
+        yaml_class: Any = module.__dict__["YAML"]
+        if not issubclass(yaml_class, _RepeatedSafeYAML):
+            module.__dict__["YAML"] = _repeated_safe_yaml(yaml_class)
 
     class FormatsDirectoryReader(DirectoryReader):
         STORAGE_PLUGINS = {name: f.reader_class() for name, f in FORMATS.items()}
