@@ -46,7 +46,7 @@ from eye_in_hand.io.bags import STORAGES, DamageLog, bag_info, default_typestore
 from eye_in_hand.io.config import load_hand_eye
 from eye_in_hand.io.kinematics import load_kinematics
 from eye_in_hand.io.pages import keep_freed_heap
-from eye_in_hand.io.results import load_known_distances, run_figures
+from eye_in_hand.io.results import load_known_distances, prepare_output_types, run_figures
 from eye_in_hand.nodes.parameters import check_parameter_file_keys
 from eye_in_hand.offline import (
     ProcessOptions,
@@ -379,7 +379,8 @@ def run(args: argparse.Namespace) -> int:
                              rig=rig, hand_eye_cov=calib.covariance, options=opts,
                              progress=None if bar is None else bar.update,
                              pose_correction=calib.robot_pose_correction, info=info,
-                             idle=(default_typestore,))   # the output bag's definitions
+                             # the output bag's type store, its definitions and serializers
+                             idle=(default_typestore, prepare_output_types))
     finally:
         if bar is not None:
             bar.close()

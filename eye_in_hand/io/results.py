@@ -51,7 +51,14 @@ from eye_in_hand.core.distances import (
     target_stats,
 )
 from eye_in_hand.errors import BagError, ConfigError, InputError
-from eye_in_hand.io.bags import BagWriter, bag_info, deserialize, iter_messages
+from eye_in_hand.io.bags import (
+    BagWriter,
+    bag_info,
+    default_typestore,
+    deserialize,
+    iter_messages,
+)
+from eye_in_hand.io.bags.writing import type_definition
 from eye_in_hand.io.spill import SpillList, apply_to
 from eye_in_hand.ros.outputs import (
     OutputSettings,
@@ -76,7 +83,8 @@ if TYPE_CHECKING:  # annotations only: core.camera imports OpenCV, which `distan
 __all__ = ["TargetResult", "FrameResult", "ProcessResult", "OutputOptions", "CSV_COLUMNS",
            "OFFLINE_ONLY", "output_messages", "compare_outputs", "target_order", "assign_truth",
            "TruthTable", "frame_tracks", "error_figures", "summary_figures", "run_figures",
-           "write_results", "load_tracks", "load_known_distances", "Tracks"]
+           "write_results", "prepare_output_types", "load_tracks", "load_known_distances",
+           "Tracks"]
 
 #: Columns of ``results.csv``: the first 21 as before per-target rows existed, then ``target``.
 CSV_COLUMNS = ["stamp_ns", "status", "x_cam", "y_cam", "z_cam", "residual_px", "left_u",
@@ -469,8 +477,11 @@ def write_results(out: str | Path, result: ProcessResult, opts: OutputOptions | 
         raise BagError(f"{out}: output exists already (choose a new -o)")
     ids = list(result.target_ids)
     csv_path = out / "results.csv"
-    # one pass over the frames (on a long bag most are read back from a temporary file)
-    with BagWriter(out, storage=storage) as writer, csv_path.open("w", newline="") as fh:
+    # one pass over the frames (on a long bag most are read back from a temporary file); the
+    # shared Jazzy type store (nothing is registered in it: every output type is Jazzy's),
+    # whose definitions and serializers prepare_output_types may have made already
+    with BagWriter(out, storage=storage, typestore=default_typestore()) as writer, \
+            csv_path.open("w", newline="") as fh:
         topics = _Topics(writer, getattr(opts, "outputs", None) or OutputSettings())
         camera_frame = getattr(opts, "camera_frame", "camera_left_optical_frame")
         base_frame = getattr(opts, "base_frame", "base_link")
@@ -495,6 +506,27 @@ def write_results(out: str | Path, result: ProcessResult, opts: OutputOptions | 
     return {"bag": out, "csv": csv_path, "summary": summary_path}
 
 
+def prepare_output_types() -> None:
+    """Generate now what :func:`write_results` needs once per process, in the shared type
+    store it writes with: each output type's definition (stored in the bag per topic) and the
+    serializers of the messages built as ``rosbags`` objects (``/hand_eye/transform``,
+    ``/tf_static``); about 15 ms of code generation. And the writer's modules, and the
+    ``rosbags`` version its MCAP header names (``importlib.metadata``: 5-8 ms the first time
+    in a process, 0.3 ms after). ``process`` runs it while it waits for its worker processes,
+    so that the output files do not wait for it after the pass."""
+    from importlib.metadata import version  # local: only the output files need it
+
+    from eye_in_hand.io.bags.writing import writer_class
+
+    writer_class()
+    version("rosbags")
+    store = default_typestore()
+    for msgtype in dict.fromkeys(_FRAME_TOPICS.values()):
+        type_definition(store, msgtype)
+    for msgtype in _BUILT_TYPES:
+        store.get_msgdef(msgtype)
+
+
 #: Topic -> message type of the output bag (per-target topics: ``{id}`` in the name).
 _FRAME_TOPICS = {
     "/target/point": "geometry_msgs/msg/PointStamped",
@@ -513,6 +545,8 @@ _FRAME_TOPICS = {
     "/tf_static": "tf2_msgs/msg/TFMessage",
     "/target/{id}/ground_truth": "geometry_msgs/msg/PointStamped",
 }
+#: The output types written as ``rosbags`` message objects (:meth:`_Topics.static`), not bytes
+_BUILT_TYPES = ("geometry_msgs/msg/TransformStamped", "tf2_msgs/msg/TFMessage")
 
 
 class _Topics:

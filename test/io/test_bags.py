@@ -531,3 +531,18 @@ def test_rosbags_parses_a_metadata_yaml_once_per_text(tmp_path: Path) -> None:
     assert bag_info(bag).topics["/a/chatter"].count == 3
     assert reading._safe_yaml_of.cache_info().misses == first.misses + 1
 
+
+def test_a_types_definition_is_rosbags_own_and_made_once_per_store() -> None:
+    from rosbags.typesys import Stores, get_typestore
+
+    from eye_in_hand.io.bags.writing import type_definition
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    t = "visualization_msgs/msg/MarkerArray"
+    want = (store.generate_msgdef(t, ros_version=2)[0], store.hash_rihs01(t))
+    assert type_definition(store, t) == want and want[1].startswith("RIHS01_")
+    calls = []
+    store.generate_msgdef = lambda *a, **k: calls.append(a)   # type: ignore[method-assign]
+    assert type_definition(store, t) == want and calls == []
+    other = get_typestore(Stores.ROS2_JAZZY)      # another store: its own
+    assert type_definition(other, t) == want

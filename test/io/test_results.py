@@ -131,3 +131,43 @@ def test_the_truth_from_a_table_is_the_truth_from_a_dict(tmp_path):
     for fa, fb in zip(a, b, strict=True):
         assert fa.truth_base.tobytes() == fb.truth_base.tobytes()
         assert fa.truth_by_id.keys() == fb.truth_by_id.keys()
+
+
+def test_prepared_output_types_leave_the_writer_nothing_to_generate(tmp_path, monkeypatch):
+    """``process`` runs prepare_output_types while its workers locate: writing the output bag
+    afterwards generates no definition and no serializer (a fresh type store here, so that
+    no other test has made them already), and the bag is what it is without preparing."""
+    from types import SimpleNamespace
+
+    from rosbags.typesys import Stores, get_typestore
+
+    from eye_in_hand.io import results
+    from eye_in_hand.ros.outputs import OutputSettings
+
+    frames = [_frame(k, {"a": TRUE["a"], "b": TRUE["b"]}) for k in range(3)]
+    opts = SimpleNamespace(outputs=OutputSettings(hand_eye_T=np.eye(4), stereo_T=np.eye(4),
+                                                  target_frame="target"),
+                           camera_frame="camera_left_optical_frame", base_frame="base_link")
+
+    def run(out, prepare: bool) -> tuple[set[str], list[str]]:
+        store = get_typestore(Stores.ROS2_JAZZY)
+        monkeypatch.setattr(results, "default_typestore", lambda: store)
+        if prepare:
+            results.prepare_output_types()
+        made = set(store.cache)
+        generated: list[str] = []
+        real = store.generate_msgdef
+        monkeypatch.setattr(store, "generate_msgdef",
+                            lambda t, **kw: generated.append(t) or real(t, **kw))
+        res = ProcessResult(frames=frames, counts={}, target_ids=["a", "b"])
+        res.truth_match = assign_truth(frames, _truth(3, ("a", "b")), ["a", "b"])
+        write_results(out, res, opts)
+        return set(store.cache) - made, generated
+
+    new, generated = run(tmp_path / "prepared" / "out", True)
+    assert new == set() and generated == []
+    new, generated = run(tmp_path / "cold" / "out", False)
+    assert "tf2_msgs/msg/TFMessage" in new and generated      # what preparing did
+    for name in ("out.mcap", "metadata.yaml", "results.csv"):
+        assert (tmp_path / "prepared" / "out" / name).read_bytes() == \
+            (tmp_path / "cold" / "out" / name).read_bytes()
