@@ -172,3 +172,33 @@ def test_an_mcap_file_without_summary_is_read_afresh_every_time(tmp_path: Path) 
     for _ in range(2):
         assert bag_info(bare).topics["/x"].count == 4
         assert str(bare.resolve()) not in storage_mcap._INDEX_CACHE
+
+
+@pytest.mark.parametrize("compression", [None, "zstd"])
+def test_the_mcap_writers_message_records_are_rosbags_bytes(tmp_path: Path,
+                                                           monkeypatch: pytest.MonkeyPatch,
+                                                           compression: str | None) -> None:
+    """The MCAP writer packs each message record's head at once: the file is byte for byte
+    the one rosbags' own ``write`` makes (several chunks, several channels, stamps out of
+    order, empty and large messages)."""
+    from rosbags.rosbag2.storage_mcap import McapWriter
+
+    from eye_in_hand.io.bags.storage_mcap import _crc_writer
+
+    msgs = [("/a" if k % 3 else "/b", 10**18 + (k * 7919) % 1000 * 10**6,
+             bytes([0, 1, 0, 0]) + bytes([k % 251]) * ((k * 37) % 5000 if k % 11 else 0))
+            for k in range(700)]   # about 1.7 MB: the writer closes a chunk past 1 MiB
+
+    def write(path: Path) -> bytes:
+        with BagWriter(path, compression=compression) as bag:
+            bag.add_topic("/a", "std_msgs/msg/String")
+            bag.add_topic("/b", "std_msgs/msg/String")
+            for topic, stamp, raw in msgs:
+                bag.write(topic, stamp, raw)
+        return (path / f"{path.name}.mcap").read_bytes()
+
+    ours = write(tmp_path / "bag")
+    monkeypatch.setattr(_crc_writer(), "write", McapWriter.write)
+    upstream = write(tmp_path / "upstream" / "bag")   # the same name (the header has it)
+    assert ours == upstream
+    assert len(bag_info(tmp_path / "bag").topics) == 2

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import struct
 import threading
 import zlib
 from collections import OrderedDict, defaultdict
@@ -237,6 +238,12 @@ class _CrcFile:
 _WRITER_CLASS: Any = None
 
 
+#: A message record's opcode and length, then its channel id, sequence (0), log and publish
+#: time (both the stamp), as rosbags' ``McapWriter.write`` writes them field by field
+_MESSAGE_HEAD = struct.Struct("<BQHIQQ")
+_MESSAGE_FIELDS = 2 + 4 + 8 + 8
+
+
 def _crc_writer() -> Any:
     """``rosbags``' MCAP writer, with CRCs.
 
@@ -275,6 +282,24 @@ def _crc_writer() -> Any:
             self.crc_file = _CrcFile(self.bio, zlib.crc32(head))
             # the writer's file, wrapped: every byte written goes through the CRC
             self.bio = self.crc_file  # type: ignore[assignment]
+
+        def write(self, connection: Any, timestamp: int, data: bytes | memoryview) -> None:
+            # rosbags' write, the record's head packed at once: the same bytes, in a third
+            # of the time (about 13 messages a frame in `process`'s output bag)
+            self.message_start_time = min(timestamp, self.message_start_time)
+            self.message_end_time = max(timestamp, self.message_end_time)
+            cid = connection.id
+            self.channel_stats[cid] += 1
+            chunk = self.chunk
+            chunk.message_start_time = min(timestamp, chunk.message_start_time)
+            chunk.message_end_time = max(timestamp, chunk.message_end_time)
+            bio = chunk.bio
+            chunk.msgs[cid].append((timestamp, bio.tell()))
+            bio.write(_MESSAGE_HEAD.pack(rec.OP_MESSAGE, _MESSAGE_FIELDS + len(data), cid, 0,
+                                         timestamp, timestamp))
+            bio.write(data)
+            if bio.tell() > 2**20:
+                self.close_chunk()
 
         def close_chunk(self) -> None:
             # rosbags' close_chunk, with the CRC-32 of the uncompressed records
