@@ -256,9 +256,12 @@ def process_bag(path: str | Path, *, hand_eye_T: np.ndarray, locator_config: Loc
         pool.use_rig(run.load_rig())
         run.read(pool, progress, in_workers)
         pool.run_idle(len(pool.idle))
+        # the worker processes exit (8-10 ms each) while this one resolves the end of the bag
+        pool.stop()
+        run.settle([t.name for t in locator_config.detector.targets])
     finally:
         pool.close()
-    return run.finish(pool, [t.name for t in locator_config.detector.targets])
+    return run.finish(pool)
 
 
 #: Robot poses ``process`` keeps before the stamp of the frame it takes (s): a frame that needs
@@ -462,11 +465,25 @@ class _BagPass:
         for frame in pool.ready(wait=True):
             take(frame)
 
-    def finish(self, pool: _PairPool, target_names: list[str]) -> ProcessResult:
-        """End of bag: the pool's counts, the last waiting pairs resolved, the ground truth
-        matched to the located ids, and the loss total."""
+    def settle(self, target_names: list[str]) -> None:
+        """End of bag, once every pair is located: the last waiting pairs resolved, the
+        ground truth matched to the located ids."""
         from eye_in_hand.io.results import assign_truth, target_order  # local: reader only
 
+        result, counts = self.result, self.counts
+        # the pool's counts keep their place in summary.json (before the end-of-bag ones);
+        # finish sets them once the pool is closed
+        counts["worker_timeouts"] = counts["pairs_relocated"] = 0
+        self.pipeline.flush()  # end of bag: the last points are resolved (or refused) now
+        self.ledger.close(self.sync, None if self.fixed else self.localizer)
+        result.target_ids = target_order(result.frames, target_names, seen=self.seen)
+        result.truth_match = assign_truth(result.frames, self.truth, result.target_ids,
+                                          located=self.sink.located)
+        counts["ground_truth"] = len(self.truth)
+
+    def finish(self, pool: _PairPool) -> ProcessResult:
+        """After :meth:`settle` and the pool's close: the pool's counts and notes, and the
+        loss total."""
         result, counts, opts = self.result, self.counts, self.opts
         frames = self.frames
         if frames.problem is not None:          # nothing lost: more memory than planned
@@ -478,12 +495,6 @@ class _BagPass:
         result.notes.extend(pool.notes)
         counts["worker_timeouts"] = pool.timeouts        # their pairs were located again here
         counts["pairs_relocated"] = pool.relocated
-        self.pipeline.flush()  # end of bag: the last points are resolved (or refused) now
-        self.ledger.close(self.sync, None if self.fixed else self.localizer)
-        result.target_ids = target_order(result.frames, target_names, seen=self.seen)
-        result.truth_match = assign_truth(result.frames, self.truth, result.target_ids,
-                                          located=self.sink.located)
-        counts["ground_truth"] = len(self.truth)
         counts["damaged_regions"] = len(result.damage)
         counts["messages_lost"] = result.damage.messages_lost
         result.loss = loss_total(counts, result.damage, (opts.left_topic, opts.right_topic))
@@ -1030,6 +1041,11 @@ class _PairPool:
                 self.notes.append(f"{line} during the pass; the other workers and this "
                                   "process located the pairs left")
         self._procs = None
+
+    def stop(self) -> None:
+        """Every pair is located: the worker processes may exit (:meth:`close` waits)."""
+        if self._procs is not None:
+            self._procs.stop()
 
     def close(self) -> None:
         from eye_in_hand.io.bags.mcap_tasks import release  # local: ~14 ms, as mcap_chunks

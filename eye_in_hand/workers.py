@@ -363,7 +363,8 @@ class _Worker:
         except OSError:
             pass
 
-    def close(self) -> None:
+    def close_input(self) -> None:
+        """Close the worker's stdin: it exits once it has sent what it owes."""
         with self._state:
             self.closed = True
         try:
@@ -372,6 +373,10 @@ class _Worker:
                     self.proc.stdin.close()
         except OSError:
             pass
+
+    def close(self) -> None:
+        """:meth:`close_input`, then wait for the exit (a hung worker: killed after 10 s)."""
+        self.close_input()
         try:
             self.proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
@@ -549,6 +554,13 @@ class ProcessPool:
             lines.append((w.proc.pid, f"worker process {w.proc.pid} {how}"))
         return lines
 
+    def stop(self) -> None:
+        """Tell every worker to exit once it has sent the results it owes (its stdin closed):
+        the caller can do other work while they tear down; :meth:`close` waits for them. No
+        task can be submitted after it."""
+        for w in self._workers:
+            w.close_input()
+
     def close(self) -> None:
         """Close the workers' stdin (they exit) and wait for them; workers never initialised
         (``defer_init`` and no :meth:`initialize`) are killed, not waited for while they
@@ -562,7 +574,8 @@ class ProcessPool:
                     w.proc.kill()
                 except OSError:
                     pass
-        for w in self._workers:
+        self.stop()                           # all told first: they exit side by side
+        for w in self._workers:               # (8-10 ms each for a forked worker of 100 MB)
             w.close()                         # a hung worker: killed after 10 s
 
     def __enter__(self) -> ProcessPool:

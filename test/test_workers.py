@@ -330,3 +330,22 @@ print(json.dumps(dict(forked=forked, before=before, plain=plain, frozen=frozen, 
 """)
     assert out["forked"] and out["before"] == out["plain"] == 0
     assert out["frozen"] > 0 and out["after"] > 0      # not unfrozen (freed ones leave it)
+
+
+def test_stop_lets_owed_results_arrive_and_the_workers_exit_before_close():
+    pool = ProcessPool(2, "builtins:len", ((),))
+    try:
+        _wait_ready(pool)
+        slow = [pool.submit("time:sleep", 0.3) for _ in range(2)]
+        pool.stop()                       # told while both tasks are in flight
+        assert [f.result(timeout=30) for f in slow] == [None, None]
+        with pytest.raises(WorkerError):
+            pool.submit("math:sqrt", 1.0)
+        # they exit on their own, not when close asks
+        deadline = time.monotonic() + 30
+        while pool.alive() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert not pool.alive()
+    finally:
+        pool.close()
+    assert pool.ended() == []             # a worker told to exit did not end "on its own"
