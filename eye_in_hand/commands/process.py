@@ -44,7 +44,6 @@ from eye_in_hand.errors import ConfigError, ConversionError, InputError
 from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 from eye_in_hand.io.bags import STORAGES, DamageLog, bag_info, default_typestore, iter_messages
 from eye_in_hand.io.config import load_hand_eye
-from eye_in_hand.io.kinematics import load_kinematics
 from eye_in_hand.io.pages import keep_freed_heap
 from eye_in_hand.io.results import load_known_distances, prepare_output_types, run_figures
 from eye_in_hand.nodes.parameters import check_parameter_file_keys
@@ -287,6 +286,9 @@ def _options(args: argparse.Namespace, detect: dict, hand_eye_params: dict, conf
     if args.robot_pose == "joint_states":
         if not args.kinematics:
             raise InputError("--kinematics: required with --robot-pose joint_states")
+        # local: the URDF reader costs ~4 ms at start-up, and only this robot pose source
+        from eye_in_hand.io.kinematics import load_kinematics
+
         kinematics = load_kinematics(
             args.kinematics,
             args.urdf_base_link or hand_eye_params.get("urdf_base_link", base_frame),

@@ -30,8 +30,6 @@ Single files are written the same way by :func:`atomic_write_text` /
 from __future__ import annotations
 
 import contextlib
-import ctypes
-import ctypes.util
 import errno
 import os
 import re
@@ -222,6 +220,11 @@ def _exchange(a: Path, b: Path) -> bool:
     global _LIBC
     if not hasattr(os, "sched_getaffinity"):  # not Linux
         return False
+    # local: ctypes costs ~4 ms at every command's start-up, and only replacing an existing
+    # output folder needs it
+    import ctypes
+    import ctypes.util
+
     if _LIBC is None:
         try:
             _LIBC = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
