@@ -381,8 +381,7 @@ def run(args: argparse.Namespace) -> int:
                              rig=rig, hand_eye_cov=calib.covariance, options=opts,
                              progress=None if bar is None else bar.update,
                              pose_correction=calib.robot_pose_correction, info=info,
-                             # the output bag's type store, its definitions and serializers
-                             idle=(default_typestore, prepare_output_types))
+                             idle=(default_typestore, prepare_output_types))  # the outputs'
     finally:
         if bar is not None:
             bar.close()
