@@ -381,7 +381,7 @@ def run(args: argparse.Namespace) -> int:
                              rig=rig, hand_eye_cov=calib.covariance, options=opts,
                              progress=None if bar is None else bar.update,
                              pose_correction=calib.robot_pose_correction, info=info,
-                             idle=(default_typestore, prepare_output_types))  # the outputs'
+                             idle=(default_typestore, prepare_output_types))  # output bag
     finally:
         if bar is not None:
             bar.close()
