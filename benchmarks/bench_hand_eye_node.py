@@ -12,10 +12,12 @@ output (``target/pose``, ``target/pose_cov``, ``target/red/pose(_cov)``, ``targe
 ``target/markers``, ``/tf``) and counts the poses. Printed per round: the node process's CPU
 per pair (Linux ``/proc``, between the 60th and the last-60th pair: start-up and the idle
 tail left out), split between its Python thread (the executor and every callback) and the
-middleware's threads, and the poses received. ``--pose-rate HZ``: ``ee_pose`` at that rate
-instead of 125 Hz (a 1 kHz arm: 33 poses a pair). No images and no detector share the machine, so the
-figure moves far less between runs than the live chain's (``bench_localization.py
+middleware's threads, and the poses received. No images and no detector share the machine,
+so the figure moves far less between runs than the live chain's (``bench_localization.py
 --live-only``, which measures the same node beside the detector).
+
+``--pose-rate HZ``: ``ee_pose`` at that rate instead of 125 Hz (a 1 kHz arm: 33 poses a
+pair).
 
 ``--compare OTHER``: the node of another checkout (started from its directory, with it on
 ``PYTHONPATH``) in alternate rounds; the medians of both are printed.
