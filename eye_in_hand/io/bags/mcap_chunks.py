@@ -193,9 +193,9 @@ class _Chunk:
         self.end_time = int(info.message_end_time)
         start = self.offset
         end = start + self.length
-        if int(info.chunk_length) < 9 + 40:
+        if self.length < 9 + 40:
             raise ValueError(f"chunk at byte {start}: the index gives a length of "
-                             f"{info.chunk_length} bytes, shorter than a chunk record")
+                             f"{self.length} bytes, shorter than a chunk record")
         if end > len(file_view):
             raise ValueError(f"chunk at byte {start}: extends past the end of the file "
                              f"({end} > {len(file_view)} bytes)")
