@@ -768,7 +768,7 @@ class ColorDetector:
         theta = math.atan(float(np.hypot(*ellipse_c)))
         alpha = angular_radius_from_minor_axis(minor, theta)
         center_norm = sphere_center_direction(ellipse_c, alpha)
-        center_px = camera.project(np.array([[center_norm[0], center_norm[1], 1.0]]))[0]
+        center_px = camera.project_direction(center_norm[0], center_norm[1])
         return Detection(target.name, blob.centroid, center_px, center_norm, blob.area,
                          blob.circularity, blob.bbox, alpha, ellipse_c, blob.center_sigma_px,
                          blob.edge_sigma_px, blob.shade_px, blob.cut_sigma_px, blob.blur_px)
@@ -833,8 +833,9 @@ def center_sigma_parts(mask: np.ndarray, grey: np.ndarray, contour: np.ndarray, 
     u, v = d[:, 0] * c + d[:, 1] * s_, -d[:, 0] * s_ + d[:, 1] * c
     rho = np.sqrt((u / a) ** 2 + (v / b) ** 2)
     res = (rho - 1.0) * np.hypot(u, v) / np.maximum(rho, 1e-12)
-    res = res - res.mean()
-    var = float(np.mean(res * res))
+    # np.mean is the sum over the count: spelled out, the same bits without its wrappers
+    res = res - np.add.reduce(res) / n
+    var = float(np.add.reduce(res * res) / n)
     tau = 1.0
     if var > 0:
         spec = np.fft.rfft(res)
@@ -883,7 +884,9 @@ def edge_width(image: np.ndarray, contour: np.ndarray, center: np.ndarray) -> fl
         return float("nan")
     # (the hot path: plain ufuncs on the 64 profiles; np.clip, np.diff and np.mean would give
     # the same numbers through slower generic wrappers)
-    pts = contour[np.linspace(0, n, min(n, _EDGE_PROFILES), endpoint=False).astype(int)]
+    m = min(n, _EDGE_PROFILES)
+    # np.linspace(0, n, m, endpoint=False) is arange(m) times the step n / m, to the bit
+    pts = contour[(np.arange(m) * (n / m)).astype(int)]
     nrm = pts - center
     anrm = np.abs(nrm)
     horiz = anrm[:, 0] >= anrm[:, 1]
@@ -917,7 +920,7 @@ def _polygon_center_and_minor_axis(contour_norm: np.ndarray,
     Returns:
         (centre (2,), minor semi-axis), or (None, nan) for a degenerate polygon.
     """
-    c0 = contour_norm.mean(axis=0)
+    c0 = np.add.reduce(contour_norm, axis=0) / len(contour_norm)   # its mean, to the bit
     p = (contour_norm - c0) * scale  # well-conditioned units (about pixels)
     x, y = p[:, 0], p[:, 1]
     nxt = np.concatenate((p[1:], p[:1]))      # the next vertex (np.roll by -1, cheaper)

@@ -655,8 +655,8 @@ class StereoLocator:
             if rng_l > radius and rng_r > radius:
                 nl = sphere_center_direction(dl.ellipse_norm, math.asin(radius / rng_l))
                 nr = sphere_center_direction(dr.ellipse_norm, math.asin(radius / rng_r))
-                left_px = self.rig.left.project(np.array([[nl[0], nl[1], 1.0]]))[0]
-                right_px = self.rig.right.project(np.array([[nr[0], nr[1], 1.0]]))[0]
+                left_px = self.rig.left.project_direction(nl[0], nl[1])
+                right_px = self.rig.right.project_direction(nr[0], nr[1])
                 pt = self._point(left_px, right_px, self._rect(self._H1, nl),
                                  self._rect(self._H2, nr), pix)
             elif bare:   # within the sphere's radius of a camera: no refinement, the full pass

@@ -148,9 +148,10 @@ def _dlt_rect(P1: np.ndarray, P2: np.ndarray, xl: np.ndarray, xr: np.ndarray,
     of ``M X = -b`` (``M = A[:, :3]``, ``b = A[:, 3]``), so ``J = -(M^T M)^-1 M^T diag(s w)``
     with the row scales ``s``.
     """
-    A = np.stack([xl[0] * P1[2] - P1[0], xl[1] * P1[2] - P1[1],
-                  xr[0] * P2[2] - P2[0], xr[1] * P2[2] - P2[1]])
-    scale = 1.0 / np.linalg.norm(A, axis=1)
+    # rows (xl[0] P1[2] - P1[0], xl[1] P1[2] - P1[1], the same for the right), two at a time;
+    # their norms as np.linalg.norm(A, axis=1) computes them, without its generic wrapper
+    A = np.concatenate((xl[:, None] * P1[2] - P1[:2], xr[:, None] * P2[2] - P2[:2]))
+    scale = 1.0 / np.sqrt(np.add.reduce(A * A, axis=1))
     A *= scale[:, None]
     _, _, vt = np.linalg.svd(A)
     Xh = vt[-1]
@@ -174,7 +175,7 @@ def _reproj_rms(P1: np.ndarray, P2: np.ndarray, X: np.ndarray, xl: np.ndarray,
     h = np.append(X, 1.0)
     a, b = P1 @ h, P2 @ h
     e = np.concatenate([a[:2] / a[2] - xl, b[:2] / b[2] - xr])
-    return float(math.sqrt(np.mean(e * e)))
+    return float(math.sqrt(np.add.reduce(e * e) / 4))   # np.mean, to the bit
 
 
 def _finish(rig: StereoRig, X_rect: np.ndarray, cov_rect: np.ndarray | None, residual: float,

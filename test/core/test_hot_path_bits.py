@@ -1,0 +1,167 @@
+"""The per-blob and per-target hot paths give the bits of their plain NumPy spelling.
+
+Detection and triangulation spell a few NumPy calls out for speed (issue 24): ``np.mean`` as
+the sum over the count, ``np.linspace`` as ``arange`` times the step, ``np.linalg.norm`` as the
+root of the summed squares, one ``cv2.projectPoints`` for one direction. Every output bag must
+stay the same byte for byte, so each is checked here against the plain spelling it replaced,
+to the last bit, on many inputs.
+"""
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from eye_in_hand.core import detection, triangulation
+from eye_in_hand.core.camera import CameraModel
+
+K = np.array([[900.0, 0.0, 640.0], [0.0, 905.0, 360.0], [0.0, 0.0, 1.0]])
+DIST = {"plumb_bob": [-0.3, 0.15, 0.001, -0.0005, -0.05],
+        "rational_polynomial": [-0.3, 0.15, 0.001, -0.0005, -0.05, 0.01, 0.0, 0.002]}
+
+
+def _bits(*values) -> list[bytes]:
+    return [np.asarray(v, dtype=np.float64).tobytes() for v in values]
+
+
+@pytest.mark.parametrize("model", sorted(DIST))
+def test_project_direction_is_project_of_the_direction(model: str) -> None:
+    cam = CameraModel(K, DIST[model], 1280, 720, distortion_model=model)
+    rng = np.random.default_rng(3)
+    for x, y in rng.uniform(-0.8, 0.8, (300, 2)):
+        got = cam.project_direction(x, y)
+        assert got.shape == (2,)
+        assert _bits(got) == _bits(cam.project(np.array([[x, y, 1.0]]))[0])
+
+
+def _blob_contours(n_blobs: int, seed: int):
+    """Outer contours (int32 (K, 1, 2)) of noisy, slightly elliptic discs of 5-60 px radius."""
+    rng = np.random.default_rng(seed)
+    for _ in range(n_blobs):
+        r = rng.uniform(5, 60)
+        size = int(2 * r + 40)
+        img = np.zeros((size, size), np.uint8)
+        cv2.ellipse(img, (size // 2, size // 2), (int(r), int(r * rng.uniform(0.8, 1.0))),
+                    rng.uniform(0, 180), 0, 360, 255, -1)
+        img[rng.random(img.shape) < 0.02] ^= 255
+        contours, _ = cv2.findContours(img, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        yield img, max(contours, key=cv2.contourArea)
+
+
+def _edge_sigma_plain(contour: np.ndarray) -> float:
+    """``center_sigma_parts``' edge term with ``np.mean``."""
+    n = len(contour)
+    (cx, cy), (d1, d2), ang = cv2.fitEllipse(contour.astype(np.float32))
+    a, b = 0.5 * d1, 0.5 * d2
+    c, s_ = math.cos(math.radians(ang)), math.sin(math.radians(ang))
+    d = contour - (cx, cy)
+    u, v = d[:, 0] * c + d[:, 1] * s_, -d[:, 0] * s_ + d[:, 1] * c
+    rho = np.sqrt((u / a) ** 2 + (v / b) ** 2)
+    res = (rho - 1.0) * np.hypot(u, v) / np.maximum(rho, 1e-12)
+    res = res - res.mean()
+    var = float(np.mean(res * res))
+    tau = 1.0
+    if var > 0:
+        spec = np.fft.rfft(res)
+        ac = np.fft.irfft(spec * np.conj(spec), n) / (n * var)
+        for k in range(1, n // 4):
+            if ac[k] < 0.05:
+                break
+            tau += 2.0 * float(ac[k])
+    return math.sqrt(var * 2.0 * tau / n)
+
+
+def _edge_width_plain(image: np.ndarray, contour: np.ndarray, center: np.ndarray) -> float:
+    """``edge_width`` with ``np.linspace``."""
+    n = len(contour)
+    band = detection._EDGE_BAND_PX
+    pts = contour[np.linspace(0, n, min(n, detection._EDGE_PROFILES),
+                              endpoint=False).astype(int)]
+    nrm = pts - center
+    anrm = np.abs(nrm)
+    horiz = anrm[:, 0] >= anrm[:, 1]
+    cos = np.maximum(anrm[:, 0], anrm[:, 1]) / np.maximum(np.hypot(nrm[:, 0], nrm[:, 1]), 1e-9)
+    sign = np.sign(np.where(horiz, nrm[:, 0], nrm[:, 1]))
+    step = (sign[:, None] * np.arange(-band, band + 2)[None, :]).astype(np.intp)
+    along = np.where(horiz[:, None], step, 0)
+    h, w = image.shape[:2]
+    ipts = pts.astype(int)
+    xs = np.clip(ipts[:, :1] + along, 0, w - 1)
+    ys = np.clip(ipts[:, 1:] + (step - along), 0, h - 1)
+    prof = image[ys, xs].astype(np.float32)
+    d = np.sqrt((np.diff(prof, axis=1) ** 2).sum(axis=2))
+    s1, s2 = d.sum(axis=1), (d * d).sum(axis=1)
+    ok = s2 > 0
+    return float(np.mean(s1[ok] ** 2 / s2[ok] * cos[ok])) / (2.0 * math.sqrt(math.pi))
+
+
+def test_blob_measurements_are_those_of_the_plain_spelling() -> None:
+    rng = np.random.default_rng(5)
+    checked = 0
+    for mask, c in _blob_contours(40, 1):
+        local = c.reshape(-1, 2).astype(np.float64)
+        if len(local) < 12:
+            continue
+        checked += 1
+        edge, _ = detection.center_sigma_parts(mask // 255, mask, local)
+        assert _bits(edge) == _bits(_edge_sigma_plain(local))
+        # edge_width: the profiles at the contour points np.linspace gives
+        image = rng.integers(0, 256, mask.shape + (3,), dtype=np.uint8)
+        image[mask > 0] //= 4
+        centre = local.mean(axis=0)
+        width = detection.edge_width(image, c.reshape(-1, 2), centre)
+        assert math.isfinite(width)
+        assert _bits(width) == _bits(_edge_width_plain(image, c.reshape(-1, 2), centre))
+        # the polygon centre: np.mean over the points
+        norm = local / 900.0
+        got_c, got_minor = detection._polygon_center_and_minor_axis(norm, 900.0)
+        c0 = norm.mean(axis=0)
+        want_c, want_minor = _polygon_plain(norm, 900.0, c0)
+        assert _bits(got_c, got_minor) == _bits(want_c, want_minor)
+    assert checked >= 30
+
+
+def _polygon_plain(contour_norm: np.ndarray, scale: float, c0: np.ndarray):
+    p = (contour_norm - c0) * scale
+    x, y = p[:, 0], p[:, 1]
+    nxt = np.concatenate((p[1:], p[:1]))
+    xn, yn = nxt[:, 0], nxt[:, 1]
+    cross = x * yn - xn * y
+    a = cross.sum() / 2.0
+    cx = ((x + xn) * cross).sum() / (6.0 * a)
+    cy = ((y + yn) * cross).sum() / (6.0 * a)
+    sxx = ((x * x + x * xn + xn * xn) * cross).sum() / (12.0 * a) - cx * cx
+    syy = ((y * y + y * yn + yn * yn) * cross).sum() / (12.0 * a) - cy * cy
+    sxy = ((x * yn + 2 * x * y + 2 * xn * yn + xn * y) * cross).sum() / (24.0 * a) - cx * cy
+    lam_min = 0.5 * (sxx + syy) - math.sqrt(max(0.0, 0.25 * (sxx - syy) ** 2 + sxy * sxy))
+    minor = 2.0 * math.sqrt(max(lam_min, 0.0)) + 0.5
+    return c0 + np.array([cx, cy]) / scale, minor / scale
+
+
+def test_dlt_rows_and_residual_are_those_of_the_plain_spelling() -> None:
+    rng = np.random.default_rng(7)
+    P1 = np.array([[900.0, 0, 640, 0], [0, 900, 360, 0], [0, 0, 1, 0]])
+    for _ in range(300):
+        P2 = P1.copy()
+        P2[0, 3] = -900 * rng.uniform(0.03, 0.2)
+        P2[:2, 2] += rng.normal(0, 2, 2)
+        xl = rng.uniform([0, 0], [1280, 720])
+        xr = xl - [rng.uniform(5, 300), rng.normal(0, 0.5)]
+        X, J = triangulation._dlt_rect(P1, P2, xl, xr, with_jacobian=True)
+        A = np.stack([xl[0] * P1[2] - P1[0], xl[1] * P1[2] - P1[1],
+                      xr[0] * P2[2] - P2[0], xr[1] * P2[2] - P2[1]])
+        scale = 1.0 / np.linalg.norm(A, axis=1)
+        A *= scale[:, None]
+        vt = np.linalg.svd(A)[2]
+        want = vt[-1][:3] / vt[-1][3]
+        h = np.append(want, 1.0)
+        w = np.array([P1[2] @ h, P1[2] @ h, P2[2] @ h, P2[2] @ h]) * scale
+        M = A[:, :3]
+        want_J = -np.linalg.solve(M.T @ M, M.T * w[None, :])
+        assert _bits(X, J) == _bits(want, want_J)
+        a, b = P1 @ h, P2 @ h
+        e = np.concatenate([a[:2] / a[2] - xl, b[:2] / b[2] - xr])
+        assert _bits(triangulation._reproj_rms(P1, P2, X, xl, xr)) == \
+            _bits(math.sqrt(np.mean(e * e)))
