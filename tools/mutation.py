@@ -205,10 +205,7 @@ MUTANTS: tuple[Mutant, ...] = (
       "cv2.undistortPoints(pts, self.K, self.dist, None, None, self.P[:3, :3],",
       "rectified pixels without the rectification rotation"),
     M("camera-direction-undistorted", "core/camera.py",
-      "        img, _ = cv2.projectPoints(np.array([[[x, y, 1.0]]]), _NO_MOTION, _NO_MOTION, self.K,\n"
-      "                                   self.dist)\n",
-      "        img, _ = cv2.projectPoints(np.array([[[x, y, 1.0]]]), _NO_MOTION, _NO_MOTION, self.K,\n"
-      "                                   None)\n",
+      "                                   self.dist)\n", "                                   None)\n",
       "one direction projected without the lens distortion"),
     M("kinematics-dh-alpha", "core/kinematics.py",
       "        [st, ct * ca, -ct * sa, a * st],\n", "        [st, ct * ca, ct * sa, a * st],\n",
