@@ -6,9 +6,10 @@ Speed: per 1280x720 stereo pair, ``StereoLocator.locate`` against the floor meas
 run (``cv2.cvtColor`` BGR->HSV + one ``cv2.inRange`` on both full images), the two timed in
 turns within each of ``--rounds`` rounds; the ratio is the median over the rounds. Targets
 (issue 24): one target at most 1x the floor, four targets at most 1.5x. Latest figures
-(docs/detection.md#figures; idle 2-core machine, 2026-11-29, ``--repeats 50 --cv-threads
-1``): one target 0.80x the floor (1.92 ms per pair against 2.36 ms), four targets 1.94x
-(4.56 ms; the code before the one-component shortcut 2.06-2.08x in alternating runs).
+(docs/detection.md#figures; idle 2-core machine, 2026-11-29 13:45 UTC, ``--repeats 50
+--cv-threads 1``): one target 0.77x the floor (1.83 ms per pair against 2.34 ms), four
+targets 1.77x (4.19 ms; the code before the hot path lost NumPy's wrappers 1.96-1.97x in
+alternating runs).
 
 Accuracy: simulator renders (``eye_in_hand.sim``, default world: 35 mm red sphere, distorted
 1280x720 rig, f ~ 900 px, B = 60 mm, sensor noise 2 grey levels) at 0.3-0.6 m range with the
