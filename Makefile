@@ -66,7 +66,8 @@ MIN_DEPS_TESTS := test/io test/commands/test_bag_info.py test/commands/test_play
                   test/commands/test_record_play_round_trip.py test/commands/test_process.py \
                   test/commands/test_calibrate_handeye_bag.py \
                   test/commands/test_calibrate_camera.py test/sim/test_output.py \
-                  test/test_offline.py test/core/test_quat_scipy.py test/ros/test_outputs_cdr.py
+                  test/test_offline.py test/core/test_quat_scipy.py test/ros/test_outputs_cdr.py \
+                  test/core/test_hot_path_bits.py
 
 .PHONY: test-min-deps
 test-min-deps:
