@@ -261,9 +261,10 @@ MUTANTS: tuple[Mutant, ...] = (
       "    scale = 1.0 / np.sqrt(np.add.reduce(A * A, axis=0))\n",
       "the DLT rows scaled by the norms of A's columns instead of its rows"),
     # -- core/detection.py
-    M("detection-edge-mean-count", "core/detection.py",
-      "    res = res - np.add.reduce(res) / n\n", "    res = res - np.add.reduce(res) / (n - 1)\n",
-      "the contour residuals' mean taken over one point fewer"),
+    M("detection-mean-count", "core/detection.py",
+      "    return np.add.reduce(x, axis=axis) / (x.size if axis is None else x.shape[axis])\n",
+      "    return np.add.reduce(x, axis=axis) / x.size\n",
+      "a mean along an axis divided by the whole array's size"),
     M("detection-edge-profile-step", "core/detection.py",
       "    pts = contour[(np.arange(m) * (n / m)).astype(int)]\n",
       "    pts = contour[(np.arange(m) * (n // m)).astype(int)]\n",

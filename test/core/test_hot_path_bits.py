@@ -114,30 +114,16 @@ def test_blob_measurements_are_those_of_the_plain_spelling() -> None:
         width = detection.edge_width(image, c.reshape(-1, 2), centre)
         assert math.isfinite(width)
         assert _bits(width) == _bits(_edge_width_plain(image, c.reshape(-1, 2), centre))
-        # the polygon centre: np.mean over the points
-        norm = local / 900.0
-        got_c, got_minor = detection._polygon_center_and_minor_axis(norm, 900.0)
-        c0 = norm.mean(axis=0)
-        want_c, want_minor = _polygon_plain(norm, 900.0, c0)
-        assert _bits(got_c, got_minor) == _bits(want_c, want_minor)
     assert checked >= 30
 
 
-def _polygon_plain(contour_norm: np.ndarray, scale: float, c0: np.ndarray):
-    p = (contour_norm - c0) * scale
-    x, y = p[:, 0], p[:, 1]
-    nxt = np.concatenate((p[1:], p[:1]))
-    xn, yn = nxt[:, 0], nxt[:, 1]
-    cross = x * yn - xn * y
-    a = cross.sum() / 2.0
-    cx = ((x + xn) * cross).sum() / (6.0 * a)
-    cy = ((y + yn) * cross).sum() / (6.0 * a)
-    sxx = ((x * x + x * xn + xn * xn) * cross).sum() / (12.0 * a) - cx * cx
-    syy = ((y * y + y * yn + yn * yn) * cross).sum() / (12.0 * a) - cy * cy
-    sxy = ((x * yn + 2 * x * y + 2 * xn * yn + xn * y) * cross).sum() / (24.0 * a) - cx * cy
-    lam_min = 0.5 * (sxx + syy) - math.sqrt(max(0.0, 0.25 * (sxx - syy) ** 2 + sxy * sxy))
-    minor = 2.0 * math.sqrt(max(lam_min, 0.0)) + 0.5
-    return c0 + np.array([cx, cy]) / scale, minor / scale
+@pytest.mark.parametrize("shape, axis", [((7,), None), ((300,), None), ((12, 2), 0),
+                                         ((451, 2), 0), ((5, 3), None)])
+def test_mean_is_numpys_mean(shape: tuple[int, ...], axis: int | None) -> None:
+    rng = np.random.default_rng(len(shape) * 1000 + shape[0])
+    for _ in range(50):
+        x = rng.normal(0.0, 10.0, shape) ** 3
+        assert _bits(detection._mean(x, axis=axis)) == _bits(np.mean(x, axis=axis))
 
 
 def test_dlt_rows_and_residual_are_those_of_the_plain_spelling() -> None:
