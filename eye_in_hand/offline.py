@@ -442,7 +442,8 @@ class _BagPass:
                 elif topic == opts.pose_topic:
                     stamp = header_stamp_ns(msg)
                     if opts.robot_pose_source == "ee_pose":
-                        pipeline.add_pose(stamp, pose_to_matrix(msg.pose), received_ns=_t)
+                        pipeline.add_pose(stamp, pose_to_matrix(msg.pose), received_ns=_t,
+                                          checked=True)
                     else:
                         pipeline.add_joint_state(stamp, msg.name, msg.position, received_ns=_t)
                     pipeline.drain()

@@ -225,6 +225,13 @@ MUTANTS: tuple[Mutant, ...] = (
     M("pose-gap-limit", "core/sync.py",
       "        if s1 - s0 > gap_limit:\n", "        if s1 - s0 > 2 * gap_limit:\n",
       "robot poses bracketing an image stamp accepted across twice the gap limit"),
+    M("pose-checked-shared", "core/sync.py",
+      "            T = np.array(pose, dtype=np.float64)\n",
+      "            T = np.asarray(pose, dtype=np.float64)\n",
+      "a checked robot pose kept as the caller's own array, not a copy"),
+    M("pose-check-skipped", "core/sync.py",
+      "        if checked:\n", "        if True:\n",
+      "every robot pose taken unchecked, not only the ones built from checked parts"),
     # -- core/tf.py
     M("tf-receive-age", "core/tf.py",
       "        self._receipts.check_age(stamp_ns, now_ns, max_age_ns)\n", "",

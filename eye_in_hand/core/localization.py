@@ -258,15 +258,16 @@ class Localizer:
                                 jump_back_ns=self.config.jump_back_ns)
         _check_sigmas(self.config.robot_sigma_pos_m, self.config.robot_sigma_rot_rad)
 
-    def add_robot_pose(self, stamp_ns: int, base_T_ee, *, received_ns: int | None = None
-                       ) -> bool:
+    def add_robot_pose(self, stamp_ns: int, base_T_ee, *, received_ns: int | None = None,
+                       checked: bool = False) -> bool:
         """Buffer a robot pose (int ns stamp, (4, 4)) received at ``received_ns`` (optional,
-        the clock of :meth:`locate`'s ``now_ns``); raises InputError on a bad pose.
+        the clock of :meth:`locate`'s ``now_ns``); raises InputError on a bad pose
+        (``checked``: see :meth:`PoseBuffer.add <eye_in_hand.core.sync.PoseBuffer.add>`).
 
         Returns:
             True when the buffer was cleared first (time jumped back, see ``jump_back_ns``).
         """
-        return self.poses.add(stamp_ns, base_T_ee, received_ns=received_ns)
+        return self.poses.add(stamp_ns, base_T_ee, received_ns=received_ns, checked=checked)
 
     def locate(self, stamp_ns: int, point_cam, cov_cam=None, *,
                now_ns: int | None = None) -> TargetInBase:

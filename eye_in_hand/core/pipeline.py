@@ -252,9 +252,11 @@ class LocalizationPipeline:
         return newest
 
     def add_pose(self, stamp_ns: int, base_T_ee: np.ndarray, *,
-                 received_ns: int | None = None) -> bool:
+                 received_ns: int | None = None, checked: bool = False) -> bool:
         """Buffer a robot pose (``ee_pose``, or any ``base_T_ee`` (4, 4)) received at
         ``received_ns`` on the age clock. Waiting items are not emitted until :meth:`drain`.
+        ``checked``: ``base_T_ee`` is :func:`~eye_in_hand.ros.geometry.pose_to_matrix`'s (see
+        :meth:`PoseBuffer.add <eye_in_hand.core.sync.PoseBuffer.add>`).
 
         Returns:
             True when the pose buffer was cleared first (time jumped back).
@@ -264,7 +266,8 @@ class LocalizationPipeline:
         """
         if not isinstance(self.localizer, Localizer):
             raise InputError("eye-to-hand: no robot pose is used")
-        jumped = self.localizer.add_robot_pose(stamp_ns, base_T_ee, received_ns=received_ns)
+        jumped = self.localizer.add_robot_pose(stamp_ns, base_T_ee, received_ns=received_ns,
+                                               checked=checked)
         self.waits.pose_arrived()
         return jumped
 

@@ -334,7 +334,8 @@ class PoseBuffer:
         self.clear()
         self.resets[cause] += 1
 
-    def add(self, stamp_ns: int, pose: ArrayLike, *, received_ns: int | None = None) -> bool:
+    def add(self, stamp_ns: int, pose: ArrayLike, *, received_ns: int | None = None,
+            checked: bool = False) -> bool:
         """Insert a stamped pose.
 
         Args:
@@ -342,6 +343,11 @@ class PoseBuffer:
             pose: array-like, shape (4, 4), a rigid transform.
             received_ns: when the pose was received (int ns on the consumer's clock), for the
                 receive-age rule of :meth:`lookup`; None: not recorded (no age check).
+            checked: ``pose`` is a float64 (4, 4) array that the caller built as a rigid
+                transform from checked parts (:func:`eye_in_hand.ros.geometry.pose_to_matrix`
+                of a message: a unit quaternion's rotation, a finite translation), which
+                :func:`~eye_in_hand.core.transforms.as_transform` could not reject: not
+                checked again (on the live node's path for every robot pose).
 
         Returns:
             True when the buffer was cleared first because time jumped back (see the class).
@@ -351,7 +357,10 @@ class PoseBuffer:
         """
         stamp = _as_stamp(stamp_ns)
         recv = None if received_ns is None else _as_stamp(received_ns, "received_ns")
-        T = as_transform(pose, f"{self._name} at {stamp} ns").copy()
+        if checked:
+            T = np.array(pose, dtype=np.float64)
+        else:
+            T = as_transform(pose, f"{self._name} at {stamp} ns").copy()
         T.setflags(write=False)
         jumped = False
         if self._jump_back is not None and self._stamps and (

@@ -209,7 +209,8 @@ class RobotPoseInput:
                                  f"{self._config.base_frame!r}: ignored")
                 return False
             self._pose_added(stamp, self.pipeline.add_pose(stamp, pose_to_matrix(msg.pose),
-                                                           received_ns=received_ns))
+                                                           received_ns=received_ns,
+                                                           checked=True))
         except (ConversionError, InputError) as exc:
             self.diag.report("bad_ee_pose", f"ee_pose: {exc}")
             return False

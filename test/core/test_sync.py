@@ -127,6 +127,26 @@ def test_pose_buffer_interpolates_between_brackets():
     assert np.allclose(T0[:3, :3] @ Rotation.from_rotvec(rel / 4).as_matrix(), q[:3, :3])
 
 
+def test_a_checked_pose_is_kept_as_its_own_copy_and_looks_up_as_a_checked_one():
+    """``checked=True`` (a matrix the caller built as a rigid transform) skips the check, not
+    the copy: the buffer keeps its own read-only pose, and every lookup is the unchecked
+    buffer's to the bit."""
+    rng = np.random.default_rng(12)
+    poses = [_pose(rng) for _ in range(6)]
+    plain, checked = PoseBuffer(capacity=10), PoseBuffer(capacity=10)
+    for k, T in enumerate(poses):
+        given = T.copy()
+        plain.add(1_000 * k, T, received_ns=5 + k)
+        checked.add(1_000 * k, given, received_ns=5 + k, checked=True)
+        given[:3, 3] += 1.0                     # the caller reuses its array
+    for stamp in (0, 400, 1_000, 2_750, 5_000):
+        a = plain.lookup(stamp, 1_000, now_ns=10, max_age_ns=100)
+        b = checked.lookup(stamp, 1_000, now_ns=10, max_age_ns=100)
+        assert a.tobytes() == b.tobytes()
+    with pytest.raises(InputError):             # unchecked, a bad pose is refused as before
+        checked.add(9_000, np.eye(4) * 2.0)
+
+
 def test_pose_buffer_out_of_order_insert_replace_and_capacity():
     rng = np.random.default_rng(8)
     poses = [_pose(rng) for _ in range(5)]

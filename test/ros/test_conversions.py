@@ -551,3 +551,25 @@ def test_calibration_image_is_mono_bgr8_or_bgr16_whatever_came():
     assert np.array_equal(calibration_image(bgra), bgr)
     png = numpy_to_compressed(bgr, "png")
     assert np.array_equal(calibration_image(png), bgr)
+
+
+def test_pose_to_matrix_is_always_a_transform_the_pose_buffer_would_accept():
+    """``PoseBuffer.add(checked=True)`` skips ``as_transform`` for ``pose_to_matrix``'s
+    matrices: none of them, at the edges of what it accepts (quaternion norms 1 +- 1e-3,
+    translations up to 1e300), may fail that check, else a checked pose would be one the
+    buffer refuses unchecked."""
+    from types import SimpleNamespace
+
+    from eye_in_hand.core.transforms import as_transform
+
+    rng = np.random.default_rng(11)
+    for k in range(2000):
+        q = rng.normal(size=4)
+        q *= (1.0 + rng.uniform(-0.999e-3, 0.999e-3)) / np.linalg.norm(q)
+        t = rng.normal(size=3) * 10.0 ** rng.integers(-300, 301, 3)
+        msg = SimpleNamespace(
+            position=SimpleNamespace(x=t[0], y=t[1], z=t[2]),
+            orientation=SimpleNamespace(x=q[0], y=q[1], z=q[2], w=q[3]))
+        T = pose_to_matrix(msg)
+        assert T.dtype == np.float64 and T.shape == (4, 4)
+        np.testing.assert_array_equal(as_transform(T, f"pose {k}"), T)
