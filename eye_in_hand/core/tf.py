@@ -359,7 +359,10 @@ class TfPoseView:
         self._receipts.clear()
         self._last_newest = None
 
-    def add(self, stamp_ns: int, pose: ArrayLike, *, received_ns: int | None = None) -> bool:
+    def add(self, stamp_ns: int, pose: ArrayLike, *, received_ns: int | None = None,
+            checked: bool = False) -> bool:
+        """Refused: the robot poses of this view come from TF (the arguments are
+        :meth:`PoseBuffer.add <eye_in_hand.core.sync.PoseBuffer.add>`'s)."""
         raise InputError(f"robot poses come from TF ({self.base_frame} -> {self.ee_frame}): "
                          "add transforms to the TfBuffer")
 
