@@ -121,6 +121,7 @@ TESTS: dict[str, tuple[str, ...]] = {
     "io/bags/mcap_chunks.py": ("test/io/test_mcap_recovery_order.py",
                                "test/io/test_mcap_chunks.py"),
     "io/cdr.py": ("test/io/test_cdr.py",),
+    "ros/geometry.py": ("test/ros/test_conversions.py",),
     "io/atomic.py": ("test/io/test_atomic.py",),
     "io/config.py": ("test/io/test_config_handeye.py", "test/core/test_pose_correction.py"),
     "io/datasets.py": ("test/io/test_datasets_handeye.py",),
@@ -672,6 +673,15 @@ MUTANTS: tuple[Mutant, ...] = (
       "    height, width = _HW.unpack_from(body, pos)\n",
       "    width, height = _HW.unpack_from(body, pos)\n",
       "image height and width swapped when decoding CDR"),
+    M("cdr-pose-alignment", "io/cdr.py",
+      "    pos = (pos + 7) & ~7                 # float64 fields: 8-byte aligned\n",
+      "    pos = (pos + 3) & ~3                 # float64 fields: 8-byte aligned\n",
+      "a robot pose read from CDR at 4-byte instead of 8-byte alignment"),
+    M("ee-pose-position-unchecked", "ros/geometry.py",
+      "    return _pose_array(rows, finite(tx, f\"{p_path}.x\"), finite(ty, f\"{p_path}.y\"),\n"
+      "                       finite(tz, f\"{p_path}.z\"))\n",
+      "    return _pose_array(rows, tx, ty, tz)\n",
+      "a robot pose read from CDR with a non-finite position accepted"),
     M("atomic-overwrite-mixes", "io/atomic.py",
       "    elif _exchange(staged, out):\n        _remove(staged)  # now the old folder\n",
       "    elif True:\n        for f in staged.iterdir():\n"

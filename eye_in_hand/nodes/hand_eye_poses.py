@@ -24,6 +24,7 @@ from eye_in_hand.core.localization import Localizer, robot_pose_sigmas
 from eye_in_hand.core.pipeline import LocalizationPipeline, localizer_config
 from eye_in_hand.errors import ConversionError, EyeInHandError, InputError
 from eye_in_hand.io.bags.decoding import jazzy_decoder
+from eye_in_hand.io.cdr import pose_stamped_from_cdr
 from eye_in_hand.nodes.hand_eye_tf import TfInput
 from eye_in_hand.ros.decoded import decode_each, decoded_subscription, undecodable
 from eye_in_hand.ros.executor import (
@@ -32,11 +33,11 @@ from eye_in_hand.ros.executor import (
     set_passive,
     take_queued,
 )
-from eye_in_hand.ros.geometry import pose_to_matrix
+from eye_in_hand.ros.geometry import pose_stamped_fields, pose_values_to_matrix
 from eye_in_hand.ros.qos import ROBOT_POSE_QOS
-from eye_in_hand.ros.stamps import header_stamp_ns
+from eye_in_hand.ros.stamps import header_stamp_ns, sec_nanosec_to_ns
 
-__all__ = ["build_localizers", "RobotPoseInput"]
+__all__ = ["build_localizers", "RobotPoseInput", "ee_pose_decoder", "PoseFields"]
 
 
 def build_localizers(config: Any, calibration: Any
@@ -75,6 +76,26 @@ def build_localizers(config: Any, calibration: Any
     if eye_to_hand:
         fixed = EyeToHandLocalizer(calibration.transform, calibration.covariance)
     return localizer, fixed
+
+
+#: an ``ee_pose`` as :func:`ee_pose_decoder` gives it: ``(sec, nanosec, frame_id, (x, y, z,
+#: qx, qy, qz, qw))``
+PoseFields = tuple[int, int, str, tuple[float, ...]]
+
+
+def ee_pose_decoder(msgtype: str) -> Callable[[bytes], PoseFields]:
+    """``decode(raw)`` of ``ee_pose`` (``geometry_msgs/msg/PoseStamped``) bytes into its
+    fields: read directly from little-endian CDR (:func:`eye_in_hand.io.cdr.
+    pose_stamped_from_cdr`, 0.3 us), other encodings through the generic decoder (3-5 us);
+    the values are checked where the pose is taken (``pose_values_to_matrix``), with the
+    errors of ``pose_to_matrix``. Malformed bytes raise (the subscription reports them)."""
+    generic = jazzy_decoder(msgtype)
+
+    def decode(raw: bytes) -> PoseFields:
+        fields = pose_stamped_from_cdr(raw)
+        return fields if fields is not None else pose_stamped_fields(generic(raw))
+
+    return decode
 
 
 class RobotPoseInput:
@@ -117,7 +138,7 @@ class RobotPoseInput:
         self._on_system_clock: Callable[[], bool] = lambda: True
         if source == "ee_pose":
             self._sub = decoded_subscription(node, PoseStamped, "ee_pose", self._on_ee_pose,
-                                             ROBOT_POSE_QOS, decoder_for=jazzy_decoder,
+                                             ROBOT_POSE_QOS, decoder_for=ee_pose_decoder,
                                              on_bad=self._undecodable)
         elif source == "tf":
             self.tf = TfInput(node, config, localizer, diag, now_ns, self._after_tf_pose)
@@ -191,24 +212,25 @@ class RobotPoseInput:
         """A robot pose whose bytes do not decode: reported, not used."""
         self.diag.report(self._bad_cause, undecodable(topic, exc))
 
-    def _on_ee_pose(self, msg: PoseStamped) -> None:
-        if self._take_ee_pose(msg, self._now_ns()):
+    def _on_ee_pose(self, fields: PoseFields) -> None:
+        if self._take_ee_pose(fields, self._now_ns()):
             self._after_pose()
 
     def _on_joint_state(self, msg: JointState) -> None:
         if self._take_joint_state(msg, self._now_ns()):
             self._after_pose()
 
-    def _take_ee_pose(self, msg: PoseStamped, received_ns: int) -> bool:
-        """One ``ee_pose`` into the pipeline; False (reported) when it is refused."""
+    def _take_ee_pose(self, fields: PoseFields, received_ns: int) -> bool:
+        """One ``ee_pose`` (its fields, :func:`ee_pose_decoder`) into the pipeline; False
+        (reported) when it is refused."""
+        sec, nanosec, frame, values = fields
         try:
-            stamp = header_stamp_ns(msg)
-            frame = msg.header.frame_id
+            stamp = sec_nanosec_to_ns(sec, nanosec, "header.stamp")
             if frame and frame.lstrip("/") != self._config.base_frame:
                 self.diag.report("ee_pose_frame", f"ee_pose in frame {frame!r}, expected "
                                  f"{self._config.base_frame!r}: ignored")
                 return False
-            self._pose_added(stamp, self.pipeline.add_pose(stamp, pose_to_matrix(msg.pose),
+            self._pose_added(stamp, self.pipeline.add_pose(stamp, pose_values_to_matrix(values),
                                                            received_ns=received_ns,
                                                            checked=True))
         except (ConversionError, InputError) as exc:

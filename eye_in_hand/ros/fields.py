@@ -15,8 +15,8 @@ import numpy as np
 
 from eye_in_hand.errors import ConversionError
 
-__all__ = ["get_field", "field_path", "read_int", "read_float", "read_str", "byte_view",
-           "to_byte_array"]
+__all__ = ["get_field", "field_path", "read_int", "read_float", "finite", "read_str",
+           "byte_view", "to_byte_array"]
 
 
 def get_field(msg: Any, attr: str, path: str) -> Any:
@@ -54,9 +54,16 @@ def read_float(msg: Any, attr: str, path: str = "") -> float:
     except (TypeError, ValueError) as exc:
         raise ConversionError(f"{field_path(path, attr)}: expected a number, got {value!r}"
                               ) from exc
-    if not math.isfinite(out):
-        raise ConversionError(f"{field_path(path, attr)}: is {out} (must be finite)")
+    if not math.isfinite(out):                 # (the check inline: every robot pose reads 7)
+        finite(out, field_path(path, attr))
     return out
+
+
+def finite(value: float, field: str) -> float:
+    """``value`` (a float), which must be finite; else the error names ``field``."""
+    if not math.isfinite(value):
+        raise ConversionError(f"{field}: is {value} (must be finite)")
+    return value
 
 
 def read_str(msg: Any, attr: str, path: str = "") -> str:

@@ -18,11 +18,13 @@ from eye_in_hand.core.transforms import (
     quat_xyzw_to_matrix,
 )
 from eye_in_hand.errors import ConversionError, InputError
-from eye_in_hand.ros.fields import field_path, get_field, read_float
+from eye_in_hand.ros.fields import field_path, finite, get_field, read_float
 from eye_in_hand.ros.stamps import header_or_new
 
 __all__ = [
     "pose_to_matrix",
+    "pose_values_to_matrix",
+    "pose_stamped_fields",
     "matrix_to_pose",
     "matrix_to_pose_stamped",
     "transform_to_matrix",
@@ -66,17 +68,61 @@ def pose_to_matrix(msg: Any) -> np.ndarray:
     while hasattr(msg, "pose"):
         msg = msg.pose
         path = field_path(path, "pose")
-    # one array of Python floats (on every robot pose: no 4x4 identity filled slice by slice)
     o_path = field_path(path, "orientation")
     o = get_field(msg, "orientation", path)
     x, y, z, w = (read_float(o, a, o_path) for a in ("x", "y", "z", "w"))
-    try:
-        r0, r1, r2 = quat_xyzw_rows(x, y, z, w, o_path)
-    except InputError as exc:
-        raise ConversionError(str(exc)) from exc
+    rows = _rotation_rows(x, y, z, w, o_path)
     p_path = field_path(path, "position")
     p = get_field(msg, "position", path)
     tx, ty, tz = (read_float(p, a, p_path) for a in ("x", "y", "z"))
+    return _pose_array(rows, tx, ty, tz)
+
+
+def pose_values_to_matrix(values: tuple[float, ...], path: str = "") -> np.ndarray:
+    """:func:`pose_to_matrix` of a ``Pose`` given as its seven numbers ``(x, y, z, qx, qy,
+    qz, qw)`` (``eye_in_hand.io.cdr.pose_stamped_from_cdr``'s): the same checks in the same
+    order, the same errors (fields named under ``path``), the same matrix to the bit."""
+    tx, ty, tz, x, y, z, w = values
+    o_path = field_path(path, "orientation")
+    x, y, z, w = (finite(x, f"{o_path}.x"), finite(y, f"{o_path}.y"), finite(z, f"{o_path}.z"),
+                  finite(w, f"{o_path}.w"))
+    rows = _rotation_rows(x, y, z, w, o_path)
+    p_path = field_path(path, "position")
+    return _pose_array(rows, finite(tx, f"{p_path}.x"), finite(ty, f"{p_path}.y"),
+                       finite(tz, f"{p_path}.z"))
+
+
+def pose_stamped_fields(msg: Any) -> tuple[int, int, str, tuple[float, ...]]:
+    """``(sec, nanosec, frame_id, (x, y, z, qx, qy, qz, qw))`` of a ``PoseStamped`` message
+    object (rclpy or rosbags), as ``eye_in_hand.io.cdr.pose_stamped_from_cdr`` reads them
+    from its bytes; nothing checked beyond the fields being there.
+
+    Raises:
+        ConversionError: a missing field (named).
+    """
+    header = get_field(msg, "header", "")
+    stamp = get_field(header, "stamp", "header")
+    pose = get_field(msg, "pose", "")
+    p = get_field(pose, "position", "pose")
+    o = get_field(pose, "orientation", "pose")
+    return (get_field(stamp, "sec", "header.stamp"), get_field(stamp, "nanosec", "header.stamp"),
+            get_field(header, "frame_id", "header"),
+            tuple(get_field(obj, a, path) for obj, a, path in (
+                (p, "x", "pose.position"), (p, "y", "pose.position"), (p, "z", "pose.position"),
+                (o, "x", "pose.orientation"), (o, "y", "pose.orientation"),
+                (o, "z", "pose.orientation"), (o, "w", "pose.orientation"))))
+
+
+def _rotation_rows(x: float, y: float, z: float, w: float, o_path: str) -> list[list[float]]:
+    try:
+        return quat_xyzw_rows(x, y, z, w, o_path)
+    except InputError as exc:
+        raise ConversionError(str(exc)) from exc
+
+
+def _pose_array(rows: list[list[float]], tx: float, ty: float, tz: float) -> np.ndarray:
+    # one array of Python floats (on every robot pose: no 4x4 identity filled slice by slice)
+    r0, r1, r2 = rows
     return np.array([[r0[0], r0[1], r0[2], tx], [r1[0], r1[1], r1[2], ty],
                      [r2[0], r2[1], r2[2], tz], [0.0, 0.0, 0.0, 1.0]])
 

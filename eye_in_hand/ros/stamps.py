@@ -11,7 +11,8 @@ import numpy as np
 from eye_in_hand.errors import ConversionError
 from eye_in_hand.ros.fields import get_field, read_int
 
-__all__ = ["stamp_to_ns", "ns_to_stamp", "header_stamp_ns", "make_header", "header_or_new"]
+__all__ = ["stamp_to_ns", "sec_nanosec_to_ns", "ns_to_stamp", "header_stamp_ns", "make_header",
+           "header_or_new"]
 
 _NS_PER_S = 1_000_000_000
 _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
@@ -23,8 +24,16 @@ def stamp_to_ns(stamp: Any, *, field: str = "stamp") -> int:
     Raises:
         ConversionError: missing fields, or ``nanosec`` outside [0, 1e9).
     """
-    sec = read_int(stamp, "sec", field)
-    nanosec = read_int(stamp, "nanosec", field)
+    return sec_nanosec_to_ns(read_int(stamp, "sec", field), read_int(stamp, "nanosec", field),
+                             field)
+
+
+def sec_nanosec_to_ns(sec: int, nanosec: int, field: str = "stamp") -> int:
+    """Nanoseconds of a stamp's two integer fields (as :func:`stamp_to_ns` reads them).
+
+    Raises:
+        ConversionError: ``nanosec`` outside [0, 1e9).
+    """
     if not 0 <= nanosec < _NS_PER_S:
         raise ConversionError(f"{field}.nanosec: {nanosec} is outside [0, 1e9)")
     return sec * _NS_PER_S + nanosec

@@ -1,12 +1,15 @@
-"""eye_in_hand.io.cdr: sensor_msgs/Image decoded from CDR as a view, checked against rosbags."""
+"""eye_in_hand.io.cdr: sensor_msgs/Image decoded from CDR as a view, geometry_msgs/PoseStamped's
+fields read directly; both checked against rosbags."""
 from __future__ import annotations
+
+import struct
 
 import numpy as np
 import pytest
 
 from eye_in_hand.errors import ConversionError
 from eye_in_hand.io.bags import default_typestore, deserialize, serialize
-from eye_in_hand.io.cdr import image_from_cdr, is_image_type
+from eye_in_hand.io.cdr import image_from_cdr, is_image_type, pose_stamped_from_cdr
 from eye_in_hand.ros.images import image_to_numpy
 from eye_in_hand.ros.stamps import header_stamp_ns
 
@@ -91,3 +94,74 @@ def test_bad_strings_are_conversion_errors() -> None:
 def test_is_image_type() -> None:
     assert is_image_type("sensor_msgs/msg/Image")
     assert not is_image_type("sensor_msgs/msg/CompressedImage")
+
+
+POSE = "geometry_msgs/msg/PoseStamped"
+#: the seven numbers of a pose: plain, signed zero, extremes, subnormal and non-finite (the
+#: decoder passes them through; the caller checks them)
+POSE_VALUES = [
+    (0.4, -0.1, 0.5, 0.0, 0.0, 0.0, 1.0),
+    (-0.0, 1e-310, -1.7976931348623157e308, 0.5, -0.5, 0.5, -0.5),
+    (float("nan"), float("inf"), -float("inf"), 1.0, 2.0, 3.0, 4.0),
+    (1e300, -1e-300, 123.456, 0.70710678, 0.0, -0.70710678, 1e-17),
+]
+
+
+def _pose_cdr(frame_id: str, values: tuple[float, ...], sec: int = 1_700_000_000,
+              nsec: int = 123_456_789, little_endian: bool = True) -> bytes:
+    T = default_typestore().types
+    x, y, z, qx, qy, qz, qw = values
+    msg = T[POSE](
+        header=T["std_msgs/msg/Header"](
+            stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=frame_id),
+        pose=T["geometry_msgs/msg/Pose"](
+            position=T["geometry_msgs/msg/Point"](x=x, y=y, z=z),
+            orientation=T["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)))
+    return bytes(default_typestore().serialize_cdr(msg, POSE, little_endian=little_endian))
+
+
+def _bits(values: tuple[float, ...]) -> bytes:
+    return struct.pack("<7d", *values)
+
+
+# every string length 0-8 puts the pose at each offset the 8-byte alignment can give
+@pytest.mark.parametrize("frame_id", ["", "a", "ab", "abc", "abcd", "abcde", "abcdef",
+                                      "abcdefg", "base_link", "/world/ünïcode"])
+@pytest.mark.parametrize("values", POSE_VALUES)
+@pytest.mark.parametrize("sec,nsec", [(1_700_000_000, 123_456_789), (-5, 0),
+                                      (2**31 - 1, 2**32 - 1)])
+def test_pose_stamped_matches_the_generic_deserializer(frame_id: str, values: tuple[float, ...],
+                                                      sec: int, nsec: int) -> None:
+    raw = _pose_cdr(frame_id, values, sec, nsec)
+    ref = deserialize(raw, POSE)
+    got = pose_stamped_from_cdr(raw)
+    assert got is not None
+    p, o = ref.pose.position, ref.pose.orientation
+    assert got[:3] == (ref.header.stamp.sec, ref.header.stamp.nanosec, ref.header.frame_id) \
+        == (sec, nsec, frame_id)
+    assert _bits(got[3]) == _bits((p.x, p.y, p.z, o.x, o.y, o.z, o.w)) == _bits(values)
+    from_view = pose_stamped_from_cdr(memoryview(bytearray(raw)))
+    assert from_view is not None
+    assert from_view[:3] == got[:3] and _bits(from_view[3]) == _bits(got[3])
+
+
+def test_pose_stamped_big_endian_is_left_to_the_generic_deserializer() -> None:
+    raw = _pose_cdr("base_link", POSE_VALUES[0], little_endian=False)
+    assert raw[:2] == b"\x00\x00"
+    assert pose_stamped_from_cdr(raw) is None
+    assert pose_stamped_from_cdr(b"\x00") is None
+
+
+@pytest.mark.parametrize("frame_id", ["", "abc", "base_link"])
+def test_pose_stamped_truncated_anywhere_names_what_is_missing(frame_id: str) -> None:
+    raw = _pose_cdr(frame_id, POSE_VALUES[0])
+    for cut in range(4, len(raw)):
+        with pytest.raises(ConversionError, match=r"^(header|header\.frame_id|pose): "):
+            pose_stamped_from_cdr(raw[:cut])
+
+
+def test_pose_stamped_bad_frame_string_is_a_conversion_error() -> None:
+    raw = bytearray(_pose_cdr("ab", POSE_VALUES[0]))
+    raw[4 + 8 + 4 + 2] = ord("x")                   # the frame_id's NUL terminator
+    with pytest.raises(ConversionError, match="header.frame_id: string is not NUL-terminated"):
+        pose_stamped_from_cdr(bytes(raw))

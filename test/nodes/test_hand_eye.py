@@ -328,6 +328,13 @@ def test_bad_points_are_counted_and_node_keeps_running(tmp_path, ros_context, ex
     rig.pub_point.publish(b"\x00\x01\x00\x00\x07")
     rig.pub_cov.publish(b"\x00\x01\x00\x00\x07\x00")
     rig.pub_pose.publish(b"\x00\x01\x00\x00")
+    # robot poses that decode but are refused: a NaN position, another frame
+    nan_pose = matrix_to_pose_stamped(_robot_pose(0.045), stamp_ns=T0 + 45_000_000,
+                                      frame_id="base_link")
+    nan_pose.pose.position.y = float("nan")
+    rig.pub_pose.publish(nan_pose)
+    rig.pub_pose.publish(matrix_to_pose_stamped(_robot_pose(0.046), stamp_ns=T0 + 46_000_000,
+                                                frame_id="tool0"))
     rig.send_point(0.03, [0.0, 0.0, 0.5])
     assert spin_until(executor, lambda: len(rig.poses) == 1, 10.0)
     causes = rig.node.diag.causes
@@ -337,7 +344,8 @@ def test_bad_points_are_counted_and_node_keeps_running(tmp_path, ros_context, ex
     assert d.counter("points") == 4
     assert d.counter("points") == d.counter("poses_published") + d.counter("rejected") + len(
         rig.node.pipeline.points)
-    assert spin_until(executor, lambda: rig.node.diag.causes.get("bad_ee_pose") == 1, 5.0)
+    assert spin_until(executor, lambda: rig.node.diag.causes.get("bad_ee_pose") == 2
+                      and rig.node.diag.causes.get("ee_pose_frame") == 1, 5.0)
 
 
 @pytest.mark.parametrize("content, message", [

@@ -573,3 +573,77 @@ def test_pose_to_matrix_is_always_a_transform_the_pose_buffer_would_accept():
         T = pose_to_matrix(msg)
         assert T.dtype == np.float64 and T.shape == (4, 4)
         np.testing.assert_array_equal(as_transform(T, f"pose {k}"), T)
+
+
+def _pose_values_cases():
+    """(Pose-like message, its seven numbers) at random and at every check's edge."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(12)
+    cases = []
+    nan, inf = float("nan"), float("inf")
+    for _ in range(400):
+        q = rng.normal(size=4)
+        q *= (1.0 + rng.uniform(-2e-3, 2e-3)) / np.linalg.norm(q)
+        t = rng.normal(size=3) * 10.0 ** rng.integers(-300, 301, 3)
+        cases.append((*t, *q))
+    base = (0.4, -0.1, 0.5, 0.0, 0.0, 0.0, 1.0)
+    for i in range(7):
+        for bad in (nan, inf, -inf):
+            cases.append(base[:i] + (bad,) + base[i + 1:])
+    cases += [(0.1, 0.2, 0.3, 0.0, 0.0, 0.0, 0.0), (0.1, 0.2, 0.3, 0.0, 0.0, 0.0, 2.0),
+              (nan, 0.2, 0.3, 0.0, 0.0, 0.0, 0.0), (0.1, 0.2, 0.3, 0.0, nan, 0.0, 2.0)]
+    out = []
+    for v in cases:
+        v = tuple(float(a) for a in v)
+        msg = SimpleNamespace(position=SimpleNamespace(x=v[0], y=v[1], z=v[2]),
+                              orientation=SimpleNamespace(x=v[3], y=v[4], z=v[5], w=v[6]))
+        out.append((msg, v))
+    return out
+
+
+def test_pose_values_to_matrix_is_pose_to_matrix_to_the_bit_and_error():
+    """The robot pose read from CDR (``pose_values_to_matrix``) and from a message object
+    (``pose_to_matrix``): the same matrix bit for bit, or the same first error."""
+    from eye_in_hand.ros.geometry import pose_values_to_matrix
+
+    n_errors = 0
+    for msg, values in _pose_values_cases():
+        try:
+            ref = pose_to_matrix(msg)
+        except ConversionError as exc:
+            n_errors += 1
+            with pytest.raises(ConversionError) as got:
+                pose_values_to_matrix(values)
+            assert str(got.value) == str(exc)
+            continue
+        T = pose_values_to_matrix(values)
+        assert T.dtype == ref.dtype and T.tobytes() == ref.tobytes()
+    assert n_errors > 21
+
+
+def test_ee_pose_decoder_fields_from_any_encoding(typestore):
+    """``ee_pose`` bytes from rclpy (little-endian CDR, read directly) and big-endian CDR (the
+    generic decoder) give the fields of the message object; bad bytes raise."""
+    from rclpy.serialization import serialize_message
+
+    from eye_in_hand.nodes.hand_eye_poses import ee_pose_decoder
+    from eye_in_hand.ros.geometry import pose_stamped_fields
+
+    decode = ee_pose_decoder("geometry_msgs/msg/PoseStamped")
+    T = from_rotvec([0.3, -0.2, 0.1], [0.4, -0.25, 0.6])
+    for frame in ("", "b", "base_link", "/base"):
+        msg = matrix_to_pose_stamped(T, stamp_ns=1_700_000_000_987_654_321, frame_id=frame)
+        fields = decode(serialize_message(msg))
+        assert fields == pose_stamped_fields(msg)
+        assert fields[:3] == (1_700_000_000, 987_654_321, frame)
+        rb = typestore.deserialize_cdr(serialize_message(msg), "geometry_msgs/msg/PoseStamped")
+        big = bytes(typestore.serialize_cdr(rb, "geometry_msgs/msg/PoseStamped",
+                                            little_endian=False))
+        assert big[:2] == b"\x00\x00" and decode(big) == fields
+    with pytest.raises(ConversionError):
+        decode(serialize_message(msg)[:30])
+    with pytest.raises(Exception):              # noqa: B017 - the generic decoder's own error
+        decode(big[:30])
+    with pytest.raises(ConversionError, match=r"^header: missing field"):
+        pose_stamped_fields(make_header(0, "x"))
