@@ -673,6 +673,11 @@ MUTANTS: tuple[Mutant, ...] = (
       "    height, width = _HW.unpack_from(body, pos)\n",
       "    width, height = _HW.unpack_from(body, pos)\n",
       "image height and width swapped when decoding CDR"),
+    M("executor-events-wait-uncapped", "ros/executor.py",
+      "                    timeout_ns = cap if timeout_ns < 0 else min(timeout_ns, cap)\n",
+      "                    pass\n",
+      "a wait that leaves the QoS events out may block past their due: an idle node never "
+      "reports an incompatible publisher"),
     M("cdr-pose-alignment", "io/cdr.py",
       "    pos = (pos + 7) & ~7                 # float64 fields: 8-byte aligned\n",
       "    pos = (pos + 3) & ~3                 # float64 fields: 8-byte aligned\n",
