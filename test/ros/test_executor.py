@@ -71,11 +71,14 @@ def test_a_subscription_gets_every_message_in_order_and_queued_ones_in_one_spin(
 
 
 def test_a_passive_subscription_keeps_its_messages_without_waking_the_executor(
-        lean, namespace):
+        lean, namespace, monkeypatch):
     """Marked passive, a subscription's messages wait in the middleware: the executor's waits
-    run their full timeout (neither the subscription nor its QoS events end them) and the
-    callback gets nothing; take_queued gives them in order with their reception times; made
-    active again, it is waited on as before."""
+    run their full timeout (neither the subscription nor its QoS events end them, the events
+    here in every wait) and the callback gets nothing; take_queued gives them in order with
+    their reception times; made active again, it is waited on as before."""
+    from eye_in_hand.ros import executor as lean_executor
+
+    monkeypatch.setattr(lean_executor, "EVENT_POLL_S", 0.0)
     ex, make = lean
     node = make("passive", namespace)
     got: list[int] = []
