@@ -86,7 +86,7 @@ PoseFields = tuple[int, int, str, tuple[float, ...]]
 def ee_pose_decoder(msgtype: str) -> Callable[[bytes], PoseFields]:
     """``decode(raw)`` of ``ee_pose`` (``geometry_msgs/msg/PoseStamped``) bytes into its
     fields: read directly from little-endian CDR (:func:`eye_in_hand.io.cdr.
-    pose_stamped_from_cdr`, 0.3 us), other encodings through the generic decoder (3-5 us);
+    pose_stamped_from_cdr`, 1 us), other encodings through the generic decoder (3-5 us);
     the values are checked where the pose is taken (``pose_values_to_matrix``), with the
     errors of ``pose_to_matrix``. Malformed bytes raise (the subscription reports them)."""
     generic = jazzy_decoder(msgtype)

@@ -376,37 +376,42 @@ def test_a_burst_of_one_topic_is_delivered_round_by_round(lean, namespace):
     assert pairs == list(range(6)) and sync.stats.dropped == 0
 
 
-def test_a_qos_event_reaches_its_callback(lean, namespace):
+def _strict_subscription(node: Node, seen: list[object]) -> None:
+    """A reliable subscription on ``strict`` whose incompatible-QoS events go to ``seen``."""
     from rclpy.event_handler import SubscriptionEventCallbacks
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-    ex, make = lean
-    node = make("events", namespace)
-    seen: list[object] = []
     node.create_subscription(
         Int32, "strict", lambda m: None,
         QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE),
         event_callbacks=SubscriptionEventCallbacks(incompatible_qos=seen.append))
+
+
+def _best_effort_publisher(node: Node) -> None:
+    """A best-effort publisher on ``strict``: incompatible with :func:`_strict_subscription`."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
     node.create_publisher(Int32, "strict",
                           QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT))
-    assert spin_until(ex, lambda: len(seen) > 0, 10.0), "incompatible QoS not reported"
 
+
+def test_a_qos_event_reaches_its_callback(lean, namespace):
+    ex, make = lean
+    node = make("events", namespace)
+    seen: list[object] = []
+    _strict_subscription(node, seen)
+    _best_effort_publisher(node)
+    assert spin_until(ex, lambda: len(seen) > 0, 10.0), "incompatible QoS not reported"
 
 
 def test_a_wait_without_the_qos_events_ends_when_they_are_due(lean, namespace):
     """QoS events are in a wait once per ``EVENT_POLL_S``: a wait that leaves them out ends by
     then even when nothing else comes and no timeout was given, so that the next one takes
     them in (else an incompatible publisher would go unreported while the node is idle)."""
-    from rclpy.event_handler import SubscriptionEventCallbacks
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
-
     ex, make = lean
     node = make("events_later", namespace)
     seen: list[object] = []
-    node.create_subscription(
-        Int32, "strict", lambda m: None,
-        QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE),
-        event_callbacks=SubscriptionEventCallbacks(incompatible_qos=seen.append))
+    _strict_subscription(node, seen)
     ex.spin_once(timeout_sec=0.0)         # this wait takes the events in: the next ones do not
     ex.spin_once(timeout_sec=0.0)
     assert ex._events_due > time.monotonic()
@@ -421,8 +426,7 @@ def test_a_wait_without_the_qos_events_ends_when_they_are_due(lean, namespace):
     try:
         assert returned.wait(10.0), "a wait without the QoS events did not end when they " \
             "were due"
-        node.create_publisher(Int32, "strict",
-                              QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT))
+        _best_effort_publisher(node)
         assert spin_until(ex, lambda: len(seen) > 0, 10.0), "incompatible QoS not reported"
     finally:
         ex.wake()
