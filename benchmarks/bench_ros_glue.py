@@ -1,7 +1,7 @@
 """Speed of the image conversions on the hot path (per call, median of repeated runs), and
 the executor's CPU per received message.
 
-Run: ``.venv/bin/python benchmarks/bench_ros_glue.py [--wakeups]``
+Run: ``.venv/bin/python benchmarks/bench_ros_glue.py [--wakeups | --event-poll]``
 
 ``--wakeups``: another process publishes 2000 small messages at 500 Hz to a node on rclpy's
 ``SingleThreadedExecutor``; printed is the node process's CPU per received message with 0
@@ -11,6 +11,13 @@ handlers (``eye_in_hand.ros.publishers.OutputPublishers``), then the same node o
 ``eye_in_hand.ros.executor.LeanExecutor`` (what the package's nodes spin on), and on it with
 the subscription passive and its messages taken at 30 Hz (``set_passive``, ``take_queued``:
 how ``hand_eye`` takes robot poses), the layouts alternating, median of ``--rounds`` rounds.
+
+``--event-poll``: another process publishes 1500 small messages at 30 Hz (a camera frame's
+rate: each wake-up after 33 ms asleep) to a node with ``hand_eye``'s entities (7
+subscriptions with their default QoS-event handlers, 14 events, 5 timers, the parameter
+services) on ``LeanExecutor``; printed is the spinning thread's CPU per received message with
+the QoS events in a wait at most every 0.5 s (``EVENT_POLL_S``, the default) and in every wait
+(0), the two alternating every 50 messages in one process, for each of ``--rounds`` rounds.
 
 Prints, for a 1280x720 stereo-camera frame: numpy -> Image (one copy into the message),
 Image -> numpy for rclpy and rosbags messages (zero-copy views, padded rows included),
@@ -93,7 +100,7 @@ def main() -> None:
         print(f"  {name:<44s} {bench(fn):9.3f} ms")
 
 
-def _wakeup_publisher() -> None:
+def _wakeup_publisher(count: int = 2000, period_s: float = 0.002) -> None:
     import rclpy
     from geometry_msgs.msg import PoseStamped
     from rclpy.node import Node
@@ -105,9 +112,9 @@ def _wakeup_publisher() -> None:
         time.sleep(0.05)
     time.sleep(0.5)
     msg = PoseStamped()
-    for _ in range(2000):
+    for _ in range(count):
         pub.publish(msg)
-        time.sleep(0.002)
+        time.sleep(period_s)
     time.sleep(0.5)
 
 
@@ -178,16 +185,79 @@ def wakeups(rounds: int) -> None:
               f"({med / floor:.2f}x the floor)")
 
 
+def event_poll(rounds: int) -> None:
+    import os
+    import random
+    import subprocess
+    import sys
+
+    import rclpy
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.node import Node
+
+    from eye_in_hand.ros import executor as lean_executor
+
+    os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(120, 200)))
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    default = lean_executor.EVENT_POLL_S
+    print(f"LeanExecutor CPU per received message at 30 Hz, QoS events every {default:g} s "
+          "against in every wait (alternating every 50 messages)")
+    got = [0]
+
+    def count(_raw: object) -> None:
+        got[0] += 1
+
+    for r in range(rounds):
+        got[0] = 0
+        context = rclpy.Context()
+        rclpy.init(context=context)
+        node = Node("event_poll_sink", context=context)
+        node.create_subscription(PoseStamped, "wakeup", count, 100, raw=True)
+        for k in range(6):
+            node.create_subscription(PoseStamped, f"quiet{k}", count, 100, raw=True)
+        for k in range(5):
+            node.create_timer(1.0 + 0.1 * k, lambda: None)
+        ex = lean_executor.LeanExecutor(context=context)
+        ex.add_node(node)
+        src = subprocess.Popen([sys.executable, __file__, "--wakeup-source", "--count", "1500",
+                                "--period", str(1 / 30)])
+        cpu = {default: [0, 0], 0.0: [0, 0]}
+        try:
+            while got[0] < 30 and src.poll() is None:
+                ex.spin_once(timeout_sec=0.5)
+            while src.poll() is None:
+                mode = default if (got[0] // 50) % 2 else 0.0
+                lean_executor.EVENT_POLL_S = mode
+                n0, t0 = got[0], time.thread_time_ns()
+                ex.spin_once(timeout_sec=0.5)
+                cpu[mode][0] += time.thread_time_ns() - t0
+                cpu[mode][1] += got[0] - n0
+        finally:
+            lean_executor.EVENT_POLL_S = default
+            ex.shutdown()
+            node.destroy_node()
+            rclpy.try_shutdown(context=context)
+        polled, every = (cpu[m][0] / max(1, cpu[m][1]) / 1e3 for m in (default, 0.0))
+        print(f"  round {r + 1}: events every {default:g} s {polled:6.1f} us, in every wait "
+              f"{every:6.1f} us per message ({cpu[default][1]} and {cpu[0.0][1]} messages)")
+
+
 if __name__ == "__main__":
     import argparse
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--wakeups", action="store_true", help="the executor part only")
     parser.add_argument("--rounds", type=int, default=3, help="--wakeups rounds (default 3)")
+    parser.add_argument("--event-poll", action="store_true",
+                        help="QoS events polled against waited on every time (30 Hz)")
     parser.add_argument("--wakeup-source", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--count", type=int, default=2000, help=argparse.SUPPRESS)
+    parser.add_argument("--period", type=float, default=0.002, help=argparse.SUPPRESS)
     opts = parser.parse_args()
     if opts.wakeup_source:
-        _wakeup_publisher()
+        _wakeup_publisher(opts.count, opts.period)
+    elif opts.event_poll:
+        event_poll(opts.rounds)
     elif opts.wakeups:
         wakeups(opts.rounds)
     else:

@@ -20,7 +20,8 @@ per wake-up:
   reports, never data; two handlers per subscription, fourteen in a ``hand_eye``) are in a
   wait at most once per :data:`EVENT_POLL_S`, and a wait without them ends by then: an event
   is reported up to half a second later, and each wake-up adds and checks 14 fewer entities
-  (about 20 us of a bare wake-up's 210-320 us of CPU here);
+  (20-30 us of a bare wake-up's 210-380 us of CPU here,
+  ``benchmarks/bench_ros_glue.py --event-poll``);
 - each ready entity's callback is called directly, and the ready subscriptions are drained
   of every message they hold, so messages that queued together cost one wake-up. Messages of
   several topics are delivered round by round, as rclpy's one message per subscription per
@@ -52,8 +53,9 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 __all__ = ["LeanExecutor", "set_passive", "is_passive", "take_queued",
            "reception_times_known", "RECEPTION_STAMPING_RMWS"]
 
-#: QoS events (incompatible QoS or type, a lost message: what a warning reports, never the
-#: data) are in a wait at most once in this many seconds (module docstring)
+#: QoS events (by default an incompatible QoS or type: what a warning reports, never the
+#: data; any other handlers a subscription was given too) are in a wait at most once in this
+#: many seconds (module docstring)
 EVENT_POLL_S = 0.5
 
 #: the attribute that marks a subscription passive (:func:`set_passive`)
