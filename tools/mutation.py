@@ -297,10 +297,15 @@ MUTANTS: tuple[Mutant, ...] = (
       "max(width * width - BLUR_W0_PX ** 2, 0.0)", "max(width * width, 0.0)",
       "the unblurred edge width is not subtracted from the blur estimate"),
     M("detection-edge-tau", "core/detection.py",
-      "            tau += 2.0 * float(ac[k])\n", "            tau += float(ac[k])\n",
+      "        tau += 2.0 * float(ac[k])\n", "        tau += float(ac[k])\n",
       "the edge term's correlation time counts each lag once, not on both sides"),
+    M("detection-edge-tau-shortcut", "core/detection.py",
+      "        if lag1 < 0.05 - _AC_MARGIN:\n", "        if lag1 < 0.06:\n",
+      "the edge term's correlation time taken as 1 from the lag-1 sum where the FFT's lag-1 "
+      "correlation is above the cut"),
     M("detection-edge-variance", "core/detection.py",
-      "    sigma_edge2 = var * 2.0 * tau / n\n", "    sigma_edge2 = var * tau / n\n",
+      "    sigma_edge2 = var * 2.0 * _correlation_time(res, var) / n\n",
+      "    sigma_edge2 = var * _correlation_time(res, var) / n\n",
       "the edge term s sqrt(2 tau / N) without its factor 2"),
     # -- core/locator.py
     M("locator-missed-reset", "core/locator.py",

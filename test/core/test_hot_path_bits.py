@@ -117,6 +117,71 @@ def test_blob_measurements_are_those_of_the_plain_spelling() -> None:
     assert checked >= 30
 
 
+def _tau_plain(res: np.ndarray, var: float) -> float:
+    """``_correlation_time`` as the FFT loop alone."""
+    n = len(res)
+    tau = 1.0
+    if var > 0:
+        spec = np.fft.rfft(res)
+        ac = np.fft.irfft(spec * np.conj(spec), n) / (n * var)
+        for k in range(1, n // 4):
+            if ac[k] < 0.05:
+                break
+            tau += 2.0 * float(ac[k])
+    return tau
+
+
+def _lag1(res: np.ndarray) -> float:
+    n = len(res)
+    spec = np.fft.rfft(res)
+    return float(np.fft.irfft(spec * np.conj(spec), n)[1] / (n * np.mean(res * res)))
+
+
+def _residuals(x: np.ndarray) -> tuple[np.ndarray, float]:
+    r = x - x.mean()
+    return r, float(np.mean(r * r))
+
+
+def test_correlation_time_is_the_ffts_whatever_the_lag_one_correlation() -> None:
+    """The lag-1 shortcut gives the FFT loop's tau to the bit: residuals whose lag-1
+    correlation spans the 0.05 cut (AR(1) series), and series tuned to within 1e-13 of it on
+    either side (where only the FFT can decide)."""
+    rng = np.random.default_rng(11)
+    below = above = near = 0
+    for _ in range(600):
+        n = int(rng.integers(12, 500))
+        phi = rng.uniform(-0.1, 0.3)
+        e = rng.normal(0.0, rng.uniform(0.05, 2.0), n)
+        x = np.empty(n)
+        x[0] = e[0]
+        for i in range(1, n):
+            x[i] = phi * x[i - 1] + e[i]
+        res, var = _residuals(x)
+        got = detection._correlation_time(res, var)
+        assert _bits(got) == _bits(_tau_plain(res, var))
+        below += _lag1(res) < 0.05
+        above += _lag1(res) >= 0.05
+    for seed in range(40):
+        r2 = np.random.default_rng(100 + seed)
+        x = r2.normal(0.0, 1.0, int(r2.integers(40, 400)))
+        lo, hi = -0.5, 0.5     # x + t roll(x): the lag-1 correlation rises with t
+        for _ in range(200):
+            t = 0.5 * (lo + hi)
+            if _lag1(_residuals(x + t * np.roll(x, -1))[0]) < 0.05:
+                lo = t
+            else:
+                hi = t
+        for t in (lo, hi):
+            res, var = _residuals(x + t * np.roll(x, -1))
+            assert abs(_lag1(res) - 0.05) < 1e-13
+            near += 1
+            assert _bits(detection._correlation_time(res, var)) == _bits(_tau_plain(res, var))
+    assert below > 100 and above > 100 and near == 80
+    # no spread at all, and NaN: tau 1 as before
+    assert detection._correlation_time(np.zeros(20), 0.0) == 1.0
+    assert detection._correlation_time(np.full(20, np.nan), float("nan")) == 1.0
+
+
 @pytest.mark.parametrize("shape, axis", [((7,), None), ((300,), None), ((12, 2), 0),
                                          ((451, 2), 0), ((5, 3), None)])
 def test_mean_is_numpys_mean(shape: tuple[int, ...], axis: int | None) -> None:
