@@ -303,6 +303,14 @@ MUTANTS: tuple[Mutant, ...] = (
       "        if lag1 < 0.05 - _AC_MARGIN:\n", "        if lag1 < 0.06:\n",
       "the edge term's correlation time taken as 1 from the lag-1 sum where the FFT's lag-1 "
       "correlation is above the cut"),
+    M("detection-planes-lower-bound", "core/detection.py",
+      "        return self._bound(channel, value - 1, cv2.THRESH_BINARY)\n",
+      "        return self._bound(channel, value, cv2.THRESH_BINARY)\n",
+      "the coarse pass's plane-wise threshold drops the pixels at a lower bound"),
+    M("detection-planes-shared-mask", "core/detection.py",
+      " else masks[0].copy()\n", " else masks[0]\n",
+      "a target's coarse mask is the shared bound itself: writing into it changes the next "
+      "target's"),
     M("detection-edge-variance", "core/detection.py",
       "    sigma_edge2 = var * 2.0 * _correlation_time(res, var) / n\n",
       "    sigma_edge2 = var * _correlation_time(res, var) / n\n",

@@ -108,6 +108,7 @@ __all__ = [
     "COLOR_SPACES",
     "SELECTIONS",
     "ColorRange",
+    "ColorPlanes",
     "TargetSpec",
     "DetectorConfig",
     "Detection",
@@ -197,6 +198,35 @@ def _triple(value: Any, name: str) -> tuple[int, int, int]:
     return out  # type: ignore[return-value]
 
 
+class ColorPlanes:
+    """A converted uint8 image's three planes and the masks of bounds on them, each made once
+    (:meth:`ColorRange.threshold_planes`).
+
+    Args:
+        converted: the image in a colour space, uint8, shape (H, W, 3).
+    """
+
+    def __init__(self, converted: np.ndarray) -> None:
+        self._planes = cv2.split(converted)
+        self._masks: dict[tuple[int, int, int], np.ndarray] = {}
+
+    def at_least(self, channel: int, value: int) -> np.ndarray:
+        """0/255 mask of ``plane >= value`` (1 <= value <= 255); shared: do not modify it."""
+        return self._bound(channel, value - 1, cv2.THRESH_BINARY)
+
+    def at_most(self, channel: int, value: int) -> np.ndarray:
+        """0/255 mask of ``plane <= value`` (0 <= value <= 254); shared: do not modify it."""
+        return self._bound(channel, value, cv2.THRESH_BINARY_INV)
+
+    def _bound(self, channel: int, thresh: int, kind: int) -> np.ndarray:
+        key = (channel, thresh, kind)
+        mask = self._masks.get(key)
+        if mask is None:
+            # uint8 threshold: > thresh (BINARY) or <= thresh (BINARY_INV), exact integers
+            mask = self._masks[key] = cv2.threshold(self._planes[channel], thresh, 255, kind)[1]
+        return mask
+
+
 @dataclass(frozen=True)
 class ColorRange:
     """A box in HSV or HSI (OpenCV 8-bit scales), hue wrapping when ``lower[0] > upper[0]``.
@@ -238,6 +268,37 @@ class ColorRange:
         a = cv2.inRange(converted, (lo[0], lo[1], lo[2]), (179, hi[1], hi[2]))
         b = cv2.inRange(converted, (0, lo[1], lo[2]), (hi[0], hi[1], hi[2]))
         return cv2.bitwise_or(a, b, dst=a)
+
+    def threshold_planes(self, planes: ColorPlanes) -> np.ndarray:
+        """The mask of :meth:`threshold`, from one-sided bounds on single planes.
+
+        Each bound is one ``cv2.threshold`` pass over one plane, made once per image in
+        ``planes`` (targets with the same saturation and value bounds share them), and the
+        bounds are ANDed: on a coarse image with three targets about a third of the time of a
+        three-channel ``cv2.inRange`` each (two for a wrapping hue). The same mask as
+        :meth:`threshold`, pixel for pixel, for any uint8 image (hue values above 179
+        included).
+
+        Args:
+            planes: the image, already in this range's colour space, split into its planes.
+        """
+        lo, hi = self.lower, self.upper
+        masks: list[np.ndarray] = []
+        if self.wraps:
+            # [lo, 179] or [0, hi]
+            upper = cv2.bitwise_and(planes.at_least(0, lo[0]), planes.at_most(0, 179))
+            masks.append(cv2.bitwise_or(upper, planes.at_most(0, hi[0]), dst=upper))
+        for c in range(3):
+            if c > 0 or not self.wraps:
+                if lo[c] > 0:
+                    masks.append(planes.at_least(c, lo[c]))
+                if hi[c] < 255:
+                    masks.append(planes.at_most(c, hi[c]))
+        # (never empty: the upper hue bound is at most 179)
+        out = cv2.bitwise_and(masks[0], masks[1]) if len(masks) > 1 else masks[0].copy()
+        for m in masks[2:]:
+            cv2.bitwise_and(out, m, dst=out)
+        return out
 
     def contains(self, hsv: Sequence[float]) -> bool:
         """Whether one (h, s, v) triple lies inside the range."""
@@ -597,11 +658,11 @@ class ColorDetector:
                                interpolation=cv2.INTER_NEAREST)
         else:
             small = image
-        converted = {space: convert_color(small, space) for space in self._spaces}
+        planes = {space: ColorPlanes(convert_color(small, space)) for space in self._spaces}
         sx, sy = w / small.shape[1], h / small.shape[0]
         out: dict[str, list[Detection]] = {}
         for target in cfg.targets:
-            mask = target.color.threshold(converted[target.color.space])
+            mask = target.color.threshold_planes(planes[target.color.space])
             limit = cfg.limit(target)
             blobs = self._coarse_blobs(mask, target, sx * sy, limit)
             dets: list[Detection] = []

@@ -208,3 +208,31 @@ def test_one_component_is_found_without_labelling_as_labelling_finds_it():
             assert got is None, (trial, n)
             seen["several"] += 1
     assert min(seen.values()) > 20, seen
+
+
+def test_threshold_planes_is_threshold_pixel_for_pixel() -> None:
+    """The coarse pass's plane-wise threshold gives inRange's masks: random uint8 images
+    (hues above 179 too), random ranges (wrapping or not, bounds at 0, 179 and 255), several
+    ranges on one shared ``ColorPlanes`` (its cached bounds are not modified by them nor by
+    a caller writing into a mask it was given)."""
+    from eye_in_hand.core.detection import ColorPlanes
+    rng = np.random.default_rng(21)
+    edges = [0, 1, 12, 80, 165, 178, 179]
+    for _ in range(60):
+        img = rng.integers(0, 256, (int(rng.integers(1, 40)), int(rng.integers(1, 40)), 3),
+                           dtype=np.uint8)
+        planes = ColorPlanes(img)
+        ranges = []
+        for _ in range(6):
+            h0, h1 = (int(rng.choice(edges)) if rng.random() < 0.5 else int(rng.integers(0, 180))
+                      for _ in range(2))
+            sv = sorted(int(v) for v in rng.choice([0, 1, 25, 254, 255, 80, 200], 2)), \
+                sorted(int(v) for v in rng.integers(0, 256, 2))
+            ranges.append(ColorRange((h0, sv[0][0], sv[1][0]), (h1, sv[0][1], sv[1][1])))
+        ranges.append(ColorRange((0, 0, 0), (179, 255, 255)))
+        ranges.append(ColorRange((170, 0, 0), (10, 255, 255)))
+        for r in ranges + ranges[::-1]:
+            got = r.threshold_planes(planes)
+            assert got.dtype == np.uint8 and got.shape == img.shape[:2]
+            np.testing.assert_array_equal(got, r.threshold(img))
+            got[:] = 7     # the caller's own array: the shared bounds stay as they were
