@@ -274,8 +274,8 @@ MUTANTS: tuple[Mutant, ...] = (
       "    return np.add.reduce(x, axis=axis) / x.size\n",
       "a mean along an axis divided by the whole array's size"),
     M("detection-edge-profile-step", "core/detection.py",
-      "    pts = contour[(np.arange(m) * (n / m)).astype(int)]\n",
-      "    pts = contour[(np.arange(m) * (n // m)).astype(int)]\n",
+      "    idx = (np.arange(m) * (n / m)).astype(int)\n",
+      "    idx = (np.arange(m) * (n // m)).astype(int)\n",
       "the edge profiles spaced by a whole number of points (bunched at the contour's start)"),
     M("detection-one-component-of-several", "core/detection.py",
       "    if len(contours) > 1 and int(np.count_nonzero(hierarchy[0, :, 3] < 0)) > 1:\n",
@@ -1170,9 +1170,9 @@ MUTANTS: tuple[Mutant, ...] = (
       "a target's largest error in metres, reported as mm"),
     # core/detection.py
     M("detection-edge-width-cosine", "core/detection.py",
-      '    return float((s1[ok] ** 2 / s2[ok] * cos[ok]).sum() / k) / '
+      '    return float(np.add.reduce(s1[ok] ** 2 / s2[ok] * cos[ok]) / k) / '
       '(2.0 * math.sqrt(math.pi))\n',
-      '    return float((s1[ok] ** 2 / s2[ok]).sum() / k) / (2.0 * math.sqrt(math.pi))\n',
+      '    return float(np.add.reduce(s1[ok] ** 2 / s2[ok]) / k) / (2.0 * math.sqrt(math.pi))\n',
       "the edge width without the normal's cosine to the sampling axis"),
     M("detection-shade-y-mean", "core/detection.py",
       '                          weighted["m01"] / total - m["m01"] / m["m00"]])\n',

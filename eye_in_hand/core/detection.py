@@ -2,12 +2,12 @@
 
 Pipeline per image (the hot path: the only pass over every pixel is the downscale of step 1;
 everything after it works on a blob's region of interest, its contour or its image moments.
-A 1280x720 pair with one target costs about the cvtColor + inRange floor on the two full
-images, with four targets 2.5-3 times it; docs/detection.md#figures):
+A 1280x720 pair with one target costs about three quarters of the cvtColor + inRange floor on
+the two full images, with four targets 1.7 times it; docs/detection.md#figures):
 
 1. A coarse pass on a ``downscale``-times smaller copy (nearest-neighbour, no float images):
-   colour conversion, threshold, connected components. Blobs big enough to be a target become
-   candidates.
+   colour conversion, threshold (:meth:`ColorRange.threshold_planes`), external contours.
+   Blobs big enough to be a target become candidates.
 2. A full-resolution pass inside a region of interest around each candidate: threshold,
    morphological open/close, the largest connected component, its area and circularity gates,
    and its image moments (sub-pixel centroid).
@@ -93,6 +93,7 @@ image border (a truncated silhouette has a biased centre) are not reported.
 """
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -949,6 +950,18 @@ def _correlation_time(res: np.ndarray, var: float) -> float:
     return tau
 
 
+@functools.lru_cache(maxsize=4096)
+def _profile_points(n: int) -> np.ndarray:
+    """The indices of :func:`edge_width`'s profiles on a contour of ``n`` points: ``m =
+    min(n, _EDGE_PROFILES)`` evenly spaced, as ``np.linspace(0, n, m, endpoint=False)`` gives
+    them (``arange(m)`` times the step ``n / m``, to the bit). Made once per contour length
+    (read-only: shared)."""
+    m = min(n, _EDGE_PROFILES)
+    idx = (np.arange(m) * (n / m)).astype(int)
+    idx.setflags(write=False)
+    return idx
+
+
 def edge_width(image: np.ndarray, contour: np.ndarray, center: np.ndarray) -> float:
     """Width (px) of a blob's edge from colour profiles across its contour.
 
@@ -975,9 +988,7 @@ def edge_width(image: np.ndarray, contour: np.ndarray, center: np.ndarray) -> fl
         return float("nan")
     # (the hot path: plain ufuncs on the 64 profiles; np.clip, np.diff and np.mean would give
     # the same numbers through slower generic wrappers)
-    m = min(n, _EDGE_PROFILES)
-    # np.linspace(0, n, m, endpoint=False) is arange(m) times the step n / m, to the bit
-    pts = contour[(np.arange(m) * (n / m)).astype(int)]
+    pts = contour[_profile_points(n)]
     nrm = pts - center
     anrm = np.abs(nrm)
     horiz = anrm[:, 0] >= anrm[:, 1]
@@ -992,13 +1003,20 @@ def edge_width(image: np.ndarray, contour: np.ndarray, center: np.ndarray) -> fl
     ys = np.minimum(np.maximum(ipts[:, 1:] + (step - along), 0), h - 1)
     prof = image[ys, xs].astype(np.float32)                  # (P, samples[, 3])
     d = prof[:, 1:] - prof[:, :-1]
-    d = np.sqrt((d * d).sum(axis=2)) if d.ndim == 3 else np.abs(d)
-    s1, s2 = d.sum(axis=1), (d * d).sum(axis=1)
+    if d.ndim == 3 and d.shape[2] == 3:
+        # the colour distance: the squares of uint8 differences and their sum over the three
+        # channels are integers below 2^24, exact in float32 in any order: the same bits as
+        # the reduction over that short last axis, in two adds
+        dd = d * d
+        d = np.sqrt(dd[..., 0] + dd[..., 1] + dd[..., 2])
+    else:
+        d = np.sqrt((d * d).sum(axis=2)) if d.ndim == 3 else np.abs(d)
+    s1, s2 = np.add.reduce(d, axis=1), np.add.reduce(d * d, axis=1)
     ok = s2 > 0
     k = int(np.count_nonzero(ok))
     if k == 0:
         return float("nan")
-    return float((s1[ok] ** 2 / s2[ok] * cos[ok]).sum() / k) / (2.0 * math.sqrt(math.pi))
+    return float(np.add.reduce(s1[ok] ** 2 / s2[ok] * cos[ok]) / k) / (2.0 * math.sqrt(math.pi))
 
 
 def _polygon_center_and_minor_axis(contour_norm: np.ndarray,
@@ -1017,14 +1035,14 @@ def _polygon_center_and_minor_axis(contour_norm: np.ndarray,
     nxt = np.concatenate((p[1:], p[:1]))      # the next vertex (np.roll by -1, cheaper)
     xn, yn = nxt[:, 0], nxt[:, 1]
     cross = x * yn - xn * y
-    a = cross.sum() / 2.0
+    a = np.add.reduce(cross) / 2.0
     if abs(a) < 1e-9:
         return None, float("nan")
-    cx = ((x + xn) * cross).sum() / (6.0 * a)
-    cy = ((y + yn) * cross).sum() / (6.0 * a)
-    sxx = ((x * x + x * xn + xn * xn) * cross).sum() / (12.0 * a) - cx * cx
-    syy = ((y * y + y * yn + yn * yn) * cross).sum() / (12.0 * a) - cy * cy
-    sxy = ((x * yn + 2 * x * y + 2 * xn * yn + xn * y) * cross).sum() / (24.0 * a) - cx * cy
+    cx = np.add.reduce((x + xn) * cross) / (6.0 * a)
+    cy = np.add.reduce((y + yn) * cross) / (6.0 * a)
+    sxx = np.add.reduce((x * x + x * xn + xn * xn) * cross) / (12.0 * a) - cx * cx
+    syy = np.add.reduce((y * y + y * yn + yn * yn) * cross) / (12.0 * a) - cy * cy
+    sxy = np.add.reduce((x * yn + 2 * x * y + 2 * xn * yn + xn * y) * cross) / (24.0 * a) - cx * cy
     lam_min = 0.5 * (sxx + syy) - math.sqrt(max(0.0, 0.25 * (sxx - syy) ** 2 + sxy * sxy))
     minor = 2.0 * math.sqrt(max(lam_min, 0.0)) + 0.5
     return c0 + np.array([cx, cy]) / scale, minor / scale
