@@ -171,6 +171,17 @@ class LocateResult:
         return None
 
 
+def _norm(v: np.ndarray) -> float:
+    """``np.linalg.norm`` of a float64 vector to the last bit (its own ``sqrt(v.dot(v))``),
+    without its generic wrapper."""
+    return math.sqrt(float(v.dot(v)))
+
+
+def _finite2(v: np.ndarray) -> bool:
+    """Whether both values of a (2,) array are finite."""
+    return math.isfinite(v[0]) and math.isfinite(v[1])
+
+
 #: Cost of an infeasible pair in the assignments (far above any sum of feasible costs).
 _INFEASIBLE = 1e9
 
@@ -526,8 +537,9 @@ class StereoLocator:
             alphas = [a for a in (dl.angular_radius, dr.angular_radius)
                       if math.isfinite(a) and a > 0]
             if alphas:
-                rng_size = spec.radius_m / math.sin(float(np.mean(alphas)))
-                rng = float(np.linalg.norm(loc.point_m))
+                # the mean as np.mean adds it (positive floats: 0 + a is a)
+                rng_size = spec.radius_m / math.sin(sum(alphas) / len(alphas))
+                rng = _norm(loc.point_m)
                 factor = max(rng / rng_size, rng_size / rng)
                 if factor > 1.0 + cfg.size_tol:
                     return (4, "size", f"the blobs' size puts a sphere of radius "
@@ -545,7 +557,7 @@ class StereoLocator:
         cost = np.full((len(pts), len(tracks)), _INFEASIBLE)
         for p, pt in enumerate(pts):
             for t, tr in enumerate(tracks):
-                dist = float(np.linalg.norm(pt - tr.point_m))
+                dist = _norm(pt - tr.point_m)
                 if dist <= cfg.track_gate_m:
                     cost[p, t] = dist
         match = dict(_assign(cost))
@@ -641,8 +653,7 @@ class StereoLocator:
         pix = self._pixel_cov(dl, dr)
         left_px, right_px = dl.center_px, dr.center_px
         radius = spec.radius_m
-        if radius is not None and not (np.isfinite(dl.ellipse_norm).all()
-                                       and np.isfinite(dr.ellipse_norm).all()):
+        if radius is not None and not (_finite2(dl.ellipse_norm) and _finite2(dr.ellipse_norm)):
             radius = None
         # a pass that is refined below needs only its point (and its rejections); the
         # optimal method computes its covariance whatever it is asked
@@ -650,8 +661,8 @@ class StereoLocator:
         pt = self._point(left_px, right_px, xl, xr, pix, covariance=not bare)
         if radius is not None:
             # refine the sphere-centre correction with alpha from the known radius and range
-            rng_l = float(np.linalg.norm(pt.point))
-            rng_r = float(np.linalg.norm(self.rig.R @ pt.point + self.rig.T))
+            rng_l = _norm(pt.point)
+            rng_r = _norm(self.rig.R @ pt.point + self.rig.T)
             if rng_l > radius and rng_r > radius:
                 nl = sphere_center_direction(dl.ellipse_norm, math.asin(radius / rng_l))
                 nr = sphere_center_direction(dr.ellipse_norm, math.asin(radius / rng_r))

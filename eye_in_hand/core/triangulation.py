@@ -114,6 +114,11 @@ def rectify_pair(rig: StereoRig, left_px, right_px) -> tuple[np.ndarray, np.ndar
 
 
 _JAC_STEP_PX = 0.5  # central-difference step of the rectification Jacobian (the map is smooth)
+# the Jacobian of rectified inputs (read-only: shared by every call) and the homogeneous 1
+_EYE4 = np.eye(4)
+_EYE4.setflags(write=False)
+_ONE = np.ones(1)
+_ONE.setflags(write=False)
 
 
 def _rectify_with_jacobian(rig: StereoRig, left_px, right_px
@@ -160,7 +165,7 @@ def _dlt_rect(P1: np.ndarray, P2: np.ndarray, xl: np.ndarray, xr: np.ndarray,
     X = Xh[:3] / Xh[3]
     if not with_jacobian:
         return X, None
-    h = np.append(X, 1.0)
+    h = np.concatenate((X, _ONE))   # np.append(X, 1.0)
     w = np.array([P1[2] @ h, P1[2] @ h, P2[2] @ h, P2[2] @ h]) * scale
     M = A[:, :3]
     try:
@@ -172,7 +177,7 @@ def _dlt_rect(P1: np.ndarray, P2: np.ndarray, xl: np.ndarray, xr: np.ndarray,
 
 def _reproj_rms(P1: np.ndarray, P2: np.ndarray, X: np.ndarray, xl: np.ndarray,
                 xr: np.ndarray) -> float:
-    h = np.append(X, 1.0)
+    h = np.concatenate((X, _ONE))   # np.append(X, 1.0)
     a, b = P1 @ h, P2 @ h
     e = np.concatenate([a[:2] / a[2] - xl, b[:2] / b[2] - xr])
     return float(math.sqrt(np.add.reduce(e * e) / 4))   # np.mean, to the bit
@@ -185,7 +190,8 @@ def _finish(rig: StereoRig, X_rect: np.ndarray, cov_rect: np.ndarray | None, res
     R1 = rig.R1
     X = R1.T @ X_rect  # rectified-left -> left optical frame
     X_right = rig.R @ X + rig.T
-    if not (np.isfinite(X).all() and X[2] > 0 and X_right[2] > 0):
+    if not (math.isfinite(X[0]) and math.isfinite(X[1]) and math.isfinite(X[2])
+            and X[2] > 0 and X_right[2] > 0):
         raise Rejected("behind_camera",
                        f"triangulated point {np.round(X, 4).tolist()} m is behind a camera "
                        f"(z_left = {X[2]:.4f}, z_right = {X_right[2]:.4f})")
@@ -281,7 +287,7 @@ def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float | Sequ
     _check_rig(rig)
     S = _pixel_cov(sigma_px, pixel_cov) if covariance else None
     if rectified:
-        xl, xr, Jpx = _px(left_px, "left_px"), _px(right_px, "right_px"), np.eye(4)
+        xl, xr, Jpx = _px(left_px, "left_px"), _px(right_px, "right_px"), _EYE4
     else:
         xl, xr, Jpx = _rectify_with_jacobian(rig, left_px, right_px)
     d = _disparity(rig, xl, xr)
@@ -320,7 +326,7 @@ def triangulate_parallax(rig: StereoRig, left_px, right_px, *,
         raise InputError("parallax method: the rig is rectified vertically; use 'dlt' or "
                          "'optimal'")
     if rectified:
-        xl, xr, Jpx = _px(left_px, "left_px"), _px(right_px, "right_px"), np.eye(4)
+        xl, xr, Jpx = _px(left_px, "left_px"), _px(right_px, "right_px"), _EYE4
     else:
         xl, xr, Jpx = _rectify_with_jacobian(rig, left_px, right_px)
     d = _disparity(rig, xl, xr)
