@@ -784,8 +784,9 @@ class ColorDetector:
         if area < target.min_area_px or (target.max_area_px is not None
                                          and area > target.max_area_px):
             return None
-        comp = ((labels[by:by + bh, bx:bx + bw] == k) if labels is not None
-                else (mask[by:by + bh, bx:bx + bw] != 0)).astype(np.uint8)
+        # the component's 0/1 mask (the 0/255 mask's pixels above 0: one cv2.threshold pass)
+        comp = ((labels[by:by + bh, bx:bx + bw] == k).astype(np.uint8) if labels is not None
+                else cv2.threshold(mask[by:by + bh, bx:bx + bw], 0, 1, cv2.THRESH_BINARY)[1])
         contours, _ = cv2.findContours(comp, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
         contour = max(contours, key=cv2.contourArea)
         perimeter = cv2.arcLength(contour, True)
