@@ -287,13 +287,13 @@ class ColorRange:
         masks: list[np.ndarray] = []
         if self.wraps:
             # [lo, 179] or [0, hi]
-            upper = cv2.bitwise_and(planes.at_least(0, lo[0]), planes.at_most(0, 179))
+            upper = cv2.bitwise_and(planes.at_least(0, lo[0]), planes.at_most(0, _MAX[0]))
             masks.append(cv2.bitwise_or(upper, planes.at_most(0, hi[0]), dst=upper))
         for c in range(3):
             if c > 0 or not self.wraps:
                 if lo[c] > 0:
                     masks.append(planes.at_least(c, lo[c]))
-                if hi[c] < 255:
+                if hi[c] < 255:        # (the uint8 maximum: no bound)
                     masks.append(planes.at_most(c, hi[c]))
         # (never empty: the upper hue bound is at most 179)
         out = cv2.bitwise_and(masks[0], masks[1]) if len(masks) > 1 else masks[0].copy()
