@@ -45,7 +45,12 @@ from eye_in_hand.io.atomic import atomic_output_dir, check_output_dir
 from eye_in_hand.io.bags import STORAGES, DamageLog, bag_info, default_typestore, iter_messages
 from eye_in_hand.io.config import load_hand_eye
 from eye_in_hand.io.pages import keep_freed_heap
-from eye_in_hand.io.results import load_known_distances, prepare_output_types, run_figures
+from eye_in_hand.io.results import (
+    load_known_distances,
+    prepare_output_types,
+    prepare_truth_matching,
+    run_figures,
+)
 from eye_in_hand.nodes.parameters import check_parameter_file_keys
 from eye_in_hand.offline import (
     ProcessOptions,
@@ -381,7 +386,10 @@ def run(args: argparse.Namespace) -> int:
                              rig=rig, hand_eye_cov=calib.covariance, options=opts,
                              progress=None if bar is None else bar.update,
                              pose_correction=calib.robot_pose_correction, info=info,
-                             idle=(default_typestore, prepare_output_types))  # output bag
+                             # while it waits for its worker processes: what the output
+                             # bag and the ground-truth matching load once
+                             idle=(default_typestore, prepare_output_types,
+                                   prepare_truth_matching))
     finally:
         if bar is not None:
             bar.close()

@@ -506,6 +506,14 @@ def write_results(out: str | Path, result: ProcessResult, opts: OutputOptions | 
     return {"bag": out, "csv": csv_path, "summary": summary_path}
 
 
+def prepare_truth_matching() -> None:
+    """Load now what :func:`assign_truth` loads at its first ``np.median``: NumPy's
+    ``numpy.ma`` (the median's NaN check asks for it; about 8 ms the first time in a process).
+    ``process`` runs it while it waits for its worker processes, so that the ground-truth
+    matching after the pass does not wait for it."""
+    import numpy.ma  # noqa: F401  (local: loaded for its side effect, once)
+
+
 def prepare_output_types() -> None:
     """Generate now what :func:`write_results` needs once per process, in the shared type
     store it writes with: each output type's definition (stored in the bag per topic) and the
