@@ -329,6 +329,11 @@ def _options(args: argparse.Namespace, detect: dict, hand_eye_params: dict, conf
     return opts
 
 
+#: what the output bag and the ground-truth matching load once, done while `process` waits
+#: for its worker processes
+_IDLE_WORK = (default_typestore, prepare_output_types, prepare_truth_matching)
+
+
 def run(args: argparse.Namespace) -> int:
     """Process the bag and write the results; prints counts and error statistics."""
 
@@ -386,10 +391,7 @@ def run(args: argparse.Namespace) -> int:
                              rig=rig, hand_eye_cov=calib.covariance, options=opts,
                              progress=None if bar is None else bar.update,
                              pose_correction=calib.robot_pose_correction, info=info,
-                             # while it waits for its worker processes: what the output
-                             # bag and the ground-truth matching load once
-                             idle=(default_typestore, prepare_output_types,
-                                   prepare_truth_matching))
+                             idle=_IDLE_WORK)
     finally:
         if bar is not None:
             bar.close()
