@@ -50,6 +50,20 @@ def _blob_contours(n_blobs: int, seed: int):
         yield img, max(contours, key=cv2.contourArea)
 
 
+def _tau_plain(res: np.ndarray, var: float) -> float:
+    """``_correlation_time`` as the FFT loop alone."""
+    n = len(res)
+    tau = 1.0
+    if var > 0:
+        spec = np.fft.rfft(res)
+        ac = np.fft.irfft(spec * np.conj(spec), n) / (n * var)
+        for k in range(1, n // 4):
+            if ac[k] < 0.05:
+                break
+            tau += 2.0 * float(ac[k])
+    return tau
+
+
 def _edge_sigma_plain(contour: np.ndarray) -> float:
     """``center_sigma_parts``' edge term with ``np.mean``."""
     n = len(contour)
@@ -62,15 +76,7 @@ def _edge_sigma_plain(contour: np.ndarray) -> float:
     res = (rho - 1.0) * np.hypot(u, v) / np.maximum(rho, 1e-12)
     res = res - res.mean()
     var = float(np.mean(res * res))
-    tau = 1.0
-    if var > 0:
-        spec = np.fft.rfft(res)
-        ac = np.fft.irfft(spec * np.conj(spec), n) / (n * var)
-        for k in range(1, n // 4):
-            if ac[k] < 0.05:
-                break
-            tau += 2.0 * float(ac[k])
-    return math.sqrt(var * 2.0 * tau / n)
+    return math.sqrt(var * 2.0 * _tau_plain(res, var) / n)
 
 
 def _edge_width_plain(image: np.ndarray, contour: np.ndarray, center: np.ndarray) -> float:
@@ -115,20 +121,6 @@ def test_blob_measurements_are_those_of_the_plain_spelling() -> None:
         assert math.isfinite(width)
         assert _bits(width) == _bits(_edge_width_plain(image, c.reshape(-1, 2), centre))
     assert checked >= 30
-
-
-def _tau_plain(res: np.ndarray, var: float) -> float:
-    """``_correlation_time`` as the FFT loop alone."""
-    n = len(res)
-    tau = 1.0
-    if var > 0:
-        spec = np.fft.rfft(res)
-        ac = np.fft.irfft(spec * np.conj(spec), n) / (n * var)
-        for k in range(1, n // 4):
-            if ac[k] < 0.05:
-                break
-            tau += 2.0 * float(ac[k])
-    return tau
 
 
 def _lag1(res: np.ndarray) -> float:
