@@ -300,7 +300,7 @@ MUTANTS: tuple[Mutant, ...] = (
       "        tau += 2.0 * float(ac[k])\n", "        tau += float(ac[k])\n",
       "the edge term's correlation time counts each lag once, not on both sides"),
     M("detection-edge-tau-shortcut", "core/detection.py",
-      "        if lag1 < 0.05 - _AC_MARGIN:\n", "        if lag1 < 0.06:\n",
+      "    if lag1 < 0.05 - _AC_MARGIN:\n", "    if lag1 < 0.06:\n",
       "the edge term's correlation time taken as 1 from the lag-1 sum where the FFT's lag-1 "
       "correlation is above the cut"),
     M("detection-planes-lower-bound", "core/detection.py",

@@ -935,12 +935,11 @@ def _correlation_time(res: np.ndarray, var: float) -> float:
     more than ``_AC_MARGIN``; the FFT (about 15 us of a blob's measurement) runs only
     otherwise, so ``tau`` has the FFT's bits either way."""
     n = len(res)
-    if not var > 0:
+    if not var > 0 or n // 4 <= 1:       # no spread, or no lag to sum
         return 1.0
-    if n // 4 > 1:
-        lag1 = (float(np.dot(res[:-1], res[1:])) + float(res[-1] * res[0])) / (n * var)
-        if lag1 < 0.05 - _AC_MARGIN:
-            return 1.0
+    lag1 = (float(np.dot(res[:-1], res[1:])) + float(res[-1] * res[0])) / (n * var)
+    if lag1 < 0.05 - _AC_MARGIN:
+        return 1.0
     tau = 1.0
     spec = np.fft.rfft(res)
     ac = np.fft.irfft(spec * np.conj(spec), n) / (n * var)   # circular autocorrelation
