@@ -30,12 +30,13 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from eye_in_hand.core.pose_correction import RobotPoseCorrection
 from eye_in_hand.core.sync import PoseBuffer
-from eye_in_hand.core.transforms import as_points, as_transform
+from eye_in_hand.core.transforms import as_points, as_transform, value_key
 from eye_in_hand.errors import InputError
 
 __all__ = ["LocalizerConfig", "TargetInBase", "target_in_base", "robot_pose_sigmas",
@@ -77,7 +78,7 @@ def _positive_definite_3x3(a: np.ndarray) -> bool:
 class TargetInBase:
     """A target located in the robot base frame.
 
-    Attributes:
+    Attributes (the arrays read-only as :meth:`Localizer.locate` returns them):
         stamp_ns: the image stamp (int ns).
         point_base: shape (3,), metres, base frame.
         covariance: shape (3, 3), m^2, base frame.
@@ -257,6 +258,8 @@ class Localizer:
         self.poses = PoseBuffer(self.config.buffer_size, name="base_T_ee",
                                 jump_back_ns=self.config.jump_back_ns)
         _check_sigmas(self.config.robot_sigma_pos_m, self.config.robot_sigma_rot_rad)
+        #: the key of the last point located, and its result (:meth:`locate`)
+        self._last: tuple[tuple[Any, ...], TargetInBase] | None = None
 
     def add_robot_pose(self, stamp_ns: int, base_T_ee, *, received_ns: int | None = None,
                        checked: bool = False) -> bool:
@@ -273,6 +276,12 @@ class Localizer:
                now_ns: int | None = None) -> TargetInBase:
         """The target in the base frame at an image stamp.
 
+        The result's arrays are read-only. The same point and covariance (by value) at the same
+        stamp, from the same robot pose, as the call before give that call's result object:
+        the ``hand_eye`` node locates its first target for ``target/pose`` and again in its
+        frame for ``target/<id>/pose``. The pose lookup and its rules (gap, age at this
+        ``now_ns``) run at every call.
+
         Args:
             now_ns: the clock now (as ``received_ns``); with ``config.max_age_ns`` the robot
                 poses used must have been received within that age.
@@ -287,6 +296,16 @@ class Localizer:
                                       max_age_ns=self.config.max_age_ns)
         if self.pose_correction is not None:
             base_T_ee = self.pose_correction.apply(base_T_ee)
+        # the rules above (gap, age at this now_ns) hold for every call; the rest is a
+        # function of the key, and the point located last is not located again
+        try:
+            key = (int(stamp_ns), base_T_ee.tobytes(), value_key(point_cam),
+                   None if cov_cam is None else value_key(cov_cam))
+        except (TypeError, ValueError):
+            key = None      # not arrays of numbers: the checks below say what is wrong
+        last = self._last
+        if key is not None and last is not None and last[0] == key:
+            return last[1]
         p_c = as_points(point_cam, "point_cam")
         if p_c.shape[0] != 1:
             raise InputError(f"point_cam: expected one point, got {p_c.shape[0]}")
@@ -296,6 +315,11 @@ class Localizer:
                             None if cov_cam is None else _as_cov(cov_cam, "cov_cam", 3),
                             self.cov_hand_eye, self.config.robot_sigma_pos_m,
                             self.config.robot_sigma_rot_rad)
-        return TargetInBase(stamp_ns=int(stamp_ns), point_base=p, covariance=cov,
-                            base_T_ee=base_T_ee)
+        for arr in (p, cov, base_T_ee):
+            arr.flags.writeable = False
+        res = TargetInBase(stamp_ns=int(stamp_ns), point_base=p, covariance=cov,
+                           base_T_ee=base_T_ee)
+        if key is not None:
+            self._last = (key, res)
+        return res
 

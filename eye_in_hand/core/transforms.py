@@ -26,6 +26,7 @@ __all__ = [
     "as_rotation",
     "as_transform",
     "make_transform",
+    "value_key",
     "compose",
     "invert",
     "invert_many",
@@ -128,6 +129,14 @@ def as_transform(T: ArrayLike, name: str = "T", *, atol: float = ORTHONORMAL_ATO
         raise InputError(f"{name}: last row must be [0, 0, 0, 1], got {arr[3].tolist()}")
     _checked_rotation(arr[:3, :3], f"{name} rotation block", atol)
     return arr
+
+
+def value_key(a: ArrayLike) -> tuple[tuple[int, ...], bytes]:
+    """What an array-like is, by value, for a cache key: its shape and float64 bytes (equal
+    values in any container or dtype give equal keys). Raises TypeError or ValueError when it
+    is no array of numbers."""
+    arr = np.asarray(a, dtype=np.float64)
+    return arr.shape, arr.tobytes()
 
 
 def as_points(points: ArrayLike, name: str = "points") -> np.ndarray:

@@ -92,6 +92,7 @@ from eye_in_hand.nodes.hand_eye_tf import TfOutput
 from eye_in_hand.ros.diagnostics import NodeDiagnostics
 from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.ros.outputs import LocatedFrame
+from eye_in_hand.ros.outputs_cdr import LastPointPose
 from eye_in_hand.ros.params import load_config
 from eye_in_hand.ros.publishers import OutputPublishers
 
@@ -211,13 +212,17 @@ class HandEyeNode(Node):
             # frames handed over by a detector thread, taken on the executor's thread
             self._inbox: deque[LocatedFrame] = deque()
             self._inbox_gc = self.create_guard_condition(self._drain_inbox)
+        # the first target goes out on target/pose(_cov) and again on target/<id>/pose(_cov):
+        # its bytes are built once for both
+        point_pose = LastPointPose()
         self.first_target = FirstTarget(
             self, cfg, self.diag, self.outputs.create, self.pipeline, self._now_ns,
             self._arm_waits, self.tf_output, (self.calibration.transform, camera_parent),
-            self.in_process)
+            self.in_process, point_pose)
         self.targets = EveryTarget(
             self, cfg, self.diag, self.outputs.create, self.pipeline, self._now_ns,
-            self.first_target.first_data, self._arm_waits, self.tf_output, self.in_process)
+            self.first_target.first_data, self._arm_waits, self.tf_output, self.in_process,
+            point_pose)
         # Steady time: waiting points expire and stopped pose streams are noticed also while
         # simulated time (use_sim_time) stands still. The waits are checked at 50 Hz only
         # while a point or a frame waits (a node that keeps up would wake 50 times a second

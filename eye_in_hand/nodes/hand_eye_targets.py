@@ -32,7 +32,7 @@ from eye_in_hand.ros.markers import (
     spheres_from_marker_array,
 )
 from eye_in_hand.ros.names import topic_name_problem
-from eye_in_hand.ros.outputs_cdr import point_pose_cdr, pose_array_cdr, sphere_markers_cdr
+from eye_in_hand.ros.outputs_cdr import LastPointPose, pose_array_cdr, sphere_markers_cdr
 from eye_in_hand.ros.qos import RESULT_QOS, TARGET_POINT_QOS
 from eye_in_hand.ros.stamps import header_stamp_ns
 
@@ -57,12 +57,14 @@ class EveryTarget:
         tf_output: the node's :class:`~eye_in_hand.nodes.hand_eye_tf.TfOutput`.
         in_process: fed by :meth:`take_point` and :meth:`take_markers` from a detector in this
             process, not by subscriptions and graph discovery.
+        point_pose: the node's serializer of a located point (shared with the first-target
+            part: the first target's bytes are built once).
     """
 
     def __init__(self, node: Any, config: Any, diag: Any, create: Callable[..., Any],
                  pipeline: LocalizationPipeline, now_ns: Callable[[], int],
                  first_data: Callable[[int], None], arm_waits: Callable[[], None],
-                 tf_output: Any, in_process: bool) -> None:
+                 tf_output: Any, in_process: bool, point_pose: LastPointPose) -> None:
         """``targets/markers`` in (the frame's list of targets), ``targets/<id>/point_cov`` in
         per id, ``target/<id>/pose(_cov)``, ``target/poses`` and ``target/markers`` out."""
         self._node = node
@@ -76,6 +78,7 @@ class EveryTarget:
         self._arm_waits = arm_waits
         self._tf_output = tf_output
         self.in_process = in_process
+        self._point_pose = point_pose
         _, MarkerArray = marker_classes()
         # the frame being emitted: its located targets and their /tf edges (reused lists)
         self._located: list[tuple[Sphere, np.ndarray]] = []
@@ -259,7 +262,7 @@ class EveryTarget:
         # volatile: unsubscribed messages reach no one, now or later (not built, not sent)
         want = (pubs[0].get_subscription_count() > 0, pubs[1].get_subscription_count() > 0)
         if any(want):
-            pose_msg, cov_msg = point_pose_cdr(p, cov, f.stamp_ns, self.config.base_frame)
+            pose_msg, cov_msg = self._point_pose(p, cov, f.stamp_ns, self.config.base_frame)
             if want[1]:
                 pubs[1].publish(cov_msg)
             if want[0]:

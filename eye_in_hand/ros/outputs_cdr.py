@@ -25,6 +25,7 @@ import struct
 from collections.abc import Iterable
 from typing import Any
 
+from eye_in_hand.core.transforms import value_key
 from eye_in_hand.ros.outputs import (
     MARKER_ADD,
     MARKER_DELETEALL,
@@ -38,8 +39,8 @@ from eye_in_hand.ros.outputs import (
     stamp_parts,
 )
 
-__all__ = ["point_cdr", "point_stamped_cdr", "point_pose_cdr", "pose_array_cdr",
-           "sphere_markers_cdr", "translation_tf_cdr"]
+__all__ = ["point_cdr", "point_stamped_cdr", "point_pose_cdr", "LastPointPose",
+           "pose_array_cdr", "sphere_markers_cdr", "translation_tf_cdr"]
 
 _ENCAPSULATION = b"\x00\x01\x00\x00"
 _U32 = struct.Struct("<I")
@@ -104,6 +105,33 @@ def point_pose_cdr(xyz: Any, cov: Any, stamp_ns: int, frame_id: str) -> tuple[by
     pose.header(stamp, frame)
     pose.pose(p)
     return bytes(pose.buf), _pose_with_covariance(p, cov, stamp, frame)
+
+
+class LastPointPose:
+    """:func:`point_pose_cdr` that keeps its last answer, for a sender of one located point
+    on two topic pairs: ``hand_eye`` sends its first target on ``target/pose(_cov)`` and
+    again on ``target/<id>/pose(_cov)``, the same bytes. Keyed by value (the stamp, the frame,
+    and the point's and covariance's shapes and float64 bytes), so an equal call gets the
+    bytes the last one built, whatever arrays it passes; any other call builds and keeps its
+    own. One sender's thread (not locked)."""
+
+    __slots__ = ("_key", "_msgs")
+
+    def __init__(self) -> None:
+        self._key: tuple[Any, ...] | None = None
+        self._msgs = (b"", b"")
+
+    def __call__(self, xyz: Any, cov: Any, stamp_ns: int, frame_id: str
+                 ) -> tuple[bytes, bytes]:
+        """:func:`point_pose_cdr` ``(xyz, cov, stamp_ns, frame_id)``: the same bytes."""
+        try:
+            key = (stamp_ns, frame_id, value_key(xyz), value_key(cov))
+        except (TypeError, ValueError):
+            return point_pose_cdr(xyz, cov, stamp_ns, frame_id)   # its own error
+        if key != self._key:
+            self._msgs = point_pose_cdr(xyz, cov, stamp_ns, frame_id)
+            self._key = key
+        return self._msgs
 
 
 def _pose_with_covariance(p: tuple[float, float, float], cov: Any, stamp: tuple[int, int],

@@ -105,3 +105,62 @@ def test_point_covariance_check_refuses_what_is_not_a_covariance():
     asym[0, 2] += 1e-3
     with pytest.raises(InputError, match="not symmetric"):
         loc.locate(5 * 10**7, p, asym)
+
+
+def test_the_point_located_again_is_not_located_twice_and_keeps_the_rules():
+    """The same point and covariance (by value) at the same stamp from the same robot pose
+    give the last call's result object, read-only (hand_eye's first target, located for
+    target/pose and again in its frame); the pose lookup and its age rule run at every call,
+    and a new pose, point, covariance or stamp is located afresh, to the same bits as a
+    localizer that never saw the call before."""
+    rng = np.random.default_rng(3)
+    e_T_c = _random_pose(rng, 0.1)
+    cfg = LocalizerConfig(max_gap_ns=20_000_000, max_age_ns=100_000_000,
+                          robot_sigma_pos_m=1e-4, robot_sigma_rot_rad=2e-4)
+    T0 = from_rotvec([0, 0, 0.0], [0.4, 0.0, 0.3])
+    T1 = from_rotvec([0, 0, 0.1], [0.5, 0.0, 0.3])
+    T2 = from_rotvec([0, 0.1, 0.1], [0.5, 0.1, 0.3])
+    cov = np.diag([1e-6, 2e-6, 4e-6])
+
+    def fresh(poses):
+        other = Localizer(e_T_c, np.eye(6) * 1e-8, cfg)
+        for stamp, T in poses:
+            other.add_robot_pose(stamp, T, received_ns=0)
+        return other
+
+    poses = [(1_000_000_000, T0), (1_010_000_000, T1)]
+    loc = fresh(poses)
+    first = loc.locate(1_005_000_000, np.array([0.01, 0.02, 0.5]), cov, now_ns=1)
+    again = loc.locate(1_005_000_000, [0.01, 0.02, 0.5], cov.tolist(), now_ns=2)
+    assert again is first
+    for arr in (first.point_base, first.covariance, first.base_T_ee):
+        assert not arr.flags.writeable
+    # the age rule at this call's clock, memo or not
+    with pytest.raises(LocalizationError, match="received"):
+        loc.locate(1_005_000_000, [0.01, 0.02, 0.5], cov, now_ns=200_000_000)
+
+    def same_bits(res, ref):
+        assert res.point_base.tobytes() == ref.point_base.tobytes()
+        assert res.covariance.tobytes() == ref.covariance.tobytes()
+        assert res.base_T_ee.tobytes() == ref.base_T_ee.tobytes()
+
+    for stamp, p, c in ((1_005_000_000, [0.01, 0.02, 0.51], cov),      # another point
+                        (1_005_000_000, [0.01, 0.02, 0.5], cov * 2),   # another covariance
+                        (1_005_000_000, [0.01, 0.02, 0.5], None),      # none
+                        (1_006_000_000, [0.01, 0.02, 0.5], cov)):      # another stamp
+        res = loc.locate(stamp, p, c, now_ns=3)
+        assert res is not first
+        same_bits(res, fresh(poses).locate(stamp, p, c, now_ns=3))
+    loc.locate(1_005_000_000, [0.01, 0.02, 0.5], cov, now_ns=3)
+    # a pose that brackets the stamp more closely: another robot pose, located afresh
+    loc.add_robot_pose(1_007_000_000, T2, received_ns=0)
+    res = loc.locate(1_005_000_000, [0.01, 0.02, 0.5], cov, now_ns=4)
+    assert res is not first
+    assert not np.array_equal(res.base_T_ee, first.base_T_ee)
+    same_bits(res, fresh(poses + [(1_007_000_000, T2)]).locate(
+        1_005_000_000, [0.01, 0.02, 0.5], cov, now_ns=4))
+    # a bad point or covariance is still named when it follows a good one
+    with pytest.raises(InputError, match="cov_cam"):
+        loc.locate(1_005_000_000, [0.01, 0.02, 0.5], np.eye(2), now_ns=4)
+    with pytest.raises(InputError, match="point_cam"):
+        loc.locate(1_005_000_000, ["a", 0.02, 0.5], cov, now_ns=4)

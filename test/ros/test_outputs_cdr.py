@@ -11,6 +11,7 @@ from eye_in_hand.io.bags.decoding import default_typestore
 from eye_in_hand.ros import outputs
 from eye_in_hand.ros.outputs import RosbagsTypes, Sphere
 from eye_in_hand.ros.outputs_cdr import (
+    LastPointPose,
     point_cdr,
     point_pose_cdr,
     point_stamped_cdr,
@@ -121,6 +122,36 @@ def test_the_builders_checks_apply():
         sphere_markers_cdr([Sphere("a", (0, 0, 1), 0.0, (1, 1, 1, 1))], 5, "base")
     with pytest.raises(ConversionError, match="translation"):
         translation_tf_cdr([("base", "t", 5, [0, 0, np.inf])])
+
+
+def test_the_last_point_pose_is_built_once_and_any_other_afresh():
+    """``LastPointPose`` (hand_eye sends its first target on two topic pairs): a call equal by
+    value to the last gets its bytes without building them; a call that differs in the stamp,
+    the frame, one bit of the point or of the covariance, or a shape, gets
+    ``point_pose_cdr``'s own bytes; a bad call raises ``point_pose_cdr``'s error and leaves
+    the last answer in place."""
+    rng = np.random.default_rng(7)
+    xyz, cov = rng.normal(size=3), rng.normal(size=(3, 3)) * 1e-6
+    last = LastPointPose()
+    first = last(xyz, cov, 5, "base")
+    assert first == point_pose_cdr(xyz, cov, 5, "base")
+    assert last(list(xyz), cov.tolist(), 5, "base") is first
+    bumped = xyz.copy()
+    bumped[2] = np.nextafter(bumped[2], np.inf)
+    cov_bumped = cov.copy()
+    cov_bumped[1, 0] = np.nextafter(cov_bumped[1, 0], np.inf)
+    for args in ((xyz, cov, 6, "base"), (xyz, cov, 5, "base_link"), (bumped, cov, 5, "base"),
+                 (xyz, cov_bumped, 5, "base"), (xyz, cov.reshape(9), 5, "base"),
+                 (xyz, cov, 5, "base")):
+        got = last(*args)
+        assert got == point_pose_cdr(*args)
+    assert got is not first
+    assert last(xyz, cov, 5, "base") is got
+    with pytest.raises(ConversionError, match="point"):
+        last([0.0, np.nan, 1.0], cov, 5, "base")
+    with pytest.raises(ConversionError, match="point"):
+        last(["a", 0.0, 1.0], cov, 5, "base")
+    assert last(xyz, cov, 5, "base") is got
 
 
 def test_rclpy_reads_them_as_the_builders_messages():
