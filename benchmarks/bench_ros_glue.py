@@ -1,7 +1,8 @@
 """Speed of the image conversions on the hot path (per call, median of repeated runs), and
 the executor's CPU per received message.
 
-Run: ``.venv/bin/python benchmarks/bench_ros_glue.py [--wakeups | --event-poll]``
+Run: ``.venv/bin/python benchmarks/bench_ros_glue.py [--wakeups | --event-poll |
+--publish-after-idle]``
 
 ``--wakeups``: another process publishes 2000 small messages at 500 Hz to a node on rclpy's
 ``SingleThreadedExecutor``; printed is the node process's CPU per received message with 0
@@ -18,6 +19,14 @@ subscriptions with their default QoS-event handlers, 14 events, 5 timers, the pa
 services) on ``LeanExecutor``; printed is the spinning thread's CPU per received message with
 the QoS events in a wait at most every 0.5 s (``EVENT_POLL_S``, the default) and in every wait
 (0), the two alternating every 50 messages in one process, for each of ``--rounds`` rounds.
+
+``--publish-after-idle``: the CPU of ``Publisher.publish`` in the publishing thread, in
+bursts of seven publications on seven topics (what ``hand_eye`` sends for one stereo pair),
+each topic subscribed by another process: 600 bursts at 30 Hz, then 600 back to back, then
+one publication at 30 Hz on a topic nobody subscribes to. On this machine the first
+publication after 33 ms idle costs far more than the rest of its burst (the middleware wakes
+its own and the subscriber's sleeping threads), so a node that publishes at camera rate pays
+it once per frame whatever it publishes (docs/localization.md).
 
 Prints, for a 1280x720 stereo-camera frame: numpy -> Image (one copy into the message),
 Image -> numpy for rclpy and rosbags messages (zero-copy views, padded rows included),
@@ -242,6 +251,90 @@ def event_poll(rounds: int) -> None:
               f"{every:6.1f} us per message ({cpu[default][1]} and {cpu[0.0][1]} messages)")
 
 
+def _publish_sink(topics: int, seconds: float) -> None:
+    """A subscriber of ``topics`` result topics in another process (``--publish-sink``)."""
+    import rclpy
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.node import Node
+
+    from eye_in_hand.ros.qos import RESULT_QOS
+
+    rclpy.init()
+    node = Node("publish_sink")
+    for k in range(topics):
+        node.create_subscription(PoseStamped, f"burst{k}", lambda _raw: None, RESULT_QOS,
+                                 raw=True)
+    end = time.monotonic() + seconds
+    try:
+        while time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=0.1)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass          # terminated by the measuring process: done
+
+
+def publish_after_idle(pairs: int = 600, topics: int = 7) -> None:
+    """CPU of ``Publisher.publish`` (serialized bytes, ``RESULT_QOS``) in this process's
+    thread: bursts of ``topics`` publications at 30 Hz, one per topic as ``hand_eye`` sends
+    its outputs for a stereo pair, each topic subscribed by another process; then the same
+    bursts back to back; then one publication at 30 Hz on a topic nobody subscribes to."""
+    import os
+    import random
+    import subprocess
+    import sys
+
+    import rclpy
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.node import Node
+    from rclpy.serialization import serialize_message
+
+    from eye_in_hand.ros.qos import RESULT_QOS
+
+    os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(120, 200)))
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    sink = subprocess.Popen([sys.executable, __file__, "--publish-sink", "--count",
+                             str(topics), "--period", str(2 * pairs / 30 + 20)])
+    rclpy.init()
+    node = Node("publish_source")
+    pubs = [node.create_publisher(PoseStamped, f"burst{k}", RESULT_QOS) for k in range(topics)]
+    lone = node.create_publisher(PoseStamped, "burst_nobody", RESULT_QOS)
+    raw = serialize_message(PoseStamped())
+    try:
+        deadline = time.monotonic() + 30
+        while any(p.get_subscription_count() == 0 for p in pubs):
+            if time.monotonic() > deadline:
+                raise SystemExit("the subscriber process did not match")
+            time.sleep(0.05)
+        time.sleep(1.0)
+        print(f"Publisher.publish CPU (this thread, {len(raw)}-byte PoseStamped, RESULT_QOS), "
+              f"{pairs} bursts of {topics}, each topic subscribed by another process:")
+        for label, period in (("at 30 Hz (33 ms idle before each burst)", 1 / 30),
+                              ("back to back", 0.0)):
+            per = [0] * topics
+            for _ in range(pairs):
+                if period:
+                    time.sleep(period)
+                for k, pub in enumerate(pubs):
+                    t0 = time.thread_time_ns()
+                    pub.publish(raw)
+                    per[k] += time.thread_time_ns() - t0
+            each = ", ".join(f"{v / pairs / 1e3:.0f}" for v in per)
+            print(f"  {label:<40s} burst {sum(per) / pairs / 1e3:6.0f} us (each: {each})")
+        total = 0
+        for _ in range(pairs // 2):
+            time.sleep(1 / 30)
+            t0 = time.thread_time_ns()
+            lone.publish(raw)
+            total += time.thread_time_ns() - t0
+        lone_us = total / (pairs // 2) / 1e3
+        print(f"  {'one on a topic nobody subscribes to, 30 Hz':<46s} {lone_us:6.0f} us")
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+        sink.terminate()
+        sink.wait(timeout=10)
+
+
 if __name__ == "__main__":
     import argparse
 
@@ -250,12 +343,19 @@ if __name__ == "__main__":
     parser.add_argument("--rounds", type=int, default=3, help="--wakeups rounds (default 3)")
     parser.add_argument("--event-poll", action="store_true",
                         help="QoS events polled against waited on every time (30 Hz)")
+    parser.add_argument("--publish-after-idle", action="store_true",
+                        help="publish's CPU in bursts at 30 Hz against back to back")
     parser.add_argument("--wakeup-source", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--publish-sink", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--count", type=int, default=2000, help=argparse.SUPPRESS)
     parser.add_argument("--period", type=float, default=0.002, help=argparse.SUPPRESS)
     opts = parser.parse_args()
     if opts.wakeup_source:
         _wakeup_publisher(opts.count, opts.period)
+    elif opts.publish_sink:
+        _publish_sink(opts.count, opts.period)
+    elif opts.publish_after_idle:
+        publish_after_idle()
     elif opts.event_poll:
         event_poll(opts.rounds)
     elif opts.wakeups:
