@@ -22,6 +22,14 @@ pair).
 ``--compare OTHER``: the node of another checkout (started from its directory, with it on
 ``PYTHONPATH``) in alternate rounds; the medians of both are printed.
 
+``--floor``: also, in alternate rounds, the floor node (:func:`floor_node`: the same
+subscriptions and seven publications per pair on the same executor, QoS and publishers, and
+nothing else: no decoding, no localization, no timers or diagnostics), and each node's
+median as a multiple of its median. What the floor costs is the price of the traffic on
+this machine (waking after 33 ms idle, the middleware's threads, the first publication of a
+burst: ``bench_ros_glue.py --publish-after-idle``); what ``hand_eye`` costs above it is its
+own work.
+
 ``--rate-scale K``: both streams K times as fast (K = 5: 150 pairs and 625 poses per second),
 the same messages per pair. What a pair costs falls as the rate rises (2026-11-28, 1200 pairs,
 rounds alternating: 2.30 and 1.85 ms at 30 Hz, 1.09 and 1.15 ms at 150 Hz): on this machine
@@ -100,12 +108,90 @@ def _threads_cpu_s(pid: int) -> dict[str, float]:
     return out
 
 
-def one_round(code_root: Path, params: Path, pairs: int, domain: int,
+def floor_node() -> None:
+    """The floor of ``hand_eye``'s CPU per pair (``--floor``): a node with its traffic and
+    no work. On :class:`~eye_in_hand.ros.executor.LeanExecutor`, as ``hand_eye``, it
+    subscribes (serialized bytes, not decoded) to what the detector sends per pair
+    (``target/point``, ``target/point_cov``, ``targets/red/point_cov``, ``targets/markers``)
+    and to ``ee_pose`` (passive: taken with each frame, as ``hand_eye`` takes robot poses),
+    and at each ``targets/markers`` takes the queued poses and publishes seven prebuilt
+    messages (``target/pose(_cov)``, ``target/red/pose(_cov)``, ``target/poses``,
+    ``target/markers``, ``/tf``: what ``hand_eye`` sends per pair, every output subscribed),
+    on the same QoS and publishers without event handlers. No timer, parameter file,
+    diagnostics or decoding."""
+    import rclpy
+    from geometry_msgs.msg import (
+        PointStamped,
+        PoseArray,
+        PoseStamped,
+        PoseWithCovarianceStamped,
+    )
+    from rclpy.node import Node
+    from tf2_msgs.msg import TFMessage
+    from visualization_msgs.msg import MarkerArray
+
+    from eye_in_hand.ros.executor import LeanExecutor, set_passive, take_queued
+    from eye_in_hand.ros.node_main import prepare_process, sigterm_as_interrupt
+    from eye_in_hand.ros.outputs import Sphere
+    from eye_in_hand.ros.outputs_cdr import (
+        point_pose_cdr,
+        pose_array_cdr,
+        sphere_markers_cdr,
+        translation_tf_cdr,
+    )
+    from eye_in_hand.ros.publishers import OutputPublishers
+    from eye_in_hand.ros.qos import RESULT_QOS, ROBOT_POSE_QOS, TARGET_POINT_QOS
+    from eye_in_hand.ros.tf import tf_qos
+
+    prepare_process()
+    sigterm_as_interrupt()
+    rclpy.init()
+    node = Node("hand_eye")
+    create = OutputPublishers(node, lambda *_a: None).create
+    p, cov = (0.4, 0.1, 0.5), [[1e-8, 0, 0], [0, 1e-8, 0], [0, 0, 4e-8]]
+    pose, pose_cov = point_pose_cdr(p, cov, 5, "base_link")
+    out = [(create(PoseStamped, "target/pose", RESULT_QOS), pose),
+           (create(PoseWithCovarianceStamped, "target/pose_cov", RESULT_QOS), pose_cov),
+           (create(PoseWithCovarianceStamped, "target/red/pose_cov", RESULT_QOS), pose_cov),
+           (create(PoseStamped, "target/red/pose", RESULT_QOS), pose),
+           (create(PoseArray, "target/poses", RESULT_QOS), pose_array_cdr([p], 5, "base_link")),
+           (create(MarkerArray, "target/markers", RESULT_QOS), sphere_markers_cdr(
+               [Sphere("red", p, 0.07, (1.0, 0.0, 0.0, 1.0))], 5, "base_link", 0.0)),
+           (create(TFMessage, "/tf", tf_qos()),
+            translation_tf_cdr([("base_link", "target_red", 5, p)]))]
+    poses = node.create_subscription(PoseStamped, "ee_pose", lambda _raw: None,
+                                     ROBOT_POSE_QOS, raw=True)
+    set_passive(poses, True)
+
+    def frame(_raw: bytes) -> None:
+        take_queued(poses)
+        for pub, msg in out:
+            pub.publish(msg)
+
+    for msg_type, topic, qos in ((PointStamped, "target/point", RESULT_QOS),
+                                 (PoseWithCovarianceStamped, "target/point_cov", RESULT_QOS),
+                                 (PoseWithCovarianceStamped, "targets/red/point_cov",
+                                  TARGET_POINT_QOS)):
+        node.create_subscription(msg_type, topic, lambda _raw: None, qos, raw=True)
+    node.create_subscription(MarkerArray, "targets/markers", frame, RESULT_QOS, raw=True)
+    executor = LeanExecutor()
+    try:
+        rclpy.spin(node, executor)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def one_round(code_root: Path | None, params: Path, pairs: int, domain: int,
               rate_scale: float = 1.0, pose_hz: float = 125.0
               ) -> tuple[float, int, dict[str, float]]:
-    """The node of ``code_root`` fed ``pairs`` pairs at ``rate_scale`` times 30 Hz (poses at
-    ``rate_scale`` times ``pose_hz``): (CPU ms per pair, poses received, CPU ms per pair of
-    the node's Python thread and of its middleware threads)."""
+    """The node of ``code_root`` (None: :func:`floor_node`) fed ``pairs`` pairs at
+    ``rate_scale`` times 30 Hz (poses at ``rate_scale`` times ``pose_hz``): (CPU ms per
+    pair, poses received, CPU ms per pair of the node's Python thread and of its middleware
+    threads)."""
     import rclpy
     from geometry_msgs.msg import (
         PointStamped,
@@ -126,11 +212,12 @@ def one_round(code_root: Path, params: Path, pairs: int, domain: int,
     from eye_in_hand.ros.qos import RESULT_QOS, ROBOT_POSE_QOS, TARGET_POINT_QOS
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               PYTHONPATH=str(code_root))
-    node_proc = subprocess.Popen(
-        [sys.executable, "-m", "eye_in_hand.nodes.hand_eye", "--ros-args", "--params-file",
-         str(params)], cwd=code_root, env=env, stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL)
+               PYTHONPATH=str(code_root or ROOT))
+    command = [sys.executable, str(Path(__file__).resolve()), "--floor-node"] \
+        if code_root is None else [sys.executable, "-m", "eye_in_hand.nodes.hand_eye",
+                                   "--ros-args", "--params-file", str(params)]
+    node_proc = subprocess.Popen(command, cwd=code_root or ROOT, env=env,
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     os.environ["ROS_DOMAIN_ID"] = str(domain)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     rclpy.init()
@@ -227,7 +314,14 @@ def main(argv: list[str] | None = None) -> int:
                              "poses)")
     parser.add_argument("--pose-rate", type=float, default=125.0, metavar="HZ",
                         help="the robot's ee_pose rate (default 125 Hz; a 1 kHz arm: 1000)")
+    parser.add_argument("--floor", action="store_true",
+                        help="also the floor node (the same traffic, no work) in alternate "
+                             "rounds, and the node's ratio to it")
+    parser.add_argument("--floor-node", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.floor_node:
+        floor_node()
+        return 0
     if args.pairs < 200:
         parser.error("--pairs: at least 200 (60 at each end are left out)")
     if not 0.1 <= args.rate_scale <= 20:
@@ -239,9 +333,11 @@ def main(argv: list[str] | None = None) -> int:
         he.write_text(HAND_EYE_YAML)
         params = Path(tmp) / "params.yaml"
         params.write_text(PARAMS.format(hand_eye=he))
-        codes = [("this checkout", ROOT)]
+        codes: list[tuple[str, Path | None]] = [("this checkout", ROOT)]
         if args.compare is not None:
             codes.append((f"{args.compare}", args.compare.resolve()))
+        if args.floor:
+            codes.append(("floor", None))
         results: dict[str, list[float]] = {name: [] for name, _ in codes}
         domain = 100 + os.getpid() % 100
         for r in range(args.rounds):
@@ -249,12 +345,16 @@ def main(argv: list[str] | None = None) -> int:
                 ms, got, threads = one_round(code, params, args.pairs, domain,
                                              args.rate_scale, args.pose_rate)
                 results[name].append(ms)
-                print(f"round {r + 1} {name}: hand_eye {ms:.2f} ms CPU per pair (Python "
+                print(f"round {r + 1} {name}: {'hand_eye' if code else 'the floor node'} "
+                      f"{ms:.2f} ms CPU per pair (Python "
                       f"thread {threads['python']:.2f}, middleware threads "
                       f"{threads['middleware']:.2f}), {got}/{args.pairs} poses received",
                       flush=True)
+        floor = statistics.median(results["floor"]) if args.floor else None
         for name, values in results.items():
-            print(f"{name}: median {statistics.median(values):.2f} ms CPU per pair "
+            med = statistics.median(values)
+            ratio = f", {med / floor:.2f}x the floor" if floor and name != "floor" else ""
+            print(f"{name}: median {med:.2f} ms CPU per pair{ratio} "
                   f"(target <= 1.5 ms at 30 Hz), pairs at {30 * args.rate_scale:g} Hz, "
                   f"ee_pose at {args.pose_rate * args.rate_scale:g} Hz, "
                   f"rounds {', '.join(f'{v:.2f}' for v in values)}")
