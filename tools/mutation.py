@@ -829,6 +829,13 @@ MUTANTS: tuple[Mutant, ...] = (
       "            self.pull_poses()\n        cap = self.rules.max_waiting_points\n",
       "        cap = self.rules.max_waiting_points\n",
       "a point is judged before the poses taken only when needed are pulled"),
+    M("hand-eye-idle-timer-not-put-back", "nodes/hand_eye.py",
+      "            self._idle_timer.reset()\n", "            pass\n",
+      "the idle check's timer wakes the node five times a second while frames come"),
+    M("hand-eye-idle-check-not-inline", "nodes/hand_eye.py",
+      "        if time.monotonic() >= self._idle_due:\n", "        if False:\n",
+      "while frames come, a stopped pose stream is noticed only by the timer (put back by "
+      "each frame: never)"),
     M("hand-eye-lazy-no-wake", "nodes/hand_eye.py",
       "            self.robot_poses.wake_for_poses(True)\n", "",
       "a point waiting for a newer robot pose leaves the pose subscription passive"),

@@ -227,16 +227,26 @@ class HandEyeNode(Node):
         # simulated time (use_sim_time) stands still. The waits are checked at 50 Hz only
         # while a point or a frame waits (a node that keeps up would wake 50 times a second
         # for nothing, each wake-up costing as much as a message's); a stopped pose stream and
-        # the queue gauges are checked at 5 Hz.
+        # the queue gauges are checked at least every IDLE_CHECK_PERIOD_S: with the points and
+        # frames while they come (every half period, the timer put back each time: no wake-up
+        # of its own), by the timer when none comes.
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._wait_timer = self.create_timer(WAIT_CHECK_PERIOD_S, self._check_waits,
                                              clock=steady)
         self._wait_timer.cancel()
-        self.create_timer(IDLE_CHECK_PERIOD_S, self._idle_check, clock=steady)
+        self._idle_due = time.monotonic() + 0.5 * IDLE_CHECK_PERIOD_S
+        self._idle_timer = self.create_timer(IDLE_CHECK_PERIOD_S, self._idle_check,
+                                             clock=steady)
 
     def _arm_waits(self) -> None:
         """Run the waits' check while a point or a frame waits (called where they queue), and
-        take the robot poses as they arrive meanwhile."""
+        take the robot poses as they arrive meanwhile. The idle check, when half its period
+        has passed, runs here and puts its timer back by a period: while points or frames
+        come, it wakes the node for nothing (a wake-up after idle costs about as much as a
+        frame's messages; docs/localization.md)."""
+        if time.monotonic() >= self._idle_due:
+            self._idle_check()
+            self._idle_timer.reset()
         if self.pipeline.waiting:
             self.robot_poses.wake_for_poses(True)
             if self._wait_timer.is_canceled():
@@ -249,6 +259,9 @@ class HandEyeNode(Node):
             self.robot_poses.wake_for_poses(False)
 
     def _idle_check(self) -> None:
+        """A stopped pose stream (or a clock that jumped back) clears the pose buffer, the
+        queued poses are taken, the queue gauges set (at least every IDLE_CHECK_PERIOD_S)."""
+        self._idle_due = time.monotonic() + 0.5 * IDLE_CHECK_PERIOD_S
         self.robot_poses.expire()
         self.diag.gauge("pending", len(self.pipeline.points))
         self.diag.gauge("targets_pending", self.pipeline.targets_waiting)

@@ -122,6 +122,45 @@ def test_pose_at_image_stamp_with_covariance(tmp_path, ros_context, executor, na
     assert header_stamp_ns(rig.transforms[0]) == T0 + 55_000_000
 
 
+def test_the_idle_check_runs_with_the_points_while_they_come(tmp_path, ros_context, executor,
+                                                            namespace, spin_until):
+    """While points come (20 Hz here), the idle check (a stopped pose stream, the queue gauges)
+    runs with them every half period and puts its timer back, so the timer does not wake the
+    node; once they stop, the timer runs it again every period."""
+    import time
+
+    from eye_in_hand.nodes.hand_eye import IDLE_CHECK_PERIOD_S
+
+    rig = _Rig(ros_context, executor, namespace, _overrides(_hand_eye_file(tmp_path)))
+    assert spin_until(executor, rig.connected, 10.0)
+    node = rig.node
+    fired: list[float] = []
+    inline: list[float] = []
+    on_timer, check = node._idle_timer.callback, node._idle_check
+    node._idle_timer.callback = lambda: (fired.append(time.monotonic()), on_timer())
+    node._idle_check = lambda: (inline.append(time.monotonic()), check())
+    t0 = time.monotonic()
+    k = 0
+    while time.monotonic() - t0 < 1.5:
+        rig.send_pose(0.05 * k)
+        rig.send_pose(0.05 * k + 0.03)
+        rig.send_point(0.05 * k + 0.01, [0.0, 0.0, 0.5])
+        k += 1
+        spin_until(executor, lambda: False, 0.05)
+    streaming = time.monotonic() - t0
+    # with the points: every half period (and no gap of over a period between two checks)
+    assert len(inline) >= 0.6 * streaming / (0.5 * IDLE_CHECK_PERIOD_S), (len(inline), streaming)
+    assert max(np.diff([t0, *inline])) < IDLE_CHECK_PERIOD_S, np.diff([t0, *inline])
+    # the timer, put back each time, did not fire (one at most, a stall of the test's loop)
+    assert len(fired) <= 1, fired
+    assert spin_until(executor, lambda: len(rig.poses) == k, 5.0), (len(rig.poses), k)
+    fired.clear()
+    n_inline = len(inline)
+    spin_until(executor, lambda: False, 5 * IDLE_CHECK_PERIOD_S + 0.1)
+    assert len(inline) == n_inline and len(fired) >= 3, fired      # no point: the timer's
+    assert node.diag.snapshot().gauges["pending"] == 0
+
+
 def test_a_busy_executor_does_not_refuse_points_whose_poses_wait_in_its_queue(
         tmp_path, ros_context, executor, namespace, spin_until):
     """The robot poses a point waits for arrive while the node's executor is busy elsewhere for
