@@ -90,6 +90,7 @@ from eye_in_hand.nodes.hand_eye_poses import RobotPoseInput, build_localizers
 from eye_in_hand.nodes.hand_eye_targets import EveryTarget
 from eye_in_hand.nodes.hand_eye_tf import TfOutput
 from eye_in_hand.ros.diagnostics import NodeDiagnostics
+from eye_in_hand.ros.executor import run_due_timers
 from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.ros.outputs import LocatedFrame
 from eye_in_hand.ros.outputs_cdr import LastPointPose
@@ -101,6 +102,10 @@ __all__ = ["HandEyeNode", "parameter_names", "main"]
 NODE_NAME = "hand_eye"
 #: period of the waits' check while a point or a frame waits, and of the idle check (s)
 WAIT_CHECK_PERIOD_S, IDLE_CHECK_PERIOD_S = 0.02, 0.2
+#: while points or frames come, how often the node looks for periodic work falling due before
+#: the next look, and runs it with them (s; :meth:`HandEyeNode._arm_waits`)
+HOUSEKEEPING_LOOK_S = 0.1
+HOUSEKEEPING_LOOK_NS = int(HOUSEKEEPING_LOOK_S * 1e9)
 
 
 class HandEyeNode(Node):
@@ -227,26 +232,30 @@ class HandEyeNode(Node):
         # simulated time (use_sim_time) stands still. The waits are checked at 50 Hz only
         # while a point or a frame waits (a node that keeps up would wake 50 times a second
         # for nothing, each wake-up costing as much as a message's); a stopped pose stream and
-        # the queue gauges are checked at least every IDLE_CHECK_PERIOD_S: with the points and
-        # frames while they come (every half period, the timer put back each time: no wake-up
-        # of its own), by the timer when none comes.
+        # the queue gauges are checked every IDLE_CHECK_PERIOD_S.
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._wait_timer = self.create_timer(WAIT_CHECK_PERIOD_S, self._check_waits,
                                              clock=steady)
         self._wait_timer.cancel()
-        self._idle_due = time.monotonic() + 0.5 * IDLE_CHECK_PERIOD_S
         self._idle_timer = self.create_timer(IDLE_CHECK_PERIOD_S, self._idle_check,
                                              clock=steady)
+        # The periodic work (that check, diagnostics, the outputs' QoS check, the targets'
+        # graph search): while points or frames come, what falls due before the next look
+        # runs with them, its timer put back by a period, instead of waking the node four
+        # to seven times a second on its own (docs/localization.md); by the timers when none
+        # comes.
+        self._housekeeping = (self._idle_timer, self.diag.timer, self.outputs.timer,
+                              self.targets.discovery_timer)
+        self._housekeeping_due = time.monotonic() + HOUSEKEEPING_LOOK_S
 
     def _arm_waits(self) -> None:
         """Run the waits' check while a point or a frame waits (called where they queue), and
-        take the robot poses as they arrive meanwhile. The idle check, when half its period
-        has passed, runs here and puts its timer back by a period: while points or frames
-        come, it wakes the node for nothing (a wake-up after idle costs about as much as a
-        frame's messages; docs/localization.md)."""
-        if time.monotonic() >= self._idle_due:
-            self._idle_check()
-            self._idle_timer.reset()
+        take the robot poses as they arrive meanwhile. Every HOUSEKEEPING_LOOK_S, the
+        periodic work due within that time runs here (:func:`run_due_timers`)."""
+        now = time.monotonic()
+        if now >= self._housekeeping_due:
+            self._housekeeping_due = now + HOUSEKEEPING_LOOK_S
+            run_due_timers(self._housekeeping, HOUSEKEEPING_LOOK_NS)
         if self.pipeline.waiting:
             self.robot_poses.wake_for_poses(True)
             if self._wait_timer.is_canceled():
@@ -260,8 +269,7 @@ class HandEyeNode(Node):
 
     def _idle_check(self) -> None:
         """A stopped pose stream (or a clock that jumped back) clears the pose buffer, the
-        queued poses are taken, the queue gauges set (at least every IDLE_CHECK_PERIOD_S)."""
-        self._idle_due = time.monotonic() + 0.5 * IDLE_CHECK_PERIOD_S
+        queued poses are taken, the queue gauges set."""
         self.robot_poses.expire()
         self.diag.gauge("pending", len(self.pipeline.points))
         self.diag.gauge("targets_pending", self.pipeline.targets_waiting)

@@ -100,9 +100,12 @@ class EveryTarget:
                              "target_poses_published", "targets_rejected",
                              "target_frames_published", "orphan_target_points",
                              "target_refused.stale_pose", "target_refused.no_point")
+        #: the graph search's timer (None in one process with the detector)
+        self.discovery_timer: Any = None
         if not in_process:
-            node.create_timer(cfg.discovery_period_s, self._discover_targets,
-                              clock=Clock(clock_type=ClockType.STEADY_TIME))
+            self.discovery_timer = node.create_timer(
+                cfg.discovery_period_s, self._discover_targets,
+                clock=Clock(clock_type=ClockType.STEADY_TIME))
             self._discover_targets()
 
     def _discover_targets(self) -> None:

@@ -184,12 +184,14 @@ class NodeDiagnostics:
         self._start = clock()
         self._last_publish = self._start
         self._pub = node.create_publisher(DiagnosticArray, topic, qos or RESULT_QOS)
-        self._timer = None
+        #: the publication's timer (None without a period): a node awake anyway may run it
+        #: early (eye_in_hand.ros.executor.run_due_timers)
+        self.timer: Any = None
         if period_s > 0:
             # Steady time: diagnostics keep coming while simulated time (use_sim_time) stands
             # still, which is exactly when "no frames" must be reported.
-            self._timer = node.create_timer(period_s, self.publish,
-                                            clock=Clock(clock_type=ClockType.STEADY_TIME))
+            self.timer = node.create_timer(period_s, self.publish,
+                                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.published = 0
 
     # -- updates ---------------------------------------------------------------------------
@@ -371,9 +373,9 @@ class NodeDiagnostics:
 
     def destroy(self) -> None:
         """Remove the timer and the publisher from the node."""
-        if self._timer is not None:
-            self._node.destroy_timer(self._timer)
-            self._timer = None
+        if self.timer is not None:
+            self._node.destroy_timer(self.timer)
+            self.timer = None
         if self._pub is not None:
             self._node.destroy_publisher(self._pub)
             self._pub = None

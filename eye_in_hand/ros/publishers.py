@@ -46,8 +46,10 @@ class OutputPublishers:
         self._report = report
         self._publishers: list[Any] = []
         self._reported: set[tuple[str, str]] = set()
-        self._timer = node.create_timer(period_s, self.check,
-                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
+        #: the check's timer: a node awake anyway may run it early
+        #: (eye_in_hand.ros.executor.run_due_timers)
+        self.timer = node.create_timer(period_s, self.check,
+                                       clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def create(self, msg_type: Any, topic: str, qos: QoSProfile) -> Any:
         """``node.create_publisher(msg_type, topic, qos)`` without QoS-event handlers; its
@@ -88,4 +90,4 @@ class OutputPublishers:
 
     def destroy(self) -> None:
         """Stop the periodic check."""
-        self._node.destroy_timer(self._timer)
+        self._node.destroy_timer(self.timer)

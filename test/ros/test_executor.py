@@ -16,6 +16,7 @@ from std_srvs.srv import Trigger  # noqa: E402
 from eye_in_hand.ros.executor import (  # noqa: E402
     LeanExecutor,
     is_passive,
+    run_due_timers,
     set_passive,
     take_queued,
 )
@@ -178,6 +179,30 @@ def test_timers_fire_and_a_cancelled_timer_does_not(lean, namespace):
     assert ticks["b"] == 0
     b.reset()
     assert spin_until(ex, lambda: ticks["b"] >= 2, 5.0)
+
+
+def test_a_timer_run_early_is_put_back_and_others_wait_for_their_time(lean, namespace):
+    """``run_due_timers``: a timer due within the window runs now and is put back by a period
+    (the executor does not run it again at its old time); one due later, a canceled one and
+    None are left alone."""
+    ex, make = lean
+    node = make("due", namespace)
+    ran = {"soon": [], "later": 0, "canceled": 0}
+    soon = node.create_timer(0.4, lambda: ran["soon"].append(time.monotonic()))
+    later = node.create_timer(30.0, lambda: ran.__setitem__("later", ran["later"] + 1))
+    canceled = node.create_timer(0.4, lambda: ran.__setitem__("canceled", 1))
+    canceled.cancel()
+    spin_until(ex, lambda: False, 0.1)
+    assert ran["soon"] == []
+    t0 = time.monotonic()
+    assert run_due_timers([soon, later, canceled, None], 400_000_000) == 1
+    assert len(ran["soon"]) == 1 and ran["later"] == 0 and ran["canceled"] == 0
+    assert soon.time_until_next_call() > 300_000_000         # a period from now
+    spin_until(ex, lambda: False, 0.3)        # its old time (0.4 s after creation) passes
+    assert len(ran["soon"]) == 1, ran["soon"]
+    assert spin_until(ex, lambda: len(ran["soon"]) == 2, 5.0)
+    assert ran["soon"][1] - t0 >= 0.35
+    assert run_due_timers([soon], 0) == 0     # not due yet: nothing runs
 
 
 def _call(ros_context, namespace: str, name: str) -> Trigger.Response:
