@@ -90,10 +90,9 @@ from eye_in_hand.nodes.hand_eye_poses import RobotPoseInput, build_localizers
 from eye_in_hand.nodes.hand_eye_targets import EveryTarget
 from eye_in_hand.nodes.hand_eye_tf import TfOutput
 from eye_in_hand.ros.diagnostics import NodeDiagnostics
-from eye_in_hand.ros.executor import run_due_timers
+from eye_in_hand.ros.executor import DueTimers
 from eye_in_hand.ros.node_main import run_node
 from eye_in_hand.ros.outputs import LocatedFrame
-from eye_in_hand.ros.outputs_cdr import LastPointPose
 from eye_in_hand.ros.params import load_config
 from eye_in_hand.ros.publishers import OutputPublishers
 
@@ -102,10 +101,8 @@ __all__ = ["HandEyeNode", "parameter_names", "main"]
 NODE_NAME = "hand_eye"
 #: period of the waits' check while a point or a frame waits, and of the idle check (s)
 WAIT_CHECK_PERIOD_S, IDLE_CHECK_PERIOD_S = 0.02, 0.2
-#: while points or frames come, how often the node looks for periodic work falling due before
-#: the next look, and runs it with them (s; :meth:`HandEyeNode._arm_waits`)
+#: while points or frames come, how often the periodic work due soon runs with them (s)
 HOUSEKEEPING_LOOK_S = 0.1
-HOUSEKEEPING_LOOK_NS = int(HOUSEKEEPING_LOOK_S * 1e9)
 
 
 class HandEyeNode(Node):
@@ -217,17 +214,14 @@ class HandEyeNode(Node):
             # frames handed over by a detector thread, taken on the executor's thread
             self._inbox: deque[LocatedFrame] = deque()
             self._inbox_gc = self.create_guard_condition(self._drain_inbox)
-        # the first target goes out on target/pose(_cov) and again on target/<id>/pose(_cov):
-        # its bytes are built once for both
-        point_pose = LastPointPose()
         self.first_target = FirstTarget(
             self, cfg, self.diag, self.outputs.create, self.pipeline, self._now_ns,
             self._arm_waits, self.tf_output, (self.calibration.transform, camera_parent),
-            self.in_process, point_pose)
-        self.targets = EveryTarget(
+            self.in_process)
+        self.targets = EveryTarget(     # the first target's bytes built once for both
             self, cfg, self.diag, self.outputs.create, self.pipeline, self._now_ns,
             self.first_target.first_data, self._arm_waits, self.tf_output, self.in_process,
-            point_pose)
+            self.first_target.point_pose)
         # Steady time: waiting points expire and stopped pose streams are noticed also while
         # simulated time (use_sim_time) stands still. The waits are checked at 50 Hz only
         # while a point or a frame waits (a node that keeps up would wake 50 times a second
@@ -239,23 +233,14 @@ class HandEyeNode(Node):
         self._wait_timer.cancel()
         self._idle_timer = self.create_timer(IDLE_CHECK_PERIOD_S, self._idle_check,
                                              clock=steady)
-        # The periodic work (that check, diagnostics, the outputs' QoS check, the targets'
-        # graph search): while points or frames come, what falls due before the next look
-        # runs with them, its timer put back by a period, instead of waking the node four
-        # to seven times a second on its own (docs/localization.md); by the timers when none
-        # comes.
-        self._housekeeping = (self._idle_timer, self.diag.timer, self.outputs.timer,
-                              self.targets.discovery_timer)
-        self._housekeeping_due = time.monotonic() + HOUSEKEEPING_LOOK_S
+        # periodic work: with the points and frames while they come, else on its timers
+        self._housekeeping = DueTimers((self._idle_timer, self.diag.timer, self.outputs.timer,
+                                        self.targets.discovery_timer), HOUSEKEEPING_LOOK_S)
 
     def _arm_waits(self) -> None:
         """Run the waits' check while a point or a frame waits (called where they queue), and
-        take the robot poses as they arrive meanwhile. Every HOUSEKEEPING_LOOK_S, the
-        periodic work due within that time runs here (:func:`run_due_timers`)."""
-        now = time.monotonic()
-        if now >= self._housekeeping_due:
-            self._housekeeping_due = now + HOUSEKEEPING_LOOK_S
-            run_due_timers(self._housekeeping, HOUSEKEEPING_LOOK_NS)
+        take the robot poses as they arrive meanwhile; the periodic work due soon runs here."""
+        self._housekeeping.poke()
         if self.pipeline.waiting:
             self.robot_poses.wake_for_poses(True)
             if self._wait_timer.is_canceled():
@@ -268,8 +253,7 @@ class HandEyeNode(Node):
             self.robot_poses.wake_for_poses(False)
 
     def _idle_check(self) -> None:
-        """A stopped pose stream (or a clock that jumped back) clears the pose buffer, the
-        queued poses are taken, the queue gauges set."""
+        """A stopped stream or a clock jump clears the pose buffer; the queue gauges."""
         self.robot_poses.expire()
         self.diag.gauge("pending", len(self.pipeline.points))
         self.diag.gauge("targets_pending", self.pipeline.targets_waiting)

@@ -53,17 +53,17 @@ class FirstTarget:
             the camera's parent frame, latched on ``hand_eye/transform``.
         in_process: fed by :meth:`take_located` from a detector in this process, not by the
             ``target/point(_cov)`` subscriptions.
-        point_pose: the node's serializer of a located point (shared with the every-target
-            part, which sends the first target again: built once).
+
+    Its :attr:`point_pose` (the serializer of a located point) is the every-target part's
+    too, which sends the first target again: its bytes are built once.
     """
 
     def __init__(self, node: Any, config: Any, diag: Any, create: Callable[..., Any],
                  pipeline: LocalizationPipeline, now_ns: Callable[[], int],
                  arm_waits: Callable[[], None], tf_output: TfOutput,
-                 camera_T: tuple[np.ndarray, str], in_process: bool,
-                 point_pose: LastPointPose) -> None:
+                 camera_T: tuple[np.ndarray, str], in_process: bool) -> None:
         self.config = config
-        self._point_pose = point_pose
+        self.point_pose = LastPointPose()
         self.diag = diag
         self.pipeline = pipeline
         pipeline.point_sink = self
@@ -171,7 +171,7 @@ class FirstTarget:
                 self.pub_pose_cov.get_subscription_count() > 0)
         if any(want):
             # serialized directly (ros.outputs_cdr: the bytes of ros.outputs' messages)
-            msg, cmsg = self._point_pose(p, cov, stamp_ns, self.config.base_frame)
+            msg, cmsg = self.point_pose(p, cov, stamp_ns, self.config.base_frame)
             if want[0]:
                 self.pub_pose.publish(msg)
             if want[1]:

@@ -52,6 +52,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
 __all__ = ["LeanExecutor", "set_passive", "is_passive", "take_queued", "run_due_timers",
+           "DueTimers",
            "reception_times_known", "RECEPTION_STAMPING_RMWS"]
 
 #: QoS events (by default an incompatible QoS or type: what a warning reports, never the
@@ -118,6 +119,27 @@ def run_due_timers(timers: Iterable[Any], within_ns: int) -> int:
             timer.callback()
             ran += 1
     return ran
+
+
+class DueTimers:
+    """Timers whose work a node awake anyway runs early: :meth:`poke`, called with the
+    messages that wake it, looks at most every ``look_s`` seconds (monotonic) and runs each
+    timer due before the next look (:func:`run_due_timers`)."""
+
+    __slots__ = ("timers", "_look_s", "_due")
+
+    def __init__(self, timers: Iterable[Any], look_s: float) -> None:
+        self.timers = tuple(timers)
+        self._look_s = float(look_s)
+        self._due = time.monotonic() + self._look_s
+
+    def poke(self) -> int:
+        """Look, when a look is due: how many timers ran."""
+        now = time.monotonic()
+        if now < self._due:
+            return 0
+        self._due = now + self._look_s
+        return run_due_timers(self.timers, int(self._look_s * 1e9))
 
 
 class _Entities:

@@ -14,6 +14,7 @@ from std_msgs.msg import Int32  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from eye_in_hand.ros.executor import (  # noqa: E402
+    DueTimers,
     LeanExecutor,
     is_passive,
     run_due_timers,
@@ -203,6 +204,25 @@ def test_a_timer_run_early_is_put_back_and_others_wait_for_their_time(lean, name
     assert spin_until(ex, lambda: len(ran["soon"]) == 2, 5.0)
     assert ran["soon"][1] - t0 >= 0.35
     assert run_due_timers([soon], 0) == 0     # not due yet: nothing runs
+
+
+def test_due_timers_look_once_a_period_and_run_what_falls_due_before_the_next(lean,
+                                                                             namespace):
+    """``DueTimers.poke``: nothing before its first look is due; then a timer due before the
+    next look runs (and is put back), one due later does not, and the next look waits."""
+    ex, make = lean
+    node = make("due_timers", namespace)
+    ran: list[str] = []
+    soon = node.create_timer(0.3, lambda: ran.append("soon"))
+    later = node.create_timer(30.0, lambda: ran.append("later"))
+    due = DueTimers((soon, later, None), 0.2)
+    assert due.poke() == 0 and ran == []            # the first look is 0.2 s away
+    time.sleep(0.15)
+    assert due.poke() == 0 and ran == []
+    time.sleep(0.1)                                  # 0.25 s: soon is due in 0.05 s
+    assert due.poke() == 1 and ran == ["soon"]
+    assert due.poke() == 0                           # the next look is 0.2 s away
+    assert soon.time_until_next_call() > 200_000_000
 
 
 def _call(ros_context, namespace: str, name: str) -> Trigger.Response:
