@@ -23,16 +23,37 @@ from geometry_msgs.msg import (
 
 from eye_in_hand.core.pipeline import LocalizationPipeline, WaitingPoint
 from eye_in_hand.errors import ConversionError, InputError
-from eye_in_hand.io.bags.decoding import jazzy_decoder
+from eye_in_hand.io.cdr import (
+    marker_array_from_cdr,
+    point_stamped_from_cdr,
+    pose_cov_stamped_from_cdr,
+)
+from eye_in_hand.nodes.hand_eye_poses import fields_decoder
 from eye_in_hand.nodes.hand_eye_tf import TfOutput
 from eye_in_hand.ros.decoded import decoded_subscription, undecodable
-from eye_in_hand.ros.geometry import point_to_xyz
+from eye_in_hand.ros.geometry import (
+    point_stamped_fields,
+    pose_cov_stamped_fields,
+    position_covariance,
+    xyz_values,
+)
+from eye_in_hand.ros.markers import marker_array_fields
 from eye_in_hand.ros.outputs import rclpy_types, transform_stamped
 from eye_in_hand.ros.outputs_cdr import LastPointPose
 from eye_in_hand.ros.qos import LATCHED_QOS, RESULT_QOS
-from eye_in_hand.ros.stamps import header_stamp_ns
+from eye_in_hand.ros.stamps import sec_nanosec_to_ns
 
-__all__ = ["FirstTarget"]
+__all__ = ["FirstTarget", "point_decoder", "point_cov_decoder", "markers_decoder"]
+
+# the detector's messages as their fields (read from their bytes; ``fields_decoder``)
+#: ``decoder_for`` of ``target/point``: its fields ``(sec, nanosec, frame_id, (x, y, z))``
+point_decoder = fields_decoder(point_stamped_from_cdr, point_stamped_fields)
+#: ``decoder_for`` of ``target/point_cov`` and ``targets/<id>/point_cov``: their fields
+#: ``(sec, nanosec, frame_id, pose (7), covariance (36))``
+point_cov_decoder = fields_decoder(pose_cov_stamped_from_cdr, pose_cov_stamped_fields)
+#: ``decoder_for`` of ``targets/markers``: each marker's fields (``eye_in_hand.io.cdr.
+#: MarkerFields``; read by the every-target part)
+markers_decoder = fields_decoder(marker_array_from_cdr, marker_array_fields)
 
 
 class FirstTarget:
@@ -73,10 +94,10 @@ class FirstTarget:
         self._camera_T, self._camera_parent = camera_T
         if not in_process:
             decoded_subscription(node, PointStamped, "target/point", self._on_point,
-                                 RESULT_QOS, decoder_for=jazzy_decoder,
+                                 RESULT_QOS, decoder_for=point_decoder,
                                  on_bad=self._undecodable_point)
             decoded_subscription(node, PoseWithCovarianceStamped, "target/point_cov",
-                                 self._on_point_cov, RESULT_QOS, decoder_for=jazzy_decoder,
+                                 self._on_point_cov, RESULT_QOS, decoder_for=point_cov_decoder,
                                  on_bad=lambda t, e: diag.report("bad_point_cov",
                                                                  undecodable(t, e)))
         self.pub_pose = create(PoseStamped, "target/pose", RESULT_QOS)
@@ -118,14 +139,16 @@ class FirstTarget:
         if self._camera_frame_ok("target/point", frame):
             self._take_point(stamp, p, cov)
 
-    def _on_point(self, msg: PointStamped) -> None:
+    def _on_point(self, fields: tuple[Any, ...]) -> None:
+        """A ``target/point`` (its fields, :data:`point_decoder`)."""
         self.diag.count("points")
+        sec, nanosec, frame, xyz = fields
         try:
-            stamp = header_stamp_ns(msg)
+            stamp = sec_nanosec_to_ns(sec, nanosec, "header.stamp")
             self.first_data(stamp)
-            if not self._camera_frame_ok("target/point", msg.header.frame_id):
+            if not self._camera_frame_ok("target/point", frame):
                 return
-            p = point_to_xyz(msg.point)
+            p = xyz_values(xyz, "point")
         except (ConversionError, InputError) as exc:
             self._refuse("bad_point", f"target/point: {exc}")
             return
@@ -142,14 +165,16 @@ class FirstTarget:
         self.pipeline.add_point(stamp, p, cov, received_ns=self._now_ns())
         self._arm_waits()
 
-    def _on_point_cov(self, msg: PoseWithCovarianceStamped) -> None:
-        """Triangulation covariance for the point with the same stamp (position block)."""
+    def _on_point_cov(self, fields: tuple[Any, ...]) -> None:
+        """Triangulation covariance for the point with the same stamp (position block; the
+        fields of :data:`point_cov_decoder`)."""
+        sec, nanosec, _frame, _pose, values = fields
         try:
-            stamp = header_stamp_ns(msg)
-            cov = np.asarray(msg.pose.covariance, dtype=np.float64).reshape(6, 6)[:3, :3]
+            stamp = sec_nanosec_to_ns(sec, nanosec, "header.stamp")
+            cov = position_covariance(values, "pose.covariance")
             if not np.all(np.isfinite(cov)):
                 raise InputError("covariance contains NaN")
-        except (ConversionError, InputError, ValueError) as exc:
+        except (ConversionError, InputError) as exc:
             self.diag.report("bad_point_cov", f"target/point_cov: {exc}")
             return
         self.pipeline.add_point_cov(stamp, cov)

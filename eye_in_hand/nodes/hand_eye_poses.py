@@ -37,7 +37,7 @@ from eye_in_hand.ros.geometry import pose_stamped_fields, pose_values_to_matrix
 from eye_in_hand.ros.qos import ROBOT_POSE_QOS
 from eye_in_hand.ros.stamps import header_stamp_ns, sec_nanosec_to_ns
 
-__all__ = ["build_localizers", "RobotPoseInput", "ee_pose_decoder", "PoseFields"]
+__all__ = ["build_localizers", "RobotPoseInput", "ee_pose_decoder", "fields_decoder", "PoseFields"]
 
 
 def build_localizers(config: Any, calibration: Any
@@ -83,19 +83,30 @@ def build_localizers(config: Any, calibration: Any
 PoseFields = tuple[int, int, str, tuple[float, ...]]
 
 
-def ee_pose_decoder(msgtype: str) -> Callable[[bytes], PoseFields]:
-    """``decode(raw)`` of ``ee_pose`` (``geometry_msgs/msg/PoseStamped``) bytes into its
-    fields: read directly from little-endian CDR (:func:`eye_in_hand.io.cdr.
-    pose_stamped_from_cdr`, 1 us), other encodings through the generic decoder (3-5 us);
-    the values are checked where the pose is taken (``pose_values_to_matrix``), with the
-    errors of ``pose_to_matrix``. Malformed bytes raise (the subscription reports them)."""
-    generic = jazzy_decoder(msgtype)
+def fields_decoder(direct: Callable[[bytes], Any], from_message: Callable[[Any], Any]
+                   ) -> Callable[[str], Callable[[bytes], Any]]:
+    """``decoder_for(msgtype)`` of a :func:`eye_in_hand.ros.decoded.decoded_subscription`
+    whose callback takes a message's fields: little-endian CDR bytes read directly by
+    ``direct`` (``eye_in_hand.io.cdr``'s readers, 1-5 us), other encodings through the
+    generic decoder and ``from_message`` (the same fields from the message object). The
+    values are checked where they are taken; malformed bytes raise (the subscription reports
+    them)."""
+    def decoder_for(msgtype: str) -> Callable[[bytes], Any]:
+        generic = jazzy_decoder(msgtype)
 
-    def decode(raw: bytes) -> PoseFields:
-        fields = pose_stamped_from_cdr(raw)
-        return fields if fields is not None else pose_stamped_fields(generic(raw))
+        def decode(raw: bytes) -> Any:
+            fields = direct(raw)
+            return fields if fields is not None else from_message(generic(raw))
 
-    return decode
+        return decode
+
+    return decoder_for
+
+
+#: ``decode(raw)`` of ``ee_pose`` (``geometry_msgs/msg/PoseStamped``) bytes into its fields
+#: (:data:`PoseFields`), checked where the pose is taken (``pose_values_to_matrix``, with the
+#: errors of ``pose_to_matrix``)
+ee_pose_decoder = fields_decoder(pose_stamped_from_cdr, pose_stamped_fields)
 
 
 class RobotPoseInput:

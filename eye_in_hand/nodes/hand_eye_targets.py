@@ -21,20 +21,20 @@ from rclpy.clock import Clock, ClockType
 from rclpy.qos import DurabilityPolicy
 
 from eye_in_hand.core.pipeline import LocalizationPipeline, WaitingFrame
-from eye_in_hand.errors import ConversionError, InputError
-from eye_in_hand.io.bags.decoding import jazzy_decoder
+from eye_in_hand.errors import ConversionError
+from eye_in_hand.nodes.hand_eye_first_target import markers_decoder, point_cov_decoder
 from eye_in_hand.ros.decoded import decoded_subscription, undecodable
-from eye_in_hand.ros.geometry import point_to_xyz
+from eye_in_hand.ros.geometry import position_covariance, xyz_values
 from eye_in_hand.ros.markers import (
     Sphere,
     marker_classes,
     pose_array_class,
-    spheres_from_marker_array,
+    spheres_from_marker_fields,
 )
 from eye_in_hand.ros.names import topic_name_problem
 from eye_in_hand.ros.outputs_cdr import LastPointPose, pose_array_cdr, sphere_markers_cdr
 from eye_in_hand.ros.qos import RESULT_QOS, TARGET_POINT_QOS
-from eye_in_hand.ros.stamps import header_stamp_ns
+from eye_in_hand.ros.stamps import sec_nanosec_to_ns
 
 __all__ = ["EveryTarget"]
 
@@ -91,7 +91,7 @@ class EveryTarget:
         self._poses_prefix = node.resolve_topic_name("target/poses").rsplit("/", 1)[0]
         if not in_process:
             decoded_subscription(node, MarkerArray, "targets/markers", self._on_markers,
-                                 RESULT_QOS, decoder_for=jazzy_decoder,
+                                 RESULT_QOS, decoder_for=markers_decoder,
                                  on_bad=lambda name, exc: self._bad_markers(
                                      undecodable(name, exc)))
         self.pub_poses = create(pose_array_class(), "target/poses", RESULT_QOS)
@@ -142,7 +142,7 @@ class EveryTarget:
         self.subs[tid] = None if self.in_process else decoded_subscription(
             self._node, PoseWithCovarianceStamped, topic,
             functools.partial(self._on_target_point, tid), self._target_point_qos(topic),
-            decoder_for=jazzy_decoder,
+            decoder_for=point_cov_decoder,
             on_bad=lambda name, exc: self._bad_target_point(undecodable(name, exc)))
         base = f"{self._poses_prefix}/{tid}"
         self._target_pubs[tid] = (
@@ -160,16 +160,18 @@ class EveryTarget:
             return RESULT_QOS
         return TARGET_POINT_QOS
 
-    def _on_target_point(self, tid: str, msg: PoseWithCovarianceStamped) -> None:
-        """A target's point and covariance (``targets/<id>/point_cov``), kept for its frame."""
+    def _on_target_point(self, tid: str, fields: tuple[Any, ...]) -> None:
+        """A target's point and covariance (``targets/<id>/point_cov``; the fields of
+        ``point_cov_decoder``), kept for its frame."""
+        sec, nanosec, frame, pose, values = fields
         try:
-            stamp = header_stamp_ns(msg)
-            p = point_to_xyz(msg.pose.pose.position)
-            cov = np.asarray(msg.pose.covariance, dtype=np.float64).reshape(6, 6)[:3, :3]
-        except (ConversionError, InputError, ValueError) as exc:
+            stamp = sec_nanosec_to_ns(sec, nanosec, "header.stamp")
+            p = xyz_values(pose[:3], "pose.pose.position")
+            cov = position_covariance(values, "pose.covariance")
+        except ConversionError as exc:
             self._bad_target_point(f"targets/{tid}/point_cov: {exc}")
             return
-        self.take_point(tid, stamp, msg.header.frame_id, p, cov)
+        self.take_point(tid, stamp, frame, p, cov)
         self.pipeline.drain()
 
     def _bad_target_point(self, message: str) -> None:
@@ -195,10 +197,11 @@ class EveryTarget:
         self.pipeline.target_point_arrived()
         self.diag.report("bad_target_point", f"targets/{tid}/point_cov: {problem}")
 
-    def _on_markers(self, msg: Any) -> None:
-        """A frame's list of targets (``targets/markers``)."""
+    def _on_markers(self, markers: list[tuple[Any, ...]]) -> None:
+        """A frame's list of targets (``targets/markers``; its markers' fields,
+        :data:`markers_decoder`)."""
         try:
-            stamp, frame, spheres = spheres_from_marker_array(msg)
+            stamp, frame, spheres = spheres_from_marker_fields(markers)
         except ConversionError as exc:
             self._bad_markers(f"targets/markers: {exc}")
             return

@@ -25,6 +25,10 @@ __all__ = [
     "pose_to_matrix",
     "pose_values_to_matrix",
     "pose_stamped_fields",
+    "point_stamped_fields",
+    "pose_cov_stamped_fields",
+    "xyz_values",
+    "position_covariance",
     "matrix_to_pose",
     "matrix_to_pose_stamped",
     "transform_to_matrix",
@@ -111,6 +115,76 @@ def pose_stamped_fields(msg: Any) -> tuple[int, int, str, tuple[float, ...]]:
                 (p, "x", "pose.position"), (p, "y", "pose.position"), (p, "z", "pose.position"),
                 (o, "x", "pose.orientation"), (o, "y", "pose.orientation"),
                 (o, "z", "pose.orientation"), (o, "w", "pose.orientation"))))
+
+
+def point_stamped_fields(msg: Any) -> tuple[int, int, str, tuple[float, ...]]:
+    """``(sec, nanosec, frame_id, (x, y, z))`` of a ``PointStamped`` message object (rclpy or
+    rosbags), as ``eye_in_hand.io.cdr.point_stamped_from_cdr`` reads them from its bytes;
+    nothing checked beyond the fields being there.
+
+    Raises:
+        ConversionError: a missing field (named).
+    """
+    header = get_field(msg, "header", "")
+    stamp = get_field(header, "stamp", "header")
+    p = get_field(msg, "point", "")
+    return (get_field(stamp, "sec", "header.stamp"), get_field(stamp, "nanosec", "header.stamp"),
+            get_field(header, "frame_id", "header"),
+            tuple(get_field(p, a, "point") for a in ("x", "y", "z")))
+
+
+def pose_cov_stamped_fields(msg: Any
+                            ) -> tuple[int, int, str, tuple[float, ...], tuple[float, ...]]:
+    """``(sec, nanosec, frame_id, (x, y, z, qx, qy, qz, qw), covariance (36))`` of a
+    ``PoseWithCovarianceStamped`` message object, as ``eye_in_hand.io.cdr.
+    pose_cov_stamped_from_cdr`` reads them from its bytes; nothing checked beyond the fields
+    being there.
+
+    Raises:
+        ConversionError: a missing field (named).
+    """
+    header = get_field(msg, "header", "")
+    stamp = get_field(header, "stamp", "header")
+    with_cov = get_field(msg, "pose", "")
+    pose = get_field(with_cov, "pose", "pose")
+    p = get_field(pose, "position", "pose.pose")
+    o = get_field(pose, "orientation", "pose.pose")
+    return (get_field(stamp, "sec", "header.stamp"), get_field(stamp, "nanosec", "header.stamp"),
+            get_field(header, "frame_id", "header"),
+            tuple(get_field(p, a, "pose.pose.position") for a in ("x", "y", "z"))
+            + tuple(get_field(o, a, "pose.pose.orientation") for a in ("x", "y", "z", "w")),
+            tuple(get_field(with_cov, "covariance", "pose")))
+
+
+def xyz_values(values: tuple[float, ...], path: str) -> np.ndarray:
+    """(3,) float64 of three numbers read from a message (``point_stamped_fields``'s), which
+    must be finite: the array and the errors of :func:`point_to_xyz` (``<path>.x`` named)."""
+    if len(values) != 3:
+        raise ConversionError(f"{path}: expected x, y, z, got {len(values)} numbers")
+    out = []
+    for v, a in zip(values, "xyz", strict=True):
+        try:
+            f = float(v)
+        except (TypeError, ValueError) as exc:
+            raise ConversionError(f"{path}.{a}: expected a number, got {v!r}") from exc
+        out.append(finite(f, f"{path}.{a}"))
+    return np.array(out)
+
+
+def position_covariance(values: Any, path: str) -> np.ndarray:
+    """The 3x3 position block (float64, C-ordered) of a ``PoseWithCovariance``'s 6x6
+    row-major covariance given as its 36 numbers (``pose_cov_stamped_fields``'s): the values
+    of ``reshape(6, 6)[:3, :3]``, not checked for finiteness (the caller's rule).
+
+    Raises:
+        ConversionError: not 36 numbers (``path`` named).
+    """
+    if len(values) != 36:
+        raise ConversionError(f"{path}: expected 36 numbers, got {len(values)}")
+    try:
+        return np.array((values[0:3], values[6:9], values[12:15]), dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ConversionError(f"{path}: expected numbers ({exc})") from exc
 
 
 def _rotation_rows(x: float, y: float, z: float, w: float, o_path: str) -> list[list[float]]:

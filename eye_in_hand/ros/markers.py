@@ -6,7 +6,8 @@ starts with a ``DELETEALL`` marker (RViz forgets the spheres of earlier frames, 
 that left the view does not stay on screen) followed by one ``SPHERE`` marker per located
 target with ``ns`` = the target id, ``id`` = 0, ``scale`` = the sphere's diameter and a
 ``lifetime`` (a display that missed the next frame still drops the sphere). ``hand_eye`` reads
-``targets/markers`` as the list of the targets of each frame (:func:`spheres_from_marker_array`).
+``targets/markers`` as the list of the targets of each frame (:func:`spheres_from_marker_fields`
+of its markers' fields, read from the message's bytes or from a message object).
 
 ``hand_eye`` also publishes ``target/poses``: a ``geometry_msgs/PoseArray`` of the same frame,
 poses in the order of the spheres of ``target/markers``.
@@ -25,12 +26,15 @@ from typing import Any
 import numpy as np
 
 from eye_in_hand.errors import ConfigError, ConversionError
+from eye_in_hand.ros.fields import get_field
 from eye_in_hand.ros.msgtypes import import_message_type
 from eye_in_hand.ros.outputs import DEFAULT_RGBA, Sphere, pose_array, rclpy_types, sphere_markers
-from eye_in_hand.ros.stamps import header_stamp_ns
+from eye_in_hand.ros.stamps import sec_nanosec_to_ns
 
 __all__ = ["Sphere", "marker_classes", "pose_array_class", "sphere_marker_array",
-           "spheres_from_marker_array", "points_to_pose_array", "color_range_rgba",
+           "spheres_from_marker_array", "spheres_from_marker_fields", "marker_fields",
+           "marker_array_fields",
+           "points_to_pose_array", "color_range_rgba",
            "sphere_style", "DEFAULT_RGBA"]
 
 @functools.cache
@@ -107,8 +111,42 @@ def sphere_style(radius_m: float | None, color: Any, default_diameter_m: float
     return float(diameter), rgba
 
 
+def marker_fields(m: Any) -> tuple[Any, ...]:
+    """``(sec, nanosec, frame_id, ns, type, action, (x, y, z), scale_x, (r, g, b, a))`` of a
+    ``Marker`` message object (rclpy or rosbags), as ``eye_in_hand.io.cdr.
+    marker_array_from_cdr`` reads them from its bytes: what :func:`spheres_from_marker_fields`
+    checks.
+
+    Raises:
+        ConversionError: a missing field (named).
+    """
+    header = get_field(m, "header", "marker")
+    stamp = get_field(header, "stamp", "marker.header")
+    p = get_field(get_field(m, "pose", "marker"), "position", "marker.pose")
+    c = get_field(m, "color", "marker")
+    return (get_field(stamp, "sec", "marker.header.stamp"),
+            get_field(stamp, "nanosec", "marker.header.stamp"),
+            get_field(header, "frame_id", "marker.header"), get_field(m, "ns", "marker"),
+            get_field(m, "type", "marker"), get_field(m, "action", "marker"),
+            (p.x, p.y, p.z), get_field(get_field(m, "scale", "marker"), "x", "marker.scale"),
+            (c.r, c.g, c.b, c.a))
+
+
+def marker_array_fields(msg: Any) -> list[tuple[Any, ...]]:
+    """:func:`marker_fields` of each marker of a MarkerArray message object."""
+    return [marker_fields(m) for m in get_field(msg, "markers", "")]
+
+
 def spheres_from_marker_array(msg: Any) -> tuple[int, str, list[Sphere]]:
-    """The frame's targets from a MarkerArray written by :func:`sphere_marker_array`.
+    """The frame's targets from a MarkerArray message object written by
+    :func:`sphere_marker_array`: :func:`spheres_from_marker_fields` of its markers."""
+    return spheres_from_marker_fields(marker_array_fields(msg))
+
+
+def spheres_from_marker_fields(markers: Sequence[tuple[Any, ...]]
+                               ) -> tuple[int, str, list[Sphere]]:
+    """The frame's targets from the markers of a MarkerArray (:func:`marker_fields` of each,
+    or ``eye_in_hand.io.cdr.marker_array_from_cdr`` of its bytes).
 
     ``SPHERE`` markers with action ``ADD`` are targets; ``DELETEALL`` / ``DELETE`` markers are
     skipped; any other marker is an error.
@@ -122,33 +160,33 @@ def spheres_from_marker_array(msg: Any) -> tuple[int, str, list[Sphere]]:
             frames, an empty or repeated ``ns``, a non-finite centre or a scale that is not
             positive (the message names the marker).
     """
-    markers = list(getattr(msg, "markers", []))
     if not markers:
         raise ConversionError("markers: empty MarkerArray (expected at least a DELETEALL)")
-    stamp = header_stamp_ns(markers[0])
-    frame = markers[0].header.frame_id
+    sec, nanosec, frame = markers[0][:3]
+    stamp = sec_nanosec_to_ns(sec, nanosec, "markers[0].header.stamp")
     spheres: list[Sphere] = []
     seen: set[str] = set()
-    for k, m in enumerate(markers):
-        where = f"markers[{k}] (ns '{m.ns}')"
-        if header_stamp_ns(m) != stamp or m.header.frame_id != frame:
+    for k, (sec, nanosec, m_frame, ns, mtype, action, position, d, rgba) in enumerate(markers):
+        where = f"markers[{k}] (ns '{ns}')"
+        if sec_nanosec_to_ns(sec, nanosec, f"markers[{k}].header.stamp") != stamp \
+                or m_frame != frame:
             raise ConversionError(f"{where}: stamp or frame differs from markers[0]'s")
-        if m.action in (2, 3):          # DELETE, DELETEALL
+        if action in (2, 3):          # DELETE, DELETEALL
             continue
-        if m.action != 0 or m.type != 2:   # ADD, SPHERE
-            raise ConversionError(f"{where}: expected SPHERE/ADD, got type {m.type} action "
-                                  f"{m.action}")
-        if not m.ns or m.ns in seen:
+        if action != 0 or mtype != 2:   # ADD, SPHERE
+            raise ConversionError(f"{where}: expected SPHERE/ADD, got type {mtype} action "
+                                  f"{action}")
+        if not ns or ns in seen:
             raise ConversionError(f"{where}: the target id (ns) is empty or repeated")
-        seen.add(m.ns)
-        xyz = np.array([m.pose.position.x, m.pose.position.y, m.pose.position.z])
+        seen.add(ns)
+        xyz = np.array(position, dtype=np.float64)
         if not np.all(np.isfinite(xyz)):
             raise ConversionError(f"{where}: position is not finite")
-        d = float(m.scale.x)
+        d = float(d)
         if not (math.isfinite(d) and d > 0):
             raise ConversionError(f"{where}: scale.x must be > 0, got {d}")
-        spheres.append(Sphere(m.ns, xyz, d, (float(m.color.r), float(m.color.g),
-                                             float(m.color.b), float(m.color.a))))
+        spheres.append(Sphere(ns, xyz, d, (float(rgba[0]), float(rgba[1]), float(rgba[2]),
+                                           float(rgba[3]))))
     return stamp, frame, spheres
 
 

@@ -1,5 +1,6 @@
-"""eye_in_hand.io.cdr: sensor_msgs/Image decoded from CDR as a view, geometry_msgs/PoseStamped's
-fields read directly; both checked against rosbags."""
+"""eye_in_hand.io.cdr: sensor_msgs/Image decoded from CDR as a view; the fields of
+geometry_msgs/PoseStamped, PointStamped, PoseWithCovarianceStamped and of the markers of a
+visualization_msgs/MarkerArray read directly; all checked against rosbags."""
 from __future__ import annotations
 
 import struct
@@ -9,8 +10,17 @@ import pytest
 
 from eye_in_hand.errors import ConversionError
 from eye_in_hand.io.bags import default_typestore, deserialize, serialize
-from eye_in_hand.io.cdr import image_from_cdr, is_image_type, pose_stamped_from_cdr
+from eye_in_hand.io.cdr import (
+    image_from_cdr,
+    is_image_type,
+    marker_array_from_cdr,
+    point_stamped_from_cdr,
+    pose_cov_stamped_from_cdr,
+    pose_stamped_from_cdr,
+)
+from eye_in_hand.ros.geometry import point_stamped_fields, pose_cov_stamped_fields
 from eye_in_hand.ros.images import image_to_numpy
+from eye_in_hand.ros.markers import marker_array_fields
 from eye_in_hand.ros.stamps import header_stamp_ns
 
 IMAGE = "sensor_msgs/msg/Image"
@@ -165,3 +175,180 @@ def test_pose_stamped_bad_frame_string_is_a_conversion_error() -> None:
     raw[4 + 8 + 4 + 2] = ord("x")                   # the frame_id's NUL terminator
     with pytest.raises(ConversionError, match="header.frame_id: string is not NUL-terminated"):
         pose_stamped_from_cdr(bytes(raw))
+
+
+# -- what hand_eye reads from a detector: PointStamped, PoseWithCovarianceStamped, MarkerArray --
+POINT = "geometry_msgs/msg/PointStamped"
+POSE_COV = "geometry_msgs/msg/PoseWithCovarianceStamped"
+MARKERS = "visualization_msgs/msg/MarkerArray"
+FRAMES = ["", "a", "ab", "abc", "abcd", "abcde", "abcdef", "abcdefg",
+          "camera_left_optical_frame", "/wörld"]
+
+
+def _t() -> dict:
+    return default_typestore().types
+
+
+def _header(frame_id: str, sec: int = 1_700_000_000, nsec: int = 123_456_789) -> object:
+    T = _t()
+    return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec),
+                                    frame_id=frame_id)
+
+
+def _ser(msg: object, msgtype: str, little_endian: bool = True) -> bytes:
+    return bytes(default_typestore().serialize_cdr(msg, msgtype, little_endian=little_endian))
+
+
+def _point_cdr(frame_id: str, xyz: tuple[float, ...], **kw: bool) -> bytes:
+    T = _t()
+    return _ser(T[POINT](header=_header(frame_id), point=T["geometry_msgs/msg/Point"](
+        x=xyz[0], y=xyz[1], z=xyz[2])), POINT, **kw)
+
+
+def _pose_cov_cdr(frame_id: str, values: tuple[float, ...], cov: np.ndarray, **kw: bool
+                  ) -> bytes:
+    T = _t()
+    x, y, z, qx, qy, qz, qw = values
+    pose = T["geometry_msgs/msg/Pose"](
+        position=T["geometry_msgs/msg/Point"](x=x, y=y, z=z),
+        orientation=T["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw))
+    return _ser(T[POSE_COV](header=_header(frame_id), pose=T[
+        "geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=cov)), POSE_COV, **kw)
+
+
+def _fbits(values: tuple[float, ...] | list[float]) -> bytes:
+    return struct.pack(f"<{len(values)}d", *values)
+
+
+@pytest.mark.parametrize("frame_id", FRAMES)
+@pytest.mark.parametrize("values", POSE_VALUES)
+def test_point_stamped_matches_the_generic_deserializer(frame_id: str,
+                                                       values: tuple[float, ...]) -> None:
+    raw = _point_cdr(frame_id, values[:3])
+    got = point_stamped_from_cdr(raw)
+    ref = point_stamped_fields(deserialize(raw, POINT))
+    assert got is not None
+    assert got[:3] == ref[:3] == (1_700_000_000, 123_456_789, frame_id)
+    assert _fbits(got[3]) == _fbits(ref[3]) == _fbits(values[:3])
+
+
+@pytest.mark.parametrize("frame_id", FRAMES)
+@pytest.mark.parametrize("values", POSE_VALUES)
+def test_pose_cov_stamped_matches_the_generic_deserializer(frame_id: str,
+                                                          values: tuple[float, ...]) -> None:
+    cov = np.random.default_rng(len(frame_id)).normal(size=36)
+    cov[7] = np.nan
+    raw = _pose_cov_cdr(frame_id, values, cov)
+    got = pose_cov_stamped_from_cdr(raw)
+    ref = pose_cov_stamped_fields(deserialize(raw, POSE_COV))
+    assert got is not None
+    assert got[:3] == ref[:3] == (1_700_000_000, 123_456_789, frame_id)
+    assert _fbits(got[3]) == _fbits(ref[3]) == _fbits(values)
+    assert _fbits(got[4]) == _fbits(ref[4]) == _fbits(list(cov))
+
+
+def _marker(k: int, frame_id: str = "camera_left_optical_frame", **fields: object) -> object:
+    """A marker with every variable-length field filled to a length that depends on ``k`` (each
+    alignment case of the fields after it comes up over k = 0..7)."""
+    T = _t()
+    rng = np.random.default_rng(k)
+    point = T["geometry_msgs/msg/Point"]
+    rgba = T["std_msgs/msg/ColorRGBA"]
+    base = dict(
+        header=_header(frame_id, 1_700_000_000 + k, 1000 * k), ns=f"t{'x' * k}", id=k,
+        type=2, action=0,
+        pose=T["geometry_msgs/msg/Pose"](
+            position=point(x=0.1 * k, y=-0.2, z=0.5 + k),
+            orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)),
+        scale=T["geometry_msgs/msg/Vector3"](x=0.07 + k, y=0.08, z=0.09),
+        color=rgba(r=0.25 * (k % 4), g=0.5, b=1.0 / (k + 3), a=1.0),
+        lifetime=T["builtin_interfaces/msg/Duration"](sec=k, nanosec=5),
+        frame_locked=bool(k % 2),
+        points=[point(x=float(i), y=2.0, z=3.0) for i in range(k % 3)],
+        colors=[rgba(r=0.1, g=0.2, b=0.3, a=0.4) for _ in range(k % 2 * 2)],
+        texture_resource="r" * (k % 5),
+        texture=T["sensor_msgs/msg/CompressedImage"](
+            header=_header("t" * (k % 3)), format="png"[: k % 4],
+            data=rng.integers(0, 256, size=k % 7, dtype=np.uint8)),
+        uv_coordinates=[T["visualization_msgs/msg/UVCoordinate"](u=0.5, v=0.25)
+                        for _ in range(k % 4)],
+        text="hello"[: k % 6], mesh_resource="m" * (k % 3),
+        mesh_file=T["visualization_msgs/msg/MeshFile"](
+            filename="f" * (k % 4), data=rng.integers(0, 256, size=(3 * k) % 5,
+                                                      dtype=np.uint8)),
+        mesh_use_embedded_materials=bool(k % 3 == 1))
+    base.update(fields)
+    return T["visualization_msgs/msg/Marker"](**base)
+
+
+def _markers_cdr(markers: list, **kw: bool) -> bytes:
+    return _ser(_t()[MARKERS](markers=markers), MARKERS, **kw)
+
+
+def _same_marker_fields(got: list, ref: list) -> None:
+    assert len(got) == len(ref)
+    for g, r in zip(got, ref, strict=True):
+        assert g[:6] == r[:6]
+        assert _fbits(g[6]) == _fbits(r[6]) and _fbits([g[7]]) == _fbits([r[7]])
+        assert struct.pack("<4f", *g[8]) == struct.pack("<4f", *r[8])
+
+
+@pytest.mark.parametrize("k", range(8))
+def test_marker_array_matches_the_generic_deserializer(k: int) -> None:
+    # one to three markers, each with its variable-length fields of other lengths, and a
+    # DELETEALL in front as detectors send it
+    markers = [_marker(0, type=0, action=3, ns="")] + [_marker(k + i) for i in range(1 + k % 3)]
+    raw = _markers_cdr(markers)
+    got = marker_array_from_cdr(raw)
+    ref = marker_array_fields(deserialize(raw, MARKERS))
+    assert got is not None
+    _same_marker_fields(got, ref)
+    assert [g[3] for g in got][1:] == [f"t{'x' * (k + i)}" for i in range(1 + k % 3)]
+    assert marker_array_from_cdr(memoryview(bytearray(raw))) == got
+
+
+def test_empty_marker_array_is_an_empty_list() -> None:
+    assert marker_array_from_cdr(_markers_cdr([])) == []
+
+
+@pytest.mark.parametrize("reader,raw", [
+    (point_stamped_from_cdr, _point_cdr("cam", (1.0, 2.0, 3.0), little_endian=False)),
+    (pose_cov_stamped_from_cdr, _pose_cov_cdr("cam", POSE_VALUES[0], np.zeros(36),
+                                              little_endian=False)),
+    (marker_array_from_cdr, _markers_cdr([_marker(3)], little_endian=False)),
+])
+def test_big_endian_is_left_to_the_generic_deserializer(reader, raw: bytes) -> None:
+    assert raw[:2] == b"\x00\x00"
+    assert reader(raw) is None
+    assert reader(b"\x00") is None
+
+
+@pytest.mark.parametrize("reader,raw", [
+    (point_stamped_from_cdr, _point_cdr("abc", (1.0, 2.0, 3.0))),
+    (pose_cov_stamped_from_cdr, _pose_cov_cdr("abc", POSE_VALUES[0], np.ones(36))),
+    (marker_array_from_cdr, _markers_cdr([_marker(5), _marker(2)])),
+])
+def test_truncated_anywhere_is_a_conversion_error(reader, raw: bytes) -> None:
+    # every cut inside the message: an error that names the field, never a short read
+    for cut in range(4, len(raw)):
+        with pytest.raises(ConversionError, match=r"^(header|point|pose|markers)"):
+            reader(raw[:cut])
+
+
+def test_marker_count_beyond_the_message_is_a_conversion_error() -> None:
+    raw = bytearray(_markers_cdr([_marker(1)]))
+    raw[4:8] = (10**6).to_bytes(4, "little")
+    with pytest.raises(ConversionError, match="markers: 1000000 markers do not fit"):
+        marker_array_from_cdr(bytes(raw))
+
+
+def test_marker_sequence_length_beyond_the_message_is_a_conversion_error() -> None:
+    # markers[0].points is the first sequence after the 80 bytes of pose and scale
+    raw = bytearray(_markers_cdr([_marker(0, points=[])]))
+    body = raw[4:]
+    pos = body.index(struct.pack("<4f", 0.0, 0.5, 1.0 / 3, 1.0)) + 16 + 8 + 1
+    pos = (pos + 3) & ~3
+    assert struct.unpack_from("<I", body, pos) == (0,)
+    raw[4 + pos:4 + pos + 4] = (10**6).to_bytes(4, "little")
+    with pytest.raises(ConversionError, match=r"markers\[0\]\.points: 1000000 elements"):
+        marker_array_from_cdr(bytes(raw))

@@ -647,3 +647,68 @@ def test_ee_pose_decoder_fields_from_any_encoding(typestore):
         decode(big[:30])
     with pytest.raises(ConversionError, match=r"^header: missing field"):
         pose_stamped_fields(make_header(0, "x"))
+
+
+def test_detector_decoders_fields_from_any_encoding(typestore):
+    """What ``hand_eye`` reads from a detector (``target/point``, ``*/point_cov``,
+    ``targets/markers``): rclpy's bytes (little-endian CDR, read directly) and big-endian CDR
+    (the generic decoder) give the fields of the message object; bad bytes raise."""
+    from rclpy.serialization import serialize_message
+
+    from eye_in_hand.nodes.hand_eye_first_target import (
+        markers_decoder,
+        point_cov_decoder,
+        point_decoder,
+    )
+    from eye_in_hand.ros.geometry import point_stamped_fields, pose_cov_stamped_fields
+    from eye_in_hand.ros.markers import marker_array_fields
+    from eye_in_hand.ros.outputs import (
+        Sphere,
+        point_stamped,
+        pose_with_covariance,
+        rclpy_types,
+        sphere_markers,
+    )
+
+    T = rclpy_types()
+    cov = np.arange(9.0).reshape(3, 3) * 1e-6 + 1e-5
+    for frame in ("", "c", "camera_left_optical_frame", "/cam"):
+        xyz = (0.01, -0.02, 0.6 + len(frame))
+        cases = [
+            (point_decoder, "geometry_msgs/msg/PointStamped",
+             point_stamped(T, xyz, 1_700_000_000_987_654_321, frame), point_stamped_fields),
+            (point_cov_decoder, "geometry_msgs/msg/PoseWithCovarianceStamped",
+             pose_with_covariance(T, xyz, cov, 5, frame), pose_cov_stamped_fields),
+            (markers_decoder, "visualization_msgs/msg/MarkerArray", sphere_markers(
+                T, [Sphere("red", xyz, 0.07, (1.0, 0.0, 0.0, 1.0)),
+                    Sphere(f"g{frame}", xyz, 0.05, (0.0, 1.0, 0.25, 0.5))], 7, frame),
+             marker_array_fields),
+        ]
+        for decoder_for, msgtype, msg, fields_of in cases:
+            decode = decoder_for(msgtype)
+            raw = serialize_message(msg)
+            fields = decode(raw)
+            assert fields == fields_of(msg)
+            big = bytes(typestore.serialize_cdr(typestore.deserialize_cdr(raw, msgtype), msgtype,
+                                                little_endian=False))
+            assert big[:2] == b"\x00\x00" and decode(big) == fields
+            with pytest.raises(ConversionError):
+                decode(raw[:30])
+
+
+def test_position_covariance_and_xyz_values():
+    from eye_in_hand.ros.geometry import position_covariance, xyz_values
+
+    values = tuple(np.random.default_rng(3).normal(size=36))
+    block = position_covariance(values, "pose.covariance")
+    assert block.dtype == np.float64 and block.flags.c_contiguous
+    assert block.tobytes() == np.asarray(values).reshape(6, 6)[:3, :3].copy().tobytes()
+    with pytest.raises(ConversionError, match=r"^pose.covariance: expected 36 numbers, got 35"):
+        position_covariance(values[:35], "pose.covariance")
+    assert xyz_values((1.0, -0.0, 2.5), "point").tolist() == [1.0, -0.0, 2.5]
+    with pytest.raises(ConversionError, match=r"^point.y: is nan \(must be finite\)"):
+        xyz_values((1.0, float("nan"), 2.5), "point")
+    with pytest.raises(ConversionError, match=r"^point.z: expected a number"):
+        xyz_values((1.0, 2.0, "x"), "point")
+    with pytest.raises(ConversionError, match=r"^point: expected x, y, z, got 2"):
+        xyz_values((1.0, 2.0), "point")

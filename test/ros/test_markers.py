@@ -67,6 +67,11 @@ def test_malformed_marker_arrays_are_refused():
     mixed = MarkerArray(markers=list(good.markers) + [other.markers[1]])
     with pytest.raises(ConversionError, match="stamp or frame"):
         spheres_from_marker_array(mixed)
+    elsewhere = sphere_marker_array([Sphere("b", np.zeros(3), 0.04)], stamp_ns=STAMP,
+                                    frame_id="base_link")
+    two_frames = MarkerArray(markers=list(good.markers) + [elsewhere.markers[1]])
+    with pytest.raises(ConversionError, match=r"markers\[2\] \(ns 'b'\): stamp or frame"):
+        spheres_from_marker_array(two_frames)
     no_id = sphere_marker_array([Sphere("a", np.zeros(3), 0.04)], stamp_ns=STAMP,
                                 frame_id="cam")
     no_id.markers[1].ns = ""
