@@ -833,6 +833,11 @@ MUTANTS: tuple[Mutant, ...] = (
       '        if self._camera_frame_ok("target/point", frame):\n',
       "        if True:\n",
       "a point handed over in memory skips hand_eye's camera-frame check"),
+    M("hand-eye-receive-clock-ignores-sim-time", "nodes/hand_eye.py",
+      "        return time.time_ns() if self._on_system_clock() else self.get_clock().now()"
+      ".nanoseconds\n",
+      "        return time.time_ns()\n",
+      "under use_sim_time the receive ages are taken on the system clock, not /clock"),
     M("hand-eye-in-process-cov", "nodes/hand_eye.py",
       "f.frame_id, f.first[0], f.first[1])\n", "f.frame_id, f.first[0], None)\n",
       "the first target's covariance is lost in the in-memory hand-off"),

@@ -189,12 +189,11 @@ class HandEyeNode(Node):
         return calibration
 
     def _now_ns(self) -> int:
-        """The node's clock (sim time under use_sim_time): the clock of receive ages."""
-        return self.get_clock().now().nanoseconds
+        """The node's clock: sim time under use_sim_time, else CLOCK_REALTIME (as rclpy's)."""
+        return time.time_ns() if self._on_system_clock() else self.get_clock().now().nanoseconds
 
     def _on_system_clock(self) -> bool:
-        """Whether the node's clock is the system clock (not ``/clock``)."""
-        return not getattr(self.get_clock(), "ros_time_is_active", False)
+        return not getattr(self.get_clock(), "ros_time_is_active", False)  # not /clock
 
     def _after_pose(self) -> None:
         """After each robot pose: answer the captures waiting for it, or drain the pipeline."""
