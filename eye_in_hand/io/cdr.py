@@ -12,10 +12,11 @@ A robot that publishes its pose at 125 Hz - 1 kHz sends 4-33 ``PoseStamped`` a s
 :func:`pose_stamped_from_cdr` reads one's stamp, frame and seven numbers with two ``struct``
 calls (1 us) where the generic deserializer builds six nested objects (3-5 us). The
 detector's messages of one pair (a point, two points with covariance, one MarkerArray) take
-35 us through the generic deserializer, most of it the MarkerArray (25 us for one sphere,
-every field of the marker built); :func:`point_stamped_from_cdr`,
+35 us through the generic deserializer, most of it the MarkerArray (25 us for a DELETEALL
+and one sphere, every field of both markers built); :func:`point_stamped_from_cdr`,
 :func:`pose_cov_stamped_from_cdr` and :func:`marker_array_from_cdr` read the fields the node
-uses and step over the others.
+uses and step over the others; each refuses what rosbags refuses (a cut, a string without
+its NUL or not UTF-8, more than 3 bytes after the last field).
 
 Only little-endian plain CDR (encapsulation ``00 01``, what every ROS 2 middleware writes) is
 decoded here; for anything else it returns None and the caller uses the generic deserializer.
@@ -177,7 +178,15 @@ def pose_stamped_from_cdr(raw: bytes | bytearray | memoryview
     if pos + _POSE.size > len(body):
         raise ConversionError(f"pose: message ends inside the pose "
                               f"({max(len(body) - pos, 0)} of {_POSE.size} bytes)")
+    _ends_at(body, pos + _POSE.size, "pose")
     return sec, nanosec, frame_id, _POSE.unpack_from(body, pos)
+
+
+def _ends_at(body: memoryview, pos: int, what: str) -> None:
+    """The message must end at ``pos`` (up to 3 bytes of padding after it, as rosbags
+    allows): more is another message's layout (a wrong count, another type)."""
+    if len(body) - pos > 3:
+        raise ConversionError(f"{what}: {len(body) - pos} bytes after its last field")
 
 
 def _doubles(body: memoryview, pos: int, fmt: struct.Struct, field: str) -> tuple[float, ...]:
@@ -204,7 +213,9 @@ def point_stamped_from_cdr(raw: bytes | bytearray | memoryview
     if head is None:
         return None
     body, sec, nanosec, frame_id, pos = head
-    return sec, nanosec, frame_id, _doubles(body, pos, _POINT, "point")
+    xyz = _doubles(body, pos, _POINT, "point")
+    _ends_at(body, ((pos + 7) & ~7) + _POINT.size, "point")
+    return sec, nanosec, frame_id, xyz
 
 
 def pose_cov_stamped_from_cdr(raw: bytes | bytearray | memoryview
@@ -225,6 +236,7 @@ def pose_cov_stamped_from_cdr(raw: bytes | bytearray | memoryview
         return None
     body, sec, nanosec, frame_id, pos = head
     values = _doubles(body, pos, _POSE_COV, "pose")
+    _ends_at(body, ((pos + 7) & ~7) + _POSE_COV.size, "pose")
     return sec, nanosec, frame_id, values[:7], values[7:]
 
 
@@ -240,17 +252,6 @@ def _skip_sequence(body: memoryview, pos: int, item: int, field: str) -> int:
     if pos + n * item > len(body):
         raise ConversionError(f"{field}: {n} elements do not fit the message")
     return pos + n * item
-
-
-def _skip_string(body: memoryview, pos: int, field: str) -> int:
-    """The offset after a string (its length checked, its bytes not decoded)."""
-    pos = (pos + 3) & ~3
-    if pos + 4 > len(body):
-        raise ConversionError(f"{field}: message ends before the string length")
-    n: int = _U32.unpack_from(body, pos)[0]
-    if n == 0 or pos + 4 + n > len(body):
-        raise ConversionError(f"{field}: string of {n} bytes does not fit the message")
-    return pos + 4 + n
 
 
 def _marker(body: memoryview, pos: int, where: str) -> tuple[MarkerFields, int]:
@@ -273,17 +274,17 @@ def _marker(body: memoryview, pos: int, where: str) -> tuple[MarkerFields, int]:
     pos += 80 + 16 + 8 + 1                            # lifetime, frame_locked
     pos = _skip_sequence(body, pos, 24, f"{where}.points")
     pos = _skip_sequence(body, pos, 16, f"{where}.colors")
-    pos = _skip_string(body, pos, f"{where}.texture_resource")
+    pos = _string(body, pos, f"{where}.texture_resource")[1]
     pos = (pos + 3) & ~3
     if pos + 8 > len(body):
         raise ConversionError(f"{where}.texture.header: message ends inside its stamp")
-    pos = _skip_string(body, pos + 8, f"{where}.texture.header.frame_id")
-    pos = _skip_string(body, pos, f"{where}.texture.format")
+    pos = _string(body, pos + 8, f"{where}.texture.header.frame_id")[1]
+    pos = _string(body, pos, f"{where}.texture.format")[1]
     pos = _skip_sequence(body, pos, 1, f"{where}.texture.data")
     pos = _skip_sequence(body, pos, 8, f"{where}.uv_coordinates")
-    pos = _skip_string(body, pos, f"{where}.text")
-    pos = _skip_string(body, pos, f"{where}.mesh_resource")
-    pos = _skip_string(body, pos, f"{where}.mesh_file.filename")
+    pos = _string(body, pos, f"{where}.text")[1]
+    pos = _string(body, pos, f"{where}.mesh_resource")[1]
+    pos = _string(body, pos, f"{where}.mesh_file.filename")[1]
     pos = _skip_sequence(body, pos, 1, f"{where}.mesh_file.data")
     if pos + 1 > len(body):
         raise ConversionError(f"{where}.mesh_use_embedded_materials: message ends before it")
@@ -293,7 +294,8 @@ def _marker(body: memoryview, pos: int, where: str) -> tuple[MarkerFields, int]:
 def marker_array_from_cdr(raw: bytes | bytearray | memoryview) -> list[MarkerFields] | None:
     """Decode a serialized ``visualization_msgs/msg/MarkerArray``: each marker's header, ``ns``,
     ``type``, ``action``, position, ``scale.x`` and colour (:data:`MarkerFields`), the other
-    fields stepped over with their lengths checked.
+    fields stepped over with their lengths and strings checked (what a generic deserializer
+    refuses is refused here), nothing but padding after the last marker.
 
     Returns:
         The markers' fields in message order, as they are in the message (the caller checks
@@ -316,4 +318,5 @@ def marker_array_from_cdr(raw: bytes | bytearray | memoryview) -> list[MarkerFie
     for k in range(n):
         fields, pos = _marker(body, pos, f"markers[{k}]")
         out.append(fields)
+    _ends_at(body, pos, f"markers[{n - 1}]" if n else "markers")
     return out

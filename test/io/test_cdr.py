@@ -352,3 +352,39 @@ def test_marker_sequence_length_beyond_the_message_is_a_conversion_error() -> No
     raw[4 + pos:4 + pos + 4] = (10**6).to_bytes(4, "little")
     with pytest.raises(ConversionError, match=r"markers\[0\]\.points: 1000000 elements"):
         marker_array_from_cdr(bytes(raw))
+
+
+@pytest.mark.parametrize("reader,raw", [
+    (pose_stamped_from_cdr, _pose_cdr("abc", POSE_VALUES[0])),
+    (point_stamped_from_cdr, _point_cdr("abc", (1.0, 2.0, 3.0))),
+    (pose_cov_stamped_from_cdr, _pose_cov_cdr("abc", POSE_VALUES[0], np.ones(36))),
+    (marker_array_from_cdr, _markers_cdr([_marker(5), _marker(2)])),
+])
+def test_bytes_after_the_last_field_are_refused_as_rosbags_does(reader, raw: bytes) -> None:
+    assert reader(raw + b"\x00" * 3) is not None           # padding
+    with pytest.raises(ConversionError, match=r"4 bytes after its last field"):
+        reader(raw + b"\x00" * 4)
+    with pytest.raises(Exception):                          # noqa: B017 - rosbags' own error
+        deserialize(raw + b"\x00" * 8, {pose_stamped_from_cdr: POSE,
+                                        point_stamped_from_cdr: POINT,
+                                        pose_cov_stamped_from_cdr: POSE_COV}.get(reader, MARKERS))
+
+
+def test_a_marker_count_lowered_is_refused() -> None:
+    # two markers announced as one: the second would be dropped without a word
+    raw = bytearray(_markers_cdr([_marker(1), _marker(2)]))
+    raw[4:8] = (1).to_bytes(4, "little")
+    with pytest.raises(ConversionError, match=r"^markers\[0\]: \d+ bytes after its last field"):
+        marker_array_from_cdr(bytes(raw))
+
+
+@pytest.mark.parametrize("bad,match", [(b"\xffk\x00", "not UTF-8"),
+                                       (b"okk", "not NUL-terminated")])
+def test_a_bad_string_in_a_field_the_node_does_not_use_is_refused(bad: bytes,
+                                                                  match: str) -> None:
+    raw = _markers_cdr([_marker(1, text="ok"), _marker(2)])
+    assert raw.count(b"ok\x00") == 1
+    bad_raw = raw.replace(b"ok\x00", bad)
+    assert len(bad_raw) == len(raw)
+    with pytest.raises(ConversionError, match=rf"^markers\[0\]\.text: (string is )?{match}"):
+        marker_array_from_cdr(bad_raw)
