@@ -170,16 +170,7 @@ def pose_stamped_from_cdr(raw: bytes | bytearray | memoryview
     Raises:
         ConversionError: a truncated or malformed message (names the field).
     """
-    head = _header(raw)
-    if head is None:
-        return None
-    body, sec, nanosec, frame_id, pos = head
-    pos = (pos + 7) & ~7                 # float64 fields: 8-byte aligned
-    if pos + _POSE.size > len(body):
-        raise ConversionError(f"pose: message ends inside the pose "
-                              f"({max(len(body) - pos, 0)} of {_POSE.size} bytes)")
-    _ends_at(body, pos + _POSE.size, "pose")
-    return sec, nanosec, frame_id, _POSE.unpack_from(body, pos)
+    return _stamped_doubles(raw, _POSE, "pose")
 
 
 def _ends_at(body: memoryview, pos: int, what: str) -> None:
@@ -189,13 +180,21 @@ def _ends_at(body: memoryview, pos: int, what: str) -> None:
         raise ConversionError(f"{what}: {len(body) - pos} bytes after its last field")
 
 
-def _doubles(body: memoryview, pos: int, fmt: struct.Struct, field: str) -> tuple[float, ...]:
-    """``fmt``'s float64 values at the next 8-byte boundary from ``pos``."""
-    pos = (pos + 7) & ~7
+def _stamped_doubles(raw: bytes | bytearray | memoryview, fmt: struct.Struct, field: str
+                     ) -> tuple[int, int, str, tuple[float, ...]] | None:
+    """A message of a header and ``fmt``'s float64 values (8-byte aligned after the frame id,
+    the message's end): ``(sec, nanosec, frame_id, values)``; None when ``raw`` is not
+    little-endian plain CDR."""
+    head = _header(raw)
+    if head is None:
+        return None
+    body, sec, nanosec, frame_id, pos = head
+    pos = (pos + 7) & ~7                 # float64 fields: 8-byte aligned
     if pos + fmt.size > len(body):
         raise ConversionError(f"{field}: message ends inside it "
                               f"({max(len(body) - pos, 0)} of {fmt.size} bytes)")
-    return fmt.unpack_from(body, pos)
+    _ends_at(body, pos + fmt.size, field)
+    return sec, nanosec, frame_id, fmt.unpack_from(body, pos)
 
 
 def point_stamped_from_cdr(raw: bytes | bytearray | memoryview
@@ -209,13 +208,7 @@ def point_stamped_from_cdr(raw: bytes | bytearray | memoryview
     Raises:
         ConversionError: a truncated or malformed message (names the field).
     """
-    head = _header(raw)
-    if head is None:
-        return None
-    body, sec, nanosec, frame_id, pos = head
-    xyz = _doubles(body, pos, _POINT, "point")
-    _ends_at(body, ((pos + 7) & ~7) + _POINT.size, "point")
-    return sec, nanosec, frame_id, xyz
+    return _stamped_doubles(raw, _POINT, "point")
 
 
 def pose_cov_stamped_from_cdr(raw: bytes | bytearray | memoryview
@@ -231,12 +224,10 @@ def pose_cov_stamped_from_cdr(raw: bytes | bytearray | memoryview
     Raises:
         ConversionError: a truncated or malformed message (names the field).
     """
-    head = _header(raw)
-    if head is None:
+    fields = _stamped_doubles(raw, _POSE_COV, "pose")
+    if fields is None:
         return None
-    body, sec, nanosec, frame_id, pos = head
-    values = _doubles(body, pos, _POSE_COV, "pose")
-    _ends_at(body, ((pos + 7) & ~7) + _POSE_COV.size, "pose")
+    sec, nanosec, frame_id, values = fields
     return sec, nanosec, frame_id, values[:7], values[7:]
 
 

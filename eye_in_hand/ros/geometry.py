@@ -96,6 +96,22 @@ def pose_values_to_matrix(values: tuple[float, ...], path: str = "") -> np.ndarr
                        finite(tz, f"{p_path}.z"))
 
 
+def _header_fields(msg: Any) -> tuple[int, int, str]:
+    """``(sec, nanosec, frame_id)`` of a stamped message object's header."""
+    header = get_field(msg, "header", "")
+    stamp = get_field(header, "stamp", "header")
+    return (get_field(stamp, "sec", "header.stamp"), get_field(stamp, "nanosec", "header.stamp"),
+            get_field(header, "frame_id", "header"))
+
+
+def _pose_fields(pose: Any, path: str) -> tuple[float, ...]:
+    """``(x, y, z, qx, qy, qz, qw)`` of a ``Pose`` object found at ``path``."""
+    p = get_field(pose, "position", path)
+    o = get_field(pose, "orientation", path)
+    return (tuple(get_field(p, a, f"{path}.position") for a in ("x", "y", "z"))
+            + tuple(get_field(o, a, f"{path}.orientation") for a in ("x", "y", "z", "w")))
+
+
 def pose_stamped_fields(msg: Any) -> tuple[int, int, str, tuple[float, ...]]:
     """``(sec, nanosec, frame_id, (x, y, z, qx, qy, qz, qw))`` of a ``PoseStamped`` message
     object (rclpy or rosbags), as ``eye_in_hand.io.cdr.pose_stamped_from_cdr`` reads them
@@ -104,17 +120,7 @@ def pose_stamped_fields(msg: Any) -> tuple[int, int, str, tuple[float, ...]]:
     Raises:
         ConversionError: a missing field (named).
     """
-    header = get_field(msg, "header", "")
-    stamp = get_field(header, "stamp", "header")
-    pose = get_field(msg, "pose", "")
-    p = get_field(pose, "position", "pose")
-    o = get_field(pose, "orientation", "pose")
-    return (get_field(stamp, "sec", "header.stamp"), get_field(stamp, "nanosec", "header.stamp"),
-            get_field(header, "frame_id", "header"),
-            tuple(get_field(obj, a, path) for obj, a, path in (
-                (p, "x", "pose.position"), (p, "y", "pose.position"), (p, "z", "pose.position"),
-                (o, "x", "pose.orientation"), (o, "y", "pose.orientation"),
-                (o, "z", "pose.orientation"), (o, "w", "pose.orientation"))))
+    return (*_header_fields(msg), _pose_fields(get_field(msg, "pose", ""), "pose"))
 
 
 def point_stamped_fields(msg: Any) -> tuple[int, int, str, tuple[float, ...]]:
@@ -125,12 +131,8 @@ def point_stamped_fields(msg: Any) -> tuple[int, int, str, tuple[float, ...]]:
     Raises:
         ConversionError: a missing field (named).
     """
-    header = get_field(msg, "header", "")
-    stamp = get_field(header, "stamp", "header")
     p = get_field(msg, "point", "")
-    return (get_field(stamp, "sec", "header.stamp"), get_field(stamp, "nanosec", "header.stamp"),
-            get_field(header, "frame_id", "header"),
-            tuple(get_field(p, a, "point") for a in ("x", "y", "z")))
+    return (*_header_fields(msg), tuple(get_field(p, a, "point") for a in ("x", "y", "z")))
 
 
 def pose_cov_stamped_fields(msg: Any
@@ -143,16 +145,8 @@ def pose_cov_stamped_fields(msg: Any
     Raises:
         ConversionError: a missing field (named).
     """
-    header = get_field(msg, "header", "")
-    stamp = get_field(header, "stamp", "header")
     with_cov = get_field(msg, "pose", "")
-    pose = get_field(with_cov, "pose", "pose")
-    p = get_field(pose, "position", "pose.pose")
-    o = get_field(pose, "orientation", "pose.pose")
-    return (get_field(stamp, "sec", "header.stamp"), get_field(stamp, "nanosec", "header.stamp"),
-            get_field(header, "frame_id", "header"),
-            tuple(get_field(p, a, "pose.pose.position") for a in ("x", "y", "z"))
-            + tuple(get_field(o, a, "pose.pose.orientation") for a in ("x", "y", "z", "w")),
+    return (*_header_fields(msg), _pose_fields(get_field(with_cov, "pose", "pose"), "pose.pose"),
             tuple(get_field(with_cov, "covariance", "pose")))
 
 
