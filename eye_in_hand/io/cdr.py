@@ -84,6 +84,8 @@ def _string(buf: memoryview, pos: int, field: str) -> tuple[str, int]:
         raise ConversionError(f"{field}: string length 0 (a CDR string holds at least its NUL)")
     if pos + 4 + n > len(buf):
         raise ConversionError(f"{field}: string of {n} bytes does not fit the message")
+    if n == 1 and buf[pos + 4] == 0:     # empty: most of a marker's strings
+        return "", pos + 5
     raw = bytes(buf[pos + 4:pos + 4 + n])
     if raw[-1:] != b"\x00":
         raise ConversionError(f"{field}: string is not NUL-terminated")

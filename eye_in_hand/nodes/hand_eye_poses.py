@@ -87,7 +87,7 @@ def fields_decoder(direct: Callable[[bytes], Any], from_message: Callable[[Any],
                    ) -> Callable[[str], Callable[[bytes], Any]]:
     """``decoder_for(msgtype)`` of a :func:`eye_in_hand.ros.decoded.decoded_subscription`
     whose callback takes a message's fields: little-endian CDR bytes read directly by
-    ``direct`` (``eye_in_hand.io.cdr``'s readers, 1-12 us), other encodings through the
+    ``direct`` (``eye_in_hand.io.cdr``'s readers, 1-9 us), other encodings through the
     generic decoder and ``from_message`` (the same fields from the message object). The
     values are checked where they are taken; malformed bytes raise (the subscription reports
     them)."""

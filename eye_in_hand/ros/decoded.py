@@ -5,7 +5,7 @@ one nested ``__init__`` at a time: 9-14 us for a ``PointStamped`` or a ``PoseSta
 for a ``PoseWithCovarianceStamped`` and 65 us for a ``MarkerArray`` of two markers. A live
 ``hand_eye`` takes four to eight of them per stereo pair. :func:`decoded_subscription` takes
 the bytes instead (``raw=True``) and hands them to a decoder: ``hand_eye`` reads the fields
-it uses straight from little-endian CDR (``eye_in_hand.io.cdr``, 1-12 us a message) through
+it uses straight from little-endian CDR (``eye_in_hand.io.cdr``, 1-9 us a message) through
 ``eye_in_hand.nodes.hand_eye_poses.fields_decoder``, other encodings and ``joint_states``
 through ``eye_in_hand.io.bags.decoding.jazzy_decoder`` (rosbags' generated CDR decoder, 2-25 us
 for the same messages: a ``rosbags`` object with the fields of the ROS message, which every

@@ -388,3 +388,11 @@ def test_a_bad_string_in_a_field_the_node_does_not_use_is_refused(bad: bytes,
     assert len(bad_raw) == len(raw)
     with pytest.raises(ConversionError, match=rf"^markers\[0\]\.text: (string is )?{match}"):
         marker_array_from_cdr(bad_raw)
+
+
+def test_an_empty_string_without_its_nul_is_refused() -> None:
+    raw = bytearray(_point_cdr("", (1.0, 2.0, 3.0)))
+    assert raw[4 + 8:4 + 13] == b"\x01\x00\x00\x00\x00"     # frame_id "": length 1, its NUL
+    raw[4 + 12] = ord("x")
+    with pytest.raises(ConversionError, match="header.frame_id: string is not NUL-terminated"):
+        point_stamped_from_cdr(bytes(raw))
