@@ -95,6 +95,16 @@ def _string(buf: memoryview, pos: int, field: str) -> tuple[str, int]:
         raise ConversionError(f"{field}: not UTF-8 ({exc})") from exc
 
 
+def _body(raw: bytes | bytearray | memoryview) -> memoryview | None:
+    """The bytes after the 4-byte encapsulation header (CDR alignment counts from their
+    start); None when ``raw`` is not little-endian plain CDR."""
+    view = memoryview(raw).cast("B") if not isinstance(raw, memoryview) or raw.format != "B" \
+        else raw
+    if len(view) < 4 or bytes(view[:2]) != _CDR_LE:
+        return None
+    return view[4:]
+
+
 def _header(raw: bytes | bytearray | memoryview
             ) -> tuple[memoryview, int, int, str, int] | None:
     """The ``std_msgs/Header`` a message starts with: ``(body, sec, nanosec, frame_id, pos)``,
@@ -105,11 +115,9 @@ def _header(raw: bytes | bytearray | memoryview
     Raises:
         ConversionError: the message ends inside the header, or a malformed frame id.
     """
-    view = memoryview(raw).cast("B") if not isinstance(raw, memoryview) or raw.format != "B" \
-        else raw
-    if len(view) < 4 or bytes(view[:2]) != _CDR_LE:
+    body = _body(raw)
+    if body is None:
         return None
-    body = view[4:]                      # CDR alignment counts from here
     if len(body) < 12:
         raise ConversionError("header: message ends inside header.stamp")
     sec, nanosec = _STAMP.unpack_from(body, 0)
@@ -297,11 +305,9 @@ def marker_array_from_cdr(raw: bytes | bytearray | memoryview) -> list[MarkerFie
     Raises:
         ConversionError: a truncated or malformed message (names the marker and field).
     """
-    view = memoryview(raw).cast("B") if not isinstance(raw, memoryview) or raw.format != "B" \
-        else raw
-    if len(view) < 4 or bytes(view[:2]) != _CDR_LE:
+    body = _body(raw)
+    if body is None:
         return None
-    body = view[4:]
     if len(body) < 4:
         raise ConversionError("markers: message ends before the sequence length")
     (n,) = _U32.unpack_from(body, 0)

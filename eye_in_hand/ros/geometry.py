@@ -25,6 +25,7 @@ __all__ = [
     "pose_to_matrix",
     "pose_values_to_matrix",
     "pose_stamped_fields",
+    "header_fields",
     "point_stamped_fields",
     "pose_cov_stamped_fields",
     "xyz_values",
@@ -96,12 +97,14 @@ def pose_values_to_matrix(values: tuple[float, ...], path: str = "") -> np.ndarr
                        finite(tz, f"{p_path}.z"))
 
 
-def _header_fields(msg: Any) -> tuple[int, int, str]:
-    """``(sec, nanosec, frame_id)`` of a stamped message object's header."""
-    header = get_field(msg, "header", "")
-    stamp = get_field(header, "stamp", "header")
-    return (get_field(stamp, "sec", "header.stamp"), get_field(stamp, "nanosec", "header.stamp"),
-            get_field(header, "frame_id", "header"))
+def header_fields(msg: Any, path: str = "") -> tuple[int, int, str]:
+    """``(sec, nanosec, frame_id)`` of a stamped message object's header (a missing field
+    named under ``path``), as ``eye_in_hand.io.cdr``'s readers give them."""
+    h_path = field_path(path, "header")
+    header = get_field(msg, "header", path)
+    stamp = get_field(header, "stamp", h_path)
+    return (get_field(stamp, "sec", f"{h_path}.stamp"),
+            get_field(stamp, "nanosec", f"{h_path}.stamp"), get_field(header, "frame_id", h_path))
 
 
 def _pose_fields(pose: Any, path: str) -> tuple[float, ...]:
@@ -120,7 +123,7 @@ def pose_stamped_fields(msg: Any) -> tuple[int, int, str, tuple[float, ...]]:
     Raises:
         ConversionError: a missing field (named).
     """
-    return (*_header_fields(msg), _pose_fields(get_field(msg, "pose", ""), "pose"))
+    return (*header_fields(msg), _pose_fields(get_field(msg, "pose", ""), "pose"))
 
 
 def point_stamped_fields(msg: Any) -> tuple[int, int, str, tuple[float, ...]]:
@@ -132,7 +135,7 @@ def point_stamped_fields(msg: Any) -> tuple[int, int, str, tuple[float, ...]]:
         ConversionError: a missing field (named).
     """
     p = get_field(msg, "point", "")
-    return (*_header_fields(msg), tuple(get_field(p, a, "point") for a in ("x", "y", "z")))
+    return (*header_fields(msg), tuple(get_field(p, a, "point") for a in ("x", "y", "z")))
 
 
 def pose_cov_stamped_fields(msg: Any
@@ -146,7 +149,7 @@ def pose_cov_stamped_fields(msg: Any
         ConversionError: a missing field (named).
     """
     with_cov = get_field(msg, "pose", "")
-    return (*_header_fields(msg), _pose_fields(get_field(with_cov, "pose", "pose"), "pose.pose"),
+    return (*header_fields(msg), _pose_fields(get_field(with_cov, "pose", "pose"), "pose.pose"),
             tuple(get_field(with_cov, "covariance", "pose")))
 
 

@@ -27,6 +27,7 @@ import numpy as np
 
 from eye_in_hand.errors import ConfigError, ConversionError
 from eye_in_hand.ros.fields import get_field
+from eye_in_hand.ros.geometry import header_fields
 from eye_in_hand.ros.msgtypes import import_message_type
 from eye_in_hand.ros.outputs import DEFAULT_RGBA, Sphere, pose_array, rclpy_types, sphere_markers
 from eye_in_hand.ros.stamps import sec_nanosec_to_ns
@@ -120,16 +121,13 @@ def marker_fields(m: Any) -> tuple[Any, ...]:
     Raises:
         ConversionError: a missing field (named).
     """
-    header = get_field(m, "header", "marker")
-    stamp = get_field(header, "stamp", "marker.header")
     p = get_field(get_field(m, "pose", "marker"), "position", "marker.pose")
     c = get_field(m, "color", "marker")
-    return (get_field(stamp, "sec", "marker.header.stamp"),
-            get_field(stamp, "nanosec", "marker.header.stamp"),
-            get_field(header, "frame_id", "marker.header"), get_field(m, "ns", "marker"),
+    return (*header_fields(m, "marker"), get_field(m, "ns", "marker"),
             get_field(m, "type", "marker"), get_field(m, "action", "marker"),
-            (p.x, p.y, p.z), get_field(get_field(m, "scale", "marker"), "x", "marker.scale"),
-            (c.r, c.g, c.b, c.a))
+            tuple(get_field(p, a, "marker.pose.position") for a in ("x", "y", "z")),
+            get_field(get_field(m, "scale", "marker"), "x", "marker.scale"),
+            tuple(get_field(c, a, "marker.color") for a in ("r", "g", "b", "a")))
 
 
 def marker_array_fields(msg: Any) -> list[tuple[Any, ...]]:
