@@ -586,14 +586,23 @@ def angular_radius_from_minor_axis(minor_semi_axis: float, direction_angle: floa
 
 @dataclass
 class _Blob:
-    mask: np.ndarray          # uint8 0/1 component mask inside the ROI
-    x0: int
+    """A blob found in one image: its geometry from :meth:`ColorDetector._fine_blob`, then its
+    centre-uncertainty terms from :func:`_measure_blobs` (made for all of an image's blobs at
+    once)."""
+    mask: np.ndarray          # uint8 0/1 component mask over the blob's bounding box
+    x0: int                   # the region of interest's corner in the image
     y0: int
     area: float
     circularity: float
     centroid: np.ndarray
     contour: np.ndarray       # (K, 2) float64 full-image pixel coordinates
     bbox: tuple[int, int, int, int]
+    local: np.ndarray         # (K, 2) float64 the contour in the bounding box's coordinates
+    grey: np.ndarray          # uint8 grey image over the bounding box
+    moments: Mapping[str, float]   # cv2.moments of ``mask``
+    roi_size: tuple[int, int]      # (w, h) of the region of interest
+    roi_contour: np.ndarray   # (K, 2) int the contour in the region of interest's coordinates
+    roi_center: np.ndarray    # (2,) the centroid in the region of interest's coordinates
     center_sigma_px: float = float("nan")
     edge_sigma_px: float = float("nan")
     shade_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
@@ -661,12 +670,10 @@ class ColorDetector:
             small = image
         planes = {space: ColorPlanes(convert_color(small, space)) for space in self._spaces}
         sx, sy = w / small.shape[1], h / small.shape[0]
-        out: dict[str, list[Detection]] = {}
+        found: list[tuple[TargetSpec, _Blob]] = []
         for target in cfg.targets:
             mask = target.color.threshold_planes(planes[target.color.space])
-            limit = cfg.limit(target)
-            blobs = self._coarse_blobs(mask, target, sx * sy, limit)
-            dets: list[Detection] = []
+            blobs = self._coarse_blobs(mask, target, sx * sy, cfg.limit(target))
             seen: list[tuple[int, int, int, int]] = []
             for (bx, by, bw, bh) in blobs:
                 x0 = int(bx * sx) - cfg.roi_margin_px
@@ -679,11 +686,18 @@ class ColorDetector:
                 if blob is None:
                     continue
                 seen.append(blob.bbox)
-                det = self._make_detection(target, blob, camera)
-                if det is not None:
-                    dets.append(det)
-            out[target.name] = self._rank(dets, previous.get(target.name) if previous else None,
-                                          limit)
+                found.append((target, blob))
+        # the per-blob measurements of all the image's blobs at once (the same bits as one
+        # by one, a fraction of the NumPy calls: :func:`_measure_blobs`)
+        _measure_blobs(image, [blob for _, blob in found])
+        out: dict[str, list[Detection]] = {t.name: [] for t in cfg.targets}
+        for (target, _), det in zip(found, self._make_detections(found, camera), strict=True):
+            if det is not None:
+                out[target.name].append(det)
+        for target in cfg.targets:
+            out[target.name] = self._rank(out[target.name],
+                                          previous.get(target.name) if previous else None,
+                                          cfg.limit(target))
         return out
 
     def mask(self, image: np.ndarray, target: str | None = None) -> np.ndarray:
@@ -755,7 +769,7 @@ class ColorDetector:
                 if not single:
                     return None
                 labels, k = None, 1
-                bx, by, bw, bh, area = single
+                bx, by, bw, bh, area, outer = single
             else:
                 n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8,
                                                                        ltype=cv2.CV_16U)
@@ -785,10 +799,13 @@ class ColorDetector:
                                          and area > target.max_area_px):
             return None
         # the component's 0/1 mask (the 0/255 mask's pixels above 0: one cv2.threshold pass)
-        comp = ((labels[by:by + bh, bx:bx + bw] == k).astype(np.uint8) if labels is not None
-                else cv2.threshold(mask[by:by + bh, bx:bx + bw], 0, 1, cv2.THRESH_BINARY)[1])
-        contours, _ = cv2.findContours(comp, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-        contour = max(contours, key=cv2.contourArea)
+        if labels is None:
+            comp = cv2.threshold(mask[by:by + bh, bx:bx + bw], 0, 1, cv2.THRESH_BINARY)[1]
+            contour = outer - (bx, by)   # its outer border, traced already
+        else:
+            comp = (labels[by:by + bh, bx:bx + bw] == k).astype(np.uint8)
+            contours, _ = cv2.findContours(comp, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+            contour = max(contours, key=cv2.contourArea)
         perimeter = cv2.arcLength(contour, True)
         circ = 4.0 * math.pi * area / (perimeter * perimeter) if perimeter > 0 else 0.0
         if circ < target.min_circularity:
@@ -800,32 +817,47 @@ class ColorDetector:
         local = contour.reshape(-1, 2).astype(np.float64)
         pts = local + (x0 + bx, y0 + by)
         grey = cv2.cvtColor(roi[by:by + bh, bx:bx + bw], cv2.COLOR_BGR2GRAY)
-        edge, shade = center_sigma_parts(comp, grey, local, moments=mom)
-        width = edge_width(roi, contour.reshape(-1, 2) + (bx, by),
-                           np.array([bx + mom["m10"] / mom["m00"], by + mom["m01"] / mom["m00"]]))
-        blur = math.sqrt(max(width * width - BLUR_W0_PX ** 2, 0.0)) if math.isfinite(width) \
-            else 0.0
-        shade = shade * (1.0 + SHADE_BLUR_GAIN * blur * blur)
-        cut = CUT_SIGMA_PX * (1.0 + CUT_BLUR_GAIN * blur) if math.isfinite(edge) else 0.0
         return _Blob(comp, x0, y0, float(area), float(min(circ, 1.0)), centroid, pts, bbox,
-                     math.hypot(edge, float(np.hypot(*shade)), cut), edge, shade, cut, blur)
+                     local, grey, mom, (x1 - x0, y1 - y0), contour.reshape(-1, 2) + (bx, by),
+                     np.array([bx + mom["m10"] / mom["m00"], by + mom["m01"] / mom["m00"]]))
 
-    def _make_detection(self, target: TargetSpec, blob: _Blob,
-                        camera: CameraModel | None) -> Detection | None:
+    def _make_detections(self, found: Sequence[tuple[TargetSpec, _Blob]],
+                         camera: CameraModel | None) -> list[Detection | None]:
+        """The detection of each found blob (None: its polygon is degenerate). With a camera
+        and the sphere correction, the contours of all the image's spheres are undistorted in
+        one call and their polygons measured together (:func:`_polygon_centers_and_minor_axes`:
+        the same bits as one by one)."""
+        ellipses: dict[int, tuple[np.ndarray | None, float]] = {}
+        if camera is not None and self.config.sphere_correction:
+            spheres = [k for k, (target, blob) in enumerate(found)
+                       if target.is_sphere and len(blob.contour) >= 5]
+            if spheres:
+                contours = [found[k][1].contour for k in spheres]
+                norm = camera.undistort_points(contours[0] if len(contours) == 1
+                                               else np.concatenate(contours))
+                ellipses = dict(zip(spheres, _polygon_centers_and_minor_axes(
+                    norm, [len(c) for c in contours], camera.fx), strict=True))
+        return [self._make_detection(target, blob, camera, ellipses.get(k))
+                for k, (target, blob) in enumerate(found)]
+
+    @staticmethod
+    def _make_detection(target: TargetSpec, blob: _Blob, camera: CameraModel | None,
+                        ellipse: tuple[np.ndarray | None, float] | None) -> Detection | None:
+        """One blob's detection; ``ellipse`` its undistorted polygon's centre and minor
+        semi-axis when the sphere correction applies to it, else None."""
         if camera is None:
             nan2 = np.full(2, np.nan)
             return Detection(target.name, blob.centroid, blob.centroid.copy(), nan2, blob.area,
                              blob.circularity, blob.bbox, center_sigma_px=blob.center_sigma_px,
                              edge_sigma_px=blob.edge_sigma_px, shade_px=blob.shade_px,
                              cut_sigma_px=blob.cut_sigma_px, blur_px=blob.blur_px)
-        if not (self.config.sphere_correction and target.is_sphere) or len(blob.contour) < 5:
+        if ellipse is None:
             norm = camera.undistort_points(blob.centroid)[0]
             return Detection(target.name, blob.centroid, blob.centroid.copy(), norm, blob.area,
                              blob.circularity, blob.bbox, center_sigma_px=blob.center_sigma_px,
                              edge_sigma_px=blob.edge_sigma_px, shade_px=blob.shade_px,
                              cut_sigma_px=blob.cut_sigma_px, blur_px=blob.blur_px)
-        contour_norm = camera.undistort_points(blob.contour)
-        ellipse_c, minor = _polygon_center_and_minor_axis(contour_norm, camera.fx)
+        ellipse_c, minor = ellipse
         if ellipse_c is None:
             return None
         theta = math.atan(float(np.hypot(*ellipse_c)))
@@ -856,19 +888,27 @@ def _mean(x: np.ndarray, axis: int | None = None) -> Any:
     return np.add.reduce(x, axis=axis) / (x.size if axis is None else x.shape[axis])
 
 
-def _single_component(mask: np.ndarray) -> tuple[int, int, int, int, int] | tuple[()] | None:
-    """A 0/255 mask's only 8-connected component as ``(x, y, w, h, pixels)`` (the stats
-    ``cv2.connectedComponentsWithStats`` gives it), ``()`` for an empty mask, None when it has
-    several components. The outer borders that ``cv2.findContours`` follows (8-connected
-    foreground, the top level of ``RETR_CCOMP``; the others are holes) are the components:
-    about 8 us for a target's ROI against 36 us to label it."""
-    contours, hierarchy = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+def _single_component(mask: np.ndarray
+                      ) -> tuple[int, int, int, int, int, np.ndarray] | tuple[()] | None:
+    """A 0/255 mask's only 8-connected component as ``(x, y, w, h, pixels, outer)``: the stats
+    ``cv2.connectedComponentsWithStats`` gives it and its outer border (int32, shape (K, 1, 2),
+    every pixel: ``CHAIN_APPROX_NONE``), ``()`` for an empty mask, None when it has several
+    components. The outer borders that ``cv2.findContours`` follows (8-connected foreground,
+    the top level of ``RETR_CCOMP``; the others are holes) are the components: about 8 us for
+    a target's ROI against 36 us to label it. The border is the one ``cv2.findContours``
+    gives on the component's bounding box alone (``RETR_EXTERNAL``), shifted by its corner:
+    the same pixels from the same first pixel in the same order."""
+    contours, hierarchy = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
     if not contours:
         return ()
-    if len(contours) > 1 and int(np.count_nonzero(hierarchy[0, :, 3] < 0)) > 1:
-        return None
-    x, y, w, h = cv2.boundingRect(mask)
-    return x, y, w, h, cv2.countNonZero(mask)
+    outer = contours[0]
+    if len(contours) > 1:
+        top = hierarchy[0, :, 3] < 0
+        if int(np.count_nonzero(top)) > 1:
+            return None
+        outer = contours[int(np.argmax(top))]
+    x, y, w, h = cv2.boundingRect(outer)
+    return x, y, w, h, cv2.countNonZero(mask), outer
 
 
 def center_sigma_parts(mask: np.ndarray, grey: np.ndarray, contour: np.ndarray, *,
@@ -891,21 +931,72 @@ def center_sigma_parts(mask: np.ndarray, grey: np.ndarray, contour: np.ndarray, 
     Returns:
         ``(sigma_edge, shade (2,))``; ``(nan, 0)`` for fewer than 12 contour points.
     """
-    n = len(contour)
-    if n < 12:
+    edge = _edge_sigmas([np.asarray(contour, dtype=np.float64)])[0]
+    if edge is None:
         return float("nan"), np.zeros(2)
-    (cx, cy), (d1, d2), ang = cv2.fitEllipse(contour.astype(np.float32))
-    a, b = 0.5 * d1, 0.5 * d2
-    if not (a > 0 and b > 0):
-        return float("nan"), np.zeros(2)
-    c, s_ = math.cos(math.radians(ang)), math.sin(math.radians(ang))
-    d = contour - (cx, cy)
+    return edge, _shade(mask, grey, moments)
+
+
+def _edge_sigmas(contours: Sequence[np.ndarray]) -> list[float | None]:
+    """``sigma_edge`` (module docstring) of each contour (float64, shape (K, 2)); None for
+    fewer than 12 points or a degenerate ellipse.
+
+    An ellipse is fitted to each contour (``cv2.fitEllipse``); the radial residuals of all the
+    contours are then computed in one pass of NumPy calls over their concatenation, and only
+    the sums are taken contour by contour. Element-wise arithmetic gives every element the same
+    bits whatever array it is in, and each sum runs over the same contiguous values in the same
+    order as for one contour alone: the result is that of one contour at a time, to the last
+    bit (test_hot_path_bits), with a fraction of the calls (each costs microseconds on a few
+    hundred points)."""
+    out: list[float | None] = [None] * len(contours)
+    fits: list[tuple[int, float, float, float, float, float, float]] = []
+    for i, contour in enumerate(contours):
+        if len(contour) < 12:
+            continue
+        (cx, cy), (d1, d2), ang = cv2.fitEllipse(contour.astype(np.float32))
+        a, b = 0.5 * d1, 0.5 * d2
+        if not (a > 0 and b > 0):
+            continue
+        fits.append((i, cx, cy, a, b, math.cos(math.radians(ang)), math.sin(math.radians(ang))))
+    if not fits:
+        return out
+    counts = [len(contours[f[0]]) for f in fits]
+    # the semi-axes, the angle's cosine and sine: numbers, or one per point
+    ax: Any
+    bx: Any
+    c: Any
+    s_: Any
+    if len(fits) == 1:           # one blob: its ellipse as scalars
+        _, cx, cy, ax, bx, c, s_ = fits[0]
+        d = contours[fits[0][0]] - (cx, cy)
+    else:                        # each contour's ellipse, one row per point
+        par = np.repeat(np.array([f[1:] for f in fits]), counts, axis=0)
+        d = np.concatenate([contours[f[0]] for f in fits]) - par[:, :2]
+        ax, bx, c, s_ = par[:, 2], par[:, 3], par[:, 4], par[:, 5]
     u, v = d[:, 0] * c + d[:, 1] * s_, -d[:, 0] * s_ + d[:, 1] * c
-    rho = np.sqrt((u / a) ** 2 + (v / b) ** 2)
+    rho = np.sqrt((u / ax) ** 2 + (v / bx) ** 2)
     res = (rho - 1.0) * np.hypot(u, v) / np.maximum(rho, 1e-12)
-    res = res - _mean(res)
-    var = float(_mean(res * res))
-    sigma_edge2 = var * 2.0 * _correlation_time(res, var) / n
+    if len(fits) == 1:
+        res = res - _mean(res)
+        var = float(_mean(res * res))
+        out[fits[0][0]] = math.sqrt(var * 2.0 * _correlation_time(res, var) / counts[0])
+        return out
+    ends = np.cumsum(counts).tolist()
+    starts = [0] + ends[:-1]
+    res = res - np.repeat(np.array([_mean(res[i:j]) for i, j in zip(starts, ends, strict=True)]),
+                          counts)
+    sq = res * res
+    for f, i, j in zip(fits, starts, ends, strict=True):
+        var = float(_mean(sq[i:j]))
+        # a fresh copy of the contour's residuals: the lag-1 dot product then reads an array
+        # laid out as one contour's own (its sum does not depend on where the block starts)
+        out[f[0]] = math.sqrt(var * 2.0 * _correlation_time(res[i:j].copy(), var) / (j - i))
+    return out
+
+
+def _shade(mask: np.ndarray, grey: np.ndarray,
+           moments: Mapping[str, float] | None = None) -> np.ndarray:
+    """``SHADE_GAIN * g`` of a blob (:func:`center_sigma_parts`)."""
     # g = brightness-weighted centroid - area centroid, from moments: m00 the weight (pixel
     # count), m10 / m01 the weighted sums of x / y. For uint8 images every one is an integer
     # below 2^53, summed exactly, so the result does not depend on the summation order.
@@ -916,7 +1007,31 @@ def center_sigma_parts(mask: np.ndarray, grey: np.ndarray, contour: np.ndarray, 
         m = cv2.moments(mask, binaryImage=True) if moments is None else moments
         shade = np.array([weighted["m10"] / total - m["m10"] / m["m00"],
                           weighted["m01"] / total - m["m01"] / m["m00"]])
-    return math.sqrt(sigma_edge2), SHADE_GAIN * shade
+    return SHADE_GAIN * shade
+
+
+def _measure_blobs(image: np.ndarray, blobs: Sequence[_Blob]) -> None:
+    """Fill in the centre-uncertainty terms of the blobs found in ``image`` (module
+    docstring): the edge term (:func:`_edge_sigmas`), the shading vector, the blur from the
+    edge width (:func:`_edge_widths`), and the threshold cut; all the blobs' NumPy work in one
+    pass, the same bits as one blob at a time."""
+    if not blobs:
+        return
+    edges = _edge_sigmas([b.local for b in blobs])
+    widths = _edge_widths(image, [b.roi_contour for b in blobs], [b.roi_center for b in blobs],
+                          [(b.x0, b.y0) for b in blobs], [b.roi_size for b in blobs])
+    for blob, edge_or_none, width in zip(blobs, edges, widths, strict=True):
+        if edge_or_none is None:
+            edge, shade = float("nan"), np.zeros(2)
+        else:
+            edge, shade = edge_or_none, _shade(blob.mask, blob.grey, blob.moments)
+        blur = math.sqrt(max(width * width - BLUR_W0_PX ** 2, 0.0)) if math.isfinite(width) \
+            else 0.0
+        shade = shade * (1.0 + SHADE_BLUR_GAIN * blur * blur)
+        cut = CUT_SIGMA_PX * (1.0 + CUT_BLUR_GAIN * blur) if math.isfinite(edge) else 0.0
+        blob.center_sigma_px = math.hypot(edge, float(np.hypot(*shade)), cut)
+        blob.edge_sigma_px, blob.shade_px, blob.cut_sigma_px, blob.blur_px = \
+            edge, shade, cut, blur
 
 
 #: How far (in correlation) the directly summed lag-1 autocorrelation must lie below the cut
@@ -983,13 +1098,44 @@ def edge_width(image: np.ndarray, contour: np.ndarray, center: np.ndarray) -> fl
     Returns:
         the width in pixels; NaN for fewer than 12 contour points or no contrast.
     """
-    n = len(contour)
-    if n < 12:
-        return float("nan")
-    # (the hot path: plain ufuncs on the 64 profiles; np.clip, np.diff and np.mean would give
+    h, w = image.shape[:2]
+    return _edge_widths(image, [contour], [np.asarray(center, dtype=np.float64)], [(0, 0)],
+                        [(w, h)])[0]
+
+
+def _edge_widths(image: np.ndarray, contours: Sequence[np.ndarray],
+                 centers: Sequence[np.ndarray], origins: Sequence[tuple[int, int]],
+                 sizes: Sequence[tuple[int, int]]) -> list[float]:
+    """:func:`edge_width` of several blobs of one image at once, to the last bit.
+
+    Blob ``i``'s region is ``image[oy:oy + h, ox:ox + w]`` (``origins[i] = (ox, oy)``,
+    ``sizes[i] = (w, h)``): its profiles are clamped to it, as :func:`edge_width` clamps them
+    to the image it is given; ``contours[i]`` and ``centers[i]`` are in the region's
+    coordinates. The profiles of all the blobs go through one pass of NumPy calls (element by
+    element, so each has the bits it has alone) and only each blob's mean is taken blob by blob
+    (over the same contiguous values in the same order)."""
+    out = [float("nan")] * len(contours)
+    use = [i for i, c in enumerate(contours) if len(c) >= 12]
+    if not use:
+        return out
+    # (the hot path: plain ufuncs on the profiles; np.clip, np.diff and np.mean would give
     # the same numbers through slower generic wrappers)
-    pts = contour[_profile_points(n)]
-    nrm = pts - center
+    counts = [min(len(contours[i]), _EDGE_PROFILES) for i in use]
+    if len(use) == 1:            # one blob: its region, as edge_width reads it
+        i = use[0]
+        (ox, oy), (w, h) = origins[i], sizes[i]
+        image = image[oy:oy + h, ox:ox + w]
+        pts = contours[i][_profile_points(len(contours[i]))]
+        cen: np.ndarray = centers[i]
+        x_max: Any = w - 1
+        y_max: Any = h - 1
+    else:
+        pts = np.concatenate([contours[i][_profile_points(len(contours[i]))] for i in use])
+        cen = np.repeat(np.array([centers[i] for i in use]), counts, axis=0)
+        geo = np.repeat(np.array([(origins[i][0], origins[i][1], sizes[i][0] - 1,
+                                   sizes[i][1] - 1) for i in use]), counts, axis=0)
+        x_max, y_max = geo[:, 2:3], geo[:, 3:]
+    nrm = pts - cen
     anrm = np.abs(nrm)
     horiz = anrm[:, 0] >= anrm[:, 1]
     cos = np.maximum(anrm[:, 0], anrm[:, 1]) / np.maximum(np.hypot(nrm[:, 0], nrm[:, 1]), 1e-9)
@@ -997,10 +1143,11 @@ def edge_width(image: np.ndarray, contour: np.ndarray, center: np.ndarray) -> fl
     j = np.arange(-_EDGE_BAND_PX, _EDGE_BAND_PX + 2)
     step = (sign[:, None] * j[None, :]).astype(np.intp)
     along = np.where(horiz[:, None], step, 0)
-    h, w = image.shape[:2]
     ipts = pts.astype(int)
-    xs = np.minimum(np.maximum(ipts[:, :1] + along, 0), w - 1)
-    ys = np.minimum(np.maximum(ipts[:, 1:] + (step - along), 0), h - 1)
+    xs = np.minimum(np.maximum(ipts[:, :1] + along, 0), x_max)
+    ys = np.minimum(np.maximum(ipts[:, 1:] + (step - along), 0), y_max)
+    if len(use) > 1:             # from each blob's region to the image
+        xs, ys = xs + geo[:, :1], ys + geo[:, 1:2]
     prof = image[ys, xs].astype(np.float32)                  # (P, samples[, 3])
     d = prof[:, 1:] - prof[:, :-1]
     if d.ndim == 3 and d.shape[2] == 3:
@@ -1013,10 +1160,16 @@ def edge_width(image: np.ndarray, contour: np.ndarray, center: np.ndarray) -> fl
         d = np.sqrt((d * d).sum(axis=2)) if d.ndim == 3 else np.abs(d)
     s1, s2 = np.add.reduce(d, axis=1), np.add.reduce(d * d, axis=1)
     ok = s2 > 0
-    k = int(np.count_nonzero(ok))
-    if k == 0:
-        return float("nan")
-    return float(np.add.reduce(s1[ok] ** 2 / s2[ok] * cos[ok]) / k) / (2.0 * math.sqrt(math.pi))
+    width = s1[ok] ** 2 / s2[ok] * cos[ok]          # the profiles with contrast, blob by blob
+    n_ok = np.cumsum(ok).tolist() if len(use) > 1 else [int(np.count_nonzero(ok))] * counts[0]
+    first = done = 0
+    for i, m in zip(use, counts, strict=True):
+        k = n_ok[first + m - 1] - done
+        first += m
+        if k:
+            out[i] = float(np.add.reduce(width[done:done + k]) / k) / (2.0 * math.sqrt(math.pi))
+        done += k
+    return out
 
 
 def _polygon_center_and_minor_axis(contour_norm: np.ndarray,
@@ -1029,20 +1182,49 @@ def _polygon_center_and_minor_axis(contour_norm: np.ndarray,
     Returns:
         (centre (2,), minor semi-axis), or (None, nan) for a degenerate polygon.
     """
-    c0 = _mean(contour_norm, axis=0)
-    p = (contour_norm - c0) * scale  # well-conditioned units (about pixels)
+    return _polygon_centers_and_minor_axes(contour_norm, [len(contour_norm)], scale)[0]
+
+
+def _polygon_centers_and_minor_axes(points: np.ndarray, counts: Sequence[int], scale: float
+                                    ) -> list[tuple[np.ndarray | None, float]]:
+    """:func:`_polygon_center_and_minor_axis` of several polygons at once, to the last bit:
+    ``points`` (float64, shape (N, 2), C order) holds them one after the other, ``counts``
+    their vertex counts. The per-vertex terms of all of them are one pass of NumPy calls; the
+    sums are taken polygon by polygon, over the same contiguous values as for one alone."""
+    ends = np.cumsum(counts).tolist()
+    starts = [0] + ends[:-1]
+    c0s = [_mean(points[a:b], axis=0) for a, b in zip(starts, ends, strict=True)]
+    if len(counts) == 1:
+        p = (points - c0s[0]) * scale  # well-conditioned units (about pixels)
+        nxt = np.concatenate((p[1:], p[:1]))      # the next vertex (np.roll by -1, cheaper)
+    else:
+        p = (points - np.repeat(np.array(c0s), counts, axis=0)) * scale
+        following = np.arange(1, len(p) + 1)
+        following[[b - 1 for b in ends]] = starts   # each polygon's last vertex: its first
+        nxt = p[following]
     x, y = p[:, 0], p[:, 1]
-    nxt = np.concatenate((p[1:], p[:1]))      # the next vertex (np.roll by -1, cheaper)
     xn, yn = nxt[:, 0], nxt[:, 1]
-    cross = x * yn - xn * y
-    a = np.add.reduce(cross) / 2.0
-    if abs(a) < 1e-9:
-        return None, float("nan")
-    cx = np.add.reduce((x + xn) * cross) / (6.0 * a)
-    cy = np.add.reduce((y + yn) * cross) / (6.0 * a)
-    sxx = np.add.reduce((x * x + x * xn + xn * xn) * cross) / (12.0 * a) - cx * cx
-    syy = np.add.reduce((y * y + y * yn + yn * yn) * cross) / (12.0 * a) - cy * cy
-    sxy = np.add.reduce((x * yn + 2 * x * y + 2 * xn * yn + xn * y) * cross) / (24.0 * a) - cx * cy
-    lam_min = 0.5 * (sxx + syy) - math.sqrt(max(0.0, 0.25 * (sxx - syy) ** 2 + sxy * sxy))
-    minor = 2.0 * math.sqrt(max(lam_min, 0.0)) + 0.5
-    return c0 + np.array([cx, cy]) / scale, minor / scale
+    # the summed terms, one row each (written in place: the bits of the plain expressions)
+    terms = np.empty((6, len(p)))
+    cross = np.subtract(x * yn, xn * y, out=terms[0])
+    np.multiply(x + xn, cross, out=terms[1])
+    np.multiply(y + yn, cross, out=terms[2])
+    np.multiply(x * x + x * xn + xn * xn, cross, out=terms[3])
+    np.multiply(y * y + y * yn + yn * yn, cross, out=terms[4])
+    np.multiply(x * yn + 2 * x * y + 2 * xn * yn + xn * y, cross, out=terms[5])
+    out: list[tuple[np.ndarray | None, float]] = []
+    for c0, a, b in zip(c0s, starts, ends, strict=True):
+        s_cross, s_x, s_y, s_xx, s_yy, s_xy = np.add.reduce(terms[:, a:b], axis=1)
+        area = s_cross / 2.0
+        if abs(area) < 1e-9:
+            out.append((None, float("nan")))
+            continue
+        cx = s_x / (6.0 * area)
+        cy = s_y / (6.0 * area)
+        sxx = s_xx / (12.0 * area) - cx * cx
+        syy = s_yy / (12.0 * area) - cy * cy
+        sxy = s_xy / (24.0 * area) - cx * cy
+        lam_min = 0.5 * (sxx + syy) - math.sqrt(max(0.0, 0.25 * (sxx - syy) ** 2 + sxy * sxy))
+        minor = 2.0 * math.sqrt(max(lam_min, 0.0)) + 0.5
+        out.append((c0 + np.array([cx, cy]) / scale, minor / scale))
+    return out

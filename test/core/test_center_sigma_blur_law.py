@@ -49,7 +49,7 @@ def image() -> np.ndarray:
 def _detect(image: np.ndarray, monkeypatch, b: float):
     """The detection with the edge width held at the width of a blur ``b``."""
     w = math.sqrt(BLUR_W0_PX ** 2 + b * b)
-    monkeypatch.setattr(detection, "edge_width", lambda *a, **k: w)
+    monkeypatch.setattr(detection, "_edge_widths", lambda image, contours, *a: [w] * len(contours))
     det = ColorDetector(DetectorConfig(targets=(TargetSpec(
         "red", ColorRange((170, 120, 70), (10, 255, 255)), radius_m=0.02),)))
     d = det.detect(image, CAM)
@@ -74,7 +74,8 @@ def test_shading_grows_with_b_squared_and_the_cut_with_b(image, monkeypatch, b) 
 
 
 def test_an_edge_narrower_than_the_unblurred_width_is_no_blur(image, monkeypatch) -> None:
-    monkeypatch.setattr(detection, "edge_width", lambda *a, **k: 0.5 * BLUR_W0_PX)
+    monkeypatch.setattr(detection, "_edge_widths",
+                        lambda image, contours, *a: [0.5 * BLUR_W0_PX] * len(contours))
     det = ColorDetector(DetectorConfig(targets=(TargetSpec(
         "red", ColorRange((170, 120, 70), (10, 255, 255)), radius_m=0.02),)))
     d = det.detect(image, CAM)[0]

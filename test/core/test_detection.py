@@ -175,8 +175,10 @@ def test_hsi_range_detects_the_same_sphere_as_hsv():
 def test_one_component_is_found_without_labelling_as_labelling_finds_it():
     """The fine pass labels a ROI's mask only when it holds several components: for one,
     ``_single_component`` gives the stats ``connectedComponentsWithStats`` gives (bounding
-    box, pixel count), for several None, for none ``()``. Random blobs with holes, diagonal
-    contacts (8-connected: one component), nested rings and image-edge contact."""
+    box, pixel count) and the outer border ``cv2.findContours`` traces on the component's
+    bounding box alone (the fine pass's contour: the same points in the same order), for
+    several None, for none ``()``. Random blobs with holes, diagonal contacts (8-connected:
+    one component), nested rings and image-edge contact."""
     from eye_in_hand.core.detection import _single_component
 
     rng = np.random.default_rng(3)
@@ -202,7 +204,12 @@ def test_one_component_is_found_without_labelling_as_labelling_finds_it():
             assert got == ()
             seen["none"] += 1
         elif n == 2:
-            assert got == tuple(int(v) for v in stats[1]), (trial, got, stats[1])
+            assert got[:5] == tuple(int(v) for v in stats[1]), (trial, got, stats[1])
+            x, y, w, h = got[:4]
+            crop = cv2.threshold(mask[y:y + h, x:x + w], 0, 1, cv2.THRESH_BINARY)[1]
+            alone, _ = cv2.findContours(crop, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+            assert len(alone) == 1
+            np.testing.assert_array_equal(got[5] - (x, y), alone[0])
             seen["one"] += 1
         else:
             assert got is None, (trial, n)

@@ -123,6 +123,82 @@ def test_blob_measurements_are_those_of_the_plain_spelling() -> None:
     assert checked >= 30
 
 
+def _polygon_plain(contour_norm: np.ndarray, scale: float) -> tuple[np.ndarray | None, float]:
+    """``_polygon_center_and_minor_axis`` as one polygon's plain NumPy."""
+    c0 = contour_norm.mean(axis=0)
+    p = (contour_norm - c0) * scale
+    x, y = p[:, 0], p[:, 1]
+    nxt = np.roll(p, -1, axis=0)
+    xn, yn = nxt[:, 0], nxt[:, 1]
+    cross = x * yn - xn * y
+    a = np.sum(cross) / 2.0
+    if abs(a) < 1e-9:
+        return None, float("nan")
+    cx = np.sum((x + xn) * cross) / (6.0 * a)
+    cy = np.sum((y + yn) * cross) / (6.0 * a)
+    sxx = np.sum((x * x + x * xn + xn * xn) * cross) / (12.0 * a) - cx * cx
+    syy = np.sum((y * y + y * yn + yn * yn) * cross) / (12.0 * a) - cy * cy
+    sxy = np.sum((x * yn + 2 * x * y + 2 * xn * yn + xn * y) * cross) / (24.0 * a) - cx * cy
+    lam_min = 0.5 * (sxx + syy) - math.sqrt(max(0.0, 0.25 * (sxx - syy) ** 2 + sxy * sxy))
+    return c0 + np.array([cx, cy]) / scale, (2.0 * math.sqrt(max(lam_min, 0.0)) + 0.5) / scale
+
+
+def test_blobs_measured_together_have_the_bits_of_each_alone(monkeypatch) -> None:
+    """The detector measures all of an image's blobs in one pass of NumPy calls
+    (``_edge_sigmas``, ``_edge_widths``, ``_polygon_centers_and_minor_axes``): each blob's
+    numbers are those of its plain one-blob spelling, to the last bit. Groups of 1-6 blobs of
+    5-60 px radius (smooth contours whose residuals take the FFT among them), contours too
+    short to measure, and each blob in a region just around it, so that its profiles are
+    clamped to its own region, not to the image."""
+    rng = np.random.default_rng(9)
+    blobs = [c.reshape(-1, 2) for _, c in _blob_contours(60, 4)]
+    blobs += [np.array([[0, 0], [1, 0], [2, 1], [1, 2], [0, 1]], np.int32)]   # too short
+    image = rng.integers(0, 256, (300, 400, 3), dtype=np.uint8)
+    taus: list[float] = []
+    tau = detection._correlation_time
+    monkeypatch.setattr(detection, "_correlation_time",
+                        lambda res, var: taus.append(tau(res, var)) or taus[-1])
+    short = 0
+    for _ in range(40):
+        pick = [blobs[i] for i in rng.choice(len(blobs), int(rng.integers(1, 7)), replace=False)]
+        local = [c.astype(np.float64) for c in pick]
+        together = detection._edge_sigmas(local)
+        for c, got in zip(local, together, strict=True):
+            if len(c) < 12:
+                assert got is None
+                short += 1
+                continue
+            assert _bits(got) == _bits(_edge_sigma_plain(c))
+        # each blob in a region 2 px around its bounding box, somewhere in the image
+        origins, sizes, regional, centers = [], [], [], []
+        for c in pick:
+            x, y, w, h = cv2.boundingRect(c.reshape(-1, 1, 2))
+            w, h = w + 4, h + 4
+            ox, oy = int(rng.integers(0, 400 - w)), int(rng.integers(0, 300 - h))
+            origins.append((ox, oy))
+            sizes.append((w, h))
+            regional.append(c - (x - 2, y - 2))
+            centers.append(regional[-1].mean(axis=0) + rng.normal(0, 0.3, 2))
+        widths = detection._edge_widths(image, regional, centers, origins, sizes)
+        for c, centre, (ox, oy), (w, h), got in zip(regional, centers, origins, sizes, widths,
+                                                     strict=True):
+            if len(c) < 12:
+                assert math.isnan(got)
+                continue
+            want = _edge_width_plain(image[oy:oy + h, ox:ox + w], c, centre)
+            assert _bits(got) == _bits(want)
+        norm = [(c + rng.normal(0, 0.2, c.shape)) / 900.0 for c in pick if len(c) >= 5]
+        if norm:
+            polys = detection._polygon_centers_and_minor_axes(np.concatenate(norm),
+                                                              [len(c) for c in norm], 900.0)
+            for c, (centre, minor) in zip(norm, polys, strict=True):
+                want_c, want_minor = _polygon_plain(c, 900.0)
+                assert want_c is not None and centre is not None
+                assert _bits(centre, minor) == _bits(want_c, want_minor)
+    # contours too short, and residuals correlated enough for the FFT (tau above 1)
+    assert short > 0 and sum(t > 1.0 for t in taus) >= 10, taus
+
+
 def _lag1(res: np.ndarray) -> float:
     n = len(res)
     spec = np.fft.rfft(res)
