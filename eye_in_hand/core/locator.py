@@ -63,6 +63,7 @@ from eye_in_hand.core.triangulation import (
     triangulate_dlt,
     triangulate_optimal,
     triangulate_parallax,
+    triangulate_rectified,
 )
 from eye_in_hand.errors import InputError
 
@@ -636,6 +637,12 @@ class StereoLocator:
         rejections only (dlt and disparity skip the covariance, NaN; optimal computes it)."""
         cfg = self.config
         gate = cfg.max_residual_px
+        if cfg.method != "optimal" and (pix[1] is not None or not covariance):
+            # the detections' own covariance, built here as a sum of squares, or none: used
+            # as it is (the rig, the pixels and it are this locator's own)
+            return triangulate_rectified(self.rig, xl, xr, method=cfg.method,
+                                         pixel_cov=pix[1] if covariance else None,
+                                         max_residual_px=gate)
         kw: dict[str, Any] = ({"sigma_px": pix[0]} if pix[1] is None else {"pixel_cov": pix[1]})
         if cfg.method == "dlt":
             return triangulate_dlt(self.rig, xl, xr, rectified=True, max_residual_px=gate,
@@ -644,7 +651,8 @@ class StereoLocator:
             return triangulate_parallax(self.rig, xl, xr, rectified=True, max_residual_px=gate,
                                         covariance=covariance, **kw)
         # the start's covariance is not used: only its point
-        start = triangulate_dlt(self.rig, xl, xr, rectified=True, covariance=False)
+        start = triangulate_rectified(self.rig, xl, xr, method="dlt", pixel_cov=None,
+                                      max_residual_px=None)
         return triangulate_optimal(self.rig, left_px, right_px, initial=start,
                                    max_residual_px=gate, **kw)
 

@@ -47,6 +47,7 @@ __all__ = [
     "triangulate_dlt",
     "triangulate_parallax",
     "triangulate_optimal",
+    "triangulate_rectified",
     "triangulate",
 ]
 
@@ -290,6 +291,13 @@ def triangulate_dlt(rig: StereoRig, left_px, right_px, *, sigma_px: float | Sequ
         xl, xr, Jpx = _px(left_px, "left_px"), _px(right_px, "right_px"), _EYE4
     else:
         xl, xr, Jpx = _rectify_with_jacobian(rig, left_px, right_px)
+    return _dlt(rig, xl, xr, Jpx, S, covariance, max_residual_px)
+
+
+def _dlt(rig: StereoRig, xl: np.ndarray, xr: np.ndarray, Jpx: np.ndarray, S: np.ndarray | None,
+         covariance: bool, max_residual_px: float | None) -> StereoPoint:
+    """:func:`triangulate_dlt`'s work on checked rectified pixels ``xl, xr`` (``Jpx`` their
+    Jacobian from the inputs, ``S`` the inputs' covariance or None)."""
     d = _disparity(rig, xl, xr)
     _check_disparity(rig, d)
     P1, P2 = rig.P1, rig.P2
@@ -321,14 +329,25 @@ def triangulate_parallax(rig: StereoRig, left_px, right_px, *,
     """
     _check_rig(rig)
     S = _pixel_cov(sigma_px, pixel_cov) if covariance else None
-    P1, P2 = rig.P1, rig.P2
-    if abs(P2[1, 3]) > abs(P2[0, 3]):
-        raise InputError("parallax method: the rig is rectified vertically; use 'dlt' or "
-                         "'optimal'")
+    _check_horizontal(rig)
     if rectified:
         xl, xr, Jpx = _px(left_px, "left_px"), _px(right_px, "right_px"), _EYE4
     else:
         xl, xr, Jpx = _rectify_with_jacobian(rig, left_px, right_px)
+    return _parallax(rig, xl, xr, Jpx, S, max_residual_px)
+
+
+def _check_horizontal(rig: StereoRig) -> None:
+    if abs(rig.P2[1, 3]) > abs(rig.P2[0, 3]):
+        raise InputError("parallax method: the rig is rectified vertically; use 'dlt' or "
+                         "'optimal'")
+
+
+def _parallax(rig: StereoRig, xl: np.ndarray, xr: np.ndarray, Jpx: np.ndarray,
+              S: np.ndarray | None, max_residual_px: float | None) -> StereoPoint:
+    """:func:`triangulate_parallax`'s work on checked rectified pixels of a horizontal rig
+    (arguments as :func:`_dlt`'s)."""
+    P1, P2 = rig.P1, rig.P2
     d = _disparity(rig, xl, xr)
     _check_disparity(rig, d)
     f, fy = P1[0, 0], P1[1, 1]
@@ -351,6 +370,40 @@ def triangulate_parallax(rig: StereoRig, left_px, right_px, *,
     cov = J @ S @ J.T
     return _finish(rig, X_rect, cov, _reproj_rms(P1, P2, X_rect, xl, xr), "disparity", d,
                    max_residual_px)
+
+
+def triangulate_rectified(rig: StereoRig, xl: np.ndarray, xr: np.ndarray, *, method: str,
+                          pixel_cov: np.ndarray | None,
+                          max_residual_px: float | None) -> StereoPoint:
+    """:func:`triangulate_dlt` (``method`` "dlt") or :func:`triangulate_parallax`
+    ("disparity") of rectified pixels, for a caller that made the rig and the covariance
+    itself: ``pixel_cov`` is used as given, not checked (the checks, an eigen-decomposition
+    among them, cost a fifth of a located target's two triangulations; the stereo locator builds
+    its covariance as a sum of squares, symmetric and positive semi-definite, for every blob
+    pair). The same point, covariance and rejections, to the last bit.
+
+    Args:
+        rig: a rectified stereo rig.
+        xl, xr: rectified pixel coordinates, float64, shape (2,).
+        method: "dlt" or "disparity".
+        pixel_cov: the (4, 4) covariance of (xl, yl, xr, yr): finite, symmetric, positive
+            semi-definite; None for no covariance (NaN, as ``covariance=False``).
+        max_residual_px: reject above this RMS reprojection residual (None: no gate).
+
+    Raises:
+        InputError: a coordinate is not finite, an unknown method, or "disparity" on a
+            vertically rectified rig. Rejected: as the two functions.
+    """
+    if not (math.isfinite(xl[0]) and math.isfinite(xl[1]) and math.isfinite(xr[0])
+            and math.isfinite(xr[1])):
+        raise InputError(f"xl, xr: expected finite rectified pixel coordinates, got "
+                         f"{xl!r}, {xr!r}")
+    if method == "dlt":
+        return _dlt(rig, xl, xr, _EYE4, pixel_cov, pixel_cov is not None, max_residual_px)
+    if method == "disparity":
+        _check_horizontal(rig)
+        return _parallax(rig, xl, xr, _EYE4, pixel_cov, max_residual_px)
+    raise InputError(f"method: {method!r} is not 'dlt' or 'disparity'")
 
 
 def _project_with_jacobian(K: np.ndarray, dist: np.ndarray, R: np.ndarray, t: np.ndarray,

@@ -12,6 +12,7 @@ from eye_in_hand.core.triangulation import (
     triangulate_dlt,
     triangulate_optimal,
     triangulate_parallax,
+    triangulate_rectified,
 )
 from eye_in_hand.errors import InputError
 
@@ -166,6 +167,51 @@ def test_without_covariance_the_point_and_rejections_are_the_same_bits(fn, recti
                 fn(RIG, *args, max_residual_px=2.0, covariance=cov)
             reasons.append((exc.value.reason, str(exc.value)))
         assert reasons[0] == reasons[1] and reasons[0][0] == reason
+
+
+@pytest.mark.parametrize("fn, method", [(triangulate_dlt, "dlt"),
+                                        (triangulate_parallax, "disparity")])
+def test_the_unchecked_rectified_entry_is_the_checked_functions(fn, method):
+    """``triangulate_rectified`` (the stereo locator's, with a covariance it built) gives the
+    checked function's point, covariance, residual and disparity to the last bit, with and
+    without a covariance, the same rejections, and still refuses what it cannot use."""
+    rng = np.random.default_rng(22)
+    for X in rng.uniform([-0.2, -0.1, 0.25], [0.2, 0.1, 1.5], (20, 3)):
+        pl, pr = observe(RIG, X)
+        xl = RIG.left.rectify_points((pl + rng.normal(0, 0.3, 2))[None])[0]
+        xr = RIG.right.rectify_points((pr + rng.normal(0, 0.3, 2))[None])[0]
+        v = rng.normal(0, 0.2, 4)
+        S = np.diag(np.repeat(rng.uniform(0.01, 0.3, 2), 2)) + np.outer(v, v)
+        for cov in (S, None):
+            want = fn(RIG, xl, xr, pixel_cov=S, max_residual_px=2.0, rectified=True,
+                      covariance=cov is not None)
+            got = triangulate_rectified(RIG, xl, xr, method=method, pixel_cov=cov,
+                                        max_residual_px=2.0)
+            assert got.point.tobytes() == want.point.tobytes()
+            assert got.covariance.tobytes() == want.covariance.tobytes()
+            assert (got.residual_px, got.disparity_px, got.method) == \
+                (want.residual_px, want.disparity_px, want.method)
+    pl, pr = observe(RIG, np.array([0.05, 0.0, 0.6]))
+    xl, xr = RIG.left.rectify_points(pl[None])[0], RIG.right.rectify_points(pr[None])[0]
+    for args, reason in (((xr, xl), "non_positive_disparity"),
+                         ((xl, xr + (0.0, 20.0)), "residual_gate")):
+        with pytest.raises(Rejected) as want_exc:
+            fn(RIG, *args, max_residual_px=2.0, rectified=True)
+        with pytest.raises(Rejected) as got_exc:
+            triangulate_rectified(RIG, *args, method=method, pixel_cov=np.eye(4),
+                                  max_residual_px=2.0)
+        assert (got_exc.value.reason, str(got_exc.value)) == \
+            (want_exc.value.reason, str(want_exc.value)) and got_exc.value.reason == reason
+    with pytest.raises(InputError, match="finite"):
+        triangulate_rectified(RIG, np.array([np.nan, 1.0]), xr, method=method, pixel_cov=None,
+                              max_residual_px=None)
+    with pytest.raises(InputError, match="method"):
+        triangulate_rectified(RIG, xl, xr, method="optimal", pixel_cov=None, max_residual_px=None)
+    if method == "disparity":            # a vertically rectified rig: no parallax
+        vertical = StereoRig(RIG.left, RIG.right, np.eye(3), [0.0, -0.06, 0.0]).rectified()
+        with pytest.raises(InputError, match="vertically"):
+            triangulate_rectified(vertical, xl, xr, method=method, pixel_cov=None,
+                                  max_residual_px=None)
 
 
 def test_rays_parallel_to_machine_precision_are_rejected_not_a_crash():
