@@ -195,6 +195,15 @@ class CameraModel:
                                    self.dist)
         return img.reshape(2)
 
+    def project_directions(self, xy: np.ndarray) -> np.ndarray:
+        """:meth:`project_direction` of each ideal normalised point, ``xy`` shape (N, 2), in one
+        ``cv2.projectPoints`` call: the pixels, shape (N, 2), to the last bit (OpenCV projects
+        each point on its own)."""
+        pts = np.ones((len(xy), 1, 3))
+        pts[:, 0, :2] = xy
+        img, _ = cv2.projectPoints(pts, _NO_MOTION, _NO_MOTION, self.K, self.dist)
+        return img.reshape(-1, 2)
+
     def undistort_points(self, px: Any) -> np.ndarray:
         """Distorted pixels to ideal normalised coordinates (x/z, y/z), shape (N, 2)."""
         pts = _as_pixels(px).reshape(-1, 1, 2)

@@ -837,33 +837,44 @@ class ColorDetector:
                                                else np.concatenate(contours))
                 ellipses = dict(zip(spheres, _polygon_centers_and_minor_axes(
                     norm, [len(c) for c in contours], camera.fx), strict=True))
-        return [self._make_detection(target, blob, camera, ellipses.get(k))
+        # each sphere's centre from its ellipse, then all of them projected in one call
+        spheres_c: list[tuple[int, np.ndarray, float, np.ndarray]] = []
+        for k, (ellipse_c, minor) in ellipses.items():
+            if ellipse_c is not None:
+                theta = math.atan(float(np.hypot(*ellipse_c)))
+                alpha = angular_radius_from_minor_axis(minor, theta)
+                spheres_c.append((k, ellipse_c, alpha, sphere_center_direction(ellipse_c, alpha)))
+        centres: dict[int, tuple[np.ndarray, float, np.ndarray, np.ndarray]] = {}
+        if camera is not None and spheres_c:
+            px = camera.project_directions(np.array([c[3] for c in spheres_c]))
+            centres = {k: (ellipse_c, alpha, norm, row.copy())
+                       for (k, ellipse_c, alpha, norm), row in zip(spheres_c, px, strict=True)}
+        return [self._make_detection(target, blob, camera, k in ellipses, centres.get(k))
                 for k, (target, blob) in enumerate(found)]
 
     @staticmethod
     def _make_detection(target: TargetSpec, blob: _Blob, camera: CameraModel | None,
-                        ellipse: tuple[np.ndarray | None, float] | None) -> Detection | None:
-        """One blob's detection; ``ellipse`` its undistorted polygon's centre and minor
-        semi-axis when the sphere correction applies to it, else None."""
+                        corrected: bool,
+                        centre: tuple[np.ndarray, float, np.ndarray, np.ndarray] | None
+                        ) -> Detection | None:
+        """One blob's detection. ``corrected``: the sphere correction applies to it, and then
+        ``centre`` is its ``(ellipse centre, alpha, centre direction, centre pixel)``, None for
+        a degenerate polygon."""
         if camera is None:
             nan2 = np.full(2, np.nan)
             return Detection(target.name, blob.centroid, blob.centroid.copy(), nan2, blob.area,
                              blob.circularity, blob.bbox, center_sigma_px=blob.center_sigma_px,
                              edge_sigma_px=blob.edge_sigma_px, shade_px=blob.shade_px,
                              cut_sigma_px=blob.cut_sigma_px, blur_px=blob.blur_px)
-        if ellipse is None:
+        if not corrected:
             norm = camera.undistort_points(blob.centroid)[0]
             return Detection(target.name, blob.centroid, blob.centroid.copy(), norm, blob.area,
                              blob.circularity, blob.bbox, center_sigma_px=blob.center_sigma_px,
                              edge_sigma_px=blob.edge_sigma_px, shade_px=blob.shade_px,
                              cut_sigma_px=blob.cut_sigma_px, blur_px=blob.blur_px)
-        ellipse_c, minor = ellipse
-        if ellipse_c is None:
+        if centre is None:
             return None
-        theta = math.atan(float(np.hypot(*ellipse_c)))
-        alpha = angular_radius_from_minor_axis(minor, theta)
-        center_norm = sphere_center_direction(ellipse_c, alpha)
-        center_px = camera.project_direction(center_norm[0], center_norm[1])
+        ellipse_c, alpha, center_norm, center_px = centre
         return Detection(target.name, blob.centroid, center_px, center_norm, blob.area,
                          blob.circularity, blob.bbox, alpha, ellipse_c, blob.center_sigma_px,
                          blob.edge_sigma_px, blob.shade_px, blob.cut_sigma_px, blob.blur_px)

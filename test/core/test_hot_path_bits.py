@@ -34,6 +34,12 @@ def test_project_direction_is_project_of_the_direction(model: str) -> None:
         got = cam.project_direction(x, y)
         assert got.shape == (2,)
         assert _bits(got) == _bits(cam.project(np.array([[x, y, 1.0]]))[0])
+    # several directions in one call (the detector's spheres of one image): each one's bits
+    for n in (1, 2, 7):
+        xy = rng.uniform(-0.8, 0.8, (n, 2))
+        many = cam.project_directions(xy)
+        assert many.shape == (n, 2)
+        assert _bits(many) == _bits(np.array([cam.project_direction(x, y) for x, y in xy]))
 
 
 def _blob_contours(n_blobs: int, seed: int):
