@@ -337,8 +337,8 @@ MUTANTS: tuple[Mutant, ...] = (
       "several polygons measured together: a polygon's last vertex joined to the next one's "
       "first"),
     M("detection-outer-border-shift", "core/detection.py",
-      "            contour = outer - (bx, by)   # its outer border, traced already\n",
-      "            contour = outer\n",
+      "            local -= (bx, by)            # (whole numbers: exact)\n",
+      "            pass\n",
       "the outer border traced on the ROI used without moving it to the blob's bounding box"),
     # -- core/locator.py
     M("locator-missed-reset", "core/locator.py",

@@ -801,12 +801,17 @@ class ColorDetector:
         # the component's 0/1 mask (the 0/255 mask's pixels above 0: one cv2.threshold pass)
         if labels is None:
             comp = cv2.threshold(mask[by:by + bh, bx:bx + bw], 0, 1, cv2.THRESH_BINARY)[1]
-            contour = outer - (bx, by)   # its outer border, traced already
+            contour = outer              # its outer border, traced already (the ROI's pixels)
+            roi_contour = outer.reshape(-1, 2)
+            local = roi_contour.astype(np.float64)
+            local -= (bx, by)            # (whole numbers: exact)
         else:
             comp = (labels[by:by + bh, bx:bx + bw] == k).astype(np.uint8)
             contours, _ = cv2.findContours(comp, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
             contour = max(contours, key=cv2.contourArea)
-        perimeter = cv2.arcLength(contour, True)
+            local = contour.reshape(-1, 2).astype(np.float64)
+            roi_contour = contour.reshape(-1, 2) + (bx, by)
+        perimeter = cv2.arcLength(contour, True)   # (the same wherever the contour lies)
         circ = 4.0 * math.pi * area / (perimeter * perimeter) if perimeter > 0 else 0.0
         if circ < target.min_circularity:
             return None
@@ -814,11 +819,10 @@ class ColorDetector:
         # without the binary pass's conversion of the mask
         mom = cv2.moments(comp)
         centroid = np.array([x0 + bx + mom["m10"] / mom["m00"], y0 + by + mom["m01"] / mom["m00"]])
-        local = contour.reshape(-1, 2).astype(np.float64)
         pts = local + (x0 + bx, y0 + by)
         grey = cv2.cvtColor(roi[by:by + bh, bx:bx + bw], cv2.COLOR_BGR2GRAY)
         return _Blob(comp, x0, y0, float(area), float(min(circ, 1.0)), centroid, pts, bbox,
-                     local, grey, mom, (x1 - x0, y1 - y0), contour.reshape(-1, 2) + (bx, by),
+                     local, grey, mom, (x1 - x0, y1 - y0), roi_contour,
                      np.array([bx + mom["m10"] / mom["m00"], by + mom["m01"] / mom["m00"]]))
 
     def _make_detections(self, found: Sequence[tuple[TargetSpec, _Blob]],
