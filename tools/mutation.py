@@ -217,6 +217,13 @@ MUTANTS: tuple[Mutant, ...] = (
       "        [st, ct * ca, -ct * sa, a * st],\n", "        [st, ct * ca, ct * sa, a * st],\n",
       "the DH link twist's sign flipped in one entry"),
     # -- core/sync.py
+    M("sync-interpolation-memo-later-bracket", "core/sync.py",
+      "last[1] is not p0 or last[2] is not p1:", "last[1] is not p0:",
+      "a stamp looked up again keeps its old pose after its later bracketing pose arrived "
+      "again with other values"),
+    M("sync-interpolation-memo-shared", "core/sync.py",
+      "        out: np.ndarray = last[3].copy()\n", "        out: np.ndarray = last[3]\n",
+      "a stamp looked up again returns the array the caller changed the first time"),
     M("sync-tie-rule", "core/sync.py",
       "            if gap <= abs(a2 - b):\n", "            if gap < abs(a2 - b):\n",
       "stereo pairing tie goes to the later frame"),

@@ -42,6 +42,10 @@ from eye_in_hand.errors import InputError
 __all__ = ["LocalizerConfig", "TargetInBase", "target_in_base", "robot_pose_sigmas",
            "Localizer"]
 
+#: the 3x3 identity (read-only: shared)
+_EYE3 = np.eye(3)
+_EYE3.setflags(write=False)
+
 
 def _skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
@@ -146,10 +150,10 @@ def _propagate(b_T_e: np.ndarray, e_T_c: np.ndarray, p_c: np.ndarray,
         cov += J @ cov_cam @ J.T
     if cov_hand_eye is not None:
         # d p_ee = dt - [q]x dr  (left rotation perturbation in the ee frame)
-        J = Rb @ np.hstack([np.eye(3), -_skew(q)])
+        J = Rb @ np.hstack([_EYE3, -_skew(q)])
         cov += J @ cov_hand_eye @ J.T
     if robot_sigma_pos_m > 0:
-        cov += robot_sigma_pos_m ** 2 * np.eye(3)
+        cov += robot_sigma_pos_m ** 2 * _EYE3
     if robot_sigma_rot_rad > 0:
         J = -Rb @ _skew(p_ee)         # d p_base = -R_b [p_ee]x dr (flange-frame perturbation)
         cov += robot_sigma_rot_rad ** 2 * (J @ J.T)

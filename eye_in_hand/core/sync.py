@@ -297,6 +297,10 @@ class PoseBuffer:
         self._poses: list[np.ndarray] = []
         self._received: list[int | None] = []
         self._newest_received: int | None = None
+        #: the last interpolation: (stamp, the two poses it used, the pose at the stamp); a
+        #: consumer looks the same image stamp up once per output (hand_eye: its first
+        #: target's pose, then the same target in its frame)
+        self._interpolated: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
         #: Buffer clears per cause: ``time_jump``, ``stream_stopped``, ``clock_jump``.
         self.resets: dict[str, int] = {"time_jump": 0, "stream_stopped": 0, "clock_jump": 0}
 
@@ -329,6 +333,7 @@ class PoseBuffer:
         self._poses.clear()
         self._received.clear()
         self._newest_received = None
+        self._interpolated = None
 
     def _reset(self, cause: str) -> None:
         self.clear()
@@ -496,7 +501,15 @@ class PoseBuffer:
                 f"{self._name} at {stamp} ns: the bracketing poses are {(s1 - s0) / 1e6:.3f} ms "
                 f"apart, over the limit of {gap_limit / 1e6:.3f} ms", reason="pose_gap")
         self._check_age(stamp, (i - 1, i), now_ns, max_age_ns)
-        return interpolate_unchecked(stamp, s0, self._poses[i - 1], s1, self._poses[i])
+        p0, p1 = self._poses[i - 1], self._poses[i]
+        last = self._interpolated
+        # the same stamp between the same two poses (read-only arrays, replaced, never
+        # changed, when a pose arrives again): the same pose, not computed again
+        if last is None or last[0] != stamp or last[1] is not p0 or last[2] is not p1:
+            last = self._interpolated = (stamp, p0, p1, interpolate_unchecked(stamp, s0, p0,
+                                                                               s1, p1))
+        out: np.ndarray = last[3].copy()
+        return out
 
     def forget_before(self, stamp_ns: int) -> int:
         """Drop the poses that no lookup at or after ``stamp_ns`` uses: every pose older than

@@ -92,6 +92,9 @@ def as_rotation(R: ArrayLike, name: str = "R", *, atol: float = ORTHONORMAL_ATOL
 
 
 _EYE3 = np.eye(3)
+_EYE3.setflags(write=False)
+_EYE4 = np.eye(4)
+_EYE4.setflags(write=False)
 
 
 def _checked_rotation(arr: np.ndarray, name: str, atol: float) -> np.ndarray:
@@ -394,7 +397,7 @@ def interpolate_unchecked(stamp_ns: int, stamp0_ns: int, A: np.ndarray, stamp1_n
         sin_t = math.sin(theta)
         w0, w1 = math.sin((1.0 - s) * theta) / sin_t, math.sin(s * theta) / sin_t
     q = [w0 * a + w1 * b for a, b in zip(q0, q1, strict=True)]
-    out = np.eye(4)
+    out: np.ndarray = _EYE4.copy()
     out[:3, :3] = quat_xyzw_to_matrix(q)
     out[:3, 3] = (1.0 - s) * A[:3, 3] + s * B[:3, 3]
     return out

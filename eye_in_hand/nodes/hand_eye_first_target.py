@@ -10,6 +10,7 @@ and ``/tf`` ``base_frame -> target_frame``; at the first image stamp it latches
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -172,7 +173,7 @@ class FirstTarget:
         try:
             stamp = sec_nanosec_to_ns(sec, nanosec, "header.stamp")
             cov = position_covariance(values, "pose.covariance")
-            if not np.all(np.isfinite(cov)):
+            if not np.isfinite(cov).all():
                 raise InputError("covariance contains NaN")
         except (ConversionError, InputError) as exc:
             self.diag.report("bad_point_cov", f"target/point_cov: {exc}")
@@ -204,7 +205,8 @@ class FirstTarget:
         self._tf_output.publish_target(stamp_ns, p)
         self.diag.count("poses_published")
         self.diag.gauge("latency_ms", round((self._now_ns() - stamp_ns) / 1e6, 3))
-        self.diag.gauge("sigma_mm", round(1000.0 * float(np.sqrt(max(np.trace(cov), 0.0))), 4))
+        trace = float(cov[0, 0] + cov[1, 1] + cov[2, 2])
+        self.diag.gauge("sigma_mm", round(1000.0 * math.sqrt(max(trace, 0.0)), 4))
 
     def point_refused(self, item: WaitingPoint, reason: str, detail: str) -> None:
         """A point that gives no ``target/pose``: counted and reported by reason."""

@@ -189,7 +189,7 @@ class EveryTarget:
         self.diag.count("target_points_received")
         if frame and frame.lstrip("/") != self.config.camera_frame:
             problem = f"frame {frame!r}, expected {self.config.camera_frame!r}"
-        elif not np.all(np.isfinite(cov)):
+        elif not np.isfinite(cov).all():
             problem = "covariance contains NaN"
         else:
             self.pipeline.add_target_point(tid, stamp, p, cov)

@@ -178,7 +178,7 @@ def spheres_from_marker_fields(markers: Sequence[tuple[Any, ...]]
             raise ConversionError(f"{where}: the target id (ns) is empty or repeated")
         seen.add(ns)
         xyz = np.array(position, dtype=np.float64)
-        if not np.all(np.isfinite(xyz)):
+        if not np.isfinite(xyz).all():
             raise ConversionError(f"{where}: position is not finite")
         d = float(d)
         if not (math.isfinite(d) and d > 0):

@@ -127,6 +127,37 @@ def test_pose_buffer_interpolates_between_brackets():
     assert np.allclose(T0[:3, :3] @ Rotation.from_rotvec(rel / 4).as_matrix(), q[:3, :3])
 
 
+def test_the_same_stamp_looked_up_again_is_the_same_pose_until_a_bracket_changes():
+    """A stamp looked up again (hand_eye: once per output) gives the same pose, a new array
+    each time (changing one changes nothing else); a bracketing pose that arrives again with
+    other values, or a new pose between, gives the new interpolation, as on a fresh buffer."""
+    from eye_in_hand.core.transforms import interpolate_unchecked
+
+    rng = np.random.default_rng(8)
+    T0, T1, T2, T3 = (_pose(rng) for _ in range(4))
+    buf = PoseBuffer(capacity=10)
+    buf.add(1_000, T0)
+    buf.add(2_000, T1)
+    first = buf.lookup(1_400, 1_000)
+    first[:] = 0.0                                       # the caller's own array
+    again = buf.lookup(1_400, 1_000)
+    assert again is not first
+    assert again.tobytes() == interpolate_unchecked(1_400, 1_000, T0, 2_000, T1).tobytes()
+    buf.add(2_000, T2)                                   # the later bracket again, other values
+    assert buf.lookup(1_400, 1_000).tobytes() == \
+        interpolate_unchecked(1_400, 1_000, T0, 2_000, T2).tobytes()
+    buf.add(1_000, T3)                                   # the earlier one again
+    assert buf.lookup(1_400, 1_000).tobytes() == \
+        interpolate_unchecked(1_400, 1_000, T3, 2_000, T2).tobytes()
+    buf.add(1_200, T1)                                   # a pose between: a new bracket
+    assert buf.lookup(1_400, 1_000).tobytes() == \
+        interpolate_unchecked(1_400, 1_200, T1, 2_000, T2).tobytes()
+    buf.clear()
+    buf.add(1_000, T0)
+    buf.add(2_000, T1)
+    assert buf.lookup(1_400, 1_000).tobytes() == again.tobytes()
+
+
 def test_a_checked_pose_is_kept_as_its_own_copy_and_looks_up_as_a_checked_one():
     """``checked=True`` (a matrix the caller built as a rigid transform) skips the check, not
     the copy: the buffer keeps its own read-only pose, and every lookup is the unchecked
