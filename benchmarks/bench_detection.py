@@ -6,10 +6,10 @@ Speed: per 1280x720 stereo pair, ``StereoLocator.locate`` against the floor meas
 run (``cv2.cvtColor`` BGR->HSV + one ``cv2.inRange`` on both full images), the two timed in
 turns within each of ``--rounds`` rounds; the ratio is the median over the rounds. Targets
 (issue 24): one target at most 1x the floor, four targets at most 1.5x. Latest figures
-(docs/detection.md#figures; idle 2-core machine, 2026-11-29 18:05 UTC, ``--repeats 50
---cv-threads 1``): one target 0.71x the floor (1.77 ms per pair against 2.49 ms), four
-targets 1.68x (4.19 ms; alternating with the code before the coarse thresholds by planes
-and the FFT only where it decides: 1.64-1.69x against 1.81-1.87x).
+(docs/detection.md#figures; idle 2-core machine, 2026-11-30 00:42 UTC, ``--repeats 50
+--rounds 9 --cv-threads 1``): one target 0.70x the floor (1.66 ms per pair against 2.38 ms),
+four targets 1.38x (3.21 ms against 2.33 ms; alternating with the code before an image's
+blobs were measured together: 1.42-1.44x against 1.62-1.74x).
 
 Accuracy: simulator renders (``eye_in_hand.sim``, default world: 35 mm red sphere, distorted
 1280x720 rig, f ~ 900 px, B = 60 mm, sensor noise 2 grey levels) at 0.3-0.6 m range with the

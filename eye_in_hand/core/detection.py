@@ -2,15 +2,18 @@
 
 Pipeline per image (the hot path: the only pass over every pixel is the downscale of step 1;
 everything after it works on a blob's region of interest, its contour or its image moments.
-A 1280x720 pair with one target costs about three quarters of the cvtColor + inRange floor on
-the two full images, with four targets 1.7 times it; docs/detection.md#figures):
+A 1280x720 pair with one target costs about 0.7 of the cvtColor + inRange floor on the two
+full images, with four targets 1.4 times it; docs/detection.md#figures):
 
 1. A coarse pass on a ``downscale``-times smaller copy (nearest-neighbour, no float images):
    colour conversion, threshold (:meth:`ColorRange.threshold_planes`), external contours.
    Blobs big enough to be a target become candidates.
 2. A full-resolution pass inside a region of interest around each candidate: threshold,
    morphological open/close, the largest connected component, its area and circularity gates,
-   and its image moments (sub-pixel centroid).
+   and its image moments (sub-pixel centroid). Then the centre-uncertainty terms below, for
+   all of the image's blobs together (:func:`_measure_blobs`: one pass of NumPy calls over
+   their contours and profiles, the sums blob by blob, so each blob's numbers are its own to
+   the last bit).
 3. With a camera model, the sphere-centre correction: the silhouette of a sphere is the conic of
    its tangent cone. In undistorted normalised coordinates it is an ellipse whose centre lies
    farther from the principal point than the image of the sphere's centre. With ``m`` the
