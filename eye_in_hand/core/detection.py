@@ -906,6 +906,13 @@ def _mean(x: np.ndarray, axis: int | None = None) -> Any:
     return np.add.reduce(x, axis=axis) / (x.size if axis is None else x.shape[axis])
 
 
+def _spans(counts: Sequence[int]) -> tuple[list[int], list[int]]:
+    """Where each of several blocks of ``counts`` items lies in their concatenation: the
+    start and end (exclusive) indices of each, in order."""
+    ends = np.cumsum(counts).tolist()
+    return [0] + ends[:-1], ends
+
+
 def _single_component(mask: np.ndarray
                       ) -> tuple[int, int, int, int, int, np.ndarray] | tuple[()] | None:
     """A 0/255 mask's only 8-connected component as ``(x, y, w, h, pixels, outer)``: the stats
@@ -999,8 +1006,7 @@ def _edge_sigmas(contours: Sequence[np.ndarray]) -> list[float | None]:
         var = float(_mean(res * res))
         out[fits[0][0]] = math.sqrt(var * 2.0 * _correlation_time(res, var) / counts[0])
         return out
-    ends = np.cumsum(counts).tolist()
-    starts = [0] + ends[:-1]
+    starts, ends = _spans(counts)
     res = res - np.repeat(np.array([_mean(res[i:j]) for i, j in zip(starts, ends, strict=True)]),
                           counts)
     sq = res * res
@@ -1209,8 +1215,7 @@ def _polygon_centers_and_minor_axes(points: np.ndarray, counts: Sequence[int], s
     ``points`` (float64, shape (N, 2), C order) holds them one after the other, ``counts``
     their vertex counts. The per-vertex terms of all of them are one pass of NumPy calls; the
     sums are taken polygon by polygon, over the same contiguous values as for one alone."""
-    ends = np.cumsum(counts).tolist()
-    starts = [0] + ends[:-1]
+    starts, ends = _spans(counts)
     c0s = [_mean(points[a:b], axis=0) for a, b in zip(starts, ends, strict=True)]
     if len(counts) == 1:
         p = (points - c0s[0]) * scale  # well-conditioned units (about pixels)
