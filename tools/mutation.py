@@ -1002,6 +1002,11 @@ MUTANTS: tuple[Mutant, ...] = (
       "    if any(environ.get(name) for name in BLAS_THREAD_VARS):\n",
       "    if environ.get(\"OPENBLAS_NUM_THREADS\"):\n",
       "a user's OMP_NUM_THREADS or GOTO_NUM_THREADS is overridden with one BLAS thread"),
+    M("threads-rename-main", "threads.py",
+      "    if not sys.platform.startswith(\"linux\") or \\\n"
+      "            threading.current_thread() is threading.main_thread():\n",
+      "    if not sys.platform.startswith(\"linux\"):\n",
+      "the main thread renamed: the process's name changes under ps and pgrep"),
     M("memory-mmap-only", "memory.py",
       "    return bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD)) and \\\n"
       "        bool(mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD))\n",
@@ -1339,6 +1344,10 @@ MUTANTS: tuple[Mutant, ...] = (
       '                or v <= 0:\n',
       'a robot_pose_noise of 0 refused (documented >= 0)'),
     # nodes/detect_triangulate.py
+    M("detect-worker-unnamed", "nodes/detect_triangulate.py",
+      "        name_os_thread(WORKER_THREAD_NAME)      # its CPU apart from the executor's\n",
+      '',
+      "the worker thread keeps the name python: its CPU cannot be told from the executor's"),
     M("detect-slop-units", "nodes/detect_triangulate.py",
       '        slop_ns = int(round(values["sync.slop_s"] * 1e9))\n',
       '        slop_ns = int(round(values["sync.slop_s"] * 1e6))\n',

@@ -64,15 +64,12 @@ from __future__ import annotations
 
 import os
 
-from eye_in_hand.threads import blas_env_defaults  # nothing here loads numpy
+from eye_in_hand.threads import blas_env_defaults, name_os_thread  # no numpy loaded here
 
-# One BLAS thread in this process unless the user chose a count. OpenBLAS splits long dot
-# products over a thread pool whose idle threads spin; on two cores also busy with other jobs
-# the blob centre's (since computed without BLAS in core.detection) made a stereo pair cost
-# 37 ms of CPU instead of 10 ms and the live latency 240 ms instead of 20 ms
-# (docs/localization.md "Live latency"); one thread keeps any other long product in the node
-# from doing the same. OpenBLAS reads the variable when numpy loads it, so this stands before
-# the first numpy import of the node's process.
+# One BLAS thread unless the user chose a count: OpenBLAS's pool threads spin, and on two busy
+# cores a long product once made a pair cost 37 ms of CPU instead of 10 and the latency 240 ms
+# instead of 20 (docs/localization.md "Live latency"). OpenBLAS reads the variable when numpy
+# loads, so this stands before the first numpy import of the node's process.
 os.environ.update(blas_env_defaults(os.environ))
 
 import math
@@ -103,6 +100,8 @@ from eye_in_hand.ros.queues import DropOldestQueue
 __all__ = ["DetectTriangulateNode", "main"]
 
 NODE_NAME = "detect_triangulate"
+#: the worker thread's name, also for the OS (``top -H``; eye_in_hand.threads.name_os_thread)
+WORKER_THREAD_NAME = "detect_worker"
 
 
 class DetectTriangulateNode(Node):
@@ -157,7 +156,7 @@ class DetectTriangulateNode(Node):
         #: called on the worker thread with each located pair, after its topics are sent
         #: (``hand_eye`` in the same process: :mod:`eye_in_hand.nodes.localize`)
         self.frame_sinks: list[Callable[[LocatedFrame], None]] = []
-        self._worker = threading.Thread(target=self._work, name=f"{NODE_NAME}_worker",
+        self._worker = threading.Thread(target=self._work, name=WORKER_THREAD_NAME,
                                          daemon=True)
         self._worker.start()
         self.get_logger().info(
@@ -205,6 +204,7 @@ class DetectTriangulateNode(Node):
 
     # -- worker thread ---------------------------------------------------------------------
     def _work(self) -> None:
+        name_os_thread(WORKER_THREAD_NAME)      # its CPU apart from the executor's
         while not self._queue.stopped:
             pair = self._queue.take(0.1)
             if pair is None:

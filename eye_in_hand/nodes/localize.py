@@ -31,7 +31,7 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
-from eye_in_hand.threads import blas_env_defaults
+from eye_in_hand.threads import blas_env_defaults, name_os_thread
 
 os.environ.update(blas_env_defaults(os.environ))   # as detect_triangulate (see there)
 
@@ -117,7 +117,13 @@ def _overrides(items: Sequence[str]) -> dict[str, list[tuple[str, str]]]:
     return out
 
 
+#: the OS name of the thread that spins detect_triangulate's executor (hand_eye's spins on the
+#: main thread): each node's CPU shows per thread (``top -H``, eye_in_hand.threads)
+DETECT_EXECUTOR_THREAD = "detect_exec"
+
+
 def _spin(executor: Any) -> None:
+    name_os_thread(DETECT_EXECUTOR_THREAD)
     try:
         executor.spin()
     except ExternalShutdownException:
@@ -146,7 +152,7 @@ def main(args: list[str] | None = None) -> None:
                 refuse_undeclared_overrides(node, ros_args)
                 executor.add_node(node)
             spinner = threading.Thread(target=_spin, args=(executors[0],),
-                                       name="detect_triangulate_executor", daemon=True)
+                                       name=DETECT_EXECUTOR_THREAD, daemon=True)
             spinner.start()
             executors[1].spin()
         except (KeyboardInterrupt, ExternalShutdownException):

@@ -87,6 +87,17 @@ class Feeder:
         return stamp
 
 
+def _thread_names() -> set[str]:
+    """The OS names of this process's threads (Linux /proc)."""
+    names = set()
+    for task in Path("/proc/self/task").iterdir():
+        try:
+            names.add((task / "comm").read_text().strip())
+        except OSError:        # a thread that ended meanwhile
+            pass
+    return names
+
+
 def start(executor, ros_context, namespace, **params):
     overrides = [Parameter(k, value=v) for k, v in params.items()]
     node = DetectTriangulateNode(context=ros_context, namespace=namespace,
@@ -125,6 +136,8 @@ def test_publishes_the_target_point_at_the_image_stamp(executor, ros_context, na
         xyz = np.array([p.point.x, p.point.y, p.point.z])
         assert np.linalg.norm(xyz - X_TRUE) < 1e-3, xyz - X_TRUE
     assert node.diag.counter("detections") >= 2 and node.diag.causes == {}
+    if Path("/proc/self/task").is_dir():   # the worker's CPU shows apart (top -H)
+        assert "detect_worker" in _thread_names()
 
 
 def test_bad_input_is_counted_and_the_node_keeps_running(executor, ros_context, namespace,
