@@ -53,9 +53,10 @@ def one_blas_thread(environ: MutableMapping[str, str] | None = None) -> bool:
 OS_THREAD_NAME_MAX = 15
 
 
-def name_os_thread(name: str) -> bool:
+def name_os_thread(name: str | None = None) -> bool:
     """Name the calling thread for the operating system (Linux ``prctl(PR_SET_NAME)``),
-    truncated to :data:`OS_THREAD_NAME_MAX` bytes. Only where it does not rename the process:
+    truncated to :data:`OS_THREAD_NAME_MAX` bytes; by default its Python name (the ``name``
+    its ``threading.Thread`` was given). Only where it does not rename the process:
     the main thread's name is the process's (``ps``, ``pgrep``, ``killall`` match it), so it is
     left alone. Returns whether the name was set (False elsewhere than Linux, or when libc
     refuses: a name is a label, never needed to run)."""
@@ -65,6 +66,8 @@ def name_os_thread(name: str) -> bool:
     if not sys.platform.startswith("linux") or \
             threading.current_thread() is threading.main_thread():
         return False
+    if name is None:
+        name = threading.current_thread().name
     try:
         import ctypes
 

@@ -1345,7 +1345,8 @@ MUTANTS: tuple[Mutant, ...] = (
       'a robot_pose_noise of 0 refused (documented >= 0)'),
     # nodes/detect_triangulate.py
     M("detect-worker-unnamed", "nodes/detect_triangulate.py",
-      "        name_os_thread(WORKER_THREAD_NAME)      # its CPU apart from the executor's\n",
+      "        name_os_thread()      # its Python name for the OS: its CPU apart from the "
+      "executor's\n",
       '',
       "the worker thread keeps the name python: its CPU cannot be told from the executor's"),
     M("detect-slop-units", "nodes/detect_triangulate.py",

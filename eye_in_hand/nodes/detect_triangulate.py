@@ -204,7 +204,7 @@ class DetectTriangulateNode(Node):
 
     # -- worker thread ---------------------------------------------------------------------
     def _work(self) -> None:
-        name_os_thread(WORKER_THREAD_NAME)      # its CPU apart from the executor's
+        name_os_thread()      # its Python name for the OS: its CPU apart from the executor's
         while not self._queue.stopped:
             pair = self._queue.take(0.1)
             if pair is None:

@@ -123,7 +123,7 @@ DETECT_EXECUTOR_THREAD = "detect_exec"
 
 
 def _spin(executor: Any) -> None:
-    name_os_thread(DETECT_EXECUTOR_THREAD)
+    name_os_thread()      # DETECT_EXECUTOR_THREAD, its Python name, for the OS too
     try:
         executor.spin()
     except ExternalShutdownException:
