@@ -145,8 +145,8 @@ def test_a_deferred_pool_imports_its_init_module_and_waits_for_initialize(tmp_pa
         with pytest.raises(WorkerError, match="no worker process is ready"):
             pool.submit("math:sqrt", 4.0)
         pool.initialize("the rig")
-        _wait_ready(pool)
-        assert pool.ready()
+        # every worker, not the first: ready() is true once one of them has initialised
+        assert pool.wait_ready(30) and all(w.ready.is_set() for w in pool._workers)
         assert pool.submit("math:sqrt", 4.0).result(timeout=30) == 2.0
         assert sorted(p.read_text() for p in tmp_path.glob("init-*")) == ["the rig"] * 2
         with pytest.raises(RuntimeError, match="initialised already"):
