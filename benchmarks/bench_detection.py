@@ -29,11 +29,16 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import os
+import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
+from bench_localization import checkout_commit  # this script's folder is on sys.path
 
 from eye_in_hand.core.detection import ColorRange
 from eye_in_hand.core.locator import StereoLocator
@@ -43,7 +48,7 @@ from eye_in_hand.errors import KinematicsError
 from eye_in_hand.sim import World
 from eye_in_hand.sim.scenarios import HOME_Q, camera_pose_ok, localization_trajectory, look_at
 
-ROOT = __import__("pathlib").Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parent.parent
 
 # The simulator's shaded red sphere (albedo BGR 40, 40, 210, 35 % ambient): the dark side
 # reaches V ~ 70 and S ~ 110, so the range is a little wider than the node's default.
@@ -87,6 +92,44 @@ def floor(left: np.ndarray, right: np.ndarray) -> None:
         cv2.inRange(cv2.cvtColor(img, cv2.COLOR_BGR2HSV), SIM_RED.lower, (179, 255, 255))
 
 
+class ChildLocator:
+    """``StereoLocator.locate`` of a checkout (``code``) in a child process
+    (``benchmarks/baseline_locate.py``, the checkout first on ``PYTHONPATH``), on ``imgs``
+    handed over in a file, the locator built from a parameter file and a calibration
+    directory, as every release of the package reads them. :meth:`timed` runs one round
+    there and returns its wall and CPU seconds per pair (the child's own process)."""
+
+    def __init__(self, code: Path, imgs, params_yaml: str, rig, cv_threads: int,
+                 workdir: Path) -> None:
+        workdir.mkdir(parents=True, exist_ok=True)
+        pairs = workdir / "pairs.npz"
+        np.savez(pairs, left=np.stack([a for a, _ in imgs]), right=np.stack([b for _, b in imgs]))
+        (workdir / "params.yaml").write_text(params_yaml)
+        rig.save(workdir / "calibration")
+        env = {**os.environ, "PYTHONPATH": str(code)}
+        self.proc = subprocess.Popen(
+            [sys.executable, str(Path(__file__).with_name("baseline_locate.py")), str(pairs),
+             str(workdir / "params.yaml"), str(workdir / "calibration"), str(cv_threads)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env, cwd=code)
+        assert self.proc.stdout is not None
+        line = self.proc.stdout.readline().strip()
+        if line != "ready":
+            self.close()
+            raise SystemExit(f"--baseline {code}: its locator did not start (see above)")
+
+    def timed(self, repeats: int, period_s: float) -> tuple[float, float]:
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self.proc.stdin.write(f"{repeats} {period_s!r}\n")
+        self.proc.stdin.flush()
+        wall, cpu = self.proc.stdout.readline().split()
+        return float(wall), float(cpu)
+
+    def close(self) -> None:
+        if self.proc.stdin is not None:
+            self.proc.stdin.close()
+        self.proc.wait(timeout=60)
+
+
 def per_pair(named_fns, imgs, repeats: int, rounds: int = 5, warm_up: bool = False,
              period_s: float = 0.0
              ) -> tuple[dict[str, float], dict[str, float], dict[str, float]]:
@@ -96,18 +139,27 @@ def per_pair(named_fns, imgs, repeats: int, rounds: int = 5, warm_up: bool = Fal
     over the floor's time in the same round. The functions take turns within each round, so a
     change of the shared machine's load between them moves both sides of a ratio alike.
     ``warm_up`` runs two pairs of each first. With OpenCV's default threads the floor's
-    cvtColor and inRange run on both cores: less wall time than CPU time.
+    cvtColor and inRange run on both cores: less wall time than CPU time. A
+    :class:`ChildLocator` in place of a function is timed in its own process (warmed up
+    there), its round of the same pairs in the same turn.
 
     ``period_s`` > 0: at camera rate, one pair every ``period_s`` (the machine idles between
     them, as a live node does); each call is timed alone."""
     if warm_up:
         for _, fn in named_fns:
+            if isinstance(fn, ChildLocator):
+                continue
             for left, right in imgs[:2]:
                 fn(left, right)
     times: dict[str, list[float]] = {name: [] for name, _ in named_fns}
     cpus: dict[str, list[float]] = {name: [] for name, _ in named_fns}
     for _ in range(rounds):
         for name, fn in named_fns:
+            if isinstance(fn, ChildLocator):
+                wall, cpu = fn.timed(repeats, period_s)
+                times[name].append(wall)
+                cpus[name].append(cpu)
+                continue
             if period_s > 0:
                 wall = cpu = 0.0
                 for k in range(repeats):
@@ -146,19 +198,57 @@ def _rate(period_s: float) -> str:
     return f", one pair every {period_s * 1e3:.0f} ms" if period_s > 0 else ", back to back"
 
 
-def speed(frames, rig, repeats: int, rounds: int, period_s: float = 0.0) -> None:
+#: ``config()``'s one target as a parameter file, in the keys every release reads (the
+#: baseline's locator and this checkout's in a child process are built from it)
+ONE_TARGET_PARAMS = f"""\
+/**/detect_triangulate:
+  ros__parameters:
+    method: dlt
+    max_residual_px: 5.0
+    target_names: [red]
+    targets:
+      red:
+        lower: {[int(v) for v in SIM_RED.lower]}
+        upper: {[int(v) for v in SIM_RED.upper]}
+        radius_m: 0.035
+"""
+
+
+def speed(frames, rig, repeats: int, rounds: int, period_s: float = 0.0,
+          baseline: Path | None = None) -> None:
     loc = StereoLocator(rig, config())
     loc_raw = StereoLocator(rig, config(correction=False))
     loc_opt = StereoLocator(rig, config("optimal"))
     imgs = [(f.left, f.right) for f in frames]
-    timings, wall, cpu = per_pair((("floor (cvtColor + inRange, both images)", floor),
-                                   ("locate dlt + sphere correction", loc.locate),
-                                   ("locate dlt, no correction", loc_raw.locate),
-                                   ("locate optimal + sphere correction", loc_opt.locate)),
-                                  imgs, repeats, rounds, warm_up=True, period_s=period_s)
+    named: list[tuple[str, object]] = [("floor (cvtColor + inRange, both images)", floor),
+                                       ("locate dlt + sphere correction", loc.locate),
+                                       ("locate dlt, no correction", loc_raw.locate),
+                                       ("locate optimal + sphere correction", loc_opt.locate)]
+    children: list[ChildLocator] = []
+    with tempfile.TemporaryDirectory(prefix="bench_detection_") as tmp:
+        try:
+            if baseline is not None:
+                # the same pairs, parameter file and calibration files for both children
+                for name, code in (("this checkout", ROOT), (baseline.name, baseline)):
+                    children.append(ChildLocator(code, imgs, ONE_TARGET_PARAMS, rig,
+                                                 cv2.getNumThreads(), Path(tmp) / name))
+                    named.append((f"locate dlt + sphere, {name} (child process)",
+                                  children[-1]))
+            timings, wall, cpu = per_pair(named, imgs, repeats, rounds, warm_up=True,
+                                          period_s=period_s)
+        finally:
+            for child in children:
+                child.close()
     print(f"speed, 1280x720 pairs, best of {rounds} x {repeats} pairs (x floor: median of the "
           f"rounds), cv2 threads {cv2.getNumThreads()}{_rate(period_s)}:")
-    print_speed(timings, wall, cpu)
+    print_speed(timings, wall, cpu, width=56 if baseline is not None else 42)
+    if baseline is not None:
+        this, other = (f"locate dlt + sphere, {n} (child process)"
+                       for n in ("this checkout", baseline.name))
+        print(f"  {baseline} ({checkout_commit(baseline)}) against this checkout, both in a "
+              f"child process: {timings[other] * 1e3:.3f} against {timings[this] * 1e3:.3f} ms "
+              f"per pair, {cpu[other]:.2f}x against {cpu[this]:.2f}x the floor's CPU")
+
 
 
 def accuracy(world: World, frames) -> None:
@@ -306,6 +396,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="time the speed at camera rate: one pair every PERIOD ms, the "
                              "machine idle between them as a live node's is (default 0: back "
                              "to back)")
+    parser.add_argument("--baseline", metavar="OTHER_CHECKOUT", type=Path,
+                        help="also time OTHER_CHECKOUT's locate (one target, dlt + sphere "
+                             "correction) in a child process, and this checkout's in another, "
+                             "in the same rounds (e.g. the first release: git worktree add "
+                             "/tmp/first 88607dc)")
     parser.add_argument("--cv-threads", type=int, default=-1,
                         help="cv2.setNumThreads before timing (default: OpenCV's own, "
                              "both cores here; 1: the floor on one core, as a detector "
@@ -322,7 +417,8 @@ def main(argv: list[str] | None = None) -> int:
     frames = [world.render(q, seed=args.seed * 1000 + i, noise_sigma=2.0, supersample=3)
               for i, q in enumerate(qs)]
     print(f"rendered {len(frames)} stereo pairs in {time.perf_counter() - t0:.1f} s")
-    speed(frames, world.rig.rectified(), args.repeats, args.rounds, args.period_ms / 1e3)
+    speed(frames, world.rig.rectified(), args.repeats, args.rounds, args.period_ms / 1e3,
+          None if args.baseline is None else args.baseline.resolve())
     accuracy(world, frames)
     if args.multi_frames > 0:
         multi(args.multi_frames, args.repeats, args.seed, args.rounds, args.period_ms / 1e3)

@@ -487,8 +487,10 @@ ALL_OUTPUTS = (("PoseWithCovarianceStamped", "/target/pose_cov"),
                ("TFMessage", "/tf"))
 
 
-def live(paths: dict[str, Path], composed: bool = False, all_outputs: bool = True
-         ) -> tuple[dict[int, np.ndarray], dict[str, float]]:
+def live(paths: dict[str, Path], composed: bool = False, all_outputs: bool = True,
+         nodes_from: Path | None = None) -> tuple[dict[int, np.ndarray], dict[str, float]]:
+    """One live run (module docs); ``nodes_from``: the nodes of that checkout (its
+    ``eye-in-hand launch``, it first on ``PYTHONPATH``), fed and measured by this script."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import PoseStamped
@@ -513,6 +515,9 @@ def live(paths: dict[str, Path], composed: bool = False, all_outputs: bool = Tru
     # of the PYTHONPATH one's
     import eye_in_hand
     code_root = Path(eye_in_hand.__file__).resolve().parent.parent
+    if nodes_from is not None:
+        code_root = nodes_from
+        env["PYTHONPATH"] = str(nodes_from)
     launch = subprocess.Popen([sys.executable, "-m", "eye_in_hand.cli", "launch", "--params",
                                str(params), "--skip", "stereo_capture",
                                *(["--composed"] if composed else [])], env=env, text=True,
@@ -539,7 +544,8 @@ def live(paths: dict[str, Path], composed: bool = False, all_outputs: bool = Tru
     ex = SingleThreadedExecutor()
     ex.add_node(node)
     stop_spinning = spin_in_background(ex)
-    rep = subprocess.Popen([sys.executable, __file__, "--replay", str(paths["loc"])], env=env,
+    rep_env = {**env, "PYTHONPATH": os.environ.get("PYTHONPATH", "")}   # this script's code
+    rep = subprocess.Popen([sys.executable, __file__, "--replay", str(paths["loc"])], env=rep_env,
                            text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     offset = int(rep.stdout.readline().strip() or 0)   # type: ignore[union-attr]
     cpu0 = node_cpu_s(launch.pid)                    # the nodes are up: start-up excluded
@@ -777,6 +783,15 @@ def print_live(fig: dict[str, float], live_pts: dict[int, np.ndarray],
               f"({dds:.2f} ms, mostly the images) serve both nodes", flush=True)
 
 
+def checkout_commit(code: Path) -> str:
+    """The checkout's commit (short), or ``unknown commit``."""
+    try:
+        return subprocess.run(["git", "-C", str(code), "rev-parse", "--short", "HEAD"],
+                              capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown commit"
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -801,6 +816,10 @@ def main() -> int:
                         help="--live-only: detect_triangulate and hand_eye as separate "
                              "processes (eye-in-hand launch), in one (launch --composed), or "
                              "both alternating, each --live-runs times (default separate)")
+    parser.add_argument("--nodes-from", metavar="OTHER_CHECKOUT", type=Path,
+                        help="--live-only: also, after each round, a separate-process run of "
+                             "OTHER_CHECKOUT's nodes (its eye-in-hand launch) on the same bag, "
+                             "e.g. the first release: git worktree add /tmp/first 88607dc")
     parser.add_argument("--outputs", choices=("all", "pose"), default="all",
                         help="live: the listener subscribes to every hand_eye output (all, "
                              "default) or to target/pose alone (pose; the figures before "
@@ -832,6 +851,13 @@ def main() -> int:
                 print_live(fig, live_pts, truth)
                 if before is not None:
                     print_floor(fig, [before, detection_floor(paths)])
+            if args.nodes_from is not None:
+                other = args.nodes_from.resolve()
+                print(f"== live, separate processes, the nodes of {other} "
+                      f"({checkout_commit(other)})")
+                live_pts, fig = live(paths, all_outputs=args.outputs == "all",
+                                     nodes_from=other)
+                print_live(fig, live_pts, truth)
         return 0
     from eye_in_hand.core.camera import StereoRig
     from eye_in_hand.core.transforms import transform_distance
