@@ -11,6 +11,12 @@ turns within each of ``--rounds`` rounds; the ratio is the median over the round
 four targets 1.38x (3.21 ms against 2.33 ms; alternating with the code before an image's
 blobs were measured together: 1.42-1.44x against 1.62-1.74x).
 
+``--baseline OTHER_CHECKOUT``: also that checkout's ``locate`` (one target, dlt + sphere
+correction) and this checkout's, each in a child process (``baseline_locate.py``) built from
+the same parameter file and calibration files and fed the same pairs, timed in the same rounds
+against the same floor: the first release (``git worktree add /tmp/first 88607dc``) is the
+named baseline of the speed figure.
+
 Accuracy: simulator renders (``eye_in_hand.sim``, default world: 35 mm red sphere, distorted
 1280x720 rig, f ~ 900 px, B = 60 mm, sensor noise 2 grey levels) at 0.3-0.6 m range with the
 sphere anywhere in the image. RMS 3-D error against ground truth for each method, with and

@@ -34,7 +34,7 @@ the CPU-seconds per second of bag of each and of zstd decompression alone: what 
 allow at most.)
        .venv/bin/python benchmarks/bench_localization.py --consistency-only [--nees-pairs N]
        .venv/bin/python benchmarks/bench_localization.py --live-only [--live-runs N]
-           [--live-mode separate|composed|both]
+           [--live-mode separate|composed|both] [--nodes-from OTHER_CHECKOUT]
 (--live-only: only the live part over DDS, N runs one after the other (default 1), each with
 its latency, frames and base-frame error and each node process's CPU per pair: about 40 s a
 run; with separate processes, detect_triangulate's CPU per pair against its floor measured
@@ -43,7 +43,11 @@ both images and the locator on the bag's pairs at 30 Hz, about 11 s each; the ra
 mean, target <= 1.3x); --live-mode composed runs detect_triangulate + hand_eye in one
 process (launch --composed), both alternates the two layouts in each round. The nodes come from the
 ``eye_in_hand`` package Python imports, so ``PYTHONPATH=<other checkout>`` measures that
-checkout's nodes with this script and data.)
+checkout's nodes with this script and data, as long as it has this script's imports;
+--nodes-from OTHER_CHECKOUT runs, after each round, a separate-process run of that
+checkout's nodes (its ``eye-in-hand launch``) fed and measured by this checkout's script: the
+first release, ``git worktree add /tmp/first 88607dc``, is the named baseline of the live
+figures.)
 Data is cached in build/bench-data/ (regenerate with --fresh).
 """
 from __future__ import annotations

@@ -34,8 +34,9 @@ camera_info.
 Usage: .venv/bin/python benchmarks/bench_scaling.py [--quick] [--storage zstd|none]
            [--curves length,targets,size] [--repeat N] [--fresh]
            [--compare OTHER_CHECKOUT] [--prepare]
-(--compare: OTHER_CHECKOUT's process on the same bags, runs alternating; --prepare: only the
-bags.
+(--compare: OTHER_CHECKOUT's process on the same bags, runs alternating (any release's: the
+first release, ``git worktree add /tmp/first 88607dc``, is the named baseline); --prepare:
+only the bags.
 --quick: 5 s / 10 s / 20 s bags, 320x240 / 640x480 / 960x540: a few minutes.)
        .venv/bin/python benchmarks/bench_scaling.py --startup [longest] [--compare OTHER]
            [--repeat N]
@@ -67,6 +68,12 @@ Targets, 2026-11-30 00:47 UTC, ``--curves length,targets --compare <the code bef
 2``: 4 and 8 targets 1.98x and 2.03x the floor (the code before 2.16x and 2.48x), CPU 0.40 s
 per target (R^2 0.9986); one target 1.86x / 1.63x / 1.64x for 20 s / 2 min / 10 min (the code
 before 1.82x / 1.60x / 1.58x: within the runs' spread).
+
+The first release (88607dc), 2026-11-30 04:20 UTC, ``--curves targets --compare /tmp/first
+--repeat 2``, in a slower phase of the machine: zstd bags 1 / 4 / 8 targets 3.05 / 5.44 /
+7.97 CPU-s against the first release's 3.77 / 6.56 / 10.87 (2.00x / 2.41x / 2.36x the floor
+against 2.48x / 2.91x / 3.21x); uncompressed (``--storage none``) 2.63 / 4.72 / 7.68 against
+2.88 / 4.47 / 7.49 (2.35x / 2.63x / 2.84x against 2.57x / 2.49x / 2.77x).
 """
 from __future__ import annotations
 
