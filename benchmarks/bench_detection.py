@@ -412,6 +412,9 @@ def main(argv: list[str] | None = None) -> int:
                              "both cores here; 1: the floor on one core, as a detector "
                              "thread beside other work has it)")
     args = parser.parse_args(argv)
+    if args.baseline is not None and not (args.baseline / "eye_in_hand").is_dir():
+        parser.error(f"--baseline {args.baseline}: not a checkout of this package (no "
+                     "eye_in_hand/ in it); make one with git worktree add DIR COMMIT")
     if args.cv_threads >= 0:
         cv2.setNumThreads(args.cv_threads)
     if args.multi_only:

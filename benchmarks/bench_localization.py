@@ -831,6 +831,11 @@ def main() -> int:
     parser.add_argument("--trials", type=int, default=3,
                         help="process_bag runs per bag, the best one counts (default 3)")
     args = parser.parse_args()
+    if args.nodes_from is not None and not args.live_only:
+        parser.error("--nodes-from: only with --live-only")
+    if args.nodes_from is not None and not (args.nodes_from / "eye_in_hand").is_dir():
+        parser.error(f"--nodes-from {args.nodes_from}: not a checkout of this package (no "
+                     "eye_in_hand/ in it); make one with git worktree add DIR COMMIT")
     if args.replay:
         replay(args.replay, lead_s=0.5)
         return 0
