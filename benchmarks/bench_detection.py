@@ -98,24 +98,29 @@ def floor(left: np.ndarray, right: np.ndarray) -> None:
         cv2.inRange(cv2.cvtColor(img, cv2.COLOR_BGR2HSV), SIM_RED.lower, (179, 255, 255))
 
 
+def child_inputs(workdir: Path, imgs, params_yaml: str, rig) -> list[str]:
+    """The inputs of :class:`ChildLocator` written once to ``workdir`` (the pairs, the
+    parameter file, the calibration directory): their paths, as its arguments."""
+    pairs = workdir / "pairs.npz"
+    np.savez(pairs, left=np.stack([a for a, _ in imgs]), right=np.stack([b for _, b in imgs]))
+    (workdir / "params.yaml").write_text(params_yaml)
+    rig.save(workdir / "calibration")
+    return [str(pairs), str(workdir / "params.yaml"), str(workdir / "calibration")]
+
+
 class ChildLocator:
     """``StereoLocator.locate`` of a checkout (``code``) in a child process
-    (``benchmarks/baseline_locate.py``, the checkout first on ``PYTHONPATH``), on ``imgs``
+    (``benchmarks/baseline_locate.py``, the checkout first on ``PYTHONPATH``), on the pairs
     handed over in a file, the locator built from a parameter file and a calibration
-    directory, as every release of the package reads them. :meth:`timed` runs one round
-    there and returns its wall and CPU seconds per pair (the child's own process)."""
+    directory, as every release of the package reads them (``inputs``: from
+    :func:`child_inputs`). :meth:`timed` runs one round there and returns its wall and CPU
+    seconds per pair (the child's own process)."""
 
-    def __init__(self, code: Path, imgs, params_yaml: str, rig, cv_threads: int,
-                 workdir: Path) -> None:
-        workdir.mkdir(parents=True, exist_ok=True)
-        pairs = workdir / "pairs.npz"
-        np.savez(pairs, left=np.stack([a for a, _ in imgs]), right=np.stack([b for _, b in imgs]))
-        (workdir / "params.yaml").write_text(params_yaml)
-        rig.save(workdir / "calibration")
+    def __init__(self, code: Path, inputs: list[str], cv_threads: int) -> None:
         env = {**os.environ, "PYTHONPATH": str(code)}
         self.proc = subprocess.Popen(
-            [sys.executable, str(Path(__file__).with_name("baseline_locate.py")), str(pairs),
-             str(workdir / "params.yaml"), str(workdir / "calibration"), str(cv_threads)],
+            [sys.executable, str(Path(__file__).with_name("baseline_locate.py")), *inputs,
+             str(cv_threads)],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env, cwd=code)
         assert self.proc.stdout is not None
         line = self.proc.stdout.readline().strip()
@@ -235,9 +240,9 @@ def speed(frames, rig, repeats: int, rounds: int, period_s: float = 0.0,
         try:
             if baseline is not None:
                 # the same pairs, parameter file and calibration files for both children
+                inputs = child_inputs(Path(tmp), imgs, ONE_TARGET_PARAMS, rig)
                 for name, code in (("this checkout", ROOT), (baseline.name, baseline)):
-                    children.append(ChildLocator(code, imgs, ONE_TARGET_PARAMS, rig,
-                                                 cv2.getNumThreads(), Path(tmp) / name))
+                    children.append(ChildLocator(code, inputs, cv2.getNumThreads()))
                     named.append((f"locate dlt + sphere, {name} (child process)",
                                   children[-1]))
             timings, wall, cpu = per_pair(named, imgs, repeats, rounds, warm_up=True,

@@ -519,12 +519,13 @@ def live(paths: dict[str, Path], composed: bool = False, all_outputs: bool = Tru
     # of the PYTHONPATH one's
     import eye_in_hand
     code_root = Path(eye_in_hand.__file__).resolve().parent.parent
-    if nodes_from is not None:
+    launch_env = env
+    if nodes_from is not None:      # that checkout's nodes; the replay stays this script's
         code_root = nodes_from
-        env["PYTHONPATH"] = str(nodes_from)
+        launch_env = {**env, "PYTHONPATH": str(nodes_from)}
     launch = subprocess.Popen([sys.executable, "-m", "eye_in_hand.cli", "launch", "--params",
                                str(params), "--skip", "stereo_capture",
-                               *(["--composed"] if composed else [])], env=env, text=True,
+                               *(["--composed"] if composed else [])], env=launch_env, text=True,
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                               start_new_session=True, cwd=code_root)
     rclpy.init()
@@ -548,8 +549,7 @@ def live(paths: dict[str, Path], composed: bool = False, all_outputs: bool = Tru
     ex = SingleThreadedExecutor()
     ex.add_node(node)
     stop_spinning = spin_in_background(ex)
-    rep_env = {**env, "PYTHONPATH": os.environ.get("PYTHONPATH", "")}   # this script's code
-    rep = subprocess.Popen([sys.executable, __file__, "--replay", str(paths["loc"])], env=rep_env,
+    rep = subprocess.Popen([sys.executable, __file__, "--replay", str(paths["loc"])], env=env,
                            text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     offset = int(rep.stdout.readline().strip() or 0)   # type: ignore[union-attr]
     cpu0 = node_cpu_s(launch.pid)                    # the nodes are up: start-up excluded
